@@ -1,0 +1,226 @@
+"""The canonical-joint view of a clip that every descriptor reads.
+
+``build_body`` maps the source skeleton to :data:`~app.motion.skeleton_map.CANONICAL_JOINTS`,
+drops rest-pose lead-in frames that file converters add, runs forward kinematics for the
+canonical joints only, and works out from the skeleton itself:
+
+* ``height`` — body height in file units: the leg's bone path (hip -> knee -> ankle, the two
+  sides averaged) plus the trunk's (pelvis -> ... -> head). It is a property of the skeleton
+  and so the same in every frame, and independent of units once positions are divided by it.
+* ``pelvis_frames`` — per frame an orthonormal body frame fixed to the pelvis, columns
+  (lateral = subject's left, up, forward) in world coordinates. It is the pelvis joint's world
+  rotation times a constant basis found in pelvis coordinates: lateral from the right hip to
+  the left hip, up along the clip's mean pelvis->neck direction (orthogonalised), forward =
+  lateral x up. Because the basis is found in the pelvis's own coordinates, neither the
+  file's up axis, its units, the facing direction nor the rig's rest-pose conventions matter.
+* ``world_up`` — the world's vertical axis, needed to split root speed into horizontal and
+  vertical parts: the clip's mean body-up direction, snapped to the nearest coordinate axis
+  when it is within 30 degrees of one (mocap files are authored with an axis up).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from app.errors import ParseError
+from app.motion.kinematics import bone_lengths, forward_kinematics
+from app.motion.model import Motion
+from app.motion.skeleton_map import CANONICAL_INDEX, CANONICAL_JOINTS, map_skeleton
+
+# A clip starts from the rest pose when its first frame's local rotations (non-root joints)
+# are on average within this angle of the identity.
+_REST_MEAN_ANGLE_DEG = 5.0
+# A converter's jump or blend from the rest pose into the motion lasts at most this long...
+_MAX_BLEND_SECONDS = 0.1
+# ...and changes the pose this many times faster than the clip's median frame-to-frame change.
+_BLEND_SPEED_FACTOR = 2.0
+
+
+@dataclass(frozen=True, eq=False)
+class Body:
+    """Canonical joints of one clip after lead-in frames are dropped.
+
+    Attributes
+    ----------
+    positions:
+        ``(F, C, 3)`` world positions of the canonical joints, file units.
+    rotations:
+        ``(F, C, 3, 3)`` world rotations of the canonical joints' frames (for derived end
+        points such as ``hand_tip`` the frame of the joint they hang from).
+    frame_time:
+        Seconds between frames.
+    height:
+        Body height in file units (> 0).
+    pelvis_frames:
+        ``(F, 3, 3)`` body frame per frame; columns lateral (left), up, forward.
+    world_up:
+        ``(3,)`` unit vertical axis of the world.
+    skeleton_family:
+        Naming convention of the source skeleton.
+    lead_in_frames:
+        Frames dropped from the start of the clip.
+    """
+
+    positions: np.ndarray
+    rotations: np.ndarray
+    frame_time: float
+    height: float
+    pelvis_frames: np.ndarray
+    world_up: np.ndarray
+    skeleton_family: str
+    lead_in_frames: int
+
+    @property
+    def frame_count(self) -> int:
+        return int(self.positions.shape[0])
+
+    def joint(self, name: str) -> np.ndarray:
+        """``(F, 3)`` world positions of canonical joint ``name``."""
+        return self.positions[:, CANONICAL_INDEX[name]]
+
+    def local_positions(self) -> np.ndarray:
+        """``(F, C, 3)`` joint positions in the pelvis frame divided by body height.
+
+        Axis 0 points to the subject's left, 1 up, 2 forward; the pelvis is the origin.
+        """
+        relative = self.positions - self.positions[:, CANONICAL_INDEX["pelvis"], None, :]
+        return np.einsum("fca,fab->fcb", relative, self.pelvis_frames) / self.height
+
+
+def build_body(motion: Motion) -> Body:
+    """Canonical-joint view of ``motion`` (see the module docstring).
+
+    Raises
+    ------
+    SkeletonMappingError
+        If the skeleton lacks required joints.
+    ParseError
+        If the skeleton is degenerate (zero height, coincident hips) or no frame remains.
+    """
+    mapping = map_skeleton(motion.skeleton)
+    lead_in = count_lead_in_frames(motion)
+    if lead_in:
+        motion = motion.slice_frames(lead_in)
+    rotations, positions = forward_kinematics(motion, joints=mapping.joints)
+    canon_rot = rotations[:, mapping.joints]
+    canon_pos = positions[:, mapping.joints]
+    # Derived end points (end sites) have no frame of their own: use their parent's.
+    for c, j in enumerate(mapping.joints):
+        if motion.skeleton.end_site[j]:
+            canon_rot[:, c] = rotations[:, motion.skeleton.parents[j]]
+    if not np.all(np.isfinite(canon_pos)) or not np.all(np.isfinite(canon_rot)):
+        raise ParseError("forward kinematics produced non-finite joint positions")
+
+    height = body_height(motion, mapping.joints)
+    if not height > 0:
+        raise ParseError(
+            "the skeleton has zero height (all bones between ankle and head are empty)"
+        )
+    frames = _pelvis_frames(canon_pos, canon_rot)
+    return Body(
+        positions=canon_pos,
+        rotations=canon_rot,
+        frame_time=motion.frame_time,
+        height=height,
+        pelvis_frames=frames,
+        world_up=_world_up(frames),
+        skeleton_family=mapping.family,
+        lead_in_frames=lead_in,
+    )
+
+
+def body_height(motion: Motion, canonical: np.ndarray) -> float:
+    """Leg plus trunk bone-path length in file units (see module docstring)."""
+    lengths = bone_lengths(motion)
+    parents = motion.skeleton.parents
+
+    def path_length(top: str, bottom: str) -> float:
+        j, stop, total = (
+            int(canonical[CANONICAL_INDEX[bottom]]),
+            int(canonical[CANONICAL_INDEX[top]]),
+            0.0,
+        )
+        while j != stop and j >= 0:
+            total += float(lengths[j])
+            j = int(parents[j])
+        return total
+
+    legs = [path_length(f"{s}_hip", f"{s}_ankle") for s in ("l", "r")]
+    return float(np.mean(legs)) + path_length("pelvis", "head")
+
+
+def count_lead_in_frames(motion: Motion) -> int:
+    """Number of converter-added frames at the start of ``motion``.
+
+    Converters of CMU data prepend the rest pose: MotionBuilder one T-pose frame, then a jump
+    into the motion; DAZ a T-pose that blends into the motion over about four frames. Both
+    show as a first frame near the rest pose (mean local rotation of the non-root joints
+    within 5 degrees of the identity) followed by frame-to-frame pose changes far above the
+    clip's median. Such leading frames are dropped while the change stays above twice the
+    median, for at most 0.1 s and never more than half of the clip.
+    """
+    frames = motion.frame_count
+    if frames < 4:
+        return 0
+    local = motion.local_rotations[:, 1:]
+    trace0 = np.trace(local[0], axis1=-2, axis2=-1)
+    mean_angle0 = np.degrees(np.arccos(np.clip((trace0 - 1.0) / 2.0, -1.0, 1.0))).mean()
+    if mean_angle0 > _REST_MEAN_ANGLE_DEG:
+        return 0
+    change = _pose_change(local)
+    threshold = _BLEND_SPEED_FACTOR * max(float(np.median(change)), 1e-6)
+    limit = min(frames // 2, max(1, round(_MAX_BLEND_SECONDS / motion.frame_time)))
+    lead_in = 0
+    while lead_in < limit and change[lead_in] > threshold:
+        lead_in += 1
+    return lead_in
+
+
+def _pose_change(local: np.ndarray) -> np.ndarray:
+    """``(F-1,)`` largest rotation angle between consecutive frames over joints, radians."""
+    relative_trace = np.einsum("fjab,fjab->fj", local[:-1], local[1:])
+    cos_angle = np.clip((relative_trace - 1.0) / 2.0, -1.0, 1.0)
+    return np.arccos(cos_angle.min(axis=1))
+
+
+def _pelvis_frames(positions: np.ndarray, rotations: np.ndarray) -> np.ndarray:
+    """``(F, 3, 3)`` pelvis-fixed body frames; columns lateral (left), up, forward."""
+    pelvis = CANONICAL_INDEX["pelvis"]
+    pelvis_rot = rotations[:, pelvis]
+    lateral_world = positions[:, CANONICAL_INDEX["l_hip"]] - positions[:, CANONICAL_INDEX["r_hip"]]
+    up_world = positions[:, CANONICAL_INDEX["neck"]] - positions[:, pelvis]
+    # Express both in the pelvis joint's own coordinates and average over the clip.
+    lateral = np.einsum("fba,fb->a", pelvis_rot, lateral_world)
+    up = np.einsum("fba,fb->a", pelvis_rot, up_world)
+    lateral_norm = np.linalg.norm(lateral)
+    if lateral_norm < 1e-9:
+        raise ParseError("the left and right hips coincide; cannot tell left from right")
+    x = lateral / lateral_norm
+    up = up - np.dot(up, x) * x
+    up_norm = np.linalg.norm(up)
+    if up_norm < 1e-9:
+        raise ParseError("the neck is level with the hips; cannot find the body's up direction")
+    y = up / up_norm
+    z = np.cross(x, y)
+    basis = np.stack([x, y, z], axis=1)
+    return pelvis_rot @ basis
+
+
+def _world_up(pelvis_frames: np.ndarray) -> np.ndarray:
+    """``(3,)`` vertical axis of the world (see module docstring)."""
+    mean_up = pelvis_frames[:, :, 1].mean(axis=0)
+    norm = np.linalg.norm(mean_up)
+    if norm < 1e-9:
+        return np.array([0.0, 1.0, 0.0])
+    mean_up = mean_up / norm
+    axis = int(np.argmax(np.abs(mean_up)))
+    if abs(mean_up[axis]) >= np.cos(np.radians(30.0)):
+        snapped = np.zeros(3)
+        snapped[axis] = np.sign(mean_up[axis])
+        return snapped
+    return mean_up
+
+
+__all__ = ["CANONICAL_JOINTS", "Body", "build_body", "count_lead_in_frames"]

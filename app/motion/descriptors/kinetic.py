@@ -1,0 +1,173 @@
+"""``kinetic``: FMDistance of Onuma, Faloutsos and Hodgins (2008), made skeleton-independent.
+
+The paper's feature is ``e_j = log(mean_t E_tj + 1)`` with ``E_tj = m_j v_tj²`` the approximate
+kinetic energy of each joint DOF (constant weights ``m_j = 1``, the paper's best "61-LOG-cons"
+variant) after a short linear low-pass filter, plus the root's horizontal and vertical
+motion. To give every skeleton the same dimension and make the numbers independent of facing
+direction, units and Euler conventions:
+
+* the joints are the 14 rotating canonical joints (pelvis, chest, neck, head and left/right
+  shoulder, elbow, wrist, hip, knee, ankle);
+* each joint's angular velocity is taken from its world rotations, never from Euler channels:
+  ``ω_c = rotvec(G_c(t+1) G_c(t)ᵀ) / dt`` minus the same for its canonical parent (the pelvis
+  uses its own), in rad/s; its three DOFs are its components along the pelvis-fixed body axes
+  (lateral, up, forward), so a rig's rest pose and local axes do not matter;
+* the short linear low-pass filter is defined in *time*: velocities are differences over a
+  fixed span of 0.1 s (rounded to whole frames, divided by the span actually used), which is
+  the per-frame velocity averaged by a 100 ms box filter. At 120 fps and at 30 fps this samples
+  the same instants, so 30 fps and 120 fps captures of one motion agree (subsampling a
+  120 fps capture otherwise folds its high-frequency jitter into the 30 fps estimate);
+* the root terms are the pelvis's horizontal and vertical speed in body heights per second,
+  as ``log(mean v² + 1)``.
+
+Vector: 14 joints x 3 DOFs (``log(mean ω² + 1)``, ω in rad/s) then the two root terms: 44 numbers.
+Compared with the Euclidean distance. :func:`three_man` gives the paper's 3-MAN features
+(total energy, upper/lower ratio, limbs/trunk ratio) for maps of a library.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from app.motion.body import Body
+from app.motion.descriptors import Descriptor
+from app.motion.skeleton_map import CANONICAL_INDEX
+
+VELOCITY_SPAN_SECONDS = 0.1
+
+KINETIC_JOINTS: tuple[str, ...] = (
+    "pelvis",
+    "chest",
+    "neck",
+    "head",
+    *(
+        f"{s}_{p}"
+        for s in ("l", "r")
+        for p in ("shoulder", "elbow", "wrist", "hip", "knee", "ankle")
+    ),
+)
+# Whose rotation each joint's is measured against (None: the world).
+KINETIC_PARENT: dict[str, str | None] = {
+    "pelvis": None,
+    "chest": "pelvis",
+    "neck": "chest",
+    "head": "neck",
+    **{f"{s}_shoulder": "chest" for s in ("l", "r")},
+    **{f"{s}_elbow": f"{s}_shoulder" for s in ("l", "r")},
+    **{f"{s}_wrist": f"{s}_elbow" for s in ("l", "r")},
+    **{f"{s}_hip": "pelvis" for s in ("l", "r")},
+    **{f"{s}_knee": f"{s}_hip" for s in ("l", "r")},
+    **{f"{s}_ankle": f"{s}_knee" for s in ("l", "r")},
+}
+_JOINT_INDEX = np.array([CANONICAL_INDEX[name] for name in KINETIC_JOINTS])
+_PARENT_POSITION = np.array(
+    [
+        -1 if KINETIC_PARENT[n] is None else KINETIC_JOINTS.index(KINETIC_PARENT[n])
+        for n in KINETIC_JOINTS
+    ]
+)
+UPPER = (
+    "chest",
+    "neck",
+    "head",
+    *(f"{s}_{p}" for s in "lr" for p in ("shoulder", "elbow", "wrist")),
+)
+LOWER = tuple(f"{s}_{p}" for s in "lr" for p in ("hip", "knee", "ankle"))
+LIMBS = tuple(
+    f"{s}_{p}" for s in "lr" for p in ("shoulder", "elbow", "wrist", "hip", "knee", "ankle")
+)
+TRUNK = ("pelvis", "chest", "neck", "head")
+
+
+def velocity_span(frame_time: float, frame_count: int) -> int:
+    """Frames spanned by one velocity difference: 0.1 s, at least 1, at most the clip."""
+    return int(
+        min(
+            max(1, int(np.floor(VELOCITY_SPAN_SECONDS / frame_time + 0.5))), max(1, frame_count - 1)
+        )
+    )
+
+
+def body_angular_velocity(body: Body) -> np.ndarray:
+    """Filtered joint angular velocities in the body frame.
+
+    Returns
+    -------
+    ``(F-h, 14, 3)`` rad/s (``h`` = :func:`velocity_span`), components along (lateral, up,
+    forward) of the pelvis frame, each joint relative to its canonical parent (the pelvis
+    relative to the world).
+    """
+    rot = body.rotations[:, _JOINT_INDEX]
+    span = velocity_span(body.frame_time, rot.shape[0])
+    step = rot[span:] @ np.swapaxes(rot[:-span], -1, -2)
+    count = step.shape[0]
+    world = Rotation.from_matrix(step.reshape(-1, 3, 3)).as_rotvec().reshape(count, -1, 3)
+    world /= span * body.frame_time
+    relative = world.copy()
+    has_parent = _PARENT_POSITION >= 0
+    relative[:, has_parent] -= world[:, _PARENT_POSITION[has_parent]]
+    return np.einsum("fjb,fba->fja", relative, body.pelvis_frames[:-span])
+
+
+def root_velocity(body: Body) -> tuple[np.ndarray, np.ndarray]:
+    """Pelvis velocity split into horizontal speed and vertical velocity, body heights/s.
+
+    Returns two ``(F-h,)`` arrays, differences over :func:`velocity_span` frames.
+    """
+    pelvis = body.joint("pelvis") / body.height
+    span = velocity_span(body.frame_time, pelvis.shape[0])
+    velocity = (pelvis[span:] - pelvis[:-span]) / (span * body.frame_time)
+    vertical = velocity @ body.world_up
+    horizontal = np.linalg.norm(velocity - vertical[:, None] * body.world_up, axis=1)
+    return horizontal, vertical
+
+
+def mean_energies(body: Body) -> tuple[np.ndarray, np.ndarray]:
+    """Mean approximate kinetic energies (unit weights).
+
+    Returns
+    -------
+    joints:
+        ``(14, 3)`` mean ω² per joint DOF, rad²/s².
+    root:
+        ``(2,)`` mean horizontal and vertical pelvis speed², (body heights/s)².
+    """
+    if body.frame_count < 2:
+        return np.zeros((len(KINETIC_JOINTS), 3)), np.zeros(2)
+    omega = body_angular_velocity(body)
+    horizontal, vertical = root_velocity(body)
+    return (omega**2).mean(axis=0), np.array([(horizontal**2).mean(), (vertical**2).mean()])
+
+
+def compute_kinetic(body: Body) -> np.ndarray:
+    """``(44,)`` log(mean energy + 1) per joint DOF, then root horizontal and vertical."""
+    joints, root = mean_energies(body)
+    return np.log1p(np.concatenate([joints.ravel(), root]))
+
+
+def three_man(body: Body) -> np.ndarray:
+    """FMDistance's 3-MAN features ``(3,)``: e_all, r_upper/lower, r_limbs/trunk (paper eq. 5)."""
+    joints, _ = mean_energies(body)
+    per_joint = dict(zip(KINETIC_JOINTS, joints.sum(axis=1), strict=True))
+
+    def total(names: tuple[str, ...]) -> float:
+        return float(sum(per_joint[n] for n in names))
+
+    return np.array(
+        [
+            np.log(total(KINETIC_JOINTS) + 1.0),
+            np.log((total(UPPER) + 1.0) / (total(LOWER) + 1.0)),
+            np.log((total(LIMBS) + 1.0) / (total(TRUNK) + 1.0)),
+        ]
+    )
+
+
+DESCRIPTOR = Descriptor(
+    name="kinetic",
+    dimension=len(KINETIC_JOINTS) * 3 + 2,
+    version=1,
+    description="Kinetic energy (FMDistance, Onuma et al. 2008): log(mean ω²+1) per joint DOF in "
+    "the body frame plus root horizontal/vertical speed.",
+    compute=compute_kinetic,
+)

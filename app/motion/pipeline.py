@@ -1,0 +1,63 @@
+"""From a parsed :class:`Motion` to everything the service stores about a clip.
+
+``analyse`` is the one entry point the service, the import command and the evaluation
+command share: drop converter lead-in frames, map the skeleton to canonical joints, run
+forward kinematics once, and compute every registered descriptor.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from app.motion.body import Body, build_body
+from app.motion.descriptors import REGISTRY
+from app.motion.model import Motion
+
+
+@dataclass(frozen=True, eq=False)
+class ClipAnalysis:
+    """What one clip becomes.
+
+    Attributes
+    ----------
+    frame_count, frame_time, duration, joint_count:
+        As read from the file (before lead-in frames are dropped); seconds for times.
+    skeleton_family:
+        Which naming convention the skeleton follows (e.g. ``"cmu-asf"``, ``"motionbuilder"``).
+    lead_in_frames:
+        Rest-pose frames a converter added at the start, dropped before describing.
+    descriptors:
+        Descriptor name -> ``(D,)`` float32 vector.
+    body:
+        The canonical-joint view the descriptors were computed from.
+    """
+
+    frame_count: int
+    frame_time: float
+    duration: float
+    joint_count: int
+    skeleton_family: str
+    lead_in_frames: int
+    descriptors: dict[str, np.ndarray]
+    body: Body
+
+
+def analyse(motion: Motion, *, descriptors: list[str] | None = None) -> ClipAnalysis:
+    """Describe one clip under every registered descriptor (or the ``descriptors`` named)."""
+    body = build_body(motion)
+    names = list(REGISTRY) if descriptors is None else descriptors
+    vectors = {
+        name: np.ascontiguousarray(REGISTRY[name].compute(body), dtype=np.float32) for name in names
+    }
+    return ClipAnalysis(
+        frame_count=motion.frame_count,
+        frame_time=motion.frame_time,
+        duration=motion.duration,
+        joint_count=motion.skeleton.joint_count,
+        skeleton_family=body.skeleton_family,
+        lead_in_frames=body.lead_in_frames,
+        descriptors=vectors,
+        body=body,
+    )
