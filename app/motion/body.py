@@ -20,7 +20,9 @@ canonical joints only, and works out from the skeleton itself:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -28,6 +30,8 @@ from app.errors import ParseError
 from app.motion.kinematics import bone_lengths, forward_kinematics
 from app.motion.model import Motion
 from app.motion.skeleton_map import CANONICAL_INDEX, CANONICAL_JOINTS, map_skeleton
+
+T = TypeVar("T")
 
 # A clip starts from the rest pose when its first frame's local rotations (non-root joints)
 # are on average within this angle of the identity.
@@ -71,6 +75,13 @@ class Body:
     world_up: np.ndarray
     skeleton_family: str
     lead_in_frames: int
+    _memo: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+
+    def memo(self, key: str, compute: Callable[[], T]) -> T:
+        """``compute()`` once per body: descriptors share intermediate results this way."""
+        if key not in self._memo:
+            self._memo[key] = compute()
+        return self._memo[key]
 
     @property
     def frame_count(self) -> int:

@@ -6,7 +6,7 @@ variant) after a short linear low-pass filter, plus the root's horizontal and ve
 motion. To give every skeleton the same dimension and make the numbers independent of facing
 direction, units and Euler conventions:
 
-* the joints are the 14 rotating canonical joints (pelvis, chest, neck, head and left/right
+* the joints are the 16 rotating canonical joints (pelvis, chest, neck, head and left/right
   shoulder, elbow, wrist, hip, knee, ankle);
 * each joint's angular velocity is taken from its world rotations, never from Euler channels:
   ``ω_c = rotvec(G_c(t+1) G_c(t)ᵀ) / dt`` minus the same for its canonical parent (the pelvis
@@ -20,7 +20,7 @@ direction, units and Euler conventions:
 * the root terms are the pelvis's horizontal and vertical speed in body heights per second,
   as ``log(mean v² + 1)``.
 
-Vector: 14 joints x 3 DOFs (``log(mean ω² + 1)``, ω in rad/s) then the two root terms: 44 numbers.
+Vector: 16 joints x 3 DOFs (``log(mean ω² + 1)``, ω in rad/s) then the two root terms: 50 numbers.
 Compared with the Euclidean distance. :func:`three_man` gives the paper's 3-MAN features
 (total energy, upper/lower ratio, limbs/trunk ratio) for maps of a library.
 """
@@ -60,7 +60,11 @@ KINETIC_PARENT: dict[str, str | None] = {
     **{f"{s}_knee": f"{s}_hip" for s in ("l", "r")},
     **{f"{s}_ankle": f"{s}_knee" for s in ("l", "r")},
 }
-_JOINT_INDEX = np.array([CANONICAL_INDEX[name] for name in KINETIC_JOINTS])
+# The wrist's DOFs are the hand's rotation: the frame the hand tip hangs from. Rigs split the
+# hand over one to three joints (Hand; lwrist/lhand/lfingers; LeftWrist/lhand/LFingers), and
+# only the last of them carries the whole hand's orientation in every rig.
+SEGMENT_FRAME: dict[str, str] = {f"{s}_wrist": f"{s}_hand_tip" for s in ("l", "r")}
+_JOINT_INDEX = np.array([CANONICAL_INDEX[SEGMENT_FRAME.get(name, name)] for name in KINETIC_JOINTS])
 _PARENT_POSITION = np.array(
     [
         -1 if KINETIC_PARENT[n] is None else KINETIC_JOINTS.index(KINETIC_PARENT[n])
@@ -94,7 +98,7 @@ def body_angular_velocity(body: Body) -> np.ndarray:
 
     Returns
     -------
-    ``(F-h, 14, 3)`` rad/s (``h`` = :func:`velocity_span`), components along (lateral, up,
+    ``(F-h, 16, 3)`` rad/s (``h`` = :func:`velocity_span`), components along (lateral, up,
     forward) of the pelvis frame, each joint relative to its canonical parent (the pelvis
     relative to the world).
     """
@@ -129,10 +133,14 @@ def mean_energies(body: Body) -> tuple[np.ndarray, np.ndarray]:
     Returns
     -------
     joints:
-        ``(14, 3)`` mean ω² per joint DOF, rad²/s².
+        ``(16, 3)`` mean ω² per joint DOF, rad²/s².
     root:
         ``(2,)`` mean horizontal and vertical pelvis speed², (body heights/s)².
     """
+    return body.memo("kinetic.mean_energies", lambda: _mean_energies(body))
+
+
+def _mean_energies(body: Body) -> tuple[np.ndarray, np.ndarray]:
     if body.frame_count < 2:
         return np.zeros((len(KINETIC_JOINTS), 3)), np.zeros(2)
     omega = body_angular_velocity(body)
@@ -141,7 +149,7 @@ def mean_energies(body: Body) -> tuple[np.ndarray, np.ndarray]:
 
 
 def compute_kinetic(body: Body) -> np.ndarray:
-    """``(44,)`` log(mean energy + 1) per joint DOF, then root horizontal and vertical."""
+    """``(50,)`` log(mean energy + 1) per joint DOF, then root horizontal and vertical."""
     joints, root = mean_energies(body)
     return np.log1p(np.concatenate([joints.ravel(), root]))
 

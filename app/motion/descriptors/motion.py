@@ -5,12 +5,12 @@ energy ignores the direction of travel; and joint-offset features change when a 
 changes the skeleton's proportions. This descriptor concatenates three blocks, each
 computed in the pelvis-fixed body frame (x = left, y = up, z = forward):
 
-``limbs`` (36 numbers, dimensionless)
-    Unit direction of six limb segments — left/right upper arm, forearm, thigh, shin,
-    plus trunk (pelvis -> neck) and head (neck -> head) — mean and population std over
+``limbs`` (60 numbers, dimensionless)
+    Unit direction of ten segments — left/right upper arm, forearm, thigh and shin, the
+    trunk (pelvis -> neck) and the head (neck -> head) — mean and population std over
     frames of each of the three components. Directions, not offsets, so bone lengths and
     proportions (a DAZ generic figure vs the CMU subject) matter little.
-``energy`` (44 numbers)
+``energy`` (50 numbers)
     The ``kinetic`` descriptor: log(mean ω² + 1) per joint DOF plus root speeds.
 ``travel`` (8 numbers)
     Root motion in the body's own heading frame (forward projected on the floor): mean
@@ -32,6 +32,7 @@ import numpy as np
 
 from app.motion.body import Body
 from app.motion.descriptors import Descriptor
+from app.motion.descriptors.kinetic import DESCRIPTOR as KINETIC
 from app.motion.descriptors.kinetic import compute_kinetic, velocity_span
 from app.motion.skeleton_map import CANONICAL_INDEX
 
@@ -46,13 +47,19 @@ LIMB_SEGMENTS: tuple[tuple[str, str], ...] = (
 _SEGMENT_FROM = np.array([CANONICAL_INDEX[a] for a, _ in LIMB_SEGMENTS])
 _SEGMENT_TO = np.array([CANONICAL_INDEX[b] for _, b in LIMB_SEGMENTS])
 
+KINETIC_DIMENSION = KINETIC.dimension
+TRAVEL_DIMENSION = 8
+
 # Frozen block scales (reference corpus, see module docstring) and block weights.
-BLOCK_SCALES = {"limbs": 1.0, "energy": 1.0, "travel": 1.0}
-BLOCK_WEIGHTS = {"limbs": 1.0, "energy": 1.0, "travel": 1.0}
+# Scales: `bench/motion_scales.py` on the 263 clips of ../shared/data (version 1).
+BLOCK_SCALES = {"limbs": 1.4204, "energy": 3.98422, "travel": 1.29523}
+# Weights: energy and travel count fully; limb directions, the block most affected by how a
+# converter poses a skeleton, at half weight. The ablation behind it is in docs/evaluation.md.
+BLOCK_WEIGHTS = {"limbs": 0.5, "energy": 1.0, "travel": 1.0}
 
 
 def limb_block(body: Body) -> np.ndarray:
-    """``(36,)`` mean then std over frames of the limb unit directions in the body frame."""
+    """``(60,)`` mean then std over frames of the limb unit directions in the body frame."""
     relative = body.positions[:, _SEGMENT_TO] - body.positions[:, _SEGMENT_FROM]
     local = np.einsum("fsa,fab->fsb", relative, body.pelvis_frames)
     norms = np.linalg.norm(local, axis=2, keepdims=True)
@@ -79,7 +86,7 @@ def travel_block(body: Body) -> np.ndarray:
     """``(8,)`` root trajectory features in the heading frame (see module docstring)."""
     frames = body.frame_count
     if frames < 2:
-        return np.zeros(8)
+        return np.zeros(TRAVEL_DIMENSION)
     span = velocity_span(body.frame_time, frames)
     seconds = span * body.frame_time
     pelvis = body.joint("pelvis") / body.height
@@ -114,7 +121,7 @@ def travel_block(body: Body) -> np.ndarray:
 
 
 def compute_motion(body: Body) -> np.ndarray:
-    """``(88,)`` scaled and weighted limbs (36), energy (44) and travel (8) blocks."""
+    """``(118,)`` scaled and weighted limbs (60), energy (50) and travel (8) blocks."""
     blocks = {
         "limbs": limb_block(body),
         "energy": compute_kinetic(body),
@@ -127,7 +134,7 @@ def compute_motion(body: Body) -> np.ndarray:
 
 DESCRIPTOR = Descriptor(
     name="motion",
-    dimension=36 + 44 + 8,
+    dimension=len(LIMB_SEGMENTS) * 6 + KINETIC_DIMENSION + TRAVEL_DIMENSION,
     version=1,
     description="mocap-index's own: limb directions, kinetic energy and body-frame root travel "
     "(direction, speed, turning), each block scaled by frozen corpus constants.",

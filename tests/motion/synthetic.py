@@ -1,0 +1,71 @@
+"""A small synthetic walker: a real skeleton tree animated by smooth joint rotations."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from app.motion.model import Motion, Skeleton
+from tests.motion.skeleton_trees import MOTIONBUILDER, skeleton_from_tree
+
+# Rest offsets of a MotionBuilder-style figure (units: cm), standing in a T-pose, facing +z.
+_OFFSETS = {
+    "LHipJoint": (0, 0, 0),
+    "LeftUpLeg": (9, -5, 0),
+    "LeftLeg": (0, -42, 0),
+    "LeftFoot": (0, -40, 0),
+    "LeftToeBase": (0, -6, 12),
+    "LeftToeBase_end": (0, 0, 5),
+    "LowerBack": (0, 0, 0),
+    "Spine": (0, 12, 0),
+    "Spine1": (0, 20, 0),
+    "Neck": (0, 12, 0),
+    "Neck1": (0, 6, 0),
+    "Head": (0, 6, 0),
+    "Head_end": (0, 18, 0),
+    "LeftShoulder": (0, 0, 0),
+    "LeftArm": (17, 2, 0),
+    "LeftForeArm": (28, 0, 0),
+    "LeftHand": (25, 0, 0),
+    "LeftFingerBase": (0, 0, 0),
+    "LeftHandIndex1": (8, 0, 0),
+    "LeftHandIndex1_end": (6, 0, 0),
+    "LThumb": (0, 0, 0),
+    "LThumb_end": (5, 0, 5),
+}
+
+
+def _offset(name: str) -> tuple[float, ...]:
+    if name in _OFFSETS:
+        return _OFFSETS[name]
+    mirrored = name.replace("Right", "Left").replace("RHip", "LHip").replace("RThumb", "LThumb")
+    x, y, z = _OFFSETS[mirrored]
+    return (-x, y, z)
+
+
+def walker_skeleton() -> Skeleton:
+    tree = skeleton_from_tree(MOTIONBUILDER)
+    offsets = np.array([(0.0, 0.0, 0.0)] + [_offset(n) for n in tree.names[1:]], dtype=float)
+    return Skeleton(tree.names, tree.parents, offsets, tree.end_site)
+
+
+def walker_motion(frames: int = 240, fps: float = 120.0, speed: float = 120.0) -> Motion:
+    """A figure swinging arms and legs at 1 Hz while moving forward (+z) at ``speed`` cm/s."""
+    skeleton = walker_skeleton()
+    t = np.arange(frames) / fps
+    phase = 2 * np.pi * 1.0 * t
+    rotvecs = np.zeros((frames, skeleton.joint_count, 3))
+    swing = {"LeftUpLeg": 0.5, "RightUpLeg": -0.5, "LeftArm": -0.4, "RightArm": 0.4}
+    for name, amplitude in swing.items():
+        rotvecs[:, skeleton.index(name), 0] = amplitude * np.sin(phase)
+    for name in ("LeftLeg", "RightLeg"):
+        rotvecs[:, skeleton.index(name), 0] = 0.4 + 0.4 * np.sin(phase + 1.0)
+    for name in ("LeftForeArm", "RightForeArm"):
+        rotvecs[:, skeleton.index(name), 1] = 0.3 + 0.2 * np.sin(phase)
+    rotvecs[:, 0, 1] = 0.1 * np.sin(phase)  # pelvis yaw sway
+    local = Rotation.from_rotvec(rotvecs.reshape(-1, 3)).as_matrix()
+    local = local.reshape(frames, skeleton.joint_count, 3, 3)
+    end = skeleton.end_site
+    local[:, end] = np.eye(3)
+    root = np.stack([np.zeros(frames), 90 + 2 * np.sin(2 * phase), speed * t], axis=1)
+    return Motion(skeleton, 1.0 / fps, root, local)
