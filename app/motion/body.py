@@ -97,7 +97,7 @@ class Body:
         Axis 0 points to the subject's left, 1 up, 2 forward; the pelvis is the origin.
         """
         relative = self.positions - self.positions[:, CANONICAL_INDEX["pelvis"], None, :]
-        return np.einsum("fca,fab->fcb", relative, self.pelvis_frames) / self.height
+        return (relative @ self.pelvis_frames) / self.height
 
 
 def build_body(motion: Motion) -> Body:

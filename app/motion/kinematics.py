@@ -70,8 +70,39 @@ def forward_kinematics(
         if offset.ndim == 1:
             positions[:, j] = positions[:, p] + parent_rot @ offset
         else:
-            positions[:, j] = positions[:, p] + np.einsum("fab,fb->fa", parent_rot, offset)
+            positions[:, j] = positions[:, p] + (parent_rot @ offset[:, :, None])[:, :, 0]
     return rotations, positions
+
+
+def rotation_log(rotations: np.ndarray) -> np.ndarray:
+    """Rotation vectors (axis times angle, radians) of ``(..., 3, 3)`` rotation matrices.
+
+    Vectorised closed form, several times faster than scipy's ``Rotation`` round trip on
+    the short rotations between nearby frames; angles near 180 degrees, where the closed
+    form loses precision, are handed to scipy.
+
+    Returns
+    -------
+    ``(..., 3)`` rotation vectors.
+    """
+    r = rotations
+    cos_angle = np.clip((np.trace(r, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
+    angle = np.arccos(cos_angle)
+    skew = np.stack(
+        [r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1]],
+        axis=-1,
+    )
+    sin_angle = np.sin(angle)
+    # angle / sin(angle) -> 1 as the angle -> 0; use its series there to avoid 0/0.
+    small = angle < 1e-4
+    factor = np.where(small, 1.0 + angle**2 / 6.0, angle / np.where(small, 1.0, sin_angle))
+    out = 0.5 * factor[..., None] * skew
+    near_pi = angle > np.pi - 1e-3
+    if np.any(near_pi):
+        from scipy.spatial.transform import Rotation
+
+        out[near_pi] = Rotation.from_matrix(r[near_pi]).as_rotvec()
+    return out
 
 
 def rest_positions(motion: Motion) -> np.ndarray:

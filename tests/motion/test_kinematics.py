@@ -1,7 +1,12 @@
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from app.motion.kinematics import ancestors_closure, bone_lengths, forward_kinematics
+from app.motion.kinematics import (
+    ancestors_closure,
+    bone_lengths,
+    forward_kinematics,
+    rotation_log,
+)
 from app.motion.model import Motion, Skeleton
 from tests.motion.synthetic import walker_motion
 
@@ -45,3 +50,19 @@ def test_bone_lengths_stay_constant_over_frames():
     parents = motion.skeleton.parents
     lengths = np.linalg.norm(positions[:, 1:] - positions[:, parents[1:]], axis=2)
     np.testing.assert_allclose(lengths, np.broadcast_to(bone_lengths(motion)[1:], lengths.shape))
+
+
+def test_rotation_log_matches_scipy_including_tiny_and_half_turns():
+    rng = np.random.default_rng(7)
+    rotvecs = rng.normal(size=(500, 3))
+    rotvecs /= np.linalg.norm(rotvecs, axis=1, keepdims=True)
+    angles = np.concatenate(
+        [rng.uniform(0, np.pi - 1e-2, 490), [0, 1e-9, 1e-5, np.pi - 1e-4] * 2, [0.5, 1]]
+    )
+    rotvecs *= angles[:, None]
+    matrices = Rotation.from_rotvec(rotvecs).as_matrix()
+    got = rotation_log(matrices)
+    # A half turn is the same rotation either way round: compare the rotations themselves.
+    np.testing.assert_allclose(Rotation.from_rotvec(got).as_matrix(), matrices, atol=1e-9)
+    regular = angles < np.pi - 1e-2
+    np.testing.assert_allclose(got[regular], rotvecs[regular], atol=1e-9)

@@ -28,10 +28,10 @@ Compared with the Euclidean distance. :func:`three_man` gives the paper's 3-MAN 
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from app.motion.body import Body
 from app.motion.descriptors import Descriptor
+from app.motion.kinematics import rotation_log
 from app.motion.skeleton_map import CANONICAL_INDEX
 
 VELOCITY_SPAN_SECONDS = 0.1
@@ -105,13 +105,11 @@ def body_angular_velocity(body: Body) -> np.ndarray:
     rot = body.rotations[:, _JOINT_INDEX]
     span = velocity_span(body.frame_time, rot.shape[0])
     step = rot[span:] @ np.swapaxes(rot[:-span], -1, -2)
-    count = step.shape[0]
-    world = Rotation.from_matrix(step.reshape(-1, 3, 3)).as_rotvec().reshape(count, -1, 3)
-    world /= span * body.frame_time
+    world = rotation_log(step) / (span * body.frame_time)
     relative = world.copy()
     has_parent = _PARENT_POSITION >= 0
     relative[:, has_parent] -= world[:, _PARENT_POSITION[has_parent]]
-    return np.einsum("fjb,fba->fja", relative, body.pelvis_frames[:-span])
+    return relative @ body.pelvis_frames[:-span]
 
 
 def root_velocity(body: Body) -> tuple[np.ndarray, np.ndarray]:

@@ -61,7 +61,7 @@ BLOCK_WEIGHTS = {"limbs": 0.5, "energy": 1.0, "travel": 1.0}
 def limb_block(body: Body) -> np.ndarray:
     """``(60,)`` mean then std over frames of the limb unit directions in the body frame."""
     relative = body.positions[:, _SEGMENT_TO] - body.positions[:, _SEGMENT_FROM]
-    local = np.einsum("fsa,fab->fsb", relative, body.pelvis_frames)
+    local = relative @ body.pelvis_frames
     norms = np.linalg.norm(local, axis=2, keepdims=True)
     directions = local / np.maximum(norms, 1e-12)
     return np.concatenate([directions.mean(axis=0).ravel(), directions.std(axis=0).ravel()])
