@@ -54,7 +54,8 @@ def main() -> None:
     largest_parse = _time(lambda: read_bvh(blobs[largest]), args.repeat * 3)
     largest_full = _time(lambda: analyse(read_bvh(blobs[largest])), args.repeat * 3)
     sizes = [len(b) for b in blobs]
-    print(f"machine: {platform.machine()} {platform.processor() or ''} python {platform.python_version()}")
+    machine = f"{platform.machine()} {platform.processor()}".strip()
+    print(f"machine: {machine}, python {platform.python_version()}")
     print(f"descriptors: {', '.join(REGISTRY)}")
     print(f"{len(files)} Bandai clips, mean {statistics.mean(sizes) / 1024:.0f} KiB")
     print(f"parse only           : {parse_total / len(files) * 1000:6.2f} ms per clip")

@@ -1,0 +1,788 @@
+"""Acclaim ASF (skeleton) + AMC (motion) text -> :class:`~app.motion.model.Motion`.
+
+What the numbers mean
+---------------------
+ASF (one per subject):
+
+* ``:units`` -- ``mass`` (ignored), ``length`` (a multiplier: real length = file length /
+  multiplier; the CMU files say ``length 0.45``, which makes inches), ``angle deg|rad``.
+* ``:root`` -- ``order`` (which AMC ``root`` values are translations ``TX TY TZ`` and rotations
+  ``RX RY RZ``, in file order), ``axis`` + ``orientation`` (the root's axis frame ``C_root``),
+  ``position`` (added to the AMC root translation).
+* ``:bonedata`` -- per bone: ``direction`` (unit vector in the world frame at rest),
+  ``length`` (file units), ``axis a1 a2 a3 ORDER`` (the bone's axis frame ``C_b``, Euler
+  angles applied **extrinsically** in ``ORDER``: ``XYZ`` means ``C = Rz @ Ry @ Rx``), ``dof``
+  (which AMC values the bone has, in file order: ``rx ry rz`` rotations about the bone's
+  axes, ``tx ty tz`` translations along them, ``l`` stretching along the bone),
+  ``limits`` (ignored).
+* ``:hierarchy`` -- ``parent child child ...`` lines.
+
+AMC (one per trial): optional header lines starting with ``#`` or ``:`` (``:DEGREES`` /
+``:RADIANS`` override the ASF angle unit), then per frame a frame-number line followed by one
+line per bone that has a dof, ``name value value ...``, in any order. AMC has no frame rate;
+the CMU database is 120 fps, so :data:`DEFAULT_AMC_FRAME_TIME` is ``1/120`` s. Every bone with
+a dof must appear in every frame (a missing bone is an error, never a silent zero; the CMU
+files always list them all).
+
+How the joint skeleton is built (as the CMU -> BVH converters do)
+-----------------------------------------------------------------
+Joint 0 is ``"root"``. Each bone becomes a joint at the bone's *start* (its parent bone's
+end), named after the bone; its offset is the parent bone's ``direction * length``
+(zero for children of the root). Each leaf bone also gets an End Site joint
+``"<bone>_end"`` at its tip. All lengths are divided by the ``:units length`` multiplier
+(``Motion.length_unit`` says which unit results). The local rotation of bone ``b`` is
+``L_b = C_b @ M_b @ C_b.T`` where ``M_b`` composes the AMC rotation values extrinsically in the
+``dof`` order (``rx ry rz`` -> ``M = Rz @ Ry @ Rx``); the root's is
+``L_root = C_root @ M_root @ C_root.T`` with ``M_root`` from the ``RX RY RZ`` values in
+``:root order``. Translation dofs give ``Motion.local_translations``.
+
+Parsing strategy
+----------------
+CMU AMC files repeat the same bone order every frame, so the fast path slices the lines into
+one column of lines per bone and reads each with one numpy C call. Anything irregular (other
+bone orders, comments, errors) falls back to a line-by-line pass that accepts every valid
+file and names the exact line of the first problem.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from app.errors import LimitExceeded, ParseError
+from app.motion.formats.bvh import (
+    DEFAULT_LIMITS,
+    matrices_from_euler,
+    normalise_newlines,
+    parse_float,
+    show,
+)
+from app.motion.model import Motion, ParseLimits, Skeleton
+
+__all__ = ["DEFAULT_AMC_FRAME_TIME", "parse_asf_amc"]
+
+#: Seconds per frame of an AMC file: the CMU database is captured at 120 fps.
+DEFAULT_AMC_FRAME_TIME = 1.0 / 120.0
+
+_FRAME_NUMBER_RE = re.compile(r"[+-]?\d{1,12}", re.ASCII)
+_BONE_DOFS = frozenset({"rx", "ry", "rz", "tx", "ty", "tz", "l"})
+_ROOT_DOFS = frozenset({"rx", "ry", "rz", "tx", "ty", "tz"})
+_ANGLE_UNITS = {
+    "deg": "deg",
+    "degree": "deg",
+    "degrees": "deg",
+    "rad": "rad",
+    "radian": "rad",
+    "radians": "rad",
+}
+_AXIS_RE = re.compile(r"[XYZ]{3}", re.IGNORECASE)
+# Bone fields we read or knowingly ignore; anything else in a bone block is an error.
+_IGNORED_BONE_FIELDS = frozenset({"id", "limits", "bodymass", "cofmass"})
+
+
+@dataclass
+class _Bone:
+    """One ASF bone (or the root, with ``name="root"``) while reading."""
+
+    name: str
+    line: int
+    direction: tuple[float, float, float] | None = None
+    length: float | None = None
+    axis_angles: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    axis_order: str = "XYZ"
+    dof: list[str] = field(default_factory=list)
+    children: list[str] = field(default_factory=list)
+    parent: str | None = None
+
+
+@dataclass
+class _Asf:
+    """What the ASF says, in file units."""
+
+    length_multiplier: float = 1.0
+    angle_unit: str = "deg"
+    root: _Bone = field(default_factory=lambda: _Bone(name="root", line=0))
+    root_position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    root_orientation: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    bones: dict[str, _Bone] = field(default_factory=dict)  # name -> bone, file order
+    name: str | None = None
+
+
+def parse_asf_amc(
+    asf_text: str,
+    amc_text: str,
+    *,
+    limits: ParseLimits = DEFAULT_LIMITS,
+    frame_time: float = DEFAULT_AMC_FRAME_TIME,
+) -> Motion:
+    """Read an ASF skeleton and one AMC motion, both already decoded to text.
+
+    Parameters
+    ----------
+    asf_text, amc_text:
+        Whole files; ``\\r\\n`` line ends are accepted.
+    limits:
+        Upper bounds on joints, nesting depth, frames and values.
+    frame_time:
+        Seconds per frame (AMC files do not say); default ``1/120`` (CMU).
+
+    Returns
+    -------
+    Motion
+        ``source_format="asf/amc"``; see the module docstring.
+
+    Raises
+    ------
+    ParseError
+        ``source`` is ``"ASF"`` or ``"AMC"``; ``line`` says where when it applies.
+    LimitExceeded
+    """
+    if not (isinstance(frame_time, int | float) and math.isfinite(frame_time) and frame_time > 0):
+        raise ParseError(f"frame_time must be a positive number of seconds, not {frame_time!r}")
+    try:
+        asf = _parse_asf(_split_lines(asf_text), limits)
+        joints = _order_joints(asf, limits)
+    except ParseError as error:
+        raise error.with_source("ASF") from None
+    layout = _column_layout(asf)
+    try:
+        values, first_frame, amc_angle_unit = _parse_amc(
+            _split_lines(amc_text), asf, layout, len(joints), limits
+        )
+    except ParseError as error:
+        raise error.with_source("AMC") from None
+    angle_unit = amc_angle_unit or asf.angle_unit
+    return _build_motion(asf, joints, layout, values, angle_unit, frame_time, first_frame)
+
+
+def _split_lines(text: str) -> list[str]:
+    # CRLF lines keep their '\r', which every check below strips as whitespace
+    return normalise_newlines(text).split("\n")
+
+
+# ---------------------------------------------------------------------------------------- ASF
+
+
+def _floats(tokens: list[str], count: int, *, what: str, line: int) -> tuple[float, ...]:
+    if len(tokens) != count:
+        raise ParseError(f"{what} needs {count} numbers, found {len(tokens)}", line=line)
+    return tuple(parse_float(t, what=what, line=line) for t in tokens)
+
+
+def _vector(tokens: list[str], *, what: str, line: int) -> tuple[float, float, float]:
+    x, y, z = _floats(tokens, 3, what=what, line=line)
+    return (x, y, z)
+
+
+def _parse_asf(lines: list[str], limits: ParseLimits) -> _Asf:
+    asf = _Asf()
+    section: str | None = None
+    seen_sections: dict[str, int] = {}
+    bone: _Bone | None = None
+    hierarchy_state = "none"  # none -> open -> closed
+    hierarchy_lines: list[tuple[int, list[str]]] = []
+
+    for number, raw in enumerate(lines, start=1):
+        line = raw.strip()
+        if not line or line.startswith("#"):
+            continue
+        tokens = line.split()
+        key = tokens[0].lower()
+        if key.startswith(":"):
+            if bone is not None:
+                raise ParseError(
+                    f"bone block begun on line {bone.line} has no 'end' before {tokens[0]}",
+                    line=number,
+                )
+            if hierarchy_state == "open":
+                raise ParseError(f":hierarchy has no 'end' before {tokens[0]}", line=number)
+            if key in seen_sections and key in (":units", ":root", ":bonedata", ":hierarchy"):
+                raise ParseError(
+                    f"second {key} section (first on line {seen_sections[key]})", line=number
+                )
+            seen_sections.setdefault(key, number)
+            section = key
+            if key == ":name" and len(tokens) > 1:
+                asf.name = " ".join(tokens[1:])
+            continue
+        if section is None:
+            raise ParseError(
+                f"not an ASF file: expected a ':' section keyword, found {show(tokens[0])}",
+                line=number,
+            )
+        if section == ":units":
+            _read_unit(asf, tokens, number)
+        elif section == ":root":
+            _read_root_field(asf, tokens, number)
+        elif section == ":bonedata":
+            if key == "begin":
+                if bone is not None:
+                    raise ParseError(
+                        f"'begin' inside the bone block begun on line {bone.line}", line=number
+                    )
+                bone = _Bone(name="", line=number)
+            elif key == "end":
+                if bone is None:
+                    raise ParseError("'end' without 'begin' in :bonedata", line=number)
+                _finish_bone(asf, bone, number, limits)
+                bone = None
+            elif bone is None:
+                raise ParseError(
+                    f"expected 'begin' in :bonedata, found {show(tokens[0])}", line=number
+                )
+            else:
+                _read_bone_field(asf, bone, tokens, number)
+        elif section == ":hierarchy":
+            if key == "begin" and hierarchy_state == "none":
+                hierarchy_state = "open"
+            elif key == "end" and hierarchy_state == "open":
+                hierarchy_state = "closed"
+            elif hierarchy_state == "open":
+                hierarchy_lines.append((number, tokens))
+            else:
+                raise ParseError(
+                    f"unexpected {show(tokens[0])} in :hierarchy (outside begin/end)",
+                    line=number,
+                )
+        # any other section (:version, :name, :documentation, ...) is skipped
+
+    end = len(lines)
+    if bone is not None:
+        raise ParseError(f"bone block begun on line {bone.line} has no 'end'", line=end)
+    if hierarchy_state == "open":
+        raise ParseError(":hierarchy has no 'end'", line=end)
+    for required in (":root", ":bonedata"):
+        if required not in seen_sections:
+            raise ParseError(f"not an ASF file: no {required} section")
+    if asf.bones and hierarchy_state == "none":
+        raise ParseError("no :hierarchy section: bones are not connected")
+    _link_hierarchy(asf, hierarchy_lines)
+    return asf
+
+
+def _read_unit(asf: _Asf, tokens: list[str], number: int) -> None:
+    key = tokens[0].lower()
+    if len(tokens) != 2:
+        raise ParseError(f":units {tokens[0]} needs one value", line=number)
+    if key in ("mass", "length"):
+        value = parse_float(tokens[1], what=f":units {key}", line=number)
+        if value <= 0:
+            raise ParseError(f":units {key} must be greater than 0", line=number)
+        if key == "length":
+            asf.length_multiplier = value
+    elif key == "angle":
+        unit = _ANGLE_UNITS.get(tokens[1].lower())
+        if unit is None:
+            raise ParseError(
+                f"unknown angle unit {show(tokens[1])} (expected deg or rad)", line=number
+            )
+        asf.angle_unit = unit
+    else:
+        raise ParseError(
+            f"unknown :units keyword {show(tokens[0])} (expected mass, length or angle)",
+            line=number,
+        )
+
+
+def _read_root_field(asf: _Asf, tokens: list[str], number: int) -> None:
+    key = tokens[0].lower()
+    if key == "order":
+        order = [t.lower() for t in tokens[1:]]
+        for token, dof in zip(tokens[1:], order, strict=True):
+            if dof not in _ROOT_DOFS:
+                raise ParseError(
+                    f"unknown :root order entry {show(token)} (expected TX TY TZ RX RY RZ)",
+                    line=number,
+                )
+        if len(set(order)) != len(order):
+            raise ParseError(":root order lists an entry twice", line=number)
+        asf.root.dof = order
+    elif key == "axis":
+        if len(tokens) != 2 or _AXIS_RE.fullmatch(tokens[1]) is None:
+            raise ParseError(":root axis needs three of X, Y, Z (e.g. XYZ)", line=number)
+        asf.root.axis_order = tokens[1].upper()
+    elif key == "position":
+        asf.root_position = _vector(tokens[1:], what=":root position", line=number)
+    elif key == "orientation":
+        asf.root_orientation = _vector(tokens[1:], what=":root orientation", line=number)
+    else:
+        raise ParseError(f"unknown :root field {show(tokens[0])}", line=number)
+
+
+def _read_bone_field(asf: _Asf, bone: _Bone, tokens: list[str], number: int) -> None:
+    key = tokens[0].lower()
+    if key == "name":
+        if len(tokens) != 2:
+            raise ParseError("bone name must be one word", line=number)
+        bone.name = tokens[1]
+    elif key == "direction":
+        bone.direction = _vector(tokens[1:], what="bone direction", line=number)
+    elif key == "length":
+        (length,) = _floats(tokens[1:], 1, what="bone length", line=number)
+        if length < 0:
+            raise ParseError("bone length must not be negative", line=number)
+        bone.length = length
+    elif key == "axis":
+        if len(tokens) != 5 or _AXIS_RE.fullmatch(tokens[4]) is None:
+            raise ParseError("bone axis needs three angles and an order such as XYZ", line=number)
+        bone.axis_angles = _vector(tokens[1:4], what="bone axis", line=number)
+        bone.axis_order = tokens[4].upper()
+    elif key == "dof":
+        dof = [t.lower() for t in tokens[1:]]
+        for token, name in zip(tokens[1:], dof, strict=True):
+            if name not in _BONE_DOFS:
+                raise ParseError(
+                    f"unknown dof {show(token)} (expected rx ry rz tx ty tz l)", line=number
+                )
+        if len(set(dof)) != len(dof):
+            raise ParseError("dof lists an entry twice", line=number)
+        bone.dof = dof
+    elif key in _IGNORED_BONE_FIELDS or key.startswith("("):
+        pass  # limits continue on lines starting with '('
+    else:
+        raise ParseError(f"unknown bone field {show(tokens[0])}", line=number)
+
+
+def _finish_bone(asf: _Asf, bone: _Bone, number: int, limits: ParseLimits) -> None:
+    if not bone.name:
+        raise ParseError(f"bone begun on line {bone.line} has no name", line=number)
+    if bone.name == "root" or bone.name in asf.bones:
+        raise ParseError(f"duplicate bone name {bone.name!r}", line=number)
+    if bone.direction is None or bone.length is None:
+        raise ParseError(f"bone {bone.name!r} needs a direction and a length", line=number)
+    # Every bone is a joint; refuse early so hostile files cannot make us read on.
+    if limits.max_joints is not None and len(asf.bones) + 1 >= limits.max_joints:
+        raise LimitExceeded(f"ASF line {number}: more joints than the limit of {limits.max_joints}")
+    asf.bones[bone.name] = bone
+
+
+def _link_hierarchy(asf: _Asf, hierarchy_lines: list[tuple[int, list[str]]]) -> None:
+    """Set parents and children from ``:hierarchy`` lines (read after all bones are known)."""
+    for number, tokens in hierarchy_lines:
+        parent_name = tokens[0]
+        parent = asf.root if parent_name == "root" else asf.bones.get(parent_name)
+        if parent is None:
+            raise ParseError(
+                f":hierarchy names unknown bone {show(parent_name)} as a parent", line=number
+            )
+        if len(tokens) < 2:
+            raise ParseError(f":hierarchy line for {parent_name!r} lists no children", line=number)
+        for child_name in tokens[1:]:
+            child = asf.bones.get(child_name)
+            if child is None:
+                raise ParseError(
+                    f":hierarchy names unknown bone {show(child_name)} as a child", line=number
+                )
+            if child.parent is not None:
+                raise ParseError(
+                    f"bone {child_name!r} is given two parents in :hierarchy", line=number
+                )
+            child.parent = parent_name
+            parent.children.append(child_name)
+    for bone in asf.bones.values():
+        if bone.parent is None:
+            raise ParseError(f"bone {bone.name!r} is not in :hierarchy", line=bone.line)
+
+
+@dataclass(frozen=True)
+class _JointPlan:
+    """One joint of the output skeleton: a bone's start, the root, or a leaf bone's tip."""
+
+    name: str
+    parent: int
+    bone: str  # the bone whose start this is ("root" for joint 0), or whose tip
+    end_site: bool
+
+
+def _order_joints(asf: _Asf, limits: ParseLimits) -> list[_JointPlan]:
+    """Depth-first joints (``parents[j] < j``), iteratively so deep files cannot recurse."""
+    joints = [_JointPlan(name="root", parent=-1, bone="root", end_site=False)]
+    taken = {"root", *asf.bones}
+    # stack of (bone name, parent joint index, depth); reversed so children keep file order
+    stack = [(name, 0, 2) for name in reversed(asf.root.children)]
+    while stack:
+        name, parent, depth = stack.pop()
+        bone = asf.bones[name]
+        leaf = not bone.children
+        if limits.max_depth is not None and depth + leaf > limits.max_depth:
+            raise LimitExceeded(
+                f"ASF line {bone.line}: the hierarchy is nested deeper than the limit of "
+                f"{limits.max_depth}"
+            )
+        if limits.max_joints is not None and len(joints) + 1 + leaf > limits.max_joints:
+            raise LimitExceeded(
+                f"ASF line {bone.line}: more joints (including end sites) than the limit of "
+                f"{limits.max_joints}"
+            )
+        joints.append(_JointPlan(name=name, parent=parent, bone=name, end_site=False))
+        index = len(joints) - 1
+        if leaf:
+            end_name = f"{name}_end"
+            suffix = 1
+            while end_name in taken:
+                suffix += 1
+                end_name = f"{name}_end{suffix}"
+            taken.add(end_name)
+            joints.append(_JointPlan(name=end_name, parent=index, bone=name, end_site=True))
+        stack.extend((child, index, depth + 1) for child in reversed(bone.children))
+    if len(joints) - sum(j.end_site for j in joints) != len(asf.bones) + 1:
+        reached = {j.bone for j in joints}
+        lost = [name for name in asf.bones if name not in reached]
+        raise ParseError(
+            f"bones not connected to root (a cycle in :hierarchy?): {', '.join(lost[:10])}",
+            line=asf.bones[lost[0]].line,
+        )
+    return joints
+
+
+def _column_layout(asf: _Asf) -> dict[str, tuple[int, int]]:
+    """Bone name -> (first column, count) in the ``(F, D)`` AMC value table; root first."""
+    layout: dict[str, tuple[int, int]] = {}
+    column = 0
+    for bone in (asf.root, *asf.bones.values()):
+        if bone.dof:
+            layout[bone.name] = (column, len(bone.dof))
+            column += len(bone.dof)
+    return layout
+
+
+# ---------------------------------------------------------------------------------------- AMC
+
+
+def _parse_amc(
+    lines: list[str],
+    asf: _Asf,
+    layout: dict[str, tuple[int, int]],
+    joint_count: int,
+    limits: ParseLimits,
+) -> tuple[np.ndarray, int, str | None]:
+    """Returns the ``(F, D)`` values, the first frame number and any header angle unit."""
+    angle_unit: str | None = None
+    start = 0
+    while start < len(lines):
+        line = lines[start].strip()
+        if line and not line.startswith(("#", ":")):
+            break
+        keyword = line.upper()
+        if keyword == ":DEGREES":
+            angle_unit = "deg"
+        elif keyword == ":RADIANS":
+            angle_unit = "rad"
+        start += 1
+    end = len(lines)
+    while end > start and not lines[end - 1].strip():
+        end -= 1
+    if start == end:
+        raise ParseError("the AMC file has no frames")
+    body = lines[start:end]
+    column_count = sum(count for _, count in layout.values())
+    fast = _read_regular_amc(body, layout, column_count, joint_count, limits)
+    if fast is not None:
+        return fast[0], fast[1], angle_unit
+    values, first_frame = _read_amc_lines(
+        body, start + 1, asf, layout, column_count, joint_count, limits
+    )
+    return values, first_frame, angle_unit
+
+
+def _check_amc_limits(
+    frame_count: int, column_count: int, joint_count: int, limits: ParseLimits, line: int
+) -> None:
+    if limits.max_frames is not None and frame_count > limits.max_frames:
+        raise LimitExceeded(f"AMC line {line}: more frames than the limit of {limits.max_frames}")
+    if limits.max_values is not None:
+        produced = frame_count * max(column_count, 9 * joint_count)
+        if produced > limits.max_values:
+            raise LimitExceeded(
+                f"AMC line {line}: {frame_count} frames of {joint_count} joints need "
+                f"{produced} values, more than the limit of {limits.max_values}"
+            )
+
+
+def _read_regular_amc(
+    body: list[str],
+    layout: dict[str, tuple[int, int]],
+    column_count: int,
+    joint_count: int,
+    limits: ParseLimits,
+) -> tuple[np.ndarray, int] | None:
+    """Fast path for files that repeat one bone order every frame; ``None`` if not regular."""
+    if _FRAME_NUMBER_RE.fullmatch(body[0].strip()) is None:
+        return None
+    template: list[str] = []
+    for line in body[1:]:
+        tokens = line.split(None, 1)
+        if not tokens or len(template) > len(layout):
+            return None
+        if _FRAME_NUMBER_RE.fullmatch(line.strip()) is not None:
+            break
+        template.append(tokens[0])
+    if sorted(template) != sorted(layout):
+        return None
+    period = 1 + len(template)
+    frame_count, remainder = divmod(len(body), period)
+    if remainder:
+        return None
+    if limits.max_frames is not None and frame_count > limits.max_frames:
+        return None  # the line-by-line pass raises at the exact line
+    produced = frame_count * max(column_count, 9 * joint_count)
+    if limits.max_values is not None and produced > limits.max_values:
+        return None
+    try:
+        numbers = np.loadtxt(body[0::period], dtype=np.int64, comments=None, ndmin=1)
+    except ValueError:
+        return None
+    if numbers.shape != (frame_count,):
+        return None
+    small = (numbers > -(10**12)) & (numbers < 10**12)  # no wrap-around in the difference
+    if not small.all() or (frame_count > 1 and not (np.diff(numbers) == 1).all()):
+        return None
+    values = np.empty((frame_count, column_count))
+    for slot, name in enumerate(template, start=1):
+        first, count = layout[name]
+        # one row per frame: the bone name (checked) then its values
+        row_type = np.dtype([("name", f"U{len(name) + 1}"), ("values", np.float64, (count,))])
+        try:
+            rows = np.loadtxt(body[slot::period], dtype=row_type, comments=None, ndmin=1)
+        except ValueError:
+            return None
+        if rows.shape != (frame_count,) or not (rows["name"] == name).all():
+            return None
+        values[:, first : first + count] = rows["values"].reshape(frame_count, count)
+    if not np.isfinite(values).all():
+        return None
+    return values, int(numbers[0])
+
+
+def _read_amc_lines(
+    body: list[str],
+    first_line: int,
+    asf: _Asf,
+    layout: dict[str, tuple[int, int]],
+    column_count: int,
+    joint_count: int,
+    limits: ParseLimits,
+) -> tuple[np.ndarray, int]:
+    """Line-by-line AMC reading: any bone order, ``#`` comments; exact errors."""
+    rows: list[list[float]] = []
+    row: list[float] = []
+    seen: set[str] = set()
+    frame_number = 0
+    first_frame = 0
+    frame_line = 0
+    no_dof_bones = {name for name, bone in asf.bones.items() if not bone.dof}
+    if not asf.root.dof:
+        no_dof_bones.add("root")
+    most_values = max((count for _, count in layout.values()), default=0)
+
+    def finish_frame() -> None:
+        if len(seen) != len(layout):
+            missing = [name for name in layout if name not in seen]
+            raise ParseError(
+                f"frame {frame_number} has no values for bone {missing[0]!r}"
+                + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""),
+                line=frame_line,
+            )
+        rows.append(row)
+
+    for number, raw in enumerate(body, start=first_line):
+        # maxsplit bounds the work on a hostile long line
+        tokens = raw.split(None, most_values + 1)
+        if not tokens or tokens[0].startswith("#"):
+            continue
+        if len(tokens) == 1 and _FRAME_NUMBER_RE.fullmatch(tokens[0]) is not None:
+            if frame_line:
+                finish_frame()
+                if int(tokens[0]) != frame_number + 1:
+                    raise ParseError(
+                        f"frame numbers must be consecutive: expected {frame_number + 1}, "
+                        f"found {tokens[0]}",
+                        line=number,
+                    )
+            else:
+                first_frame = int(tokens[0])
+            frame_number = int(tokens[0])
+            frame_line = number
+            _check_amc_limits(len(rows) + 1, column_count, joint_count, limits, number)
+            row = [0.0] * column_count
+            seen = set()
+            continue
+        name = tokens[0]
+        if not frame_line:
+            raise ParseError(f"expected a frame number, found {show(name)}", line=number)
+        entry = layout.get(name)
+        if entry is None:
+            if name in no_dof_bones:
+                if len(tokens) == 1:
+                    continue  # a bone without dof listed with no values: harmless
+                raise ParseError(
+                    f"bone {name!r} has no dof in the ASF but the AMC gives it values",
+                    line=number,
+                )
+            if _FRAME_NUMBER_RE.fullmatch(name) is not None:
+                raise ParseError(
+                    f"frame number line has extra text after {show(name)}", line=number
+                )
+            raise ParseError(f"bone {show(name)} is not in the ASF skeleton", line=number)
+        if name in seen:
+            raise ParseError(f"bone {name!r} appears twice in frame {frame_number}", line=number)
+        seen.add(name)
+        first, count = entry
+        if len(tokens) - 1 != count:
+            found = f"more than {count}" if len(tokens) - 1 > most_values else len(tokens) - 1
+            dof = asf.root.dof if name == "root" else asf.bones[name].dof
+            raise ParseError(
+                f"bone {name!r} needs {count} values ({' '.join(dof)}), found {found}",
+                line=number,
+            )
+        for k, token in enumerate(tokens[1:]):
+            row[first + k] = parse_float(token, what=f"bone {name!r}", line=number)
+    if not frame_line:
+        raise ParseError("the AMC file has no frames", line=first_line)
+    finish_frame()
+    return np.array(rows, dtype=np.float64).reshape(len(rows), column_count), first_frame
+
+
+# ----------------------------------------------------------------------------------- building
+
+
+def _build_motion(
+    asf: _Asf,
+    joints: list[_JointPlan],
+    layout: dict[str, tuple[int, int]],
+    values: np.ndarray,
+    angle_unit: str,
+    frame_time: float,
+    first_frame: int,
+) -> Motion:
+    """The skeleton, ``(F, D)`` AMC values and ASF axis frames -> :class:`Motion`."""
+    frame_count = values.shape[0]
+    joint_count = len(joints)
+    scale = 1.0 / asf.length_multiplier
+    asf_to_radians = math.pi / 180.0 if asf.angle_unit == "deg" else 1.0
+    amc_to_radians = math.pi / 180.0 if angle_unit == "deg" else 1.0
+    index_of = {j.name: i for i, j in enumerate(joints) if not j.end_site}
+
+    # Rest skeleton: a bone's joint sits at its parent bone's tip.
+    bone_vectors = {
+        name: np.array(bone.direction, dtype=np.float64) * (bone.length or 0.0) * scale
+        for name, bone in asf.bones.items()
+    }
+    bone_vectors["root"] = np.zeros(3)
+    offsets = np.zeros((joint_count, 3))
+    for index, joint in enumerate(joints):
+        if joint.end_site:
+            offsets[index] = bone_vectors[joint.bone]
+        elif joint.parent >= 0:
+            offsets[index] = bone_vectors[joints[joint.parent].bone]
+
+    # Axis frames C_b, (3, 3) each.
+    axis_frames = {
+        name: matrices_from_euler(
+            bone.axis_order.lower(), np.array(bone.axis_angles) * asf_to_radians
+        )
+        for name, bone in asf.bones.items()
+    }
+    axis_frames["root"] = matrices_from_euler(
+        asf.root.axis_order.lower(), np.array(asf.root_orientation) * asf_to_radians
+    )
+
+    rotations = np.zeros((frame_count, joint_count, 3, 3))
+    rotations[..., 0, 0] = rotations[..., 1, 1] = rotations[..., 2, 2] = 1.0
+    # Group bones by their rotation dof sequence so each group is one vectorised call.
+    groups: dict[str, list[tuple[str, list[int]]]] = {}
+    for bone in (asf.root, *asf.bones.values()):
+        if bone.name not in layout:
+            continue
+        first, _ = layout[bone.name]
+        sequence = "".join(d[1] for d in bone.dof if d.startswith("r"))
+        columns = [first + k for k, d in enumerate(bone.dof) if d.startswith("r")]
+        if sequence:
+            groups.setdefault(sequence, []).append((bone.name, columns))
+    for sequence, members in groups.items():
+        names = [name for name, _ in members]
+        angles = values[:, np.array([columns for _, columns in members])] * amc_to_radians
+        frames = np.stack([axis_frames[name] for name in names])  # (G, 3, 3)
+        # L = C @ M @ C.T with M extrinsic in dof order, (F, G, 3, 3)
+        local = matrices_from_euler(sequence, angles, frames=frames)
+        rotations[:, [index_of[name] for name in names]] = local
+
+    root_translation = np.repeat(np.array(asf.root_position)[None] * scale, frame_count, axis=0)
+    if "root" in layout:
+        first, _ = layout["root"]
+        for k, dof in enumerate(asf.root.dof):
+            if dof.startswith("t"):
+                root_translation[:, "xyz".index(dof[1])] += values[:, first + k] * scale
+
+    local_translations = _bone_translations(
+        asf, joints, layout, values, offsets, axis_frames, scale
+    )
+    if local_translations is not None:
+        local_translations[:, 0] = root_translation
+
+    skeleton = Skeleton(
+        names=tuple(j.name for j in joints),
+        parents=np.array([j.parent for j in joints], dtype=np.int64),
+        offsets=offsets,
+        end_site=np.array([j.end_site for j in joints], dtype=bool),
+    )
+    multiplier = asf.length_multiplier
+    if math.isclose(multiplier, 0.45):
+        length_unit = "inches (ASF length / 0.45)"
+    elif multiplier == 1.0:
+        length_unit = "ASF units"
+    else:
+        length_unit = f"ASF units / {multiplier:g}"
+    return Motion(
+        skeleton=skeleton,
+        frame_time=float(frame_time),
+        root_translation=root_translation,
+        local_rotations=rotations,
+        local_translations=local_translations,
+        source_format="asf/amc",
+        length_unit=length_unit,
+        notes={
+            "asf_name": asf.name,
+            "length_multiplier": multiplier,
+            "angle_unit": angle_unit,
+            "amc_first_frame": first_frame,
+        },
+    )
+
+
+def _bone_translations(
+    asf: _Asf,
+    joints: list[_JointPlan],
+    layout: dict[str, tuple[int, int]],
+    values: np.ndarray,
+    offsets: np.ndarray,
+    axis_frames: dict[str, np.ndarray],
+    scale: float,
+) -> np.ndarray | None:
+    """``(F, J, 3)`` offsets moved by bone ``tx ty tz`` and ``l`` dofs, or ``None`` if none."""
+    moving = [
+        bone for bone in asf.bones.values() if any(d.startswith("t") or d == "l" for d in bone.dof)
+    ]
+    if not moving:
+        return None
+    frame_count = values.shape[0]
+    translations = np.repeat(offsets[None], frame_count, axis=0)
+    for bone in moving:
+        first, _ = layout[bone.name]
+        shift = np.zeros((frame_count, 3))
+        for k, dof in enumerate(bone.dof):
+            if dof.startswith("t"):
+                shift[:, "xyz".index(dof[1])] = values[:, first + k] * scale
+        bone_joint = next(i for i, j in enumerate(joints) if j.bone == bone.name)
+        # translations are along the bone's own axes
+        translations[:, bone_joint] += shift @ axis_frames[bone.name].T
+        if "l" in bone.dof:
+            stretch = values[:, first + bone.dof.index("l")] * scale
+            direction = np.array(bone.direction, dtype=np.float64)
+            for child, joint in enumerate(joints):
+                if joint.parent == bone_joint:
+                    translations[:, child] += stretch[:, None] * direction
+    return translations

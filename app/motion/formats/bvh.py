@@ -1,0 +1,657 @@
+"""BVH (Biovision Hierarchy) text -> :class:`~app.motion.model.Motion`.
+
+What the numbers mean
+---------------------
+* ``OFFSET x y z`` is a joint's rest position relative to its parent, in the parent's frame,
+  in the file's own length unit (centimetres for the Bandai files, ASF units for the CMU
+  MotionBuilder conversions; BVH does not say, so ``Motion.length_unit`` is ``"file units"``).
+* ``CHANNELS n name...`` lists, per joint, which values of each frame line belong to it and
+  in which order. Rotation channels are Euler angles in **degrees**, applied **intrinsically
+  in the listed order**: ``Zrotation Xrotation Yrotation`` means ``R = Rz(z) @ Rx(x) @ Ry(y)``
+  (scipy: ``Rotation.from_euler("ZXY", [z, x, y], degrees=True)``).
+* Position channels may sit on any joint. On the root they give ``Motion.root_translation``;
+  elsewhere they give ``Motion.local_translations``. A position value *replaces* that
+  component of the joint's ``OFFSET`` for that frame (checked on the Bandai files, whose
+  non-root position channels repeat their offsets); components without a channel keep the
+  offset.
+* ``Frame Time`` is seconds per frame.
+* ``End Site`` blocks become joints named ``"<parent>_end"`` with ``end_site=True`` and
+  identity rotation.
+
+Parsing strategy
+----------------
+The hierarchy is read line by line with an explicit stack (no recursion, so nesting depth is
+bounded only by :class:`~app.motion.model.ParseLimits`). The frame block is read by one call
+of numpy's C text reader; only when that fails or the counts disagree does a slower Python
+pass walk the block line by line to name the exact offending line.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from app.errors import LimitExceeded, ParseError
+from app.motion.model import Motion, ParseLimits, Skeleton
+
+__all__ = ["DEFAULT_LIMITS", "matrices_from_euler", "normalise_newlines", "parse_bvh"]
+
+#: The limits used when a caller gives none (see :class:`ParseLimits` for the numbers).
+DEFAULT_LIMITS = ParseLimits()
+
+#: Seconds; a frame time longer than this is taken as a broken header, not a slow clip.
+MAX_FRAME_TIME = 10.0
+#: Characters; hierarchy lines are short, a longer one is garbage (keeps token lists small).
+MAX_HIERARCHY_LINE = 65_536
+
+# One number as numpy's text reader accepts it (ASCII digits, no underscores, nan/inf words).
+NUMBER_RE = re.compile(
+    r"[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|nan|inf|infinity)", re.ASCII | re.IGNORECASE
+)
+_INTEGER_RE = re.compile(r"\+?\d+", re.ASCII)
+_SIGNED_INTEGER_RE = re.compile(r"[+-]?\d+", re.ASCII)
+_FRAMES_RE = re.compile(r"frames\s*:\s*(.*)", re.IGNORECASE)
+_FRAME_TIME_RE = re.compile(r"frame\s+time\s*:\s*(.*)", re.IGNORECASE)
+
+# channel name (lower case) -> (kind, axis index)
+_CHANNELS: dict[str, tuple[str, int]] = {
+    "xposition": ("position", 0),
+    "yposition": ("position", 1),
+    "zposition": ("position", 2),
+    "xrotation": ("rotation", 0),
+    "yrotation": ("rotation", 1),
+    "zrotation": ("rotation", 2),
+}
+_AXIS_LETTERS = "XYZ"
+
+
+def show(token: str, limit: int = 40) -> str:
+    """``repr`` of a token from a file, shortened so a hostile token cannot flood a message."""
+    if len(token) > limit:
+        return repr(token[:limit]) + "..."
+    return repr(token)
+
+
+def normalise_newlines(text: str) -> str:
+    """``text`` with lone ``\\r`` line ends turned into ``\\n``.
+
+    CRLF files are left alone (copying megabytes costs milliseconds): every reader here
+    splits lines on ``\\n`` and treats a trailing ``\\r`` as whitespace.
+    """
+    if "\r" in text and text.count("\r") != text.count("\r\n"):
+        return text.replace("\r\n", "\n").replace("\r", "\n")
+    return text
+
+
+def parse_float(token: str, *, what: str, line: int | None) -> float:
+    """A finite float from one token, or :class:`ParseError` naming ``what`` and the line."""
+    if NUMBER_RE.fullmatch(token) is None:
+        raise ParseError(f"{what}: {show(token)} is not a number", line=line)
+    value = float(token)
+    if not math.isfinite(value):
+        raise ParseError(f"{what}: {show(token)} is not a finite number", line=line)
+    return value
+
+
+def matrices_from_euler(
+    sequence: str, angles: np.ndarray, *, frames: np.ndarray | None = None
+) -> np.ndarray:
+    """Rotation matrices from Euler angles, vectorised, with scipy's sequence convention.
+
+    Parameters
+    ----------
+    sequence:
+        1 to 3 axis letters. Upper case (``"ZXY"``) means intrinsic rotations in the listed
+        order, ``R = R_Z @ R_X @ R_Y``; lower case (``"xyz"``) means extrinsic rotations in the
+        listed order, ``R = R_z @ R_y @ R_x``. Same meaning as
+        ``scipy.spatial.transform.Rotation.from_euler``.
+    angles:
+        ``(..., len(sequence))`` angles in **radians**, in the order of ``sequence``.
+    frames:
+        Optional ``(..., 3, 3)`` rotations ``C`` broadcastable against the batch shape of
+        ``angles``. When given, the result is ``C @ R @ C.T``: the rotation ``R`` about the
+        axes of frame ``C`` (how ASF bones rotate about their ``axis``).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(..., 3, 3)`` float64 matrices acting on column vectors.
+
+    Notes
+    -----
+    About 8x faster than ``Rotation.from_euler(...).as_matrix()`` (measured on 5 000 and
+    50 000 rotations): each elementary rotation only mixes two columns, so the product is
+    built by updating columns in place instead of multiplying full matrices. With ``frames``
+    it is about 2x faster than two batched ``@`` products.
+    """
+    angles = np.asarray(angles, dtype=np.float64)
+    if sequence.islower():
+        # Extrinsic a, b, c == intrinsic c, b, a.
+        sequence = sequence[::-1].upper()
+        angles = angles[..., ::-1]
+    cosines = np.cos(angles)
+    sines = np.sin(angles)
+    batch = angles.shape[:-1]
+    # Built as (3, 3, ...) so every column update touches contiguous memory.
+    if frames is None:
+        matrix = np.zeros((3, 3, *batch))
+        matrix[0, 0] = matrix[1, 1] = matrix[2, 2] = 1.0
+    else:
+        frames = np.asarray(frames, dtype=np.float64)
+        batch = np.broadcast_shapes(batch, frames.shape[:-2])
+        frames_first = np.moveaxis(np.broadcast_to(frames, (*batch, 3, 3)), (-2, -1), (0, 1))
+        matrix = np.array(frames_first)  # starts as C
+    for i, letter in enumerate(sequence):
+        a = _AXIS_LETTERS.index(letter)
+        b, d = (a + 1) % 3, (a + 2) % 3
+        cos_i, sin_i = cosines[..., i], sines[..., i]
+        # matrix @ R_a(angle): column b <- c*b + s*d, column d <- c*d - s*b
+        column_b = matrix[:, b].copy()
+        column_d = matrix[:, d]
+        matrix[:, b] = column_b * cos_i + column_d * sin_i
+        matrix[:, d] = column_d * cos_i - column_b * sin_i
+    if frames is not None:
+        # (C @ R) @ C.T: column l of the product is sum_k column_k(C @ R) * C[l, k]
+        product = np.empty_like(matrix)
+        for row in range(3):
+            product[:, row] = (
+                matrix[:, 0] * frames_first[row, 0]
+                + matrix[:, 1] * frames_first[row, 1]
+                + matrix[:, 2] * frames_first[row, 2]
+            )
+        matrix = product
+    return np.ascontiguousarray(np.moveaxis(matrix, (0, 1), (-2, -1)))
+
+
+@dataclass
+class _Joint:
+    """One joint while the hierarchy is being read."""
+
+    name: str
+    parent: int
+    line: int
+    end_site: bool = False
+    offset: tuple[float, float, float] | None = None
+    # (kind, axis) per channel, in file order
+    channels: list[tuple[str, int]] | None = None
+
+
+class _Lines:
+    """Iterates the lines of ``text`` from a character position, counting line numbers."""
+
+    def __init__(self, text: str) -> None:
+        self.text = text
+        self.pos = 0
+        self.line = 0  # 1-based number of the line last returned
+
+    def next(self) -> str | None:
+        """The next line without its newline, or ``None`` at the end of the text."""
+        if self.pos >= len(self.text):
+            return None
+        end = self.text.find("\n", self.pos)
+        if end < 0:
+            end = len(self.text)
+        line = self.text[self.pos : end]
+        self.pos = end + 1
+        self.line += 1
+        return line
+
+    def next_nonblank(self) -> str | None:
+        while (line := self.next()) is not None:
+            if line.strip():
+                return line
+        return None
+
+
+def parse_bvh(text: str, *, limits: ParseLimits = DEFAULT_LIMITS) -> Motion:
+    """Read a BVH file already decoded to text.
+
+    Parameters
+    ----------
+    text:
+        The whole file. ``\\r\\n`` and ``\\r`` line ends are accepted.
+    limits:
+        Upper bounds on joints, nesting depth, frames and values.
+
+    Returns
+    -------
+    Motion
+        ``source_format="bvh"``; see the module docstring for what the arrays hold.
+
+    Raises
+    ------
+    ParseError
+        The text is not a well-formed BVH file; ``line`` says where when it applies.
+    LimitExceeded
+        The file is over one of ``limits``.
+    """
+    text = normalise_newlines(text)
+    lines = _Lines(text)
+    joints = _read_hierarchy(lines, limits)
+    frame_count, frames_line, frame_time = _read_motion_header(lines)
+
+    channel_count = sum(len(j.channels or ()) for j in joints)
+    if channel_count == 0:
+        raise ParseError("the hierarchy declares no CHANNELS, so frames hold no data")
+    _check_frame_limits(frame_count, channel_count, len(joints), limits)
+    values = _read_frames(text, lines.pos, lines.line + 1, frame_count, frames_line, channel_count)
+    return _build_motion(joints, values, frame_time)
+
+
+def _read_hierarchy(lines: _Lines, limits: ParseLimits) -> list[_Joint]:
+    """Read from ``HIERARCHY`` to the ``MOTION`` line; joints in depth-first file order."""
+    first = lines.next_nonblank()
+    if first is None:
+        raise ParseError("the file is empty")
+    if len(first) > MAX_HIERARCHY_LINE:
+        raise ParseError("not a BVH file: the first line is far too long", line=lines.line)
+    if first.split()[0].upper() != "HIERARCHY":
+        raise ParseError(
+            f"not a BVH file: expected HIERARCHY, found {show(first.strip())}", line=lines.line
+        )
+    if len(first.split()) > 1:
+        raise ParseError("unexpected text after HIERARCHY", line=lines.line)
+
+    joints: list[_Joint] = []
+    names: dict[str, int] = {}  # real joint name -> line it was declared on
+    open_joints: list[int] = []  # stack of joints whose '{' is open
+    awaiting_brace: int | None = None  # joint declared, its '{' not yet seen
+    root_closed = False
+
+    while True:
+        text_line = lines.next()
+        number = lines.line
+        if text_line is None:
+            if not joints:
+                raise ParseError("the hierarchy has no ROOT joint (end of file)", line=number)
+            if awaiting_brace is not None or open_joints:
+                where = joints[open_joints[-1] if open_joints else awaiting_brace or 0]
+                raise ParseError(
+                    f"the hierarchy is truncated: end of file inside {where.name!r} "
+                    f"(opened on line {where.line}); missing '}}'",
+                    line=number,
+                )
+            raise ParseError("MOTION section missing after the hierarchy", line=number)
+        if len(text_line) > MAX_HIERARCHY_LINE:
+            raise ParseError(
+                f"hierarchy line is {len(text_line)} characters long; not a BVH hierarchy",
+                line=number,
+            )
+        tokens = text_line.split()
+        i = 0
+        while i < len(tokens):
+            keyword = tokens[i].upper()
+            if root_closed:
+                if keyword == "MOTION":
+                    if len(tokens) > 1:
+                        raise ParseError("unexpected text after MOTION", line=number)
+                    return joints
+                if keyword == "ROOT":
+                    raise ParseError(
+                        "a second ROOT: files with several skeletons are not supported",
+                        line=number,
+                    )
+                raise ParseError(
+                    f"expected MOTION after the hierarchy, found {show(tokens[i])}", line=number
+                )
+            if keyword == "{":
+                if awaiting_brace is None:
+                    raise ParseError(
+                        "unexpected '{' (no ROOT, JOINT or End Site before it)", line=number
+                    )
+                open_joints.append(awaiting_brace)
+                awaiting_brace = None
+                i += 1
+                continue
+            if awaiting_brace is not None:
+                raise ParseError(
+                    f"expected '{{' after {joints[awaiting_brace].name!r}, found {show(tokens[i])}",
+                    line=number,
+                )
+            if keyword == "}":
+                if not open_joints:
+                    raise ParseError("unbalanced '}'", line=number)
+                closing = joints[open_joints.pop()]
+                if closing.offset is None:
+                    raise ParseError(f"joint {closing.name!r} has no OFFSET", line=number)
+                if not closing.end_site and closing.channels is None:
+                    closing.channels = []  # a joint without CHANNELS has none
+                root_closed = not open_joints
+                i += 1
+                continue
+            if keyword in ("ROOT", "JOINT", "END"):
+                i, awaiting_brace = _declare_joint(
+                    tokens, i, number, joints, names, open_joints, limits
+                )
+                continue
+            if keyword == "MOTION":
+                if not joints:
+                    raise ParseError("MOTION before any ROOT joint", line=number)
+                where = joints[open_joints[-1] if open_joints else awaiting_brace or 0]
+                raise ParseError(
+                    f"the hierarchy is truncated: MOTION inside {where.name!r} "
+                    f"(opened on line {where.line}); missing '}}'",
+                    line=number,
+                )
+            if not open_joints:
+                raise ParseError(f"expected ROOT, found {show(tokens[i])}", line=number)
+            current = joints[open_joints[-1]]
+            keyword_token = tokens[i]
+            arguments: list[str] = []
+            i += 1
+            while i < len(tokens) and tokens[i] not in ("{", "}"):
+                arguments.append(tokens[i])
+                i += 1
+            if keyword == "OFFSET":
+                _set_offset(current, arguments, number)
+            elif keyword == "CHANNELS":
+                _set_channels(current, arguments, number)
+            else:
+                raise ParseError(f"unknown keyword {show(keyword_token)}", line=number)
+
+
+def _declare_joint(
+    tokens: list[str],
+    i: int,
+    number: int,
+    joints: list[_Joint],
+    names: dict[str, int],
+    open_joints: list[int],
+    limits: ParseLimits,
+) -> tuple[int, int]:
+    """Handle ``ROOT name``, ``JOINT name`` or ``End Site``; returns (next token, new joint)."""
+    keyword = tokens[i].upper()
+    i += 1
+    name_tokens: list[str] = []
+    while i < len(tokens) and tokens[i] != "{":
+        name_tokens.append(tokens[i])
+        i += 1
+    if keyword == "ROOT":
+        if joints:
+            raise ParseError("a second ROOT inside the hierarchy is not supported", line=number)
+        parent = -1
+    else:
+        if not open_joints:
+            what = "JOINT" if keyword == "JOINT" else "End Site"
+            raise ParseError(f"{what} outside of any ROOT", line=number)
+        parent = open_joints[-1]
+        if joints[parent].end_site:
+            raise ParseError("an End Site cannot have children", line=number)
+
+    end_site = keyword == "END"
+    if end_site:
+        # "End Site" (optionally followed by a name some exporters write; ignored)
+        if name_tokens and name_tokens[0].upper() == "SITE":
+            name_tokens = name_tokens[1:]
+        name = f"{joints[parent].name}_end"  # made unique in _build_motion
+    else:
+        if not name_tokens:
+            raise ParseError(f"{keyword} without a name", line=number)
+        name = " ".join(name_tokens)
+        if name in names:
+            raise ParseError(
+                f"duplicate joint name {name!r} (first declared on line {names[name]})",
+                line=number,
+            )
+        names[name] = number
+
+    depth = len(open_joints) + 1
+    if limits.max_depth is not None and depth > limits.max_depth:
+        raise LimitExceeded(
+            f"line {number}: the hierarchy is nested deeper than the limit of {limits.max_depth}"
+        )
+    if limits.max_joints is not None and len(joints) >= limits.max_joints:
+        raise LimitExceeded(
+            f"line {number}: more joints (including End Sites) than the limit of "
+            f"{limits.max_joints}"
+        )
+    joints.append(_Joint(name=name, parent=parent, line=number, end_site=end_site))
+    return i, len(joints) - 1
+
+
+def _set_offset(joint: _Joint, arguments: list[str], number: int) -> None:
+    if joint.offset is not None:
+        raise ParseError(f"second OFFSET for joint {joint.name!r}", line=number)
+    if len(arguments) != 3:
+        raise ParseError(
+            f"OFFSET of {joint.name!r} needs 3 numbers, found {len(arguments)}", line=number
+        )
+    x, y, z = (parse_float(a, what=f"OFFSET of {joint.name!r}", line=number) for a in arguments)
+    joint.offset = (x, y, z)
+
+
+def _set_channels(joint: _Joint, arguments: list[str], number: int) -> None:
+    if joint.end_site:
+        raise ParseError("an End Site cannot have CHANNELS", line=number)
+    if joint.channels is not None:
+        raise ParseError(f"second CHANNELS line for joint {joint.name!r}", line=number)
+    if not arguments or _INTEGER_RE.fullmatch(arguments[0]) is None:
+        found = show(arguments[0]) if arguments else "nothing"
+        raise ParseError(f"CHANNELS must start with a count, found {found}", line=number)
+    declared = int(arguments[0]) if len(arguments[0]) < 10 else -1
+    listed = arguments[1:]
+    if declared != len(listed):
+        raise ParseError(
+            f"CHANNELS says {arguments[0][:20]} but lists {len(listed)} channel names",
+            line=number,
+        )
+    channels: list[tuple[str, int]] = []
+    for channel_name in listed:
+        channel = _CHANNELS.get(channel_name.lower())
+        if channel is None:
+            raise ParseError(
+                f"unknown channel {show(channel_name)} for joint {joint.name!r} "
+                "(expected Xposition, Yposition, Zposition, Xrotation, Yrotation, Zrotation)",
+                line=number,
+            )
+        if channel in channels:
+            raise ParseError(f"channel {channel_name} listed twice", line=number)
+        channels.append(channel)
+    joint.channels = channels
+
+
+def _read_motion_header(lines: _Lines) -> tuple[int, int, float]:
+    """Read ``Frames:`` and ``Frame Time:``; returns (frame count, its line, seconds/frame)."""
+    frames_line = lines.next_nonblank()
+    match = None if frames_line is None else _FRAMES_RE.fullmatch(frames_line.strip())
+    if frames_line is None or match is None:
+        raise ParseError("expected 'Frames: <count>' after MOTION", line=lines.line)
+    token = match.group(1).strip()
+    if _SIGNED_INTEGER_RE.fullmatch(token) is None:
+        raise ParseError(f"Frames: {show(token)} is not a whole number", line=lines.line)
+    # a 10**18 stand-in for absurdly long numbers is caught by the frame limit
+    frame_count = int(token) if len(token) <= 18 else (10**18 if token[0] != "-" else -1)
+    if frame_count <= 0:
+        raise ParseError("Frames: must be at least 1", line=lines.line)
+    frames_line_number = lines.line
+
+    time_line = lines.next_nonblank()
+    match = None if time_line is None else _FRAME_TIME_RE.fullmatch(time_line.strip())
+    if time_line is None or match is None:
+        raise ParseError("expected 'Frame Time: <seconds>' after Frames:", line=lines.line)
+    frame_time = parse_float(match.group(1).strip(), what="Frame Time", line=lines.line)
+    if frame_time <= 0:
+        raise ParseError("Frame Time must be greater than 0 seconds", line=lines.line)
+    if frame_time > MAX_FRAME_TIME:
+        raise ParseError(
+            f"Frame Time of {frame_time:g} s is absurd (more than {MAX_FRAME_TIME:g} s)",
+            line=lines.line,
+        )
+    return frame_count, frames_line_number, frame_time
+
+
+def _check_frame_limits(
+    frame_count: int, channel_count: int, joint_count: int, limits: ParseLimits
+) -> None:
+    """Refuse before allocating: frames, values in the file and rotation values produced."""
+    if limits.max_frames is not None and frame_count > limits.max_frames:
+        raise LimitExceeded(f"{frame_count} frames is more than the limit of {limits.max_frames}")
+    if limits.max_values is not None:
+        produced = frame_count * max(channel_count, 9 * joint_count)
+        if produced > limits.max_values:
+            raise LimitExceeded(
+                f"{frame_count} frames of {joint_count} joints and {channel_count} channels "
+                f"need {produced} values, more than the limit of {limits.max_values}"
+            )
+
+
+def _read_frames(
+    text: str,
+    start: int,
+    first_line: int,
+    frame_count: int,
+    frames_line: int,
+    channel_count: int,
+) -> np.ndarray:
+    """The ``(F, C)`` frame values from ``text[start:]``; exact errors via a slow pass."""
+    block = text[start:].rstrip()
+    # Counting lines first bounds the C reader's work by the header (no max_rows: numpy
+    # warns when a blank line meets max_rows) and sends blank or extra lines to the slow pass.
+    if block and block.count("\n") + 1 == frame_count:
+        try:
+            values = np.loadtxt(io.StringIO(block), dtype=np.float64, comments=None, ndmin=2)
+        except ValueError as error:
+            reason = str(error)
+        else:
+            if values.shape == (frame_count, channel_count) and np.isfinite(values).all():
+                return values
+            reason = f"read {values.shape[0]} x {values.shape[1]} values"
+    else:
+        reason = "the number of lines differs from Frames:"
+    _diagnose_frames(block, first_line, frame_count, frames_line, channel_count)
+    # The block is valid after all (blank lines between frames): the C reader skips them.
+    try:
+        values = np.loadtxt(io.StringIO(block), dtype=np.float64, comments=None, ndmin=2)
+    except ValueError as error:
+        reason = str(error)
+    else:
+        if values.shape == (frame_count, channel_count) and np.isfinite(values).all():
+            return values
+    # The diagnostic pass is stricter than numpy's reader, so this is not expected.
+    raise ParseError(f"the frame data could not be read ({reason})", line=first_line)
+
+
+def _diagnose_frames(
+    block: str, first_line: int, frame_count: int, frames_line: int, channel_count: int
+) -> None:
+    """Walk the frame block line by line and raise for the first problem found."""
+    frame_lines = 0
+    for number, line in enumerate(block.split("\n"), start=first_line):
+        # maxsplit keeps a hostile 10 MB line from becoming millions of tokens
+        tokens = line.split(None, channel_count)
+        if not tokens:
+            continue
+        frame_lines += 1
+        if len(tokens) > channel_count:
+            # an exact count only when it is cheap to make
+            found = len(line.split()) if len(line) < 1_000_000 else f"more than {channel_count}"
+            raise ParseError(
+                f"frame line has {found} values, more than the {channel_count} channels "
+                "the hierarchy declares",
+                line=number,
+            )
+        if len(tokens) < channel_count:
+            raise ParseError(
+                f"frame line has {len(tokens)} values, expected {channel_count} (one per channel)",
+                line=number,
+            )
+        for column, token in enumerate(tokens, start=1):
+            if NUMBER_RE.fullmatch(token) is None:
+                raise ParseError(
+                    f"value {column} of the frame line, {show(token)}, is not a number",
+                    line=number,
+                )
+            if not math.isfinite(float(token)):
+                raise ParseError(
+                    f"value {column} of the frame line, {show(token)}, is not finite",
+                    line=number,
+                )
+    if frame_lines != frame_count:
+        raise ParseError(
+            f"Frames: says {frame_count} but the file has {frame_lines} frame lines",
+            line=frames_line,
+        )
+
+
+def _build_motion(joints: list[_Joint], values: np.ndarray, frame_time: float) -> Motion:
+    """Turn joints and the ``(F, C)`` value table into a :class:`Motion`."""
+    frame_count = values.shape[0]
+    joint_count = len(joints)
+    names = _unique_names(joints)
+    parents = np.array([j.parent for j in joints], dtype=np.int64)
+    offsets = np.array([j.offset for j in joints], dtype=np.float64).reshape(joint_count, 3)
+    end_site = np.array([j.end_site for j in joints], dtype=bool)
+
+    # Column layout: rotation groups by axis sequence, position (joint, axis, column) triples.
+    rotation_groups: dict[str, tuple[list[int], list[list[int]]]] = {}
+    position_joint: list[int] = []
+    position_axis: list[int] = []
+    position_column: list[int] = []
+    column = 0
+    for index, joint in enumerate(joints):
+        sequence = ""
+        rotation_columns: list[int] = []
+        for kind, axis in joint.channels or ():
+            if kind == "rotation":
+                sequence += _AXIS_LETTERS[axis]
+                rotation_columns.append(column)
+            else:
+                position_joint.append(index)
+                position_axis.append(axis)
+                position_column.append(column)
+            column += 1
+        if sequence:
+            group_joints, group_columns = rotation_groups.setdefault(sequence, ([], []))
+            group_joints.append(index)
+            group_columns.append(rotation_columns)
+
+    rotations = np.zeros((frame_count, joint_count, 3, 3))
+    rotations[..., 0, 0] = rotations[..., 1, 1] = rotations[..., 2, 2] = 1.0
+    for sequence, (group_joints, group_columns) in rotation_groups.items():
+        angles = np.radians(values[:, np.array(group_columns)])  # (F, G, k)
+        rotations[:, group_joints] = matrices_from_euler(sequence, angles)
+
+    root_translation = np.repeat(offsets[None, 0], frame_count, axis=0)
+    local_translations = None
+    joint_index = np.array(position_joint, dtype=np.int64)
+    axis_index = np.array(position_axis, dtype=np.int64)
+    column_index = np.array(position_column, dtype=np.int64)
+    on_root = joint_index == 0
+    root_translation[:, axis_index[on_root]] = values[:, column_index[on_root]]
+    if (~on_root).any():
+        local_translations = np.repeat(offsets[None], frame_count, axis=0)
+        local_translations[:, joint_index[~on_root], axis_index[~on_root]] = values[
+            :, column_index[~on_root]
+        ]
+        local_translations[:, 0] = root_translation
+
+    skeleton = Skeleton(names=names, parents=parents, offsets=offsets, end_site=end_site)
+    return Motion(
+        skeleton=skeleton,
+        frame_time=frame_time,
+        root_translation=root_translation,
+        local_rotations=rotations,
+        local_translations=local_translations,
+        source_format="bvh",
+        length_unit="file units",
+    )
+
+
+def _unique_names(joints: list[_Joint]) -> tuple[str, ...]:
+    """Joint names with generated End Site names made unique against every other name."""
+    taken = {j.name for j in joints if not j.end_site}
+    names: list[str] = []
+    for joint in joints:
+        name = joint.name
+        if joint.end_site:
+            suffix = 1
+            while name in taken:
+                suffix += 1
+                name = f"{joint.name}{suffix}"
+            taken.add(name)
+        names.append(name)
+    return tuple(names)

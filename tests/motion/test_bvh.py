@@ -1,0 +1,817 @@
+"""BVH reader: real files, conventions, every rejection case, limits and fuzzing."""
+
+from __future__ import annotations
+
+import itertools
+import random
+import re
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from app.errors import LimitExceeded, ParseError
+from app.motion.formats import read_bvh
+from app.motion.formats.bvh import matrices_from_euler
+from app.motion.model import Motion, ParseLimits
+from tests.motion.conftest import (
+    BANDAI_FIXTURE,
+    CMU_BVH_FIXTURE,
+    assert_consistent,
+    fixture_bytes,
+    fixture_text,
+    world_positions,
+)
+
+# Line numbers matter: the rejection tests below edit this text by line.
+TINY = """\
+HIERARCHY
+ROOT Hips
+{
+  OFFSET 1 2 3
+  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+  JOINT Chest
+  {
+    OFFSET 0 10 0
+    CHANNELS 3 Zrotation Xrotation Yrotation
+    End Site
+    {
+      OFFSET 0 5 0
+    }
+  }
+}
+MOTION
+Frames: 2
+Frame Time: 0.04
+0 90 0 10 20 30 40 50 60
+1 91 2 0 0 0 0 0 90
+"""
+# line numbers of TINY
+L_ROOT, L_JOINT, L_CHEST_OFFSET, L_CHEST_CHANNELS, L_END_SITE = 2, 6, 8, 9, 10
+L_CLOSE_CHEST, L_CLOSE_ROOT, L_MOTION, L_FRAMES, L_FRAME_TIME = 14, 15, 16, 17, 18
+L_FRAME_1, L_FRAME_2 = 19, 20
+
+
+def edit(text: str, line: int, new: str | None) -> str:
+    """``text`` with 1-based ``line`` replaced by ``new`` (deleted when ``None``)."""
+    lines = text.split("\n")
+    if new is None:
+        del lines[line - 1]
+    else:
+        lines[line - 1] = new
+    return "\n".join(lines)
+
+
+def cut_after(text: str, line: int) -> str:
+    """The first ``line`` lines of ``text``."""
+    return "\n".join(text.split("\n")[:line]) + "\n"
+
+
+def chain_bvh(depth: int, frames: int = 1) -> str:
+    """A BVH whose joints are nested ``depth`` deep (one rotation channel each)."""
+    parts = ["HIERARCHY"]
+    for level in range(depth):
+        parts.append(f"{'ROOT' if level == 0 else 'JOINT'} j{level}")
+        parts.append("{")
+        parts.append("OFFSET 0 1 0")
+        parts.append("CHANNELS 1 Zrotation")
+    parts.extend("}" * depth)
+    parts += ["MOTION", f"Frames: {frames}", "Frame Time: 0.01"]
+    parts += [" ".join(["1"] * depth)] * frames
+    return "\n".join(parts) + "\n"
+
+
+def header_counts(text: str) -> tuple[int, float]:
+    frames = re.search(r"Frames:\s*(\d+)", text)
+    frame_time = re.search(r"Frame Time:\s*(\S+)", text)
+    assert frames is not None and frame_time is not None
+    return int(frames.group(1)), float(frame_time.group(1))
+
+
+# ------------------------------------------------------------------------------ conventions
+
+
+def test_tiny_file_reads_every_number_where_it_belongs() -> None:
+    motion = read_bvh(TINY)
+    assert_consistent(motion)
+    skeleton = motion.skeleton
+    assert skeleton.names == ("Hips", "Chest", "Chest_end")
+    np.testing.assert_array_equal(skeleton.parents, [-1, 0, 1])
+    np.testing.assert_array_equal(skeleton.end_site, [False, False, True])
+    np.testing.assert_array_equal(skeleton.offsets, [[1, 2, 3], [0, 10, 0], [0, 5, 0]])
+    assert motion.frame_count == 2
+    assert motion.frame_time == pytest.approx(0.04)
+    assert motion.source_format == "bvh"
+    # root position channels replace the root OFFSET
+    np.testing.assert_array_equal(motion.root_translation, [[0, 90, 0], [1, 91, 2]])
+    assert motion.local_translations is None
+    # intrinsic in the listed order: Zrotation Xrotation Yrotation -> "ZXY"
+    expected_root = Rotation.from_euler("ZXY", [10, 20, 30], degrees=True).as_matrix()
+    expected_chest = Rotation.from_euler("ZXY", [40, 50, 60], degrees=True).as_matrix()
+    np.testing.assert_allclose(motion.local_rotations[0, 0], expected_root, atol=1e-12)
+    np.testing.assert_allclose(motion.local_rotations[0, 1], expected_chest, atol=1e-12)
+    np.testing.assert_allclose(
+        motion.local_rotations[1, 1],
+        np.eye(3)[[0, 1, 2]] @ Rotation.from_euler("Y", 90, degrees=True).as_matrix(),
+        atol=1e-12,
+    )
+    np.testing.assert_array_equal(
+        motion.local_rotations[:, 2], np.broadcast_to(np.eye(3), (2, 3, 3))
+    )
+
+
+@pytest.mark.parametrize(
+    "channels",
+    [
+        "Xrotation Yrotation Zrotation",
+        "Yrotation Zrotation Xrotation",
+        "Zrotation Yrotation Xrotation",
+    ],
+)
+def test_rotation_order_is_intrinsic_in_listed_order(channels: str) -> None:
+    text = edit(TINY, L_CHEST_CHANNELS, f"CHANNELS 3 {channels}")
+    motion = read_bvh(text)
+    sequence = "".join(name[0] for name in channels.split())
+    expected = Rotation.from_euler(sequence, [40, 50, 60], degrees=True).as_matrix()
+    np.testing.assert_allclose(motion.local_rotations[0, 1], expected, atol=1e-12)
+
+
+def test_channels_in_any_count_and_order_with_position_channels_on_a_joint() -> None:
+    text = edit(TINY, L_CHEST_CHANNELS, "CHANNELS 2 Yposition Xrotation")
+    text = edit(text, 5, "CHANNELS 1 Zrotation")
+    text = edit(text, L_FRAME_1, "30 7 45")
+    text = edit(text, L_FRAME_2, "0 -1 0")
+    motion = read_bvh(text)
+    # root without position channels keeps its OFFSET every frame
+    np.testing.assert_array_equal(motion.root_translation, [[1, 2, 3], [1, 2, 3]])
+    np.testing.assert_allclose(
+        motion.local_rotations[0, 0], Rotation.from_euler("Z", 30, degrees=True).as_matrix()
+    )
+    np.testing.assert_allclose(
+        motion.local_rotations[0, 1], Rotation.from_euler("X", 45, degrees=True).as_matrix()
+    )
+    # a partial position channel replaces only its component of the offset
+    assert motion.local_translations is not None
+    np.testing.assert_array_equal(motion.local_translations[:, 1], [[0, 7, 0], [0, -1, 0]])
+    np.testing.assert_array_equal(motion.local_translations[:, 2], [[0, 5, 0], [0, 5, 0]])
+    np.testing.assert_array_equal(motion.local_translations[:, 0], motion.root_translation)
+
+
+def test_joint_without_channels_and_extra_end_site_names_stay_unique() -> None:
+    text = TINY.replace(
+        "    End Site\n    {\n      OFFSET 0 5 0\n    }\n",
+        "    End Site\n    {\n      OFFSET 0 5 0\n    }\n"
+        "    End Site\n    {\n      OFFSET 0 6 0\n    }\n"
+        "    JOINT Chest_end\n    {\n      OFFSET 1 0 0\n    }\n",
+    )
+    motion = read_bvh(text)
+    assert motion.skeleton.names == ("Hips", "Chest", "Chest_end2", "Chest_end3", "Chest_end")
+    np.testing.assert_array_equal(motion.skeleton.end_site, [False, False, True, True, False])
+    np.testing.assert_array_equal(
+        motion.local_rotations[:, 4], np.broadcast_to(np.eye(3), (2, 3, 3))
+    )
+
+
+@pytest.mark.parametrize("length", [1, 2, 3])
+def test_matrices_from_euler_matches_scipy(length: int) -> None:
+    rng = np.random.default_rng(length)
+    angles = rng.uniform(-np.pi, np.pi, size=(7, 5, length))
+    for axes in itertools.product("XYZ", repeat=length):
+        sequence = "".join(axes)
+        if any(a == b for a, b in itertools.pairwise(sequence)):
+            continue  # scipy refuses consecutive repeats
+        for seq in (sequence, sequence.lower()):
+            expected = Rotation.from_euler(seq, angles.reshape(-1, length)).as_matrix()
+            got = matrices_from_euler(seq, angles)
+            assert got.shape == (7, 5, 3, 3)
+            np.testing.assert_allclose(got.reshape(-1, 3, 3), expected, atol=1e-12, err_msg=seq)
+
+
+def test_matrices_from_euler_in_a_frame_matches_matrix_products() -> None:
+    rng = np.random.default_rng(3)
+    angles = rng.uniform(-np.pi, np.pi, size=(11, 4, 3))
+    frames = Rotation.random(4, random_state=5).as_matrix()  # one per column of the batch
+    for sequence in ("xyz", "ZXY", "zx", "y"):
+        k = len(sequence)
+        plain = matrices_from_euler(sequence, angles[..., :k])
+        expected = frames @ plain @ np.swapaxes(frames, -1, -2)
+        got = matrices_from_euler(sequence, angles[..., :k], frames=frames)
+        np.testing.assert_allclose(got, expected, atol=1e-12, err_msg=sequence)
+
+
+def test_text_variants_read_the_same() -> None:
+    original = fixture_text(BANDAI_FIXTURE)
+    reference = read_bvh(original)
+    header, _, block = original.partition("Frame Time:\t0.0333333\n")
+    lines = block.rstrip("\n").split("\n")
+    exponent = " ".join(f"{float(v):.10e}" for v in lines[0].split())
+    variants = {
+        "crlf": original.replace("\n", "\r\n"),
+        "old mac cr": original.replace("\n", "\r"),
+        "mixed crlf and lf": original.replace("\n", "\r\n", 150),
+        "tabs": original.replace(" ", "\t"),
+        "scientific": header
+        + "Frame Time:\t0.0333333\n"
+        + "\n".join([exponent, *lines[1:]])
+        + "\n",
+        "trailing blank lines": original + "\n\n  \n\t\n",
+        "no final newline": original.rstrip("\n"),
+        "bom bytes": "\ufeff".encode() + original.encode(),
+        "bom str": "\ufeff" + original,
+        "blank lines inside the frame block": original.replace(lines[5] + "\n", lines[5] + "\n\n"),
+    }
+    for name, text in variants.items():
+        motion = read_bvh(text)
+        assert motion.skeleton.names == reference.skeleton.names, name
+        np.testing.assert_allclose(motion.local_rotations, reference.local_rotations, err_msg=name)
+        np.testing.assert_allclose(motion.root_translation, reference.root_translation)
+
+
+# ------------------------------------------------------------------------------ real fixtures
+
+
+def test_bandai_fixture_reads_position_channels_on_every_joint() -> None:
+    text = fixture_text(BANDAI_FIXTURE)
+    motion = read_bvh(fixture_bytes(BANDAI_FIXTURE))
+    assert_consistent(motion)
+    skeleton = motion.skeleton
+    assert (motion.frame_count, motion.frame_time) == header_counts(text)
+    assert skeleton.names[:3] == ("joint_Root", "Hips", "Spine")
+    assert skeleton.end_site.sum() == text.count("End Site")
+    assert motion.local_translations is not None
+
+    first_frame = np.array(text.split("Frame Time:\t0.0333333\n")[1].split("\n")[0].split(), float)
+    # 6 channels per non-end joint: X Y Z position then Z X Y rotation
+    per_joint = first_frame.reshape(-1, 6)
+    channel_joints = np.flatnonzero(~skeleton.end_site)
+    np.testing.assert_array_equal(motion.root_translation[0], per_joint[0, :3])
+    np.testing.assert_array_equal(
+        motion.local_translations[0, channel_joints[1:]], per_joint[1:, :3]
+    )
+    np.testing.assert_allclose(
+        motion.local_rotations[0, channel_joints],
+        Rotation.from_euler("ZXY", per_joint[:, 3:], degrees=True).as_matrix(),
+        atol=1e-12,
+    )
+    # Bandai position values below Hips repeat the OFFSETs: they replace, not add to, them
+    below_hips = channel_joints[2:]
+    np.testing.assert_allclose(
+        motion.local_translations[:, below_hips],
+        np.broadcast_to(skeleton.offsets[below_hips], (motion.frame_count, len(below_hips), 3)),
+        atol=1e-4,
+    )
+
+
+def test_bandai_fixture_bone_lengths_stay_constant() -> None:
+    motion = read_bvh(fixture_bytes(BANDAI_FIXTURE))
+    _assert_rigid_bones(motion)
+
+
+def _assert_rigid_bones(motion: Motion) -> None:
+    positions = world_positions(motion)
+    parents = motion.skeleton.parents
+    lengths = np.linalg.norm(positions[:, 2:] - positions[:, parents[2:]], axis=-1)
+    # joints below Hips: constant over frames and equal to the OFFSET lengths
+    np.testing.assert_allclose(lengths, lengths[:1].repeat(len(lengths), axis=0), atol=1e-4)
+    np.testing.assert_allclose(
+        lengths[0], np.linalg.norm(motion.skeleton.offsets[2:], axis=-1), atol=1e-4
+    )
+    # a real person in centimetres, Y up: the head gets well above the feet
+    names = motion.skeleton.names
+    head, foot = names.index("Head"), names.index("Foot_L")
+    assert 120 < np.max(positions[:, head, 1] - positions[:, foot, 1]) < 250
+
+
+def test_cmu_motionbuilder_fixture_has_only_root_positions() -> None:
+    text = fixture_text(CMU_BVH_FIXTURE)
+    motion = read_bvh(text)
+    assert_consistent(motion)
+    assert (motion.frame_count, motion.frame_time) == header_counts(text)
+    assert motion.local_translations is None
+    assert motion.skeleton.joint_count == 31 + 7  # 31 joints + 7 End Sites
+    # first frame is the converter's T-pose: no root rotation, translation as in the file
+    np.testing.assert_allclose(motion.local_rotations[0, 0], np.eye(3))
+    np.testing.assert_allclose(motion.root_translation[0], [10.4194, 16.7048, -30.1003])
+
+
+# ------------------------------------------------------------------------------ rejections
+
+REJECTIONS: list[tuple[str, str | bytes, type[Exception], int | None, str]] = [
+    ("empty bytes", b"", ParseError, None, "empty"),
+    ("only whitespace", " \n\t\r\n", ParseError, None, "empty"),
+    ("not a BVH", "hello world\nthis is text\n", ParseError, 1, "not a BVH"),
+    ("binary NUL bytes", b"HIERARCHY\x00\x01\x02", ParseError, None, "NUL"),
+    ("not UTF-8", b"HIERARCHY\nROOT H\xe9lo\n", ParseError, 2, "not UTF-8"),
+    ("UTF-16", "HIERARCHY\n".encode("utf-16"), ParseError, None, "UTF-16"),
+    ("no ROOT", "HIERARCHY\n\n", ParseError, None, "no ROOT"),
+    (
+        "truncated hierarchy (EOF)",
+        cut_after(TINY, L_CHEST_CHANNELS),
+        ParseError,
+        L_CHEST_CHANNELS,
+        "truncated",
+    ),
+    ("unbalanced braces", edit(TINY, L_CLOSE_CHEST, None), ParseError, L_MOTION - 1, "truncated"),
+    ("extra closing brace", edit(TINY, L_CLOSE_ROOT, "}\n}"), ParseError, 16, "expected MOTION"),
+    ("joint with no name", edit(TINY, L_JOINT, "  JOINT"), ParseError, L_JOINT, "without a name"),
+    ("root with no name", edit(TINY, L_ROOT, "ROOT"), ParseError, L_ROOT, "without a name"),
+    ("duplicate joint names", edit(TINY, L_JOINT, "JOINT Hips"), ParseError, L_JOINT, "duplicate"),
+    (
+        "OFFSET count",
+        edit(TINY, L_CHEST_OFFSET, "OFFSET 0 10"),
+        ParseError,
+        L_CHEST_OFFSET,
+        "3 numbers",
+    ),
+    (
+        "OFFSET text",
+        edit(TINY, L_CHEST_OFFSET, "OFFSET 0 ten 0"),
+        ParseError,
+        L_CHEST_OFFSET,
+        "not a number",
+    ),
+    (
+        "OFFSET nan",
+        edit(TINY, L_CHEST_OFFSET, "OFFSET 0 nan 0"),
+        ParseError,
+        L_CHEST_OFFSET,
+        "finite",
+    ),
+    ("no OFFSET", edit(TINY, L_CHEST_OFFSET, ""), ParseError, L_CLOSE_CHEST, "no OFFSET"),
+    (
+        "CHANNELS count disagrees",
+        edit(TINY, L_CHEST_CHANNELS, "CHANNELS 2 Zrotation Xrotation Yrotation"),
+        ParseError,
+        L_CHEST_CHANNELS,
+        "says 2 but lists 3",
+    ),
+    (
+        "CHANNELS count missing",
+        edit(TINY, L_CHEST_CHANNELS, "CHANNELS Zrotation"),
+        ParseError,
+        L_CHEST_CHANNELS,
+        "count",
+    ),
+    (
+        "unknown channel",
+        edit(TINY, L_CHEST_CHANNELS, "CHANNELS 3 Zrotation Xrotation Wrotation"),
+        ParseError,
+        L_CHEST_CHANNELS,
+        "unknown channel",
+    ),
+    (
+        "repeated channel",
+        edit(TINY, L_CHEST_CHANNELS, "CHANNELS 3 Zrotation Zrotation Yrotation"),
+        ParseError,
+        L_CHEST_CHANNELS,
+        "twice",
+    ),
+    (
+        "End Site with CHANNELS",
+        edit(TINY, 12, "OFFSET 0 5 0 CHANNELS 1 Xrotation"),
+        ParseError,
+        12,
+        "3 numbers",
+    ),
+    (
+        "unknown keyword",
+        edit(TINY, L_CHEST_OFFSET, "OFSET 0 10 0"),
+        ParseError,
+        L_CHEST_OFFSET,
+        "unknown keyword",
+    ),
+    ("no brace after JOINT", edit(TINY, 7, "OFFSET 0 0 0"), ParseError, 7, "expected '{'"),
+    (
+        "JOINT after the root closed",
+        edit(TINY, L_CLOSE_ROOT, "}\nJOINT Late"),
+        ParseError,
+        16,
+        "expected MOTION",
+    ),
+    (
+        "several ROOTs",
+        edit(TINY, L_CLOSE_ROOT, "}\nROOT Other\n{\nOFFSET 0 0 0\n}"),
+        ParseError,
+        16,
+        "second ROOT",
+    ),
+    ("MOTION missing", cut_after(TINY, L_CLOSE_ROOT), ParseError, None, "MOTION section missing"),
+    ("Frames missing", edit(TINY, L_FRAMES, None), ParseError, L_FRAMES, "Frames:"),
+    (
+        "Frames not an integer",
+        edit(TINY, L_FRAMES, "Frames: 2.5"),
+        ParseError,
+        L_FRAMES,
+        "whole number",
+    ),
+    ("Frames zero", edit(TINY, L_FRAMES, "Frames: 0"), ParseError, L_FRAMES, "at least 1"),
+    ("Frames negative", edit(TINY, L_FRAMES, "Frames: -3"), ParseError, L_FRAMES, "at least 1"),
+    ("Frames empty", edit(TINY, L_FRAMES, "Frames:"), ParseError, L_FRAMES, "whole number"),
+    ("Frame Time missing", edit(TINY, L_FRAME_TIME, None), ParseError, L_FRAME_TIME, "Frame Time"),
+    (
+        "Frame Time zero",
+        edit(TINY, L_FRAME_TIME, "Frame Time: 0"),
+        ParseError,
+        L_FRAME_TIME,
+        "greater than 0",
+    ),
+    (
+        "Frame Time negative",
+        edit(TINY, L_FRAME_TIME, "Frame Time: -0.01"),
+        ParseError,
+        L_FRAME_TIME,
+        "greater than 0",
+    ),
+    (
+        "Frame Time nan",
+        edit(TINY, L_FRAME_TIME, "Frame Time: nan"),
+        ParseError,
+        L_FRAME_TIME,
+        "finite",
+    ),
+    (
+        "Frame Time overflow",
+        edit(TINY, L_FRAME_TIME, "Frame Time: 1e309"),
+        ParseError,
+        L_FRAME_TIME,
+        "finite",
+    ),
+    (
+        "Frame Time absurd",
+        edit(TINY, L_FRAME_TIME, "Frame Time: 11"),
+        ParseError,
+        L_FRAME_TIME,
+        "absurd",
+    ),
+    (
+        "Frame Time text",
+        edit(TINY, L_FRAME_TIME, "Frame Time: fast"),
+        ParseError,
+        L_FRAME_TIME,
+        "not a number",
+    ),
+    (
+        "too few values",
+        edit(TINY, L_FRAME_2, "1 91 2 0 0 0 0 0"),
+        ParseError,
+        L_FRAME_2,
+        "has 8 values, expected 9",
+    ),
+    (
+        "too many values",
+        edit(TINY, L_FRAME_1, "0 90 0 10 20 30 40 50 60 70"),
+        ParseError,
+        L_FRAME_1,
+        "has 10 values, more than the 9 channels",
+    ),
+    (
+        "non-numeric value",
+        edit(TINY, L_FRAME_2, "1 91 2 0 x 0 0 0 90"),
+        ParseError,
+        L_FRAME_2,
+        "value 5",
+    ),
+    (
+        "value with a comma",
+        edit(TINY, L_FRAME_2, "1 91 2 0 0,5 0 0 0 90"),
+        ParseError,
+        L_FRAME_2,
+        "not a number",
+    ),
+    (
+        "nan value",
+        edit(TINY, L_FRAME_1, "0 90 0 10 nan 30 40 50 60"),
+        ParseError,
+        L_FRAME_1,
+        "not finite",
+    ),
+    (
+        "inf value",
+        edit(TINY, L_FRAME_2, "1 91 2 0 0 0 0 -inf 90"),
+        ParseError,
+        L_FRAME_2,
+        "not finite",
+    ),
+    (
+        "overflowing value",
+        edit(TINY, L_FRAME_2, "1 91 2 0 0 0 0 1e309 90"),
+        ParseError,
+        L_FRAME_2,
+        "not finite",
+    ),
+    (
+        "fewer frame lines than Frames:",
+        edit(TINY, L_FRAMES, "Frames: 3"),
+        ParseError,
+        L_FRAMES,
+        "Frames: says 3 but the file has 2 frame lines",
+    ),
+    (
+        "more frame lines than Frames:",
+        edit(TINY, L_FRAMES, "Frames: 1"),
+        ParseError,
+        L_FRAMES,
+        "Frames: says 1 but the file has 2 frame lines",
+    ),
+    ("no frame lines", cut_after(TINY, L_FRAME_TIME), ParseError, L_FRAMES, "has 0 frame lines"),
+    (
+        "no channels at all",
+        re.sub(r"CHANNELS .*", "CHANNELS 0", TINY),
+        ParseError,
+        None,
+        "no CHANNELS",
+    ),
+]
+
+
+@pytest.mark.parametrize(
+    ("data", "error", "line", "message"),
+    [case[1:] for case in REJECTIONS],
+    ids=[case[0] for case in REJECTIONS],
+)
+def test_rejects_bad_input(
+    data: str | bytes, error: type[Exception], line: int | None, message: str
+) -> None:
+    with pytest.raises(error) as raised:
+        read_bvh(data)
+    assert message in str(raised.value)
+    if line is not None:
+        assert isinstance(raised.value, ParseError)
+        assert raised.value.line == line
+        assert f"line {line}" in str(raised.value)
+
+
+@pytest.mark.parametrize("newline", ["\r\n", "\r"])
+def test_line_numbers_count_any_line_end(newline: str) -> None:
+    text = edit(TINY, L_FRAME_2, "1 91 2 0 x 0 0 0 90").replace("\n", newline)
+    with pytest.raises(ParseError) as raised:
+        read_bvh(text)
+    assert raised.value.line == L_FRAME_2
+
+
+def test_truncated_real_file_names_the_cut_line() -> None:
+    text = fixture_text(BANDAI_FIXTURE)
+    cut = text[: len(text) - 500]  # mid-way through the last frame line
+    with pytest.raises(ParseError, match="values, expected") as raised:
+        read_bvh(cut)
+    assert raised.value.line == cut.count("\n") + 1
+
+
+# ------------------------------------------------------------------------------ limits
+
+
+def test_depth_limit() -> None:
+    with pytest.raises(LimitExceeded, match="deeper than the limit of 256"):
+        read_bvh(chain_bvh(300))
+    assert read_bvh(chain_bvh(300), limits=ParseLimits(max_depth=300)).skeleton.joint_count == 300
+
+
+def test_very_deep_hierarchy_does_not_recurse() -> None:
+    depth = 20_000  # far past Python's recursion limit
+    motion = read_bvh(chain_bvh(depth), limits=ParseLimits(max_depth=None, max_joints=None))
+    assert motion.skeleton.joint_count == depth
+    assert motion.skeleton.parents[-1] == depth - 2
+
+
+def test_joint_limit_counts_end_sites() -> None:
+    with pytest.raises(LimitExceeded, match="limit of 2"):
+        read_bvh(TINY, limits=ParseLimits(max_joints=2))
+    assert read_bvh(TINY, limits=ParseLimits(max_joints=3)).skeleton.joint_count == 3
+
+
+def test_frame_limit_is_checked_before_reading_frames() -> None:
+    text = edit(TINY, L_FRAMES, "Frames: 1000000000000")
+    start = time.perf_counter()
+    with pytest.raises(LimitExceeded, match="frames"):
+        read_bvh(text)
+    with pytest.raises(LimitExceeded, match="frames"):
+        read_bvh(edit(TINY, L_FRAMES, "Frames: " + "9" * 5000))
+    with pytest.raises(LimitExceeded, match="frames"):
+        read_bvh(TINY, limits=ParseLimits(max_frames=1))
+    assert time.perf_counter() - start < 1.0
+
+
+def test_value_limit_covers_the_rotation_matrices_produced() -> None:
+    # 2 frames x 3 joints x 9 = 54 output values although the file holds only 18
+    with pytest.raises(LimitExceeded, match="values"):
+        read_bvh(TINY, limits=ParseLimits(max_values=50))
+    assert read_bvh(TINY, limits=ParseLimits(max_values=54)).frame_count == 2
+
+
+# ------------------------------------------------------------------------------ hostile input
+
+
+def _assert_quick_rejection(data: str, match: str, seconds: float = 3.0) -> None:
+    start = time.perf_counter()
+    with pytest.raises(ParseError, match=match):
+        read_bvh(data)
+    assert time.perf_counter() - start < seconds
+
+
+def test_ten_megabyte_frame_line() -> None:
+    huge = " ".join(["1.5"] * 2_500_000)
+    _assert_quick_rejection(edit(TINY, L_FRAME_2, huge), "has more than 9 values")
+    _assert_quick_rejection(edit(edit(TINY, L_FRAME_2, huge), L_FRAMES, "Frames: 1"), "more than 9")
+
+
+def test_ten_megabyte_lines_elsewhere() -> None:
+    _assert_quick_rejection(edit(TINY, L_JOINT, "JOINT " + "a" * 10_000_000), "characters long")
+    _assert_quick_rejection("HIERARCHY " + "x " * 5_000_000, "far too long")
+    _assert_quick_rejection("x" * 10_000_000, "not a BVH")
+    _assert_quick_rejection(edit(TINY, L_FRAME_TIME, "Frame Time: " + "1" * 10_000_000), "finite")
+
+
+def test_many_frame_lines_beyond_the_header() -> None:
+    text = TINY + "1 91 2 0 0 0 0 0 90\n" * 300_000
+    _assert_quick_rejection(text, "says 2 but the file has 300002 frame lines")
+
+
+def test_many_joints_and_braces_are_linear() -> None:
+    # 1000 sibling End Sites all wanting the same name
+    sites = "End Site\n{\nOFFSET 0 0 0\n}\n" * 990
+    text = TINY.replace("    End Site\n", sites + "    End Site\n", 1)
+    start = time.perf_counter()
+    assert read_bvh(text).skeleton.joint_count == 993
+    assert time.perf_counter() - start < 2.0
+    _assert_quick_rejection("HIERARCHY\n" + "{\n" * 1_000_000, "unexpected '{'")
+
+
+# ------------------------------------------------------------------------------ fuzzing
+
+_TOKENS = [
+    "",
+    "0",
+    "-1",
+    "1e309",
+    "nan",
+    "inf",
+    "1.5.2",
+    "{",
+    "}",
+    "ROOT",
+    "JOINT",
+    "End",
+    "Site",
+    "OFFSET",
+    "CHANNELS",
+    "MOTION",
+    "Frames:",
+    "Frame",
+    "Time:",
+    "Xposition",
+    "Zrotation",
+    "99999999999999999999999",
+    "\t",
+    "é",
+    "\x00",
+    "\r",
+    "#",
+]
+
+
+def _first_frames(text: str, frames: int) -> str:
+    """A real file cut to its first ``frames`` frames, with ``Frames:`` edited to match."""
+    header, _frames_line, rest = re.split(r"(Frames:\s*\d+)", text, maxsplit=1)
+    lines = rest.split("\n")
+    return header + f"Frames: {frames}" + "\n".join(lines[: frames + 2]) + "\n"
+
+
+_FUZZ_BASES = [
+    TINY,
+    _first_frames(fixture_text(CMU_BVH_FIXTURE), 4),
+    _first_frames(fixture_text(BANDAI_FIXTURE), 3),
+]
+
+
+@st.composite
+def mutated_bvh(draw: st.DrawFn) -> bytes:
+    """A real (or tiny) BVH with a few lines or tokens deleted, repeated, swapped or replaced."""
+    # a seeded Random (not hypothesis' own, which favours zeros) spreads edits over the file
+    rng = random.Random(draw(st.integers(0, 2**32 - 1)))
+    lines = draw(st.sampled_from(_FUZZ_BASES)).split("\n")
+    motion_line = next(i for i, line in enumerate(lines) if line.startswith("MOTION"))
+    for _ in range(draw(st.integers(1, 3))):
+        if not lines:
+            break
+        # half of the edits land in the MOTION section, where most of the numbers are
+        low = min(motion_line, len(lines) - 1) if rng.random() < 0.5 else 0
+        i = rng.randint(low, len(lines) - 1)
+        operation = rng.choices(
+            ["number", "delete", "duplicate", "replace", "token", "swap"], [4, 2, 2, 1, 2, 1]
+        )[0]
+        if operation == "number":  # usually keeps the file valid
+            tokens = lines[i].split() or [""]
+            tokens[rng.randrange(len(tokens))] = rng.choice(
+                [f"{rng.uniform(-1e3, 1e3):.6g}", "-0", "+.5", "1E-3", "7.", "1e300"]
+            )
+            lines[i] = " ".join(tokens)
+        elif operation == "delete":
+            del lines[i]
+        elif operation == "duplicate":
+            lines.insert(i, lines[i])
+        elif operation == "replace":
+            lines[i] = draw(st.text(max_size=30))
+        elif operation == "token":
+            tokens = lines[i].split() or [""]
+            tokens[rng.randrange(len(tokens))] = draw(
+                st.sampled_from(_TOKENS) | st.text(max_size=6)
+            )
+            lines[i] = " ".join(tokens)
+        else:
+            j = rng.randrange(len(lines))
+            lines[i], lines[j] = lines[j], lines[i]
+    data = "\n".join(lines).encode("utf-8", "surrogatepass")
+    if rng.random() < 0.2:
+        data = data[: rng.randint(0, len(data))]
+    if rng.random() < 0.2:
+        position = rng.randint(0, len(data))
+        data = data[:position] + draw(st.binary(min_size=1, max_size=8)) + data[position:]
+    return data
+
+
+def _read_or_reject(data: bytes | str) -> None:
+    try:
+        motion = read_bvh(data, limits=ParseLimits(max_frames=10_000, max_joints=500))
+    except (ParseError, LimitExceeded):
+        return
+    assert_consistent(motion)
+
+
+@settings(
+    max_examples=300,
+    deadline=2000,
+    database=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+)
+@given(mutated_bvh())
+def test_fuzzed_real_files_parse_or_raise_parse_error(data: bytes) -> None:
+    _read_or_reject(data)
+
+
+@settings(max_examples=200, deadline=1000, database=None)
+@given(st.one_of(st.binary(max_size=300), st.text(max_size=300)))
+def test_random_input_parses_or_raises_parse_error(data: bytes | str) -> None:
+    _read_or_reject(data)
+
+
+# ------------------------------------------------------------------------------ shared data
+
+
+def _bvh_files(root: Path) -> list[Path]:
+    bandai = sorted((root / "bandai-ds1" / "data").glob("*.bvh"))
+    cmu = sorted(
+        p
+        for folder in ("bvh-mb", "bvh-daz", "bvh-max")
+        for p in (root / "cmu" / folder).rglob("*.bvh")
+    )
+    return bandai + cmu
+
+
+@pytest.mark.slow
+def test_every_shared_bvh_file_parses(motion_data: Path) -> None:
+    files = _bvh_files(motion_data)
+    assert len(files) >= 174 + 37
+    for path in files:
+        text = path.read_bytes().decode("utf-8")
+        motion = read_bvh(text)
+        frames, frame_time = header_counts(text)
+        assert motion.frame_count == frames, path.name
+        assert motion.frame_time == pytest.approx(frame_time), path.name
+        assert motion.local_rotations.shape == (frames, motion.skeleton.joint_count, 3, 3)
+        assert np.isfinite(motion.local_rotations).all(), path.name
+        assert np.isfinite(motion.root_translation).all(), path.name
+        is_bandai = "bandai" in str(path)
+        assert (motion.local_translations is not None) == is_bandai, path.name
+
+
+@pytest.mark.slow
+def test_every_bandai_file_repeats_offsets_in_its_position_channels(motion_data: Path) -> None:
+    for path in sorted((motion_data / "bandai-ds1" / "data").glob("*.bvh")):
+        motion = read_bvh(path.read_bytes())
+        assert motion.local_translations is not None
+        moving = np.flatnonzero(~motion.skeleton.end_site)[2:]  # below joint_Root and Hips
+        np.testing.assert_allclose(
+            motion.local_translations[:, moving],
+            np.broadcast_to(motion.skeleton.offsets[moving], (motion.frame_count, len(moving), 3)),
+            atol=1e-4,
+            err_msg=path.name,
+        )
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "name",
+    [
+        "dataset-1_dance-short_normal_001.bvh",
+        "dataset-1_dash_tired_001.bvh",
+        "dataset-1_kick_normal_001.bvh",
+    ],
+)
+def test_bandai_bone_lengths_stay_constant(motion_data: Path, name: str) -> None:
+    motion = read_bvh((motion_data / "bandai-ds1" / "data" / name).read_bytes())
+    assert_consistent(motion)
+    _assert_rigid_bones(motion)
