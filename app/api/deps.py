@@ -1,0 +1,102 @@
+"""Dependencies shared by the routers, as ``Annotated`` aliases.
+
+``LibraryDep`` is the opened clip library (database sessions, files, indexes) kept in
+``app.state`` by the lifespan; ``ClipDep`` loads the clip named in the path or answers 404, so
+routes never repeat that check; ``UploadDep`` reads and checks a multipart upload.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import Depends, File, Form, Query, Request, UploadFile
+
+from app.config import Settings
+from app.db.repository import ClipRecord
+from app.errors import UnsupportedMediaType
+from app.services import clips as clip_service
+from app.services.library import DEFAULT_DESCRIPTOR, Library
+from app.services.uploads import Upload
+
+
+def get_library(request: Request) -> Library:
+    library: Library = request.app.state.library
+    return library
+
+
+def get_settings(request: Request) -> Settings:
+    settings: Settings = request.app.state.settings
+    return settings
+
+
+LibraryDep = Annotated[Library, Depends(get_library)]
+SettingsDep = Annotated[Settings, Depends(get_settings)]
+
+
+def get_clip(clip_id: int, library: LibraryDep) -> ClipRecord:
+    return clip_service.get_clip(library, clip_id)
+
+
+ClipDep = Annotated[ClipRecord, Depends(get_clip)]
+
+
+def _read(part: UploadFile | None) -> tuple[str | None, bytes] | None:
+    # The body size limit (BodySizeLimit) already bounds what can be read here.
+    return None if part is None else (part.filename, part.file.read())
+
+
+def read_upload(
+    request: Request,
+    file: Annotated[
+        UploadFile | None, File(description="One BVH file (`.bvh`). Or send `skeleton` + `motion`.")
+    ] = None,
+    skeleton: Annotated[
+        UploadFile | None, File(description="An Acclaim skeleton (`.asf`), with `motion`.")
+    ] = None,
+    motion: Annotated[
+        UploadFile | None, File(description="An Acclaim motion (`.amc`) of that skeleton.")
+    ] = None,
+    name: Annotated[
+        str | None,
+        Form(description="Clip name; default: the (motion) file name without extension."),
+    ] = None,
+    labels: Annotated[
+        list[str] | None,
+        Form(description="Free-form tags: repeat the field and/or separate them with commas."),
+    ] = None,
+) -> Upload:
+    content_type = request.headers.get("content-type", "")
+    if not content_type.lower().startswith("multipart/form-data"):
+        raise UnsupportedMediaType(
+            f"send the files as multipart/form-data (got {content_type or 'no content type'!r})"
+        )
+    return Upload.from_files(
+        file=_read(file), skeleton=_read(skeleton), motion=_read(motion), name=name, labels=labels
+    )
+
+
+UploadDep = Annotated[Upload, Depends(read_upload)]
+
+
+def descriptor_param(
+    library: LibraryDep,
+    descriptor: Annotated[
+        str,
+        Query(
+            description="Descriptor to compare with (see GET /descriptors).", examples=["posture"]
+        ),
+    ] = DEFAULT_DESCRIPTOR,
+) -> str:
+    library.descriptor(descriptor)  # 422 naming the known descriptors
+    return descriptor
+
+
+DescriptorDep = Annotated[str, Depends(descriptor_param)]
+
+KQuery = Annotated[
+    int,
+    Query(description="How many neighbours, 1 to MOCAP_MAX_K (default 1000).", examples=[10]),
+]
+LabelQuery = Annotated[
+    str | None, Query(description="Only clips carrying this label.", examples=["walk"])
+]

@@ -1,0 +1,205 @@
+"""The HTTP edge of errors: one table from domain exception to status, one JSON shape.
+
+Every error response, ours or the framework's (validation, unknown route, wrong method), is
+``{"error": "<code>", "detail": "<human message>"}``.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from http import HTTPStatus
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from pydantic import BaseModel, ConfigDict, Field
+from sqlalchemy.exc import OperationalError
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from app.errors import (
+    Forbidden,
+    InvalidInput,
+    MocapError,
+    NotFound,
+    PayloadTooLarge,
+    StorageUnavailable,
+    Unauthorized,
+    UnsupportedMediaType,
+)
+from app.services.search import DescriptorUnavailable
+
+log = logging.getLogger(__name__)
+
+# THE table: domain exception class -> HTTP status. Subclasses inherit their base's status
+# (ParseError, SkeletonMappingError and LimitExceeded are InvalidInput: 422).
+STATUS_BY_ERROR: dict[type[MocapError], int] = {
+    InvalidInput: 422,
+    NotFound: 404,
+    PayloadTooLarge: 413,
+    UnsupportedMediaType: 415,
+    Unauthorized: 401,
+    Forbidden: 403,
+    DescriptorUnavailable: 409,
+    StorageUnavailable: 503,
+    MocapError: 400,
+}
+
+# Codes for errors raised by the framework, by status.
+_FRAMEWORK_CODES = {
+    413: PayloadTooLarge.code,
+    415: UnsupportedMediaType.code,
+    422: "validation_error",
+    500: "internal_error",
+}
+
+
+class ErrorResponse(BaseModel):
+    """The body of every error response."""
+
+    model_config = ConfigDict(
+        json_schema_extra={"examples": [{"error": "not_found", "detail": "no clip with id 42"}]}
+    )
+
+    error: str = Field(description="Machine-readable error code, e.g. `not_found`.")
+    detail: str = Field(description="What went wrong, in words a person can act on.")
+
+
+def status_for(error: MocapError) -> int:
+    for cls in type(error).__mro__:
+        if cls in STATUS_BY_ERROR:
+            return STATUS_BY_ERROR[cls]
+    return 500
+
+
+def code_for_status(status: int) -> str:
+    if status in _FRAMEWORK_CODES:
+        return _FRAMEWORK_CODES[status]
+    try:
+        return HTTPStatus(status).phrase.lower().replace(" ", "_").replace("-", "_")
+    except ValueError:
+        return "error"
+
+
+def error_json(
+    status: int, code: str, detail: str, headers: Mapping[str, str] | None = None
+) -> JSONResponse:
+    return JSONResponse({"error": code, "detail": detail}, status_code=status, headers=headers)
+
+
+def _location(loc: tuple[Any, ...]) -> str:
+    # ("body", "file") -> "file"; ("query", "k") -> "query.k"
+    parts = [str(p) for p in loc]
+    if parts and parts[0] == "body":
+        parts = parts[1:]
+    return ".".join(parts) or "request"
+
+
+def describe_validation_error(exc: RequestValidationError) -> str:
+    return "; ".join(f"{_location(tuple(e.get('loc', ())))}: {e.get('msg')}" for e in exc.errors())
+
+
+async def _on_domain_error(_request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, MocapError)
+    status = status_for(exc)
+    headers = {"WWW-Authenticate": "Bearer"} if status == 401 else None
+    return error_json(status, exc.code, exc.detail, headers)
+
+
+async def _on_validation_error(_request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, RequestValidationError)
+    return error_json(422, "validation_error", describe_validation_error(exc))
+
+
+async def _on_http_error(_request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, StarletteHTTPException)
+    detail = exc.detail if isinstance(exc.detail, str) else str(exc.detail)
+    if exc.status_code == 404 and detail == "Not Found":
+        detail = "no such route; see /docs for the API"
+    return error_json(exc.status_code, code_for_status(exc.status_code), detail, exc.headers)
+
+
+async def _on_database_error(_request: Request, exc: Exception) -> JSONResponse:
+    # The database is unreachable, locked past the busy timeout, read-only or out of disk.
+    log.error("database error: %s", exc)
+    return error_json(503, StorageUnavailable.code, "the database is unavailable; try again")
+
+
+async def _on_unexpected_error(_request: Request, exc: Exception) -> JSONResponse:
+    log.exception("unhandled error", exc_info=exc)
+    return error_json(500, "internal_error", "internal error; the server log has the details")
+
+
+def install_error_handlers(app: FastAPI) -> None:
+    app.add_exception_handler(MocapError, _on_domain_error)
+    app.add_exception_handler(RequestValidationError, _on_validation_error)
+    app.add_exception_handler(StarletteHTTPException, _on_http_error)
+    app.add_exception_handler(OperationalError, _on_database_error)
+    app.add_exception_handler(Exception, _on_unexpected_error)
+
+
+# -- OpenAPI documentation of the error responses ------------------------------------------
+
+ERROR_EXAMPLES: dict[int, dict[str, tuple[str, str]]] = {
+    400: {"bad_request": ("Malformed request", "There was an error parsing the body")},
+    401: {"unauthorized": ("Missing or wrong API key", "missing API key")},
+    403: {"forbidden": ("Key without the right", "this API key may not change clips")},
+    404: {"not_found": ("Unknown clip", "no clip with id 42")},
+    409: {
+        "descriptor_unavailable": (
+            "Clip lacks a current vector",
+            "clip 7 has no 'motion' vector of version 2 yet; run `mocap-index reindex`",
+        )
+    },
+    413: {
+        "payload_too_large": (
+            "Upload over the size limit",
+            "request body over the 52428800-byte limit (MOCAP_MAX_UPLOAD_BYTES)",
+        )
+    },
+    415: {
+        "unsupported_media_type": (
+            "Not a .bvh / .asf / .amc file",
+            "field 'file': expected a .bvh file, got 'walk.fbx' (supported: .bvh as 'file', "
+            "or .asf as 'skeleton' with .amc as 'motion')",
+        )
+    },
+    422: {
+        "parse_error": (
+            "Unreadable motion file",
+            "file 'walk.bvh', line 12: CHANNELS: 'x' is not a number",
+        ),
+        "limit_exceeded": (
+            "Over the frame or joint limit",
+            "file 'long.bvh', line 9: 200000 frames, more than the limit of 100000",
+        ),
+        "invalid_input": (
+            "Missing part",
+            "field 'motion': an .asf skeleton must come with the 'motion'",
+        ),
+        "validation_error": ("Bad parameter", "query.k: Input should be a valid integer"),
+    },
+    503: {
+        "storage_unavailable": (
+            "Database or disk unavailable",
+            "cannot store the uploaded file: No space left on device",
+        )
+    },
+}
+
+
+def error_responses(*statuses: int) -> dict[int | str, dict[str, Any]]:
+    """``responses=`` for a route: the error model with examples for each status."""
+    responses: dict[int | str, dict[str, Any]] = {}
+    for status in statuses:
+        examples = {
+            code: {"summary": summary, "value": {"error": code, "detail": detail}}
+            for code, (summary, detail) in ERROR_EXAMPLES[status].items()
+        }
+        responses[status] = {
+            "model": ErrorResponse,
+            "description": HTTPStatus(status).phrase,
+            "content": {"application/json": {"examples": examples}},
+        }
+    return responses

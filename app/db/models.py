@@ -1,0 +1,123 @@
+"""Database tables. The schema is created and changed only by the Alembic migrations in
+``migrations/``; ``tests/db`` checks that these models and the migrations agree.
+
+Tables
+------
+clips
+    One row per stored clip: what was uploaded and what the motion core measured.
+clip_files
+    The uploaded parts of a clip (one for BVH; skeleton + motion for ASF/AMC), each kept as a
+    content-addressed file named by its sha256.
+clip_labels
+    Free-form tags, one row per (clip, label); indexed by label for filtering.
+clip_descriptors
+    The descriptor vectors (float32 bytes) with the descriptor version that produced them.
+    The FAISS indexes are rebuilt from this table.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+
+from sqlalchemy import (
+    DateTime,
+    Float,
+    ForeignKey,
+    Index,
+    Integer,
+    LargeBinary,
+    MetaData,
+    String,
+    UniqueConstraint,
+)
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
+
+# Deterministic constraint names, so migrations can refer to them on every backend.
+NAMING_CONVENTION = {
+    "ix": "ix_%(column_0_label)s",
+    "uq": "uq_%(table_name)s_%(column_0_N_name)s",
+    "ck": "ck_%(table_name)s_%(constraint_name)s",
+    "fk": "fk_%(table_name)s_%(column_0_name)s_%(referred_table_name)s",
+    "pk": "pk_%(table_name)s",
+}
+
+
+class Base(DeclarativeBase):
+    metadata = MetaData(naming_convention=NAMING_CONVENTION)
+
+
+class Clip(Base):
+    __tablename__ = "clips"
+    # AUTOINCREMENT on SQLite: ids of deleted clips are never handed out again.
+    __table_args__ = ({"sqlite_autoincrement": True},)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    name: Mapped[str] = mapped_column(String(255))
+    format: Mapped[str] = mapped_column(String(16))
+    content_hash: Mapped[str] = mapped_column(String(64), unique=True)
+    frame_count: Mapped[int] = mapped_column(Integer)
+    frame_time: Mapped[float] = mapped_column(Float)
+    duration: Mapped[float] = mapped_column(Float)
+    joint_count: Mapped[int] = mapped_column(Integer)
+    skeleton_family: Mapped[str] = mapped_column(String(64))
+    lead_in_frames: Mapped[int] = mapped_column(Integer)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
+
+    files: Mapped[list[ClipFile]] = relationship(
+        back_populates="clip",
+        cascade="all, delete-orphan",
+        passive_deletes=True,
+        order_by="ClipFile.position",
+    )
+    labels: Mapped[list[ClipLabel]] = relationship(
+        back_populates="clip",
+        cascade="all, delete-orphan",
+        passive_deletes=True,
+        order_by="ClipLabel.position",
+    )
+    descriptors: Mapped[list[ClipDescriptor]] = relationship(
+        back_populates="clip", cascade="all, delete-orphan", passive_deletes=True
+    )
+
+
+class ClipFile(Base):
+    __tablename__ = "clip_files"
+    __table_args__ = (UniqueConstraint("clip_id", "role"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    clip_id: Mapped[int] = mapped_column(ForeignKey("clips.id", ondelete="CASCADE"), index=True)
+    position: Mapped[int] = mapped_column(Integer)
+    role: Mapped[str] = mapped_column(String(16))  # "file" | "skeleton" | "motion"
+    filename: Mapped[str] = mapped_column(String(255))
+    sha256: Mapped[str] = mapped_column(String(64), index=True)
+    size: Mapped[int] = mapped_column(Integer)
+
+    clip: Mapped[Clip] = relationship(back_populates="files")
+
+
+class ClipLabel(Base):
+    __tablename__ = "clip_labels"
+    __table_args__ = (Index("ix_clip_labels_label_clip_id", "label", "clip_id"),)
+
+    clip_id: Mapped[int] = mapped_column(
+        ForeignKey("clips.id", ondelete="CASCADE"), primary_key=True
+    )
+    label: Mapped[str] = mapped_column(String(100), primary_key=True)
+    position: Mapped[int] = mapped_column(Integer)
+
+    clip: Mapped[Clip] = relationship(back_populates="labels")
+
+
+class ClipDescriptor(Base):
+    __tablename__ = "clip_descriptors"
+    __table_args__ = (Index("ix_clip_descriptors_name_version", "name", "version"),)
+
+    clip_id: Mapped[int] = mapped_column(
+        ForeignKey("clips.id", ondelete="CASCADE"), primary_key=True
+    )
+    name: Mapped[str] = mapped_column(String(64), primary_key=True)
+    version: Mapped[int] = mapped_column(Integer)
+    dimension: Mapped[int] = mapped_column(Integer)
+    vector: Mapped[bytes] = mapped_column(LargeBinary)  # (dimension,) little-endian float32
+
+    clip: Mapped[Clip] = relationship(back_populates="descriptors")

@@ -1,0 +1,65 @@
+"""Engine and session factories.
+
+SQLite gets the settings it needs to serve a threaded web app from one file: WAL (readers do
+not block the writer), foreign keys (``ON DELETE CASCADE``), a busy timeout, and real
+transactions — the ``sqlite3`` driver's legacy mode would not BEGIN before SELECT or DDL, so
+SQLAlchemy emits BEGIN itself (the recipe of the SQLAlchemy SQLite documentation). Write
+sessions begin with ``BEGIN IMMEDIATE`` so they take the write lock up front instead of failing
+when a read transaction is upgraded.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from sqlalchemy import Engine, create_engine, event
+from sqlalchemy.engine import make_url
+from sqlalchemy.orm import Session, sessionmaker
+
+SQLITE_BUSY_TIMEOUT_MS = 30_000
+
+
+def create_db_engine(url: str) -> Engine:
+    """An engine for ``url``; for SQLite the parent directory of the file is created."""
+    parsed = make_url(url)
+    if parsed.get_backend_name() != "sqlite":
+        return create_engine(url, pool_pre_ping=True)
+
+    database = parsed.database or ""
+    if database in ("", ":memory:") or database.startswith("file:"):
+        raise ValueError(
+            "use a SQLite file (in-memory databases are per connection and lose the schema)"
+        )
+    Path(database).parent.mkdir(parents=True, exist_ok=True)
+    engine = create_engine(
+        url, connect_args={"check_same_thread": False, "timeout": SQLITE_BUSY_TIMEOUT_MS / 1000}
+    )
+
+    @event.listens_for(engine, "connect")
+    def _on_connect(dbapi_connection: Any, _record: Any) -> None:
+        dbapi_connection.isolation_level = None  # we emit BEGIN ourselves, below
+        cursor = dbapi_connection.cursor()
+        cursor.execute("PRAGMA journal_mode=WAL")
+        cursor.execute("PRAGMA foreign_keys=ON")
+        cursor.execute(f"PRAGMA busy_timeout={SQLITE_BUSY_TIMEOUT_MS}")
+        cursor.execute("PRAGMA synchronous=NORMAL")  # durable with WAL except on power loss
+        cursor.close()
+
+    @event.listens_for(engine, "begin")
+    def _on_begin(connection: Any) -> None:
+        mode = connection.get_execution_options().get("sqlite_begin", "DEFERRED")
+        connection.exec_driver_sql(f"BEGIN {mode}")
+
+    return engine
+
+
+def read_sessions(engine: Engine) -> sessionmaker[Session]:
+    """Sessions for requests that only read (many may run at once)."""
+    return sessionmaker(bind=engine, expire_on_commit=False)
+
+
+def write_sessions(engine: Engine) -> sessionmaker[Session]:
+    """Sessions for writes: on SQLite they take the database write lock when they begin."""
+    bind = engine.execution_options(sqlite_begin="IMMEDIATE")
+    return sessionmaker(bind=bind, expire_on_commit=False)

@@ -1,0 +1,68 @@
+"""The web application: ``create_app(settings)`` builds it; nothing is created at import.
+
+Run it with ``mocap-index serve`` or ``uvicorn --factory app.main:create_app``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from importlib.metadata import PackageNotFoundError, version
+
+from fastapi import FastAPI
+from starlette.concurrency import run_in_threadpool
+
+from app.api import clips, meta, search
+from app.api.errors import install_error_handlers
+from app.api.limits import BodySizeLimit
+from app.config import Settings
+from app.services.describe import Describer
+from app.services.library import open_library
+
+DESCRIPTION = """
+Find similar motion-capture clips.
+
+Upload clips (one **BVH** file, or an **ASF** skeleton with an **AMC** motion); each is
+described under every descriptor (see `GET /descriptors`) and stored. `GET /search` returns
+the *k* clips nearest to a stored clip, `POST /search` those nearest to an uploaded file.
+
+Every error answers `{"error": "<code>", "detail": "<message>"}`.
+"""
+
+
+def _version() -> str:
+    try:
+        return version("mocap-index")
+    except PackageNotFoundError:
+        return "0+unknown"
+
+
+def create_app(settings: Settings | None = None, *, describer: Describer | None = None) -> FastAPI:
+    """The application for ``settings`` (default: from ``MOCAP_*`` variables).
+
+    The lifespan migrates the database, loads or rebuilds the indexes and keeps the opened
+    library in ``app.state.library``. ``describer`` replaces the motion core (tests).
+    """
+    settings = settings if settings is not None else Settings()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        library = await run_in_threadpool(open_library, settings, describer=describer)
+        app.state.library = library
+        try:
+            yield
+        finally:
+            library.close()
+
+    app = FastAPI(
+        title="mocap-index",
+        version=_version(),
+        description=DESCRIPTION,
+        lifespan=lifespan,
+    )
+    app.state.settings = settings
+    install_error_handlers(app)
+    app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
+    for module in (clips, search, meta):
+        app.include_router(module.router)
+    return app

@@ -1,0 +1,149 @@
+"""From uploaded bytes to what is stored about a clip, through the motion core.
+
+The service talks to the motion core only through a :class:`Describer`, so storage, indexes
+and the API are generic over the descriptor registry (and testable with synthetic vectors).
+:class:`MotionDescriber` is the real one: parse (BVH or ASF/AMC) -> ``analyse``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from app.errors import InvalidInput, ParseError
+from app.motion.descriptors import REGISTRY
+from app.motion.formats import read_asf_amc, read_bvh
+from app.motion.model import ParseLimits
+from app.motion.pipeline import analyse
+from app.services.uploads import BVH, Upload
+
+
+@dataclass(frozen=True)
+class DescriptorInfo:
+    """A descriptor as the service sees it: vectors of ``dimension`` float32 numbers, compared
+    with the Euclidean distance; ``version`` changes whenever the numbers change."""
+
+    name: str
+    dimension: int
+    version: int
+    description: str
+
+
+@dataclass(frozen=True)
+class Description:
+    """What the motion core measured on one clip; ``vectors[name]`` is ``(D,)`` float32."""
+
+    frame_count: int
+    frame_time: float
+    duration: float
+    joint_count: int
+    skeleton_family: str
+    lead_in_frames: int
+    vectors: dict[str, np.ndarray]
+
+    @property
+    def fields(self) -> dict[str, object]:
+        """The measured clip fields (everything but the vectors), by column name."""
+        return {
+            "frame_count": self.frame_count,
+            "frame_time": self.frame_time,
+            "duration": self.duration,
+            "joint_count": self.joint_count,
+            "skeleton_family": self.skeleton_family,
+            "lead_in_frames": self.lead_in_frames,
+        }
+
+
+class Describer(Protocol):
+    @property
+    def descriptors(self) -> Mapping[str, DescriptorInfo]:
+        """Every available descriptor, by name, in a stable order."""
+        ...
+
+    def describe(
+        self, upload: Upload, limits: ParseLimits, *, only: Sequence[str] | None = None
+    ) -> Description:
+        """Parse and describe ``upload`` under every descriptor (or those in ``only``).
+
+        Raises ParseError / LimitExceeded / InvalidInput for input that cannot be described.
+        """
+        ...
+
+
+def check_vectors(
+    vectors: Mapping[str, np.ndarray], descriptors: Mapping[str, DescriptorInfo]
+) -> dict[str, np.ndarray]:
+    """Vectors as ``(D,)`` float32 C-contiguous, checked against their descriptors.
+
+    A non-finite or mis-shaped vector would poison the index, so the clip is refused (422).
+    """
+    checked = {}
+    for name, vector in vectors.items():
+        info = descriptors[name]
+        array = np.ascontiguousarray(vector, dtype=np.float32).reshape(-1)
+        if array.shape != (info.dimension,):
+            raise InvalidInput(
+                f"descriptor {name!r} produced {array.size} numbers, expected {info.dimension}"
+            )
+        if not np.all(np.isfinite(array)):
+            raise InvalidInput(
+                f"the clip cannot be described: descriptor {name!r} is not finite (degenerate "
+                "motion, e.g. a skeleton of zero size)"
+            )
+        checked[name] = array
+    return checked
+
+
+def _name_source(error: ParseError, upload: Upload) -> ParseError:
+    """The parser's error, saying which uploaded field and file it is about."""
+    if upload.format == BVH:
+        part = upload.parts[0]
+    else:
+        role = {"ASF": "skeleton", "AMC": "motion"}.get(error.source or "")
+        if role is None:
+            return error
+        part = upload.part(role)
+    return type(error)(error.reason, line=error.line, source=f"{part.role} {part.filename!r}")
+
+
+class MotionDescriber:
+    """The real describer: :mod:`app.motion` parsers, ``analyse`` and its ``REGISTRY``."""
+
+    def __init__(self) -> None:
+        self._descriptors = {
+            d.name: DescriptorInfo(d.name, d.dimension, d.version, d.description)
+            for d in REGISTRY.values()
+        }
+
+    @property
+    def descriptors(self) -> Mapping[str, DescriptorInfo]:
+        return self._descriptors
+
+    def describe(
+        self, upload: Upload, limits: ParseLimits, *, only: Sequence[str] | None = None
+    ) -> Description:
+        try:
+            if upload.format == BVH:
+                motion = read_bvh(upload.parts[0].data, limits=limits)
+            else:
+                motion = read_asf_amc(
+                    upload.part("skeleton").data, upload.part("motion").data, limits=limits
+                )
+        except ParseError as error:
+            raise _name_source(error, upload) from None
+        try:
+            analysis = analyse(motion, descriptors=None if only is None else list(only))
+        except ParseError as error:  # e.g. SkeletonMappingError: joints the descriptors need
+            raise _name_source(error, upload) from None
+        return Description(
+            frame_count=analysis.frame_count,
+            frame_time=analysis.frame_time,
+            duration=analysis.duration,
+            joint_count=analysis.joint_count,
+            skeleton_family=analysis.skeleton_family,
+            lead_in_frames=analysis.lead_in_frames,
+            vectors=check_vectors(analysis.descriptors, self._descriptors),
+        )

@@ -1,0 +1,215 @@
+"""Ingest: uploaded bytes -> parse -> describe -> store files -> database commit -> indexes.
+
+Order matters. The files are written before the rows that name them, the database commits
+before the indexes change (the database is the source of truth: an index can be rebuilt from
+it, not the other way round), and a failure before the commit leaves no row, no vector and
+no file behind. Identical content (same content hash) is stored once: a repeated upload returns
+the existing clip, also when two arrive at once (the UNIQUE content hash settles races with
+other processes; the library's write lock those within this one).
+
+:func:`ingest_many` is the batch entry point (one transaction and one index update per batch)
+that bulk imports share with the single-upload API.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from sqlalchemy.exc import IntegrityError, SQLAlchemyError
+
+from app.db import repository as repo
+from app.errors import MocapError, StorageUnavailable
+from app.services.describe import Description
+from app.services.library import Library
+from app.services.uploads import Upload
+
+log = logging.getLogger(__name__)
+
+MAX_COMMIT_ATTEMPTS = 3
+
+
+@dataclass(frozen=True)
+class Described:
+    """An upload the motion core has read and described, ready to be stored.
+
+    ``description`` is ``None`` for content found already stored, which need not be read.
+    """
+
+    upload: Upload
+    description: Description | None
+
+
+@dataclass(frozen=True)
+class IngestResult:
+    clip: repo.ClipRecord
+    created: bool  # False: the same content was already stored, ``clip`` is that clip
+
+
+def find_existing(library: Library, upload: Upload) -> repo.ClipRecord | None:
+    with library.reads() as session:
+        return repo.get_clip_by_hash(session, upload.content_hash)
+
+
+def describe(library: Library, upload: Upload, *, only: Sequence[str] | None = None) -> Described:
+    """Parse and describe ``upload`` (blocking, CPU-bound; stores nothing)."""
+    description = library.describer.describe(upload, library.settings.parse_limits, only=only)
+    return Described(upload, description)
+
+
+def new_clip(library: Library, item: Described) -> repo.NewClip:
+    """The row to insert for a described upload."""
+    upload, description = item.upload, item.description
+    if description is None:
+        raise ValueError("the upload was not described")
+    return repo.NewClip(
+        name=upload.clip_name,
+        format=upload.format,
+        content_hash=upload.content_hash,
+        frame_count=description.frame_count,
+        frame_time=description.frame_time,
+        duration=description.duration,
+        joint_count=description.joint_count,
+        skeleton_family=description.skeleton_family,
+        lead_in_frames=description.lead_in_frames,
+        labels=upload.labels,
+        files=tuple(repo.FileRecord(p.role, p.filename, p.sha256, p.size) for p in upload.parts),
+        vectors={
+            name: repo.StoredVector(library.descriptors[name].version, vector)
+            for name, vector in description.vectors.items()
+        },
+    )
+
+
+def _forget_files(library: Library, written: Iterable[str]) -> None:
+    """Remove files this call wrote (they did not exist before) that no committed clip uses."""
+    written = set(written)
+    if not written:
+        return
+    try:
+        with library.reads() as session:
+            used = repo.referenced_blobs(session, written)
+    except SQLAlchemyError:
+        # The database is down: only another process could have referred to these new files
+        # meanwhile, far less likely than this failure, so they go.
+        used = set()
+    for sha in written - used:
+        library.blobs.delete(sha)
+
+
+def _add_to_indexes(library: Library, ids: list[int], items: list[Described]) -> None:
+    for name in library.descriptors:
+        rows = [
+            (clip_id, item.description.vectors[name])
+            for clip_id, item in zip(ids, items, strict=True)
+            if item.description is not None and name in item.description.vectors
+        ]
+        if not rows:
+            continue
+        try:
+            library.indexes[name].add([i for i, _ in rows], np.stack([v for _, v in rows]))
+        except Exception:
+            # The rows are committed; the index is only a cache of them.
+            log.exception("adding to the %s index failed; rebuilding it from the database", name)
+            library.rebuild_index(name)
+
+
+def store_many(library: Library, items: Sequence[Described]) -> list[IngestResult]:
+    """Store described uploads in one transaction; results in the order of ``items``.
+
+    Content already stored (or repeated within ``items``) is not stored again: its result is
+    the existing clip with ``created=False``.
+    """
+    if not items:
+        return []
+    hashes = [item.upload.content_hash for item in items]
+    created: set[str] = set()
+    with library.write_lock:
+        for attempt in range(1, MAX_COMMIT_ATTEMPTS + 1):
+            with library.reads() as session:
+                existing = repo.clip_ids_by_hash(session, hashes)
+            fresh: dict[str, Described] = {}
+            for item in items:
+                if item.upload.content_hash not in existing:
+                    fresh.setdefault(item.upload.content_hash, item)
+            if not fresh:
+                break
+            for content_hash, item in fresh.items():
+                if item.description is None:  # found stored earlier, deleted since: read it now
+                    fresh[content_hash] = describe(library, item.upload)
+            written: list[str] = []
+            try:
+                for item in fresh.values():
+                    for part in item.upload.parts:
+                        sha, new = library.blobs.put(part.data)
+                        if new:
+                            written.append(sha)
+                with library.writes.begin() as session:
+                    ids = [repo.insert_clip(session, new_clip(library, i)) for i in fresh.values()]
+            except IntegrityError:
+                # Another process stored some of this content meanwhile: look again.
+                _forget_files(library, written)
+                if attempt == MAX_COMMIT_ATTEMPTS:
+                    raise StorageUnavailable("the database kept changing; try again") from None
+                continue
+            except SQLAlchemyError as exc:
+                _forget_files(library, written)
+                raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
+            except BaseException:
+                _forget_files(library, written)
+                raise
+            created = set(fresh)
+            _add_to_indexes(library, ids, list(fresh.values()))
+            break
+        with library.reads() as session:
+            by_hash = repo.clip_ids_by_hash(session, hashes)
+            clips = repo.get_clips(session, by_hash.values())
+    results = []
+    reported: set[str] = set()
+    for content_hash in hashes:
+        is_new = content_hash in created and content_hash not in reported
+        reported.add(content_hash)
+        results.append(IngestResult(clips[by_hash[content_hash]], is_new))
+    return results
+
+
+def ingest(library: Library, upload: Upload) -> IngestResult:
+    """Store one upload (or return the clip already holding the same content)."""
+    existing = find_existing(library, upload)
+    if existing is not None:
+        return IngestResult(existing, created=False)  # no need to read it again
+    return store_many(library, [describe(library, upload)])[0]
+
+
+def ingest_many(
+    library: Library,
+    uploads: Iterable[Upload],
+    *,
+    batch_size: int = 100,
+    on_error: Callable[[Upload, MocapError], None] | None = None,
+) -> list[IngestResult]:
+    """Store many uploads, ``batch_size`` per transaction and index update.
+
+    An upload that cannot be read raises, unless ``on_error`` is given: then it is reported
+    there and skipped (the batch goes on). Results are in upload order, skipped ones left out.
+    """
+    results: list[IngestResult] = []
+    batch: list[Described] = []
+    for upload in uploads:
+        try:
+            if find_existing(library, upload) is None:
+                batch.append(describe(library, upload))
+            else:
+                batch.append(Described(upload, None))
+        except MocapError as error:
+            if on_error is None:
+                raise
+            on_error(upload, error)
+            continue
+        if len(batch) >= batch_size:
+            results.extend(store_many(library, batch))
+            batch = []
+    results.extend(store_many(library, batch))
+    return results

@@ -1,0 +1,76 @@
+"""Recompute descriptor vectors from the stored files, then rebuild every index.
+
+Needed when a descriptor's version changes or a new descriptor is registered: stored clips
+then lack a current vector and cannot be found with it until this runs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from app.db import repository as repo
+from app.errors import MocapError
+from app.services.library import Library
+from app.services.uploads import Upload, UploadPart
+
+
+@dataclass
+class ReindexReport:
+    recomputed: int = 0
+    failed: dict[int, str] = field(default_factory=dict)  # clip id -> why
+    index_sizes: dict[str, int] = field(default_factory=dict)
+
+
+def stored_upload(library: Library, clip: repo.ClipRecord) -> Upload:
+    """The clip's original upload, read back from the stored files."""
+    parts = tuple(UploadPart(f.role, f.filename, library.blobs.read(f.sha256)) for f in clip.files)
+    return Upload(parts, clip.name, clip.labels)
+
+
+def reindex(
+    library: Library,
+    *,
+    everything: bool = False,
+    progress: Callable[[int, int, repo.ClipRecord], None] | None = None,
+) -> ReindexReport:
+    """Recompute the vectors that are missing or of an old version (every vector with
+    ``everything``), then rebuild and save each descriptor's index from the database.
+
+    Run it while the service is stopped: a running service keeps its own indexes in memory.
+    """
+    current = {name: info.version for name, info in library.descriptors.items()}
+    with library.reads() as session:
+        if everything:
+            needing = {i: list(current) for i in repo.all_clip_ids(session)}
+        else:
+            needing = repo.clips_needing_vectors(session, current)
+    report = ReindexReport()
+    for done, (clip_id, names) in enumerate(needing.items(), start=1):
+        with library.reads() as session:
+            clip = repo.get_clip(session, clip_id)
+        if clip is None:  # deleted meanwhile
+            continue
+        if progress is not None:
+            progress(done, len(needing), clip)
+        try:
+            upload = stored_upload(library, clip)
+            description = library.describer.describe(
+                upload, library.settings.parse_limits, only=names
+            )
+        except MocapError as error:
+            report.failed[clip_id] = error.detail
+            continue
+        vectors = {
+            name: repo.StoredVector(current[name], vector)
+            for name, vector in description.vectors.items()
+        }
+        with library.write_lock, library.writes.begin() as session:
+            repo.put_vectors(session, clip_id, vectors)
+            repo.update_clip(session, clip_id, analysis=description.fields)
+        report.recomputed += 1
+    with library.write_lock:
+        for name in library.descriptors:
+            library.rebuild_index(name)
+    report.index_sizes = library.indexes.sizes()
+    return report

@@ -1,0 +1,168 @@
+"""What a user uploads: one BVH file, or an ASF skeleton plus an AMC motion.
+
+:class:`Upload` checks which parts were sent and their file types, names the clip by default,
+normalises labels, and computes the content hash that identifies the clip:
+
+* BVH: ``sha256(file bytes)``;
+* ASF/AMC: ``sha256(sha256(asf bytes) || sha256(amc bytes))`` over the two raw digests, so the
+  hash depends on both files and on which is which.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import PurePosixPath, PureWindowsPath
+
+from app.errors import InvalidInput, UnsupportedMediaType
+
+MAX_NAME_LENGTH = 255
+MAX_LABEL_LENGTH = 100
+MAX_LABELS = 100
+
+BVH = "bvh"
+ASF_AMC = "asf/amc"
+
+# Upload field -> the one file extension it takes.
+EXTENSIONS = {"file": ".bvh", "skeleton": ".asf", "motion": ".amc"}
+
+
+@dataclass(frozen=True)
+class UploadPart:
+    """One uploaded file: the form field it came in (``role``), its name and bytes."""
+
+    role: str
+    filename: str
+    data: bytes = field(repr=False)
+
+    @cached_property
+    def sha256(self) -> str:
+        return hashlib.sha256(self.data).hexdigest()
+
+    @property
+    def size(self) -> int:
+        return len(self.data)
+
+
+def clean_filename(raw: str | None, role: str) -> str:
+    """The base name of an uploaded file (clients may send a path)."""
+    name = PureWindowsPath(PurePosixPath(raw or "").name).name.strip()
+    if not name:
+        raise InvalidInput(f"field '{role}': the uploaded file has no file name")
+    return name[-MAX_NAME_LENGTH:]
+
+
+def normalise_labels(values: Iterable[str] | None) -> tuple[str, ...]:
+    """Labels from repeated fields and/or comma-separated values: stripped, empty ones dropped,
+    duplicates removed (first one kept)."""
+    labels: dict[str, None] = {}
+    for value in values or ():
+        for label in value.split(","):
+            label = label.strip()
+            if not label:
+                continue
+            if len(label) > MAX_LABEL_LENGTH:
+                raise InvalidInput(
+                    f"labels: {label[:20]!r}... is over {MAX_LABEL_LENGTH} characters"
+                )
+            labels[label] = None
+    if len(labels) > MAX_LABELS:
+        raise InvalidInput(f"labels: at most {MAX_LABELS} labels per clip")
+    return tuple(labels)
+
+
+def normalise_name(value: str | None) -> str | None:
+    """A clip name stripped of surrounding space; ``None`` when absent or blank."""
+    if value is None or not value.strip():
+        return None
+    name = value.strip()
+    if len(name) > MAX_NAME_LENGTH:
+        raise InvalidInput(f"name: at most {MAX_NAME_LENGTH} characters")
+    return name
+
+
+@dataclass(frozen=True)
+class Upload:
+    """A validated upload; build it with :meth:`from_files`."""
+
+    parts: tuple[UploadPart, ...]
+    name: str | None = None
+    labels: tuple[str, ...] = ()
+
+    @classmethod
+    def from_files(
+        cls,
+        *,
+        file: tuple[str | None, bytes] | None = None,
+        skeleton: tuple[str | None, bytes] | None = None,
+        motion: tuple[str | None, bytes] | None = None,
+        name: str | None = None,
+        labels: Iterable[str] | None = None,
+    ) -> Upload:
+        """Check which parts were sent and their types.
+
+        Each part is ``(file name, bytes)``. Raises :class:`InvalidInput` for a missing or
+        surplus part (naming the field) and :class:`UnsupportedMediaType` for a file whose
+        extension does not fit its field.
+        """
+        if file is not None and (skeleton is not None or motion is not None):
+            extra = "skeleton" if skeleton is not None else "motion"
+            raise InvalidInput(
+                f"field '{extra}': send either 'file' (one .bvh) or 'skeleton' (.asf) with "
+                "'motion' (.amc), not both"
+            )
+        if file is not None:
+            given = {"file": file}
+        elif skeleton is not None and motion is not None:
+            given = {"skeleton": skeleton, "motion": motion}
+        elif skeleton is not None:
+            raise InvalidInput("field 'motion': an .amc motion must come with the 'skeleton'")
+        elif motion is not None:
+            raise InvalidInput("field 'skeleton': an .asf skeleton must come with the 'motion'")
+        else:
+            raise InvalidInput(
+                "field 'file': no upload; send 'file' (one .bvh) or 'skeleton' (.asf) with "
+                "'motion' (.amc) as multipart/form-data"
+            )
+        parts = []
+        for role, (raw_name, data) in given.items():
+            filename = clean_filename(raw_name, role)
+            suffix = PurePosixPath(filename).suffix.lower()
+            if suffix != EXTENSIONS[role]:
+                raise UnsupportedMediaType(
+                    f"field '{role}': expected a {EXTENSIONS[role]} file, got {filename!r} "
+                    "(supported: .bvh as 'file', or .asf as 'skeleton' with .amc as 'motion')"
+                )
+            if not data:
+                raise InvalidInput(f"field '{role}': the file {filename!r} is empty")
+            parts.append(UploadPart(role, filename, data))
+        return cls(tuple(parts), normalise_name(name), normalise_labels(labels))
+
+    @property
+    def format(self) -> str:
+        return BVH if len(self.parts) == 1 else ASF_AMC
+
+    def part(self, role: str) -> UploadPart:
+        for part in self.parts:
+            if part.role == role:
+                return part
+        raise KeyError(role)
+
+    @cached_property
+    def content_hash(self) -> str:
+        if self.format == BVH:
+            return self.parts[0].sha256
+        joined = bytes.fromhex(self.part("skeleton").sha256) + bytes.fromhex(
+            self.part("motion").sha256
+        )
+        return hashlib.sha256(joined).hexdigest()
+
+    @property
+    def clip_name(self) -> str:
+        """The name to store: the given one, else the (motion) file name without extension."""
+        if self.name:
+            return self.name
+        main = self.parts[0] if self.format == BVH else self.part("motion")
+        return PurePosixPath(main.filename).stem or main.filename

@@ -1,0 +1,132 @@
+"""Search semantics over HTTP with vectors chosen by the test (fake motion core)."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+from fastapi.testclient import TestClient
+
+from tests.services.fakes import fake_motion
+
+# posture vectors; clip i is stored as "c{i}" and labelled "even"/"odd"
+POINTS = [[0, 0, 0], [3, 4, 0], [1, 0, 0], [0, 0, 2], [10, 0, 0], [0, -1, 0]]
+
+
+def upload(client: TestClient, posture: list[float], name: str, labels: list[str]) -> int:
+    response = client.post(
+        "/clips",
+        files={"file": (f"{name}.bvh", fake_motion(posture, kinetic=[len(name), 0]))},
+        data={"labels": labels},
+    )
+    assert response.status_code == 201, response.text
+    clip_id: int = response.json()["id"]
+    return clip_id
+
+
+def library(client: TestClient) -> list[int]:
+    return [
+        upload(client, p, f"c{i}", ["even" if i % 2 == 0 else "odd"]) for i, p in enumerate(POINTS)
+    ]
+
+
+def expected(query: int, ids: list[int], among: set[int] | None = None) -> list[tuple[int, float]]:
+    q = np.asarray(POINTS[query], float)
+    rows = [
+        (ids[i], float(np.linalg.norm(np.asarray(p, float) - q)))
+        for i, p in enumerate(POINTS)
+        if i != query and (among is None or ids[i] in among)
+    ]
+    return sorted(rows, key=lambda r: r[1])
+
+
+def results(body: dict[str, object]) -> list[tuple[int, float]]:
+    return [(r["id"], r["distance"]) for r in body["results"]]  # type: ignore[attr-defined, index]
+
+
+def test_search_by_clip_is_exact_and_excludes_the_query(fake_client: TestClient) -> None:
+    ids = library(fake_client)
+    body = fake_client.get("/search", params={"clip": ids[0], "k": 3}).json()
+    assert body["descriptor"] == "posture" and body["k"] == 3
+    assert body["query"]["id"] == ids[0] and body["query"]["name"] == "c0"
+    got = results(body)
+    want = expected(0, ids)[:3]
+    assert [i for i, _ in got] == [i for i, _ in want]
+    np.testing.assert_allclose([d for _, d in got], [d for _, d in want], rtol=1e-6)
+    # Euclidean, not squared: c1 = (3, 4, 0) is at distance 5 from c0
+    full = dict(results(fake_client.get("/search", params={"clip": ids[0], "k": 10}).json()))
+    assert full[ids[1]] == 5.0
+    first = body["results"][0]
+    assert set(first) == {"id", "name", "labels", "distance"} and first["labels"] == ["even"]
+
+
+def test_fewer_than_k_only_when_the_library_is_smaller(fake_client: TestClient) -> None:
+    ids = library(fake_client)
+    for k in (1, 4, 5, 6, 1000):
+        got = results(fake_client.get("/search", params={"clip": ids[2], "k": k}).json())
+        assert len(got) == min(k, len(ids) - 1)
+        assert ids[2] not in [i for i, _ in got]
+
+
+def test_label_filter_is_exact(fake_client: TestClient) -> None:
+    ids = library(fake_client)
+    odd = {ids[i] for i in range(1, len(ids), 2)}
+    body = fake_client.get("/search", params={"clip": ids[0], "k": 10, "label": "odd"}).json()
+    assert results(body) == [(i, d) for i, d in expected(0, ids, odd)]
+    # the query's own label: the query itself is still excluded
+    even = fake_client.get("/search", params={"clip": ids[0], "k": 10, "label": "even"}).json()
+    assert [i for i, _ in results(even)] == [ids[2], ids[4]]
+    none = fake_client.get("/search", params={"clip": ids[0], "label": "missing"}).json()
+    assert none["results"] == []
+
+
+def test_other_descriptor(fake_client: TestClient) -> None:
+    ids = library(fake_client)
+    body = fake_client.get("/search", params={"clip": ids[0], "descriptor": "kinetic", "k": 10})
+    assert body.status_code == 200 and body.json()["descriptor"] == "kinetic"
+    # kinetic vector is (len(name), 0): every other "c<i>" name has length 2, distance 0
+    assert {d for _, d in results(body.json())} == {0.0}
+
+
+def test_search_by_upload_excludes_nothing_and_stores_nothing(fake_client: TestClient) -> None:
+    ids = library(fake_client)
+    same = ("query.bvh", fake_motion(POINTS[3], kinetic=[2, 0]))
+    response = fake_client.post("/search?k=2", files={"file": same}, data={"labels": "q"})
+    assert response.status_code == 200, response.text
+    body = response.json()
+    assert "id" not in body["query"] and body["query"]["name"] == "query"
+    assert body["query"]["labels"] == ["q"] and body["query"]["filenames"] == ["query.bvh"]
+    assert results(body)[0] == (ids[3], 0.0)
+    assert len(body["results"]) == 2
+    assert fake_client.get("/clips").json()["total"] == len(ids)
+    kinetic = fake_client.post("/search?descriptor=kinetic&k=100", files={"file": same}).json()
+    assert len(kinetic["results"]) == len(ids)
+
+
+def test_deleted_clip_is_gone_from_every_index(fake_client: TestClient) -> None:
+    ids = library(fake_client)
+    assert fake_client.delete(f"/clips/{ids[2]}").status_code == 204
+    for descriptor, query in itertools.product(("posture", "kinetic"), (ids[0], ids[5])):
+        body = fake_client.get(
+            "/search", params={"clip": query, "k": 100, "descriptor": descriptor}
+        ).json()
+        assert ids[2] not in [i for i, _ in results(body)]
+        assert len(body["results"]) == len(ids) - 2
+    health = fake_client.get("/health").json()
+    assert health["clips"] == len(ids) - 1
+    assert {n: i["size"] for n, i in health["indexes"].items()} == {
+        "posture": len(ids) - 1,
+        "kinetic": len(ids) - 1,
+    }
+
+
+def test_descriptors_and_health(fake_client: TestClient) -> None:
+    body = fake_client.get("/descriptors").json()
+    assert body["default"] == "posture"
+    assert [(d["name"], d["dimension"], d["version"]) for d in body["descriptors"]] == [
+        ("posture", 3, 1),
+        ("kinetic", 2, 1),
+    ]
+    health = fake_client.get("/health").json()
+    assert health["status"] == "ok" and health["clips"] == 0
+    assert health["indexes"]["posture"] == {"size": 0, "dimension": 3, "version": 1, "missing": 0}

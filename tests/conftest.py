@@ -1,0 +1,73 @@
+"""Shared fixtures: settings on a temporary data dir, a migrated database, an API client, and
+the locations of the real motion files (small ones in tests/fixtures, the big sets in
+../shared/data, which may be absent)."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+from sqlalchemy import Engine
+
+from app.config import Settings
+from app.db.migrate import upgrade
+from app.db.session import create_db_engine
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+FIXTURES_DIR = Path(__file__).resolve().parent / "fixtures"
+
+
+def shared_data_dir() -> Path:
+    """``../shared/data`` beside the repository, or ``$MOCAP_SHARED_DATA``."""
+    override = os.environ.get("MOCAP_SHARED_DATA")
+    return Path(override) if override else REPO_ROOT.parent / "shared" / "data"
+
+
+@pytest.fixture(autouse=True)
+def _no_mocap_environment(monkeypatch: pytest.MonkeyPatch) -> None:
+    # A developer's MOCAP_* variables must not leak into the settings tests build.
+    for name in list(os.environ):
+        if name.startswith("MOCAP_") and name != "MOCAP_SHARED_DATA":
+            monkeypatch.delenv(name)
+
+
+@pytest.fixture
+def settings(tmp_path: Path) -> Settings:
+    """Settings on a fresh temporary data directory (SQLite file, files/, indexes/)."""
+    return Settings(data_dir=tmp_path / "data")
+
+
+@pytest.fixture
+def engine(settings: Settings) -> Iterator[Engine]:
+    """An engine on a temporary SQLite file migrated to the newest revision."""
+    engine = create_db_engine(settings.sqlalchemy_url)
+    upgrade(engine)
+    yield engine
+    engine.dispose()
+
+
+@pytest.fixture
+def client(settings: Settings) -> Iterator[TestClient]:
+    """The real app over HTTP; entering the client runs the lifespan (Alembic migration of a
+    fresh SQLite file, index loading)."""
+    from app.main import create_app
+
+    with TestClient(create_app(settings)) as test_client:
+        yield test_client
+
+
+@pytest.fixture
+def fixtures_dir() -> Path:
+    return FIXTURES_DIR
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    """The real datasets (``../shared/data``); tests using it skip when it is absent."""
+    path = shared_data_dir()
+    if not path.is_dir():
+        pytest.skip(f"real motion data not found at {path} (set MOCAP_SHARED_DATA to its location)")
+    return path
