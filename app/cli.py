@@ -133,6 +133,23 @@ def _reindex(args: argparse.Namespace, settings: Settings) -> int:
     return 1 if report.failed else 0
 
 
+def _configure_eval(parser: argparse.ArgumentParser) -> None:
+    from app.evaluation.cli import configure_parser
+
+    configure_parser(parser)
+
+
+@command(
+    "eval",
+    "score descriptors against labelled clips (leave-one-out 1-NN, Ward/BIC clustering)",
+    configure=_configure_eval,
+)
+def _eval(args: argparse.Namespace, settings: Settings) -> int:
+    from app.evaluation.cli import run_eval
+
+    return run_eval(args)
+
+
 # -- entry point ---------------------------------------------------------------------------
 
 

@@ -4,8 +4,11 @@
 normalises labels, and computes the content hash that identifies the clip:
 
 * BVH: ``sha256(file bytes)``;
-* ASF/AMC: ``sha256(sha256(asf bytes) || sha256(amc bytes))`` over the two raw digests, so the
-  hash depends on both files and on which is which.
+* ASF/AMC: ``sha256`` of the two files' hex digests joined (skeleton first), so the hash
+  depends on both files and on which is which.
+
+The rule has one definition, :func:`app.discovery.content_hash_of_bytes`, which the bulk
+import uses too: a clip uploaded over HTTP and the same files imported from disk are one clip.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import PurePosixPath, PureWindowsPath
 
+from app.discovery import content_hash_of_bytes
 from app.errors import InvalidInput, UnsupportedMediaType
 
 MAX_NAME_LENGTH = 255
@@ -153,11 +157,8 @@ class Upload:
     @cached_property
     def content_hash(self) -> str:
         if self.format == BVH:
-            return self.parts[0].sha256
-        joined = bytes.fromhex(self.part("skeleton").sha256) + bytes.fromhex(
-            self.part("motion").sha256
-        )
-        return hashlib.sha256(joined).hexdigest()
+            return content_hash_of_bytes(self.parts[0].data)
+        return content_hash_of_bytes(self.part("motion").data, self.part("skeleton").data)
 
     @property
     def clip_name(self) -> str:

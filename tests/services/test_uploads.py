@@ -23,8 +23,9 @@ def test_asf_amc_upload_hash_depends_on_both_parts_and_their_roles() -> None:
     upload = Upload.from_files(skeleton=("02.asf", b"S"), motion=("02_01.amc", b"M"), name=" x ")
     assert upload.format == "asf/amc"
     assert upload.clip_name == "x"
-    digest = hashlib.sha256(hashlib.sha256(b"S").digest() + hashlib.sha256(b"M").digest())
-    assert upload.content_hash == digest.hexdigest()
+    # The one rule, shared with the bulk import: sha256 of the hex digests, skeleton first.
+    pair = hashlib.sha256(b"S").hexdigest() + hashlib.sha256(b"M").hexdigest()
+    assert upload.content_hash == hashlib.sha256(pair.encode("ascii")).hexdigest()
     swapped = Upload.from_files(skeleton=("02.asf", b"M"), motion=("02_01.amc", b"S"))
     assert swapped.content_hash != upload.content_hash
     assert swapped.clip_name == "02_01"  # default: the motion file's name
