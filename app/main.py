@@ -10,6 +10,7 @@ from contextlib import asynccontextmanager
 from importlib.metadata import PackageNotFoundError, version
 
 from fastapi import FastAPI
+from fastapi_offline import FastAPIOffline
 from starlette.concurrency import run_in_threadpool
 
 from app.api import clips, meta, search
@@ -54,7 +55,9 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
         finally:
             library.close()
 
-    app = FastAPI(
+    # The docs pages load Swagger UI and ReDoc from files shipped in a package, not a CDN:
+    # studio machines are often offline.
+    app = FastAPIOffline(
         title="mocap-index",
         version=_version(),
         description=DESCRIPTION,
