@@ -14,8 +14,9 @@ canonical joints only, and works out from the skeleton itself:
   lateral x up. Because the basis is found in the pelvis's own coordinates, neither the
   file's up axis, its units, the facing direction nor the rig's rest-pose conventions matter.
 * ``world_up`` — the world's vertical axis, needed to split root speed into horizontal and
-  vertical parts: the clip's mean body-up direction, snapped to the nearest coordinate axis
-  when it is within 30 degrees of one (mocap files are authored with an axis up).
+  vertical parts: the coordinate axis (with sign) nearest to the clip's mean body-up
+  direction. Motion-capture files are authored with a coordinate axis up, and a body that
+  leans (a dash leans 30-40 degrees on average) must not tilt the floor.
 """
 
 from __future__ import annotations
@@ -225,13 +226,10 @@ def _world_up(pelvis_frames: np.ndarray) -> np.ndarray:
     norm = np.linalg.norm(mean_up)
     if norm < 1e-9:
         return np.array([0.0, 1.0, 0.0])
-    mean_up = mean_up / norm
     axis = int(np.argmax(np.abs(mean_up)))
-    if abs(mean_up[axis]) >= np.cos(np.radians(30.0)):
-        snapped = np.zeros(3)
-        snapped[axis] = np.sign(mean_up[axis])
-        return snapped
-    return mean_up
+    snapped = np.zeros(3)
+    snapped[axis] = np.sign(mean_up[axis])
+    return snapped
 
 
 __all__ = ["CANONICAL_JOINTS", "Body", "build_body", "count_lead_in_frames"]

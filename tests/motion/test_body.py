@@ -1,0 +1,54 @@
+import numpy as np
+
+from app.motion import transforms
+from app.motion.body import build_body, count_lead_in_frames
+from app.motion.model import Motion
+from tests.motion.synthetic import walker_motion
+
+
+def _leaning(motion: Motion, degrees: float) -> Motion:
+    """The walker with its whole body pitched forward about the lateral (x) axis."""
+    pitch = transforms.rotation_about([1.0, 0.0, 0.0], degrees)
+    local = motion.local_rotations.copy()
+    local[:, 0] = pitch @ local[:, 0]
+    return transforms._replace(motion, local_rotations=local)
+
+
+def test_a_leaning_body_does_not_tilt_the_floor():
+    # A dash leans 30-40 degrees on average; the vertical must stay the file's up axis.
+    body = build_body(_leaning(walker_motion(), 40.0))
+    np.testing.assert_array_equal(body.world_up, [0.0, 1.0, 0.0])
+
+
+def test_pelvis_frame_is_orthonormal_and_points_left_up_forward():
+    body = build_body(walker_motion())
+    frames = body.pelvis_frames
+    np.testing.assert_allclose(
+        frames.transpose(0, 2, 1) @ frames, np.broadcast_to(np.eye(3), frames.shape), atol=1e-12
+    )
+    np.testing.assert_allclose(np.linalg.det(frames), 1.0)
+    # The walker faces +z with its left hand on +x (see tests/motion/synthetic.py).
+    mean = frames.mean(axis=0)
+    assert mean[0, 0] > 0.95 and mean[1, 1] > 0.95 and mean[2, 2] > 0.95
+
+
+def test_body_height_ignores_units():
+    body = build_body(walker_motion())
+    scaled = build_body(transforms.rescale(walker_motion(), 2.54))
+    # Leg bone path (42 + 40) plus the pelvis -> head joint path (12 + 20 + 12 + 6 + 6), cm.
+    np.testing.assert_allclose(body.height, 138.0)
+    np.testing.assert_allclose(scaled.height, 2.54 * body.height)
+
+
+def test_rest_pose_lead_in_is_dropped_and_a_real_clip_is_kept():
+    motion = walker_motion()
+    assert count_lead_in_frames(motion) == 0
+    # Prepend one rest-pose frame, as MotionBuilder's converter does.
+    rest = np.tile(np.eye(3), (1, motion.skeleton.joint_count, 1, 1))
+    with_tpose = transforms._replace(
+        motion,
+        local_rotations=np.concatenate([rest, motion.local_rotations]),
+        root_translation=np.concatenate([motion.root_translation[:1], motion.root_translation]),
+    )
+    assert count_lead_in_frames(with_tpose) == 1
+    assert build_body(with_tpose).lead_in_frames == 1
