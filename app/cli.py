@@ -22,6 +22,7 @@ import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from pydantic import ValidationError
 
@@ -148,6 +149,198 @@ def _eval(args: argparse.Namespace, settings: Settings) -> int:
     from app.evaluation.cli import run_eval
 
     return run_eval(args)
+
+
+# -- import ------------------------------------------------------------------------------
+
+
+def _configure_import(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "paths", nargs="+", type=Path, metavar="PATH", help="folders (walked) or clip files"
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        help="worker processes (default: one per core, MOCAP_IMPORT_WORKERS)",
+    )
+    parser.add_argument(
+        "--batch-size",
+        type=int,
+        default=64,
+        help="clips per database transaction and index update (default 64)",
+    )
+    parser.add_argument(
+        "--labels-tsv",
+        type=Path,
+        metavar="FILE",
+        help="TSV with a header row: clip key (file stem), then one column per label kind",
+    )
+    parser.add_argument(
+        "--labels-regex",
+        metavar="REGEX",
+        help="regular expression with named groups over each clip's path relative to the "
+        r"folder given, e.g. 'dataset-1_(?P<content>[^_]+)_(?P<style>[^_]+)_\d+'",
+    )
+    parser.add_argument(
+        "--label",
+        action="append",
+        default=[],
+        metavar="LABEL",
+        help="a label for every imported clip (repeat for more)",
+    )
+    progress = parser.add_mutually_exclusive_group()
+    progress.add_argument(
+        "--progress",
+        dest="progress",
+        action="store_true",
+        default=None,
+        help="show a progress bar (default: when stderr is a terminal)",
+    )
+    progress.add_argument("--no-progress", dest="progress", action="store_false")
+    parser.add_argument(
+        "--verbose", "-v", action="store_true", help="list every clip, not only the failures"
+    )
+
+
+class _ImportProgress:
+    """A rich progress bar (clips, clips/s, elapsed, ETA) on stderr, started on the first
+    update — after the worker processes are forked, as it runs a thread."""
+
+    def __init__(self) -> None:
+        self._progress: Any = None
+        self._task: Any = None
+        self.total = 0
+
+    def start(self, found: int, workers: int) -> None:
+        self.total = found
+
+    def update(self, report: Any) -> None:
+        if self._progress is None:
+            from rich.console import Console
+            from rich.progress import (
+                BarColumn,
+                MofNCompleteColumn,
+                Progress,
+                TextColumn,
+                TimeElapsedColumn,
+                TimeRemainingColumn,
+            )
+
+            self._progress = Progress(
+                TextColumn("importing"),
+                BarColumn(),
+                MofNCompleteColumn(),
+                TextColumn("{task.fields[rate]}"),
+                TimeElapsedColumn(),
+                TextColumn("ETA"),
+                TimeRemainingColumn(),
+                console=Console(stderr=True),
+            )
+            self._progress.start()
+            self._task = self._progress.add_task("import", total=self.total, rate="")
+        task = self._progress.tasks[0]
+        rate = f"{task.speed:.0f} clips/s" if task.speed else ""
+        self._progress.update(self._task, completed=report.done, rate=rate)
+
+    def stop(self) -> None:
+        if self._progress is not None:
+            self._progress.stop()
+
+
+@command(
+    "import",
+    "import every clip under folders (BVH, ASF/AMC) in parallel; skips content already stored",
+    configure=_configure_import,
+)
+def _import(args: argparse.Namespace, settings: Settings) -> int:
+    from app.importer import LabelRules, run_import
+
+    rules = LabelRules.build(tsv=args.labels_tsv, regex=args.labels_regex, fixed=args.label)
+    if args.workers is not None and args.workers < 1:
+        print("mocap-index: --workers must be at least 1", file=sys.stderr)
+        return 2
+    show = sys.stderr.isatty() if args.progress is None else args.progress
+    bar = _ImportProgress()
+    try:
+        report = run_import(
+            settings,
+            args.paths,
+            labels=rules,
+            workers=args.workers,
+            batch_size=args.batch_size,
+            progress=bar.update if show else None,
+            on_start=bar.start,
+        )
+    finally:
+        bar.stop()
+    if args.verbose:
+        for clip in report.imported:
+            paired = f" (skeleton {clip.skeleton})" if clip.skeleton else ""
+            print(f"imported  {clip.path} as clip {clip.clip_id}{paired}")
+        for dup in report.duplicates:
+            print(f"duplicate {dup.path}: same content as clip {dup.clip_id} {dup.clip_name!r}")
+    for skeleton, count in sorted(report.skeletons().items()):
+        print(f"skeleton {skeleton} used for {count} .amc clip{'s' if count != 1 else ''}")
+    if report.failed:
+        print("failed:")
+        for failure in sorted(report.failed, key=lambda f: str(f.path)):
+            print(f"  {failure.path}: {failure.reason}")
+    rate = report.done / report.seconds if report.seconds else 0.0
+    print(
+        f"{'interrupted: ' if report.interrupted else ''}"
+        f"imported {len(report.imported)}, skipped {len(report.duplicates)} as duplicates, "
+        f"failed {len(report.failed)} of {report.found} clips found, in {report.seconds:.2f} s "
+        f"({rate:.0f} clips/s, {report.workers} worker{'s' if report.workers != 1 else ''})"
+    )
+    if report.interrupted:
+        print("run the same command again to finish the import", file=sys.stderr)
+        return 130
+    return 1 if report.failed else 0
+
+
+# -- fill-synthetic ------------------------------------------------------------------------
+
+
+def _configure_fill(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--count",
+        type=int,
+        required=True,
+        help="clips the library should hold afterwards (synthetic ones are added up to it)",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument(
+        "--noise",
+        type=float,
+        default=0.25,
+        help="noise around the real clips, in standard deviations of each number (0.25)",
+    )
+
+
+@command(
+    "fill-synthetic",
+    "add synthetic clips (label and format 'synthetic', no stored file) for benchmarks",
+    configure=_configure_fill,
+)
+def _fill_synthetic(args: argparse.Namespace, settings: Settings) -> int:
+    from app.importer import fill_synthetic
+
+    if args.count < 0:
+        print("mocap-index: --count must not be negative", file=sys.stderr)
+        return 2
+    result = fill_synthetic(
+        settings,
+        args.count,
+        seed=args.seed,
+        noise=args.noise,
+        report=lambda message: print(message, file=sys.stderr),
+    )
+    print(
+        f"added {result.added} synthetic clips in {result.seconds:.1f} s; the library holds "
+        f"{result.total} clips; indexes: "
+        + ", ".join(f"{name} {kind}" for name, kind in result.index_kinds.items())
+    )
+    return 0
 
 
 # -- entry point ---------------------------------------------------------------------------

@@ -1,13 +1,38 @@
-"""FAISS indexes: one exact ``IndexIDMap2(IndexFlatL2)`` per descriptor, ids = clip ids.
+"""FAISS indexes: one per descriptor, ids = clip ids.
+
+Two kinds of index, chosen per descriptor by :class:`IndexOptions` (``MOCAP_INDEX_TYPE``):
+
+``flat``
+    ``IndexIDMap2(IndexFlatL2)``: exact, scans every vector (about 5 ms per query at 1,000,000
+    12-D vectors on one core).
+``ivf``
+    ``IndexIVFFlat`` (ids kept natively): the vectors are split into ``nlist`` k-means cells
+    and a query scans the ``nprobe`` nearest cells only. Distances are exact; the neighbour
+    set is approximate (recall@10 against exact search is measured by ``bench/bench_search.py``
+    and ``tests/test_index.py``). A search restricted to some ids (a label filter) probes every
+    cell, so it stays exact.
+
+``auto`` (the default) keeps ``flat`` below ``auto_threshold`` vectors and builds ``ivf`` when
+an index is (re)built at or above it; a loaded ``ivf`` index stays ``ivf`` down to half the
+threshold, so a library near the threshold does not flip kind at each start.
 
 The database is the source of truth; an index is a cache of its vectors that can always be
 rebuilt. Each index is persisted as ``<dir>/<descriptor>.faiss`` with a ``<descriptor>.json``
-beside it recording the descriptor version, dimension, vector count and the sha256 of the
-index file. :func:`open_index` loads it and rebuilds from the database when the file is
-missing, unreadable, of another version or dimension, or holds other ids than the database.
+beside it recording the descriptor version, dimension, kind, vector count, the sha256 of the
+index file and ``synced_to``, the largest clip id of the database the index reflects. Clip
+ids only grow (SQLite AUTOINCREMENT, writers serialised), so :meth:`DescriptorIndex.load_or_rebuild`
+brings a file that is merely behind up to date by adding the vectors of clips above
+``synced_to`` (cheap: an import killed half way or a server killed before it saved costs only
+the rows it missed), then checks the vector count against the database; a count that still
+disagrees (clips deleted by another process) is repaired by comparing ids. A missing,
+unreadable or damaged file, or one of another version or dimension, is rebuilt.
 
-Concurrency: searches share a read lock, add/remove take the write lock (a flat index must not
-grow while it is being scanned), so a search sees a clip either entirely or not at all.
+Files: saves write a temporary file and rename it, under an exclusive ``fcntl.flock`` on
+``<dir>/.lock`` (loads take it shared), so two processes (the server and ``mocap-index
+import``) never interleave the ``.faiss`` and ``.json`` of one index.
+
+Concurrency: searches share a read lock, add/remove take the write lock, so a search sees a
+clip either entirely or not at all.
 
 Shapes: a query is ``(D,)`` float32; batches are ``(N, D)`` float32 C-contiguous with ``(N,)``
 int64 ids.
@@ -15,15 +40,19 @@ int64 ids.
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import json
 import logging
+import math
 import os
 import threading
-from collections.abc import Callable, Iterator, Mapping
+import time
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -36,8 +65,71 @@ import faiss
 
 log = logging.getLogger(__name__)
 
-LoadVectors = Callable[[], tuple[np.ndarray, np.ndarray]]
-"""Returns ``(ids (N,) int64, vectors (N, D) float32)`` from the database."""
+FLAT = "flat"
+IVF = "ivf"
+AUTO = "auto"
+INDEX_TYPES = (AUTO, FLAT, IVF)
+
+MIN_POINTS_PER_CELL = 39  # FAISS warns below this many training points per k-means cell
+TRAIN_POINTS_PER_CELL = 64  # training sample size per cell (FAISS would take up to 256)
+LOCK_FILE = ".lock"
+HASH_CHUNK = 1 << 22
+
+
+@dataclass(frozen=True)
+class IndexOptions:
+    """Which index to build (see the module docstring) and how to search it."""
+
+    kind: str = AUTO
+    auto_threshold: int = 100_000
+    nlist: int = 0  # 0: 4 * sqrt(N)
+    nprobe: int = 0  # 0: calibrated when the index is built (see calibrate_nprobe)
+    recall_target: float = 0.995
+    autosave_below: int = 20_000  # indexes this small are saved soon after a change
+    save_delay: float = 1.0  # ... this many seconds after it (0: at once), changes batched
+
+    def __post_init__(self) -> None:
+        if self.kind not in INDEX_TYPES:
+            known = ", ".join(INDEX_TYPES)
+            raise ValueError(f"index type must be one of {known}, not {self.kind!r}")
+
+    def nlist_for(self, count: int) -> int:
+        """Cells of an IVF index over ``count`` vectors (0: too few vectors for IVF)."""
+        wanted = self.nlist or round(4 * math.sqrt(max(count, 1)))
+        return int(min(wanted, count // MIN_POINTS_PER_CELL))
+
+    def kind_for(self, count: int, current: str | None = None) -> str:
+        """The kind an index of ``count`` vectors should be, given the ``current`` kind."""
+        if self.kind == FLAT:
+            return FLAT
+        if self.kind == IVF:
+            return IVF if self.nlist_for(count) >= 1 else FLAT
+        threshold = self.auto_threshold // 2 if current == IVF else self.auto_threshold
+        return IVF if count >= threshold and self.nlist_for(count) >= 1 else FLAT
+
+
+class VectorSource(Protocol):
+    """The database's view of one descriptor's vectors (one consistent snapshot)."""
+
+    def watermark(self) -> int:
+        """The largest clip id in the database (0 when empty)."""
+        ...
+
+    def count(self) -> int:
+        """How many vectors of the descriptor (and its version) the database holds."""
+        ...
+
+    def ids(self) -> np.ndarray:
+        """``(N,)`` int64 sorted ids of every vector."""
+        ...
+
+    def vectors(self, after: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """Ids ``(N,)`` and vectors ``(N, D)`` of the clips with ``after < id <= watermark``."""
+        ...
+
+    def vectors_of(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Ids and vectors of the given clips (those that have one)."""
+        ...
 
 
 class ReadWriteLock:
@@ -82,6 +174,19 @@ class ReadWriteLock:
                 self._cond.notify_all()
 
 
+@contextmanager
+def directory_lock(directory: Path, *, exclusive: bool) -> Iterator[None]:
+    """``fcntl.flock`` on ``<directory>/.lock``: exclusive to write index files, shared to
+    read them. Works across processes and across threads of one process."""
+    directory.mkdir(parents=True, exist_ok=True)
+    fd = os.open(directory / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
+        yield
+    finally:
+        os.close(fd)  # releases the lock
+
+
 @dataclass(frozen=True)
 class Neighbours:
     """Search results, nearest first: ``ids`` ``(n,)`` int64, ``distances`` ``(n,)`` float64
@@ -109,20 +214,147 @@ def _as_vectors(vectors: np.ndarray, dimension: int) -> np.ndarray:
     return array
 
 
-def _empty_index(dimension: int) -> faiss.IndexIDMap2:
+def _empty_flat(dimension: int) -> Any:
     return faiss.IndexIDMap2(faiss.IndexFlatL2(dimension))
 
 
-def _atomic_write(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
+def kind_of(index: Any) -> str | None:
+    """``"flat"`` or ``"ivf"`` for the index objects this module builds, else ``None``."""
+    if isinstance(index, faiss.IndexIDMap2) and isinstance(
+        faiss.downcast_index(index.index), faiss.IndexFlatL2
+    ):
+        return FLAT
+    if isinstance(index, faiss.IndexIVFFlat) and index.metric_type == faiss.METRIC_L2:
+        return IVF
+    return None
+
+
+def build_index(
+    ids: np.ndarray,
+    vectors: np.ndarray,
+    kind: str,
+    options: IndexOptions,
+    *,
+    threads: int | None = None,
+    seed: int = 1234,
+) -> Any:
+    """A new index of ``kind`` holding ``vectors`` ``(N, D)`` under ``ids`` ``(N,)``.
+
+    IVF cells are trained with k-means on a random sample of ``64 * nlist`` vectors;
+    ``threads`` lets the (one-off) training and adding use several cores.
+    """
+    dimension = int(vectors.shape[1])
+    if kind == FLAT:
+        flat = _empty_flat(dimension)
+        if ids.size:
+            flat.add_with_ids(vectors, ids)
+        return flat
+    nlist = options.nlist_for(int(ids.size))
+    if nlist < 1:
+        raise ValueError(f"too few vectors ({ids.size}) for an IVF index")
+    quantizer: Any = faiss.IndexFlatL2(dimension)
+    index: Any = faiss.IndexIVFFlat(quantizer, dimension, nlist, faiss.METRIC_L2)
+    index.own_fields = True
+    quantizer.this.disown()
+    index.cp.seed = seed
+    rng = np.random.default_rng(seed)
+    sample_size = min(int(ids.size), TRAIN_POINTS_PER_CELL * nlist)
+    sample = vectors
+    if sample_size < ids.size:
+        sample = vectors[np.sort(rng.choice(ids.size, sample_size, replace=False))]
+    before = faiss.omp_get_max_threads()
+    faiss.omp_set_num_threads(threads or os.cpu_count() or 1)
     try:
-        with open(tmp, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
+        index.train(np.ascontiguousarray(sample))
+        _with_id_map(index)
+        for start in range(0, int(ids.size), 262_144):
+            stop = start + 262_144
+            index.add_with_ids(vectors[start:stop], ids[start:stop])
     finally:
-        tmp.unlink(missing_ok=True)
+        faiss.omp_set_num_threads(before)
+    index.nprobe = options.nprobe or calibrate_nprobe(
+        index, ids, vectors, target=options.recall_target, seed=seed, threads=threads
+    )
+    return index
+
+
+def calibrate_nprobe(
+    index: Any,
+    ids: np.ndarray,
+    vectors: np.ndarray,
+    *,
+    target: float,
+    samples: int = 256,
+    seed: int = 1234,
+    threads: int | None = None,
+) -> int:
+    """The smallest ``nprobe`` (a power of two, at most ``nlist``) whose recall@10 against
+    exact search reaches ``target`` for ``samples`` stored vectors used as queries, each
+    excluding itself as a search by clip does. Exact neighbours come from ``faiss.knn``
+    over ``vectors`` (no copy)."""
+    rng = np.random.default_rng(seed)
+    rows = np.sort(rng.choice(ids.size, min(samples, int(ids.size)), replace=False))
+    queries = np.ascontiguousarray(vectors[rows])
+    before = faiss.omp_get_max_threads()
+    faiss.omp_set_num_threads(threads or os.cpu_count() or 1)
+    try:
+        _, nearest = faiss.knn(queries, vectors, 11)
+        truth = [
+            set(ids[[r for r in row if r != own][:10]].tolist())
+            for own, row in zip(rows, nearest, strict=True)
+        ]
+        nprobe = 1
+        while True:
+            params = faiss.SearchParametersIVF()
+            params.nprobe = nprobe
+            _, found = index.search(queries, 11, params=params)
+            hits = sum(
+                len(want & {int(i) for i in row if i != ids[own]})
+                for own, want, row in zip(rows, truth, found, strict=True)
+            )
+            total = sum(len(want) for want in truth)
+            if nprobe >= index.nlist or hits >= target * total:
+                return int(min(nprobe, index.nlist))
+            nprobe *= 2
+    finally:
+        faiss.omp_set_num_threads(before)
+
+
+def _has_id_map(index: Any) -> bool:
+    return bool(index.direct_map.type == faiss.DirectMap.Hashtable)  # type: ignore[attr-defined]
+
+
+def _with_id_map(index: Any) -> None:
+    """Give an IVF index a hash table from id to position (about 40 bytes per vector), so
+    :meth:`DescriptorIndex.reconstruct` finds a clip's vector at once."""
+    hashtable = faiss.DirectMap.Hashtable  # type: ignore[attr-defined]
+    if index.direct_map.type != hashtable:
+        index.set_direct_map_type(hashtable)
+
+
+def _selector(index: Any, ids: np.ndarray) -> Any:
+    """An id selector for ``remove_ids`` (an IVF index with an id map takes only arrays)."""
+    if kind_of(index) == IVF:
+        return faiss.IDSelectorArray(ids.size, faiss.swig_ptr(ids))
+    return faiss.IDSelectorBatch(ids)
+
+
+def _ivf_ids(index: Any) -> np.ndarray:
+    invlists = index.invlists
+    parts = []
+    for cell in range(index.nlist):
+        size = invlists.list_size(cell)
+        if size:
+            parts.append(faiss.rev_swig_ptr(invlists.get_ids(cell), size).copy())
+    return np.concatenate(parts).astype(np.int64) if parts else np.empty(0, np.int64)
+
+
+def _file_sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as stream:
+        while chunk := stream.read(HASH_CHUNK):
+            digest.update(chunk)
+    return digest.hexdigest()
 
 
 class DescriptorIndex:
@@ -134,6 +366,10 @@ class DescriptorIndex:
         The descriptor (as in the registry); only vectors of this version are held.
     directory:
         Where ``<name>.faiss`` and ``<name>.json`` are written.
+    index:
+        A FAISS index to start from (default: an empty flat one).
+    options:
+        Index kind and search settings.
     """
 
     def __init__(
@@ -142,13 +378,20 @@ class DescriptorIndex:
         dimension: int,
         version: int,
         directory: Path,
-        index: faiss.IndexIDMap2 | None = None,
+        index: Any | None = None,
+        options: IndexOptions | None = None,
     ) -> None:
         self.name = name
         self.dimension = dimension
         self.version = version
         self.directory = directory
-        self._index = index if index is not None else _empty_index(dimension)
+        self.options = options if options is not None else IndexOptions()
+        self._index = index if index is not None else _empty_flat(dimension)
+        self._synced_to = 0
+        self._unsaved = 0
+        self.autosave = True  # False: changes are saved only by an explicit save()
+        self._timer: threading.Timer | None = None
+        self._timer_lock = threading.Lock()
         self._lock = ReadWriteLock()
         self._save_lock = threading.Lock()
 
@@ -164,35 +407,121 @@ class DescriptorIndex:
     def size(self) -> int:
         return int(self._index.ntotal)
 
+    @property
+    def kind(self) -> str:
+        return kind_of(self._index) or FLAT
+
+    @property
+    def nprobe(self) -> int:
+        """Cells an IVF search scans: ``MOCAP_IVF_NPROBE``, else the one calibrated when the
+        index was built (0 for a flat index)."""
+        if kind_of(self._index) != IVF:
+            return 0
+        return int(self.options.nprobe or self._index.nprobe)
+
+    @property
+    def synced_to(self) -> int:
+        """The largest database clip id whose vector this index reflects."""
+        return self._synced_to
+
+    @property
+    def unsaved_changes(self) -> int:
+        return self._unsaved
+
     def ids(self) -> np.ndarray:
-        """``(N,)`` int64 ids in the index, in insertion order."""
+        """``(N,)`` int64 ids in the index (flat: insertion order; IVF: by cell)."""
         with self._lock.read():
+            if self.kind == IVF:
+                return _ivf_ids(self._index)
             return faiss.vector_to_array(self._index.id_map).astype(np.int64)
 
+    def _autosave(self, persist: bool | None) -> None:
+        if persist:
+            self.try_save()
+        elif persist is None and self.autosave and self.size <= self.options.autosave_below:
+            if self.options.save_delay <= 0:
+                self.try_save()
+            else:
+                self._schedule_save()
+
+    def _schedule_save(self) -> None:
+        """Save in ``save_delay`` seconds (once for every change made meanwhile): a file per
+        upload would cost more than describing the upload."""
+        with self._timer_lock:
+            if self._timer is not None:
+                return
+            self._timer = threading.Timer(self.options.save_delay, self._timed_save)
+            self._timer.daemon = True
+            self._timer.start()
+
+    def _timed_save(self) -> None:
+        with self._timer_lock:
+            self._timer = None
+        self.try_save()
+
+    def flush(self) -> None:
+        """Save now if anything is unsaved (a pending delayed save is done now instead)."""
+        with self._timer_lock:
+            timer, self._timer = self._timer, None
+        if timer is not None:
+            timer.cancel()
+        if self._unsaved:
+            self.try_save()
+
+    def try_save(self) -> bool:
+        """:meth:`save`, logging instead of raising when the file cannot be written (the
+        index in memory is right; a file that is behind catches up when it is next loaded).
+        Returns whether it was saved."""
+        try:
+            self.save()
+        except (OSError, RuntimeError) as exc:  # FAISS reports unwritable files as RuntimeError
+            log.warning(
+                "could not save the %s index (%s); it catches up from the database when next "
+                "loaded",
+                self.name,
+                exc,
+            )
+            return False
+        return True
+
     def add(
-        self, ids: np.ndarray | list[int], vectors: np.ndarray, *, persist: bool = True
+        self,
+        ids: np.ndarray | list[int],
+        vectors: np.ndarray,
+        *,
+        persist: bool | None = None,
+        synced_to: int | None = None,
     ) -> None:
-        """Add ``vectors`` ``(N, D)`` under ``ids`` ``(N,)`` (ids must not be present yet)."""
+        """Add ``vectors`` ``(N, D)`` under ``ids`` ``(N,)`` (ids must not be present yet).
+
+        ``synced_to`` records the database clip id the index now reflects. ``persist``: save
+        now (True), not now (False), or when the index is small (None).
+        """
         ids_ = _as_ids(ids)
         array = _as_vectors(vectors, self.dimension)
         if array.shape[0] != ids_.shape[0]:
             raise ValueError("ids and vectors differ in length")
-        if ids_.size == 0:
+        if ids_.size == 0 and synced_to is None:
             return
         with self._lock.write():
-            self._index.add_with_ids(array, ids_)
-        if persist:
-            self.save()
+            if ids_.size:
+                self._index.add_with_ids(array, ids_)
+                self._unsaved += int(ids_.size)
+            if synced_to is not None:
+                self._synced_to = max(self._synced_to, int(synced_to))
+        if ids_.size:
+            self._autosave(persist)
 
-    def remove(self, ids: np.ndarray | list[int], *, persist: bool = True) -> int:
+    def remove(self, ids: np.ndarray | list[int], *, persist: bool | None = None) -> int:
         """Remove ``ids`` (absent ones are ignored); returns how many were removed."""
         ids_ = _as_ids(ids)
         if ids_.size == 0:
             return 0
         with self._lock.write():
-            removed = int(self._index.remove_ids(faiss.IDSelectorBatch(ids_)))
-        if persist and removed:
-            self.save()
+            removed = int(self._index.remove_ids(_selector(self._index, ids_)))
+            self._unsaved += removed
+        if removed:
+            self._autosave(persist)
         return removed
 
     def search(
@@ -206,8 +535,9 @@ class DescriptorIndex:
         """The ``k`` nearest stored vectors to ``query`` ``(D,)``.
 
         ``allowed`` ``(M,)`` int64 restricts the search to those ids (exactly: FAISS skips the
-        others while scanning); ``exclude`` drops one id (the query clip itself) — we ask for
-        one more neighbour and remove it, so it never costs a result.
+        others while scanning, and an IVF index probes every cell); ``exclude`` drops one id
+        (the query clip itself) — we ask for one more neighbour and remove it, so it never
+        costs a result.
         """
         q = _as_vectors(query, self.dimension)
         if q.shape[0] != 1:
@@ -215,7 +545,7 @@ class DescriptorIndex:
         selector = None
         available = self.size
         if allowed is not None:
-            allowed = np.unique(_as_ids(allowed))  # sorted, as IDSelectorBatch needs no order
+            allowed = np.unique(_as_ids(allowed))
             if exclude is not None:
                 allowed = allowed[allowed != exclude]
                 exclude = None
@@ -224,18 +554,44 @@ class DescriptorIndex:
         wanted = min(k + (1 if exclude is not None else 0), available)
         if wanted <= 0:
             return Neighbours(np.empty(0, np.int64), np.empty(0, np.float64))
-        params = None
-        if selector is not None:
-            params = faiss.SearchParameters()
-            params.sel = selector
         with self._lock.read():
-            squared, ids = self._index.search(q, wanted, params=params)
+            index = self._index
+            params: Any = None
+            if kind_of(index) == IVF:
+                params = faiss.SearchParametersIVF()
+                params.nprobe = index.nlist if selector is not None else self.nprobe
+            elif selector is not None:
+                params = faiss.SearchParameters()
+            if selector is not None:
+                params.sel = selector
+            squared, ids = index.search(q, wanted, params=params)
         keep = ids[0] >= 0  # FAISS pads with -1 when fewer vectors qualify
         if exclude is not None:
             keep &= ids[0] != exclude
         found = ids[0][keep][:k].astype(np.int64)
         distances = np.sqrt(np.maximum(squared[0][keep][:k].astype(np.float64), 0.0))
         return Neighbours(found, distances)
+
+    def scan_cost(self, *, filtered: bool = False) -> int:
+        """Roughly how many numbers one search compares: every vector for a flat index (or a
+        filtered IVF search), the centroids plus ``nprobe`` cells for IVF."""
+        index = self._index
+        if kind_of(index) != IVF or filtered:
+            return self.size * self.dimension
+        nlist = int(index.nlist)
+        probed = min(self.nprobe, nlist) * self.size // max(nlist, 1)
+        return (nlist + probed) * self.dimension
+
+    def search_many(self, queries: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(Q, k)`` squared distances and ids for ``queries`` ``(Q, D)`` (benchmarks)."""
+        q = _as_vectors(queries, self.dimension)
+        with self._lock.read():
+            params: Any = None
+            if self.kind == IVF:
+                params = faiss.SearchParametersIVF()
+                params.nprobe = self.nprobe
+            distances, ids = self._index.search(q, k, params=params)
+        return distances, ids
 
     def reconstruct(self, clip_id: int) -> np.ndarray:
         """The stored ``(D,)`` float32 vector of ``clip_id`` (``KeyError`` when absent)."""
@@ -245,87 +601,225 @@ class DescriptorIndex:
             except RuntimeError:
                 raise KeyError(clip_id) from None
 
-    def replace_all(self, ids: np.ndarray, vectors: np.ndarray, *, persist: bool = True) -> None:
-        """Swap in a new index holding exactly ``vectors`` ``(N, D)`` under ``ids`` ``(N,)``."""
-        fresh = _empty_index(self.dimension)
+    def all_vectors(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every ``(ids (N,), vectors (N, D))`` held (used to change the index kind)."""
+        with self._lock.read():
+            if self.kind == IVF:
+                invlists = self._index.invlists
+                id_parts, vector_parts = [], []
+                for cell in range(self._index.nlist):
+                    size = invlists.list_size(cell)
+                    if not size:
+                        continue
+                    id_parts.append(faiss.rev_swig_ptr(invlists.get_ids(cell), size).copy())
+                    codes = faiss.rev_swig_ptr(invlists.get_codes(cell), size * 4 * self.dimension)
+                    vector_parts.append(
+                        np.frombuffer(codes, dtype=np.float32).reshape(size, self.dimension).copy()
+                    )
+                if not id_parts:
+                    return np.empty(0, np.int64), np.empty((0, self.dimension), np.float32)
+                return np.concatenate(id_parts).astype(np.int64), np.concatenate(vector_parts)
+            n = self.size
+            ids = faiss.vector_to_array(self._index.id_map).astype(np.int64)
+            flat: Any = faiss.downcast_index(self._index.index)
+            data = faiss.rev_swig_ptr(flat.get_xb(), n * self.dimension) if n else np.empty(0)
+            return ids, np.asarray(data, dtype=np.float32).reshape(n, self.dimension).copy()
+
+    def replace_all(
+        self,
+        ids: np.ndarray,
+        vectors: np.ndarray,
+        *,
+        persist: bool = True,
+        synced_to: int | None = None,
+        kind: str | None = None,
+        threads: int | None = None,
+    ) -> None:
+        """Swap in a new index holding exactly ``vectors`` ``(N, D)`` under ``ids`` ``(N,)``,
+        of ``kind`` (default: what :class:`IndexOptions` asks for ``N`` vectors)."""
         ids_ = _as_ids(ids)
-        if ids_.size:
-            fresh.add_with_ids(_as_vectors(vectors, self.dimension), ids_)
+        array = (
+            _as_vectors(vectors, self.dimension)
+            if ids_.size
+            else np.empty((0, self.dimension), np.float32)
+        )
+        kind = kind or self.options.kind_for(int(ids_.size))
+        fresh = build_index(ids_, array, kind, self.options, threads=threads)
         with self._lock.write():
             self._index = fresh
+            self._unsaved = int(ids_.size) + 1
+            if synced_to is not None:
+                self._synced_to = int(synced_to)
         if persist:
             self.save()
 
     def save(self) -> None:
-        """Write the index and its metadata atomically (temp file, then rename)."""
+        """Write the index and its metadata atomically (temp file, then rename), under the
+        directory's exclusive file lock."""
         # The save lock keeps two saves in order: the last state serialised is the one written.
-        with self._save_lock:
-            with self._lock.read():
-                data = faiss.serialize_index(self._index).tobytes()
-                count = int(self._index.ntotal)
-            meta = {
-                "descriptor": self.name,
-                "version": self.version,
-                "dimension": self.dimension,
-                "count": count,
-                "sha256": hashlib.sha256(data).hexdigest(),
-            }
-            self.directory.mkdir(parents=True, exist_ok=True)
-            _atomic_write(self.path, data)
-            _atomic_write(self.meta_path, json.dumps(meta, indent=2).encode())
+        with self._save_lock, directory_lock(self.directory, exclusive=True):
+            tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
+            try:
+                with self._lock.read():
+                    faiss.write_index(self._index, str(tmp))
+                    count = int(self._index.ntotal)
+                    kind = self.kind
+                    synced_to = self._synced_to
+                    unsaved = self._unsaved
+                fd = os.open(tmp, os.O_RDONLY)
+                try:
+                    os.fsync(fd)
+                finally:
+                    os.close(fd)
+                meta = {
+                    "descriptor": self.name,
+                    "version": self.version,
+                    "dimension": self.dimension,
+                    "kind": kind,
+                    "nprobe": self.nprobe,
+                    "count": count,
+                    "synced_to": synced_to,
+                    "sha256": _file_sha256(tmp),
+                    "saved_at": time.time(),
+                }
+                os.replace(tmp, self.path)
+            finally:
+                tmp.unlink(missing_ok=True)
+            meta_tmp = self.meta_path.with_name(f".{self.meta_path.name}.{os.getpid()}.tmp")
+            try:
+                meta_tmp.write_text(json.dumps(meta, indent=2))
+                os.replace(meta_tmp, self.meta_path)
+            finally:
+                meta_tmp.unlink(missing_ok=True)
+            with self._lock.write():
+                self._unsaved = max(0, self._unsaved - unsaved)
 
-    def _load_problem(self, expected_ids: np.ndarray) -> str | None:
-        """Why the files on disk cannot be used (``None`` when they can; then loaded)."""
-        try:
-            meta = json.loads(self.meta_path.read_text())
-            data = self.path.read_bytes()
-        except FileNotFoundError as exc:
-            return f"missing {Path(exc.filename).name}"
-        except (OSError, ValueError) as exc:
-            return f"unreadable metadata: {exc}"
-        if not isinstance(meta, dict):
-            return "unreadable metadata"
-        for key, value in (
-            ("descriptor", self.name),
-            ("version", self.version),
-            ("dimension", self.dimension),
-        ):
-            if meta.get(key) != value:
-                return f"{key} is {meta.get(key)!r}, expected {value!r}"
-        if meta.get("sha256") != hashlib.sha256(data).hexdigest():
-            return "index file does not match its checksum"
-        try:
-            index = faiss.deserialize_index(np.frombuffer(data, dtype=np.uint8))
-        except RuntimeError as exc:
-            return f"unreadable index: {exc}"
-        if not isinstance(index, faiss.IndexIDMap2) or index.d != self.dimension:
+    def read_file(self) -> tuple[Any, dict[str, Any]] | str:
+        """The persisted index and its metadata, or why they cannot be used (file work only:
+        several indexes can be read at once, in threads)."""
+        with directory_lock(self.directory, exclusive=False):
+            try:
+                meta = json.loads(self.meta_path.read_text())
+                digest = _file_sha256(self.path)
+            except FileNotFoundError as exc:
+                return f"missing {Path(exc.filename).name}"
+            except (OSError, ValueError) as exc:
+                return f"unreadable metadata: {exc}"
+            if not isinstance(meta, dict):
+                return "unreadable metadata"
+            for key, value in (
+                ("descriptor", self.name),
+                ("version", self.version),
+                ("dimension", self.dimension),
+            ):
+                if meta.get(key) != value:
+                    return f"{key} is {meta.get(key)!r}, expected {value!r}"
+            if meta.get("sha256") != digest:
+                return "index file does not match its checksum"
+            try:
+                index: Any = faiss.read_index(str(self.path))
+            except RuntimeError as exc:
+                return f"unreadable index: {exc}"
+        if kind_of(index) is None or index.d != self.dimension:
             return "index of another kind or dimension"
-        ids = faiss.vector_to_array(index.id_map).astype(np.int64)
-        if ids.size != index.ntotal or ids.size != meta.get("count"):
+        if kind_of(index) == IVF and not _has_id_map(index):
+            _with_id_map(index)  # a file written before the id map was kept: save it again
+            meta["resave"] = True
+        if int(index.ntotal) != meta.get("count"):
             return "index count disagrees with its metadata"
-        if ids.size != expected_ids.size:
-            return f"index holds {ids.size} vectors, database {expected_ids.size}"
-        if not np.array_equal(np.sort(ids), np.sort(expected_ids)):
-            return "index ids differ from the database"
+        if kind_of(index) == FLAT and index.id_map.size() != index.ntotal:
+            return "index count disagrees with its id map"
+        return index, meta
+
+    def load_or_rebuild(
+        self, source: VectorSource, found: tuple[Any, dict[str, Any]] | str | None = None
+    ) -> str | None:
+        """Load the persisted index and bring it up to date with ``source`` (the database);
+        rebuild it from ``source`` when the file cannot be used. Returns why it was rebuilt or
+        repaired, or ``None`` when the file was used as it is (plus rows it had not seen).
+        ``found``: what :meth:`read_file` returned, when it was called already."""
+        if found is None:
+            found = self.read_file()
+        watermark = source.watermark()
+        if isinstance(found, str):
+            return self._rebuild(source, watermark, found)
+        index, meta = found
         with self._lock.write():
             self._index = index
+            self._synced_to = 0
+            self._unsaved = 0
+        synced_to = meta.get("synced_to")
+        changed = bool(meta.get("resave"))
+        problem: str | None = None
+        if isinstance(synced_to, int) and 0 <= synced_to <= watermark:
+            self._synced_to = synced_to
+            if synced_to < watermark:  # behind: add what it has not seen
+                new_ids, new_vectors = source.vectors(after=synced_to)
+                if new_ids.size:
+                    keep = ~np.isin(new_ids, self.ids())
+                    self.add(new_ids[keep], new_vectors[keep], persist=False)
+                self._synced_to = watermark
+                changed = bool(new_ids.size)
+            expected = source.count()
+            if self.size != expected:
+                problem = f"index holds {self.size} vectors, database {expected}"
+        else:
+            problem = (
+                "index was saved from another database"
+                if isinstance(synced_to, int)
+                else "index records no database position"
+            )
+        if problem is not None:
+            repaired = self._repair(source, watermark, problem)
+            if repaired is not None:
+                return repaired
+            changed = True
+        desired = self.options.kind_for(self.size, self.kind)
+        if desired != self.kind:
+            ids, vectors = self.all_vectors()
+            log.info("building a %s index for %s (%d vectors)", desired, self.name, ids.size)
+            self.replace_all(ids, vectors, persist=False, synced_to=self._synced_to, kind=desired)
+            changed = True
+        if changed:
+            self.save()
+        return problem
+
+    def _repair(self, source: VectorSource, watermark: int, problem: str) -> str | None:
+        """Make the loaded index hold exactly the database's ids by adding and removing the
+        difference; rebuild instead when it is large. Returns the rebuild reason, or None."""
+        expected = source.ids()
+        have = self.ids()
+        missing = np.setdiff1d(expected, have, assume_unique=True)
+        extra = np.setdiff1d(have, expected, assume_unique=True)
+        if missing.size + extra.size > max(1000, expected.size // 4):
+            if expected.size == have.size:
+                problem = "index ids differ from the database"
+            return self._rebuild(source, watermark, problem)
+        self.remove(extra, persist=False)
+        if missing.size:
+            ids, vectors = source.vectors_of(missing)
+            self.add(ids, vectors, persist=False)
+        self._synced_to = watermark
+        log.warning(
+            "repaired the %s index from the database (%d added, %d removed): %s",
+            self.name,
+            missing.size,
+            extra.size,
+            problem,
+        )
         return None
 
-    def load_or_rebuild(self, expected_ids: np.ndarray, load_vectors: LoadVectors) -> str | None:
-        """Load the persisted index if it holds exactly ``expected_ids`` ``(N,)``; otherwise
-        rebuild it from ``load_vectors()`` and save it. Returns why it was rebuilt, or None."""
-        problem = self._load_problem(_as_ids(expected_ids))
-        if problem is None:
-            return None
-        ids, vectors = load_vectors()
-        self.replace_all(ids, vectors)
+    def _rebuild(self, source: VectorSource, watermark: int, problem: str) -> str:
+        ids, vectors = source.vectors(after=0)
+        self.replace_all(ids, vectors, synced_to=watermark, persist=True)
         # A new, empty library has no index yet: that is no news.
         level = logging.WARNING if ids.size else logging.INFO
         log.log(
             level,
-            "rebuilt the %s index from the database (%d vectors): %s",
+            "rebuilt the %s index from the database (%d vectors, %s): %s",
             self.name,
             ids.size,
+            self.kind,
             problem,
         )
         return problem
@@ -358,3 +852,12 @@ class IndexSet(Mapping[str, DescriptorIndex]):
 
     def sizes(self) -> dict[str, int]:
         return {name: index.size for name, index in self._indexes.items()}
+
+    def save(self, *, only_changed: bool = True) -> None:
+        """Save every index (with ``only_changed``: those with unsaved changes); a file that
+        cannot be written is logged, not raised (see :meth:`DescriptorIndex.try_save`)."""
+        for index in self._indexes.values():
+            if only_changed:
+                index.flush()
+            else:
+                index.try_save()

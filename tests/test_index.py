@@ -4,14 +4,44 @@ from __future__ import annotations
 
 import json
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from app.index import DescriptorIndex, IndexSet, ReadWriteLock
+from app.index import FLAT, IVF, DescriptorIndex, IndexOptions, IndexSet, ReadWriteLock
 
 D = 8
+
+
+class Source:
+    """The database as :meth:`DescriptorIndex.load_or_rebuild` sees it (in memory)."""
+
+    def __init__(self, ids: np.ndarray, vectors: np.ndarray, watermark: int | None = None):
+        order = np.argsort(ids)
+        self._ids, self._vectors = ids[order], vectors[order]
+        self._watermark = int(ids.max()) if watermark is None and ids.size else watermark or 0
+        self.full_reads = 0
+
+    def watermark(self) -> int:
+        return self._watermark
+
+    def count(self) -> int:
+        return int(self._ids.size)
+
+    def ids(self) -> np.ndarray:
+        return self._ids
+
+    def vectors(self, after: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        if after == 0:
+            self.full_reads += 1
+        keep = (self._ids > after) & (self._ids <= self._watermark)
+        return self._ids[keep], self._vectors[keep]
+
+    def vectors_of(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        keep = np.isin(self._ids, ids)
+        return self._ids[keep], self._vectors[keep]
 
 
 def make_data(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -98,16 +128,18 @@ def test_rejects_wrong_dimension_and_non_finite(index: DescriptorIndex) -> None:
 
 def test_persisted_index_is_loaded_when_it_matches(tmp_path: Path) -> None:
     ids, vectors = make_data(30)
-    DescriptorIndex("posture", D, 1, tmp_path).add(ids, vectors)
+    DescriptorIndex("posture", D, 1, tmp_path).add(
+        ids, vectors, synced_to=int(ids.max()), persist=True
+    )
     assert (tmp_path / "posture.faiss").is_file()
     meta = json.loads((tmp_path / "posture.json").read_text())
-    assert meta["version"] == 1 and meta["count"] == 30
-
-    def must_not_rebuild() -> tuple[np.ndarray, np.ndarray]:
-        raise AssertionError("rebuilt although the file matched")
+    assert meta["version"] == 1 and meta["count"] == 30 and meta["kind"] == FLAT
+    assert meta["synced_to"] == ids.max()
 
     reopened = DescriptorIndex("posture", D, 1, tmp_path)
-    assert reopened.load_or_rebuild(ids[::-1], must_not_rebuild) is None
+    source = Source(ids, vectors)
+    assert reopened.load_or_rebuild(source) is None
+    assert source.full_reads == 0  # not rebuilt
     assert reopened.search(vectors[5], 3).ids.tolist()[0] == ids[5]
 
 
@@ -139,39 +171,73 @@ def _damage_garbage_meta(directory: Path) -> None:
 )
 def test_damaged_index_is_rebuilt(tmp_path: Path, damage: object, reason: str) -> None:
     ids, vectors = make_data(30)
-    DescriptorIndex("posture", D, 1, tmp_path).add(ids, vectors)
+    DescriptorIndex("posture", D, 1, tmp_path).add(
+        ids, vectors, synced_to=int(ids.max()), persist=True
+    )
     damage(tmp_path)  # type: ignore[operator]
     reopened = DescriptorIndex("posture", D, 1, tmp_path)
-    problem = reopened.load_or_rebuild(ids, lambda: (ids, vectors))
+    problem = reopened.load_or_rebuild(Source(ids, vectors))
     assert problem is not None and reason in problem
     assert reopened.size == 30
     assert reopened.search(vectors[7], 1).ids.tolist() == [ids[7]]
     # the rebuilt index was saved and now loads as it is
     again = DescriptorIndex("posture", D, 1, tmp_path)
-    assert again.load_or_rebuild(ids, lambda: (ids[:0], vectors[:0])) is None
-    assert again.size == 30
+    source = Source(ids, vectors)
+    assert again.load_or_rebuild(source) is None
+    assert again.size == 30 and source.full_reads == 0
 
 
-def test_index_disagreeing_with_database_is_rebuilt(tmp_path: Path) -> None:
+def test_index_behind_the_database_catches_up_without_a_rebuild(tmp_path: Path) -> None:
+    # What an import or a server killed before it saved leaves: a file missing the newest rows.
+    ids, vectors = make_data(40)
+    DescriptorIndex("posture", D, 1, tmp_path).add(
+        ids[:25], vectors[:25], synced_to=int(ids[24]), persist=True
+    )
+    reopened = DescriptorIndex("posture", D, 1, tmp_path)
+    source = Source(ids, vectors)
+    assert reopened.load_or_rebuild(source) is None
+    assert source.full_reads == 0
+    assert reopened.size == 40 and reopened.synced_to == ids.max()
+    assert reopened.search(vectors[33], 1).ids.tolist() == [ids[33]]
+    meta = json.loads((tmp_path / "posture.json").read_text())
+    assert meta["count"] == 40 and meta["synced_to"] == ids.max()  # saved after catching up
+
+
+def test_index_disagreeing_with_database_is_repaired_or_rebuilt(tmp_path: Path) -> None:
     ids, vectors = make_data(30)
-    DescriptorIndex("posture", D, 1, tmp_path).add(ids, vectors)
-    other_ids = ids.copy()
-    other_ids[0] = 1  # same count, one different id
-    for expected, reason in ((ids[:-1], "holds 30"), (other_ids, "ids differ")):
-        reopened = DescriptorIndex("posture", D, 1, tmp_path)
-        problem = reopened.load_or_rebuild(expected, lambda e=expected: (e, vectors[: e.size]))
-        assert problem is not None and reason in problem
-        DescriptorIndex("posture", D, 1, tmp_path).replace_all(ids, vectors)
+    DescriptorIndex("posture", D, 1, tmp_path).add(
+        ids, vectors, synced_to=int(ids.max()), persist=True
+    )
+    # One clip deleted by another process: the index is repaired (the clip removed).
+    reopened = DescriptorIndex("posture", D, 1, tmp_path)
+    problem = reopened.load_or_rebuild(Source(ids[1:], vectors[1:], watermark=int(ids.max())))
+    assert problem is not None and "holds 30" in problem
+    assert reopened.size == 29 and int(ids[0]) not in reopened.ids().tolist()
+    # A database from a backup, older than the index: everything is checked.
+    DescriptorIndex("posture", D, 1, tmp_path).replace_all(ids, vectors, synced_to=10**6)
+    reopened = DescriptorIndex("posture", D, 1, tmp_path)
+    problem = reopened.load_or_rebuild(Source(ids, vectors))
+    assert problem is not None and "another database" in problem
+    assert sorted(reopened.ids().tolist()) == sorted(ids.tolist())
+    # Ids that have nothing in common: the index ends up holding the database's.
+    other = ids + 100_000
+    reopened = DescriptorIndex("posture", D, 1, tmp_path)
+    assert reopened.load_or_rebuild(Source(other, vectors, watermark=10**6)) is not None
+    assert sorted(reopened.ids().tolist()) == sorted(other.tolist())
+    found = reopened.search(vectors[3], 1)
+    assert found.ids.tolist() == [other[3]] and found.distances[0] == pytest.approx(0)
 
 
 def test_new_descriptor_version_or_dimension_rebuilds(tmp_path: Path) -> None:
     ids, vectors = make_data(5)
-    DescriptorIndex("posture", D, 1, tmp_path).add(ids, vectors)
+    DescriptorIndex("posture", D, 1, tmp_path).add(
+        ids, vectors, synced_to=int(ids.max()), persist=True
+    )
     v2 = DescriptorIndex("posture", D, 2, tmp_path)
-    assert "version" in (v2.load_or_rebuild(ids, lambda: (ids, vectors)) or "")
+    assert "version" in (v2.load_or_rebuild(Source(ids, vectors)) or "")
     wider = DescriptorIndex("posture", D + 1, 2, tmp_path)
     wide = np.hstack([vectors, np.zeros((5, 1), np.float32)])
-    assert "dimension" in (wider.load_or_rebuild(ids, lambda: (ids, wide)) or "")
+    assert "dimension" in (wider.load_or_rebuild(Source(ids, wide)) or "")
 
 
 def test_index_set_adds_and_removes_everywhere(tmp_path: Path) -> None:
@@ -243,3 +309,107 @@ def test_read_write_lock_excludes_writers() -> None:
     for t in threads:
         t.join()
     assert not state["bad"]
+
+
+# -- index kinds -------------------------------------------------------------------------
+
+
+def clustered(n: int, dimension: int = 12, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Vectors around a few hundred centres, as descriptor vectors of many clips are."""
+    rng = np.random.default_rng(seed)
+    centres = rng.normal(size=(300, dimension)) * 3
+    vectors = centres[rng.integers(0, 300, n)] + rng.normal(size=(n, dimension)) * 0.5
+    return np.arange(1, n + 1, dtype=np.int64) * 2, vectors.astype(np.float32)
+
+
+def test_index_kind_follows_the_options() -> None:
+    auto = IndexOptions(auto_threshold=1000)
+    assert auto.kind_for(999) == FLAT and auto.kind_for(1000) == IVF
+    assert auto.kind_for(600, current=IVF) == IVF  # hysteresis: ivf down to half the threshold
+    assert auto.kind_for(499, current=IVF) == FLAT
+    assert IndexOptions(kind="flat").kind_for(10**7) == FLAT
+    assert IndexOptions(kind="ivf").kind_for(5000) == IVF
+    assert IndexOptions(kind="ivf").kind_for(10) == FLAT  # too few vectors to train cells
+    assert IndexOptions().nlist_for(1_000_000) == 4000
+    with pytest.raises(ValueError):
+        IndexOptions(kind="hnsw")
+
+
+def test_ivf_recall_against_exact_search(tmp_path: Path) -> None:
+    ids, vectors = clustered(20_000)
+    options = IndexOptions(kind="ivf")
+    ivf = DescriptorIndex("posture", 12, 1, tmp_path, options=options)
+    ivf.replace_all(ids, vectors, persist=False)
+    exact = DescriptorIndex("posture", 12, 1, tmp_path, options=IndexOptions(kind="flat"))
+    exact.replace_all(ids, vectors, persist=False)
+    assert ivf.kind == IVF and exact.kind == FLAT and ivf.size == 20_000
+    assert ivf.scan_cost() < exact.scan_cost() // 10
+    rng = np.random.default_rng(1)
+    found = total = 0
+    for row in rng.choice(ids.size, 300, replace=False):
+        want = set(exact.search(vectors[row], 10, exclude=int(ids[row])).ids.tolist())
+        got = ivf.search(vectors[row], 10, exclude=int(ids[row]))
+        assert len(got) == 10 and int(ids[row]) not in got.ids.tolist()
+        assert np.all(np.diff(got.distances) >= 0)
+        found += len(want & set(got.ids.tolist()))
+        total += 10
+    assert found / total >= 0.99
+
+
+def test_ivf_remove_filter_persist_and_convert(tmp_path: Path) -> None:
+    ids, vectors = clustered(5000)
+    options = IndexOptions(kind="auto", auto_threshold=4000)
+    index = DescriptorIndex("posture", 12, 1, tmp_path, options=options)
+    index.replace_all(ids, vectors, synced_to=int(ids.max()))
+    assert index.kind == IVF
+    # removal
+    assert index.remove([int(ids[0]), 123_456_789]) == 1
+    assert index.size == 4999 and int(ids[0]) not in index.ids().tolist()
+    assert int(ids[0]) not in index.search(vectors[0], 20).ids.tolist()
+    np.testing.assert_array_equal(index.reconstruct(int(ids[5])), vectors[5])
+    with pytest.raises(KeyError):
+        index.reconstruct(int(ids[0]))
+    # a label filter is exact (every cell is probed)
+    allowed = ids[1::37]
+    found = index.search(vectors[1], 5, allowed=allowed, exclude=int(ids[1]))
+    mask = np.isin(ids, allowed) & (ids != ids[1])
+    want_ids, want_distances = brute_force(ids[mask], vectors[mask], vectors[1])
+    assert found.ids.tolist() == want_ids[:5].tolist()
+    np.testing.assert_allclose(found.distances, want_distances[:5], rtol=1e-4)
+    # saved and loaded as IVF
+    index.save()
+    assert json.loads((tmp_path / "posture.json").read_text())["kind"] == IVF
+    reopened = DescriptorIndex("posture", 12, 1, tmp_path, options=options)
+    source = Source(ids[1:], vectors[1:], watermark=int(ids.max()))
+    assert reopened.load_or_rebuild(source) is None and source.full_reads == 0
+    assert reopened.kind == IVF and reopened.size == 4999
+    # options asking for a flat index convert it when it is loaded
+    flat_options = IndexOptions(kind="flat")
+    flat = DescriptorIndex("posture", 12, 1, tmp_path, options=flat_options)
+    assert flat.load_or_rebuild(source) is None and flat.kind == FLAT and flat.size == 4999
+    assert flat.search(vectors[9], 1).ids.tolist() == [ids[9]]
+    back = DescriptorIndex("posture", 12, 1, tmp_path, options=options)
+    assert back.load_or_rebuild(source) is None and back.kind == IVF
+    assert sorted(back.ids().tolist()) == sorted(ids[1:].tolist())
+
+
+def test_small_indexes_save_after_each_change_large_ones_on_request(tmp_path: Path) -> None:
+    ids, vectors = make_data(30)
+    at_once = IndexOptions(autosave_below=100, save_delay=0)
+    small = DescriptorIndex("posture", D, 1, tmp_path, options=at_once)
+    small.add(ids[:10], vectors[:10])
+    assert json.loads((tmp_path / "posture.json").read_text())["count"] == 10
+    later = DescriptorIndex("motion", D, 1, tmp_path, options=IndexOptions(save_delay=0.2))
+    later.add(ids[:3], vectors[:3])
+    later.add(ids[3:5], vectors[3:5])
+    assert not (tmp_path / "motion.json").exists()
+    deadline = time.monotonic() + 10
+    while not (tmp_path / "motion.json").exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert json.loads((tmp_path / "motion.json").read_text())["count"] == 5
+    large = DescriptorIndex("kinetic", D, 1, tmp_path, options=IndexOptions(autosave_below=5))
+    large.add(ids, vectors)
+    assert not (tmp_path / "kinetic.json").exists() and large.unsaved_changes == 30
+    IndexSet({"kinetic": large}).save()
+    assert json.loads((tmp_path / "kinetic.json").read_text())["count"] == 30
+    assert large.unsaved_changes == 0

@@ -9,17 +9,27 @@ and batches are ``(N, D)`` float32 C-contiguous with ``(N,)`` int64 clip ids.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+import contextlib
+import sqlite3
+import threading
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
+from typing import Any, Protocol
 
 import numpy as np
-from sqlalchemy import Select, func, select
+from sqlalchemy import Connection, Engine, Select, func, insert, select
 from sqlalchemy.orm import Session, selectinload
 
 from app.db.models import Clip, ClipDescriptor, ClipFile, ClipLabel
 
 VECTOR_DTYPE = np.dtype("<f4")
+IN_CHUNK = 500  # ids per IN (...) list: far below any backend's parameter limit
+
+Executor = Session | Connection
+"""Read functions take an ORM session or a Core connection (cheaper per query: the search
+path uses one connection per request)."""
 
 
 @dataclass(frozen=True)
@@ -96,65 +106,108 @@ def _utc(value: datetime) -> datetime:
     return value if value.tzinfo is not None else value.replace(tzinfo=UTC)
 
 
-def _record(clip: Clip) -> ClipRecord:
-    return ClipRecord(
-        id=clip.id,
-        name=clip.name,
-        format=clip.format,
-        content_hash=clip.content_hash,
-        frame_count=clip.frame_count,
-        frame_time=clip.frame_time,
-        duration=clip.duration,
-        joint_count=clip.joint_count,
-        skeleton_family=clip.skeleton_family,
-        lead_in_frames=clip.lead_in_frames,
-        created_at=_utc(clip.created_at),
-        labels=tuple(label.label for label in clip.labels),
-        files=tuple(FileRecord(f.role, f.filename, f.sha256, f.size) for f in clip.files),
-    )
-
-
-def _clips() -> Select[Clip]:
-    return select(Clip).options(selectinload(Clip.labels), selectinload(Clip.files))
-
-
 def _with_label(label: str) -> Select[int]:
     return select(ClipLabel.clip_id).where(ClipLabel.label == label)
+
+
+def _chunks(values: Sequence[Any], size: int = IN_CHUNK) -> Iterable[Sequence[Any]]:
+    for start in range(0, len(values), size):
+        yield values[start : start + size]
+
+
+# Reads below use Core statements (one row tuple per clip, one query per child table for a
+# whole batch of clips): about 10x cheaper than loading ORM objects, and the same records.
+_CLIP_COLUMNS = (
+    Clip.id,
+    Clip.name,
+    Clip.format,
+    Clip.content_hash,
+    Clip.frame_count,
+    Clip.frame_time,
+    Clip.duration,
+    Clip.joint_count,
+    Clip.skeleton_family,
+    Clip.lead_in_frames,
+    Clip.created_at,
+)
+
+
+def _clip_rows() -> Select[Any]:
+    return select(*_CLIP_COLUMNS)  # type: ignore[return-value]
+
+
+def _records(executor: Executor, rows: Sequence[Any]) -> dict[int, ClipRecord]:
+    """ClipRecords (with labels and files) for clip rows of :func:`_clip_rows`, by id."""
+    if not rows:
+        return {}
+    ids = [int(row[0]) for row in rows]
+    labels: dict[int, list[str]] = {}
+    files: dict[int, list[FileRecord]] = {}
+    for chunk in _chunks(ids):
+        for clip_id, label in executor.execute(
+            select(ClipLabel.clip_id, ClipLabel.label)
+            .where(ClipLabel.clip_id.in_(chunk))
+            .order_by(ClipLabel.clip_id, ClipLabel.position)
+        ):
+            labels.setdefault(clip_id, []).append(label)
+        for clip_id, role, filename, sha256, size in executor.execute(
+            select(
+                ClipFile.clip_id, ClipFile.role, ClipFile.filename, ClipFile.sha256, ClipFile.size
+            )
+            .where(ClipFile.clip_id.in_(chunk))
+            .order_by(ClipFile.clip_id, ClipFile.position)
+        ):
+            files.setdefault(clip_id, []).append(FileRecord(role, filename, sha256, size))
+    return {
+        int(row[0]): ClipRecord(
+            id=int(row[0]),
+            name=row[1],
+            format=row[2],
+            content_hash=row[3],
+            frame_count=row[4],
+            frame_time=row[5],
+            duration=row[6],
+            joint_count=row[7],
+            skeleton_family=row[8],
+            lead_in_frames=row[9],
+            created_at=_utc(row[10]),
+            labels=tuple(labels.get(int(row[0]), ())),
+            files=tuple(files.get(int(row[0]), ())),
+        )
+        for row in rows
+    }
 
 
 # -- clips --------------------------------------------------------------------------------
 
 
-def get_clip(session: Session, clip_id: int) -> ClipRecord | None:
-    clip = session.scalars(_clips().where(Clip.id == clip_id)).one_or_none()
-    return None if clip is None else _record(clip)
+def get_clip(session: Executor, clip_id: int) -> ClipRecord | None:
+    rows = session.execute(_clip_rows().where(Clip.id == clip_id)).all()
+    return _records(session, rows).get(clip_id)
 
 
-def get_clips(session: Session, clip_ids: Iterable[int]) -> dict[int, ClipRecord]:
+def get_clips(session: Executor, clip_ids: Iterable[int]) -> dict[int, ClipRecord]:
     """The clips among ``clip_ids`` that exist, by id."""
     ids = sorted({int(i) for i in clip_ids})
-    found: dict[int, ClipRecord] = {}
-    for start in range(0, len(ids), 500):  # stay far below any backend's parameter limit
-        chunk = ids[start : start + 500]
-        for clip in session.scalars(_clips().where(Clip.id.in_(chunk))):
-            found[clip.id] = _record(clip)
-    return found
+    rows: list[Any] = []
+    for chunk in _chunks(ids):
+        rows.extend(session.execute(_clip_rows().where(Clip.id.in_(chunk))).all())
+    return _records(session, rows)
 
 
-def get_clip_by_hash(session: Session, content_hash: str) -> ClipRecord | None:
-    clip = session.scalars(_clips().where(Clip.content_hash == content_hash)).one_or_none()
-    return None if clip is None else _record(clip)
+def get_clip_by_hash(session: Executor, content_hash: str) -> ClipRecord | None:
+    rows = session.execute(_clip_rows().where(Clip.content_hash == content_hash)).all()
+    found = _records(session, rows)
+    return next(iter(found.values()), None)
 
 
-def clip_ids_by_hash(session: Session, hashes: Iterable[str]) -> dict[str, int]:
+def clip_ids_by_hash(session: Executor, hashes: Iterable[str]) -> dict[str, int]:
     """``content_hash -> id`` for the hashes already stored."""
     wanted = sorted(set(hashes))
     found: dict[str, int] = {}
-    for start in range(0, len(wanted), 500):
+    for chunk in _chunks(wanted):
         rows = session.execute(
-            select(Clip.content_hash, Clip.id).where(
-                Clip.content_hash.in_(wanted[start : start + 500])
-            )
+            select(Clip.content_hash, Clip.id).where(Clip.content_hash.in_(chunk))
         )
         found.update({h: i for h, i in rows})
     return found
@@ -164,18 +217,26 @@ def list_clips(
     session: Session, *, label: str | None, limit: int, offset: int
 ) -> tuple[list[ClipRecord], int]:
     """One page of clips in id order, and how many match in total."""
-    query = _clips().order_by(Clip.id)
+    query = _clip_rows().order_by(Clip.id)
     count = select(func.count()).select_from(Clip)
     if label is not None:
         query = query.where(Clip.id.in_(_with_label(label)))
         count = count.where(Clip.id.in_(_with_label(label)))
     total = session.scalar(count) or 0
-    clips = session.scalars(query.limit(limit).offset(offset)).all()
-    return [_record(c) for c in clips], total
+    rows = session.execute(query.limit(limit).offset(offset)).all()
+    records = _records(session, rows)
+    return [records[int(row[0])] for row in rows], total
 
 
-def count_clips(session: Session) -> int:
+def count_clips(session: Executor) -> int:
     return session.scalar(select(func.count()).select_from(Clip)) or 0
+
+
+def max_clip_id(session: Executor) -> int:
+    """The largest clip id (0 when there is none). Ids only grow — SQLite AUTOINCREMENT never
+    hands one out again, and writers are serialised — so a reader that has seen every clip up
+    to this id has seen every clip committed so far."""
+    return int(session.scalar(select(func.max(Clip.id))) or 0)
 
 
 def all_clip_ids(session: Session) -> list[int]:
@@ -183,36 +244,69 @@ def all_clip_ids(session: Session) -> list[int]:
 
 
 def insert_clip(session: Session, new: NewClip) -> int:
-    """Add a clip with its files, labels and vectors; returns the new id (flushed)."""
-    clip = Clip(
-        name=new.name,
-        format=new.format,
-        content_hash=new.content_hash,
-        frame_count=new.frame_count,
-        frame_time=new.frame_time,
-        duration=new.duration,
-        joint_count=new.joint_count,
-        skeleton_family=new.skeleton_family,
-        lead_in_frames=new.lead_in_frames,
-        created_at=new.created_at,
-    )
-    clip.files = [
-        ClipFile(position=i, role=f.role, filename=f.filename, sha256=f.sha256, size=f.size)
+    """Add a clip with its files, labels and vectors; returns the new id."""
+    return insert_clips(session, [new])[0]
+
+
+def insert_clips(session: Session, clips: Sequence[NewClip]) -> list[int]:
+    """Add clips with their files, labels and vectors in a few multi-row statements (one per
+    table); returns the new ids in the order of ``clips``."""
+    if not clips:
+        return []
+    connection = session.connection()
+    ids = [
+        int(i)
+        for i in connection.scalars(
+            insert(Clip).returning(Clip.id, sort_by_parameter_order=True),
+            [
+                {
+                    "name": new.name,
+                    "format": new.format,
+                    "content_hash": new.content_hash,
+                    "frame_count": new.frame_count,
+                    "frame_time": new.frame_time,
+                    "duration": new.duration,
+                    "joint_count": new.joint_count,
+                    "skeleton_family": new.skeleton_family,
+                    "lead_in_frames": new.lead_in_frames,
+                    "created_at": new.created_at,
+                }
+                for new in clips
+            ],
+        )
+    ]
+    files = [
+        {
+            "clip_id": clip_id,
+            "position": i,
+            "role": f.role,
+            "filename": f.filename,
+            "sha256": f.sha256,
+            "size": f.size,
+        }
+        for clip_id, new in zip(ids, clips, strict=True)
         for i, f in enumerate(new.files)
     ]
-    clip.labels = [ClipLabel(label=label, position=i) for i, label in enumerate(new.labels)]
-    clip.descriptors = [
-        ClipDescriptor(
-            name=name,
-            version=stored.version,
-            dimension=int(stored.vector.shape[0]),
-            vector=encode_vector(stored.vector),
-        )
+    labels = [
+        {"clip_id": clip_id, "label": label, "position": i}
+        for clip_id, new in zip(ids, clips, strict=True)
+        for i, label in enumerate(new.labels)
+    ]
+    vectors = [
+        {
+            "clip_id": clip_id,
+            "name": name,
+            "version": stored.version,
+            "dimension": int(stored.vector.shape[0]),
+            "vector": encode_vector(stored.vector),
+        }
+        for clip_id, new in zip(ids, clips, strict=True)
         for name, stored in new.vectors.items()
     ]
-    session.add(clip)
-    session.flush()
-    return clip.id
+    for table, rows in ((ClipFile, files), (ClipLabel, labels), (ClipDescriptor, vectors)):
+        if rows:
+            connection.execute(insert(table), rows)
+    return ids
 
 
 def update_clip(
@@ -262,7 +356,7 @@ def referenced_blobs(session: Session, shas: Iterable[str]) -> set[str]:
 # -- labels -------------------------------------------------------------------------------
 
 
-def clip_ids_with_label(session: Session, label: str) -> np.ndarray:
+def clip_ids_with_label(session: Executor, label: str) -> np.ndarray:
     """``(N,)`` int64 ids of the clips carrying ``label``."""
     return np.fromiter(session.scalars(_with_label(label)), dtype=np.int64)
 
@@ -280,48 +374,96 @@ def get_vectors(session: Session, clip_id: int) -> dict[str, StoredVector]:
     return {r.name: StoredVector(r.version, decode_vector(r.vector)) for r in rows}
 
 
-def get_vector(session: Session, clip_id: int, name: str) -> StoredVector | None:
-    row = session.get(ClipDescriptor, (clip_id, name))
-    return None if row is None else StoredVector(row.version, decode_vector(row.vector))
+def get_vector(session: Executor, clip_id: int, name: str) -> StoredVector | None:
+    row = session.execute(
+        select(ClipDescriptor.version, ClipDescriptor.vector).where(
+            ClipDescriptor.clip_id == clip_id, ClipDescriptor.name == name
+        )
+    ).first()
+    return None if row is None else StoredVector(row[0], decode_vector(row[1]))
 
 
-def vector_ids(session: Session, name: str, version: int, dimension: int) -> np.ndarray:
+def _vector_filter(name: str, version: int, dimension: int) -> Any:
+    return (
+        (ClipDescriptor.name == name)
+        & (ClipDescriptor.version == version)
+        & (ClipDescriptor.dimension == dimension)
+    )
+
+
+def vector_ids(session: Executor, name: str, version: int, dimension: int) -> np.ndarray:
     """``(N,)`` int64 sorted ids of the clips whose ``name`` vector :func:`load_vectors`
     returns (that ``version`` and ``dimension``)."""
     ids = session.scalars(
         select(ClipDescriptor.clip_id)
-        .where(
-            ClipDescriptor.name == name,
-            ClipDescriptor.version == version,
-            ClipDescriptor.dimension == dimension,
-        )
+        .where(_vector_filter(name, version, dimension))
         .order_by(ClipDescriptor.clip_id)
     )
     return np.fromiter(ids, dtype=np.int64)
 
 
+def count_vectors(session: Executor, name: str, version: int) -> int:
+    """How many ``name`` vectors of ``version`` are stored (answered from the (name, version)
+    index alone, so it stays cheap at a million clips)."""
+    return int(
+        session.scalar(
+            select(func.count()).where(
+                ClipDescriptor.name == name, ClipDescriptor.version == version
+            )
+        )
+        or 0
+    )
+
+
+def _vector_arrays(rows: Sequence[Any], dimension: int) -> tuple[np.ndarray, np.ndarray]:
+    ids = np.fromiter((r[0] for r in rows), dtype=np.int64, count=len(rows))
+    data = b"".join([r[1] for r in rows])
+    vectors = np.frombuffer(data, dtype=VECTOR_DTYPE).astype(np.float32).reshape(-1, dimension)
+    return ids, vectors
+
+
 def load_vectors(
-    session: Session, name: str, version: int, dimension: int
+    session: Executor,
+    name: str,
+    version: int,
+    dimension: int,
+    *,
+    after: int = 0,
+    upto: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """All ``name`` vectors of ``version``: ids ``(N,)`` int64 and vectors ``(N, D)`` float32.
+    """The ``name`` vectors of ``version``: ids ``(N,)`` int64 and vectors ``(N, D)`` float32,
+    in id order; only clips with ``after < id <= upto`` when those are given.
 
     Rows whose stored dimension differs from ``dimension`` are skipped (they can only come from
     an older descriptor and are recomputed by ``mocap-index reindex``).
     """
-    rows = session.execute(
-        select(ClipDescriptor.clip_id, ClipDescriptor.vector)
-        .where(
-            ClipDescriptor.name == name,
-            ClipDescriptor.version == version,
-            ClipDescriptor.dimension == dimension,
+    query = select(ClipDescriptor.clip_id, ClipDescriptor.vector).where(
+        _vector_filter(name, version, dimension)
+    )
+    if after:
+        query = query.where(ClipDescriptor.clip_id > after)
+    if upto is not None:
+        query = query.where(ClipDescriptor.clip_id <= upto)
+    rows = session.execute(query.order_by(ClipDescriptor.clip_id)).all()
+    return _vector_arrays(rows, dimension)
+
+
+def load_vectors_of(
+    session: Executor, name: str, version: int, dimension: int, clip_ids: Iterable[int]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Like :func:`load_vectors`, for the given clips only (those that have such a vector)."""
+    ids = sorted({int(i) for i in clip_ids})
+    rows: list[Any] = []
+    for chunk in _chunks(ids):
+        rows.extend(
+            session.execute(
+                select(ClipDescriptor.clip_id, ClipDescriptor.vector)
+                .where(_vector_filter(name, version, dimension))
+                .where(ClipDescriptor.clip_id.in_(chunk))
+                .order_by(ClipDescriptor.clip_id)
+            ).all()
         )
-        .order_by(ClipDescriptor.clip_id)
-    ).all()
-    ids = np.fromiter((r[0] for r in rows), dtype=np.int64, count=len(rows))
-    vectors = np.empty((len(rows), dimension), dtype=np.float32)
-    for i, row in enumerate(rows):
-        vectors[i] = np.frombuffer(row[1], dtype=VECTOR_DTYPE)
-    return ids, vectors
+    return _vector_arrays(rows, dimension)
 
 
 def put_vectors(session: Session, clip_id: int, vectors: Mapping[str, StoredVector]) -> None:
@@ -354,3 +496,209 @@ def clips_needing_vectors(session: Session, current: Mapping[str, int]) -> dict[
         if missing:
             needing[clip_id] = missing
     return needing
+
+
+# -- maintenance --------------------------------------------------------------------------
+
+
+def checkpoint(engine: Engine) -> None:
+    """SQLite: fold the write-ahead log into the database file (after a bulk load, so the next
+    readers do not wade through a large log). Nothing elsewhere. Runs outside a transaction."""
+    if engine.dialect.name != "sqlite":
+        return
+    raw = engine.raw_connection()
+    try:
+        cursor = raw.cursor()
+        cursor.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+        cursor.close()
+    finally:
+        raw.close()
+
+
+# -- the search path ----------------------------------------------------------------------
+#
+# A search answers from four small queries (the query clip with its vector, the hits, their
+# labels, their files). Through the ORM they cost ~2 ms; here, on SQLite, they run as plain
+# SQL on one DBAPI connection per thread, kept open (~10 us each), inside one read
+# transaction, so a search sees one snapshot. Other databases go through the Core functions
+# above on a pooled connection.
+
+_SQLITE_CLIP_COLUMNS = (
+    "c.id, c.name, c.format, c.content_hash, c.frame_count, c.frame_time, c.duration, "
+    "c.joint_count, c.skeleton_family, c.lead_in_frames, c.created_at"
+)
+
+
+def _parse_timestamp(value: Any) -> datetime:
+    # SQLAlchemy stores SQLite DATETIMEs as ISO text without a time zone (we write UTC).
+    if isinstance(value, datetime):
+        return _utc(value)
+    return _utc(datetime.fromisoformat(value))
+
+
+@dataclass(frozen=True, slots=True)
+class ClipName:
+    """What a search result shows of a clip."""
+
+    id: int
+    name: str
+    labels: tuple[str, ...]
+
+
+class SearchSnapshot(Protocol):
+    """The reads of one search, all from one database snapshot."""
+
+    def max_clip_id(self) -> int: ...
+
+    def clip(self, clip_id: int, *, labels: bool = True) -> ClipRecord | None:
+        """The clip (``labels=False``: without its labels, e.g. when :meth:`names` fetches
+        them with the hits), or ``None``."""
+        ...
+
+    def vector(self, clip_id: int, name: str) -> StoredVector | None: ...
+
+    def names(self, clip_ids: Sequence[int]) -> dict[int, ClipName]: ...
+
+    def clip_ids_with_label(self, label: str) -> np.ndarray: ...
+
+
+class _SqliteSnapshot:
+    def __init__(self, connection: sqlite3.Connection) -> None:
+        self._db = connection
+
+    def max_clip_id(self) -> int:
+        return int(self._db.execute("SELECT max(id) FROM clips").fetchone()[0] or 0)
+
+    def clip(self, clip_id: int, *, labels: bool = True) -> ClipRecord | None:
+        rows = self._db.execute(
+            f"SELECT {_SQLITE_CLIP_COLUMNS}, f.role, f.filename, f.sha256, f.size FROM clips c "
+            "LEFT JOIN clip_files f ON f.clip_id = c.id WHERE c.id = ? ORDER BY f.position",
+            (int(clip_id),),
+        ).fetchall()
+        if not rows:
+            return None
+        row = rows[0]
+        tags: tuple[str, ...] = ()
+        if labels:
+            tags = tuple(
+                r[0]
+                for r in self._db.execute(
+                    "SELECT label FROM clip_labels WHERE clip_id = ? ORDER BY position",
+                    (int(clip_id),),
+                )
+            )
+        return ClipRecord(
+            id=int(row[0]),
+            name=row[1],
+            format=row[2],
+            content_hash=row[3],
+            frame_count=row[4],
+            frame_time=row[5],
+            duration=row[6],
+            joint_count=row[7],
+            skeleton_family=row[8],
+            lead_in_frames=row[9],
+            created_at=_parse_timestamp(row[10]),
+            labels=tags,
+            files=tuple(FileRecord(r[11], r[12], r[13], r[14]) for r in rows if r[11] is not None),
+        )
+
+    def vector(self, clip_id: int, name: str) -> StoredVector | None:
+        row = self._db.execute(
+            "SELECT version, vector FROM clip_descriptors WHERE clip_id = ? AND name = ?",
+            (int(clip_id), name),
+        ).fetchone()
+        return None if row is None else StoredVector(row[0], decode_vector(row[1]))
+
+    def names(self, clip_ids: Sequence[int]) -> dict[int, ClipName]:
+        ids = [int(i) for i in clip_ids]
+        names: dict[int, str] = {}
+        labels: dict[int, list[str]] = {}
+        for chunk in _chunks(ids):
+            marks = ",".join("?" * len(chunk))
+            names.update(
+                self._db.execute(f"SELECT id, name FROM clips WHERE id IN ({marks})", chunk)
+            )
+            # Sorted here: cheaper than a temporary B-tree for ORDER BY.
+            for clip_id, _, label in sorted(
+                self._db.execute(
+                    f"SELECT clip_id, position, label FROM clip_labels WHERE clip_id IN ({marks})",
+                    chunk,
+                )
+            ):
+                labels.setdefault(clip_id, []).append(label)
+        return {i: ClipName(i, name, tuple(labels.get(i, ()))) for i, name in names.items()}
+
+    def clip_ids_with_label(self, label: str) -> np.ndarray:
+        rows = self._db.execute("SELECT clip_id FROM clip_labels WHERE label = ?", (label,))
+        return np.fromiter((r[0] for r in rows), dtype=np.int64)
+
+
+class _CoreSnapshot:
+    def __init__(self, connection: Connection) -> None:
+        self._db = connection
+
+    def max_clip_id(self) -> int:
+        return max_clip_id(self._db)
+
+    def clip(self, clip_id: int, *, labels: bool = True) -> ClipRecord | None:
+        return get_clip(self._db, clip_id)
+
+    def vector(self, clip_id: int, name: str) -> StoredVector | None:
+        return get_vector(self._db, clip_id, name)
+
+    def names(self, clip_ids: Sequence[int]) -> dict[int, ClipName]:
+        return {
+            i: ClipName(i, clip.name, clip.labels)
+            for i, clip in get_clips(self._db, clip_ids).items()
+        }
+
+    def clip_ids_with_label(self, label: str) -> np.ndarray:
+        return clip_ids_with_label(self._db, label)
+
+
+class SearchReads:
+    """Opens :class:`SearchSnapshot` s for the search path (see above)."""
+
+    CACHE_KIB = 2048  # page cache per connection (SQLite's default)
+
+    def __init__(self, engine: Engine) -> None:
+        self._engine = engine
+        self._path = engine.url.database if engine.dialect.name == "sqlite" else None
+        self._local = threading.local()
+        self._opened: list[sqlite3.Connection] = []
+        self._lock = threading.Lock()
+
+    def _connection(self) -> sqlite3.Connection:
+        connection: sqlite3.Connection | None = getattr(self._local, "connection", None)
+        if connection is None:
+            assert self._path is not None
+            connection = sqlite3.connect(
+                self._path, timeout=30, isolation_level=None, check_same_thread=False
+            )
+            connection.execute("PRAGMA query_only=ON")
+            connection.execute(f"PRAGMA cache_size=-{self.CACHE_KIB}")
+            self._local.connection = connection
+            with self._lock:
+                self._opened.append(connection)
+        return connection
+
+    @contextmanager
+    def snapshot(self) -> Iterator[SearchSnapshot]:
+        if self._path is None:
+            with self._engine.connect() as core:
+                yield _CoreSnapshot(core)
+            return
+        db = self._connection()
+        db.execute("BEGIN")
+        try:
+            yield _SqliteSnapshot(db)
+        finally:
+            db.execute("COMMIT")
+
+    def close(self) -> None:
+        with self._lock:
+            opened, self._opened = self._opened, []
+        for connection in opened:
+            with contextlib.suppress(sqlite3.Error):
+                connection.close()

@@ -7,28 +7,32 @@ no file behind. Identical content (same content hash) is stored once: a repeated
 the existing clip, also when two arrive at once (the UNIQUE content hash settles races with
 other processes; the library's write lock those within this one).
 
-:func:`ingest_many` is the batch entry point (one transaction and one index update per batch)
-that bulk imports share with the single-upload API.
+:func:`store_many` is the one way clips are stored: a batch of described uploads goes in one
+transaction (a few multi-row INSERTs), then the indexes follow the database
+(:meth:`Library.sync_indexes`: one add per index for the batch). ``POST /clips`` stores a batch
+of one (:func:`ingest`); ``mocap-index import`` (:mod:`app.importer`) describes clips in
+worker processes and stores them here in batches; :func:`ingest_many` does both in-process.
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
-import numpy as np
 from sqlalchemy.exc import IntegrityError, SQLAlchemyError
 
 from app.db import repository as repo
 from app.errors import MocapError, StorageUnavailable
 from app.services.describe import Description
 from app.services.library import Library
-from app.services.uploads import Upload
+from app.services.uploads import Upload, UploadPart
 
 log = logging.getLogger(__name__)
 
 MAX_COMMIT_ATTEMPTS = 3
+FILE_WRITERS = 8
 
 
 @dataclass(frozen=True)
@@ -99,21 +103,30 @@ def _forget_files(library: Library, written: Iterable[str]) -> None:
         library.blobs.delete(sha)
 
 
-def _add_to_indexes(library: Library, ids: list[int], items: list[Described]) -> None:
-    for name in library.descriptors:
-        rows = [
-            (clip_id, item.description.vectors[name])
-            for clip_id, item in zip(ids, items, strict=True)
-            if item.description is not None and name in item.description.vectors
-        ]
-        if not rows:
-            continue
-        try:
-            library.indexes[name].add([i for i, _ in rows], np.stack([v for _, v in rows]))
-        except Exception:
-            # The rows are committed; the index is only a cache of them.
-            log.exception("adding to the %s index failed; rebuilding it from the database", name)
-            library.rebuild_index(name)
+def _put_files(library: Library, parts: Sequence[UploadPart], written: list[str]) -> None:
+    """Store the files of ``parts`` (each distinct content once), appending to ``written`` the
+    sha256 of those that were new. Many files are written by a few threads: writing, hashing
+    and fsync release the GIL, and the file system commits concurrent fsyncs together."""
+    unique = list({part.sha256: part for part in parts}.values())
+    if len(unique) <= 1:
+        for part in unique:
+            sha, new = library.blobs.put(part.data)
+            if new:
+                written.append(sha)
+        return
+    error: BaseException | None = None
+    with ThreadPoolExecutor(max_workers=min(FILE_WRITERS, len(unique))) as pool:
+        futures = [pool.submit(library.blobs.put, part.data) for part in unique]
+        for future in futures:  # wait for every write, so ``written`` lists all new files
+            try:
+                sha, new = future.result()
+            except BaseException as exc:
+                error = error or exc
+                continue
+            if new:
+                written.append(sha)
+    if error is not None:
+        raise error
 
 
 def store_many(library: Library, items: Sequence[Described]) -> list[IngestResult]:
@@ -141,13 +154,10 @@ def store_many(library: Library, items: Sequence[Described]) -> list[IngestResul
                     fresh[content_hash] = describe(library, item.upload)
             written: list[str] = []
             try:
-                for item in fresh.values():
-                    for part in item.upload.parts:
-                        sha, new = library.blobs.put(part.data)
-                        if new:
-                            written.append(sha)
+                _put_files(library, [p for i in fresh.values() for p in i.upload.parts], written)
+                rows = [new_clip(library, item) for item in fresh.values()]
                 with library.writes.begin() as session:
-                    ids = [repo.insert_clip(session, new_clip(library, i)) for i in fresh.values()]
+                    repo.insert_clips(session, rows)
             except IntegrityError:
                 # Another process stored some of this content meanwhile: look again.
                 _forget_files(library, written)
@@ -161,7 +171,9 @@ def store_many(library: Library, items: Sequence[Described]) -> list[IngestResul
                 _forget_files(library, written)
                 raise
             created = set(fresh)
-            _add_to_indexes(library, ids, list(fresh.values()))
+            # Committed: now the indexes (they take every clip committed so far, from here or
+            # from another process).
+            library.sync_indexes()
             break
         with library.reads() as session:
             by_hash = repo.clip_ids_by_hash(session, hashes)

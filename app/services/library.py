@@ -1,15 +1,30 @@
 """The clip library: database, stored files and indexes, opened once per process.
 
 ``create_app``'s lifespan and the CLI commands call :func:`open_library`, which migrates the
-database, then loads every descriptor's index (rebuilding it from the database when it is
-missing, unreadable or stale), and hand the :class:`Library` to the services.
+database, then loads every descriptor's index (bringing a file that is behind up to date from
+the database, rebuilding one that is missing, unreadable or stale), and hand the
+:class:`Library` to the services.
+
+Several processes may write to one data directory at once (the server and ``mocap-index
+import``). Each keeps its indexes in memory and follows the database, the source of truth:
+clip ids only grow, so :meth:`Library.sync_indexes` adds the vectors of the clips above the
+largest id an index has seen. The writes of this process call it after their commit; searches
+call :meth:`Library.refresh`, which checks the database at most every
+``MOCAP_INDEX_REFRESH_SECONDS``, so clips another process stores become searchable without a
+restart. (On PostgreSQL ids come from a sequence, not in commit order: a clip committed by
+another process after one with a larger id is missed until the next start, whose count check
+adds it. Clips deleted by another process stay in this process's indexes until then, but are
+never returned: a search skips ids that have no row.)
 """
 
 from __future__ import annotations
 
 import logging
+import sqlite3
 import threading
+import time
 from collections.abc import Mapping
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -22,13 +37,60 @@ from app.db import repository as repo
 from app.db.migrate import upgrade
 from app.db.session import create_db_engine, read_sessions, write_sessions
 from app.errors import InvalidInput, StorageUnavailable
-from app.index import DescriptorIndex, IndexSet
+from app.index import DescriptorIndex, IndexOptions, IndexSet
 from app.services.blobs import BlobStore
 from app.services.describe import Describer, DescriptorInfo, MotionDescriber
 
 log = logging.getLogger(__name__)
 
 DEFAULT_DESCRIPTOR = "posture"
+
+
+def index_options(settings: Settings) -> IndexOptions:
+    """The index kind and search settings of ``MOCAP_INDEX_TYPE`` and friends."""
+    return IndexOptions(
+        kind=settings.index_type,
+        auto_threshold=settings.index_auto_threshold,
+        nlist=settings.ivf_nlist,
+        nprobe=settings.ivf_nprobe,
+    )
+
+
+class StoredVectors:
+    """One descriptor's vectors in the database, read in ``session`` (one snapshot) up to clip
+    id ``watermark``: what :meth:`DescriptorIndex.load_or_rebuild` checks an index against."""
+
+    def __init__(self, session: Session, info: DescriptorInfo, watermark: int) -> None:
+        self._session = session
+        self._info = info
+        self._watermark = watermark
+
+    def watermark(self) -> int:
+        return self._watermark
+
+    def count(self) -> int:
+        return repo.count_vectors(self._session, self._info.name, self._info.version)
+
+    def ids(self) -> np.ndarray:
+        info = self._info
+        return repo.vector_ids(self._session, info.name, info.version, info.dimension)
+
+    def vectors(self, after: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        info = self._info
+        return repo.load_vectors(
+            self._session,
+            info.name,
+            info.version,
+            info.dimension,
+            after=after,
+            upto=self._watermark,
+        )
+
+    def vectors_of(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        info = self._info
+        return repo.load_vectors_of(
+            self._session, info.name, info.version, info.dimension, ids.tolist()
+        )
 
 
 @dataclass
@@ -48,6 +110,12 @@ class Library:
     indexes: IndexSet
     describer: Describer
     write_lock: threading.Lock = field(default_factory=threading.Lock)
+    search_reads: repo.SearchReads = field(init=False, repr=False)
+    _sync_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+    _checked_at: float = field(default=0.0, repr=False)
+
+    def __post_init__(self) -> None:
+        self.search_reads = repo.SearchReads(self.engine)
 
     @property
     def descriptors(self) -> Mapping[str, DescriptorInfo]:
@@ -64,39 +132,107 @@ class Library:
     def rebuild_index(self, name: str) -> None:
         """Refill one index from the database (the source of truth) and save it."""
         info = self.descriptors[name]
-        with self.reads() as session:
-            ids, vectors = repo.load_vectors(session, info.name, info.version, info.dimension)
-        self.indexes[name].replace_all(ids, vectors)
+        with self._sync_lock, self.reads() as session:
+            top = repo.max_clip_id(session)
+            ids, vectors = repo.load_vectors(
+                session, info.name, info.version, info.dimension, upto=top
+            )
+            self.indexes[name].replace_all(ids, vectors, synced_to=top)
+
+    def sync_indexes(self, *, wait: bool = True) -> bool:
+        """Add to the indexes the vectors of clips committed since they last looked (by this
+        process or another one). With ``wait=False`` it returns False at once when another
+        thread is syncing (that thread brings the indexes up to date)."""
+        if not self._sync_lock.acquire(blocking=wait):
+            return False
+        try:
+            with self.reads() as session:  # one snapshot: every clip up to ``top``
+                top = repo.max_clip_id(session)
+                for name, info in self.descriptors.items():
+                    index = self.indexes[name]
+                    if index.synced_to >= top:
+                        continue
+                    ids, vectors = repo.load_vectors(
+                        session,
+                        info.name,
+                        info.version,
+                        info.dimension,
+                        after=index.synced_to,
+                        upto=top,
+                    )
+                    try:
+                        index.add(ids, vectors, synced_to=top)
+                    except Exception:
+                        # The rows are committed; the index is only a cache of them.
+                        log.exception("adding to the %s index failed; rebuilding it", name)
+                        everything = repo.load_vectors(
+                            session, info.name, info.version, info.dimension, upto=top
+                        )
+                        index.replace_all(*everything, synced_to=top, persist=False)
+                        index.try_save()
+        finally:
+            self._sync_lock.release()
+        return True
+
+    def refresh(self) -> None:
+        """Bring the indexes up to date with the database when the last check is older than
+        ``MOCAP_INDEX_REFRESH_SECONDS`` (called before searches; cheap when nothing changed)."""
+        now = time.monotonic()
+        if now - self._checked_at < self.settings.index_refresh_seconds:
+            return
+        self._checked_at = now
+        try:
+            with self.search_reads.snapshot() as db:
+                top = db.max_clip_id()
+            if top > min((index.synced_to for index in self.indexes.values()), default=top):
+                self.sync_indexes(wait=False)
+        except (SQLAlchemyError, sqlite3.Error) as exc:  # the indexes as they are still work
+            log.warning("could not check the database for new clips: %s", exc)
+
+    def save_indexes(self) -> None:
+        """Write the indexes that have unsaved changes (large ones are not saved after every
+        change; a file that is behind is brought up to date from the database when loaded)."""
+        self.indexes.save(only_changed=True)
 
     def clip_count(self) -> int:
         with self.reads() as session:
             return repo.count_clips(session)
 
     def close(self) -> None:
-        self.engine.dispose()
+        try:
+            self.save_indexes()
+        finally:
+            self.search_reads.close()
+            self.engine.dispose()
 
 
 def _open_indexes(
     settings: Settings, reads: sessionmaker[Session], descriptors: Mapping[str, DescriptorInfo]
 ) -> IndexSet:
-    indexes = {}
-    for info in descriptors.values():
-        index = DescriptorIndex(info.name, info.dimension, info.version, settings.index_dir)
-        with reads() as session:
-            expected = repo.vector_ids(session, info.name, info.version, info.dimension)
-
-        def load(info: DescriptorInfo = info) -> tuple[np.ndarray, np.ndarray]:
-            with reads() as session:
-                return repo.load_vectors(session, info.name, info.version, info.dimension)
-
-        index.load_or_rebuild(expected, load)
-        indexes[info.name] = index
+    options = index_options(settings)
+    indexes = {
+        info.name: DescriptorIndex(
+            info.name, info.dimension, info.version, settings.index_dir, options=options
+        )
+        for info in descriptors.values()
+    }
+    # Reading and checksumming the files (hundreds of MB at a million clips) releases the
+    # GIL: all at once, in threads.
+    with ThreadPoolExecutor(max_workers=max(1, len(indexes))) as pool:
+        read = pool.map(DescriptorIndex.read_file, indexes.values())
+        files = dict(zip(indexes, read, strict=True))
+    with reads() as session:  # one snapshot of the database for every index
+        watermark = repo.max_clip_id(session)
+        for info in descriptors.values():
+            source = StoredVectors(session, info, watermark)
+            indexes[info.name].load_or_rebuild(source, files.pop(info.name))
     return IndexSet(indexes)
 
 
 def open_library(settings: Settings, *, describer: Describer | None = None) -> Library:
     """Migrate the database to the newest schema and load (or rebuild) the indexes."""
-    describer = describer if describer is not None else MotionDescriber()
+    if describer is None:
+        describer = MotionDescriber.from_settings(settings)
     if DEFAULT_DESCRIPTOR not in describer.descriptors:
         raise RuntimeError(f"the default descriptor {DEFAULT_DESCRIPTOR!r} is not registered")
     try:

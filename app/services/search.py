@@ -7,12 +7,13 @@ searched — exactly, as FAISS skips the other ids while scanning.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
 from app.db import repository as repo
-from app.errors import InvalidInput, MocapError
+from app.errors import InvalidInput, MocapError, NotFound
 from app.services.ingest import describe, new_clip
 from app.services.library import Library
 from app.services.uploads import Upload
@@ -30,15 +31,63 @@ class DescriptorUnavailable(MocapError):
     code = "descriptor_unavailable"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Hit:
-    clip: repo.ClipRecord
+    clip: repo.ClipName  # id, name and labels (a ClipRecord has them too)
     distance: float
+
+
+QUICK_SCAN = 1_000_000  # numbers compared per query below which a search is "quick"
+QUICK_K = 100
+
+
+def is_quick(library: Library, descriptor: str, k: int, label: str | None) -> bool:
+    """Whether a search by clip takes well under a millisecond (an unfiltered search that
+    compares at most :data:`QUICK_SCAN` numbers and fetches at most :data:`QUICK_K` rows), so
+    a caller may run it without handing it to a thread. Unknown descriptors count as quick
+    (they fail at once)."""
+    index = library.indexes.get(descriptor)
+    if index is None:
+        return True
+    return label is None and k <= QUICK_K and index.scan_cost() <= QUICK_SCAN
 
 
 def check_k(library: Library, k: int) -> None:
     if not 1 <= k <= library.settings.max_k:
         raise InvalidInput(f"k: must be between 1 and {library.settings.max_k}, got {k}")
+
+
+def _nearest(
+    library: Library,
+    db: repo.SearchSnapshot,
+    descriptor: str,
+    vector: np.ndarray,
+    k: int,
+    *,
+    label: str | None,
+    exclude: int | None,
+) -> tuple[list[Hit], repo.ClipName | None]:
+    """The hits, and the name and labels of ``exclude`` (the query clip; fetched with the
+    hits' to save a query)."""
+    index = library.indexes[descriptor]
+    allowed = None if label is None else db.clip_ids_with_label(label)
+    also = [] if exclude is None else [exclude]
+    wanted = k
+    for _ in range(MAX_ATTEMPTS):
+        found = index.search(vector, wanted, allowed=allowed, exclude=exclude)
+        clips = db.names([*found.ids.tolist(), *also])
+        hits = [
+            Hit(clips[int(i)], float(d))
+            for i, d in zip(found.ids, found.distances, strict=True)
+            if int(i) in clips
+        ]
+        # A clip deleted (by another process) between the index search and the row lookup is
+        # skipped; ask for as many more as went missing, so the answer still has k hits when
+        # the library does.
+        if len(hits) >= k or len(found) < wanted:
+            break
+        wanted += len(found) - len(hits)
+    return hits[:k], None if exclude is None else clips.get(exclude)
 
 
 def search_vector(
@@ -53,42 +102,53 @@ def search_vector(
     """The ``k`` stored clips nearest to ``vector`` ``(D,)`` under ``descriptor``."""
     check_k(library, k)
     library.descriptor(descriptor)
-    index = library.indexes[descriptor]
-    allowed = None
-    if label is not None:
-        with library.reads() as session:
-            allowed = repo.clip_ids_with_label(session, label)
-    wanted = k
-    for _ in range(MAX_ATTEMPTS):
-        found = index.search(vector, wanted, allowed=allowed, exclude=exclude)
-        with library.reads() as session:
-            clips = repo.get_clips(session, found.ids.tolist())
-        hits = [
-            Hit(clips[int(i)], float(d))
-            for i, d in zip(found.ids, found.distances, strict=True)
-            if int(i) in clips
-        ]
-        # A clip deleted between the index search and the row lookup is skipped; ask for as
-        # many more as went missing, so the answer still has k hits when the library does.
-        if len(hits) >= k or len(found) < wanted:
-            break
-        wanted += len(found) - len(hits)
-    return hits[:k]
+    library.refresh()
+    with library.search_reads.snapshot() as db:
+        return _nearest(library, db, descriptor, vector, k, label=label, exclude=exclude)[0]
+
+
+def _unavailable(clip_id: int, descriptor: str, version: int) -> DescriptorUnavailable:
+    return DescriptorUnavailable(
+        f"clip {clip_id} has no {descriptor!r} vector of version {version} yet; "
+        "run `mocap-index reindex`"
+    )
 
 
 def search_by_clip(
     library: Library, clip: repo.ClipRecord, descriptor: str, k: int, *, label: str | None
 ) -> list[Hit]:
     """Neighbours of a stored clip (never the clip itself)."""
+    return search_by_clip_id(library, clip.id, descriptor, k, label=label)[1]
+
+
+def search_by_clip_id(
+    library: Library, clip_id: int, descriptor: str, k: int, *, label: str | None
+) -> tuple[repo.ClipRecord, list[Hit]]:
+    """The stored clip ``clip_id`` and its neighbours (never the clip itself), read from one
+    database snapshot: ``GET /search``. :class:`NotFound` when there is no such clip."""
     info = library.descriptor(descriptor)
-    with library.reads() as session:
-        stored = repo.get_vector(session, clip.id, descriptor)
-    if stored is None or stored.version != info.version or stored.vector.size != info.dimension:
-        raise DescriptorUnavailable(
-            f"clip {clip.id} has no {descriptor!r} vector of version {info.version} yet; "
-            "run `mocap-index reindex`"
-        )
-    return search_vector(library, descriptor, stored.vector, k, label=label, exclude=clip.id)
+    check_k(library, k)
+    library.refresh()
+    with library.search_reads.snapshot() as db:
+        clip = db.clip(clip_id, labels=False)
+        if clip is None:
+            raise NotFound(f"no clip with id {clip_id}")
+        try:  # the index holds the clip's current vector: no need to read it
+            vector = library.indexes[descriptor].reconstruct(clip_id)
+        except KeyError:  # not in the index (yet): the database knows
+            stored = db.vector(clip_id, descriptor)
+            if (
+                stored is None
+                or stored.version != info.version
+                or stored.vector.size != info.dimension
+            ):
+                raise _unavailable(clip_id, descriptor, info.version) from None
+            vector = stored.vector
+        hits, named = _nearest(library, db, descriptor, vector, k, label=label, exclude=clip_id)
+        if named is None:  # deleted meanwhile by another process
+            raise NotFound(f"no clip with id {clip_id}")
+        clip = dataclasses.replace(clip, labels=named.labels)
+    return clip, hits
 
 
 def search_by_upload(

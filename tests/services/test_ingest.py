@@ -84,10 +84,10 @@ def test_unreadable_upload_leaves_nothing(library: Library, settings: Settings) 
 def test_failed_commit_removes_the_stored_file(
     library: Library, settings: Settings, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    def broken_insert(*args: object, **kwargs: object) -> int:
+    def broken_insert(*args: object, **kwargs: object) -> list[int]:
         raise OperationalError("INSERT", {}, Exception("disk I/O error"))
 
-    monkeypatch.setattr(repo, "insert_clip", broken_insert)
+    monkeypatch.setattr(repo, "insert_clips", broken_insert)
     with pytest.raises(StorageUnavailable):
         ingest(library, bvh([1, 2, 3]))
     assert stored_files(settings) == []

@@ -1,0 +1,113 @@
+"""Bulk import benchmark: ``mocap-index import`` of Bandai dataset 1 into a fresh data dir.
+
+Run from the repository root::
+
+    .venv/bin/python bench/bench_ingest.py [--repeat 5] [--workers N] [--data PATH]
+
+Each run starts the real command in a new process on an empty temporary data directory and
+times it end to end (process start to exit: parse, kinematics, every descriptor, database,
+indexes, with the default settings). It then checks the library holds every clip, once, with
+its vectors in every index, and that a second run skips everything. Target: at most 2.5 s.
+The data folder is ``../shared/data`` or ``$MOCAP_SHARED_DATA``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sqlite3
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+TARGET_SECONDS = 2.5
+
+
+def shared_data() -> Path:
+    override = os.environ.get("MOCAP_SHARED_DATA")
+    return Path(override) if override else ROOT.parent / "shared" / "data"
+
+
+def machine() -> str:
+    cpu = "unknown CPU"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return (
+        f"{platform.machine()}, {os.cpu_count()} cores ({cpu}), Python "
+        f"{platform.python_version()}, load average {os.getloadavg()[0]:.2f}"
+    )
+
+
+def run_import(data_dir: Path, source: Path, workers: int | None) -> tuple[float, str]:
+    command = [str(ROOT / ".venv" / "bin" / "mocap-index"), "import", "--no-progress"]
+    if workers:
+        command += ["--workers", str(workers)]
+    command += ["--data-dir", str(data_dir), str(source)]
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MOCAP_")}
+    started = time.perf_counter()
+    done = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True)
+    seconds = time.perf_counter() - started
+    if done.returncode != 0:
+        raise SystemExit(f"import failed ({done.returncode}):\n{done.stdout}\n{done.stderr}")
+    return seconds, done.stdout.strip().splitlines()[-1]
+
+
+def check(data_dir: Path, expected: int) -> None:
+    db = sqlite3.connect(data_dir / "mocap-index.sqlite3")
+    clips, hashes = db.execute(
+        "SELECT count(*), count(DISTINCT content_hash) FROM clips"
+    ).fetchone()
+    names = [r[0] for r in db.execute("SELECT DISTINCT name FROM clip_descriptors")]
+    db.close()
+    assert clips == hashes == expected, (clips, hashes, expected)
+    for name in names:
+        meta = json.loads((data_dir / "indexes" / f"{name}.json").read_text())
+        assert meta["count"] == expected, (name, meta)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--repeat", type=int, default=5)
+    parser.add_argument("--workers", type=int, help="default: the command's default")
+    parser.add_argument("--data", type=Path, help="default: <shared data>/bandai-ds1")
+    args = parser.parse_args()
+    source = args.data or shared_data() / "bandai-ds1"
+    files = sorted(source.rglob("*.bvh"))
+    if not files:
+        print(f"no BVH files under {source}", file=sys.stderr)
+        return 2
+    size = sum(f.stat().st_size for f in files)
+    print(f"machine: {machine()}")
+    print(f"data: {source} ({len(files)} BVH, {size / 1e6:.1f} MB)")
+    times = []
+    for attempt in range(1, args.repeat + 1):
+        with tempfile.TemporaryDirectory(prefix="mocap-bench-ingest-") as tmp:
+            data_dir = Path(tmp) / "data"
+            seconds, summary = run_import(data_dir, source, args.workers)
+            check(data_dir, len(files))
+            again, summary_again = run_import(data_dir, source, args.workers)
+            assert f"skipped {len(files)} as duplicates" in summary_again, summary_again
+            check(data_dir, len(files))
+        times.append(seconds)
+        print(f"run {attempt}: {seconds:.2f} s wall ({summary}); re-run {again:.2f} s")
+    print(
+        f"import of {len(files)} clips: best {min(times):.2f} s, median "
+        f"{statistics.median(times):.2f} s, worst {max(times):.2f} s (target {TARGET_SECONDS} s)"
+    )
+    print(f"load average after: {os.getloadavg()[0]:.2f}")
+    return 0 if statistics.median(times) <= TARGET_SECONDS else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,375 @@
+"""Search at scale: ``GET /search?clip=..&k=10`` under ``posture`` with a library of 1,000,000.
+
+Run from the repository root (``wrk`` must be installed: ``apt-get install -y wrk``)::
+
+    .venv/bin/python bench/bench_search.py [--data-dir DIR] [--count 1000000] [--duration 20]
+
+1. Fill: when ``DIR`` (default ``$TMPDIR/mocap-bench-1m``) holds fewer than ``--count``
+   clips, import the Bandai dataset 1 (real clips, if ``../shared/data`` has it) and run
+   ``mocap-index fill-synthetic --count N`` (about 3 minutes for a million here).
+2. Recall: open the library in this process and measure recall@10 of every descriptor's index
+   against exact search (``IndexFlatL2`` over the same vectors) for 1,000 random stored clips,
+   excluding the query clip as the service does; for ``posture`` also at other ``nprobe``.
+3. Start-up: start ``mocap-index serve`` (``MOCAP_LOG_LEVEL=warning``: no access log) three
+   times and time each until ``/health`` answers 200 (indexes loaded, not rebuilt).
+4. Load: ``wrk`` with ``bench/search.lua`` (random clip ids, every response checked: status
+   200 and 10 hits) at 1 connection and at 32, ``--duration`` seconds each after a warm-up;
+   median/p99 latency and requests/s. The server's resident memory (VmRSS, the server and any
+   child processes summed) is sampled every 0.2 s throughout; the peak is reported.
+5. Correctness: 300 searches over HTTP after the load, each checked against exact search:
+   the distances are the true Euclidean distances of the returned clips' stored vectors,
+   ascending, the query clip absent, and the overlap with the exact top 10 (recall) reported.
+
+Targets: median <= 2 ms at 1 connection, >= 1,500 requests/s at 32, recall@10 >= 0.99,
+RSS <= 1.5 GB, start-up < 5 s. Loopback only; every loop is bounded in time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import platform
+import re
+import shutil
+import signal
+import socket
+import sqlite3
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+CLI = str(ROOT / ".venv" / "bin" / "mocap-index")
+LUA = ROOT / "bench" / "search.lua"
+
+
+def shared_data() -> Path:
+    override = os.environ.get("MOCAP_SHARED_DATA")
+    return Path(override) if override else ROOT.parent / "shared" / "data"
+
+
+def machine() -> str:
+    cpu = "unknown CPU"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
+    return (
+        f"{platform.machine()}, {os.cpu_count()} cores ({cpu}), {memory:.0f} GB RAM, "
+        f"Python {platform.python_version()}"
+    )
+
+
+def environment(**extra: str) -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MOCAP_")}
+    env.update(extra)
+    return env
+
+
+def clip_count(data_dir: Path) -> int:
+    path = data_dir / "mocap-index.sqlite3"
+    if not path.exists():
+        return 0
+    db = sqlite3.connect(path)
+    try:
+        return int(db.execute("SELECT count(*) FROM clips").fetchone()[0])
+    except sqlite3.OperationalError:
+        return 0
+    finally:
+        db.close()
+
+
+def fill(data_dir: Path, count: int) -> None:
+    if clip_count(data_dir) >= count:
+        print(f"library: {data_dir} already holds {clip_count(data_dir)} clips")
+        return
+    started = time.perf_counter()
+    bandai = shared_data() / "bandai-ds1"
+    if bandai.is_dir() and clip_count(data_dir) == 0:
+        subprocess.run(
+            [CLI, "import", "--no-progress", "--data-dir", str(data_dir), str(bandai)],
+            check=True,
+            env=environment(),
+        )
+    subprocess.run(
+        [CLI, "fill-synthetic", "--count", str(count), "--data-dir", str(data_dir)],
+        check=True,
+        env=environment(),
+    )
+    print(f"library filled to {count} clips in {time.perf_counter() - started:.0f} s")
+
+
+def recall(data_dir: Path, queries: int, seed: int) -> dict[str, float]:
+    """recall@10 of each descriptor's index against exact search, in this process."""
+    import faiss
+
+    from app.config import Settings
+    from app.services.library import open_library
+
+    library = open_library(Settings(data_dir=data_dir))
+    results: dict[str, float] = {}
+    try:
+        rng = np.random.default_rng(seed)
+        for name, index in library.indexes.items():
+            ids, vectors = index.all_vectors()
+            order = np.argsort(ids)
+            ids, vectors = ids[order], vectors[order]
+            rows = rng.choice(ids.size, size=min(queries, ids.size), replace=False)
+            exact = faiss.IndexFlatL2(vectors.shape[1])
+            exact.add(vectors)
+            faiss.omp_set_num_threads(os.cpu_count() or 1)
+            _, truth = exact.search(vectors[rows], 11)
+            faiss.omp_set_num_threads(1)
+            del exact
+            default = index.nprobe
+            nprobes = [default]
+            if name == "posture" and index.kind == "ivf":
+                nprobes = sorted({4, 8, 16, 32, 64, default})
+            options = index.options
+            for nprobe in nprobes:
+                index.options = dataclasses.replace(options, nprobe=nprobe)
+                found = hits = 0
+                started = time.perf_counter()
+                for row, true_rows in zip(rows, truth, strict=True):
+                    want = [int(ids[r]) for r in true_rows if r != row][:10]
+                    got = index.search(vectors[row], 10, exclude=int(ids[row])).ids.tolist()
+                    found += len(set(want) & set(got))
+                    hits += len(want)
+                per_query = (time.perf_counter() - started) / len(rows) * 1e6
+                print(
+                    f"recall@10 {name:8s} ({index.kind}, {index.size} vectors, nprobe "
+                    f"{nprobe:3d}{'*' if nprobe == default else ' '}): {found / hits:.4f}  "
+                    f"({per_query:.0f} us per query)"
+                )
+                if nprobe == default:
+                    results[name] = found / hits
+            index.options = options
+            del vectors
+    finally:
+        library.close()
+    return results
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port: int = sock.getsockname()[1]
+        return port
+
+
+def family(pid: int) -> list[int]:
+    """``pid`` and its descendants."""
+    children: dict[int, list[int]] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+            children.setdefault(ppid, []).append(int(entry.name))
+    found, todo = [], [pid]
+    while todo:
+        current = todo.pop()
+        found.append(current)
+        todo.extend(children.get(current, []))
+    return found
+
+
+def rss_bytes(pid: int) -> int:
+    total = 0
+    for member in family(pid):
+        try:
+            for line in Path(f"/proc/{member}/status").read_text().splitlines():
+                if line.startswith("VmRSS:"):
+                    total += int(line.split()[1]) * 1024
+        except OSError:
+            continue
+    return total
+
+
+class Server:
+    def __init__(self, data_dir: Path, log: Path) -> None:
+        self.port = free_port()
+        self.base = f"http://127.0.0.1:{self.port}"
+        command = [CLI, "serve", "--data-dir", str(data_dir), "--port", str(self.port)]
+        self.started = time.perf_counter()
+        with open(log, "ab") as out:
+            self.process = subprocess.Popen(
+                command, env=environment(MOCAP_LOG_LEVEL="warning"), stdout=out, stderr=out
+            )
+        deadline = time.monotonic() + 120
+        while True:
+            if self.process.poll() is not None:
+                raise SystemExit(f"server exited early, see {log}")
+            try:
+                if httpx.get(f"{self.base}/health", timeout=10).status_code == 200:
+                    break
+            except httpx.TransportError:
+                pass
+            if time.monotonic() > deadline:
+                self.stop()
+                raise SystemExit("server did not start within 120 s")
+            time.sleep(0.05)
+        self.startup = time.perf_counter() - self.started
+        self.peak_rss = 0
+        self._sampling = threading.Event()
+        self._sampler = threading.Thread(target=self._sample, daemon=True)
+        self._sampler.start()
+
+    def _sample(self) -> None:
+        while not self._sampling.is_set():
+            self.peak_rss = max(self.peak_rss, rss_bytes(self.process.pid))
+            self._sampling.wait(0.2)
+
+    def stop(self) -> None:
+        if hasattr(self, "_sampling"):
+            self._sampling.set()
+        self.process.send_signal(signal.SIGINT)
+        try:
+            self.process.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            self.process.wait()
+
+
+def wrk(base: str, connections: int, seconds: int, max_id: int) -> dict[str, float]:
+    threads = 1 if connections == 1 else 2
+    command = [
+        "wrk",
+        f"-t{threads}",
+        f"-c{connections}",
+        f"-d{seconds}s",
+        "--timeout",
+        "10s",
+        "-s",
+        str(LUA),
+        base,
+    ]
+    env = environment(MOCAP_BENCH_MAX_ID=str(max_id), MOCAP_BENCH_DESCRIPTOR="posture")
+    done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=seconds + 60)
+    match = re.search(r"^RESULT (.*)$", done.stdout, flags=re.MULTILINE)
+    if match is None:
+        raise SystemExit(f"wrk failed:\n{done.stdout}\n{done.stderr}")
+    return {k: float(v) for k, v in (pair.split("=") for pair in match.group(1).split())}
+
+
+def check_answers(base: str, data_dir: Path, samples: int, seed: int) -> float:
+    """Searches over HTTP checked against the stored vectors; returns recall@10."""
+    db = sqlite3.connect(data_dir / "mocap-index.sqlite3")
+    max_id = int(db.execute("SELECT max(id) FROM clips").fetchone()[0])
+    rows = db.execute(
+        "SELECT clip_id, vector FROM clip_descriptors WHERE name='posture' ORDER BY clip_id"
+    ).fetchall()
+    ids = np.fromiter((r[0] for r in rows), np.int64, len(rows))
+    vectors = np.frombuffer(b"".join(r[1] for r in rows), "<f4").reshape(ids.size, -1)
+    del rows
+    db.close()
+    rng = np.random.default_rng(seed)
+    found = wanted = 0
+    with httpx.Client(base_url=base, timeout=30) as client:
+        for clip in rng.integers(1, max_id + 1, samples):
+            answer = client.get("/search", params={"clip": int(clip), "k": 10}).json()
+            hits = answer["results"]
+            assert answer["query"]["id"] == clip and len(hits) == 10, answer
+            row = int(np.searchsorted(ids, clip))
+            query = vectors[row].astype(np.float64)
+            got = [h["id"] for h in hits]
+            assert int(clip) not in got
+            distances = [h["distance"] for h in hits]
+            assert distances == sorted(distances)
+            true = np.linalg.norm(
+                vectors[np.searchsorted(ids, got)].astype(np.float64) - query, axis=1
+            )
+            np.testing.assert_allclose(distances, true, rtol=1e-4, atol=1e-6)
+            exact = np.linalg.norm(vectors.astype(np.float64) - query, axis=1)
+            exact[row] = np.inf
+            best = ids[np.argsort(exact, kind="stable")[:10]]
+            found += len(set(best.tolist()) & set(got))
+            wanted += 10
+    return found / wanted
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument(
+        "--data-dir", type=Path, default=Path(tempfile.gettempdir()) / "mocap-bench-1m"
+    )
+    parser.add_argument("--count", type=int, default=1_000_000)
+    parser.add_argument("--duration", type=int, default=20, help="seconds per wrk run")
+    parser.add_argument("--queries", type=int, default=1000, help="recall queries")
+    parser.add_argument("--skip-recall", action="store_true")
+    parser.add_argument("--seed", type=int, default=7)
+    args = parser.parse_args()
+    if shutil.which("wrk") is None:
+        print("wrk is not installed (apt-get install -y wrk)", file=sys.stderr)
+        return 2
+    print(f"machine: {machine()}")
+    fill(args.data_dir, args.count)
+    clips = clip_count(args.data_dir)
+    failures = []
+    if not args.skip_recall:
+        recalls = recall(args.data_dir, args.queries, args.seed)
+        if recalls.get("posture", 1.0) < 0.99:
+            failures.append("recall")
+    log = args.data_dir / "bench-server.log"
+    startups = []
+    for _ in range(2):
+        server = Server(args.data_dir, log)
+        startups.append(server.startup)
+        server.stop()
+    server = Server(args.data_dir, log)
+    startups.append(server.startup)
+    print(
+        f"start-up with {clips} clips: {', '.join(f'{s:.2f}' for s in startups)} s "
+        f"(median {statistics.median(startups):.2f})"
+    )
+    try:
+        print(f"load average before the load: {os.getloadavg()[0]:.2f}")
+        wrk(server.base, 32, 5, clips)  # warm-up
+        results = {}
+        for connections in (1, 32):
+            result = wrk(server.base, connections, args.duration, clips)
+            results[connections] = result
+            print(
+                f"{connections:2d} connection{'s' if connections > 1 else ' '}: "
+                f"{result['rps']:7.0f} requests/s, median {result['p50_ms']:.2f} ms, "
+                f"p90 {result['p90_ms']:.2f} ms, p99 {result['p99_ms']:.2f} ms, "
+                f"{int(result['requests'])} requests, {int(result['bad'])} bad answers, "
+                f"{int(result['errors'])} errors"
+            )
+            if result["bad"] or result["errors"]:
+                failures.append(f"answers at {connections}")
+        http_recall = check_answers(server.base, args.data_dir, 300, args.seed)
+        print(f"300 answers checked against exact search: all correct, recall@10 {http_recall:.4f}")
+        print(f"server resident memory, peak: {server.peak_rss / 2**30:.2f} GiB")
+        print(f"load average after: {os.getloadavg()[0]:.2f}")
+    finally:
+        server.stop()
+    if results[1]["p50_ms"] > 2.0:
+        failures.append("median latency")
+    if results[32]["rps"] < 1500:
+        failures.append("throughput")
+    if server.peak_rss > 1.5 * 2**30:
+        failures.append("memory")
+    if statistics.median(startups) >= 5:
+        failures.append("start-up")
+    print("targets met" if not failures else f"targets missed: {', '.join(failures)}")
+    return 0 if not failures else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

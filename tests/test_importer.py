@@ -1,0 +1,181 @@
+"""``mocap-index import``: real files in, clips out — pairing, duplicates, failures, labels."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import sqlite3
+import time
+from pathlib import Path
+
+import pytest
+
+from app.cli import main
+from app.config import Settings
+from app.importer import LabelRules, WorkerPool, run_import
+from app.services.library import open_library
+from app.services.search import search_by_clip_id
+
+BVH_FIXTURES = ("bandai_walk_normal_001_first40.bvh", "cmu_mb_02_01_first41.bvh")
+
+
+@pytest.fixture
+def folder(tmp_path: Path, fixtures_dir: Path) -> Path:
+    """``clips/``: two BVH files, and an ASF/AMC pair one folder down."""
+    root = tmp_path / "clips"
+    (root / "cmu" / "02").mkdir(parents=True)
+    for name in BVH_FIXTURES:
+        shutil.copy(fixtures_dir / name, root / name)
+    shutil.copy(fixtures_dir / "cmu_02.asf", root / "cmu" / "02" / "cmu_02.asf")
+    shutil.copy(fixtures_dir / "cmu_02_01_first40.amc", root / "cmu" / "02" / "02_01.amc")
+    return root
+
+
+def rows(settings: Settings, sql: str) -> list[tuple]:
+    db = sqlite3.connect(settings.data_dir / "mocap-index.sqlite3")
+    try:
+        return db.execute(sql).fetchall()
+    finally:
+        db.close()
+
+
+def test_import_pairs_skeletons_stores_everything_and_is_idempotent(
+    folder: Path, settings: Settings, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = ["import", "--data-dir", str(settings.data_dir), "--no-progress", str(folder)]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "imported 3, skipped 0 as duplicates, failed 0 of 3 clips found" in out
+    asf = folder / "cmu" / "02" / "cmu_02.asf"
+    assert f"skeleton {asf} used for 1 .amc clip" in out
+    stored = rows(settings, "SELECT name, format FROM clips ORDER BY name")
+    assert stored == [
+        ("02_01", "asf/amc"),
+        ("bandai_walk_normal_001_first40", "bvh"),
+        ("cmu_mb_02_01_first41", "bvh"),
+    ]
+    assert rows(settings, "SELECT count(*) FROM clip_files") == [(4,)]  # asf + amc + 2 bvh
+    library = open_library(settings)
+    try:
+        assert set(library.indexes.sizes().values()) == {3}
+        assert library.clip_count() == 3
+        query, hits = search_by_clip_id(library, 1, "posture", 5, label=None)
+        assert len(hits) == 2 and query.id not in [h.clip.id for h in hits]
+    finally:
+        library.close()
+
+    # Again: everything is a duplicate, nothing is stored twice, exit code 0.
+    assert main([*argv, "--verbose"]) == 0
+    out = capsys.readouterr().out
+    assert "imported 0, skipped 3 as duplicates, failed 0" in out
+    assert "duplicate " in out and "same content as clip" in out
+    assert rows(settings, "SELECT count(*) FROM clips") == [(3,)]
+
+
+def test_bad_and_orphan_files_are_reported_and_the_rest_imported(
+    folder: Path, settings: Settings, capsys: pytest.CaptureFixture[str], fixtures_dir: Path
+) -> None:
+    (folder / "broken.bvh").write_text("HIERARCHY\nROOT Hips\n{\n  OFFSET 0 0\n")
+    (folder / "empty.bvh").write_bytes(b"")
+    orphans = folder / "no-skeleton"
+    orphans.mkdir()
+    shutil.copy(fixtures_dir / "cmu_02_01_first40.amc", orphans / "05_01.amc")
+    code = main(["import", "--data-dir", str(settings.data_dir), "--no-progress", str(folder)])
+    assert code == 1
+    out = capsys.readouterr().out
+    assert "imported 3, skipped 0 as duplicates, failed 3 of 6 clips found" in out
+    failed = out.split("failed:\n", 1)[1]
+    assert f"{folder / 'broken.bvh'}: " in failed and "line" in failed
+    assert f"{folder / 'empty.bvh'}: " in failed and "empty" in failed
+    assert f"{orphans / '05_01.amc'}: no .asf skeleton in its folder" in failed
+    assert rows(settings, "SELECT count(*) FROM clips") == [(3,)]
+
+
+def test_labels_from_a_regex_a_tsv_and_the_command_line(
+    folder: Path, settings: Settings, tmp_path: Path
+) -> None:
+    tsv = tmp_path / "labels.tsv"
+    tsv.write_text("clip\taction\n02_01\twalk\ncmu_mb_02_01_first41\twalk-mb\n")
+    rules = LabelRules.build(
+        tsv=tsv, regex=r"^(?P<source>[a-z]+)_(?P<action>[a-z]+)_", fixed=["batch-1"]
+    )
+    report = run_import(settings, [folder], labels=rules, workers=1)
+    assert len(report.imported) == 3 and not report.failed
+    labels: dict[str, list[str]] = {}
+    for name, label in rows(
+        settings,
+        "SELECT c.name, l.label FROM clips c JOIN clip_labels l ON l.clip_id = c.id "
+        "ORDER BY c.name, l.position",
+    ):
+        labels.setdefault(name, []).append(label)
+    assert [(name, "|".join(values)) for name, values in labels.items()] == [
+        ("02_01", "walk|batch-1"),  # the regex finds nothing in 'cmu/02/02_01.amc'
+        ("bandai_walk_normal_001_first40", "bandai|walk|batch-1"),
+        ("cmu_mb_02_01_first41", "mb|cmu|batch-1"),  # the regex overrides the TSV action
+    ]
+
+
+def test_unusable_label_rules_stop_before_any_work(
+    folder: Path, settings: Settings, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = ["import", "--data-dir", str(settings.data_dir), str(folder)]
+    assert main([*argv, "--labels-regex", "(no named group)"]) == 1
+    assert "no named group" in capsys.readouterr().err
+    assert not (settings.data_dir / "mocap-index.sqlite3").exists()
+
+
+def test_same_content_twice_in_one_run_is_stored_once(
+    folder: Path, settings: Settings, fixtures_dir: Path
+) -> None:
+    shutil.copy(fixtures_dir / BVH_FIXTURES[0], folder / "copy.bvh")
+    report = run_import(settings, [folder], workers=2, batch_size=2)
+    assert len(report.imported) == 3 and len(report.duplicates) == 1
+    duplicate = report.duplicates[0]
+    assert duplicate.clip_name in {"copy", "bandai_walk_normal_001_first40"}
+    assert rows(settings, "SELECT count(*) FROM clips") == [(3,)]
+
+
+def test_nothing_to_import(tmp_path: Path, settings: Settings) -> None:
+    (tmp_path / "empty").mkdir()
+    report = run_import(settings, [tmp_path / "empty", tmp_path / "missing"])
+    assert report.found == 1 and not report.imported
+    assert [f.reason for f in report.failed] == ["no such file or folder"]
+
+
+def test_cmu_data_imports_with_every_skeleton(shared_data: Path, settings: Settings) -> None:
+    cmu = shared_data / "cmu" / "asf-amc"
+    amc = sorted(cmu.rglob("*.amc"))
+    report = run_import(settings, [cmu])
+    assert not report.failed, report.failed
+    assert len(report.imported) == len(amc)
+    used = {skeleton.name for skeleton in report.skeletons()}
+    assert {"01.asf", "02.asf", "131.asf", "135.asf"} <= used
+
+
+def test_a_worker_that_dies_is_replaced_and_its_task_handed_back(
+    settings: Settings, fixtures_dir: Path
+) -> None:
+    clip = (0, "bvh", (str(fixtures_dir / BVH_FIXTURES[0]),))
+    pool = WorkerPool(1, settings.parse_limits, None)
+    try:
+        worker = pool.workers[0]
+        task = [clip] * 200  # long enough to be killed while describing it
+        pool.submit(worker, task)
+        time.sleep(0.1)
+        os.kill(worker.process.pid, signal.SIGKILL)
+        lost: list = []
+        deadline = time.monotonic() + 30
+        while not lost and time.monotonic() < deadline:
+            _, lost = pool.collect(0.2)
+        assert lost == [task]
+        assert len(pool.workers) == 1 and pool.workers[0] is not worker
+        pool.submit(pool.workers[0], [clip])
+        outcomes: list = []
+        while not outcomes and time.monotonic() < deadline:
+            outcomes, _ = pool.collect(0.2)
+        [(number, (status, description, shas))] = outcomes
+        assert number == 0 and status == "ok" and description.frame_count == 40
+        assert len(shas) == 1
+    finally:
+        pool.close()
