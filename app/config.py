@@ -6,10 +6,12 @@ Nothing reads the environment at import time: ``create_app(settings)`` and the C
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
+from typing import Annotated
 
-from pydantic import Field, field_validator
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic import Field, SecretStr, ValidationInfo, field_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 from app.motion.model import ParseLimits
 
@@ -66,6 +68,143 @@ class Settings(BaseSettings):
         default=500, gt=0, description="Largest `limit` accepted when listing clips."
     )
 
+    # -- access control, CORS and request-time limits (issue 6: hardening) -----------------
+    api_key: SecretStr | None = Field(
+        default=None,
+        description=(
+            "Key that changing the library (POST /clips, PATCH, DELETE) requires, sent as "
+            "`Authorization: Bearer <key>` or `X-API-Key: <key>`; several keys may be given "
+            "separated by commas. Unset: anyone can change the library (logged at start-up)."
+        ),
+    )
+    require_key_for_reads: bool = Field(
+        default=False,
+        description=(
+            "Also require the API key for reading (listing, downloading, searching); "
+            "/health and the docs stay open. Needs MOCAP_API_KEY."
+        ),
+    )
+    cors_origins: Annotated[list[str], NoDecode] = Field(
+        default_factory=list,
+        description=(
+            "Origins a browser may call the API from (comma-separated, or a JSON list; `*` "
+            "for any). Empty: CORS is off and no Access-Control-* header is sent."
+        ),
+    )
+    describe_timeout_seconds: float = Field(
+        default=30.0,
+        gt=0,
+        description=(
+            "Longest time describing one uploaded clip (parse, kinematics, descriptors) may "
+            "take; past it the upload or search answers 503 `describe_timeout` and stores "
+            "nothing. Checked between stages, each bounded by the frame/joint/value limits."
+        ),
+    )
+    max_frame_values: int = Field(
+        default=20_000_000,
+        gt=0,
+        description=(
+            "Most numbers the frames of one clip may expand to (frames x max(channels, "
+            "9 x joints)); bounds the memory one upload can take (about 400 bytes per "
+            "frame and joint in all), whatever its size in bytes (422 above)."
+        ),
+    )
+    orphan_file_grace_seconds: float = Field(
+        default=600.0,
+        ge=0,
+        description=(
+            "At start-up, stored files no clip refers to (left by a crash between writing a "
+            "file and committing its clip, or between a delete and its file removal) are "
+            "removed once older than this many seconds; the grace spares the files of an "
+            "import running in another process that has not committed yet."
+        ),
+    )
+
+    @field_validator("api_key", mode="before")
+    @classmethod
+    def _blank_key_is_none(cls, value: object) -> object:
+        if isinstance(value, str) and not value.strip(" ,"):
+            return None
+        return value
+
+    @field_validator("require_key_for_reads")
+    @classmethod
+    def _reads_need_a_key(cls, value: bool, info: ValidationInfo) -> bool:
+        # The message never shows the key (a model validator's error would print every input).
+        if value and info.data.get("api_key") is None:
+            raise ValueError("MOCAP_REQUIRE_KEY_FOR_READS needs MOCAP_API_KEY to be set")
+        return value
+
+    @field_validator("cors_origins", mode="before")
+    @classmethod
+    def _split_origins(cls, value: object) -> object:
+        if isinstance(value, str):
+            text = value.strip()
+            if text.startswith("["):
+                return json.loads(text)
+            return [origin.strip() for origin in text.split(",") if origin.strip()]
+        return value
+
+    @property
+    def api_keys(self) -> tuple[bytes, ...]:
+        """Every accepted API key as UTF-8 bytes (empty: no key configured)."""
+        secret = self.api_key
+        if secret is None:
+            return ()
+        # ``model_copy(update=...)`` does not validate: accept a plain string there too
+        text = secret.get_secret_value() if isinstance(secret, SecretStr) else str(secret)
+        keys = (key.strip() for key in text.split(","))
+        return tuple(key.encode() for key in keys if key)
+
+    # -- end of issue 6 settings -----------------------------------------------------------
+
+    # -- bulk import and search at scale (issue 5) -----------------------------------------
+    index_type: str = Field(
+        default="auto",
+        pattern="^(auto|flat|ivf)$",
+        description=(
+            "FAISS index kind: `flat` (exact scan), `ivf` (IndexIVFFlat: scans the "
+            "MOCAP_IVF_NPROBE nearest of its k-means cells; recall@10 measured in "
+            "bench/README.md), or `auto`: flat below MOCAP_INDEX_AUTO_THRESHOLD vectors, ivf "
+            "from there when an index is built or loaded."
+        ),
+    )
+    index_auto_threshold: int = Field(
+        default=100_000,
+        gt=0,
+        description="Vectors from which `auto` builds an IVF index instead of a flat one.",
+    )
+    ivf_nlist: int = Field(
+        default=0,
+        ge=0,
+        description="Cells of an IVF index; 0 = 4 x sqrt(vectors), set when it is built.",
+    )
+    ivf_nprobe: int = Field(
+        default=0,
+        ge=0,
+        description=(
+            "Cells an IVF search scans (more: higher recall, slower); 0 = the smallest "
+            "power of two reaching recall@10 >= 0.995 against exact search on a sample, "
+            "measured when the index is built. A search filtered by label scans every cell "
+            "and stays exact."
+        ),
+    )
+    index_refresh_seconds: float = Field(
+        default=0.1,
+        ge=0,
+        description=(
+            "How often (at most) a search checks the database for clips stored by another "
+            "process (e.g. `mocap-index import`) and adds them to the in-memory indexes; "
+            "0 = before every search."
+        ),
+    )
+    import_workers: int = Field(
+        default=0,
+        ge=0,
+        description="Worker processes of `mocap-index import`; 0 = one per CPU core.",
+    )
+    # -- end of issue 5 settings -----------------------------------------------------------
+
     @field_validator("data_dir")
     @classmethod
     def _absolute_data_dir(cls, value: Path) -> Path:
@@ -93,5 +232,8 @@ class Settings(BaseSettings):
     def parse_limits(self) -> ParseLimits:
         """The limits handed to the motion parsers."""
         return ParseLimits(
-            max_frames=self.max_frames, max_joints=self.max_joints, max_depth=self.max_depth
+            max_frames=self.max_frames,
+            max_joints=self.max_joints,
+            max_depth=self.max_depth,
+            max_values=self.max_frame_values,
         )

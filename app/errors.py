@@ -98,3 +98,9 @@ class StorageUnavailable(MocapError):
     """The data directory or database cannot be written (disk full, read-only, locked)."""
 
     code = "storage_unavailable"
+
+
+class DescribeTimeout(MocapError):
+    """Describing an uploaded clip took longer than the configured request time limit."""
+
+    code = "describe_timeout"

@@ -7,6 +7,7 @@ from urllib.parse import quote
 
 from fastapi import APIRouter, Query, Response, status
 
+from app.api.auth import WriteAccess
 from app.api.deps import ClipDep, LibraryDep, SettingsDep, UploadDep
 from app.api.errors import error_responses
 from app.api.schemas import ClipOut, ClipPage, ClipUpdate
@@ -22,9 +23,10 @@ router = APIRouter(prefix="/clips", tags=["clips"])
     "",
     status_code=status.HTTP_201_CREATED,
     summary="Upload a clip",
+    dependencies=[WriteAccess],
     responses={
         200: {"model": ClipOut, "description": "The same content was already stored: that clip."},
-        **error_responses(413, 415, 422, 503),
+        **error_responses(400, 401, 403, 413, 415, 422, 503),
     },
 )
 def create_clip(upload: UploadDep, library: LibraryDep, response: Response) -> ClipOut:
@@ -50,8 +52,8 @@ def list_clips(
     """Clips in id order, a page at a time, with the total count."""
     if not 1 <= limit <= settings.max_page_size:
         raise InvalidInput(f"limit: must be between 1 and {settings.max_page_size}, got {limit}")
-    if offset < 0:
-        raise InvalidInput(f"offset: must not be negative, got {offset}")
+    if not 0 <= offset <= clip_service.MAX_ID:
+        raise InvalidInput(f"offset: must be between 0 and {clip_service.MAX_ID}, got {offset}")
     items, total = clip_service.list_clips(library, label=label, limit=limit, offset=offset)
     return ClipPage(total=total, limit=limit, offset=offset, items=[ClipOut.of(c) for c in items])
 
@@ -104,7 +106,10 @@ def download_clip(
 
 
 @router.patch(
-    "/{clip_id}", summary="Rename or relabel a clip", responses=error_responses(404, 422, 503)
+    "/{clip_id}",
+    summary="Rename or relabel a clip",
+    dependencies=[WriteAccess],
+    responses=error_responses(400, 401, 403, 404, 422, 503),
 )
 def update_clip(clip: ClipDep, changes: ClipUpdate, library: LibraryDep) -> ClipOut:
     """Change the name and/or replace the labels; fields left out keep their value."""
@@ -119,8 +124,9 @@ def update_clip(clip: ClipDep, changes: ClipUpdate, library: LibraryDep) -> Clip
     "/{clip_id}",
     status_code=status.HTTP_204_NO_CONTENT,
     summary="Delete a clip",
+    dependencies=[WriteAccess],
     response_class=Response,
-    responses=error_responses(404, 422, 503),
+    responses=error_responses(401, 403, 404, 422, 503),
 )
 def delete_clip(clip: ClipDep, library: LibraryDep) -> Response:
     """Remove the clip, its vectors from every index and its stored files."""
@@ -128,6 +134,17 @@ def delete_clip(clip: ClipDep, library: LibraryDep) -> Response:
     return Response(status_code=status.HTTP_204_NO_CONTENT)
 
 
+# Characters kept in the plain-ASCII ``filename=`` fallback; anything else (quotes,
+# backslashes, control characters, non-ASCII) becomes "_". ``filename*`` (RFC 5987/6266)
+# carries the exact name, percent-encoded.
+_PLAIN_FILENAME = frozenset(
+    "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789 !#$&'()+,-.=@[]^_`{}~"
+)
+_ATTR_CHARS = "!#$&+-.^_`|~"  # RFC 5987 attr-chars besides letters and digits
+
+
 def _attachment(filename: str) -> str:
-    ascii_name = filename.encode("ascii", "replace").decode().replace('"', "_")
-    return f"attachment; filename=\"{ascii_name}\"; filename*=UTF-8''{quote(filename)}"
+    """A ``Content-Disposition`` that names ``filename`` safely, whatever it contains."""
+    plain = "".join(c if c in _PLAIN_FILENAME else "_" for c in filename).strip() or "download"
+    exact = quote(filename, safe=_ATTR_CHARS, encoding="utf-8", errors="replace")
+    return f"attachment; filename=\"{plain}\"; filename*=UTF-8''{exact}"

@@ -19,6 +19,7 @@ from sqlalchemy.exc import OperationalError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from app.errors import (
+    DescribeTimeout,
     Forbidden,
     InvalidInput,
     MocapError,
@@ -43,6 +44,7 @@ STATUS_BY_ERROR: dict[type[MocapError], int] = {
     Forbidden: 403,
     DescriptorUnavailable: 409,
     StorageUnavailable: 503,
+    DescribeTimeout: 503,
     MocapError: 400,
 }
 
@@ -126,6 +128,17 @@ async def _on_database_error(_request: Request, exc: Exception) -> JSONResponse:
     return error_json(503, StorageUnavailable.code, "the database is unavailable; try again")
 
 
+async def _on_storage_error(_request: Request, exc: Exception) -> JSONResponse:
+    # A file operation the services did not expect to fail (disk full, read-only or missing
+    # data directory while saving an index, say): the database stays the source of truth.
+    assert isinstance(exc, OSError)
+    log.error("storage error: %s", exc)
+    reason = exc.strerror or type(exc).__name__
+    return error_json(
+        503, StorageUnavailable.code, f"the data directory cannot be written: {reason}; try again"
+    )
+
+
 async def _on_unexpected_error(_request: Request, exc: Exception) -> JSONResponse:
     log.exception("unhandled error", exc_info=exc)
     return error_json(500, "internal_error", "internal error; the server log has the details")
@@ -136,6 +149,7 @@ def install_error_handlers(app: FastAPI) -> None:
     app.add_exception_handler(RequestValidationError, _on_validation_error)
     app.add_exception_handler(StarletteHTTPException, _on_http_error)
     app.add_exception_handler(OperationalError, _on_database_error)
+    app.add_exception_handler(OSError, _on_storage_error)
     app.add_exception_handler(Exception, _on_unexpected_error)
 
 
@@ -184,7 +198,12 @@ ERROR_EXAMPLES: dict[int, dict[str, tuple[str, str]]] = {
         "storage_unavailable": (
             "Database or disk unavailable",
             "cannot store the uploaded file: No space left on device",
-        )
+        ),
+        "describe_timeout": (
+            "Describing the upload took too long",
+            "describing the clip took longer than the 30-second limit "
+            "(MOCAP_DESCRIBE_TIMEOUT_SECONDS); the server is busy or the clip too long",
+        ),
     },
 }
 

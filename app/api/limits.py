@@ -3,6 +3,9 @@
 Starlette spools uploaded files to disk with no size cap, so the limit is ours: a declared
 ``Content-Length`` over the limit is refused before a byte of the body is read, and a body
 without one (chunked) is counted as it arrives and refused as soon as it passes the limit.
+
+Compressed request bodies (``Content-Encoding`` other than ``identity``) are refused with 415:
+the service never decompresses uploads, so no zip or gzip bomb can expand in it.
 """
 
 from __future__ import annotations
@@ -11,7 +14,7 @@ from starlette.exceptions import HTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from app.api.errors import error_json
-from app.errors import PayloadTooLarge
+from app.errors import PayloadTooLarge, UnsupportedMediaType
 
 
 class BodySizeLimit:
@@ -27,6 +30,17 @@ class BodySizeLimit:
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
+            return
+        encoding = _header(scope, b"content-encoding")
+        if encoding is not None and encoding.strip().lower() not in (b"", b"identity"):
+            shown = encoding.decode("latin-1")[:40]
+            response = error_json(
+                415,
+                UnsupportedMediaType.code,
+                f"compressed request bodies are not accepted (Content-Encoding: {shown}); "
+                "send the files uncompressed",
+            )
+            await response(scope, receive, send)
             return
         declared = _content_length(scope)
         if declared is not None and declared > self.max_bytes:
@@ -50,11 +64,18 @@ class BodySizeLimit:
         await self.app(scope, limited_receive, send)
 
 
-def _content_length(scope: Scope) -> int | None:
+def _header(scope: Scope, wanted: bytes) -> bytes | None:
     for name, value in scope.get("headers", ()):
-        if name == b"content-length":
-            try:
-                return int(value)
-            except ValueError:
-                return None
+        if name == wanted:
+            return bytes(value)
     return None
+
+
+def _content_length(scope: Scope) -> int | None:
+    value = _header(scope, b"content-length")
+    if value is None:
+        return None
+    try:
+        return int(value)
+    except ValueError:
+        return None

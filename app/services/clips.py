@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import io
+import logging
+import time
 import zipfile
 from dataclasses import dataclass
 from pathlib import PurePosixPath
@@ -14,6 +16,8 @@ from app.errors import InvalidInput, NotFound, StorageUnavailable
 from app.services.library import Library
 from app.services.uploads import BVH
 
+log = logging.getLogger(__name__)
+
 
 @dataclass(frozen=True)
 class Download:
@@ -22,7 +26,14 @@ class Download:
     data: bytes
 
 
+# Ids are 64-bit signed integers in every database; a larger number names no clip (and would
+# overflow the database driver).
+MAX_ID = 2**63 - 1
+
+
 def get_clip(library: Library, clip_id: int) -> repo.ClipRecord:
+    if not 0 < clip_id <= MAX_ID:
+        raise NotFound(f"no clip with id {clip_id}")
     with library.reads() as session:
         clip = repo.get_clip(session, clip_id)
     if clip is None:
@@ -69,16 +80,38 @@ def delete_clip(library: Library, clip_id: int) -> None:
             raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
         if shas is None:
             raise NotFound(f"no clip with id {clip_id}")
-        library.indexes.remove([clip_id])
-        with library.reads() as session:
-            still_used = repo.referenced_blobs(session, shas)
-        for sha in set(shas) - still_used:
-            library.blobs.delete(sha)
+        # Committed: the clip is gone. What follows tidies caches and files; a failure there
+        # (a full disk, say) must not report the delete as failed.
+        for name, index in library.indexes.items():
+            try:
+                index.remove([clip_id])  # from memory first, then the file is saved
+            except OSError as exc:
+                log.warning(
+                    "clip %d deleted, but the %s index could not be saved (%s); it is brought "
+                    "up to date from the database at the next start",
+                    clip_id,
+                    name,
+                    exc,
+                )
+        try:
+            with library.reads() as session:
+                still_used = repo.referenced_blobs(session, shas)
+            for sha in set(shas) - still_used:
+                library.blobs.delete(sha)
+        except (SQLAlchemyError, OSError) as exc:
+            log.warning(
+                "clip %d deleted, but its files could not be removed (%s); they go at a later "
+                "start (MOCAP_ORPHAN_FILE_GRACE_SECONDS)",
+                clip_id,
+                exc,
+            )
 
 
 def clip_download(library: Library, clip: repo.ClipRecord, part: str | None) -> Download:
     """The original upload: the BVH file itself, or for ASF/AMC a ZIP of both files — or one
     ``part`` (``"file"``, ``"skeleton"``, ``"motion"``) byte for byte."""
+    if not clip.files:  # synthetic benchmark clips have vectors but no upload
+        raise NotFound(f"clip {clip.id} has no stored file ({clip.format} clip)")
     roles = {f.role: f for f in clip.files}
     if part is not None:
         if part not in roles:
@@ -103,3 +136,46 @@ def clip_download(library: Library, clip: repo.ClipRecord, part: str | None) -> 
     return Download(
         f"{PurePosixPath(motion.filename).stem}.zip", "application/zip", buffer.getvalue()
     )
+
+
+def remove_orphan_files(library: Library) -> int:
+    """Delete stored files no clip refers to, and temporary files, once older than
+    ``MOCAP_ORPHAN_FILE_GRACE_SECONDS``; returns how many went.
+
+    A crash between writing an upload's files and committing its clip, or between deleting a
+    clip and removing its files, leaves such files. The database write lock is held while
+    looking, so no clip of this database commits meanwhile (SQLite: ``BEGIN IMMEDIATE``); the
+    grace spares the files another process wrote and has not committed yet.
+    """
+    settings = library.settings
+    cutoff = time.time() - settings.orphan_file_grace_seconds
+    with library.write_lock:
+        try:
+            with library.writes.begin() as session:
+                listed = list(library.blobs.stored())
+                shas = [sha for sha, _ in listed]
+                referenced: set[str] = set()
+                for start in range(0, len(shas), 500):
+                    referenced |= repo.referenced_blobs(session, shas[start : start + 500])
+                removed = library.blobs.sweep(listed, referenced, older_than=cutoff)
+        except SQLAlchemyError as exc:
+            log.warning("could not look for unreferenced stored files: %s", exc)
+            return 0
+        except OSError as exc:
+            log.warning("could not remove unreferenced stored files: %s", exc)
+            return 0
+    # Index files half-written by a crash (the index module writes to a temporary name).
+    for path in settings.index_dir.glob(".*.tmp") if settings.index_dir.is_dir() else ():
+        try:
+            if path.stat().st_mtime < cutoff:
+                path.unlink()
+                removed += 1
+        except OSError:
+            continue
+    if removed:
+        log.warning(
+            "removed %d stored or temporary files no clip refers to (left by an interrupted "
+            "upload or delete)",
+            removed,
+        )
+    return removed

@@ -7,18 +7,23 @@ and the API are generic over the descriptor registry (and testable with syntheti
 
 from __future__ import annotations
 
+import dataclasses
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from app.errors import InvalidInput, ParseError
+from app.errors import DescribeTimeout, InvalidInput, LimitExceeded, ParseError
 from app.motion.descriptors import REGISTRY
 from app.motion.formats import read_asf_amc, read_bvh
 from app.motion.model import ParseLimits
 from app.motion.pipeline import analyse
 from app.services.uploads import BVH, Upload
+
+if TYPE_CHECKING:
+    from app.config import Settings
 
 
 @dataclass(frozen=True)
@@ -97,6 +102,15 @@ def check_vectors(
     return checked
 
 
+def _name_limit_source(error: LimitExceeded, upload: Upload) -> LimitExceeded:
+    """A limit the parser hit, saying which uploaded field and file it is about."""
+    if upload.format == BVH:
+        part = upload.parts[0]
+    else:  # the parsers say "ASF line ..." / "AMC line ..."
+        part = upload.part("skeleton" if error.detail.startswith("ASF") else "motion")
+    return LimitExceeded(f"{part.role} {part.filename!r}: {error.detail}")
+
+
 def _name_source(error: ParseError, upload: Upload) -> ParseError:
     """The parser's error, saying which uploaded field and file it is about."""
     if upload.format == BVH:
@@ -110,13 +124,54 @@ def _name_source(error: ParseError, upload: Upload) -> ParseError:
 
 
 class MotionDescriber:
-    """The real describer: :mod:`app.motion` parsers, ``analyse`` and its ``REGISTRY``."""
+    """The real describer: :mod:`app.motion` parsers, ``analyse`` and its ``REGISTRY``.
 
-    def __init__(self) -> None:
+    Parameters
+    ----------
+    time_limit:
+        Seconds one :meth:`describe` may take, or ``None``. Checked between the stages (parse,
+        then kinematics and descriptors); each stage's work is bounded by the parse limits, so
+        a request overruns the limit by at most one bounded stage. Past it:
+        :class:`~app.errors.DescribeTimeout` (503).
+    max_values:
+        Cap on ``ParseLimits.max_values`` (numbers the frames may expand to), whatever limits
+        the caller passes: it bounds the memory one clip takes, which the byte size of an
+        upload does not (joints without channels cost memory but no bytes).
+    """
+
+    def __init__(self, *, time_limit: float | None = None, max_values: int | None = None) -> None:
         self._descriptors = {
             d.name: DescriptorInfo(d.name, d.dimension, d.version, d.description)
             for d in REGISTRY.values()
         }
+        self.time_limit = time_limit
+        self.max_values = max_values
+
+    @classmethod
+    def from_settings(cls, settings: Settings) -> MotionDescriber:
+        """The describer the service uses: MOCAP_DESCRIBE_TIMEOUT_SECONDS and
+        MOCAP_MAX_FRAME_VALUES applied."""
+        return cls(
+            time_limit=settings.describe_timeout_seconds, max_values=settings.max_frame_values
+        )
+
+    def _capped(self, limits: ParseLimits) -> ParseLimits:
+        if self.max_values is None:
+            return limits
+        if limits.max_values is not None and limits.max_values <= self.max_values:
+            return limits
+        return dataclasses.replace(limits, max_values=self.max_values)
+
+    def _check_time(self, started: float, stage: str) -> None:
+        if self.time_limit is None:
+            return
+        elapsed = time.monotonic() - started
+        if elapsed > self.time_limit:
+            raise DescribeTimeout(
+                f"describing the clip took longer than the {self.time_limit:g}-second limit "
+                f"(MOCAP_DESCRIBE_TIMEOUT_SECONDS; {elapsed:.1f} s after {stage}); the server "
+                "is busy or the clip too long: try again later or upload a shorter clip"
+            )
 
     @property
     def descriptors(self) -> Mapping[str, DescriptorInfo]:
@@ -125,6 +180,8 @@ class MotionDescriber:
     def describe(
         self, upload: Upload, limits: ParseLimits, *, only: Sequence[str] | None = None
     ) -> Description:
+        started = time.monotonic()
+        limits = self._capped(limits)
         try:
             if upload.format == BVH:
                 motion = read_bvh(upload.parts[0].data, limits=limits)
@@ -134,10 +191,14 @@ class MotionDescriber:
                 )
         except ParseError as error:
             raise _name_source(error, upload) from None
+        except LimitExceeded as error:
+            raise _name_limit_source(error, upload) from None
+        self._check_time(started, "reading the file")
         try:
             analysis = analyse(motion, descriptors=None if only is None else list(only))
         except ParseError as error:  # e.g. SkeletonMappingError: joints the descriptors need
             raise _name_source(error, upload) from None
+        self._check_time(started, "computing the descriptors")
         return Description(
             frame_count=analysis.frame_count,
             frame_time=analysis.frame_time,

@@ -14,6 +14,7 @@ import uses too: a clip uploaded over HTTP and the same files imported from disk
 from __future__ import annotations
 
 import hashlib
+import unicodedata
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -51,8 +52,10 @@ class UploadPart:
 
 
 def clean_filename(raw: str | None, role: str) -> str:
-    """The base name of an uploaded file (clients may send a path)."""
-    name = PureWindowsPath(PurePosixPath(raw or "").name).name.strip()
+    """The base name of an uploaded file (clients may send a path), control characters
+    replaced by ``_``. Only ever stored as text: stored files are named by content hash."""
+    name = PureWindowsPath(PurePosixPath(raw or "").name).name
+    name = "".join("_" if unicodedata.category(c) == "Cc" else c for c in name).strip()
     if not name:
         raise InvalidInput(f"field '{role}': the uploaded file has no file name")
     return name[-MAX_NAME_LENGTH:]

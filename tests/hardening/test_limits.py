@@ -1,0 +1,172 @@
+"""Every limit setting is enforced end to end (real app, real motion core), and the upload size
+limit also on a live server: from ``Content-Length`` before the body is sent, and while a
+chunked body streams in."""
+
+from __future__ import annotations
+
+import socket
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+from fastapi.testclient import TestClient
+
+from app.config import Settings
+from app.main import create_app
+from app.services.describe import MotionDescriber
+from app.services.uploads import Upload
+from tests.hardening.live import LiveServer, unique_upload
+
+
+def client_with(settings: Settings, **changes: Any) -> TestClient:
+    return TestClient(create_app(Settings(data_dir=settings.data_dir, **changes)))
+
+
+def assert_error(response: Any, status: int, code: str, *words: str) -> None:
+    assert response.status_code == status, response.text
+    body = response.json()
+    assert set(body) == {"error", "detail"} and body["error"] == code, body
+    for word in words:
+        assert word in body["detail"], body["detail"]
+
+
+# The real BVH fixture: 41 frames, 38 joints (end sites included), 11 levels deep, 34 kB.
+@pytest.mark.parametrize(
+    ("changes", "status", "code", "words"),
+    [
+        ({"max_frames": 40}, 422, "limit_exceeded", ("41 frames", "limit of 40")),
+        ({"max_joints": 37}, 422, "limit_exceeded", ("joints", "limit of 37")),
+        ({"max_depth": 10}, 422, "limit_exceeded", ("nested deeper", "limit of 10")),
+        ({"max_frame_values": 10_000}, 422, "limit_exceeded", ("values", "limit of 10000")),
+        ({"max_upload_bytes": 20_000}, 413, "payload_too_large", ("MOCAP_MAX_UPLOAD_BYTES",)),
+        (
+            {"describe_timeout_seconds": 1e-9},
+            503,
+            "describe_timeout",
+            ("MOCAP_DESCRIBE_TIMEOUT_SECONDS", "try again"),
+        ),
+    ],
+)
+def test_clip_limits(
+    settings: Settings, changes: dict[str, Any], status: int, code: str, words: tuple[str, ...]
+) -> None:
+    with client_with(settings, **changes) as client:
+        for url in ("/clips", "/search"):
+            assert_error(client.post(url, files=unique_upload(0)), status, code, *words)
+        assert client.get("/health").json()["clips"] == 0
+        assert not settings.files_dir.exists() or not any(settings.files_dir.rglob("*.*"))
+
+
+def test_the_same_clip_passes_at_the_limits(settings: Settings) -> None:
+    exact = {"max_frames": 41, "max_joints": 38, "max_depth": 11, "max_frame_values": 41 * 38 * 9}
+    with client_with(settings, **exact) as client:
+        assert client.post("/clips", files=unique_upload(0)).status_code == 201
+
+
+def test_k_and_page_size_limits(settings: Settings) -> None:
+    with client_with(settings, max_k=5, max_page_size=3) as client:
+        clip = client.post("/clips", files=unique_upload(0)).json()
+        assert client.get("/search", params={"clip": clip["id"], "k": 5}).status_code == 200
+        assert_error(
+            client.get("/search", params={"clip": clip["id"], "k": 6}),
+            422,
+            "invalid_input",
+            "between 1 and 5",
+        )
+        assert_error(
+            client.post("/search", params={"k": 6}, files=unique_upload(1)),
+            422,
+            "invalid_input",
+            "between 1 and 5",
+        )
+        assert client.get("/clips", params={"limit": 3}).status_code == 200
+        assert_error(client.get("/clips", params={"limit": 4}), 422, "invalid_input", "limit")
+
+
+def test_describe_time_is_checked_between_stages(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A slow parse (simulated clock) is caught before the descriptors are computed."""
+    from app.services import describe as describe_module
+
+    clock = iter([0.0, 10.0, 10.0, 10.0])
+    monkeypatch.setattr(describe_module.time, "monotonic", lambda: next(clock))
+    computed: list[object] = []
+    monkeypatch.setattr(describe_module, "analyse", lambda *a, **k: computed.append(a))
+    describer = MotionDescriber(time_limit=5.0)
+    upload = Upload.from_files(file=unique_upload(0)["file"])
+    with pytest.raises(describe_module.DescribeTimeout, match="after reading the file"):
+        describer.describe(upload, Settings().parse_limits)
+    assert computed == []
+
+
+# -- on a live server ----------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def small_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveServer]:
+    data_dir = tmp_path_factory.mktemp("limits") / "data"
+    with LiveServer(data_dir, {"MOCAP_MAX_UPLOAD_BYTES": "100000"}) as server:
+        yield server
+
+
+def raw_request(server: LiveServer, head: bytes, body_chunks: list[bytes]) -> bytes:
+    """Send a request by hand; returns what the server answered (within 10 s)."""
+    with socket.create_connection(("127.0.0.1", server.port), timeout=10) as sock:
+        sock.sendall(head)
+        for chunk in body_chunks:
+            try:
+                sock.sendall(chunk)
+            except OSError:  # the server answered and closed: the rest is refused
+                break
+        answer = b""
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            data = sock.recv(65536)
+            if not data:
+                break
+            answer += data
+            head_end = answer.find(b"\r\n\r\n")
+            if head_end >= 0:
+                length = 0
+                for line in answer[:head_end].split(b"\r\n")[1:]:
+                    name, _, value = line.partition(b":")
+                    if name.strip().lower() == b"content-length":
+                        length = int(value)
+                if len(answer) >= head_end + 4 + length:
+                    break
+        return answer
+
+
+def test_declared_length_over_the_limit_is_refused_before_the_body(
+    small_server: LiveServer,
+) -> None:
+    head = (
+        b"POST /clips HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+        b"Content-Type: multipart/form-data; boundary=xx\r\n"
+        b"Content-Length: 1000000000\r\n\r\n"
+    )
+    started = time.monotonic()
+    answer = raw_request(small_server, head, [])  # not a byte of the gigabyte is sent
+    assert answer.startswith(b"HTTP/1.1 413"), answer[:200]
+    assert b"payload_too_large" in answer
+    assert time.monotonic() - started < 5
+
+
+def test_chunked_body_over_the_limit_is_cut_off_while_streaming(small_server: LiveServer) -> None:
+    head = (
+        b"POST /clips HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+        b"Content-Type: multipart/form-data; boundary=xx\r\n"
+        b"Transfer-Encoding: chunked\r\n\r\n"
+    )
+    part = b'--xx\r\nContent-Disposition: form-data; name="file"; filename="a.bvh"\r\n\r\n'
+    chunk = b"0 " * 5000
+    chunks = [b"%x\r\n%s\r\n" % (len(part), part)]
+    chunks += [b"%x\r\n%s\r\n" % (len(chunk), chunk)] * 100  # 1 MB in all, 10x the limit
+    chunks.append(b"0\r\n\r\n")
+    answer = raw_request(small_server, head, chunks)
+    assert answer.startswith(b"HTTP/1.1 413"), answer[:200]
+    health = httpx.get(f"{small_server.url}/health", timeout=10)
+    assert health.status_code == 200 and health.json()["clips"] == 0
+    assert not list(Path(small_server.data_dir / "files").glob("*/*"))
