@@ -7,7 +7,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 INSTALLED := $(VENV)/.installed
 
-.PHONY: install serve test lint clean
+.PHONY: install browser serve test lint clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -27,7 +27,12 @@ lint: install
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy app
 
-test: lint
+# Debian's chromium for the web UI's browser tests (apt-get; needs root or sudo). Where it
+# cannot be installed those tests skip with a reason, except in CI (MOCAP_REQUIRE_BROWSER=1).
+browser: install
+	-bash scripts/install_browser.sh $(BIN)/python
+
+test: lint browser
 	$(BIN)/pytest
 
 clean:

@@ -10,14 +10,18 @@ from contextlib import asynccontextmanager
 from importlib.metadata import PackageNotFoundError, version
 
 from fastapi import FastAPI
+from fastapi.middleware.cors import CORSMiddleware
 from fastapi_offline import FastAPIOffline
 from starlette.concurrency import run_in_threadpool
 
 from app.api import clips, meta, search
-from app.api.errors import install_error_handlers
+from app.api.auth import API_KEY_HEADER, log_access_policy, read_dependencies
+from app.api.errors import error_responses, install_error_handlers
 from app.api.limits import BodySizeLimit
+from app.api.ui import mount_ui
 from app.config import Settings
-from app.services.describe import Describer
+from app.services.clips import remove_orphan_files
+from app.services.describe import Describer, MotionDescriber
 from app.services.library import open_library
 
 DESCRIPTION = """
@@ -45,10 +49,14 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
     library in ``app.state.library``. ``describer`` replaces the motion core (tests).
     """
     settings = settings if settings is not None else Settings()
+    if describer is None:
+        describer = MotionDescriber.from_settings(settings)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        log_access_policy(settings)
         library = await run_in_threadpool(open_library, settings, describer=describer)
+        await run_in_threadpool(remove_orphan_files, library)  # left by a crash mid-write
         app.state.library = library
         try:
             yield
@@ -66,6 +74,20 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
     app.state.settings = settings
     install_error_handlers(app)
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
-    for module in (clips, search, meta):
-        app.include_router(module.router)
+    if settings.cors_origins:  # CORS is off unless origins are configured
+        app.add_middleware(
+            CORSMiddleware,
+            allow_origins=settings.cors_origins,
+            allow_methods=["GET", "POST", "PATCH", "DELETE"],
+            allow_headers=["Authorization", API_KEY_HEADER, "Content-Type"],
+            expose_headers=["Location"],
+        )
+    # Reading routes need a key only with MOCAP_REQUIRE_KEY_FOR_READS; /health never does.
+    reads = read_dependencies(settings)
+    read_errors = error_responses(401, 403) if reads else {}
+    app.include_router(clips.router, dependencies=reads, responses=read_errors)
+    app.include_router(search.router, dependencies=reads, responses=read_errors)
+    app.include_router(meta.read_router, dependencies=reads, responses=read_errors)
+    app.include_router(meta.router)
+    mount_ui(app)  # the web UI at /, /static/*, and the routes it reads (skeletons, map)
     return app

@@ -1,9 +1,12 @@
-"""/descriptors and /health."""
+"""/descriptors and /health.
+
+``router`` (``/health``, ``/``) is always open, so health checks need no key; ``read_router``
+(``/descriptors``) is guarded like the other reading routes when reads need a key.
+"""
 
 from __future__ import annotations
 
 from fastapi import APIRouter
-from fastapi.responses import RedirectResponse
 
 from app.api.deps import LibraryDep
 from app.api.errors import error_responses
@@ -11,9 +14,10 @@ from app.api.schemas import DescriptorList, DescriptorOut, Health, IndexHealth
 from app.services.library import DEFAULT_DESCRIPTOR
 
 router = APIRouter(tags=["service"])
+read_router = APIRouter(tags=["service"])
 
 
-@router.get("/descriptors", summary="Available descriptors")
+@read_router.get("/descriptors", summary="Available descriptors")
 def list_descriptors(library: LibraryDep) -> DescriptorList:
     """Every descriptor a search can use, with its dimension, version and what it measures."""
     return DescriptorList(
@@ -35,8 +39,3 @@ def health(library: LibraryDep) -> Health:
             size=size, dimension=info.dimension, version=info.version, missing=max(clips - size, 0)
         )
     return Health(status="ok", clips=clips, indexes=indexes)
-
-
-@router.get("/", include_in_schema=False)
-def root() -> RedirectResponse:
-    return RedirectResponse("/docs")

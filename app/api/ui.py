@@ -1,0 +1,261 @@
+"""The browser UI: the page at ``/``, its static files, and the endpoints only it needs.
+
+``mount_ui(app)`` is the one call ``create_app`` makes: it serves ``app/static`` at
+``/static``, the page at ``/`` and adds these routes:
+
+* ``GET /clips/{id}/skeleton`` — canonical joint positions per frame and the bone list, for
+  drawing stick figures (``POST /skeleton`` does the same for an uploaded, unstored file);
+* ``GET /map`` — every clip placed in 2-D (FMDistance's 3-MAN features and a PCA of a
+  descriptor), with an outlier flag;
+* ``GET /library/clips`` — the clip list filtered by name and label; ``GET /library/labels``
+  the labels in use.
+
+The computations live in :mod:`app.services.library_map`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Annotated, Any
+
+from fastapi import APIRouter, FastAPI, Query, Request, Response
+from fastapi.responses import FileResponse, JSONResponse
+from fastapi.staticfiles import StaticFiles
+from pydantic import BaseModel, Field
+
+from app.api.auth import read_dependencies
+from app.api.deps import ClipDep, DescriptorDep, LibraryDep, SettingsDep, UploadDep
+from app.api.errors import error_responses
+from app.api.schemas import ClipOut, ClipPage
+from app.errors import InvalidInput
+from app.services import library_map as ui_service
+
+STATIC_DIR = Path(__file__).resolve().parent.parent / "static"
+INDEX_HTML = STATIC_DIR / "index.html"
+
+# The page loads only its own files: no inline script, no other origin.
+CONTENT_SECURITY_POLICY = (
+    "default-src 'self'; script-src 'self'; style-src 'self'; img-src 'self' data:; "
+    "connect-src 'self'; object-src 'none'; base-uri 'none'; frame-ancestors 'none'"
+)
+
+router = APIRouter(tags=["ui"])
+
+
+class SkeletonOut(BaseModel):
+    """Canonical joint positions per frame, for drawing a stick figure."""
+
+    clip_id: int | None = Field(description="The clip (null for an uploaded file).")
+    fps: int = Field(description="Frames per second of `frames`.")
+    frame_count: int = Field(description="Frames in `frames`.")
+    truncated: bool = Field(
+        description="True when the clip is longer than the frames returned (cut at the end)."
+    )
+    duration: float = Field(description="Seconds covered by `frames`.")
+    source_frame_count: int = Field(description="Frames of the clip after lead-in frames.")
+    source_duration: float = Field(description="Seconds covered by the whole clip.")
+    lead_in_frames: int = Field(description="Rest-pose frames at the start left out.")
+    units: str = Field(description='Always "body heights".')
+    joints: list[str] = Field(description="Canonical joint names, the order of each frame.")
+    bones: list[list[int]] = Field(description="[parent index, child index] pairs.")
+    frames: list[list[list[float]]] = Field(
+        description="[frame][joint] = [x, y, z]: body heights, y up, x the subject's left and "
+        "z its forward at the first frame, origin on the floor under the first frame's pelvis."
+    )
+
+
+class MapClip(BaseModel):
+    id: int
+    name: str
+    labels: list[str]
+    format: str
+    duration: float
+    frame_count: int
+    x: float | None = Field(description="3-MAN e_all (null without a kinetic vector).")
+    y: float | None = Field(description="3-MAN r_u/l.")
+    three_man: list[float] | None = Field(description="[e_all, r_u/l, r_l/t].")
+    pca: list[float] | None = Field(
+        description="First two principal components of the descriptor's vector."
+    )
+    outlier: bool = Field(description="Isolated in the library under the descriptor.")
+    outlier_score: float | None = Field(
+        description="Modified z-score of the clip's isolation (outlier above 3.5)."
+    )
+
+
+class MapOut(BaseModel):
+    descriptor: str
+    count: int
+    three_man_available: bool = Field(
+        description="False when the service has no kinetic descriptor to derive 3-MAN from."
+    )
+    three_man_axes: list[str]
+    pca_explained_variance: list[float] = Field(
+        description="Fraction of the variance along each PCA axis."
+    )
+    outlier_rule: str
+    clips: list[MapClip]
+
+
+class LabelCount(BaseModel):
+    label: str
+    count: int
+
+
+def _map_cache(request: Request) -> ui_service.MapCache:
+    cache = getattr(request.app.state, "map_cache", None)
+    if cache is None:
+        cache = request.app.state.map_cache = ui_service.new_map_cache()
+    return cache
+
+
+def _skeleton_cache(request: Request) -> ui_service.SkeletonCache:
+    cache = getattr(request.app.state, "skeleton_cache", None)
+    if cache is None:
+        cache = request.app.state.skeleton_cache = ui_service.SkeletonCache()
+    return cache
+
+
+FpsQuery = Annotated[
+    int,
+    Query(
+        description=f"Frames per second, {ui_service.MIN_FPS} to {ui_service.MAX_FPS}.",
+        examples=[30],
+    ),
+]
+MaxFramesQuery = Annotated[
+    int,
+    Query(
+        description="Most frames to return, 1 to "
+        f"{ui_service.MAX_SKELETON_FRAMES}; a longer clip is cut (`truncated`)."
+    ),
+]
+
+
+@router.get(
+    "/clips/{clip_id}/skeleton",
+    summary="Stick-figure joint positions of a clip",
+    response_class=Response,
+    responses={
+        200: {"model": SkeletonOut, "description": "Joint positions per frame."},
+        304: {"description": "Unchanged since the ETag sent in If-None-Match."},
+        **error_responses(404, 422, 503),
+    },
+)
+def clip_skeleton(
+    clip: ClipDep,
+    library: LibraryDep,
+    request: Request,
+    fps: FpsQuery = ui_service.DEFAULT_FPS,
+    max_frames: MaxFramesQuery = ui_service.MAX_SKELETON_FRAMES,
+) -> Response:
+    """The clip's canonical joints (`joints`), per frame resampled to `fps`, in body heights
+    with y up, and the bones between them: what the UI draws. Rest-pose lead-in frames are
+    left out as for the descriptors; at most `max_frames` frames (default and cap 600)."""
+    skeleton = ui_service.clip_skeleton(library, _skeleton_cache(request), clip, fps, max_frames)
+    headers = {"ETag": skeleton.etag, "Cache-Control": "private, max-age=3600"}
+    if request.headers.get("if-none-match") == skeleton.etag:
+        return Response(status_code=304, headers=headers)
+    return Response(content=skeleton.body, media_type="application/json", headers=headers)
+
+
+@router.post(
+    "/skeleton",
+    summary="Stick-figure joint positions of an uploaded file",
+    response_class=Response,
+    responses={
+        200: {"model": SkeletonOut, "description": "Joint positions per frame."},
+        # 400: a multipart body that cannot be parsed
+        **error_responses(400, 413, 415, 422),
+    },
+)
+def upload_skeleton(
+    upload: UploadDep,
+    settings: SettingsDep,
+    fps: FpsQuery = ui_service.DEFAULT_FPS,
+    max_frames: MaxFramesQuery = ui_service.MAX_SKELETON_FRAMES,
+) -> Response:
+    """As `GET /clips/{id}/skeleton` for a file sent like `POST /clips` (nothing stored):
+    the UI previews a file dropped as a search query with it."""
+    # The same memory bound as describing an upload (MOCAP_MAX_FRAME_VALUES).
+    limits = dataclasses.replace(settings.parse_limits, max_values=settings.max_frame_values)
+    body = ui_service.upload_skeleton(upload, limits, fps, max_frames)
+    return Response(content=body, media_type="application/json")
+
+
+@router.get(
+    "/map",
+    summary="The whole library in 2-D",
+    response_class=JSONResponse,
+    responses={200: {"model": MapOut}, **error_responses(422)},
+)
+def library_map(library: LibraryDep, descriptor: DescriptorDep, request: Request) -> JSONResponse:
+    """Every clip with 2-D coordinates: `x`, `y` = FMDistance's 3-MAN features e_all and
+    r_u/l (all three in `three_man`), computed from the stored kinetic vectors, and `pca` =
+    the first two principal components of `descriptor`'s vectors; `outlier` marks clips whose
+    `descriptor` vectors are far from their nearest neighbours compared with the other
+    clips' (robust z-score of the mean distance to the 5 nearest, over 3.5)."""
+    return JSONResponse(ui_service.library_map(library, descriptor, _map_cache(request)))
+
+
+@router.get(
+    "/library/clips", summary="Find clips by name and label", responses=error_responses(422)
+)
+def find_clips(
+    library: LibraryDep,
+    settings: SettingsDep,
+    q: Annotated[
+        str | None, Query(description="Only clips whose name contains this (any case).")
+    ] = None,
+    label: Annotated[str | None, Query(description="Only clips carrying this label.")] = None,
+    limit: Annotated[int, Query(description="Page size, 1 to MOCAP_MAX_PAGE_SIZE.")] = 50,
+    offset: Annotated[int, Query(description="Clips to skip.")] = 0,
+) -> ClipPage:
+    """As `GET /clips`, with a name filter: clips in id order, a page at a time."""
+    if not 1 <= limit <= settings.max_page_size:
+        raise InvalidInput(f"limit: must be between 1 and {settings.max_page_size}, got {limit}")
+    if offset < 0:
+        raise InvalidInput(f"offset: must not be negative, got {offset}")
+    items, total = ui_service.find_clips(
+        library, q=(q or "").strip() or None, label=label or None, limit=limit, offset=offset
+    )
+    return ClipPage(total=total, limit=limit, offset=offset, items=[ClipOut.of(c) for c in items])
+
+
+@router.get("/library/labels", summary="Labels in use")
+def list_labels(library: LibraryDep) -> list[LabelCount]:
+    """Every label carried by some clip, with its number of clips, most used first."""
+    return [LabelCount(label=label, count=n) for label, n in ui_service.label_counts(library)]
+
+
+def index_page() -> FileResponse:
+    return FileResponse(
+        INDEX_HTML,
+        media_type="text/html",
+        headers={"Content-Security-Policy": CONTENT_SECURITY_POLICY, "Cache-Control": "no-cache"},
+    )
+
+
+def mount_ui(app: FastAPI) -> None:
+    """Serve the UI from ``app``: ``/`` (the page), ``/static/*`` and the routes above.
+
+    The page's route is put first, so it wins over any other ``GET /``. The data routes are
+    reading routes: with ``MOCAP_REQUIRE_KEY_FOR_READS`` they need the API key (the page asks
+    for it); the page and ``/static`` stay open. Needs ``app.state.settings`` (set by
+    ``create_app``). Calling it twice does nothing the second time.
+    """
+    state: Any = app.state
+    if getattr(state, "ui_mounted", False):
+        return
+    state.ui_mounted = True
+    state.skeleton_cache = ui_service.SkeletonCache()
+    state.map_cache = ui_service.new_map_cache()
+    app.add_api_route("/", index_page, methods=["GET"], include_in_schema=False)
+    app.router.routes.insert(0, app.router.routes.pop())
+    # The page and its files are open (like /docs); the data routes are reading routes.
+    app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
+    reads = read_dependencies(state.settings)
+    app.include_router(
+        router, dependencies=reads, responses=error_responses(401, 403) if reads else None
+    )

@@ -1,0 +1,571 @@
+"""The library as the browser UI shows it: stick-figure previews, a 2-D map, a filtered list.
+
+Stick figures (:func:`clip_skeleton`)
+    A stored clip is read again from its stored file(s) and run through the motion core
+    (parse -> :func:`~app.motion.body.build_body`, so converter lead-in frames are dropped as
+    for the descriptors). The canonical joints are put in a *display frame*: lengths in body
+    heights, y up (the file's vertical axis, see :func:`display_up`), the pelvis's floor
+    point at the first frame at the origin (floor = the lowest any joint gets in the clip),
+    facing +z at the first frame (x is then the subject's left). Frames are resampled to
+    the requested rate by linear interpolation in time and cut after
+    :data:`MAX_SKELETON_FRAMES`.
+
+Map (:func:`library_map`)
+    For every clip two 2-D views, both from the *stored* vectors (no clip is re-read):
+
+    * FMDistance's 3-MAN features (Onuma et al. 2008, eq. 5) — total kinetic energy
+      ``e_all``, upper/lower ratio ``r_u/l`` and limbs/trunk ratio ``r_l/t`` — computed
+      from the stored ``kinetic`` vector by :func:`three_man_from_kinetic` (the vector is
+      ``log1p`` of the mean energies, so ``expm1`` gives them back);
+    * the first two principal components of the chosen descriptor's vectors (centred, not
+      scaled: the map keeps the Euclidean geometry searches use).
+
+    A clip is an ``outlier`` when it is isolated under the chosen descriptor: its mean
+    distance to its :data:`OUTLIER_NEIGHBOURS` nearest other clips has a modified z-score
+    (Iglewicz and Hoaglin: median and MAD, so the outliers do not hide themselves) above
+    :data:`OUTLIER_Z`. (The distance to the library's median vector was tried first: it
+    marks whole minority classes — every dash among walks — rather than odd clips.) The
+    PCA and the outliers are cached by the content of the vectors they come from.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import threading
+from collections import OrderedDict
+from collections.abc import Callable, Hashable
+from dataclasses import dataclass
+from typing import Any, Generic, TypeVar
+
+import numpy as np
+from sqlalchemy import func, select
+
+from app.db import repository as repo
+from app.db.models import Clip, ClipLabel
+from app.errors import InvalidInput, ParseError
+from app.motion.body import Body, build_body
+from app.motion.descriptors import kinetic
+from app.motion.descriptors.kinetic import KINETIC_JOINTS, LIMBS, LOWER, TRUNK, UPPER
+from app.motion.formats import read_asf_amc, read_bvh
+from app.motion.model import Motion, ParseLimits
+from app.motion.skeleton_map import CANONICAL_BONES, CANONICAL_INDEX, CANONICAL_JOINTS
+from app.services.library import Library
+from app.services.uploads import BVH, Upload
+
+# -- stick figures --------------------------------------------------------------------------
+
+MAX_SKELETON_FRAMES = 600
+"""Most frames one skeleton response carries; longer clips are truncated (``truncated``)."""
+MIN_FPS, MAX_FPS, DEFAULT_FPS = 1, 120, 30
+DECIMALS = 4
+"""Joint coordinates are rounded to this many decimals of a body height (0.1 mm at 1.7 m)."""
+SKELETON_FORMAT_VERSION = 1
+"""Changes whenever the numbers a skeleton response carries change (part of its ETag)."""
+
+K = TypeVar("K", bound=Hashable)
+V = TypeVar("V")
+
+
+class LRUCache(Generic[K, V]):
+    """A small thread-safe least-recently-used cache."""
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+        self._items: OrderedDict[K, V] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, key: K) -> V | None:
+        with self._lock:
+            if key not in self._items:
+                return None
+            self._items.move_to_end(key)
+            return self._items[key]
+
+    def put(self, key: K, value: V) -> None:
+        with self._lock:
+            self._items[key] = value
+            self._items.move_to_end(key)
+            while len(self._items) > self.size:
+                self._items.popitem(last=False)
+
+    def get_or_compute(self, key: K, compute: Callable[[], V]) -> V:
+        found = self.get(key)
+        if found is None:
+            found = compute()
+            self.put(key, found)
+        return found
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+
+@dataclass(frozen=True, eq=False)
+class DisplayMotion:
+    """A clip's canonical joints in the display frame at the file's own frame rate."""
+
+    positions: np.ndarray  # (F, C, 3) body heights; y up, facing +z at frame 0
+    frame_time: float
+    lead_in_frames: int
+
+
+@dataclass(frozen=True)
+class Skeleton:
+    """One skeleton response, already encoded (``body`` is JSON bytes)."""
+
+    body: bytes
+    etag: str
+
+
+class SkeletonCache:
+    """Per-application caches: display motions by (clip id, content hash), responses by
+    (clip id, content hash, fps, max frames)."""
+
+    def __init__(self, motions: int = 8, responses: int = 64) -> None:
+        self.motions: LRUCache[tuple[int, str], DisplayMotion] = LRUCache(motions)
+        self.responses: LRUCache[tuple[int, str, int, int], Skeleton] = LRUCache(responses)
+
+
+def display_up(world_up: np.ndarray) -> np.ndarray:
+    """The coordinate axis nearest to the body's ``world_up``, as a unit vector.
+
+    Mocap files are authored with an axis up. ``Body.world_up`` snaps to an axis only within
+    30 degrees; clips whose body leans more on average (Bandai's dashes and sad side-steps,
+    35-39 degrees) keep a tilted up there, which would make a figure drift upwards as it
+    travels. A picture needs the true vertical, so it always snaps.
+    """
+    vector = np.asarray(world_up, dtype=float)
+    axis = int(np.argmax(np.abs(vector)))
+    up = np.zeros(3)
+    up[axis] = 1.0 if vector[axis] >= 0 else -1.0
+    return up
+
+
+def display_positions(body: Body) -> np.ndarray:
+    """``(F, C, 3)`` canonical joint positions in the display frame (see module docstring).
+
+    Axes: x = the subject's left at the first frame, y = up (:func:`display_up`), z = the
+    subject's forward at the first frame projected on the floor; a proper rotation of the
+    file's world (no mirroring), then divided by body height.
+    """
+    up = display_up(body.world_up)
+    frame0 = body.pelvis_frames[0]
+
+    def horizontal(v: np.ndarray) -> np.ndarray:
+        return np.asarray(v - np.dot(v, up) * up, dtype=float)
+
+    forward = horizontal(frame0[:, 2])
+    if np.linalg.norm(forward) > 1e-6:
+        z = forward / np.linalg.norm(forward)
+        x = np.cross(up, z)
+    else:  # lying face down or up at the first frame: face by the hips instead
+        left = horizontal(frame0[:, 0])
+        if np.linalg.norm(left) < 1e-6:
+            left = horizontal(np.eye(3)[int(np.argmin(np.abs(up)))])
+        x = left / np.linalg.norm(left)
+        z = np.cross(x, up)
+    basis = np.stack([x, up, z], axis=1)  # columns: display axes in world coordinates
+    pelvis0 = body.positions[0, CANONICAL_INDEX["pelvis"]]
+    floor = float((body.positions @ up).min())
+    origin = horizontal(pelvis0) + floor * up
+    return np.asarray(((body.positions - origin) @ basis) / body.height)
+
+
+def resample(
+    positions: np.ndarray, frame_time: float, fps: int, max_frames: int
+) -> tuple[np.ndarray, bool]:
+    """Frames at ``fps`` by linear interpolation in time, at most ``max_frames`` of them.
+
+    Returns the ``(F', C, 3)`` frames and whether the clip was cut short.
+    """
+    count = positions.shape[0]
+    duration = (count - 1) * frame_time
+    # Files round their frame time (0.008333 for 1/120 s): a relative slack of 1e-4 keeps
+    # the last frame, and output times within 1/1000 of a source frame take that frame.
+    wanted = int(np.floor(duration * fps * (1 + 1e-4) + 1e-6)) + 1
+    truncated = wanted > max_frames
+    n = min(wanted, max_frames)
+    source = np.arange(n) / fps / frame_time  # fractional source frame of each output frame
+    nearest = np.round(source)
+    source = np.where(np.abs(source - nearest) < 1e-3, nearest, source)
+    low = np.clip(np.floor(source).astype(np.int64), 0, count - 1)
+    high = np.minimum(low + 1, count - 1)
+    weight = np.clip(source - low, 0.0, 1.0)[:, None, None]
+    return positions[low] * (1.0 - weight) + positions[high] * weight, truncated
+
+
+def read_stored_motion(library: Library, clip: repo.ClipRecord) -> Motion:
+    """Parse a stored clip's file(s) again (ParseError if they no longer parse)."""
+    limits = library.settings.parse_limits
+    roles = {f.role: f for f in clip.files}
+    if clip.format == BVH:
+        return read_bvh(library.blobs.read(clip.files[0].sha256), limits=limits)
+    return read_asf_amc(
+        library.blobs.read(roles["skeleton"].sha256),
+        library.blobs.read(roles["motion"].sha256),
+        limits=limits,
+        frame_time=clip.frame_time,
+    )
+
+
+def upload_display_motion(upload: Upload, limits: ParseLimits) -> DisplayMotion:
+    """Parse and map an uploaded (not stored) clip; errors name the uploaded file."""
+    try:
+        if upload.format == BVH:
+            motion = read_bvh(upload.parts[0].data, limits=limits)
+        else:
+            motion = read_asf_amc(
+                upload.part("skeleton").data, upload.part("motion").data, limits=limits
+            )
+        return display_motion(motion)
+    except ParseError as error:
+        if upload.format == BVH:
+            part = upload.parts[0]
+        else:
+            part = upload.part("skeleton" if error.source == "ASF" else "motion")
+        source = f"{part.role} {part.filename!r}"
+        raise type(error)(error.reason, line=error.line, source=source) from None
+
+
+def display_motion(motion: Motion) -> DisplayMotion:
+    body = build_body(motion)
+    return DisplayMotion(display_positions(body), body.frame_time, body.lead_in_frames)
+
+
+def skeleton_payload(
+    display: DisplayMotion, *, clip_id: int | None, fps: int, max_frames: int
+) -> dict[str, Any]:
+    """The skeleton response (see ``GET /clips/{id}/skeleton``) as plain JSON values."""
+    frames, truncated = resample(display.positions, display.frame_time, fps, max_frames)
+    source_frames = display.positions.shape[0]
+    return {
+        "clip_id": clip_id,
+        "fps": fps,
+        "frame_count": int(frames.shape[0]),
+        "truncated": truncated,
+        "duration": round((frames.shape[0] - 1) / fps, 6),
+        "source_frame_count": int(source_frames),
+        "source_duration": round((source_frames - 1) * display.frame_time, 6),
+        "lead_in_frames": display.lead_in_frames,
+        "units": "body heights",
+        "joints": list(CANONICAL_JOINTS),
+        "bones": [list(b) for b in CANONICAL_BONES],
+        "frames": np.round(frames, DECIMALS).tolist(),
+    }
+
+
+def check_skeleton_params(fps: int, max_frames: int) -> None:
+    if not MIN_FPS <= fps <= MAX_FPS:
+        raise InvalidInput(f"fps: must be between {MIN_FPS} and {MAX_FPS}, got {fps}")
+    if not 1 <= max_frames <= MAX_SKELETON_FRAMES:
+        raise InvalidInput(
+            f"max_frames: must be between 1 and {MAX_SKELETON_FRAMES}, got {max_frames}"
+        )
+
+
+def clip_skeleton(
+    library: Library, cache: SkeletonCache, clip: repo.ClipRecord, fps: int, max_frames: int
+) -> Skeleton:
+    """The encoded skeleton response of a stored clip (cached)."""
+    check_skeleton_params(fps, max_frames)
+    key = (clip.id, clip.content_hash, fps, max_frames)
+
+    def compute() -> Skeleton:
+        display = cache.motions.get_or_compute(
+            (clip.id, clip.content_hash),
+            lambda: display_motion(read_stored_motion(library, clip)),
+        )
+        payload = skeleton_payload(display, clip_id=clip.id, fps=fps, max_frames=max_frames)
+        tag = hashlib.sha256(f"{SKELETON_FORMAT_VERSION}:{key}".encode()).hexdigest()[:32]
+        return Skeleton(_encode(payload), f'"{tag}"')
+
+    return cache.responses.get_or_compute(key, compute)
+
+
+def upload_skeleton(upload: Upload, limits: ParseLimits, fps: int, max_frames: int) -> bytes:
+    """The encoded skeleton response of an uploaded clip (nothing stored, nothing cached)."""
+    check_skeleton_params(fps, max_frames)
+    display = upload_display_motion(upload, limits)
+    return _encode(skeleton_payload(display, clip_id=None, fps=fps, max_frames=max_frames))
+
+
+def _encode(payload: dict[str, Any]) -> bytes:
+    return json.dumps(payload, separators=(",", ":"), allow_nan=False).encode()
+
+
+# -- map ------------------------------------------------------------------------------------
+
+OUTLIER_Z = 3.5
+"""Modified z-score of the isolation above which a clip is marked an outlier."""
+OUTLIER_NEIGHBOURS = 5
+"""A clip's isolation is its mean distance to this many nearest other clips."""
+THREE_MAN_DESCRIPTOR = kinetic.DESCRIPTOR.name
+KINETIC_DIMENSION = kinetic.DESCRIPTOR.dimension
+_KINETIC_POSITION = {name: i for i, name in enumerate(KINETIC_JOINTS)}
+
+
+def three_man_from_kinetic(vector: np.ndarray) -> np.ndarray:
+    """FMDistance's 3-MAN features ``(3,)`` — e_all, r_u/l, r_l/t (paper eq. 5) — from a
+    stored ``kinetic`` vector (``log1p`` of the mean energy per joint DOF, then 2 root terms).
+
+    Equals :func:`app.motion.descriptors.kinetic.three_man` of the clip's body up to the
+    float32 rounding of the stored vector.
+    """
+    values = np.asarray(vector, dtype=np.float64).reshape(-1)
+    if values.size != KINETIC_DIMENSION:
+        raise ValueError(f"a kinetic vector has {KINETIC_DIMENSION} numbers, got {values.size}")
+    return np.asarray(three_man_many(values[None, :])[0])
+
+
+def three_man_many(vectors: np.ndarray) -> np.ndarray:
+    """:func:`three_man_from_kinetic` of each row of ``(N, 50)`` -> ``(N, 3)``."""
+    joint_count = len(KINETIC_JOINTS)
+    values = np.asarray(vectors, dtype=np.float64).reshape(-1, KINETIC_DIMENSION)
+    # Mean energy per joint: expm1 undoes the log1p, then the 3 DOFs add up.
+    # (Energies are never negative; clipping keeps a corrupt vector from giving NaN.)
+    energies = np.expm1(np.maximum(values[:, : joint_count * 3], 0.0))
+    per_joint = energies.reshape(-1, joint_count, 3).sum(axis=2)
+
+    def total(names: tuple[str, ...]) -> np.ndarray:
+        return np.asarray(per_joint[:, [_KINETIC_POSITION[n] for n in names]].sum(axis=1))
+
+    return np.stack(
+        [
+            np.log(total(KINETIC_JOINTS) + 1.0),
+            np.log((total(UPPER) + 1.0) / (total(LOWER) + 1.0)),
+            np.log((total(LIMBS) + 1.0) / (total(TRUNK) + 1.0)),
+        ],
+        axis=1,
+    )
+
+
+@dataclass(frozen=True)
+class Projection:
+    points: np.ndarray  # (N, 2)
+    explained: tuple[float, float]  # fraction of the total variance along each axis
+
+
+def pca_2d(vectors: np.ndarray) -> Projection:
+    """The first two principal components of ``(N, D)`` vectors (centred, not scaled).
+
+    Signs are fixed (each axis's largest loading is positive) so maps do not flip between
+    requests. Fewer than two dimensions or points give zeros.
+    """
+    data = np.asarray(vectors, dtype=np.float64)
+    n = data.shape[0]
+    points = np.zeros((n, 2))
+    if n < 2 or data.ndim != 2 or data.shape[1] == 0:
+        return Projection(points, (0.0, 0.0))
+    centred = data - data.mean(axis=0)
+    covariance = centred.T @ centred / (n - 1)
+    values, axes = np.linalg.eigh(covariance)
+    order = np.argsort(values)[::-1][:2]
+    total = float(values.clip(min=0).sum())
+    explained = [0.0, 0.0]
+    for k, axis_index in enumerate(order):
+        axis = axes[:, axis_index]
+        axis = axis * (1.0 if axis[np.argmax(np.abs(axis))] >= 0 else -1.0)
+        points[:, k] = centred @ axis
+        explained[k] = max(float(values[axis_index]), 0.0) / total if total > 0 else 0.0
+    return Projection(points, (explained[0], explained[1]))
+
+
+def modified_z_scores(values: np.ndarray) -> np.ndarray:
+    """Iglewicz and Hoaglin's modified z-scores ``0.6745 (x - median) / MAD`` of ``(N,)``
+    values; when the MAD is 0, ``(x - median) / (1.253314 * mean absolute deviation)``;
+    all zeros when every value is the same."""
+    x = np.asarray(values, dtype=np.float64)
+    if x.size == 0:
+        return np.zeros(0)
+    centre = np.median(x)
+    deviation = np.abs(x - centre)
+    mad = float(np.median(deviation))
+    if mad > 0:
+        return np.asarray(0.6745 * (x - centre) / mad)
+    mean_ad = float(deviation.mean())
+    if mean_ad == 0:
+        return np.zeros_like(x)
+    return np.asarray((x - centre) / (1.253314 * mean_ad))
+
+
+def isolation_scores(vectors: np.ndarray, k: int = OUTLIER_NEIGHBOURS) -> np.ndarray:
+    """``(N,)`` mean Euclidean distance from each vector to its ``k`` nearest others (exact,
+    in blocks of rows so 10,000 clips need ~40 MB at a time)."""
+    data = np.asarray(vectors, dtype=np.float64)
+    n = data.shape[0]
+    k = min(k, n - 1)
+    if k < 1:
+        return np.zeros(n)
+    squared = np.einsum("ij,ij->i", data, data)
+    scores = np.empty(n)
+    block = max(1, min(n, 4_000_000 // max(n, 1)))
+    for start in range(0, n, block):
+        rows = slice(start, min(n, start + block))
+        d2 = squared[rows, None] + squared[None, :] - 2.0 * (data[rows] @ data.T)
+        np.maximum(d2, 0.0, out=d2)
+        d2[np.arange(d2.shape[0]), np.arange(start, rows.stop)] = np.inf  # not itself
+        nearest = np.partition(d2, k - 1, axis=1)[:, :k]
+        scores[rows] = np.sqrt(nearest).mean(axis=1)
+    return scores
+
+
+def robust_outliers(vectors: np.ndarray, threshold: float = OUTLIER_Z) -> np.ndarray:
+    """``(N,)`` bool: clips far from their nearest neighbours compared with the rest — the
+    modified z-score of :func:`isolation_scores` is above ``threshold``. Needs 3 clips."""
+    data = np.asarray(vectors, dtype=np.float64)
+    if data.shape[0] < 3:
+        return np.zeros(data.shape[0], dtype=bool)
+    return np.asarray(modified_z_scores(isolation_scores(data)) > threshold)
+
+
+@dataclass(frozen=True)
+class Layout:
+    """What the map computes from one descriptor's vectors (cached by their content)."""
+
+    projection: Projection
+    outlier_scores: np.ndarray  # (N,) modified z-scores of the isolation
+    outliers: np.ndarray  # (N,) bool
+
+
+def vector_layout(vectors: np.ndarray) -> Layout:
+    projection = pca_2d(vectors)
+    n = vectors.shape[0]
+    scores = modified_z_scores(isolation_scores(vectors)) if n >= 3 else np.zeros(n)
+    return Layout(projection, scores, np.asarray(scores > OUTLIER_Z))
+
+
+MapCache = LRUCache[tuple[str, int, str], Layout]
+
+
+def new_map_cache() -> MapCache:
+    return LRUCache(6)
+
+
+def library_map(library: Library, descriptor: str, cache: MapCache | None = None) -> dict[str, Any]:
+    """Every clip with its 3-MAN features, the PCA-2D of ``descriptor`` and an outlier flag.
+
+    A clip without a current vector of a descriptor gets ``null`` for that view.
+    """
+    info = library.descriptor(descriptor)
+    kinetic_info = library.descriptors.get(THREE_MAN_DESCRIPTOR)
+    three_man_available = kinetic_info is not None and kinetic_info.dimension == KINETIC_DIMENSION
+    with library.reads() as session:
+        rows = session.execute(
+            select(Clip.id, Clip.name, Clip.format, Clip.duration, Clip.frame_count).order_by(
+                Clip.id
+            )
+        ).all()
+        labels: dict[int, list[str]] = {}
+        for clip_id, label in session.execute(
+            select(ClipLabel.clip_id, ClipLabel.label).order_by(
+                ClipLabel.clip_id, ClipLabel.position
+            )
+        ):
+            labels.setdefault(clip_id, []).append(label)
+        ids, vectors = repo.load_vectors(session, info.name, info.version, info.dimension)
+        if three_man_available and kinetic_info is not None:
+            if kinetic_info.name == info.name:
+                kinetic_ids, kinetic_vectors = ids, vectors
+            else:
+                kinetic_ids, kinetic_vectors = repo.load_vectors(
+                    session, kinetic_info.name, kinetic_info.version, kinetic_info.dimension
+                )
+        else:
+            kinetic_ids, kinetic_vectors = np.zeros(0, np.int64), np.zeros((0, 0), np.float32)
+
+    digest = hashlib.sha256(ids.tobytes() + vectors.tobytes()).hexdigest()
+    key = (info.name, info.version, digest)
+    layout = (
+        cache.get_or_compute(key, lambda: vector_layout(vectors))
+        if cache is not None
+        else vector_layout(vectors)
+    )
+    projection = layout.projection
+    # Round whole arrays once; per-clip work is then dictionary look-ups only.
+    id_list = ids.tolist()
+    pca_by_id = dict(zip(id_list, np.round(projection.points, 5).tolist(), strict=True))
+    outlier_by_id = dict(zip(id_list, layout.outliers.tolist(), strict=True))
+    score_by_id = dict(zip(id_list, np.round(layout.outlier_scores, 2).tolist(), strict=True))
+    three_man_by_id: dict[int, list[float]] = {}
+    if len(kinetic_ids):
+        features = three_man_many(kinetic_vectors)
+        finite = np.all(np.isfinite(features), axis=1)
+        three_man_by_id = dict(
+            zip(
+                kinetic_ids[finite].tolist(),
+                np.round(features[finite], 5).tolist(),
+                strict=True,
+            )
+        )
+
+    clips = []
+    for clip_id, name, fmt, duration, frame_count in rows:
+        man = three_man_by_id.get(clip_id)
+        clips.append(
+            {
+                "id": clip_id,
+                "name": name,
+                "labels": labels.get(clip_id, []),
+                "format": fmt,
+                "duration": round(float(duration), 3),
+                "frame_count": frame_count,
+                "x": None if man is None else man[0],
+                "y": None if man is None else man[1],
+                "three_man": man,
+                "pca": pca_by_id.get(clip_id),
+                "outlier": outlier_by_id.get(clip_id, False),
+                "outlier_score": score_by_id.get(clip_id),
+            }
+        )
+    return {
+        "descriptor": info.name,
+        "count": len(clips),
+        "three_man_available": three_man_available,
+        "three_man_axes": ["e_all", "r_u/l", "r_l/t"],
+        "pca_explained_variance": [round(v, 4) for v in projection.explained],
+        "outlier_rule": (
+            f"isolation = mean {info.name} distance to the {OUTLIER_NEIGHBOURS} nearest other "
+            f"clips; outlier when its modified z-score (median/MAD) is over {OUTLIER_Z}"
+        ),
+        "clips": clips,
+    }
+
+
+# -- filtered list --------------------------------------------------------------------------
+
+
+def _like_pattern(text: str) -> str:
+    escaped = text.replace("\\", "\\\\").replace("%", "\\%").replace("_", "\\_")
+    return f"%{escaped}%"
+
+
+def find_clips(
+    library: Library, *, q: str | None, label: str | None, limit: int, offset: int
+) -> tuple[list[repo.ClipRecord], int]:
+    """One page (id order) of the clips whose name contains ``q`` (case-insensitive) and
+    that carry ``label``; and how many match in total."""
+    conditions = []
+    if q:
+        conditions.append(func.lower(Clip.name).like(_like_pattern(q.lower()), escape="\\"))
+    if label:
+        conditions.append(Clip.id.in_(select(ClipLabel.clip_id).where(ClipLabel.label == label)))
+    with library.reads() as session:
+        total = session.scalar(select(func.count()).select_from(Clip).where(*conditions)) or 0
+        page_ids = list(
+            session.scalars(
+                select(Clip.id).where(*conditions).order_by(Clip.id).limit(limit).offset(offset)
+            )
+        )
+        found = repo.get_clips(session, page_ids)
+    return [found[i] for i in page_ids if i in found], total
+
+
+def label_counts(library: Library) -> list[tuple[str, int]]:
+    """Every label in use with its number of clips, most used first."""
+    with library.reads() as session:
+        rows = session.execute(
+            select(ClipLabel.label, func.count())
+            .group_by(ClipLabel.label)
+            .order_by(func.count().desc(), ClipLabel.label)
+        ).all()
+    return [(str(label), int(count)) for label, count in rows]

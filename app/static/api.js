@@ -1,0 +1,167 @@
+// Talking to the service: JSON GETs, uploads with progress, one error type.
+
+/** An error answered by the service ({"error", "detail"}) or the network. */
+export class ApiError extends Error {
+  constructor(status, code, detail) {
+    super(detail);
+    this.status = status;
+    this.code = code;
+    this.detail = detail;
+  }
+}
+
+// -- API key ---------------------------------------------------------------------------
+// A library may need a key to be changed (MOCAP_API_KEY) or read (MOCAP_REQUIRE_KEY_FOR_READS).
+// The key a user types is kept for this browser tab only and sent as X-API-Key.
+
+const KEY_STORAGE = "mocap-index.api-key";
+const authListeners = new Set();
+
+export function apiKey() {
+  try {
+    return sessionStorage.getItem(KEY_STORAGE) || "";
+  } catch {
+    return "";
+  }
+}
+
+export function setApiKey(key) {
+  try {
+    if (key) sessionStorage.setItem(KEY_STORAGE, key);
+    else sessionStorage.removeItem(KEY_STORAGE);
+  } catch {
+    // storage disabled: the key is simply not remembered
+  }
+}
+
+/** listener(error) is called when the service answers 401 or 403. */
+export function onAuthError(listener) {
+  authListeners.add(listener);
+}
+
+function authHeaders() {
+  const key = apiKey();
+  return key ? { "X-API-Key": key } : {};
+}
+
+function reportAuth(error) {
+  if (error.status === 401 || error.status === 403) {
+    for (const listener of authListeners) listener(error);
+  }
+  return error;
+}
+
+async function errorOf(response) {
+  let code = "http_error";
+  let detail = `${response.status} ${response.statusText}`;
+  try {
+    const body = await response.json();
+    if (body && typeof body.detail === "string") detail = body.detail;
+    if (body && typeof body.error === "string") code = body.error;
+  } catch {
+    // not JSON: keep the status line
+  }
+  return new ApiError(response.status, code, detail);
+}
+
+function url(path, params) {
+  const query = new URLSearchParams();
+  for (const [key, value] of Object.entries(params || {})) {
+    if (value === null || value === undefined || value === "") continue;
+    query.set(key, String(value));
+  }
+  const text = query.toString();
+  return text ? `${path}?${text}` : path;
+}
+
+/** GET a JSON document; throws ApiError. */
+export async function getJson(path, params, { signal } = {}) {
+  let response;
+  try {
+    response = await fetch(url(path, params), {
+      signal,
+      headers: { Accept: "application/json", ...authHeaders() },
+    });
+  } catch (error) {
+    if (error.name === "AbortError") throw error;
+    throw new ApiError(0, "network_error", `the service cannot be reached (${error.message})`);
+  }
+  if (!response.ok) throw reportAuth(await errorOf(response));
+  return response.json();
+}
+
+/**
+ * POST multipart form data with upload progress (fetch has none): resolves to
+ * {status, body}; rejects with ApiError. onProgress(fraction) gets 0..1.
+ */
+export function postForm(path, params, form, { onProgress, signal } = {}) {
+  return new Promise((resolve, reject) => {
+    const request = new XMLHttpRequest();
+    request.open("POST", url(path, params));
+    request.responseType = "text";
+    request.setRequestHeader("Accept", "application/json");
+    for (const [name, value] of Object.entries(authHeaders())) request.setRequestHeader(name, value);
+    if (onProgress) {
+      request.upload.addEventListener("progress", (event) => {
+        if (event.lengthComputable) onProgress(event.loaded / event.total);
+      });
+    }
+    request.addEventListener("load", () => {
+      let body = null;
+      try {
+        body = JSON.parse(request.responseText);
+      } catch {
+        body = null;
+      }
+      if (request.status >= 200 && request.status < 300) {
+        resolve({ status: request.status, body });
+      } else {
+        const detail =
+          body && typeof body.detail === "string"
+            ? body.detail
+            : `${request.status} ${request.statusText || "error"}`;
+        reject(reportAuth(new ApiError(request.status, (body && body.error) || "http_error", detail)));
+      }
+    });
+    request.addEventListener("error", () =>
+      reject(new ApiError(0, "network_error", "the upload failed: the service cannot be reached")),
+    );
+    request.addEventListener("abort", () =>
+      reject(new ApiError(0, "aborted", "the upload was cancelled")),
+    );
+    if (signal) signal.addEventListener("abort", () => request.abort());
+    request.send(form);
+  });
+}
+
+/** The form fields of one clip: {file} or {skeleton, motion}, plus labels. */
+export function clipForm(clip, labels = []) {
+  const form = new FormData();
+  if (clip.bvh) {
+    form.append("file", clip.bvh, clip.bvh.name);
+  } else {
+    form.append("skeleton", clip.asf, clip.asf.name);
+    form.append("motion", clip.amc, clip.amc.name);
+  }
+  for (const label of labels) form.append("labels", label);
+  return form;
+}
+
+// -- cached look-ups ------------------------------------------------------------------
+
+let descriptorsPromise = null;
+/** {default, descriptors: [{name, dimension, version, description}]} (fetched once). */
+export function descriptors() {
+  if (!descriptorsPromise) {
+    descriptorsPromise = getJson("/descriptors").catch((error) => {
+      descriptorsPromise = null;
+      throw error;
+    });
+  }
+  return descriptorsPromise;
+}
+
+/** Labels in use with their counts (not cached: uploads change them). */
+export function labels() {
+  return getJson("/library/labels");
+}

@@ -1,0 +1,314 @@
+// Search: a stored clip (or a dropped file) as the query, its k nearest clips under a
+// descriptor, all animated side by side on one clock; click a result to search from it.
+
+import { clipForm, descriptors, getJson, labels as fetchLabels, postForm } from "./api.js";
+import { Figure, Player } from "./figure.js";
+import { groupFiles } from "./upload.js";
+import { clear, debounce, el, formatNumber, formatSeconds, labelChips, nextId } from "./util.js";
+
+const PREVIEW = { fps: 30, maxFrames: 600 };
+
+function nearestPhrase(count) {
+  return count === 1 ? "The clip nearest to" : `The ${count} clips nearest to`;
+}
+const DEFAULT_K = 8;
+const MAX_K = 50;
+
+export async function renderSearch(main, params, { navigate }) {
+  const clipParam = Number.parseInt(params.get("clip") || "", 10);
+  const state = {
+    clip: Number.isFinite(clipParam) ? clipParam : null,
+    descriptor: params.get("descriptor") || "",
+    k: Math.min(MAX_K, Math.max(1, Number.parseInt(params.get("k") || "", 10) || DEFAULT_K)),
+    label: params.get("label") || "",
+  };
+
+  const ids = {
+    query: nextId("query"),
+    options: nextId("clip-options"),
+    file: nextId("query-file"),
+    descriptor: nextId("descriptor"),
+    descriptorHelp: nextId("descriptor-help"),
+    k: nextId("k"),
+    label: nextId("label"),
+    scrub: nextId("time"),
+  };
+  const queryInput = el("input", {
+    id: ids.query,
+    type: "search",
+    list: ids.options,
+    autocomplete: "off",
+    placeholder: "type a clip name",
+  });
+  const options = el("datalist", { id: ids.options });
+  const fileInput = el("input", { id: ids.file, type: "file", multiple: true, accept: ".bvh,.asf,.amc" });
+  const descriptorSelect = el("select", { id: ids.descriptor, "aria-describedby": ids.descriptorHelp });
+  const descriptorHelp = el("p", { id: ids.descriptorHelp, class: "hint" });
+  const kInput = el("input", { id: ids.k, type: "number", min: "1", max: String(MAX_K), value: String(state.k) });
+  const labelSelect = el("select", { id: ids.label }, el("option", { value: "" }, "Any"));
+  const status = el("p", { class: "status", role: "status", "aria-live": "polite" });
+  const results = el("ol", { class: "cards results", "aria-label": "Query and nearest clips" });
+
+  const player = new Player({ playing: true });
+  const playButton = el("button", { type: "button", class: "play", "aria-pressed": "true" }, "Pause");
+  const scrub = el("input", { id: ids.scrub, type: "range", min: "0", max: "1", step: "0.01", value: "0" });
+  const clock = el("output", { for: ids.scrub, class: "clock" }, "0.0 s");
+  const controls = el(
+    "div",
+    { class: "player-controls", role: "group", "aria-label": "Playback" },
+    playButton,
+    el("label", { for: ids.scrub }, "Time"),
+    scrub,
+    clock,
+  );
+
+  const form = el(
+    "form",
+    { class: "filters search-form", role: "search", "aria-label": "Search clips" },
+    el("div", { class: "field wide" }, el("label", { for: ids.query }, "Query clip"), queryInput, options),
+    el("div", { class: "field" }, el("label", { for: ids.file }, "…or search with a file"), fileInput),
+    el("div", { class: "field" }, el("label", { for: ids.descriptor }, "Descriptor"), descriptorSelect),
+    el("div", { class: "field narrow" }, el("label", { for: ids.k }, "Results"), kInput),
+    el("div", { class: "field" }, el("label", { for: ids.label }, "Only label"), labelSelect),
+    el("div", { class: "field" }, el("button", { type: "submit" }, "Search")),
+  );
+  main.append(el("div", { class: "view-head" }, el("h1", {}, "Search")), form, descriptorHelp, status, controls, results);
+
+  // -- form data ---------------------------------------------------------------------------
+  const known = await descriptors();
+  for (const d of known.descriptors) {
+    descriptorSelect.append(el("option", { value: d.name }, `${d.name} (${d.dimension} numbers)`));
+  }
+  if (!known.descriptors.some((d) => d.name === state.descriptor)) state.descriptor = known.default;
+  descriptorSelect.value = state.descriptor;
+  const describe = () => {
+    const d = known.descriptors.find((x) => x.name === descriptorSelect.value);
+    descriptorHelp.textContent = d ? d.description : "";
+  };
+  describe();
+  descriptorSelect.addEventListener("change", describe);
+
+  fetchLabels()
+    .then((rows) => {
+      for (const { label, count } of rows) labelSelect.append(el("option", { value: label }, `${label} (${count})`));
+      labelSelect.value = state.label;
+    })
+    .catch(() => {});
+
+  const byOption = new Map(); // datalist text -> clip id
+  const optionText = (clip) => `${clip.name} (#${clip.id})`;
+  const suggest = debounce(async () => {
+    const text = queryInput.value.trim();
+    if (byOption.has(text)) return;
+    try {
+      const page = await getJson("/library/clips", { q: text.replace(/\s*\(#\d+\)$/, ""), limit: 20 });
+      clear(options);
+      for (const clip of page.items) {
+        byOption.set(optionText(clip), clip.id);
+        options.append(el("option", { value: optionText(clip) }));
+      }
+    } catch {
+      // suggestions are a convenience
+    }
+  }, 200);
+  queryInput.addEventListener("input", suggest);
+
+  // -- playback ------------------------------------------------------------------------------
+  const figures = [];
+  const setPlaying = (playing) => {
+    player.setPlaying(playing);
+    playButton.textContent = playing ? "Pause" : "Play";
+    playButton.setAttribute("aria-pressed", String(playing));
+  };
+  playButton.addEventListener("click", () => setPlaying(!player.playing));
+  scrub.addEventListener("input", () => {
+    setPlaying(false);
+    player.seek(Number(scrub.value));
+  });
+  const syncLoop = () => {
+    const longest = Math.max(0, ...figures.map((f) => f.duration));
+    player.loop = longest;
+    scrub.max = String(longest || 1);
+  };
+  const timer = setInterval(() => {
+    scrub.value = String(player.time);
+    clock.textContent = formatSeconds(player.time);
+    playButton.textContent = player.playing ? "Pause" : "Play";
+    playButton.setAttribute("aria-pressed", String(player.playing));
+  }, 100);
+
+  function figureCard({ clipId, name, labels, detail, role, rank }) {
+    const headingId = nextId("result");
+    const canvas = el("canvas", {
+      class: "figure",
+      role: "img",
+      "aria-label": `Animated stick figure of ${name}`,
+      dataset: { role, clipId: clipId === null ? "" : String(clipId) },
+    });
+    const figure = new Figure(canvas, { player, clipId, name });
+    figures.push(figure);
+    const link =
+      clipId === null
+        ? el("span", {}, name)
+        : el(
+            "a",
+            {
+              href: searchHash(clipId),
+              "aria-label": role === "query" ? `${name} (the query)` : `Search from ${name}`,
+            },
+            name,
+          );
+    const node = el(
+      "li",
+      {
+        class: `card ${role}`,
+        dataset: { clipId: clipId === null ? "" : String(clipId), role },
+      },
+      el(
+        "article",
+        { "aria-labelledby": headingId },
+        el("p", { class: "rank" }, role === "query" ? "Query" : `#${rank}`),
+        canvas,
+        el("h2", { id: headingId, class: "clip-name", title: name }, link),
+        detail,
+        labelChips(labels),
+      ),
+    );
+    if (clipId !== null && role !== "query") {
+      node.classList.add("clickable");
+      node.addEventListener("click", (event) => {
+        if (event.target.closest("a")) return;
+        navigate("search", { clip: clipId, descriptor: state.descriptor, k: state.k, label: state.label });
+      });
+    }
+    return { node, figure };
+  }
+
+  function searchHash(clipId) {
+    const query = new URLSearchParams({ clip: String(clipId), descriptor: state.descriptor, k: String(state.k) });
+    if (state.label) query.set("label", state.label);
+    return `#/search?${query}`;
+  }
+
+  function showResults(query, hits, queryFigureLoad) {
+    for (const f of figures.splice(0)) f.dispose();
+    clear(results);
+    const q = figureCard({
+      clipId: query.id ?? null,
+      name: query.name,
+      labels: query.labels,
+      role: "query",
+      detail: el("p", { class: "meta" }, `${formatSeconds(query.duration)} · ${query.format.toUpperCase()}`),
+    });
+    results.append(q.node);
+    const loads = [queryFigureLoad(q.figure)];
+    hits.forEach((hit, i) => {
+      const card = figureCard({
+        clipId: hit.id,
+        name: hit.name,
+        labels: hit.labels,
+        role: "result",
+        rank: i + 1,
+        detail: el("p", { class: "meta distance" }, "distance ", el("strong", { class: "distance-value" }, formatNumber(hit.distance, 4))),
+      });
+      results.append(card.node);
+      loads.push(card.figure.load(PREVIEW));
+    });
+    player.seek(0);
+    Promise.all(loads).then(syncLoop);
+  }
+
+  async function searchClip(clipId) {
+    status.textContent = "Searching…";
+    try {
+      const body = await getJson("/search", {
+        clip: clipId,
+        descriptor: state.descriptor,
+        k: state.k,
+        label: state.label,
+      });
+      queryInput.value = optionText(body.query);
+      byOption.set(queryInput.value, body.query.id);
+      showResults(body.query, body.results, (figure) => figure.load(PREVIEW));
+      status.textContent = body.results.length
+        ? `${nearestPhrase(body.results.length)} ${body.query.name} under ${body.descriptor}, nearest first.`
+        : `No other clip to compare ${body.query.name} with${state.label ? ` under the label ${state.label}` : ""}.`;
+    } catch (error) {
+      clear(results);
+      status.textContent = `Search failed: ${error.detail || error.message}`;
+    }
+  }
+
+  async function searchFile(files) {
+    const items = groupFiles(files, new Map()).filter((item) => !item.note);
+    if (items.length !== 1 || items[0].error) {
+      status.textContent = items.length === 1 ? items[0].error : "Drop one clip: one .bvh file, or one .asf with one .amc.";
+      return;
+    }
+    const item = items[0];
+    status.textContent = `Searching with ${item.name}…`;
+    const query = { descriptor: state.descriptor, k: state.k, label: state.label };
+    try {
+      const { body } = await postForm("/search", query, clipForm(item));
+      const preview = postForm("/skeleton", { fps: PREVIEW.fps, max_frames: PREVIEW.maxFrames }, clipForm(item));
+      showResults({ ...body.query, id: null }, body.results, (figure) =>
+        preview.then(({ body: skeleton }) => figure.setSkeleton(skeleton), (error) => figure.setError(error)),
+      );
+      status.textContent = `${nearestPhrase(body.results.length)} the file ${item.name} under ${body.descriptor}, nearest first.`;
+    } catch (error) {
+      clear(results);
+      status.textContent = `Search with ${item.name} failed: ${error.detail || error.message}`;
+    }
+  }
+
+  function readForm() {
+    state.descriptor = descriptorSelect.value;
+    state.k = Math.min(MAX_K, Math.max(1, Number.parseInt(kInput.value, 10) || DEFAULT_K));
+    kInput.value = String(state.k);
+    state.label = labelSelect.value;
+  }
+
+  form.addEventListener("submit", async (event) => {
+    event.preventDefault();
+    readForm();
+    if (fileInput.files.length) {
+      const files = [...fileInput.files];
+      fileInput.value = "";
+      await searchFile(files);
+      return;
+    }
+    const text = queryInput.value.trim();
+    let clipId = byOption.get(text);
+    const typed = /#(\d+)\)?$/.exec(text);
+    if (clipId === undefined && typed) clipId = Number(typed[1]);
+    if (clipId === undefined && text) {
+      const page = await getJson("/library/clips", { q: text, limit: 2 }).catch(() => null);
+      if (page && page.total === 1) clipId = page.items[0].id;
+      else {
+        status.textContent = page && page.total > 1 ? `Several clips match “${text}”: pick one from the list.` : `No clip is named like “${text}”.`;
+        return;
+      }
+    }
+    if (clipId === undefined) {
+      status.textContent = "Pick a query clip, or choose a file.";
+      queryInput.focus();
+      return;
+    }
+    navigate("search", { clip: clipId, descriptor: state.descriptor, k: state.k, label: state.label });
+  });
+  fileInput.addEventListener("change", () => {
+    if (fileInput.files.length) form.requestSubmit();
+  });
+
+  if (state.clip !== null) {
+    await searchClip(state.clip);
+  } else {
+    status.textContent = "Pick a clip (type part of its name) or choose a file, then search.";
+  }
+
+  return () => {
+    clearInterval(timer);
+    for (const f of figures) f.dispose();
+    player.dispose();
+  };
+}

@@ -1,0 +1,262 @@
+// Upload: drop (or choose) BVH files and ASF+AMC pairs; each clip uploads with its own
+// progress bar, and the service's error is shown next to the file that caused it.
+
+import { clipForm, postForm } from "./api.js";
+import { el, nextId, plural } from "./util.js";
+
+const PARALLEL_UPLOADS = 2;
+
+// Skeletons (.asf) dropped earlier in this page's life, for motions dropped later.
+const rememberedSkeletons = new Map(); // stem (lower case) -> File
+
+function stem(name) {
+  return name.replace(/\.[^.]*$/, "");
+}
+
+function extension(name) {
+  const match = /\.([^.]+)$/.exec(name);
+  return match ? match[1].toLowerCase() : "";
+}
+
+/**
+ * Group dropped files into clips: one per .bvh, one per .amc with its .asf (same stem, the
+ * stem before the first "_" — CMU's 02.asf for 02_01.amc — or the only skeleton around).
+ * Returns [{name, bvh} | {name, asf, amc} | {name, error} | {name, note}].
+ */
+export function groupFiles(files, remembered = rememberedSkeletons) {
+  const items = [];
+  const skeletons = new Map();
+  for (const file of files) {
+    if (extension(file.name) === "asf") skeletons.set(stem(file.name).toLowerCase(), file);
+  }
+  const used = new Set();
+  const allSkeletons = new Map([...remembered, ...skeletons]);
+  for (const file of files) {
+    const ext = extension(file.name);
+    if (ext === "bvh") {
+      items.push({ name: file.name, bvh: file });
+    } else if (ext === "amc") {
+      const key = stem(file.name).toLowerCase();
+      const candidates = [key, key.split("_")[0], key.split(/[_-]/)[0]];
+      let asf = candidates.map((c) => allSkeletons.get(c)).find(Boolean);
+      if (!asf && skeletons.size === 1) asf = [...skeletons.values()][0];
+      if (!asf && skeletons.size === 0 && remembered.size === 1) asf = [...remembered.values()][0];
+      if (asf) {
+        used.add(asf);
+        items.push({ name: `${file.name} + ${asf.name}`, asf, amc: file });
+      } else {
+        items.push({
+          name: file.name,
+          error:
+            skeletons.size > 1
+              ? "several .asf skeletons were dropped and none is named like this motion; drop the motion with its own skeleton"
+              : "no .asf skeleton for this motion: drop its .asf file together with it",
+        });
+      }
+    } else if (ext !== "asf") {
+      items.push({
+        name: file.name,
+        error: "not a motion file: drop .bvh files, or .asf skeletons with their .amc motions",
+      });
+    }
+  }
+  for (const [key, file] of skeletons) {
+    remembered.set(key, file);
+    if (!used.has(file)) {
+      items.push({
+        name: file.name,
+        note: "skeleton kept: drop its .amc motions next and they will use it",
+      });
+    }
+  }
+  return items;
+}
+
+/** Labels for a file name from a regular expression: its named groups, else its groups. */
+export function labelsFromName(pattern, fileName) {
+  if (!pattern) return [];
+  const match = new RegExp(pattern).exec(stem(fileName));
+  if (!match) return [];
+  const values = match.groups ? Object.values(match.groups) : match.slice(1);
+  return values.filter((v) => v !== undefined && v !== "");
+}
+
+export async function renderUpload(main) {
+  const inputId = nextId("files");
+  const labelsId = nextId("labels");
+  const patternId = nextId("pattern");
+  const patternHelpId = nextId("pattern-help");
+  const fileInput = el("input", {
+    id: inputId,
+    type: "file",
+    multiple: true,
+    accept: ".bvh,.asf,.amc",
+    class: "file-input",
+  });
+  const labelsInput = el("input", { id: labelsId, type: "text", placeholder: "e.g. walk, happy", autocomplete: "off" });
+  const patternInput = el("input", {
+    id: patternId,
+    type: "text",
+    placeholder: "e.g. dataset-1_(?<content>[^_]+)_(?<style>[^_]+)",
+    autocomplete: "off",
+    spellcheck: false,
+    "aria-describedby": patternHelpId,
+  });
+  const patternHelp = el(
+    "p",
+    { id: patternHelpId, class: "hint" },
+    "Optional regular expression over each file name: what its groups match become labels too.",
+  );
+  const summary = el("p", { class: "status", role: "status", "aria-live": "polite" });
+  const list = el("ol", { class: "uploads", "aria-label": "Uploads" });
+  const zone = el(
+    "div",
+    { class: "dropzone", "data-testid": "dropzone" },
+    el("p", { class: "dropzone-title" }, "Drop BVH files, or ASF skeletons with their AMC motions, here"),
+    el("p", {}, fileInput, el("label", { for: inputId, class: "button" }, "Choose files…")),
+    el("p", { class: "hint" }, "Several files at once are fine; each clip is uploaded and checked on its own."),
+  );
+
+  main.append(
+    el("div", { class: "view-head" }, el("h1", {}, "Upload")),
+    el(
+      "div",
+      { class: "filters align-top" },
+      el("div", { class: "field" }, el("label", { for: labelsId }, "Labels for these clips (comma-separated)"), labelsInput),
+      el("div", { class: "field wide" }, el("label", { for: patternId }, "Labels from file names"), patternInput, patternHelp),
+    ),
+    zone,
+    summary,
+    list,
+  );
+
+  const queue = [];
+  const totals = { done: 0, failed: 0, all: 0 };
+  let active = 0;
+
+  function updateSummary() {
+    const left = totals.all - totals.done - totals.failed;
+    summary.textContent = totals.all
+      ? `${plural(totals.done, "clip")} stored, ${totals.failed} failed${left ? `, ${left} to go` : ""}.`
+      : "";
+  }
+
+  function addFiles(files) {
+    const pattern = patternInput.value.trim();
+    if (pattern) {
+      try {
+        new RegExp(pattern);
+        patternInput.removeAttribute("aria-invalid");
+        patternHelp.classList.remove("error-text");
+      } catch (error) {
+        patternInput.setAttribute("aria-invalid", "true");
+        patternHelp.textContent = `Not a valid regular expression: ${error.message}`;
+        patternHelp.classList.add("error-text");
+        return;
+      }
+    }
+    const common = labelsInput.value.split(",").map((s) => s.trim()).filter(Boolean);
+    for (const item of groupFiles([...files])) {
+      const row = uploadRow(item);
+      list.append(row.node);
+      if (item.error) {
+        row.fail(item.error);
+        totals.all += 1;
+        totals.failed += 1;
+      } else if (item.note) {
+        row.note(item.note);
+      } else {
+        const motionName = (item.bvh || item.amc).name;
+        const labels = [...common, ...labelsFromName(pattern, motionName)];
+        totals.all += 1;
+        queue.push({ item, row, labels });
+      }
+    }
+    updateSummary();
+    pump();
+  }
+
+  function pump() {
+    while (active < PARALLEL_UPLOADS && queue.length) {
+      const job = queue.shift();
+      active += 1;
+      upload(job).finally(() => {
+        active -= 1;
+        updateSummary();
+        pump();
+      });
+    }
+  }
+
+  async function upload({ item, row, labels }) {
+    row.start();
+    try {
+      const { status, body } = await postForm("/clips", null, clipForm(item, labels), {
+        onProgress: (fraction) => row.progress(fraction),
+      });
+      row.succeed(body, status === 201);
+      totals.done += 1;
+    } catch (error) {
+      row.fail(error.detail || error.message, error.code);
+      totals.failed += 1;
+    }
+  }
+
+  fileInput.addEventListener("change", () => {
+    addFiles(fileInput.files);
+    fileInput.value = "";
+  });
+  zone.addEventListener("dragover", (event) => {
+    event.preventDefault();
+    zone.classList.add("over");
+  });
+  zone.addEventListener("dragleave", () => zone.classList.remove("over"));
+  zone.addEventListener("drop", (event) => {
+    event.preventDefault();
+    zone.classList.remove("over");
+    addFiles(event.dataTransfer.files);
+  });
+}
+
+function uploadRow(item) {
+  const bar = el("progress", { max: "1", value: "0", "aria-label": `Upload of ${item.name}` });
+  const message = el("span", { class: "upload-message" }, "waiting");
+  const node = el(
+    "li",
+    { class: "upload", dataset: { name: item.name, state: "waiting" } },
+    el("span", { class: "upload-name" }, item.name),
+    bar,
+    message,
+  );
+  const set = (state, text) => {
+    node.dataset.state = state;
+    message.textContent = text;
+  };
+  return {
+    node,
+    start: () => set("uploading", "uploading…"),
+    progress(fraction) {
+      bar.value = fraction;
+      set("uploading", fraction < 1 ? `uploading… ${Math.round(fraction * 100)} %` : "reading and describing…");
+    },
+    succeed(clip, created) {
+      bar.value = 1;
+      set("done", "");
+      message.append(
+        created ? `stored as clip #${clip.id} ` : `already in the library as clip #${clip.id} `,
+        el("a", { href: `#/search?clip=${clip.id}` }, "find similar"),
+      );
+      node.dataset.clipId = String(clip.id);
+    },
+    fail(text, code) {
+      bar.remove();
+      set("error", "");
+      message.append(el("strong", {}, code ? `${code.replace(/_/g, " ")}: ` : "error: "), text);
+      message.setAttribute("role", "alert");
+    },
+    note(text) {
+      bar.remove();
+      set("note", text);
+    },
+  };
+}

@@ -1,0 +1,254 @@
+"""GET /clips/{id}/skeleton and POST /skeleton: the joint positions the UI draws."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from app.motion.body import build_body
+from app.motion.formats import read_asf_amc, read_bvh
+from app.motion.skeleton_map import CANONICAL_BONES, CANONICAL_INDEX, CANONICAL_JOINTS
+from app.services import library_map
+from tests.ui.conftest import upload_asf_amc, upload_bvh
+
+CMU_BVH = "cmu_mb_02_01_first41.bvh"  # 120 fps, 41 frames, the first an added T-pose
+CMU_ASF, CMU_AMC = "cmu_02.asf", "cmu_02_01_first40.amc"
+BANDAI = "bandai_walk_normal_001_first40.bvh"  # 30 fps, 40 frames
+
+
+def frames_of(body: dict[str, object]) -> np.ndarray:
+    return np.asarray(body["frames"], dtype=float)
+
+
+def test_skeleton_is_the_motion_cores_joints_in_a_display_frame(
+    ui_client: TestClient, fixtures_dir: Path
+) -> None:
+    path = fixtures_dir / CMU_BVH
+    clip_id = upload_bvh(ui_client, path)
+    response = ui_client.get(f"/clips/{clip_id}/skeleton", params={"fps": 120})
+    assert response.status_code == 200, response.text
+    assert response.headers["content-type"] == "application/json"
+    body = response.json()
+    assert body["clip_id"] == clip_id and body["fps"] == 120
+    assert body["joints"] == list(CANONICAL_JOINTS)
+    assert body["bones"] == [list(b) for b in CANONICAL_BONES]
+    assert body["units"] == "body heights"
+    # The converter's T-pose frame is left out, as for the descriptors.
+    assert body["lead_in_frames"] == 1 and body["frame_count"] == 40
+    assert body["truncated"] is False and body["source_frame_count"] == 40
+    frames = frames_of(body)
+    assert frames.shape == (40, len(CANONICAL_JOINTS), 3)
+
+    # Independently of how the endpoint builds its frame: the motion core's positions, in
+    # body heights, moved rigidly (pairwise distances kept) with the world's up axis as y.
+    core = build_body(read_bvh(path.read_bytes()))
+    scaled = core.positions / core.height
+    for f in (0, 17, 39):
+        want = np.linalg.norm(scaled[f, :, None] - scaled[f, None, :], axis=-1)
+        got = np.linalg.norm(frames[f, :, None] - frames[f, None, :], axis=-1)
+        np.testing.assert_allclose(got, want, atol=2e-4)
+    heights = scaled @ core.world_up
+    np.testing.assert_allclose(frames[..., 1], heights - heights.min(), atol=1e-4)
+
+    pelvis, head = CANONICAL_INDEX["pelvis"], CANONICAL_INDEX["head"]
+    # Origin: the floor under the first frame's pelvis; the floor is the lowest joint.
+    np.testing.assert_allclose(frames[0, pelvis, [0, 2]], [0.0, 0.0], atol=1e-4)
+    assert frames[..., 1].min() == pytest.approx(0.0, abs=1e-4)
+    assert frames[0, head, 1] > frames[0, pelvis, 1] > frames[0, CANONICAL_INDEX["l_ankle"], 1]
+    # Facing +z at the first frame: the subject's left hip is on +x, toes ahead of ankles.
+    assert frames[0, CANONICAL_INDEX["l_hip"], 0] > frames[0, CANONICAL_INDEX["r_hip"], 0]
+    for side in "lr":
+        toe, ankle = CANONICAL_INDEX[f"{side}_toe"], CANONICAL_INDEX[f"{side}_ankle"]
+        assert frames[0, toe, 2] > frames[0, ankle, 2]
+    # ...and it walks forward.
+    assert frames[-1, pelvis, 2] > frames[0, pelvis, 2]
+    # Exactly the service's own transform, rounded to 4 decimals.
+    np.testing.assert_array_equal(frames, np.round(library_map.display_positions(core), 4))
+
+
+def test_frames_are_resampled_to_the_requested_rate(
+    ui_client: TestClient, fixtures_dir: Path
+) -> None:
+    clip_id = upload_bvh(ui_client, fixtures_dir / CMU_BVH)
+    full = frames_of(ui_client.get(f"/clips/{clip_id}/skeleton", params={"fps": 120}).json())
+    quarter = ui_client.get(f"/clips/{clip_id}/skeleton", params={"fps": 30}).json()
+    assert quarter["fps"] == 30 and quarter["frame_count"] == 10  # 39 intervals / 4 + 1
+    assert quarter["duration"] == pytest.approx(9 / 30)
+    np.testing.assert_array_equal(frames_of(quarter), full[::4][:10])
+    # A rate that does not divide the source's: linear interpolation in time.
+    odd = frames_of(ui_client.get(f"/clips/{clip_id}/skeleton", params={"fps": 7}).json())
+    assert odd.shape[0] == 3  # t = 0, 1/7, 2/7 s within 39/120 s
+    source = 120 / 7
+    low = int(np.floor(source))
+    want = full[low] + (source - low) * (full[low + 1] - full[low])
+    np.testing.assert_allclose(odd[1], want, atol=2e-4)
+    # Default 30 fps.
+    assert ui_client.get(f"/clips/{clip_id}/skeleton").json()["fps"] == 30
+
+
+def test_long_clips_are_truncated_and_say_so(ui_client: TestClient, fixtures_dir: Path) -> None:
+    clip_id = upload_bvh(ui_client, fixtures_dir / BANDAI)  # 30 fps, 40 frames
+    whole = ui_client.get(f"/clips/{clip_id}/skeleton").json()
+    assert whole["frame_count"] == 40 and whole["truncated"] is False
+    cut = ui_client.get(f"/clips/{clip_id}/skeleton", params={"max_frames": 25}).json()
+    assert cut["frame_count"] == 25 and cut["truncated"] is True
+    assert cut["source_frame_count"] == 40
+    assert cut["source_duration"] == pytest.approx(39 / 30)
+    np.testing.assert_array_equal(frames_of(cut), frames_of(whole)[:25])
+    assert library_map.MAX_SKELETON_FRAMES == 600
+
+
+def test_asf_amc_clip_has_a_skeleton_like_its_bvh_twin(
+    ui_client: TestClient, fixtures_dir: Path
+) -> None:
+    amc_id = upload_asf_amc(ui_client, fixtures_dir / CMU_ASF, fixtures_dir / CMU_AMC)
+    bvh_id = upload_bvh(ui_client, fixtures_dir / CMU_BVH)
+    amc = ui_client.get(f"/clips/{amc_id}/skeleton", params={"fps": 120}).json()
+    bvh = ui_client.get(f"/clips/{bvh_id}/skeleton", params={"fps": 120}).json()
+    assert amc["frame_count"] == bvh["frame_count"] == 40
+    a, b = frames_of(amc), frames_of(bvh)
+    # Same capture, two conversions with slightly different bone lengths: the figures agree
+    # to a few hundredths of a body height.
+    assert np.abs(a - b).max() < 0.1
+    assert np.median(np.abs(a - b)) < 0.03
+    asf = (fixtures_dir / CMU_ASF).read_bytes()
+    core = build_body(read_asf_amc(asf, (fixtures_dir / CMU_AMC).read_bytes()))
+    np.testing.assert_array_equal(a, np.round(library_map.display_positions(core), 4))
+
+
+@pytest.mark.parametrize(
+    ("params", "word"),
+    [
+        ({"fps": 0}, "fps"),
+        ({"fps": 121}, "fps"),
+        ({"max_frames": 0}, "max_frames"),
+        ({"max_frames": 601}, "max_frames"),
+    ],
+)
+def test_bad_parameters_are_422(
+    ui_client: TestClient, fixtures_dir: Path, params: dict[str, int], word: str
+) -> None:
+    clip_id = upload_bvh(ui_client, fixtures_dir / BANDAI)
+    response = ui_client.get(f"/clips/{clip_id}/skeleton", params=params)
+    assert response.status_code == 422
+    body = response.json()
+    assert body["error"] == "invalid_input" and body["detail"].startswith(f"{word}:")
+
+
+def test_unknown_clip_is_404_and_non_number_is_422(
+    ui_client: TestClient, fixtures_dir: Path
+) -> None:
+    response = ui_client.get("/clips/999/skeleton")
+    assert response.status_code == 404
+    assert response.json() == {"error": "not_found", "detail": "no clip with id 999"}
+    clip_id = upload_bvh(ui_client, fixtures_dir / BANDAI)
+    response = ui_client.get(f"/clips/{clip_id}/skeleton", params={"fps": "fast"})
+    assert response.status_code == 422 and response.json()["error"] == "validation_error"
+
+
+def test_skeletons_are_cached_and_carry_an_etag(
+    ui_client: TestClient, fixtures_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    clip_id = upload_bvh(ui_client, fixtures_dir / BANDAI)
+    reads: list[int] = []
+    real = library_map.read_stored_motion
+
+    def counting(*args: Any) -> Any:
+        reads.append(1)
+        return real(*args)
+
+    monkeypatch.setattr(library_map, "read_stored_motion", counting)
+    first = ui_client.get(f"/clips/{clip_id}/skeleton")
+    again = ui_client.get(f"/clips/{clip_id}/skeleton")
+    other_rate = ui_client.get(f"/clips/{clip_id}/skeleton", params={"fps": 15})
+    assert first.content == again.content and other_rate.status_code == 200
+    assert len(reads) == 1  # parsed once; the other rate reuses the parsed motion
+    etag = first.headers["etag"]
+    assert etag != other_rate.headers["etag"]
+    unchanged = ui_client.get(f"/clips/{clip_id}/skeleton", headers={"If-None-Match": etag})
+    assert unchanged.status_code == 304 and unchanged.content == b""
+
+
+def test_lru_cache_keeps_the_most_recent() -> None:
+    cache: library_map.LRUCache[int, str] = library_map.LRUCache(2)
+    cache.put(1, "a")
+    cache.put(2, "b")
+    assert cache.get(1) == "a"  # 1 is now the most recent
+    cache.put(3, "c")
+    assert cache.get(2) is None and cache.get(1) == "a" and cache.get(3) == "c"
+    assert len(cache) == 2
+
+
+def test_skeleton_of_an_uploaded_file(ui_client: TestClient, fixtures_dir: Path) -> None:
+    path = fixtures_dir / BANDAI
+    clip_id = upload_bvh(ui_client, path)
+    stored = ui_client.get(f"/clips/{clip_id}/skeleton").json()
+    response = ui_client.post("/skeleton", files={"file": (path.name, path.read_bytes())})
+    assert response.status_code == 200, response.text
+    uploaded = response.json()
+    assert uploaded["clip_id"] is None
+    assert uploaded["frames"] == stored["frames"]
+    asf, amc = fixtures_dir / CMU_ASF, fixtures_dir / CMU_AMC
+    pair = ui_client.post(
+        "/skeleton",
+        params={"fps": 120},
+        files={"skeleton": (asf.name, asf.read_bytes()), "motion": (amc.name, amc.read_bytes())},
+    )
+    assert pair.status_code == 200 and pair.json()["frame_count"] == 40
+
+
+def test_skeleton_of_a_broken_upload_names_the_file(ui_client: TestClient) -> None:
+    response = ui_client.post(
+        "/skeleton", files={"file": ("broken.bvh", b"HIERARCHY\nROOT Hips\n{\n")}
+    )
+    assert response.status_code == 422
+    body = response.json()
+    assert body["error"] == "parse_error" and "'broken.bvh'" in body["detail"]
+    response = ui_client.post("/skeleton", files={"file": ("walk.fbx", b"x")})
+    assert response.status_code == 415
+
+
+@pytest.mark.slow
+def test_skeleton_of_a_whole_cmu_clip(ui_client: TestClient, shared_data: Path) -> None:
+    path = shared_data / "cmu" / "bvh-mb" / "02" / "02_01.bvh"
+    if not path.is_file():
+        pytest.skip(f"{path} not found")
+    clip_id = upload_bvh(ui_client, path)
+    body = ui_client.get(f"/clips/{clip_id}/skeleton").json()
+    core = build_body(read_bvh(path.read_bytes()))
+    assert body["source_frame_count"] == core.frame_count
+    assert body["frame_count"] == int(np.floor((core.frame_count - 1) / 4)) + 1
+    # The file's frame time is 0.008333 s, not 1/120: output frames drift off the source's
+    # over the clip (by 1% of a frame at frame 250) and are interpolated between two.
+    np.testing.assert_allclose(frames_of(body), library_map.display_positions(core)[::4], atol=1e-3)
+
+
+def test_display_up_is_the_nearest_axis() -> None:
+    np.testing.assert_array_equal(library_map.display_up(np.array([0.45, 0.78, 0.43])), [0, 1, 0])
+    np.testing.assert_array_equal(library_map.display_up(np.array([0.1, -0.2, -0.9])), [0, 0, -1])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "name", ["dataset-1_walk-left_sad_001.bvh", "dataset-1_dash_normal_001.bvh"]
+)
+def test_leaning_clips_stay_on_the_floor(
+    ui_client: TestClient, shared_data: Path, name: str
+) -> None:
+    # The body leans over 30 degrees on average in these clips: the motion core's world_up
+    # is tilted there, and a figure drawn on it would rise as it travels.
+    path = shared_data / "bandai-ds1" / "data" / name
+    if not path.is_file():
+        pytest.skip(f"{path} not found")
+    clip_id = upload_bvh(ui_client, path)
+    frames = frames_of(ui_client.get(f"/clips/{clip_id}/skeleton").json())
+    pelvis = frames[:, CANONICAL_INDEX["pelvis"]]
+    travel = np.linalg.norm(pelvis[-1, [0, 2]] - pelvis[0, [0, 2]])
+    assert travel > 1.0  # it goes somewhere, over the floor
+    assert np.ptp(pelvis[:, 1]) < 0.15  # ...without rising or sinking
+    feet = frames[:, [CANONICAL_INDEX["l_toe"], CANONICAL_INDEX["r_toe"]], 1].min(axis=1)
+    assert feet.max() < 0.2  # a foot is near the floor in every frame
