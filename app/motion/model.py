@@ -36,6 +36,20 @@ class ParseLimits:
     max_depth: int | None = 256
     max_values: int | None = 200_000_000
 
+    def frame_budget_problem(self, frame_count: int, columns: int, joint_count: int) -> str | None:
+        """Why ``frame_count`` frames of ``columns`` numbers for ``joint_count`` joints are too
+        many, or None. Checked before allocating: the values read and the rotation matrices
+        produced (nine numbers per joint and frame) both count."""
+        if self.max_frames is not None and frame_count > self.max_frames:
+            return f"{frame_count} frames is more than the limit of {self.max_frames}"
+        produced = frame_count * max(columns, 9 * joint_count)
+        if self.max_values is not None and produced > self.max_values:
+            return (
+                f"{frame_count} frames of {joint_count} joints and {columns} channels need "
+                f"{produced} values, more than the limit of {self.max_values}"
+            )
+        return None
+
 
 @dataclass(frozen=True, eq=False)
 class Skeleton:

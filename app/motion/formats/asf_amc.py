@@ -491,15 +491,9 @@ def _parse_amc(
 def _check_amc_limits(
     frame_count: int, column_count: int, joint_count: int, limits: ParseLimits, line: int
 ) -> None:
-    if limits.max_frames is not None and frame_count > limits.max_frames:
-        raise LimitExceeded(f"AMC line {line}: more frames than the limit of {limits.max_frames}")
-    if limits.max_values is not None:
-        produced = frame_count * max(column_count, 9 * joint_count)
-        if produced > limits.max_values:
-            raise LimitExceeded(
-                f"AMC line {line}: {frame_count} frames of {joint_count} joints need "
-                f"{produced} values, more than the limit of {limits.max_values}"
-            )
+    problem = limits.frame_budget_problem(frame_count, column_count, joint_count)
+    if problem is not None:
+        raise LimitExceeded(f"AMC line {line}: {problem}")
 
 
 def _read_regular_amc(

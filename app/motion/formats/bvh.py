@@ -488,15 +488,9 @@ def _check_frame_limits(
     frame_count: int, channel_count: int, joint_count: int, limits: ParseLimits
 ) -> None:
     """Refuse before allocating: frames, values in the file and rotation values produced."""
-    if limits.max_frames is not None and frame_count > limits.max_frames:
-        raise LimitExceeded(f"{frame_count} frames is more than the limit of {limits.max_frames}")
-    if limits.max_values is not None:
-        produced = frame_count * max(channel_count, 9 * joint_count)
-        if produced > limits.max_values:
-            raise LimitExceeded(
-                f"{frame_count} frames of {joint_count} joints and {channel_count} channels "
-                f"need {produced} values, more than the limit of {limits.max_values}"
-            )
+    problem = limits.frame_budget_problem(frame_count, channel_count, joint_count)
+    if problem is not None:
+        raise LimitExceeded(problem)
 
 
 def _read_frames(
