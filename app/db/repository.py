@@ -702,3 +702,75 @@ class SearchReads:
         for connection in opened:
             with contextlib.suppress(sqlite3.Error):
                 connection.close()
+
+
+# -- browsing (the web UI's list, label counts and map) ---------------------------------------
+
+
+@dataclass(frozen=True)
+class ClipSummary:
+    """The few columns the library map shows per clip."""
+
+    id: int
+    name: str
+    format: str
+    duration: float
+    frame_count: int
+    labels: tuple[str, ...]
+
+
+def clip_summaries(session: Session) -> list[ClipSummary]:
+    """Every clip in id order with its labels, in two queries."""
+    rows = session.execute(
+        select(Clip.id, Clip.name, Clip.format, Clip.duration, Clip.frame_count).order_by(Clip.id)
+    ).all()
+    labels: dict[int, list[str]] = {}
+    for clip_id, label in session.execute(
+        select(ClipLabel.clip_id, ClipLabel.label).order_by(ClipLabel.clip_id, ClipLabel.position)
+    ):
+        labels.setdefault(clip_id, []).append(label)
+    return [
+        ClipSummary(
+            id=clip_id,
+            name=name,
+            format=fmt,
+            duration=duration,
+            frame_count=frames,
+            labels=tuple(labels.get(clip_id, ())),
+        )
+        for clip_id, name, fmt, duration, frames in rows
+    ]
+
+
+def _contains_pattern(text: str) -> str:
+    """A LIKE pattern matching ``text`` anywhere, with % and _ taken literally."""
+    escaped = text.replace("\\", "\\\\").replace("%", "\\%").replace("_", "\\_")
+    return f"%{escaped}%"
+
+
+def find_clip_ids(
+    session: Session, *, name_contains: str | None, label: str | None, limit: int, offset: int
+) -> tuple[list[int], int]:
+    """One page (id order) of the ids of clips whose name contains ``name_contains``
+    (case-insensitive) and that carry ``label``; and how many match in total."""
+    conditions = []
+    if name_contains:
+        pattern = _contains_pattern(name_contains.lower())
+        conditions.append(func.lower(Clip.name).like(pattern, escape="\\"))
+    if label:
+        conditions.append(Clip.id.in_(select(ClipLabel.clip_id).where(ClipLabel.label == label)))
+    total = session.scalar(select(func.count()).select_from(Clip).where(*conditions)) or 0
+    page = session.scalars(
+        select(Clip.id).where(*conditions).order_by(Clip.id).limit(limit).offset(offset)
+    )
+    return list(page), int(total)
+
+
+def label_counts(session: Session) -> list[tuple[str, int]]:
+    """Every label in use with its number of clips, most used first."""
+    rows = session.execute(
+        select(ClipLabel.label, func.count())
+        .group_by(ClipLabel.label)
+        .order_by(func.count().desc(), ClipLabel.label)
+    ).all()
+    return [(str(label), int(count)) for label, count in rows]

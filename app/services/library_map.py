@@ -39,10 +39,8 @@ from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
 import numpy as np
-from sqlalchemy import func, select
 
 from app.db import repository as repo
-from app.db.models import Clip, ClipLabel
 from app.errors import InvalidInput, ParseError
 from app.motion.body import Body, build_body
 from app.motion.descriptors import kinetic
@@ -450,18 +448,7 @@ def library_map(library: Library, descriptor: str, cache: MapCache | None = None
     kinetic_info = library.descriptors.get(THREE_MAN_DESCRIPTOR)
     three_man_available = kinetic_info is not None and kinetic_info.dimension == KINETIC_DIMENSION
     with library.reads() as session:
-        rows = session.execute(
-            select(Clip.id, Clip.name, Clip.format, Clip.duration, Clip.frame_count).order_by(
-                Clip.id
-            )
-        ).all()
-        labels: dict[int, list[str]] = {}
-        for clip_id, label in session.execute(
-            select(ClipLabel.clip_id, ClipLabel.label).order_by(
-                ClipLabel.clip_id, ClipLabel.position
-            )
-        ):
-            labels.setdefault(clip_id, []).append(label)
+        summaries = repo.clip_summaries(session)
         ids, vectors = repo.load_vectors(session, info.name, info.version, info.dimension)
         if three_man_available and kinetic_info is not None:
             if kinetic_info.name == info.name:
@@ -499,16 +486,17 @@ def library_map(library: Library, descriptor: str, cache: MapCache | None = None
         )
 
     clips = []
-    for clip_id, name, fmt, duration, frame_count in rows:
+    for summary in summaries:
+        clip_id = summary.id
         man = three_man_by_id.get(clip_id)
         clips.append(
             {
                 "id": clip_id,
-                "name": name,
-                "labels": labels.get(clip_id, []),
-                "format": fmt,
-                "duration": round(float(duration), 3),
-                "frame_count": frame_count,
+                "name": summary.name,
+                "labels": list(summary.labels),
+                "format": summary.format,
+                "duration": round(float(summary.duration), 3),
+                "frame_count": summary.frame_count,
                 "x": None if man is None else man[0],
                 "y": None if man is None else man[1],
                 "three_man": man,
@@ -534,27 +522,14 @@ def library_map(library: Library, descriptor: str, cache: MapCache | None = None
 # -- filtered list --------------------------------------------------------------------------
 
 
-def _like_pattern(text: str) -> str:
-    escaped = text.replace("\\", "\\\\").replace("%", "\\%").replace("_", "\\_")
-    return f"%{escaped}%"
-
-
 def find_clips(
     library: Library, *, q: str | None, label: str | None, limit: int, offset: int
 ) -> tuple[list[repo.ClipRecord], int]:
     """One page (id order) of the clips whose name contains ``q`` (case-insensitive) and
     that carry ``label``; and how many match in total."""
-    conditions = []
-    if q:
-        conditions.append(func.lower(Clip.name).like(_like_pattern(q.lower()), escape="\\"))
-    if label:
-        conditions.append(Clip.id.in_(select(ClipLabel.clip_id).where(ClipLabel.label == label)))
     with library.reads() as session:
-        total = session.scalar(select(func.count()).select_from(Clip).where(*conditions)) or 0
-        page_ids = list(
-            session.scalars(
-                select(Clip.id).where(*conditions).order_by(Clip.id).limit(limit).offset(offset)
-            )
+        page_ids, total = repo.find_clip_ids(
+            session, name_contains=q, label=label, limit=limit, offset=offset
         )
         found = repo.get_clips(session, page_ids)
     return [found[i] for i in page_ids if i in found], total
@@ -563,9 +538,4 @@ def find_clips(
 def label_counts(library: Library) -> list[tuple[str, int]]:
     """Every label in use with its number of clips, most used first."""
     with library.reads() as session:
-        rows = session.execute(
-            select(ClipLabel.label, func.count())
-            .group_by(ClipLabel.label)
-            .order_by(func.count().desc(), ClipLabel.label)
-        ).all()
-    return [(str(label), int(count)) for label, count in rows]
+        return repo.label_counts(session)
