@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sqlite3
 import statistics
 import subprocess
@@ -25,28 +24,10 @@ import tempfile
 import time
 from pathlib import Path
 
+from common import machine, shared_data  # bench/common.py (scripts run from bench/)
+
 ROOT = Path(__file__).resolve().parents[1]
 TARGET_SECONDS = 2.5
-
-
-def shared_data() -> Path:
-    override = os.environ.get("MOCAP_SHARED_DATA")
-    return Path(override) if override else ROOT.parent / "shared" / "data"
-
-
-def machine() -> str:
-    cpu = "unknown CPU"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return (
-        f"{platform.machine()}, {os.cpu_count()} cores ({cpu}), Python "
-        f"{platform.python_version()}, load average {os.getloadavg()[0]:.2f}"
-    )
 
 
 def run_import(data_dir: Path, source: Path, workers: int | None) -> tuple[float, str]:

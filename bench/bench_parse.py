@@ -28,7 +28,6 @@ reader ~11.7 ms, Euler angles -> matrices ~4.5 ms, hierarchy + headers ~0.3 ms.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from collections.abc import Callable
@@ -37,14 +36,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from common import shared_data  # bench/common.py (scripts run from bench/)
+
 from app.motion.formats import read_asf_amc, read_bvh
-
-
-def _data_dir() -> Path:
-    override = os.environ.get("MOCAP_SHARED_DATA")
-    if override:
-        return Path(override)
-    return Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 
 
 def _best_ms(parse: Callable[[], object], repeat: int) -> float:
@@ -77,7 +71,7 @@ def main() -> None:
         "--pipeline", action="store_true", help="also time parse + app.motion.pipeline.analyse"
     )
     args = parser.parse_args()
-    data = _data_dir()
+    data = shared_data()
     if not data.is_dir():
         raise SystemExit(f"no shared data at {data} (set MOCAP_SHARED_DATA)")
 

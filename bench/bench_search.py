@@ -29,7 +29,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
-import platform
 import re
 import shutil
 import signal
@@ -45,33 +44,13 @@ from pathlib import Path
 
 import httpx
 import numpy as np
+from common import machine, shared_data  # bench/common.py (scripts run from bench/)
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 CLI = str(ROOT / ".venv" / "bin" / "mocap-index")
 LUA = ROOT / "bench" / "search.lua"
-
-
-def shared_data() -> Path:
-    override = os.environ.get("MOCAP_SHARED_DATA")
-    return Path(override) if override else ROOT.parent / "shared" / "data"
-
-
-def machine() -> str:
-    cpu = "unknown CPU"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
-    return (
-        f"{platform.machine()}, {os.cpu_count()} cores ({cpu}), {memory:.0f} GB RAM, "
-        f"Python {platform.python_version()}"
-    )
 
 
 def environment(**extra: str) -> dict[str, str]:

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import queue
 import signal
 import socket
@@ -28,14 +27,10 @@ import time
 from pathlib import Path
 
 import httpx
+from common import machine, shared_data  # bench/common.py (scripts run from bench/)
 
 ROOT = Path(__file__).resolve().parents[1]
 TARGET = 40.0
-
-
-def shared_data() -> Path:
-    override = os.environ.get("MOCAP_SHARED_DATA")
-    return Path(override) if override else ROOT.parent / "shared" / "data"
 
 
 def free_port() -> int:
@@ -106,10 +101,7 @@ def main() -> int:
         print(f"no BVH files under {source}", file=sys.stderr)
         return 2
     originals = [(p.name, p.read_bytes()) for p in paths]
-    print(
-        f"machine: {platform.machine()}, {os.cpu_count()} cores, Python "
-        f"{platform.python_version()}, load average {os.getloadavg()[0]:.2f}"
-    )
+    print(f"machine: {machine()}")
     print(f"data: {source} ({len(paths)} BVH, {sum(len(d) for _, d in originals) / 1e6:.1f} MB)")
     rates = []
     with tempfile.TemporaryDirectory(prefix="mocap-bench-upload-") as tmp:

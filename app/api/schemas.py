@@ -71,18 +71,8 @@ class ClipOut(ClipFields):
     @classmethod
     def of(cls, clip: ClipRecord, vectors: dict[str, StoredVector] | None = None) -> ClipOut:
         return cls(
+            **_clip_fields(clip),
             id=clip.id,
-            name=clip.name,
-            filenames=clip.filenames,
-            format=clip.format,
-            content_hash=clip.content_hash,
-            frame_count=clip.frame_count,
-            frame_time=clip.frame_time,
-            duration=clip.duration,
-            joint_count=clip.joint_count,
-            skeleton_family=clip.skeleton_family,
-            lead_in_frames=clip.lead_in_frames,
-            labels=list(clip.labels),
             created_at=clip.created_at,
             descriptors=None
             if vectors is None
@@ -98,19 +88,24 @@ class UploadedClipOut(ClipFields):
 
     @classmethod
     def of(cls, clip: NewClip) -> UploadedClipOut:
-        return cls(
-            name=clip.name,
-            filenames=[f.filename for f in clip.files],
-            format=clip.format,
-            content_hash=clip.content_hash,
-            frame_count=clip.frame_count,
-            frame_time=clip.frame_time,
-            duration=clip.duration,
-            joint_count=clip.joint_count,
-            skeleton_family=clip.skeleton_family,
-            lead_in_frames=clip.lead_in_frames,
-            labels=list(clip.labels),
-        )
+        return cls(**_clip_fields(clip))
+
+
+def _clip_fields(clip: ClipRecord | NewClip) -> dict[str, Any]:
+    """The fields a stored clip and a described upload share, as :class:`ClipFields` takes them."""
+    return {
+        "name": clip.name,
+        "filenames": [f.filename for f in clip.files],
+        "format": clip.format,
+        "content_hash": clip.content_hash,
+        "frame_count": clip.frame_count,
+        "frame_time": clip.frame_time,
+        "duration": clip.duration,
+        "joint_count": clip.joint_count,
+        "skeleton_family": clip.skeleton_family,
+        "lead_in_frames": clip.lead_in_frames,
+        "labels": list(clip.labels),
+    }
 
 
 class ClipPage(BaseModel):

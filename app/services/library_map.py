@@ -44,7 +44,6 @@ from app.db import repository as repo
 from app.errors import InvalidInput, ParseError
 from app.motion.body import Body, build_body
 from app.motion.descriptors import kinetic
-from app.motion.descriptors.kinetic import KINETIC_JOINTS, LIMBS, LOWER, TRUNK, UPPER
 from app.motion.formats import read_asf_amc, read_bvh
 from app.motion.model import Motion, ParseLimits
 from app.motion.skeleton_map import CANONICAL_BONES, CANONICAL_INDEX, CANONICAL_JOINTS
@@ -299,7 +298,6 @@ OUTLIER_NEIGHBOURS = 5
 """A clip's isolation is its mean distance to this many nearest other clips."""
 THREE_MAN_DESCRIPTOR = kinetic.DESCRIPTOR.name
 KINETIC_DIMENSION = kinetic.DESCRIPTOR.dimension
-_KINETIC_POSITION = {name: i for i, name in enumerate(KINETIC_JOINTS)}
 
 
 def three_man_from_kinetic(vector: np.ndarray) -> np.ndarray:
@@ -317,24 +315,8 @@ def three_man_from_kinetic(vector: np.ndarray) -> np.ndarray:
 
 def three_man_many(vectors: np.ndarray) -> np.ndarray:
     """:func:`three_man_from_kinetic` of each row of ``(N, 50)`` -> ``(N, 3)``."""
-    joint_count = len(KINETIC_JOINTS)
     values = np.asarray(vectors, dtype=np.float64).reshape(-1, KINETIC_DIMENSION)
-    # Mean energy per joint: expm1 undoes the log1p, then the 3 DOFs add up.
-    # (Energies are never negative; clipping keeps a corrupt vector from giving NaN.)
-    energies = np.expm1(np.maximum(values[:, : joint_count * 3], 0.0))
-    per_joint = energies.reshape(-1, joint_count, 3).sum(axis=2)
-
-    def total(names: tuple[str, ...]) -> np.ndarray:
-        return np.asarray(per_joint[:, [_KINETIC_POSITION[n] for n in names]].sum(axis=1))
-
-    return np.stack(
-        [
-            np.log(total(KINETIC_JOINTS) + 1.0),
-            np.log((total(UPPER) + 1.0) / (total(LOWER) + 1.0)),
-            np.log((total(LIMBS) + 1.0) / (total(TRUNK) + 1.0)),
-        ],
-        axis=1,
-    )
+    return kinetic.three_man_from_vectors(values)
 
 
 @dataclass(frozen=True)

@@ -24,10 +24,10 @@ from app.motion.formats import read_asf_amc, read_bvh
 from app.motion.model import ParseLimits
 from app.services.describe import MotionDescriber
 from app.services.uploads import Upload
+from tests.conftest import shared_data_dir
 from tests.motion.conftest import assert_consistent
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
-SHARED = Path(os.environ.get("MOCAP_SHARED_DATA", REPO_ROOT.parent / "shared" / "data"))
+SHARED = shared_data_dir()
 LIMITS = ParseLimits(max_frames=20_000, max_joints=512, max_depth=128, max_values=20_000_000)
 FRAMES_KEPT = 12  # real files are cut to their first frames: fast, and mutations hit headers
 

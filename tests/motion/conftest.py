@@ -7,13 +7,13 @@ that need them skip with a clear reason when that folder is absent.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from app.motion.model import Motion
+from tests.conftest import shared_data_dir
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 FIXTURES_DIR = REPO_ROOT / "tests" / "fixtures"
@@ -22,14 +22,6 @@ BANDAI_FIXTURE = "bandai_walk_normal_001_first40.bvh"
 CMU_BVH_FIXTURE = "cmu_mb_02_01_first41.bvh"
 CMU_ASF_FIXTURE = "cmu_02.asf"
 CMU_AMC_FIXTURE = "cmu_02_01_first40.amc"
-
-
-def shared_data_dir() -> Path:
-    """``<repo>/../shared/data``, or ``$MOCAP_SHARED_DATA`` when set."""
-    override = os.environ.get("MOCAP_SHARED_DATA")
-    if override:
-        return Path(override)
-    return REPO_ROOT / ".." / "shared" / "data"
 
 
 def fixture_bytes(name: str) -> bytes:

@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
 import pytest
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
-SHARED_DATA = Path(os.environ.get("MOCAP_SHARED_DATA", REPO_ROOT.parent / "shared" / "data"))
+from tests.conftest import shared_data_dir
+
+SHARED_DATA = shared_data_dir()
 
 requires_shared_data = pytest.mark.skipif(
     not (SHARED_DATA / "bandai-ds1").is_dir() or not (SHARED_DATA / "cmu").is_dir(),

@@ -155,18 +155,36 @@ def compute_kinetic(body: Body) -> np.ndarray:
 def three_man(body: Body) -> np.ndarray:
     """FMDistance's 3-MAN features ``(3,)``: e_all, r_upper/lower, r_limbs/trunk (paper eq. 5)."""
     joints, _ = mean_energies(body)
-    per_joint = dict(zip(KINETIC_JOINTS, joints.sum(axis=1), strict=True))
+    return three_man_from_energies(joints.sum(axis=1)[None, :])[0]
 
-    def total(names: tuple[str, ...]) -> float:
-        return float(sum(per_joint[n] for n in names))
 
-    return np.array(
+def three_man_from_energies(per_joint: np.ndarray) -> np.ndarray:
+    """3-MAN of ``(N, 16)`` mean energies per kinetic joint (DOFs summed) -> ``(N, 3)``."""
+    position = {name: i for i, name in enumerate(KINETIC_JOINTS)}
+
+    def total(names: tuple[str, ...]) -> np.ndarray:
+        return np.asarray(per_joint[:, [position[n] for n in names]].sum(axis=1))
+
+    return np.stack(
         [
             np.log(total(KINETIC_JOINTS) + 1.0),
             np.log((total(UPPER) + 1.0) / (total(LOWER) + 1.0)),
             np.log((total(LIMBS) + 1.0) / (total(TRUNK) + 1.0)),
-        ]
+        ],
+        axis=1,
     )
+
+
+def three_man_from_vectors(vectors: np.ndarray) -> np.ndarray:
+    """3-MAN of stored ``(N, 50)`` kinetic vectors -> ``(N, 3)``, without the motion.
+
+    The vector is ``log1p`` of the mean energy per joint DOF, so ``expm1`` gives the
+    energies back (up to float32 rounding); negative values (a corrupt vector) count as 0.
+    """
+    joint_count = len(KINETIC_JOINTS)
+    values = np.asarray(vectors, dtype=np.float64).reshape(len(vectors), -1)
+    energies = np.expm1(np.maximum(values[:, : joint_count * 3], 0.0))
+    return three_man_from_energies(energies.reshape(-1, joint_count, 3).sum(axis=2))
 
 
 DESCRIPTOR = Descriptor(
