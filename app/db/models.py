@@ -5,6 +5,8 @@ Tables
 ------
 clips
     One row per stored clip: what was uploaded and what the motion core measured.
+    Besides the measured facts it keeps, as JSON text, the reading warnings, the joint
+    mapping and a multi-animation file's animation list, and the uploader's source/licence.
 clip_files
     The uploaded parts of a clip (one for BVH; skeleton + motion for ASF/AMC), each kept as a
     content-addressed file named by its sha256.
@@ -28,6 +30,7 @@ from sqlalchemy import (
     LargeBinary,
     MetaData,
     String,
+    Text,
     UniqueConstraint,
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
@@ -62,6 +65,16 @@ class Clip(Base):
     skeleton_family: Mapped[str] = mapped_column(String(64))
     lead_in_frames: Mapped[int] = mapped_column(Integer)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
+    # JSON text: what reading the file noticed ("3 lines after the last frame ignored", ...).
+    warnings: Mapped[str] = mapped_column(Text, server_default="[]")
+    # JSON text: canonical joint -> source joint, and how each was found; NULL for clips
+    # stored before it was recorded (and for synthetic clips).
+    joint_mapping: Mapped[str | None] = mapped_column(Text, nullable=True)
+    # Where the clip comes from and under which terms it may be used, as the uploader said.
+    source: Mapped[str | None] = mapped_column(String(500), nullable=True)
+    licence: Mapped[str | None] = mapped_column(String(500), nullable=True)
+    # JSON text: the animations a multi-animation file (FBX, glTF) holds; NULL for others.
+    animations: Mapped[str | None] = mapped_column(Text, nullable=True)
 
     files: Mapped[list[ClipFile]] = relationship(
         back_populates="clip",
