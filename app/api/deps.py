@@ -15,7 +15,7 @@ from app.config import Settings
 from app.db.repository import ClipRecord
 from app.errors import UnsupportedMediaType
 from app.services import clips as clip_service
-from app.services.library import DEFAULT_DESCRIPTOR, Library
+from app.services.library import Library
 from app.services.uploads import Upload
 
 
@@ -78,17 +78,23 @@ def read_upload(
 UploadDep = Annotated[Upload, Depends(read_upload)]
 
 
+DescriptorQuery = Annotated[
+    str | None,
+    Query(
+        description="Descriptor to compare with (see GET /descriptors); default: the one "
+        "GET /descriptors names as `default` (`motion`).",
+        examples=["motion"],
+    ),
+]
+
+
 def descriptor_param(
     library: LibraryDep,
-    descriptor: Annotated[
-        str,
-        Query(
-            description="Descriptor to compare with (see GET /descriptors).", examples=["posture"]
-        ),
-    ] = DEFAULT_DESCRIPTOR,
+    descriptor: DescriptorQuery = None,
 ) -> str:
-    library.descriptor(descriptor)  # 422 naming the known descriptors
-    return descriptor
+    name = library.default_descriptor if descriptor is None else descriptor
+    library.descriptor(name)  # 422 naming the known descriptors
+    return name
 
 
 DescriptorDep = Annotated[str, Depends(descriptor_param)]

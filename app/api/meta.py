@@ -11,7 +11,6 @@ from fastapi import APIRouter
 from app.api.deps import LibraryDep
 from app.api.errors import error_responses
 from app.api.schemas import DescriptorList, DescriptorOut, Health, IndexHealth
-from app.services.library import DEFAULT_DESCRIPTOR
 
 router = APIRouter(tags=["service"])
 read_router = APIRouter(tags=["service"])
@@ -21,7 +20,7 @@ read_router = APIRouter(tags=["service"])
 def list_descriptors(library: LibraryDep) -> DescriptorList:
     """Every descriptor a search can use, with its dimension, version and what it measures."""
     return DescriptorList(
-        default=DEFAULT_DESCRIPTOR,
+        default=library.default_descriptor,
         descriptors=[DescriptorOut.of(info) for info in library.descriptors.values()],
     )
 

@@ -154,7 +154,7 @@ class ClipSearchResponse(BaseModel):
     model_config = ConfigDict(
         json_schema_extra={
             "examples": [
-                {"query": _CLIP_EXAMPLE, "descriptor": "posture", "k": 2, "results": _HITS_EXAMPLE}
+                {"query": _CLIP_EXAMPLE, "descriptor": "motion", "k": 2, "results": _HITS_EXAMPLE}
             ]
         }
     )
@@ -175,7 +175,7 @@ class UploadSearchResponse(BaseModel):
                     "query": {
                         k: v for k, v in _CLIP_EXAMPLE.items() if k not in ("id", "created_at")
                     },
-                    "descriptor": "posture",
+                    "descriptor": "motion",
                     "k": 2,
                     "results": _HITS_EXAMPLE,
                 }
@@ -210,13 +210,14 @@ class DescriptorList(BaseModel):
         json_schema_extra={
             "examples": [
                 {
-                    "default": "posture",
+                    "default": "motion",
                     "descriptors": [
                         {
                             "name": "posture",
                             "dimension": 12,
-                            "version": 1,
-                            "description": "Posture variation: mean and std of joint covariance.",
+                            "version": 2,
+                            "description": "How the body is held: how spread out, tall or "
+                            "leaning the pose is on average and how much it varies.",
                         }
                     ],
                 }

@@ -8,11 +8,15 @@ canonical joints only, and works out from the skeleton itself:
   sides averaged) plus the trunk's (pelvis -> ... -> head). It is a property of the skeleton
   and so the same in every frame, and independent of units once positions are divided by it.
 * ``pelvis_frames`` — per frame an orthonormal body frame fixed to the pelvis, columns
-  (lateral = subject's left, up, forward) in world coordinates. It is the pelvis joint's world
-  rotation times a constant basis found in pelvis coordinates: lateral from the right hip to
-  the left hip, up along the clip's mean pelvis->neck direction (orthogonalised), forward =
-  lateral x up. Because the basis is found in the pelvis's own coordinates, neither the
-  file's up axis, its units, the facing direction nor the rig's rest-pose conventions matter.
+  (lateral = subject's left, up, forward) in world coordinates. Miura et al. (2013): "The
+  position of each joint is described in the coordinate system fixed to the pelvis". The
+  frame is the pelvis joint's world rotation times one constant basis per *skeleton*, found
+  in the rest pose (where every local rotation is the identity, so rest-pose directions are
+  the pelvis joint's own coordinates): lateral from the right hip to the left hip, up from
+  the pelvis toward the neck (orthogonalised), forward = lateral x up. It depends on the
+  pelvis alone — never on the clip's other frames — so every clip of one skeleton has the
+  same axes, and a frame's features are the same whether computed from the whole clip or a
+  part of it. Neither the file's up axis, its units nor the facing direction matter.
 * ``world_up`` — the world's vertical axis, needed to split root speed into horizontal and
   vertical parts: the coordinate axis (with sign) nearest to the clip's mean body-up
   direction. Motion-capture files are authored with a coordinate axis up, and a body that
@@ -130,7 +134,7 @@ def build_body(motion: Motion) -> Body:
         raise ParseError(
             "the skeleton has zero height (all bones between ankle and head are empty)"
         )
-    frames = _pelvis_frames(canon_pos, canon_rot)
+    frames = _pelvis_frames(motion, mapping.joints, canon_rot)
     return Body(
         positions=canon_pos,
         rotations=canon_rot,
@@ -197,27 +201,49 @@ def _pose_change(local: np.ndarray) -> np.ndarray:
     return np.arccos(cos_angle.min(axis=1))
 
 
-def _pelvis_frames(positions: np.ndarray, rotations: np.ndarray) -> np.ndarray:
-    """``(F, 3, 3)`` pelvis-fixed body frames; columns lateral (left), up, forward."""
-    pelvis = CANONICAL_INDEX["pelvis"]
-    pelvis_rot = rotations[:, pelvis]
-    lateral_world = positions[:, CANONICAL_INDEX["l_hip"]] - positions[:, CANONICAL_INDEX["r_hip"]]
-    up_world = positions[:, CANONICAL_INDEX["neck"]] - positions[:, pelvis]
-    # Express both in the pelvis joint's own coordinates and average over the clip.
-    lateral = np.einsum("fba,fb->a", pelvis_rot, lateral_world)
-    up = np.einsum("fba,fb->a", pelvis_rot, up_world)
-    lateral_norm = np.linalg.norm(lateral)
-    if lateral_norm < 1e-9:
-        raise ParseError("the left and right hips coincide; cannot tell left from right")
-    x = lateral / lateral_norm
-    up = up - np.dot(up, x) * x
-    up_norm = np.linalg.norm(up)
-    if up_norm < 1e-9:
-        raise ParseError("the neck is level with the hips; cannot find the body's up direction")
-    y = up / up_norm
-    z = np.cross(x, y)
-    basis = np.stack([x, y, z], axis=1)
-    return pelvis_rot @ basis
+def _pelvis_frames(motion: Motion, canonical: np.ndarray, rotations: np.ndarray) -> np.ndarray:
+    """``(F, 3, 3)`` pelvis-fixed body frames; columns lateral (left), up, forward.
+
+    ``canonical`` is the ``(C,)`` source joint index per canonical joint and ``rotations`` the
+    ``(F, C, 3, 3)`` world rotations of the canonical joints.
+    """
+    basis = rest_pelvis_basis(motion, canonical)
+    return rotations[:, CANONICAL_INDEX["pelvis"]] @ basis
+
+
+def rest_pelvis_basis(motion: Motion, canonical: np.ndarray) -> np.ndarray:
+    """``(3, 3)`` body axes (columns lateral, up, forward) in the pelvis joint's coordinates.
+
+    Found in the rest pose of the skeleton's offsets; a rig whose offsets are empty and whose
+    shape lives in per-frame position channels uses those of its first frame instead.
+    """
+    skeleton = motion.skeleton
+    candidates = [skeleton.offsets]
+    if motion.local_translations is not None:
+        candidates.append(motion.local_translations[0])
+    problem = ""
+    for offsets in candidates:
+        rest = np.zeros((skeleton.joint_count, 3))
+        for j in range(1, skeleton.joint_count):
+            rest[j] = rest[skeleton.parents[j]] + offsets[j]
+        at = {name: rest[canonical[CANONICAL_INDEX[name]]] for name in ("pelvis", "neck")}
+        lateral = (
+            rest[canonical[CANONICAL_INDEX["l_hip"]]] - rest[canonical[CANONICAL_INDEX["r_hip"]]]
+        )
+        lateral_norm = float(np.linalg.norm(lateral))
+        if lateral_norm < 1e-9:
+            problem = "the left and right hips coincide; cannot tell left from right"
+            continue
+        x = lateral / lateral_norm
+        up = at["neck"] - at["pelvis"]
+        up = up - np.dot(up, x) * x
+        up_norm = float(np.linalg.norm(up))
+        if up_norm < 1e-9:
+            problem = "the neck is level with the hips; cannot find the body's up direction"
+            continue
+        y = up / up_norm
+        return np.stack([x, y, np.cross(x, y)], axis=1)
+    raise ParseError(problem)
 
 
 def _world_up(pelvis_frames: np.ndarray) -> np.ndarray:

@@ -38,12 +38,11 @@ from app.db.migrate import upgrade
 from app.db.session import create_db_engine, read_sessions, write_sessions
 from app.errors import InvalidInput, StorageUnavailable
 from app.index import DescriptorIndex, IndexOptions, IndexSet
+from app.motion.descriptors import DEFAULT_DESCRIPTOR
 from app.services.blobs import BlobStore
 from app.services.describe import Describer, DescriptorInfo, MotionDescriber
 
 log = logging.getLogger(__name__)
-
-DEFAULT_DESCRIPTOR = "posture"
 
 
 def index_options(settings: Settings) -> IndexOptions:
@@ -120,6 +119,14 @@ class Library:
     @property
     def descriptors(self) -> Mapping[str, DescriptorInfo]:
         return self.describer.descriptors
+
+    @property
+    def default_descriptor(self) -> str:
+        """The descriptor a search uses when none is named: ``motion`` (the best all-round
+        one) when the describer has it, else the describer's first."""
+        if DEFAULT_DESCRIPTOR in self.descriptors:
+            return DEFAULT_DESCRIPTOR
+        return next(iter(self.descriptors))
 
     def descriptor(self, name: str) -> DescriptorInfo:
         """The descriptor called ``name``; :class:`InvalidInput` (422) names the known ones."""
@@ -233,8 +240,8 @@ def open_library(settings: Settings, *, describer: Describer | None = None) -> L
     """Migrate the database to the newest schema and load (or rebuild) the indexes."""
     if describer is None:
         describer = MotionDescriber.from_settings(settings)
-    if DEFAULT_DESCRIPTOR not in describer.descriptors:
-        raise RuntimeError(f"the default descriptor {DEFAULT_DESCRIPTOR!r} is not registered")
+    if not describer.descriptors:
+        raise RuntimeError("the describer offers no descriptor")
     try:
         settings.data_dir.mkdir(parents=True, exist_ok=True)
         engine = create_db_engine(settings.sqlalchemy_url)
