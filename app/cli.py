@@ -105,6 +105,14 @@ def _configure_reindex(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="recompute every vector, not only the missing or outdated ones",
     )
+    progress = parser.add_mutually_exclusive_group()
+    progress.add_argument(
+        "--progress",
+        action="store_true",
+        default=None,
+        help="show a progress bar (default: when stderr is a terminal)",
+    )
+    progress.add_argument("--no-progress", dest="progress", action="store_false")
 
 
 @command(
@@ -116,16 +124,18 @@ def _reindex(args: argparse.Namespace, settings: Settings) -> int:
     from app.services.library import open_library
     from app.services.reindex import reindex
 
+    show = sys.stderr.isatty() if args.progress is None else args.progress
+    bar = _ProgressBar("reindexing")
+
+    def progress(done: int, total: int, clip: Any) -> None:
+        bar.total = total
+        bar.set_done(done)
+
     library = open_library(settings)
     try:
-        report = reindex(
-            library,
-            everything=args.all,
-            progress=lambda done, total, clip: print(
-                f"[{done}/{total}] {clip.name}", file=sys.stderr
-            ),
-        )
+        report = reindex(library, everything=args.all, progress=progress if show else None)
     finally:
+        bar.stop()
         library.close()
     for clip_id, why in report.failed.items():
         print(f"clip {clip_id}: {why}", file=sys.stderr)
@@ -202,11 +212,12 @@ def _configure_import(parser: argparse.ArgumentParser) -> None:
     )
 
 
-class _ImportProgress:
+class _ProgressBar:
     """A rich progress bar (clips, clips/s, elapsed, ETA) on stderr, started on the first
     update — after the worker processes are forked, as it runs a thread."""
 
-    def __init__(self) -> None:
+    def __init__(self, doing: str = "importing") -> None:
+        self._doing = doing
         self._progress: Any = None
         self._task: Any = None
         self.total = 0
@@ -215,6 +226,9 @@ class _ImportProgress:
         self.total = found
 
     def update(self, report: Any) -> None:
+        self.set_done(report.done)
+
+    def set_done(self, done: int) -> None:
         if self._progress is None:
             from rich.console import Console
             from rich.progress import (
@@ -227,7 +241,7 @@ class _ImportProgress:
             )
 
             self._progress = Progress(
-                TextColumn("importing"),
+                TextColumn(self._doing),
                 BarColumn(),
                 MofNCompleteColumn(),
                 TextColumn("{task.fields[rate]}"),
@@ -240,7 +254,7 @@ class _ImportProgress:
             self._task = self._progress.add_task("import", total=self.total, rate="")
         task = self._progress.tasks[0]
         rate = f"{task.speed:.0f} clips/s" if task.speed else ""
-        self._progress.update(self._task, completed=report.done, rate=rate)
+        self._progress.update(self._task, completed=done, rate=rate)
 
     def stop(self) -> None:
         if self._progress is not None:
@@ -260,7 +274,7 @@ def _import(args: argparse.Namespace, settings: Settings) -> int:
         print("mocap-index: --workers must be at least 1", file=sys.stderr)
         return 2
     show = sys.stderr.isatty() if args.progress is None else args.progress
-    bar = _ImportProgress()
+    bar = _ProgressBar()
     try:
         report = run_import(
             settings,

@@ -100,6 +100,21 @@ class StorageUnavailable(MocapError):
     code = "storage_unavailable"
 
 
+class DescriptorUnavailable(MocapError):
+    """The query clip has no vector of the descriptor's current version (the descriptor is
+    newer than the clip); ``mocap-index reindex`` computes it."""
+
+    code = "descriptor_unavailable"
+
+
+class DescriptorOutdated(DescriptorUnavailable):
+    """Stored clips still hold vectors of an older version of the descriptor (a library
+    written by an earlier release): a search under it would miss them, so it is refused
+    until ``mocap-index reindex`` recomputes them."""
+
+    code = "descriptor_outdated"
+
+
 class DescribeTimeout(MocapError):
     """Describing an uploaded clip took longer than the configured request time limit."""
 

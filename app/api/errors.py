@@ -20,6 +20,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from app.errors import (
     DescribeTimeout,
+    DescriptorUnavailable,
     Forbidden,
     InvalidInput,
     MocapError,
@@ -29,7 +30,6 @@ from app.errors import (
     Unauthorized,
     UnsupportedMediaType,
 )
-from app.services.search import DescriptorUnavailable
 
 log = logging.getLogger(__name__)
 

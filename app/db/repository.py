@@ -19,7 +19,7 @@ from datetime import UTC, datetime
 from typing import Any, Protocol
 
 import numpy as np
-from sqlalchemy import Connection, Engine, Select, func, insert, select
+from sqlalchemy import Connection, Engine, Select, delete, func, insert, select
 from sqlalchemy.orm import Session, selectinload
 
 from app.db.models import Clip, ClipDescriptor, ClipFile, ClipLabel
@@ -412,6 +412,29 @@ def count_vectors(session: Executor, name: str, version: int) -> int:
             )
         )
         or 0
+    )
+
+
+def count_outdated_vectors(session: Executor, name: str, version: int) -> int:
+    """How many ``name`` vectors of a version older than ``version`` are stored (written by
+    an earlier release; ``mocap-index reindex`` replaces them)."""
+    return int(
+        session.scalar(
+            select(func.count()).where(
+                ClipDescriptor.name == name, ClipDescriptor.version < version
+            )
+        )
+        or 0
+    )
+
+
+def delete_vectors(session: Session, clip_id: int, names: Iterable[str]) -> None:
+    """Drop the clip's vectors of the descriptors ``names`` (e.g. outdated ones that cannot
+    be recomputed)."""
+    session.execute(
+        delete(ClipDescriptor).where(
+            ClipDescriptor.clip_id == clip_id, ClipDescriptor.name.in_(list(names))
+        )
     )
 
 

@@ -36,13 +36,16 @@ from app.config import Settings
 from app.db import repository as repo
 from app.db.migrate import upgrade
 from app.db.session import create_db_engine, read_sessions, write_sessions
-from app.errors import InvalidInput, StorageUnavailable
+from app.errors import DescriptorOutdated, InvalidInput, StorageUnavailable
 from app.index import DescriptorIndex, IndexOptions, IndexSet
 from app.motion.descriptors import DEFAULT_DESCRIPTOR
 from app.services.blobs import BlobStore
 from app.services.describe import Describer, DescriptorInfo, MotionDescriber
 
 log = logging.getLogger(__name__)
+
+# While a descriptor has outdated vectors, how often a search recounts them.
+OUTDATED_RECOUNT_SECONDS = 5.0
 
 
 def index_options(settings: Settings) -> IndexOptions:
@@ -112,6 +115,9 @@ class Library:
     search_reads: repo.SearchReads = field(init=False, repr=False)
     _sync_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
     _checked_at: float = field(default=0.0, repr=False)
+    # Descriptor -> stored vectors of an older version, and when that was last counted.
+    _outdated: dict[str, int] = field(default_factory=dict, repr=False)
+    _outdated_at: float = field(default=0.0, repr=False)
 
     def __post_init__(self) -> None:
         self.search_reads = repo.SearchReads(self.engine)
@@ -127,6 +133,35 @@ class Library:
         if DEFAULT_DESCRIPTOR in self.descriptors:
             return DEFAULT_DESCRIPTOR
         return next(iter(self.descriptors))
+
+    def count_outdated(self) -> dict[str, int]:
+        """Descriptor -> how many stored vectors are of an older version (counted now)."""
+        with self.reads() as session:
+            counts = {
+                name: repo.count_outdated_vectors(session, name, info.version)
+                for name, info in self.descriptors.items()
+            }
+        self._outdated, self._outdated_at = counts, time.monotonic()
+        return counts
+
+    def require_current(self, name: str) -> None:
+        """Refuse (409 ``descriptor_outdated``) a search under descriptor ``name`` while stored
+        clips hold vectors of an older version of it — a library written by an earlier
+        release: the search would silently miss them. Free once the library is current
+        (counted at start; recounted at most every few seconds while it is not)."""
+        if not self._outdated.get(name):
+            return
+        if time.monotonic() - self._outdated_at > OUTDATED_RECOUNT_SECONDS:
+            self.count_outdated()
+        outdated = self._outdated.get(name, 0)
+        if outdated:
+            version = self.descriptors[name].version
+            raise DescriptorOutdated(
+                f"{outdated} stored clips have {name!r} vectors of an older version than "
+                f"{version} (written by an earlier release of mocap-index); stop the service "
+                "and run `mocap-index reindex` to recompute them, or search with another "
+                "descriptor"
+            )
 
     def descriptor(self, name: str) -> DescriptorInfo:
         """The descriptor called ``name``; :class:`InvalidInput` (422) names the known ones."""
@@ -265,7 +300,7 @@ def open_library(settings: Settings, *, describer: Describer | None = None) -> L
                 clips,
                 name,
             )
-    return Library(
+    library = Library(
         settings=settings,
         engine=engine,
         reads=reads,
@@ -274,3 +309,13 @@ def open_library(settings: Settings, *, describer: Describer | None = None) -> L
         indexes=indexes,
         describer=describer,
     )
+    for name, outdated in library.count_outdated().items():
+        if outdated:
+            log.warning(
+                "%d clips have %r vectors of an older version: searches under %r answer 409 "
+                "until `mocap-index reindex` recomputes them",
+                outdated,
+                name,
+                name,
+            )
+    return library

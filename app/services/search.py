@@ -13,22 +13,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.db import repository as repo
-from app.errors import InvalidInput, MocapError, NotFound
+from app.errors import DescriptorUnavailable, InvalidInput, NotFound
 from app.services.ingest import describe, new_clip
 from app.services.library import Library
 from app.services.uploads import Upload
 
 MAX_ATTEMPTS = 3
-
-
-class DescriptorUnavailable(MocapError):
-    """The query clip has no vector of the descriptor's current version (the descriptor is
-    newer than the clip); ``mocap-index reindex`` computes it.
-
-    Belongs in ``app/errors.py``; kept here until that file is changed.
-    """
-
-    code = "descriptor_unavailable"
 
 
 @dataclass(frozen=True, slots=True)
@@ -102,6 +92,7 @@ def search_vector(
     """The ``k`` stored clips nearest to ``vector`` ``(D,)`` under ``descriptor``."""
     check_k(library, k)
     library.descriptor(descriptor)
+    library.require_current(descriptor)
     library.refresh()
     with library.search_reads.snapshot() as db:
         return _nearest(library, db, descriptor, vector, k, label=label, exclude=exclude)[0]
@@ -128,6 +119,7 @@ def search_by_clip_id(
     database snapshot: ``GET /search``. :class:`NotFound` when there is no such clip."""
     info = library.descriptor(descriptor)
     check_k(library, k)
+    library.require_current(descriptor)
     library.refresh()
     with library.search_reads.snapshot() as db:
         clip = db.clip(clip_id, labels=False)
@@ -160,6 +152,7 @@ def search_by_upload(
     """
     library.descriptor(descriptor)
     check_k(library, k)  # before the costly part
+    library.require_current(descriptor)
     described = describe(library, upload, only=[descriptor])
     query = new_clip(library, described)
     vector = query.vectors[descriptor].vector

@@ -167,9 +167,10 @@ def test_search_by_clip_and_by_upload_under_every_descriptor(
         hits = by_upload.json()["results"]
         assert hits[0]["id"] == ids[1] and hits[0]["distance"] == pytest.approx(0, abs=1e-5)
         assert len(hits) == 3
-    # the default descriptor is posture
+    # the default descriptor is motion, and GET /descriptors says so
     default = client.get("/search", params={"clip": ids[0]}).json()
-    assert default["descriptor"] == "posture" and default["k"] == 10
+    assert default["descriptor"] == "motion" and default["k"] == 10
+    assert client.get("/descriptors").json()["default"] == "motion"
 
 
 def test_unreadable_upload_leaves_no_row_vector_or_file(
