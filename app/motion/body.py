@@ -25,7 +25,7 @@ canonical joints only, and works out from the skeleton itself:
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
@@ -34,7 +34,8 @@ import numpy as np
 from app.errors import ParseError
 from app.motion.kinematics import bone_lengths, forward_kinematics
 from app.motion.model import Motion
-from app.motion.skeleton_map import CANONICAL_INDEX, CANONICAL_JOINTS, map_skeleton
+from app.motion.skeleton_map import CANONICAL_INDEX, CANONICAL_JOINTS, SkeletonMap, map_skeleton
+from app.motion.transforms import reflect
 
 T = TypeVar("T")
 
@@ -45,6 +46,9 @@ _REST_MEAN_ANGLE_DEG = 5.0
 _MAX_BLEND_SECONDS = 0.1
 # ...and changes the pose this many times faster than the clip's median frame-to-frame change.
 _BLEND_SPEED_FACTOR = 2.0
+# Frames offered to the skeleton mapper when the rest pose is not a standing figure; the
+# first that shows a humanoid is used (a leg kicked high in one frame is not in the next).
+_POSE_FRAMES = 12
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,6 +74,11 @@ class Body:
         Naming convention of the source skeleton.
     lead_in_frames:
         Frames dropped from the start of the clip.
+    mapping:
+        How the source skeleton's joints became the canonical ones.
+    warnings:
+        Short sentences about what had to be decided or repaired (mirrored capture, derived
+        joints, parser repairs recorded in ``Motion.notes["warnings"]``).
     """
 
     positions: np.ndarray
@@ -80,6 +89,8 @@ class Body:
     world_up: np.ndarray
     skeleton_family: str
     lead_in_frames: int
+    mapping: SkeletonMap | None = None
+    warnings: tuple[str, ...] = ()
     _memo: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
     def memo(self, key: str, compute: Callable[[], T]) -> T:
@@ -115,7 +126,12 @@ def build_body(motion: Motion) -> Body:
     ParseError
         If the skeleton is degenerate (zero height, coincident hips) or no frame remains.
     """
-    mapping = map_skeleton(motion.skeleton)
+    mapping = map_skeleton(motion.skeleton, poses=_frame_poses(motion))
+    warnings = [str(w) for w in motion.notes.get("warnings", ())]  # type: ignore[attr-defined]
+    warnings.extend(mapping.warnings)
+    if mapping.mirrored:
+        # Left-handed geometry: describe the clip as it would be seen un-mirrored.
+        motion = reflect(motion, axis=mapping.mirror_axis)
     lead_in = count_lead_in_frames(motion)
     if lead_in:
         motion = motion.slice_frames(lead_in)
@@ -129,7 +145,7 @@ def build_body(motion: Motion) -> Body:
     if not np.all(np.isfinite(canon_pos)) or not np.all(np.isfinite(canon_rot)):
         raise ParseError("forward kinematics produced non-finite joint positions")
 
-    height = body_height(motion, mapping.joints)
+    height = body_height(motion, mapping.joints, head_joint=mapping.head_joint)
     if not height > 0:
         raise ParseError(
             "the skeleton has zero height (all bones between ankle and head are empty)"
@@ -144,11 +160,26 @@ def build_body(motion: Motion) -> Body:
         world_up=_world_up(frames),
         skeleton_family=mapping.family,
         lead_in_frames=lead_in,
+        mapping=mapping,
+        warnings=tuple(warnings),
     )
 
 
-def body_height(motion: Motion, canonical: np.ndarray) -> float:
-    """Leg plus trunk bone-path length in file units (see module docstring)."""
+def _frame_poses(motion: Motion) -> Iterator[tuple[str, np.ndarray]]:
+    """``(J, 3)`` world positions at a few frames, computed one at a time as the mapper asks,
+    for rigs whose rest pose is not a standing figure (joint orientation in rotations)."""
+    count = motion.frame_count
+    for f in sorted({round(i * (count - 1) / (_POSE_FRAMES - 1)) for i in range(_POSE_FRAMES)}):
+        _, positions = forward_kinematics(motion.slice_frames(f, f + 1))
+        yield f"frame {f}", positions[0]
+
+
+def body_height(motion: Motion, canonical: np.ndarray, *, head_joint: int = -1) -> float:
+    """Leg plus trunk bone-path length in file units (see module docstring).
+
+    The trunk ends at the head *joint* (``head_joint`` when given): an end effector beyond
+    it (the top of the head) does not count, so the height means the same with or without.
+    """
     lengths = bone_lengths(motion)
     parents = motion.skeleton.parents
 
@@ -158,6 +189,8 @@ def body_height(motion: Motion, canonical: np.ndarray) -> float:
             int(canonical[CANONICAL_INDEX[top]]),
             0.0,
         )
+        if bottom == "head" and head_joint >= 0:
+            j = head_joint
         while j != stop and j >= 0:
             total += float(lengths[j])
             j = int(parents[j])

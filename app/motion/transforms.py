@@ -115,29 +115,47 @@ def opposite_side_names(names: tuple[str, ...]) -> tuple[str, ...]:
     return tuple(out)
 
 
-def mirror(motion: Motion, *, lateral_axis: int = 0) -> Motion:
-    """Mirror the motion left-to-right.
+def reflect(motion: Motion, *, axis: int = 0) -> Motion:
+    """The motion seen in a mirror: world coordinate ``axis`` negated, names unchanged.
 
-    World coordinate ``lateral_axis`` is negated (a reflection ``M`` across a plane containing
-    the up axis), every rotation ``R`` becomes ``M R M`` and every offset ``M o``, and joint
-    names swap sides so the joint labelled left is again on the subject's left.
+    With ``M`` the reflection, every offset and translation becomes ``M o`` and every
+    rotation ``M R M``; positions from forward kinematics become ``M p``. Undoes a mirrored
+    capture (the limbs called left on the subject's right) without renaming anything.
     """
-    reflect = np.ones(3)
-    reflect[lateral_axis] = -1.0
-    m = np.diag(reflect)
+    flip = np.ones(3)
+    flip[axis] = -1.0
+    m = np.diag(flip)
     skeleton = motion.skeleton
-    mirrored = Skeleton(
-        names=opposite_side_names(skeleton.names),
+    reflected = Skeleton(
+        names=skeleton.names,
         parents=skeleton.parents,
-        offsets=skeleton.offsets * reflect,
+        offsets=skeleton.offsets * flip,
         end_site=skeleton.end_site,
     )
     return _replace(
         motion,
-        skeleton=mirrored,
-        root_translation=motion.root_translation * reflect,
+        skeleton=reflected,
+        root_translation=motion.root_translation * flip,
         local_rotations=m @ motion.local_rotations @ m,
         local_translations=None
         if motion.local_translations is None
-        else motion.local_translations * reflect,
+        else motion.local_translations * flip,
     )
+
+
+def mirror(motion: Motion, *, lateral_axis: int = 0) -> Motion:
+    """Mirror the motion left-to-right.
+
+    World coordinate ``lateral_axis`` is negated (a reflection ``M`` across a plane containing
+    the up axis, see :func:`reflect`), and joint names swap sides so the joint labelled left
+    is again on the subject's left.
+    """
+    reflected = reflect(motion, axis=lateral_axis)
+    skeleton = reflected.skeleton
+    renamed = Skeleton(
+        names=opposite_side_names(skeleton.names),
+        parents=skeleton.parents,
+        offsets=skeleton.offsets,
+        end_site=skeleton.end_site,
+    )
+    return _replace(reflected, skeleton=renamed)

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import gzip
 import io
-import itertools
 import json
 import random
 import re
@@ -123,7 +122,6 @@ def small_cases() -> list[Case]:
     def frame_time(value: str) -> str:
         return bvh.replace("Frame Time: .0083333", f"Frame Time: {value}")
 
-    counter = itertools.count()
     P, L, I = "parse_error", "limit_exceeded", "invalid_input"  # noqa: E741
     U = "unsupported_media_type"
     cases = [
@@ -302,14 +300,13 @@ def small_cases() -> list[Case]:
         ),
         Case(
             "unmappable",
-            "a valid file whose joints have no known names",
-            _bvh(
-                "anon.bvh",
-                re.sub(r"(JOINT|ROOT) (\w+)", lambda m: f"{m.group(1)} x{next(counter)}", bvh),
-            ),
+            # Joint names no longer decide (a rig called x0, x1... maps by its structure);
+            # a skeleton without any shape does.
+            "a valid file whose OFFSETs are all 0: no body shape to map",
+            _bvh("flat.bvh", re.sub(r"OFFSET[^\n]*", "OFFSET 0 0 0", bvh)),
             422,
             "unmappable_skeleton",
-            "",
+            "every OFFSET is 0",
         ),
         Case(
             "gzip_file",

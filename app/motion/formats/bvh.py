@@ -12,8 +12,10 @@ What the numbers mean
 * Position channels may sit on any joint. On the root they give ``Motion.root_translation``;
   elsewhere they give ``Motion.local_translations``. A position value *replaces* that
   component of the joint's ``OFFSET`` for that frame (checked on the Bandai files, whose
-  non-root position channels repeat their offsets); components without a channel keep the
-  offset.
+  non-root position channels repeat their offsets) unless the file's values are plainly
+  changes from the offsets (Blender/MakeHuman exports write values near 0 where offsets are
+  not; see ``_positions_are_deltas``), then they are added; components without a channel
+  keep the offset.
 * ``Frame Time`` is seconds per frame.
 * ``End Site`` blocks become joints named ``"<parent>_end"`` with ``end_site=True`` and
   identity rotation.
@@ -618,9 +620,11 @@ def _build_motion(joints: list[_Joint], values: np.ndarray, frame_time: float) -
     root_translation[:, axis_index[on_root]] = values[:, column_index[on_root]]
     if (~on_root).any():
         local_translations = np.repeat(offsets[None], frame_count, axis=0)
-        local_translations[:, joint_index[~on_root], axis_index[~on_root]] = values[
-            :, column_index[~on_root]
-        ]
+        channel_values = values[:, column_index[~on_root]]
+        rest = offsets[joint_index[~on_root], axis_index[~on_root]]
+        if _positions_are_deltas(channel_values, rest):
+            channel_values = channel_values + rest
+        local_translations[:, joint_index[~on_root], axis_index[~on_root]] = channel_values
         local_translations[:, 0] = root_translation
 
     skeleton = Skeleton(names=names, parents=parents, offsets=offsets, end_site=end_site)
@@ -633,6 +637,21 @@ def _build_motion(joints: list[_Joint], values: np.ndarray, frame_time: float) -
         source_format="bvh",
         length_unit="file units",
     )
+
+
+def _positions_are_deltas(values: np.ndarray, rest: np.ndarray) -> bool:
+    """Whether non-root position channels hold offsets from the rest ``OFFSET`` rather than
+    the offset itself.
+
+    Exporters disagree: Bandai's and most mocap tools' non-root position channels repeat
+    the OFFSET (the value replaces it), Blender-based ones (MakeHuman) write the change from
+    it (values near 0 where the OFFSET is not). ``values`` is ``(F, K)`` for the K non-root
+    position channels, ``rest`` ``(K,)`` their OFFSET components; whichever reading is nearer
+    the numbers wins, ties (all offsets 0) reading values as replacements.
+    """
+    replace_error = float(np.abs(values - rest).mean())
+    delta_error = float(np.abs(values).mean())
+    return delta_error < 0.5 * replace_error
 
 
 def _unique_names(joints: list[_Joint]) -> tuple[str, ...]:
