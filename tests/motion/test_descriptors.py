@@ -207,10 +207,11 @@ def test_every_clip_of_one_skeleton_has_the_same_body_axes():
     """The pelvis frame's basis is one per skeleton: two different clips of the CMU subject
     differ in pelvis rotation only."""
     from app.motion.body import rest_pelvis_basis
-    from app.motion.skeleton_map import map_skeleton
 
     for _name, motion in _fixture_motions():
-        canonical = map_skeleton(motion.skeleton).joints
+        mapping = build_body(motion).mapping
+        assert mapping is not None
+        canonical = mapping.joints
         first = rest_pelvis_basis(motion.slice_frames(0, 10), canonical)
         last = rest_pelvis_basis(motion.slice_frames(20), canonical)
         assert np.allclose(first, last, atol=1e-12)
