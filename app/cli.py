@@ -308,7 +308,7 @@ def _import(args: argparse.Namespace, settings: Settings) -> int:
             paired = f" (skeleton {clip.skeleton})" if clip.skeleton else ""
             print(f"imported  {clip.path} as clip {clip.clip_id}{paired}")
         for dup in report.duplicates:
-            news = "; labels added" if dup.updated else ""
+            news = "; given new labels, source or licence" if dup.updated else ""
             print(
                 f"duplicate {dup.path}: same content as clip {dup.clip_id} {dup.clip_name!r}{news}"
             )
@@ -319,10 +319,11 @@ def _import(args: argparse.Namespace, settings: Settings) -> int:
         for failure in sorted(report.failed, key=lambda f: str(f.path)):
             print(f"  {failure.path}: {failure.reason}")
     rate = report.done / report.seconds if report.seconds else 0.0
+    updated = sum(d.updated for d in report.duplicates)
     print(
         f"{'interrupted: ' if report.interrupted else ''}"
-        f"imported {len(report.imported)}, skipped {len(report.duplicates)} as duplicates "
-        f"({sum(d.updated for d in report.duplicates)} of them given new labels), "
+        f"imported {len(report.imported)}, skipped {len(report.duplicates)} as duplicates"
+        f"{f' ({updated} given new labels, source or licence)' if updated else ''}, "
         f"failed {len(report.failed)} of {report.found} clips found, in {report.seconds:.2f} s "
         f"({rate:.0f} clips/s, {report.workers} worker{'s' if report.workers != 1 else ''})"
     )
