@@ -168,6 +168,7 @@ class SearchHit(BaseModel):
     labels: list[str]
     format: str = Field(description='"bvh", "asf/amc" (or "synthetic"): same-named clips differ.')
     filenames: list[str] = Field(description="Original file names.")
+    skeleton_family: str = Field(description="Naming convention the skeleton was matched as.")
     distance: float = Field(description="Euclidean distance between the descriptor vectors.")
 
     @classmethod
@@ -179,6 +180,7 @@ class SearchHit(BaseModel):
             labels=list(clip.labels),
             format=clip.format,
             filenames=list(clip.filenames),
+            skeleton_family=clip.skeleton_family,
             distance=hit.distance,
         )
 
@@ -190,6 +192,7 @@ _HITS_EXAMPLE: list[Any] = [
         "labels": ["walk"],
         "format": "bvh",
         "filenames": ["dataset-1_walk_sad_001.bvh"],
+        "skeleton_family": "bandai",
         "distance": 0.0123,
     },
     {
@@ -198,6 +201,7 @@ _HITS_EXAMPLE: list[Any] = [
         "labels": ["walk"],
         "format": "bvh",
         "filenames": ["dataset-1_walk_proud_001.bvh"],
+        "skeleton_family": "bandai",
         "distance": 0.0201,
     },
 ]

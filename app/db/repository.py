@@ -609,6 +609,7 @@ class ClipName:
     labels: tuple[str, ...]
     format: str = ""
     filenames: tuple[str, ...] = ()
+    skeleton_family: str = ""
 
 
 class SearchSnapshot(Protocol):
@@ -682,15 +683,16 @@ class _SqliteSnapshot:
 
     def names(self, clip_ids: Sequence[int]) -> dict[int, ClipName]:
         ids = [int(i) for i in clip_ids]
-        names: dict[int, tuple[str, str]] = {}
+        names: dict[int, tuple[str, str, str]] = {}
         labels: dict[int, list[str]] = {}
         files: dict[int, list[str]] = {}
         for chunk in _chunks(ids):
             marks = ",".join("?" * len(chunk))
             names.update(
-                (i, (name, fmt))
-                for i, name, fmt in self._db.execute(
-                    f"SELECT id, name, format FROM clips WHERE id IN ({marks})", chunk
+                (i, (name, fmt, family))
+                for i, name, fmt, family in self._db.execute(
+                    f"SELECT id, name, format, skeleton_family FROM clips WHERE id IN ({marks})",
+                    chunk,
                 )
             )
             for clip_id, _, filename in sorted(
@@ -710,8 +712,8 @@ class _SqliteSnapshot:
             ):
                 labels.setdefault(clip_id, []).append(label)
         return {
-            i: ClipName(i, name, tuple(labels.get(i, ())), fmt, tuple(files.get(i, ())))
-            for i, (name, fmt) in names.items()
+            i: ClipName(i, name, tuple(labels.get(i, ())), fmt, tuple(files.get(i, ())), family)
+            for i, (name, fmt, family) in names.items()
         }
 
     def clip_ids_with_label(self, label: LabelFilter) -> np.ndarray:
@@ -737,7 +739,9 @@ class _CoreSnapshot:
 
     def names(self, clip_ids: Sequence[int]) -> dict[int, ClipName]:
         return {
-            i: ClipName(i, clip.name, clip.labels, clip.format, tuple(clip.filenames))
+            i: ClipName(
+                i, clip.name, clip.labels, clip.format, tuple(clip.filenames), clip.skeleton_family
+            )
             for i, clip in get_clips(self._db, clip_ids).items()
         }
 
