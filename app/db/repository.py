@@ -19,8 +19,8 @@ from datetime import UTC, datetime
 from typing import Any, Protocol
 
 import numpy as np
-from sqlalchemy import Connection, Engine, Select, delete, func, insert, select
-from sqlalchemy.orm import Session, selectinload
+from sqlalchemy import Connection, Engine, Select, delete, exists, func, insert, select
+from sqlalchemy.orm import Session, aliased, selectinload
 
 from app.db.models import Clip, ClipDescriptor, ClipFile, ClipLabel
 from app.labels import label_filter, label_key
@@ -116,12 +116,50 @@ LabelFilter = str | Sequence[str] | None
 the labels (any case); ``None``, ``""`` or ``[]`` = no filter."""
 
 
-def _label_conditions(labels: LabelFilter) -> list[Any]:
-    """One ``Clip.id IN (...)`` condition per label asked for (each an index range scan)."""
-    return [
-        Clip.id.in_(select(ClipLabel.clip_id).where(ClipLabel.label_key == label_key(label)))
-        for label in label_filter(labels)
-    ]
+# Rows counted per label when choosing which label drives an all-of filter: enough to tell a
+# rare label from a common one, cheap (an index range) even when millions carry it.
+_COUNT_CAP = 10_000
+
+
+def _label_keys(executor: Executor | sqlite3.Connection, labels: LabelFilter) -> list[str]:
+    """The keys of the labels asked for, the rarest first (each counted up to _COUNT_CAP)."""
+    keys = list(dict.fromkeys(label_key(label) for label in label_filter(labels)))
+    if len(keys) < 2:
+        return keys
+    sql = "SELECT count(*) FROM (SELECT 1 FROM clip_labels WHERE label_key = ? LIMIT ?)"
+    if isinstance(executor, sqlite3.Connection):
+        counts = {k: executor.execute(sql, (k, _COUNT_CAP)).fetchone()[0] for k in keys}
+    else:
+        counts = {
+            k: executor.scalar(
+                select(func.count()).select_from(
+                    select(ClipLabel.clip_id)
+                    .where(ClipLabel.label_key == k)
+                    .limit(_COUNT_CAP)
+                    .subquery()
+                )
+            )
+            for k in keys
+        }
+    return sorted(keys, key=lambda k: counts[k])
+
+
+def _labelled_ids(keys: Sequence[str]) -> Select[Any]:
+    """Ids of the clips carrying every key: the rarest key's index range, each row checked
+    against the others' (label_key, clip_id) index, never a scan of a common label."""
+    query = select(ClipLabel.clip_id).where(ClipLabel.label_key == keys[0])
+    for key in keys[1:]:
+        other = aliased(ClipLabel)
+        query = query.where(
+            exists().where(other.clip_id == ClipLabel.clip_id, other.label_key == key)
+        )
+    return query
+
+
+def _label_conditions(executor: Executor, labels: LabelFilter) -> list[Any]:
+    """``[Clip.id IN (ids carrying every label)]``, or ``[]`` for no filter."""
+    keys = _label_keys(executor, labels)
+    return [Clip.id.in_(_labelled_ids(keys))] if keys else []
 
 
 def _chunks(values: Sequence[Any], size: int = IN_CHUNK) -> Iterable[Sequence[Any]]:
@@ -236,7 +274,7 @@ def list_clips(
 ) -> tuple[list[ClipRecord], int]:
     """One page of clips in id order (those carrying every label of ``label``), and how many
     match in total."""
-    conditions = _label_conditions(label)
+    conditions = _label_conditions(session, label)
     query = _clip_rows().where(*conditions).order_by(Clip.id)
     count = select(func.count()).select_from(Clip).where(*conditions)
     total = session.scalar(count) or 0
@@ -382,7 +420,9 @@ def clip_ids_with_labels(session: Executor, labels: LabelFilter) -> list[int]:
     """Ids (ascending) of the clips carrying every label of ``labels``; every clip when the
     filter is empty."""
     return list(
-        session.scalars(select(Clip.id).where(*_label_conditions(labels)).order_by(Clip.id))
+        session.scalars(
+            select(Clip.id).where(*_label_conditions(session, labels)).order_by(Clip.id)
+        )
     )
 
 
@@ -408,21 +448,11 @@ def referenced_blobs(session: Session, shas: Iterable[str]) -> set[str]:
 
 def clip_ids_with_label(session: Executor, label: LabelFilter) -> np.ndarray:
     """``(N,)`` int64 ids of the clips carrying every label of ``label`` (any case)."""
-    keys = [label_key(text) for text in label_filter(label)]
-    return _intersect(
-        np.fromiter(
-            session.scalars(select(ClipLabel.clip_id).where(ClipLabel.label_key == key)),
-            dtype=np.int64,
-        )
-        for key in keys
-    )
-
-
-def _intersect(id_sets: Iterable[np.ndarray]) -> np.ndarray:
-    result: np.ndarray | None = None
-    for ids in id_sets:
-        result = ids if result is None else np.intersect1d(result, ids, assume_unique=True)
-    return np.zeros(0, dtype=np.int64) if result is None else result
+    keys = _label_keys(session, label)
+    if not keys:
+        return np.zeros(0, dtype=np.int64)
+    query = _labelled_ids(keys).order_by(ClipLabel.clip_id)
+    return np.fromiter(session.scalars(query), dtype=np.int64)
 
 
 # -- vectors ------------------------------------------------------------------------------
@@ -717,11 +747,16 @@ class _SqliteSnapshot:
         }
 
     def clip_ids_with_label(self, label: LabelFilter) -> np.ndarray:
-        query = "SELECT clip_id FROM clip_labels WHERE label_key = ? ORDER BY clip_id"
-        return _intersect(
-            np.fromiter((r[0] for r in self._db.execute(query, (label_key(text),))), np.int64)
-            for text in label_filter(label)
+        keys = _label_keys(self._db, label)
+        if not keys:
+            return np.zeros(0, dtype=np.int64)
+        query = "SELECT l.clip_id FROM clip_labels l WHERE l.label_key = ?" + "".join(
+            " AND EXISTS (SELECT 1 FROM clip_labels o WHERE o.clip_id = l.clip_id "
+            "AND o.label_key = ?)"
+            for _ in keys[1:]
         )
+        rows = self._db.execute(query + " ORDER BY l.clip_id", keys)
+        return np.fromiter((r[0] for r in rows), dtype=np.int64)
 
 
 class _CoreSnapshot:
@@ -845,7 +880,7 @@ def find_clip_ids(
 ) -> tuple[list[int], int]:
     """One page (id order) of the ids of clips whose name contains ``name_contains``
     (case-insensitive) and that carry every label of ``label``; and how many match in total."""
-    conditions = _label_conditions(label)
+    conditions = _label_conditions(session, label)
     if name_contains:
         pattern = _contains_pattern(name_contains.lower())
         conditions.append(func.lower(Clip.name).like(pattern, escape="\\"))
