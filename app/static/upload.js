@@ -251,7 +251,7 @@ export async function renderUpload(main) {
       const { status, body } = await postForm("/clips", null, clipForm(item, labels), {
         onProgress: (fraction) => row.progress(fraction),
       });
-      row.succeed(body, status === 201);
+      row.succeed(body, status === 201, labels.length > 0);
       totals.done += 1;
     } catch (error) {
       row.fail(error.detail || error.message, error.code);
@@ -288,11 +288,13 @@ function uploadRow(item) {
       bar.value = fraction;
       set("uploading", fraction < 1 ? `uploading… ${Math.round(fraction * 100)} %` : "reading and describing…");
     },
-    succeed(clip, created) {
+    succeed(clip, created, labelled) {
       bar.value = 1;
       set("done", "");
       message.append(
-        created ? `stored as clip #${clip.id} ` : `already in the library as clip #${clip.id} `,
+        created
+          ? `stored as clip #${clip.id} `
+          : `already in the library as clip #${clip.id}${labelled ? ", labels added" : ""} `,
         el("a", { href: `#/clips/${clip.id}` }, "open"),
         " · ",
         el("a", { href: `#/search?clip=${clip.id}` }, "find similar"),
