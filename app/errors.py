@@ -86,6 +86,17 @@ class NotFound(MocapError):
     code = "not_found"
 
 
+class NoStoredFile(NotFound):
+    """A clip without uploaded files (a synthetic benchmark clip): nothing to download or draw."""
+
+    code = "no_stored_file"
+
+    def __init__(self, clip_id: int, kind: str) -> None:
+        super().__init__(
+            f"clip {clip_id} is a {kind} clip: it has no stored file to download or preview"
+        )
+
+
 class Unauthorized(MocapError):
     code = "unauthorized"
 

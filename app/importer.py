@@ -40,7 +40,7 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
@@ -49,11 +49,17 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from app.discovery import ClipSource, discover
-from app.errors import MocapError
-from app.labels import compile_label_regex, labels_from_regex, labels_from_tsv
+from app.errors import InvalidInput, MocapError
+from app.labels import (
+    choose_label_columns,
+    compile_label_regex,
+    labels_from_regex,
+    labels_from_tsv,
+    normalise_labels,
+)
 from app.motion.model import ParseLimits
 from app.services.describe import Description, MotionDescriber
-from app.services.uploads import Upload, normalise_labels
+from app.services.uploads import Upload
 
 if TYPE_CHECKING:
     from app.config import Settings
@@ -83,6 +89,7 @@ class Duplicate:
     path: Path
     clip_id: int
     clip_name: str
+    updated: bool = False  # the import gave the stored clip new labels (or source, licence)
 
 
 @dataclass(frozen=True)
@@ -118,6 +125,9 @@ class ImportReport:
 
 # ------------------------------------------------------------------------------- labels
 
+# TSV columns that say where a clip comes from and how it may be used: not labels.
+NOTE_COLUMNS = {"source": "source", "licence": "licence", "license": "licence"}
+
 
 @dataclass(frozen=True)
 class LabelRules:
@@ -127,21 +137,50 @@ class LabelRules:
     relative to the folder given (``kind`` = group name); ``fixed``: labels every clip gets.
     A clip is stored with the values (kinds are not stored), TSV first, then the regex's
     groups, then ``fixed``; repeated values are kept once.
+
+    The TSV columns named ``source`` and ``licence`` (or ``license``) are not labels: they
+    give the clip's source and licence (``notes``). Of the other columns, ``columns`` chooses
+    the label columns; by default those not holding free text
+    (:func:`app.labels.choose_label_columns`); ``left_out`` names the others.
     """
 
     tsv: dict[str, dict[str, str]] | None = None
     regex: re.Pattern[str] | None = None
     fixed: tuple[str, ...] = ()
+    notes: dict[str, dict[str, str]] = field(default_factory=dict)
+    left_out: tuple[str, ...] = ()
 
     @classmethod
     def build(
-        cls, *, tsv: Path | None = None, regex: str | None = None, fixed: Sequence[str] = ()
+        cls,
+        *,
+        tsv: Path | None = None,
+        regex: str | None = None,
+        fixed: Sequence[str] = (),
+        columns: Sequence[str] | None = None,
     ) -> LabelRules:
         """Read the TSV and compile the regex (:class:`InvalidInput` when unusable)."""
+        table: dict[str, dict[str, str]] | None = None
+        notes: dict[str, dict[str, str]] = {}
+        left_out: tuple[str, ...] = ()
+        if tsv is not None:
+            rows = labels_from_tsv(tsv)
+            notes = {
+                key: {NOTE_COLUMNS[k]: v for k, v in row.items() if k in NOTE_COLUMNS}
+                for key, row in rows.items()
+            }
+            tags = {
+                k: {c: v for c, v in r.items() if c not in NOTE_COLUMNS} for k, r in rows.items()
+            }
+            table, left_out = choose_label_columns(tags, columns)
+        elif columns is not None:
+            raise InvalidInput("--label-columns chooses columns of --labels-tsv; give that too")
         return cls(
-            tsv=labels_from_tsv(tsv) if tsv is not None else None,
+            tsv=table,
             regex=compile_label_regex(regex) if regex is not None else None,
             fixed=normalise_labels(fixed),
+            notes=notes,
+            left_out=left_out,
         )
 
     def labels(self, source: ClipSource) -> list[str]:
@@ -159,16 +198,23 @@ TaskClip = tuple[int, str, tuple[str, ...]]  # (item number, kind, paths: bvh | 
 Outcome = tuple[str, Any, Any]  # ("ok", Description, part sha256s) | ("error", reason, None)
 
 
-def read_upload(source: ClipSource, labels: Sequence[str] = ()) -> Upload:
-    """The clip's files as an :class:`Upload` (what ``POST /clips`` would receive)."""
-    if source.skeleton is None:
-        return Upload.from_files(
-            file=(source.motion.name, source.motion.read_bytes()), labels=labels
-        )
+def read_upload(
+    source: ClipSource, labels: Sequence[str] = (), notes: Mapping[str, str] | None = None
+) -> Upload:
+    """The clip's files as an :class:`Upload` (what ``POST /clips`` would receive);
+    ``notes`` may give its ``source`` and ``licence``."""
+    notes = notes or {}
+    motion = (source.motion.name, source.motion.read_bytes())
+    skeleton = (
+        None if source.skeleton is None else (source.skeleton.name, source.skeleton.read_bytes())
+    )
     return Upload.from_files(
-        skeleton=(source.skeleton.name, source.skeleton.read_bytes()),
-        motion=(source.motion.name, source.motion.read_bytes()),
+        file=motion if skeleton is None else None,
+        skeleton=skeleton,
+        motion=None if skeleton is None else motion,
         labels=labels,
+        source=notes.get("source"),
+        licence=notes.get("licence"),
     )
 
 
@@ -336,6 +382,7 @@ class _Item:
     number: int
     source: ClipSource
     labels: list[str]
+    notes: dict[str, str] = field(default_factory=dict)  # source, licence
     upload: Upload | None = None  # read by the main process (for hashing and storing)
     shas: tuple[str, ...] | None = None  # sha256 of each file as the worker read it
     retried: bool = False
@@ -386,7 +433,8 @@ def run_import(
     report = ImportReport(found=len(found.sources) + len(found.failures))
     report.failed.extend(Failed(f.path, f.reason) for f in found.failures)
     items = deque(
-        _Item(number, source, rules.labels(source)) for number, source in enumerate(found.sources)
+        _Item(number, source, rules.labels(source), rules.notes.get(source.name, {}))
+        for number, source in enumerate(found.sources)
     )
     size = max(1, min(workers or default_workers(settings), len(items)))
     report.workers = size if items else 0
@@ -466,7 +514,7 @@ class _Run:
     def upload_of(self, item: _Item) -> Upload | None:
         if item.upload is None:
             try:
-                item.upload = read_upload(item.source, item.labels)
+                item.upload = read_upload(item.source, item.labels, item.notes)
             except MocapError as error:
                 self.fail(item, error.detail)
             except OSError as error:
@@ -583,7 +631,9 @@ class _Run:
                     )
                 else:
                     self.report.duplicates.append(
-                        Duplicate(item.source.motion, result.clip.id, result.clip.name)
+                        Duplicate(
+                            item.source.motion, result.clip.id, result.clip.name, result.changed
+                        )
                     )
         self.progress(self.report)
 

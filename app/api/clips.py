@@ -6,15 +6,25 @@ from typing import Annotated, Literal
 from urllib.parse import quote
 
 from fastapi import APIRouter, Query, Response, status
+from pydantic import BaseModel, Field
 
 from app.api.auth import WriteAccess
-from app.api.deps import ClipDep, LibraryDep, SettingsDep, UploadDep
+from app.api.deps import (
+    LABEL_FILTER_DOC,
+    ClipDep,
+    LabelQuery,
+    LibraryDep,
+    SettingsDep,
+    UploadDep,
+)
 from app.api.errors import error_responses
 from app.api.schemas import ClipOut, ClipPage, ClipUpdate
+from app.config import Settings
 from app.errors import InvalidInput
+from app.labels import label_filter, normalise_labels
 from app.services import clips as clip_service
 from app.services.ingest import ingest
-from app.services.uploads import normalise_labels, normalise_name
+from app.services.uploads import normalise_name, normalise_note
 
 router = APIRouter(prefix="/clips", tags=["clips"])
 
@@ -25,20 +35,29 @@ router = APIRouter(prefix="/clips", tags=["clips"])
     summary="Upload a clip",
     dependencies=[WriteAccess],
     responses={
-        200: {"model": ClipOut, "description": "The same content was already stored: that clip."},
+        200: {
+            "model": ClipOut,
+            "description": "The same content was already stored: that clip, as stored now "
+            '(what the upload brought applied), with `"duplicate": true`.',
+        },
         **error_responses(400, 401, 403, 413, 415, 422, 503),
     },
 )
 def create_clip(upload: UploadDep, library: LibraryDep, response: Response) -> ClipOut:
     """Store a clip: one BVH file as `file`, or an ASF skeleton as `skeleton` with an AMC
-    motion as `motion`. The clip is parsed and described under every descriptor before
-    anything is stored; uploading identical bytes again returns the stored clip (200)."""
+    motion as `motion`, with optional `name`, `labels`, `source` and `licence`. The clip is
+    parsed and described under every descriptor before anything is stored.
+
+    Uploading identical bytes again stores nothing new: the answer is 200 with the stored
+    clip and `"duplicate": true`, after applying what the upload brings — its labels are
+    added to the clip's (case-insensitively), a given `name`, `source` or `licence` replaces
+    the stored one."""
     result = ingest(library, upload)
     if result.created:
         response.headers["Location"] = f"/clips/{result.clip.id}"
-    else:
-        response.status_code = status.HTTP_200_OK
-    return ClipOut.of(result.clip)
+        return ClipOut.of(result.clip)
+    response.status_code = status.HTTP_200_OK
+    return ClipOut.of(result.clip, duplicate=True)
 
 
 @router.get("", summary="List clips", responses=error_responses(422, 503))
@@ -46,14 +65,11 @@ def list_clips(
     library: LibraryDep,
     settings: SettingsDep,
     limit: Annotated[int, Query(description="Page size, 1 to MOCAP_MAX_PAGE_SIZE.")] = 50,
-    offset: Annotated[int, Query(description="Clips to skip.")] = 0,
-    label: Annotated[str | None, Query(description="Only clips carrying this label.")] = None,
+    offset: Annotated[int, Query(description="Clips to skip (≥ 0).")] = 0,
+    label: LabelQuery = None,
 ) -> ClipPage:
     """Clips in id order, a page at a time, with the total count."""
-    if not 1 <= limit <= settings.max_page_size:
-        raise InvalidInput(f"limit: must be between 1 and {settings.max_page_size}, got {limit}")
-    if not 0 <= offset <= clip_service.MAX_ID:
-        raise InvalidInput(f"offset: must be between 0 and {clip_service.MAX_ID}, got {offset}")
+    check_page(settings, limit, offset)
     items, total = clip_service.list_clips(library, label=label, limit=limit, offset=offset)
     return ClipPage(total=total, limit=limit, offset=offset, items=[ClipOut.of(c) for c in items])
 
@@ -112,12 +128,20 @@ def download_clip(
     responses=error_responses(400, 401, 403, 404, 422, 503),
 )
 def update_clip(clip: ClipDep, changes: ClipUpdate, library: LibraryDep) -> ClipOut:
-    """Change the name and/or replace the labels; fields left out keep their value."""
+    """Change the name, replace the labels, set or clear `source` and `licence`; fields left
+    out keep their value."""
     name = normalise_name(changes.name) if changes.name is not None else None
     if changes.name is not None and name is None:
         raise InvalidInput("name: must not be blank")
     labels = normalise_labels(changes.labels) if changes.labels is not None else None
-    return ClipOut.of(clip_service.update_clip(library, clip.id, name=name, labels=labels))
+    notes: dict[str, str | None] = {
+        key: normalise_note(key, getattr(changes, key))
+        for key in ("source", "licence")
+        if key in changes.model_fields_set
+    }
+    return ClipOut.of(
+        clip_service.update_clip(library, clip.id, name=name, labels=labels, notes=notes)
+    )
 
 
 @router.delete(
@@ -132,6 +156,55 @@ def delete_clip(clip: ClipDep, library: LibraryDep) -> Response:
     """Remove the clip, its vectors from every index and its stored files."""
     clip_service.delete_clip(library, clip.id)
     return Response(status_code=status.HTTP_204_NO_CONTENT)
+
+
+class DeletedClips(BaseModel):
+    deleted: int = Field(description="How many clips were deleted.")
+    labels: list[str] = Field(description="The labels the deleted clips carried (all of them).")
+
+
+@router.delete(
+    "",
+    summary="Delete every clip carrying a label",
+    dependencies=[WriteAccess],
+    responses=error_responses(401, 403, 422, 503),
+)
+def delete_clips(
+    library: LibraryDep,
+    label: Annotated[
+        list[str] | None,
+        Query(
+            description="The clips to delete: those carrying this label (required). "
+            + LABEL_FILTER_DOC.split(". ", 1)[1]
+        ),
+    ] = None,
+    confirm: Annotated[
+        bool,
+        Query(description="Must be `true`; without it nothing is deleted (422 with the count)."),
+    ] = False,
+) -> DeletedClips:
+    """Delete, in one transaction, every clip carrying all the labels given (e.g. the
+    `synthetic` clips `mocap-index fill-synthetic` added), with their vectors and stored files.
+    Without `confirm=true` nothing is deleted and the answer (422) says how many would be."""
+    labels = label_filter(label)
+    if not confirm:
+        count = len(clip_service.clips_with_labels(library, labels))
+        raise InvalidInput(
+            f"confirm: this would delete {count} clip{'s' if count != 1 else ''} labelled "
+            f"{', '.join(labels)}; add confirm=true to delete them"
+        )
+    deleted = clip_service.delete_clips_with(library, labels)
+    return DeletedClips(deleted=deleted, labels=list(labels))
+
+
+def check_page(settings: Settings, limit: int, offset: int) -> None:
+    """422 for a page size outside 1..MOCAP_MAX_PAGE_SIZE or a negative offset."""
+    if not 1 <= limit <= settings.max_page_size:
+        raise InvalidInput(f"limit: must be between 1 and {settings.max_page_size}, got {limit}")
+    if offset < 0:
+        raise InvalidInput(f"offset: must be ≥ 0, got {offset}")
+    if offset > clip_service.MAX_ID:
+        raise InvalidInput(f"offset: must be at most {clip_service.MAX_ID}, got {offset}")
 
 
 # Characters kept in the plain-ASCII ``filename=`` fallback; anything else (quotes,

@@ -62,7 +62,18 @@ def read_upload(
     ] = None,
     labels: Annotated[
         list[str] | None,
-        Form(description="Free-form tags: repeat the field and/or separate them with commas."),
+        Form(
+            description="Free-form tags: repeat the field and/or separate them with commas. "
+            "Trimmed; compared case-insensitively (the first spelling is kept)."
+        ),
+    ] = None,
+    source: Annotated[
+        str | None,
+        Form(description="Where the clip comes from (a URL, a dataset, a person); optional."),
+    ] = None,
+    licence: Annotated[
+        str | None,
+        Form(description="Under which terms it may be used, e.g. `CC BY 4.0`; optional."),
     ] = None,
 ) -> Upload:
     content_type = request.headers.get("content-type", "")
@@ -71,7 +82,13 @@ def read_upload(
             f"send the files as multipart/form-data (got {content_type or 'no content type'!r})"
         )
     return Upload.from_files(
-        file=_read(file), skeleton=_read(skeleton), motion=_read(motion), name=name, labels=labels
+        file=_read(file),
+        skeleton=_read(skeleton),
+        motion=_read(motion),
+        name=name,
+        labels=labels,
+        source=source,
+        licence=licence,
     )
 
 
@@ -103,6 +120,11 @@ KQuery = Annotated[
     int,
     Query(description="How many neighbours, 1 to MOCAP_MAX_K (default 1000).", examples=[10]),
 ]
+LABEL_FILTER_DOC = (
+    "Only clips carrying this label. Repeat `label` or separate labels with commas "
+    "(`label=walk&label=happy` = `label=walk,happy`) for clips carrying all of them; labels "
+    "are compared case-insensitively; an empty value is no filter."
+)
 LabelQuery = Annotated[
-    str | None, Query(description="Only clips carrying this label.", examples=["walk"])
+    list[str] | None, Query(description=LABEL_FILTER_DOC, examples=[["walk", "happy"]])
 ]

@@ -29,12 +29,19 @@ def list_descriptors(library: LibraryDep) -> DescriptorList:
     "/health", summary="Liveness, clip count and index sizes", responses=error_responses(503)
 )
 def health(library: LibraryDep) -> Health:
-    """The service is up and its database answers; how many clips and indexed vectors."""
-    clips = library.clip_count()
+    """The service is up and its database answers; how many clips and indexed vectors.
+
+    The indexes first take in clips another process (`mocap-index import`) stored, as a
+    search does; `missing` counts the clips without a current vector in the database, which
+    no search can find until `mocap-index reindex`."""
+    library.refresh()
+    clips, stored = library.vector_counts()
     indexes = {}
     for name, info in library.descriptors.items():
-        size = library.indexes[name].size
         indexes[name] = IndexHealth(
-            size=size, dimension=info.dimension, version=info.version, missing=max(clips - size, 0)
+            size=library.indexes[name].size,
+            dimension=info.dimension,
+            version=info.version,
+            missing=max(clips - stored[name], 0),
         )
     return Health(status="ok", clips=clips, indexes=indexes)

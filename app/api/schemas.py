@@ -24,6 +24,8 @@ _CLIP_EXAMPLE: dict[str, Any] = {
     "skeleton_family": "bandai",
     "lead_in_frames": 0,
     "labels": ["walk", "happy"],
+    "source": "Bandai Namco Research Motiondataset",
+    "licence": "CC BY-NC-ND 4.0",
     "created_at": "2026-11-22T10:15:00Z",
 }
 
@@ -47,7 +49,13 @@ class ClipFields(BaseModel):
     lead_in_frames: int = Field(
         description="Rest-pose frames at the start left out of the descriptors."
     )
-    labels: list[str] = Field(description="Free-form tags.")
+    labels: list[str] = Field(
+        description="Free-form tags, each once whatever its case (the first spelling is kept)."
+    )
+    source: str | None = Field(default=None, description="Where the clip comes from, if given.")
+    licence: str | None = Field(
+        default=None, description="Under which terms the clip may be used, if given."
+    )
 
 
 class DescriptorVector(BaseModel):
@@ -67,13 +75,26 @@ class ClipOut(ClipFields):
         exclude_if=lambda value: value is None,
         description="Every stored descriptor vector by name; only with `?include=descriptors`.",
     )
+    duplicate: bool | None = Field(
+        default=None,
+        exclude_if=lambda value: value is None,
+        description="Only in the answer to an upload: true when the content was already stored "
+        "(status 200; the labels, name, source and licence sent were applied to that clip).",
+    )
 
     @classmethod
-    def of(cls, clip: ClipRecord, vectors: dict[str, StoredVector] | None = None) -> ClipOut:
+    def of(
+        cls,
+        clip: ClipRecord,
+        vectors: dict[str, StoredVector] | None = None,
+        *,
+        duplicate: bool | None = None,
+    ) -> ClipOut:
         return cls(
             **_clip_fields(clip),
             id=clip.id,
             created_at=clip.created_at,
+            duplicate=duplicate,
             descriptors=None
             if vectors is None
             else {
@@ -105,6 +126,8 @@ def _clip_fields(clip: ClipRecord | NewClip) -> dict[str, Any]:
         "skeleton_family": clip.skeleton_family,
         "lead_in_frames": clip.lead_in_frames,
         "labels": list(clip.labels),
+        "source": clip.source,
+        "licence": clip.licence,
     }
 
 
@@ -126,25 +149,61 @@ class ClipUpdate(BaseModel):
     )
 
     name: str | None = Field(default=None, min_length=1, max_length=255)
-    labels: list[str] | None = Field(default=None, description="Replaces every label.")
+    labels: list[str] | None = Field(
+        default=None,
+        description="Replaces every label (split on commas, trimmed, case-insensitive "
+        "duplicates dropped).",
+    )
+    source: str | None = Field(
+        default=None, max_length=500, description="Where the clip comes from; null or '' clears."
+    )
+    licence: str | None = Field(
+        default=None, max_length=500, description="Terms of use; null or '' clears."
+    )
 
 
 class SearchHit(BaseModel):
     id: int
     name: str
     labels: list[str]
+    format: str = Field(description='"bvh", "asf/amc" (or "synthetic"): same-named clips differ.')
+    filenames: list[str] = Field(description="Original file names.")
+    skeleton_family: str = Field(description="Naming convention the skeleton was matched as.")
     distance: float = Field(description="Euclidean distance between the descriptor vectors.")
 
     @classmethod
     def of(cls, hit: Hit) -> SearchHit:
+        clip = hit.clip
         return cls(
-            id=hit.clip.id, name=hit.clip.name, labels=list(hit.clip.labels), distance=hit.distance
+            id=clip.id,
+            name=clip.name,
+            labels=list(clip.labels),
+            format=clip.format,
+            filenames=list(clip.filenames),
+            skeleton_family=clip.skeleton_family,
+            distance=hit.distance,
         )
 
 
 _HITS_EXAMPLE: list[Any] = [
-    {"id": 12, "name": "dataset-1_walk_sad_001", "labels": ["walk"], "distance": 0.0123},
-    {"id": 31, "name": "dataset-1_walk_proud_001", "labels": ["walk"], "distance": 0.0201},
+    {
+        "id": 12,
+        "name": "dataset-1_walk_sad_001",
+        "labels": ["walk"],
+        "format": "bvh",
+        "filenames": ["dataset-1_walk_sad_001.bvh"],
+        "skeleton_family": "bandai",
+        "distance": 0.0123,
+    },
+    {
+        "id": 31,
+        "name": "dataset-1_walk_proud_001",
+        "labels": ["walk"],
+        "format": "bvh",
+        "filenames": ["dataset-1_walk_proud_001.bvh"],
+        "skeleton_family": "bandai",
+        "distance": 0.0201,
+    },
 ]
 
 
@@ -230,11 +289,15 @@ class DescriptorList(BaseModel):
 
 
 class IndexHealth(BaseModel):
-    size: int = Field(description="Vectors in the index.")
+    size: int = Field(
+        description="Vectors in this server's index, brought up to date with the database "
+        "(clips another process stored included) when /health is asked."
+    )
     dimension: int
     version: int
     missing: int = Field(
-        description="Clips without a vector of this version (found after `mocap-index reindex`)."
+        description="Clips with no vector of this version in the database: no search with this "
+        "descriptor finds them until `mocap-index reindex` computes it."
     )
 
 

@@ -23,6 +23,7 @@ from app.api.schemas import (
     UploadedClipOut,
     UploadSearchResponse,
 )
+from app.errors import InvalidInput
 from app.services import search as search_service
 from app.services.library import Library
 
@@ -68,7 +69,7 @@ SEARCH_THREADS = anyio.CapacityLimiter(4)
 
 
 def _search_by_clip(
-    library: Library, clip: int, descriptor: str, k: int, label: str | None
+    library: Library, clip: int, descriptor: str, k: int, label: list[str] | None
 ) -> bytes:
     query, hits = search_service.search_by_clip_id(library, clip, descriptor, k, label=label)
     body = ClipSearchResponse(
@@ -91,10 +92,16 @@ def search_by_upload(
     descriptor: DescriptorDep,
     k: KQuery = 10,
     label: LabelQuery = None,
+    clip: Annotated[
+        str | None,
+        Query(description="Not allowed here: search by a stored clip with `GET /search?clip=`."),
+    ] = None,
 ) -> UploadSearchResponse:
     """Describe the uploaded clip (same fields as `POST /clips`) without storing it and
     return the `k` nearest stored clips; nothing is excluded (an identical stored clip comes
     first, at distance 0)."""
+    if clip is not None:
+        raise InvalidInput("clip: give a clip id or a file, not both")
     query, hits = search_service.search_by_upload(library, upload, descriptor, k, label=label)
     return UploadSearchResponse(
         query=UploadedClipOut.of(query),

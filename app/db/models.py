@@ -11,7 +11,9 @@ clip_files
     The uploaded parts of a clip (one for BVH; skeleton + motion for ASF/AMC), each kept as a
     content-addressed file named by its sha256.
 clip_labels
-    Free-form tags, one row per (clip, label); indexed by label for filtering.
+    Free-form tags, one row per (clip, label), with ``label_key`` the case-folded label
+    (``app.labels.label_key``): filters compare keys, through the unique (key, clip) index,
+    which also keeps one spelling of a label per clip.
 clip_descriptors
     The descriptor vectors (float32 bytes) with the descriptor version that produced them.
     The FAISS indexes are rebuilt from this table.
@@ -110,12 +112,16 @@ class ClipFile(Base):
 
 class ClipLabel(Base):
     __tablename__ = "clip_labels"
-    __table_args__ = (Index("ix_clip_labels_label_clip_id", "label", "clip_id"),)
+    __table_args__ = (
+        Index("ix_clip_labels_label_clip_id", "label", "clip_id"),
+        Index("ix_clip_labels_label_key_clip_id", "label_key", "clip_id", unique=True),
+    )
 
     clip_id: Mapped[int] = mapped_column(
         ForeignKey("clips.id", ondelete="CASCADE"), primary_key=True
     )
     label: Mapped[str] = mapped_column(String(100), primary_key=True)
+    label_key: Mapped[str] = mapped_column(String(100))
     position: Mapped[int] = mapped_column(Integer)
 
     clip: Mapped[Clip] = relationship(back_populates="labels")

@@ -19,10 +19,11 @@ from datetime import UTC, datetime
 from typing import Any, Protocol
 
 import numpy as np
-from sqlalchemy import Connection, Engine, Select, delete, func, insert, select
-from sqlalchemy.orm import Session, selectinload
+from sqlalchemy import Connection, Engine, Select, delete, exists, func, insert, select
+from sqlalchemy.orm import Session, aliased, selectinload
 
 from app.db.models import Clip, ClipDescriptor, ClipFile, ClipLabel
+from app.labels import label_filter, label_key
 
 VECTOR_DTYPE = np.dtype("<f4")
 IN_CHUNK = 500  # ids per IN (...) list: far below any backend's parameter limit
@@ -67,6 +68,8 @@ class NewClip:
     files: tuple[FileRecord, ...]
     vectors: Mapping[str, StoredVector]
     created_at: datetime = field(default_factory=lambda: datetime.now(UTC))
+    source: str | None = None
+    licence: str | None = None
 
 
 @dataclass(frozen=True)
@@ -86,6 +89,8 @@ class ClipRecord:
     created_at: datetime
     labels: tuple[str, ...]
     files: tuple[FileRecord, ...]
+    source: str | None = None
+    licence: str | None = None
 
     @property
     def filenames(self) -> list[str]:
@@ -106,8 +111,55 @@ def _utc(value: datetime) -> datetime:
     return value if value.tzinfo is not None else value.replace(tzinfo=UTC)
 
 
-def _with_label(label: str) -> Select[int]:
-    return select(ClipLabel.clip_id).where(ClipLabel.label == label)
+LabelFilter = str | Sequence[str] | None
+"""A ``label`` filter as :func:`app.labels.label_filter` reads it: clips carrying all of
+the labels (any case); ``None``, ``""`` or ``[]`` = no filter."""
+
+
+# Rows counted per label when choosing which label drives an all-of filter: enough to tell a
+# rare label from a common one, cheap (an index range) even when millions carry it.
+_COUNT_CAP = 10_000
+
+
+def _label_keys(executor: Executor | sqlite3.Connection, labels: LabelFilter) -> list[str]:
+    """The keys of the labels asked for, the rarest first (each counted up to _COUNT_CAP)."""
+    keys = list(dict.fromkeys(label_key(label) for label in label_filter(labels)))
+    if len(keys) < 2:
+        return keys
+    sql = "SELECT count(*) FROM (SELECT 1 FROM clip_labels WHERE label_key = ? LIMIT ?)"
+    if isinstance(executor, sqlite3.Connection):
+        counts = {k: executor.execute(sql, (k, _COUNT_CAP)).fetchone()[0] for k in keys}
+    else:
+        counts = {
+            k: executor.scalar(
+                select(func.count()).select_from(
+                    select(ClipLabel.clip_id)
+                    .where(ClipLabel.label_key == k)
+                    .limit(_COUNT_CAP)
+                    .subquery()
+                )
+            )
+            for k in keys
+        }
+    return sorted(keys, key=lambda k: counts[k])
+
+
+def _labelled_ids(keys: Sequence[str]) -> Select[Any]:
+    """Ids of the clips carrying every key: the rarest key's index range, each row checked
+    against the others' (label_key, clip_id) index, never a scan of a common label."""
+    query = select(ClipLabel.clip_id).where(ClipLabel.label_key == keys[0])
+    for key in keys[1:]:
+        other = aliased(ClipLabel)
+        query = query.where(
+            exists().where(other.clip_id == ClipLabel.clip_id, other.label_key == key)
+        )
+    return query
+
+
+def _label_conditions(executor: Executor, labels: LabelFilter) -> list[Any]:
+    """``[Clip.id IN (ids carrying every label)]``, or ``[]`` for no filter."""
+    keys = _label_keys(executor, labels)
+    return [Clip.id.in_(_labelled_ids(keys))] if keys else []
 
 
 def _chunks(values: Sequence[Any], size: int = IN_CHUNK) -> Iterable[Sequence[Any]]:
@@ -129,6 +181,8 @@ _CLIP_COLUMNS = (
     Clip.skeleton_family,
     Clip.lead_in_frames,
     Clip.created_at,
+    Clip.source,
+    Clip.licence,
 )
 
 
@@ -173,6 +227,8 @@ def _records(executor: Executor, rows: Sequence[Any]) -> dict[int, ClipRecord]:
             created_at=_utc(row[10]),
             labels=tuple(labels.get(int(row[0]), ())),
             files=tuple(files.get(int(row[0]), ())),
+            source=row[11],
+            licence=row[12],
         )
         for row in rows
     }
@@ -214,14 +270,13 @@ def clip_ids_by_hash(session: Executor, hashes: Iterable[str]) -> dict[str, int]
 
 
 def list_clips(
-    session: Session, *, label: str | None, limit: int, offset: int
+    session: Session, *, label: LabelFilter, limit: int, offset: int
 ) -> tuple[list[ClipRecord], int]:
-    """One page of clips in id order, and how many match in total."""
-    query = _clip_rows().order_by(Clip.id)
-    count = select(func.count()).select_from(Clip)
-    if label is not None:
-        query = query.where(Clip.id.in_(_with_label(label)))
-        count = count.where(Clip.id.in_(_with_label(label)))
+    """One page of clips in id order (those carrying every label of ``label``), and how many
+    match in total."""
+    conditions = _label_conditions(session, label)
+    query = _clip_rows().where(*conditions).order_by(Clip.id)
+    count = select(func.count()).select_from(Clip).where(*conditions)
     total = session.scalar(count) or 0
     rows = session.execute(query.limit(limit).offset(offset)).all()
     records = _records(session, rows)
@@ -270,6 +325,8 @@ def insert_clips(session: Session, clips: Sequence[NewClip]) -> list[int]:
                     "skeleton_family": new.skeleton_family,
                     "lead_in_frames": new.lead_in_frames,
                     "created_at": new.created_at,
+                    "source": new.source,
+                    "licence": new.licence,
                 }
                 for new in clips
             ],
@@ -288,7 +345,7 @@ def insert_clips(session: Session, clips: Sequence[NewClip]) -> list[int]:
         for i, f in enumerate(new.files)
     ]
     labels = [
-        {"clip_id": clip_id, "label": label, "position": i}
+        {"clip_id": clip_id, "label": label, "label_key": label_key(label), "position": i}
         for clip_id, new in zip(ids, clips, strict=True)
         for i, label in enumerate(new.labels)
     ]
@@ -309,6 +366,10 @@ def insert_clips(session: Session, clips: Sequence[NewClip]) -> list[int]:
     return ids
 
 
+# Fields of a clip that ``update_clip`` may set to ``None`` (clear): pass UNSET to keep them.
+UNSET: Any = object()
+
+
 def update_clip(
     session: Session,
     clip_id: int,
@@ -316,17 +377,27 @@ def update_clip(
     name: str | None = None,
     labels: Sequence[str] | None = None,
     analysis: Mapping[str, object] | None = None,
+    source: str | None = UNSET,
+    licence: str | None = UNSET,
 ) -> bool:
-    """Change a clip's name, labels and/or measured fields; False when it does not exist."""
+    """Change a clip's name, labels (already normalised: no two with one key), source,
+    licence and/or measured fields; False when it does not exist."""
     clip = session.get(Clip, clip_id, options=[selectinload(Clip.labels)])
     if clip is None:
         return False
     if name is not None:
         clip.name = name
+    if source is not UNSET:
+        clip.source = source
+    if licence is not UNSET:
+        clip.licence = licence
     if labels is not None:
         clip.labels = []
         session.flush()  # delete the old rows before inserting ones with the same key
-        clip.labels = [ClipLabel(label=label, position=i) for i, label in enumerate(labels)]
+        clip.labels = [
+            ClipLabel(label=label, label_key=label_key(label), position=i)
+            for i, label in enumerate(labels)
+        ]
     for key, value in (analysis or {}).items():
         setattr(clip, key, value)
     session.flush()
@@ -345,6 +416,25 @@ def delete_clip(session: Session, clip_id: int) -> list[str] | None:
     return shas
 
 
+def clip_ids_with_labels(session: Executor, labels: LabelFilter) -> list[int]:
+    """Ids (ascending) of the clips carrying every label of ``labels``; every clip when the
+    filter is empty."""
+    return list(
+        session.scalars(
+            select(Clip.id).where(*_label_conditions(session, labels)).order_by(Clip.id)
+        )
+    )
+
+
+def delete_clips(session: Session, clip_ids: Sequence[int]) -> list[str]:
+    """Delete clips (files, labels and vectors cascade); returns their files' sha256s."""
+    shas: list[str] = []
+    for chunk in _chunks(sorted({int(i) for i in clip_ids})):
+        shas.extend(session.scalars(select(ClipFile.sha256).where(ClipFile.clip_id.in_(chunk))))
+        session.execute(delete(Clip).where(Clip.id.in_(chunk)))
+    return shas
+
+
 def referenced_blobs(session: Session, shas: Iterable[str]) -> set[str]:
     """The sha256s among ``shas`` still used by some clip."""
     wanted = sorted(set(shas))
@@ -356,9 +446,13 @@ def referenced_blobs(session: Session, shas: Iterable[str]) -> set[str]:
 # -- labels -------------------------------------------------------------------------------
 
 
-def clip_ids_with_label(session: Executor, label: str) -> np.ndarray:
-    """``(N,)`` int64 ids of the clips carrying ``label``."""
-    return np.fromiter(session.scalars(_with_label(label)), dtype=np.int64)
+def clip_ids_with_label(session: Executor, label: LabelFilter) -> np.ndarray:
+    """``(N,)`` int64 ids of the clips carrying every label of ``label`` (any case)."""
+    keys = _label_keys(session, label)
+    if not keys:
+        return np.zeros(0, dtype=np.int64)
+    query = _labelled_ids(keys).order_by(ClipLabel.clip_id)
+    return np.fromiter(session.scalars(query), dtype=np.int64)
 
 
 # -- vectors ------------------------------------------------------------------------------
@@ -548,7 +642,7 @@ def checkpoint(engine: Engine) -> None:
 
 _SQLITE_CLIP_COLUMNS = (
     "c.id, c.name, c.format, c.content_hash, c.frame_count, c.frame_time, c.duration, "
-    "c.joint_count, c.skeleton_family, c.lead_in_frames, c.created_at"
+    "c.joint_count, c.skeleton_family, c.lead_in_frames, c.created_at, c.source, c.licence"
 )
 
 
@@ -561,11 +655,14 @@ def _parse_timestamp(value: Any) -> datetime:
 
 @dataclass(frozen=True, slots=True)
 class ClipName:
-    """What a search result shows of a clip."""
+    """What a search result shows of a clip: enough to tell same-named clips apart."""
 
     id: int
     name: str
     labels: tuple[str, ...]
+    format: str = ""
+    filenames: tuple[str, ...] = ()
+    skeleton_family: str = ""
 
 
 class SearchSnapshot(Protocol):
@@ -582,7 +679,9 @@ class SearchSnapshot(Protocol):
 
     def names(self, clip_ids: Sequence[int]) -> dict[int, ClipName]: ...
 
-    def clip_ids_with_label(self, label: str) -> np.ndarray: ...
+    def clip_ids_with_label(self, label: LabelFilter) -> np.ndarray:
+        """Ids of the clips carrying every label of ``label`` (any case)."""
+        ...
 
 
 class _SqliteSnapshot:
@@ -623,7 +722,9 @@ class _SqliteSnapshot:
             lead_in_frames=row[9],
             created_at=_parse_timestamp(row[10]),
             labels=tags,
-            files=tuple(FileRecord(r[11], r[12], r[13], r[14]) for r in rows if r[11] is not None),
+            files=tuple(FileRecord(r[13], r[14], r[15], r[16]) for r in rows if r[13] is not None),
+            source=row[11],
+            licence=row[12],
         )
 
     def vector(self, clip_id: int, name: str) -> StoredVector | None:
@@ -635,13 +736,26 @@ class _SqliteSnapshot:
 
     def names(self, clip_ids: Sequence[int]) -> dict[int, ClipName]:
         ids = [int(i) for i in clip_ids]
-        names: dict[int, str] = {}
+        names: dict[int, tuple[str, str, str]] = {}
         labels: dict[int, list[str]] = {}
+        files: dict[int, list[str]] = {}
         for chunk in _chunks(ids):
             marks = ",".join("?" * len(chunk))
             names.update(
-                self._db.execute(f"SELECT id, name FROM clips WHERE id IN ({marks})", chunk)
+                (i, (name, fmt, family))
+                for i, name, fmt, family in self._db.execute(
+                    f"SELECT id, name, format, skeleton_family FROM clips WHERE id IN ({marks})",
+                    chunk,
+                )
             )
+            for clip_id, _, filename in sorted(
+                self._db.execute(
+                    "SELECT clip_id, position, filename FROM clip_files "
+                    f"WHERE clip_id IN ({marks})",
+                    chunk,
+                )
+            ):
+                files.setdefault(clip_id, []).append(filename)
             # Sorted here: cheaper than a temporary B-tree for ORDER BY.
             for clip_id, _, label in sorted(
                 self._db.execute(
@@ -650,10 +764,21 @@ class _SqliteSnapshot:
                 )
             ):
                 labels.setdefault(clip_id, []).append(label)
-        return {i: ClipName(i, name, tuple(labels.get(i, ()))) for i, name in names.items()}
+        return {
+            i: ClipName(i, name, tuple(labels.get(i, ())), fmt, tuple(files.get(i, ())), family)
+            for i, (name, fmt, family) in names.items()
+        }
 
-    def clip_ids_with_label(self, label: str) -> np.ndarray:
-        rows = self._db.execute("SELECT clip_id FROM clip_labels WHERE label = ?", (label,))
+    def clip_ids_with_label(self, label: LabelFilter) -> np.ndarray:
+        keys = _label_keys(self._db, label)
+        if not keys:
+            return np.zeros(0, dtype=np.int64)
+        query = "SELECT l.clip_id FROM clip_labels l WHERE l.label_key = ?" + "".join(
+            " AND EXISTS (SELECT 1 FROM clip_labels o WHERE o.clip_id = l.clip_id "
+            "AND o.label_key = ?)"
+            for _ in keys[1:]
+        )
+        rows = self._db.execute(query + " ORDER BY l.clip_id", keys)
         return np.fromiter((r[0] for r in rows), dtype=np.int64)
 
 
@@ -672,11 +797,13 @@ class _CoreSnapshot:
 
     def names(self, clip_ids: Sequence[int]) -> dict[int, ClipName]:
         return {
-            i: ClipName(i, clip.name, clip.labels)
+            i: ClipName(
+                i, clip.name, clip.labels, clip.format, tuple(clip.filenames), clip.skeleton_family
+            )
             for i, clip in get_clips(self._db, clip_ids).items()
         }
 
-    def clip_ids_with_label(self, label: str) -> np.ndarray:
+    def clip_ids_with_label(self, label: LabelFilter) -> np.ndarray:
         return clip_ids_with_label(self._db, label)
 
 
@@ -772,16 +899,14 @@ def _contains_pattern(text: str) -> str:
 
 
 def find_clip_ids(
-    session: Session, *, name_contains: str | None, label: str | None, limit: int, offset: int
+    session: Session, *, name_contains: str | None, label: LabelFilter, limit: int, offset: int
 ) -> tuple[list[int], int]:
     """One page (id order) of the ids of clips whose name contains ``name_contains``
-    (case-insensitive) and that carry ``label``; and how many match in total."""
-    conditions = []
+    (case-insensitive) and that carry every label of ``label``; and how many match in total."""
+    conditions = _label_conditions(session, label)
     if name_contains:
         pattern = _contains_pattern(name_contains.lower())
         conditions.append(func.lower(Clip.name).like(pattern, escape="\\"))
-    if label:
-        conditions.append(Clip.id.in_(select(ClipLabel.clip_id).where(ClipLabel.label == label)))
     total = session.scalar(select(func.count()).select_from(Clip).where(*conditions)) or 0
     page = session.scalars(
         select(Clip.id).where(*conditions).order_by(Clip.id).limit(limit).offset(offset)
@@ -790,10 +915,11 @@ def find_clip_ids(
 
 
 def label_counts(session: Session) -> list[tuple[str, int]]:
-    """Every label in use with its number of clips, most used first."""
+    """Every label in use (one spelling per case-insensitive label: the first in sort order)
+    with its number of clips, most used first."""
     rows = session.execute(
-        select(ClipLabel.label, func.count())
-        .group_by(ClipLabel.label)
-        .order_by(func.count().desc(), ClipLabel.label)
+        select(func.min(ClipLabel.label), func.count())
+        .group_by(ClipLabel.label_key)
+        .order_by(func.count().desc(), ClipLabel.label_key)
     ).all()
     return [(str(label), int(count)) for label, count in rows]

@@ -6,13 +6,15 @@ import io
 import logging
 import time
 import zipfile
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import PurePosixPath
 
 from sqlalchemy.exc import SQLAlchemyError
 
 from app.db import repository as repo
-from app.errors import InvalidInput, NotFound, StorageUnavailable
+from app.errors import InvalidInput, NoStoredFile, NotFound, StorageUnavailable
+from app.labels import label_filter
 from app.services.library import Library
 from app.services.uploads import BVH
 
@@ -42,9 +44,9 @@ def get_clip(library: Library, clip_id: int) -> repo.ClipRecord:
 
 
 def list_clips(
-    library: Library, *, label: str | None, limit: int, offset: int
+    library: Library, *, label: repo.LabelFilter, limit: int, offset: int
 ) -> tuple[list[repo.ClipRecord], int]:
-    """One page of clips in id order and the total matching ``label``."""
+    """One page of clips in id order and the total carrying every label of ``label``."""
     with library.reads() as session:
         return repo.list_clips(session, label=label, limit=limit, offset=offset)
 
@@ -56,12 +58,26 @@ def clip_vectors(library: Library, clip_id: int) -> dict[str, repo.StoredVector]
 
 
 def update_clip(
-    library: Library, clip_id: int, *, name: str | None, labels: tuple[str, ...] | None
+    library: Library,
+    clip_id: int,
+    *,
+    name: str | None,
+    labels: tuple[str, ...] | None,
+    notes: Mapping[str, str | None] | None = None,
 ) -> repo.ClipRecord:
-    """Rename and/or relabel a clip (``None`` leaves a field as it is)."""
+    """Rename and/or relabel a clip (``None`` leaves a field as it is); ``notes`` sets
+    ``source`` and/or ``licence`` (a ``None`` value clears one)."""
     try:
         with library.writes.begin() as session:
-            found = repo.update_clip(session, clip_id, name=name, labels=labels)
+            notes = notes or {}
+            found = repo.update_clip(
+                session,
+                clip_id,
+                name=name,
+                labels=labels,
+                source=notes.get("source", repo.UNSET),
+                licence=notes.get("licence", repo.UNSET),
+            )
     except SQLAlchemyError as exc:
         raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
     if not found:
@@ -80,41 +96,77 @@ def delete_clip(library: Library, clip_id: int) -> None:
             raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
         if shas is None:
             raise NotFound(f"no clip with id {clip_id}")
-        # Committed: the clip is gone. What follows tidies caches and files; a failure there
-        # (a full disk, say) must not report the delete as failed.
-        for name, index in library.indexes.items():
-            try:
-                index.remove([clip_id])  # from memory first, then the file is saved
-            except OSError as exc:
-                log.warning(
-                    "clip %d deleted, but the %s index could not be saved (%s); it is brought "
-                    "up to date from the database at the next start",
-                    clip_id,
-                    name,
-                    exc,
-                )
+        _tidy_after_delete(library, [clip_id], shas)
+
+
+def clips_with_labels(library: Library, labels: repo.LabelFilter) -> list[int]:
+    """Ids of the clips carrying every label of ``labels`` (see :func:`delete_clips_with`)."""
+    if not label_filter(labels):
+        raise InvalidInput("label: name the label(s) of the clips to delete")
+    with library.reads() as session:
+        return repo.clip_ids_with_labels(session, labels)
+
+
+def delete_clips_with(library: Library, labels: repo.LabelFilter) -> int:
+    """Delete every clip carrying all of ``labels`` (at least one label; compared
+    case-insensitively) in one transaction, as :func:`delete_clip` does one; returns how many."""
+    if not label_filter(labels):
+        raise InvalidInput("label: name the label(s) of the clips to delete")
+    with library.write_lock:
         try:
-            with library.reads() as session:
-                still_used = repo.referenced_blobs(session, shas)
-            for sha in set(shas) - still_used:
-                library.blobs.delete(sha)
-        except (SQLAlchemyError, OSError) as exc:
+            with library.writes.begin() as session:
+                ids = repo.clip_ids_with_labels(session, labels)
+                shas = repo.delete_clips(session, ids)
+        except SQLAlchemyError as exc:
+            raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
+        if ids:
+            _tidy_after_delete(library, ids, shas)
+    return len(ids)
+
+
+def _tidy_after_delete(library: Library, clip_ids: list[int], shas: list[str]) -> None:
+    """Committed: the clips are gone. Drop them from the indexes and remove the files no clip
+    uses; a failure here (a full disk, say) must not report the delete as failed."""
+    what = f"clip {clip_ids[0]}" if len(clip_ids) == 1 else f"{len(clip_ids)} clips"
+    for name, index in library.indexes.items():
+        try:
+            index.remove(clip_ids)  # from memory first, then the file is saved
+        except OSError as exc:
             log.warning(
-                "clip %d deleted, but its files could not be removed (%s); they go at a later "
-                "start (MOCAP_ORPHAN_FILE_GRACE_SECONDS)",
-                clip_id,
+                "%s deleted, but the %s index could not be saved (%s); it is brought "
+                "up to date from the database at the next start",
+                what,
+                name,
                 exc,
             )
+    try:
+        with library.reads() as session:
+            still_used = repo.referenced_blobs(session, shas)
+        for sha in set(shas) - still_used:
+            library.blobs.delete(sha)
+    except (SQLAlchemyError, OSError) as exc:
+        log.warning(
+            "%s deleted, but its files could not be removed (%s); they go at a later "
+            "start (MOCAP_ORPHAN_FILE_GRACE_SECONDS)",
+            what,
+            exc,
+        )
 
 
 def clip_download(library: Library, clip: repo.ClipRecord, part: str | None) -> Download:
     """The original upload: the BVH file itself, or for ASF/AMC a ZIP of both files — or one
     ``part`` (``"file"``, ``"skeleton"``, ``"motion"``) byte for byte."""
     if not clip.files:  # synthetic benchmark clips have vectors but no upload
-        raise NotFound(f"clip {clip.id} has no stored file ({clip.format} clip)")
+        raise NoStoredFile(clip.id, clip.format)
     roles = {f.role: f for f in clip.files}
     if part is not None:
         if part not in roles:
+            if len(roles) == 1:
+                (only,) = roles.values()
+                raise InvalidInput(
+                    f"part: clip {clip.id} is a single {clip.format.upper()} file "
+                    f"({only.filename}); leave out 'part' or use part={only.role}"
+                )
             raise InvalidInput(f"part: clip {clip.id} has the parts {', '.join(roles)}")
         record = roles[part]
         return Download(

@@ -236,6 +236,15 @@ class Library:
         change; a file that is behind is brought up to date from the database when loaded)."""
         self.indexes.save(only_changed=True)
 
+    def vector_counts(self) -> tuple[int, dict[str, int]]:
+        """The number of clips and, per descriptor, of current vectors (one snapshot)."""
+        with self.reads() as session:
+            clips = repo.count_clips(session)
+            return clips, {
+                name: repo.count_vectors(session, name, info.version)
+                for name, info in self.descriptors.items()
+            }
+
     def clip_count(self) -> int:
         with self.reads() as session:
             return repo.count_clips(session)

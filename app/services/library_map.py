@@ -41,7 +41,7 @@ from typing import Any, Generic, TypeVar
 import numpy as np
 
 from app.db import repository as repo
-from app.errors import InvalidInput, ParseError
+from app.errors import InvalidInput, NoStoredFile, ParseError
 from app.motion.body import Body, build_body
 from app.motion.descriptors import kinetic
 from app.motion.formats import read_asf_amc, read_bvh
@@ -192,7 +192,10 @@ def resample(
 
 
 def read_stored_motion(library: Library, clip: repo.ClipRecord) -> Motion:
-    """Parse a stored clip's file(s) again (ParseError if they no longer parse)."""
+    """Parse a stored clip's file(s) again (ParseError if they no longer parse;
+    NoStoredFile for a clip without files)."""
+    if not clip.files:
+        raise NoStoredFile(clip.id, clip.format)
     limits = library.settings.parse_limits
     roles = {f.role: f for f in clip.files}
     if clip.format == BVH:
@@ -505,10 +508,10 @@ def library_map(library: Library, descriptor: str, cache: MapCache | None = None
 
 
 def find_clips(
-    library: Library, *, q: str | None, label: str | None, limit: int, offset: int
+    library: Library, *, q: str | None, label: repo.LabelFilter, limit: int, offset: int
 ) -> tuple[list[repo.ClipRecord], int]:
     """One page (id order) of the clips whose name contains ``q`` (case-insensitive) and
-    that carry ``label``; and how many match in total."""
+    that carry every label of ``label``; and how many match in total."""
     with library.reads() as session:
         page_ids, total = repo.find_clip_ids(
             session, name_contains=q, label=label, limit=limit, offset=offset

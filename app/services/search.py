@@ -2,7 +2,8 @@
 
 Distances are Euclidean (not squared). A search by a stored clip never returns that clip; a
 search by an uploaded file excludes nothing. With a label, only clips carrying it are
-searched — exactly, as FAISS skips the other ids while scanning.
+searched — exactly, as FAISS skips the other ids while scanning. Several labels (or a
+comma-separated one) keep the clips carrying all of them, compared case-insensitively.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import numpy as np
 
 from app.db import repository as repo
 from app.errors import DescriptorUnavailable, InvalidInput, NotFound
+from app.labels import label_filter
 from app.services.ingest import describe, new_clip
 from app.services.library import Library
 from app.services.uploads import Upload
@@ -31,7 +33,7 @@ QUICK_SCAN = 1_000_000  # numbers compared per query below which a search is "qu
 QUICK_K = 100
 
 
-def is_quick(library: Library, descriptor: str, k: int, label: str | None) -> bool:
+def is_quick(library: Library, descriptor: str, k: int, label: repo.LabelFilter) -> bool:
     """Whether a search by clip takes well under a millisecond (an unfiltered search that
     compares at most :data:`QUICK_SCAN` numbers and fetches at most :data:`QUICK_K` rows), so
     a caller may run it without handing it to a thread. Unknown descriptors count as quick
@@ -39,7 +41,7 @@ def is_quick(library: Library, descriptor: str, k: int, label: str | None) -> bo
     index = library.indexes.get(descriptor)
     if index is None:
         return True
-    return label is None and k <= QUICK_K and index.scan_cost() <= QUICK_SCAN
+    return not label_filter(label) and k <= QUICK_K and index.scan_cost() <= QUICK_SCAN
 
 
 def check_k(library: Library, k: int) -> None:
@@ -54,13 +56,13 @@ def _nearest(
     vector: np.ndarray,
     k: int,
     *,
-    label: str | None,
+    label: repo.LabelFilter,
     exclude: int | None,
 ) -> tuple[list[Hit], repo.ClipName | None]:
     """The hits, and the name and labels of ``exclude`` (the query clip; fetched with the
     hits' to save a query)."""
     index = library.indexes[descriptor]
-    allowed = None if label is None else db.clip_ids_with_label(label)
+    allowed = db.clip_ids_with_label(label) if label_filter(label) else None
     also = [] if exclude is None else [exclude]
     wanted = k
     for _ in range(MAX_ATTEMPTS):
@@ -86,7 +88,7 @@ def search_vector(
     vector: np.ndarray,
     k: int,
     *,
-    label: str | None = None,
+    label: repo.LabelFilter = None,
     exclude: int | None = None,
 ) -> list[Hit]:
     """The ``k`` stored clips nearest to ``vector`` ``(D,)`` under ``descriptor``."""
@@ -106,14 +108,14 @@ def _unavailable(clip_id: int, descriptor: str, version: int) -> DescriptorUnava
 
 
 def search_by_clip(
-    library: Library, clip: repo.ClipRecord, descriptor: str, k: int, *, label: str | None
+    library: Library, clip: repo.ClipRecord, descriptor: str, k: int, *, label: repo.LabelFilter
 ) -> list[Hit]:
     """Neighbours of a stored clip (never the clip itself)."""
     return search_by_clip_id(library, clip.id, descriptor, k, label=label)[1]
 
 
 def search_by_clip_id(
-    library: Library, clip_id: int, descriptor: str, k: int, *, label: str | None
+    library: Library, clip_id: int, descriptor: str, k: int, *, label: repo.LabelFilter
 ) -> tuple[repo.ClipRecord, list[Hit]]:
     """The stored clip ``clip_id`` and its neighbours (never the clip itself), read from one
     database snapshot: ``GET /search``. :class:`NotFound` when there is no such clip."""
@@ -144,7 +146,7 @@ def search_by_clip_id(
 
 
 def search_by_upload(
-    library: Library, upload: Upload, descriptor: str, k: int, *, label: str | None
+    library: Library, upload: Upload, descriptor: str, k: int, *, label: repo.LabelFilter
 ) -> tuple[repo.NewClip, list[Hit]]:
     """Describe an upload without storing it and find its neighbours (nothing excluded).
 

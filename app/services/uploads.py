@@ -22,10 +22,10 @@ from pathlib import PurePosixPath, PureWindowsPath
 
 from app.discovery import content_hash_of_bytes
 from app.errors import InvalidInput, UnsupportedMediaType
+from app.labels import normalise_labels
 
 MAX_NAME_LENGTH = 255
-MAX_LABEL_LENGTH = 100
-MAX_LABELS = 100
+MAX_SOURCE_LENGTH = 500  # source and licence: the columns' size
 
 BVH = "bvh"
 ASF_AMC = "asf/amc"
@@ -61,25 +61,6 @@ def clean_filename(raw: str | None, role: str) -> str:
     return name[-MAX_NAME_LENGTH:]
 
 
-def normalise_labels(values: Iterable[str] | None) -> tuple[str, ...]:
-    """Labels from repeated fields and/or comma-separated values: stripped, empty ones dropped,
-    duplicates removed (first one kept)."""
-    labels: dict[str, None] = {}
-    for value in values or ():
-        for label in value.split(","):
-            label = label.strip()
-            if not label:
-                continue
-            if len(label) > MAX_LABEL_LENGTH:
-                raise InvalidInput(
-                    f"labels: {label[:20]!r}... is over {MAX_LABEL_LENGTH} characters"
-                )
-            labels[label] = None
-    if len(labels) > MAX_LABELS:
-        raise InvalidInput(f"labels: at most {MAX_LABELS} labels per clip")
-    return tuple(labels)
-
-
 def normalise_name(value: str | None) -> str | None:
     """A clip name stripped of surrounding space; ``None`` when absent or blank."""
     if value is None or not value.strip():
@@ -90,6 +71,16 @@ def normalise_name(value: str | None) -> str | None:
     return name
 
 
+def normalise_note(field: str, value: str | None) -> str | None:
+    """A source or licence text stripped of surrounding space; ``None`` when absent or blank."""
+    if value is None or not value.strip():
+        return None
+    text = value.strip()
+    if len(text) > MAX_SOURCE_LENGTH:
+        raise InvalidInput(f"{field}: at most {MAX_SOURCE_LENGTH} characters")
+    return text
+
+
 @dataclass(frozen=True)
 class Upload:
     """A validated upload; build it with :meth:`from_files`."""
@@ -97,6 +88,8 @@ class Upload:
     parts: tuple[UploadPart, ...]
     name: str | None = None
     labels: tuple[str, ...] = ()
+    source: str | None = None
+    licence: str | None = None
 
     @classmethod
     def from_files(
@@ -107,6 +100,8 @@ class Upload:
         motion: tuple[str | None, bytes] | None = None,
         name: str | None = None,
         labels: Iterable[str] | None = None,
+        source: str | None = None,
+        licence: str | None = None,
     ) -> Upload:
         """Check which parts were sent and their types.
 
@@ -125,9 +120,11 @@ class Upload:
         elif skeleton is not None and motion is not None:
             given = {"skeleton": skeleton, "motion": motion}
         elif skeleton is not None:
-            raise InvalidInput("field 'motion': an .amc motion must come with the 'skeleton'")
+            raise InvalidInput("field 'motion': the .asf skeleton must come with an .amc 'motion'")
         elif motion is not None:
-            raise InvalidInput("field 'skeleton': an .asf skeleton must come with the 'motion'")
+            raise InvalidInput(
+                "field 'skeleton': the .amc motion must come with its .asf 'skeleton'"
+            )
         else:
             raise InvalidInput(
                 "field 'file': no upload; send 'file' (one .bvh) or 'skeleton' (.asf) with "
@@ -145,7 +142,13 @@ class Upload:
             if not data:
                 raise InvalidInput(f"field '{role}': the file {filename!r} is empty")
             parts.append(UploadPart(role, filename, data))
-        return cls(tuple(parts), normalise_name(name), normalise_labels(labels))
+        return cls(
+            tuple(parts),
+            normalise_name(name),
+            normalise_labels(labels),
+            normalise_note("source", source),
+            normalise_note("licence", licence),
+        )
 
     @property
     def format(self) -> str:

@@ -58,9 +58,10 @@ def test_upload_bvh_and_duplicate(client: TestClient, fixtures_dir: Path) -> Non
     assert len(clip["content_hash"]) == 64 and clip["created_at"].endswith("Z")
     assert "descriptors" not in clip
 
+    # The same content again stores nothing new; what it brings is applied (issue #14).
     again = post_bvh(client, fixtures_dir, BANDAI, name="another name")
     assert again.status_code == 200
-    assert again.json() == clip
+    assert again.json() == {**clip, "name": "another name", "duplicate": True}
     assert client.get("/clips").json()["total"] == 1
 
 

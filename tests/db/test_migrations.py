@@ -50,3 +50,31 @@ def test_transactions_roll_back_selects_and_writes(engine: Engine) -> None:
         connection.execute(text("CREATE TABLE scratch (x INTEGER)"))
         tx.rollback()
     assert "scratch" not in inspect(engine).get_table_names()
+
+
+def test_0005_keys_existing_labels_and_drops_case_duplicates(settings: Settings) -> None:
+    engine = create_db_engine(settings.sqlalchemy_url)
+    try:
+        upgrade(engine, "0002")
+        with engine.begin() as db:
+            db.execute(
+                text(
+                    "INSERT INTO clips (id, name, format, content_hash, frame_count, frame_time, "
+                    "duration, joint_count, skeleton_family, lead_in_frames, created_at) VALUES "
+                    "(1, 'a', 'bvh', 'h1', 1, 0.1, 0.1, 1, 'x', 0, '2026-01-01 00:00:00')"
+                )
+            )
+            db.execute(
+                text(
+                    "INSERT INTO clip_labels (clip_id, label, position) VALUES "
+                    "(1, 'Walk', 0), (1, 'Straße', 1), (1, 'walk', 2), (1, 'STRASSE', 3)"
+                )
+            )
+        upgrade(engine, "0005")
+        with engine.connect() as db:
+            rows = db.execute(
+                text("SELECT label, label_key FROM clip_labels ORDER BY position")
+            ).all()
+        assert [tuple(r) for r in rows] == [("Walk", "walk"), ("Straße", "strasse")]
+    finally:
+        engine.dispose()

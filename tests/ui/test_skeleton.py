@@ -147,7 +147,7 @@ def test_unknown_clip_is_404_and_non_number_is_422(
     assert response.json() == {"error": "not_found", "detail": "no clip with id 999"}
     clip_id = upload_bvh(ui_client, fixtures_dir / BANDAI)
     response = ui_client.get(f"/clips/{clip_id}/skeleton", params={"fps": "fast"})
-    assert response.status_code == 422 and response.json()["error"] == "validation_error"
+    assert response.status_code == 422 and response.json()["error"] == "invalid_input"
 
 
 def test_skeletons_are_cached_and_carry_an_etag(
