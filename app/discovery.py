@@ -199,6 +199,13 @@ def content_hash_of_bytes(motion: bytes, skeleton: bytes | None = None) -> str:
     return hashlib.sha256(pair.encode("ascii")).hexdigest()
 
 
+def content_hash_of_animation(data: bytes, animation: str) -> str:
+    """The content hash of one animation of an FBX/glTF file: each animation is its own clip,
+    and the same file uploaded or imported again hashes the same."""
+    digest = hashlib.sha256(data).hexdigest()
+    return hashlib.sha256(f"{digest}\n{animation}".encode()).hexdigest()
+
+
 def content_hash(source: ClipSource) -> str:
     """SHA-256 hex of a BVH's bytes; for ASF/AMC, of ``sha256(asf) + sha256(amc)`` hex digests."""
     if source.skeleton is None:

@@ -21,7 +21,7 @@ from app.api.limits import BodySizeLimit
 from app.api.ui import mount_ui
 from app.config import Settings
 from app.services.clips import remove_orphan_files
-from app.services.describe import Describer, MotionDescriber
+from app.services.describe import Describer
 from app.services.library import open_library
 
 DESCRIPTION = """
@@ -49,8 +49,6 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
     library in ``app.state.library``. ``describer`` replaces the motion core (tests).
     """
     settings = settings if settings is not None else Settings()
-    if describer is None:
-        describer = MotionDescriber.from_settings(settings)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:

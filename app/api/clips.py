@@ -30,9 +30,11 @@ router = APIRouter(prefix="/clips", tags=["clips"])
     },
 )
 def create_clip(upload: UploadDep, library: LibraryDep, response: Response) -> ClipOut:
-    """Store a clip: one BVH file as `file`, or an ASF skeleton as `skeleton` with an AMC
-    motion as `motion`. The clip is parsed and described under every descriptor before
-    anything is stored; uploading identical bytes again returns the stored clip (200)."""
+    """Store a clip: one BVH, FBX, glTF (.glb/.gltf) or VRM animation (.vrma) file as `file`,
+    or an ASF skeleton as `skeleton` with an AMC motion as `motion`. FBX/glTF: the longest
+    animation of the file, or the one named in `animation`. The clip is parsed and described
+    under every descriptor before anything is stored; uploading identical content again
+    returns the stored clip (200)."""
     result = ingest(library, upload)
     if result.created:
         response.headers["Location"] = f"/clips/{result.clip.id}"
@@ -82,7 +84,10 @@ def get_clip(
     response_class=Response,
     responses={
         200: {
-            "description": "The BVH file, or for ASF/AMC a ZIP of both (or one `part`).",
+            "description": (
+                "The uploaded file, or for ASF/AMC a ZIP of both (or one `part`); with "
+                "`format=bvh`, the clip as a BVH file."
+            ),
             "content": {"application/octet-stream": {}, "application/zip": {}},
         },
         **error_responses(404, 422, 503),
@@ -95,9 +100,25 @@ def download_clip(
         Literal["file", "skeleton", "motion"] | None,
         Query(description="One uploaded part, byte for byte (ASF/AMC: skeleton or motion)."),
     ] = None,
+    file_format: Annotated[
+        Literal["bvh"] | None,
+        Query(
+            alias="format",
+            description=(
+                "`bvh`: the clip (of any format) as a BVH file of its own skeleton: rest "
+                "offsets, ZXY rotation channels on every joint, root translation, the clip's "
+                "frame rate."
+            ),
+        ),
+    ] = None,
 ) -> Response:
-    """The uploaded bytes, unchanged."""
-    download = clip_service.clip_download(library, clip, part)
+    """The uploaded bytes, unchanged; or with `format=bvh` the clip converted to BVH."""
+    if file_format == "bvh":
+        if part is not None:
+            raise InvalidInput("part: not with format=bvh (a BVH export is one file)")
+        download = clip_service.clip_bvh(library, clip)
+    else:
+        download = clip_service.clip_download(library, clip, part)
     return Response(
         content=download.data,
         media_type=download.media_type,

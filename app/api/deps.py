@@ -48,7 +48,14 @@ def _read(part: UploadFile | None) -> tuple[str | None, bytes] | None:
 def read_upload(
     request: Request,
     file: Annotated[
-        UploadFile | None, File(description="One BVH file (`.bvh`). Or send `skeleton` + `motion`.")
+        UploadFile | None,
+        File(
+            description=(
+                "One motion file: BVH (`.bvh`), FBX (`.fbx`, binary or ASCII), glTF 2.0 "
+                "(`.glb`, or `.gltf` with embedded buffers) or VRM animation (`.vrma`). Or "
+                "send `skeleton` + `motion`."
+            )
+        ),
     ] = None,
     skeleton: Annotated[
         UploadFile | None, File(description="An Acclaim skeleton (`.asf`), with `motion`.")
@@ -64,6 +71,15 @@ def read_upload(
         list[str] | None,
         Form(description="Free-form tags: repeat the field and/or separate them with commas."),
     ] = None,
+    animation: Annotated[
+        str | None,
+        Form(
+            description=(
+                "FBX/glTF: which animation of the file to read, by name (see the clip's "
+                "`animations`); default: the longest."
+            )
+        ),
+    ] = None,
 ) -> Upload:
     content_type = request.headers.get("content-type", "")
     if not content_type.lower().startswith("multipart/form-data"):
@@ -71,7 +87,12 @@ def read_upload(
             f"send the files as multipart/form-data (got {content_type or 'no content type'!r})"
         )
     return Upload.from_files(
-        file=_read(file), skeleton=_read(skeleton), motion=_read(motion), name=name, labels=labels
+        file=_read(file),
+        skeleton=_read(skeleton),
+        motion=_read(motion),
+        name=name,
+        labels=labels,
+        animation=animation,
     )
 
 

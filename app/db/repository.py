@@ -10,6 +10,7 @@ and batches are ``(N, D)`` float32 C-contiguous with ``(N,)`` int64 clip ids.
 from __future__ import annotations
 
 import contextlib
+import json
 import sqlite3
 import threading
 from collections.abc import Iterable, Iterator, Mapping, Sequence
@@ -51,6 +52,39 @@ class StoredVector:
 
 
 @dataclass(frozen=True)
+class AnimationRecord:
+    """One animation of a multi-animation file (FBX, glTF); ``selected``: the clip's own."""
+
+    name: str
+    frame_count: int
+    duration: float
+    selected: bool
+
+
+def encode_animations(animations: Sequence[AnimationRecord] | None) -> str | None:
+    if animations is None:
+        return None
+    return json.dumps(
+        [
+            {"name": a.name, "frame_count": a.frame_count, "duration": a.duration}
+            | ({"selected": True} if a.selected else {})
+            for a in animations
+        ]
+    )
+
+
+def decode_animations(text: str | None) -> tuple[AnimationRecord, ...] | None:
+    if text is None:
+        return None
+    return tuple(
+        AnimationRecord(
+            str(a["name"]), int(a["frame_count"]), float(a["duration"]), bool(a.get("selected"))
+        )
+        for a in json.loads(text)
+    )
+
+
+@dataclass(frozen=True)
 class NewClip:
     """Everything needed to insert a clip (the database assigns ``id``)."""
 
@@ -67,6 +101,8 @@ class NewClip:
     files: tuple[FileRecord, ...]
     vectors: Mapping[str, StoredVector]
     created_at: datetime = field(default_factory=lambda: datetime.now(UTC))
+    # FBX/glTF: every animation of the file, the clip's own marked ``selected``; else None.
+    animations: tuple[AnimationRecord, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -86,6 +122,15 @@ class ClipRecord:
     created_at: datetime
     labels: tuple[str, ...]
     files: tuple[FileRecord, ...]
+    animations: tuple[AnimationRecord, ...] | None = None
+
+    @property
+    def animation(self) -> str | None:
+        """The animation of the file this clip holds (FBX/glTF), else None."""
+        for animation in self.animations or ():
+            if animation.selected:
+                return animation.name
+        return None
 
     @property
     def filenames(self) -> list[str]:
@@ -129,6 +174,7 @@ _CLIP_COLUMNS = (
     Clip.skeleton_family,
     Clip.lead_in_frames,
     Clip.created_at,
+    Clip.animations,
 )
 
 
@@ -173,6 +219,7 @@ def _records(executor: Executor, rows: Sequence[Any]) -> dict[int, ClipRecord]:
             created_at=_utc(row[10]),
             labels=tuple(labels.get(int(row[0]), ())),
             files=tuple(files.get(int(row[0]), ())),
+            animations=decode_animations(row[11]),
         )
         for row in rows
     }
@@ -270,6 +317,7 @@ def insert_clips(session: Session, clips: Sequence[NewClip]) -> list[int]:
                     "skeleton_family": new.skeleton_family,
                     "lead_in_frames": new.lead_in_frames,
                     "created_at": new.created_at,
+                    "animations": encode_animations(new.animations),
                 }
                 for new in clips
             ],
@@ -525,7 +573,7 @@ def checkpoint(engine: Engine) -> None:
 
 _SQLITE_CLIP_COLUMNS = (
     "c.id, c.name, c.format, c.content_hash, c.frame_count, c.frame_time, c.duration, "
-    "c.joint_count, c.skeleton_family, c.lead_in_frames, c.created_at"
+    "c.joint_count, c.skeleton_family, c.lead_in_frames, c.created_at, c.animations"
 )
 
 
@@ -600,7 +648,8 @@ class _SqliteSnapshot:
             lead_in_frames=row[9],
             created_at=_parse_timestamp(row[10]),
             labels=tags,
-            files=tuple(FileRecord(r[11], r[12], r[13], r[14]) for r in rows if r[11] is not None),
+            files=tuple(FileRecord(r[12], r[13], r[14], r[15]) for r in rows if r[12] is not None),
+            animations=decode_animations(row[11]),
         )
 
     def vector(self, clip_id: int, name: str) -> StoredVector | None:

@@ -58,9 +58,27 @@ def find_existing(library: Library, upload: Upload) -> repo.ClipRecord | None:
 
 
 def describe(library: Library, upload: Upload, *, only: Sequence[str] | None = None) -> Described:
-    """Parse and describe ``upload`` (blocking, CPU-bound; stores nothing)."""
+    """Parse and describe ``upload`` (blocking, CPU-bound; stores nothing). An FBX/glTF
+    upload comes back knowing which animation it holds (and so its content hash)."""
     description = library.describer.describe(upload, library.settings.parse_limits, only=only)
-    return Described(upload, description)
+    return Described(described_upload(upload, description), description)
+
+
+def described_upload(upload: Upload, description: Description) -> Upload:
+    """``upload`` with the animation its description read (FBX/glTF), else as it is."""
+    if description.animation is None:
+        return upload
+    return upload.with_animations(description.animations, description.animation)
+
+
+def animation_records(upload: Upload) -> tuple[repo.AnimationRecord, ...] | None:
+    """The file's animations as stored with the clip (None for BVH and ASF/AMC)."""
+    if upload.animation is None:
+        return None
+    return tuple(
+        repo.AnimationRecord(a.name, a.frame_count, a.duration, a.name == upload.animation)
+        for a in upload.animations
+    )
 
 
 def new_clip(library: Library, item: Described) -> repo.NewClip:
@@ -84,6 +102,7 @@ def new_clip(library: Library, item: Described) -> repo.NewClip:
             name: repo.StoredVector(library.descriptors[name].version, vector)
             for name, vector in description.vectors.items()
         },
+        animations=animation_records(upload),
     )
 
 
@@ -189,7 +208,7 @@ def store_many(library: Library, items: Sequence[Described]) -> list[IngestResul
 
 def ingest(library: Library, upload: Upload) -> IngestResult:
     """Store one upload (or return the clip already holding the same content)."""
-    existing = find_existing(library, upload)
+    existing = find_existing(library, upload) if upload.knows_content_hash else None
     if existing is not None:
         return IngestResult(existing, created=False)  # no need to read it again
     return store_many(library, [describe(library, upload)])[0]
@@ -211,7 +230,7 @@ def ingest_many(
     batch: list[Described] = []
     for upload in uploads:
         try:
-            if find_existing(library, upload) is None:
+            if not upload.knows_content_hash or find_existing(library, upload) is None:
                 batch.append(describe(library, upload))
             else:
                 batch.append(Described(upload, None))
