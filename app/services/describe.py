@@ -22,7 +22,7 @@ from app.motion.formats import read_asf_amc, read_bvh
 from app.motion.formats.scene import Animation
 from app.motion.model import Motion, ParseLimits
 from app.motion.pipeline import analyse
-from app.services.parser_pool import ParserPool
+from app.services.parser_pool import SceneParser
 from app.services.uploads import ASF_AMC, BVH, Upload
 
 if TYPE_CHECKING:
@@ -138,7 +138,7 @@ class ReadMotion:
     animations: tuple[Animation, ...] = ()
 
 
-def read_motion(upload: Upload, limits: ParseLimits, parsers: ParserPool | None) -> ReadMotion:
+def read_motion(upload: Upload, limits: ParseLimits, parsers: SceneParser | None) -> ReadMotion:
     """Read an upload's motion: BVH and ASF/AMC in this process, FBX and glTF in a worker
     of ``parsers`` (the one way every part of the service reads a clip).
 
@@ -191,7 +191,7 @@ class MotionDescriber:
         *,
         time_limit: float | None = None,
         max_values: int | None = None,
-        parsers: ParserPool | None = None,
+        parsers: SceneParser | None = None,
     ) -> None:
         self._descriptors = {
             d.name: DescriptorInfo(d.name, d.dimension, d.version, d.description)
@@ -203,7 +203,7 @@ class MotionDescriber:
 
     @classmethod
     def from_settings(
-        cls, settings: Settings, *, parsers: ParserPool | None = None
+        cls, settings: Settings, *, parsers: SceneParser | None = None
     ) -> MotionDescriber:
         """The describer the service uses: MOCAP_DESCRIBE_TIMEOUT_SECONDS and
         MOCAP_MAX_FRAME_VALUES applied; FBX/glTF read by ``parsers``."""

@@ -31,7 +31,7 @@ import time
 from contextlib import suppress
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from app.errors import LimitExceeded, ParseError, UnreadableFile
 from app.motion.formats.scene import Animation
@@ -70,6 +70,60 @@ def parse_scene(kind: str, data: bytes, animation: str | None, limits: ParseLimi
     else:
         raise ValueError(f"unknown scene format {kind!r}")
     return ParsedScene(motion, tuple(animations), chosen)
+
+
+class SceneParser(Protocol):
+    def parse(
+        self, kind: str, data: bytes, *, animation: str | None, limits: ParseLimits
+    ) -> ParsedScene:
+        """Read one animation of an FBX/glTF file (ParseError, LimitExceeded,
+        UnreadableFile)."""
+        ...
+
+
+class InlineParser:
+    """The readers run in *this* process, under the pool's limits: for processes that are
+    expendable workers already (the bulk import's, whose deaths cost one clip).
+
+    Time: a real-time timer whose SIGALRM, left to its default action, ends the process
+    even inside C code. Memory: the soft ``RLIMIT_AS`` lowered for the read, then restored.
+    """
+
+    def __init__(self, *, time_limit: float | None = 30.0, memory_mb: int | None = 1024):
+        self.time_limit = time_limit
+        self.memory_mb = memory_mb
+
+    def parse(
+        self, kind: str, data: bytes, *, animation: str | None, limits: ParseLimits
+    ) -> ParsedScene:
+        soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+        if self.memory_mb is not None:
+            wanted = _address_space() + self.memory_mb * 1024 * 1024
+            if hard != resource.RLIM_INFINITY:
+                wanted = min(wanted, hard)
+            resource.setrlimit(resource.RLIMIT_AS, (wanted, hard))
+        previous = signal.signal(signal.SIGALRM, signal.SIG_DFL)
+        if self.time_limit is not None:
+            signal.setitimer(signal.ITIMER_REAL, self.time_limit)
+        try:
+            return parse_scene(kind, data, animation, limits)
+        except (ParseError, LimitExceeded):
+            raise
+        except MemoryError:
+            raise UnreadableFile(
+                f"reading the file needed more than {self.memory_mb} MB "
+                "(MOCAP_PARSER_MEMORY_MB); it cannot be read"
+            ) from None
+        except RecursionError:
+            raise UnreadableFile("the file is nested too deeply to read") from None
+        except Exception as error:  # a reader bug on odd input: that file is unreadable
+            raise UnreadableFile(
+                f"the reader failed ({type(error).__name__}); the file cannot be read"
+            ) from None
+        finally:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, previous)
+            resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
 
 
 def _address_space() -> int:
