@@ -34,10 +34,10 @@ def euler_zxy(rotations: np.ndarray) -> np.ndarray:
     r = np.asarray(rotations, dtype=np.float64)
     # Rz Rx Ry: R[2,1] = sin x; R[0,1] = -sin z cos x; R[1,1] = cos z cos x;
     # R[2,0] = -cos x sin y; R[2,2] = cos x cos y.
-    sin_x = np.clip(r[..., 2, 1], -1.0, 1.0)
-    x = np.arcsin(sin_x)
-    cos_x = np.sqrt(np.maximum(0.0, 1.0 - sin_x * sin_x))
-    regular = cos_x > 1e-9
+    # cos x from the two entries it scales (accurate near the lock, unlike sqrt(1 - sin^2)).
+    cos_x = np.hypot(r[..., 0, 1], r[..., 1, 1])
+    x = np.arctan2(r[..., 2, 1], cos_x)
+    regular = cos_x > 1e-7
     z_regular = np.arctan2(-r[..., 0, 1], r[..., 1, 1])
     z = np.where(regular, z_regular, np.arctan2(r[..., 1, 0], r[..., 0, 0]))
     y = np.where(regular, np.arctan2(-r[..., 2, 0], r[..., 2, 2]), 0.0)
