@@ -50,4 +50,5 @@ def check_canonical_body(body: Body, what: str) -> None:
     shoulders = np.linalg.norm(_joint(body, "l_shoulder") - _joint(body, "r_shoulder"), axis=-1)
     assert 0.3 < leg / height < 0.7, (what, "leg / height", leg / height)
     assert 0.2 < arm / height < 0.6, (what, "arm / height", arm / height)
-    assert 0.08 < shoulders.mean() / height < 0.45, (what, "shoulders / height")
+    # Cartoon characters (Mixamo's Ortiz) have shoulders half as wide as they are tall.
+    assert 0.08 < shoulders.mean() / height < 0.6, (what, "shoulders / height")
