@@ -3,7 +3,7 @@
 
 import { clipForm, descriptors, getJson, labels as fetchLabels, postForm } from "./api.js";
 import { Figure, Player } from "./figure.js";
-import { groupFiles } from "./upload.js";
+import { ACCEPT, groupFiles } from "./upload.js";
 import { clear, debounce, el, formatNumber, formatSeconds, labelChips, nextId } from "./util.js";
 
 const PREVIEW = { fps: 30, maxFrames: 600 };
@@ -41,7 +41,7 @@ export async function renderSearch(main, params, { navigate }) {
     placeholder: "type a clip name",
   });
   const options = el("datalist", { id: ids.options });
-  const fileInput = el("input", { id: ids.file, type: "file", multiple: true, accept: ".bvh,.asf,.amc" });
+  const fileInput = el("input", { id: ids.file, type: "file", multiple: true, accept: ACCEPT });
   const descriptorSelect = el("select", { id: ids.descriptor, "aria-describedby": ids.descriptorHelp });
   const descriptorHelp = el("p", { id: ids.descriptorHelp, class: "hint" });
   const kInput = el("input", { id: ids.k, type: "number", min: "1", max: String(MAX_K), value: String(state.k) });
