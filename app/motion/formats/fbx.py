@@ -22,6 +22,7 @@ list and each ``.anim`` are taken once and kept referenced until the end; parent
 
 from __future__ import annotations
 
+from itertools import chain
 from typing import Any
 
 import numpy as np
@@ -227,22 +228,44 @@ def _baked(
         index = node_ids.get(baked.typed_id)
         if index is None:
             continue
-        # Vec3 and Quat are named tuples: unpacking them is the binding's fast path.
-        keys = [(k.time, *k.value) for k in baked.translation_keys]
-        if keys:
-            translation[:, index] = _sample(np.array(keys), times)
-        quats = [(k.time, *k.value) for k in baked.rotation_keys]
-        if quats:
-            rotation[:, index] = _sample_quaternions(np.array(quats), times)
-        keys = [(k.time, *k.value) for k in baked.scale_keys]
-        if keys:
-            scale[:, index] = _sample(np.array(keys), times)
+        for keys, out, width in (
+            (baked.translation_keys, translation, 3),
+            (baked.rotation_keys, rotation, 4),
+            (baked.scale_keys, scale, 3),
+        ):
+            table = _key_table(keys, width)
+            if table is None:
+                continue
+            if width == 4:
+                out[:, index] = _sample_quaternions(table, times)
+            else:
+                out[:, index] = _sample(table, times)
     return translation, rotation, scale
+
+
+def _key_table(keys: Any, width: int) -> np.ndarray | None:
+    """``(K, 1 + width)`` rows ``(time, values...)`` of baked keys, or None when there are
+    none. Keys are read once each and flattened straight into numpy: the binding builds a
+    Python object per key and value, which is most of an FBX's reading time."""
+    keys = list(keys)
+    if not keys:
+        return None
+    values = [key.value for key in keys]
+    table = np.empty((len(keys), 1 + width))
+    table[:, 0] = np.fromiter((key.time for key in keys), float, count=len(keys))
+    table[:, 1:] = np.fromiter(chain.from_iterable(values), float, count=width * len(keys)).reshape(
+        -1, width
+    )
+    return table
 
 
 def _sample(keys: np.ndarray, times: np.ndarray) -> np.ndarray:
     """``(F, D)`` linear interpolation of ``(K, 1 + D)`` keys ``(time, values...)``."""
-    if len(keys) == len(times) and np.allclose(keys[:, 0], times, rtol=0, atol=1e-6):
+    if (
+        len(keys) == len(times)
+        and abs(keys[0, 0] - times[0]) < 1e-6
+        and abs(keys[-1, 0] - times[-1]) < 1e-6
+    ):
         return keys[:, 1:]  # baked at the frame rate: a key per frame
     return np.stack([np.interp(times, keys[:, 0], keys[:, c]) for c in range(1, keys.shape[1])], 1)
 

@@ -153,17 +153,23 @@ def compose_world(
     local = quaternion_matrices(rotation) * scale[..., None, :]
     linear = np.empty_like(local)
     position = np.empty_like(translation, dtype=np.float64)
+    # Level by level from the top: every node of a level in one batched product.
+    depth = np.zeros(len(parents), dtype=np.int64)
     for node in _topological(parents):
-        parent = int(parents[node])
-        if parent < 0:
-            linear[..., node, :, :] = local[..., node, :, :]
-            position[..., node, :] = translation[..., node, :]
-        else:
-            parent_linear = linear[..., parent, :, :]
-            linear[..., node, :, :] = parent_linear @ local[..., node, :, :]
-            position[..., node, :] = (
-                position[..., parent, :] + (parent_linear @ translation[..., node, :, None])[..., 0]
-            )
+        if parents[node] >= 0:
+            depth[node] = depth[parents[node]] + 1
+    for level in range(int(depth.max(initial=0)) + 1):
+        nodes = np.flatnonzero(depth == level)
+        if level == 0:
+            linear[..., nodes, :, :] = local[..., nodes, :, :]
+            position[..., nodes, :] = translation[..., nodes, :]
+            continue
+        up = parents[nodes]
+        parent_linear = linear[..., up, :, :]
+        linear[..., nodes, :, :] = parent_linear @ local[..., nodes, :, :]
+        position[..., nodes, :] = (
+            position[..., up, :] + (parent_linear @ translation[..., nodes, :, None])[..., 0]
+        )
     return linear, position
 
 
@@ -352,19 +358,17 @@ def motion_from_graph(
     at = position[:, columns]  # (F, J, 3)
     check_finite(at, "world position", [names[n] for n in joints], axis=1)
 
-    frames, count = at.shape[0], len(joints)
-    offsets = np.zeros((count, 3))
-    local_rotations = np.empty((frames, count, 3, 3))
-    per_frame = np.zeros((frames, count, 3))
-    for j in range(count):
-        p = int(joint_parents[j])
-        if p < 0:
-            local_rotations[:, j] = world[:, j]
-            continue
-        offsets[j] = rest_world[p].T @ (rest_at[j] - rest_at[p])
-        parent_t = np.swapaxes(world[:, p], -1, -2)
-        local_rotations[:, j] = parent_t @ world[:, j]
-        per_frame[:, j] = (parent_t @ (at[:, j] - at[:, p])[:, :, None])[:, :, 0]
+    count = len(joints)
+    root = joint_parents < 0
+    up = np.where(root, 0, joint_parents)
+    rest_parent_t = np.swapaxes(rest_world[up], -1, -2)  # (J, 3, 3)
+    offsets = (rest_parent_t @ (rest_at - rest_at[up])[:, :, None])[:, :, 0]
+    parent_t = np.swapaxes(world[:, up], -1, -2)  # (F, J, 3, 3)
+    local_rotations = parent_t @ world
+    local_rotations[:, root] = world[:, root]
+    per_frame = (parent_t @ (at - at[:, up])[..., None])[..., 0]
+    offsets[root] = 0.0
+    per_frame[:, root] = 0.0
     size = float(np.ptp(rest_at, axis=0).max()) if count > 1 else 0.0
     moved = float(np.abs(per_frame[:, 1:] - offsets[1:]).max()) if count > 1 else 0.0
     local_translations = per_frame if moved > OFFSET_TOLERANCE * max(size, 1e-9) else None
