@@ -18,7 +18,7 @@ from app.config import Settings
 from app.main import create_app
 from app.motion.formats import read_bvh
 from tests.conftest import FIXTURES_DIR
-from tests.motion.gltf_builder import gltf_parts, pack_glb
+from tests.motion.gltf_builder import gltf_parts, two_animation_glb
 
 FBX = ("human_ik.fbx", (FIXTURES_DIR / "ufbx_maya_human_ik_7400_binary.fbx").read_bytes())
 VRMA = ("test.vrma", (FIXTURES_DIR / "three_vrm_test.vrma").read_bytes())
@@ -27,30 +27,7 @@ ASF = ("02.asf", (FIXTURES_DIR / "cmu_02.asf").read_bytes())
 AMC = ("02_01.amc", (FIXTURES_DIR / "cmu_02_01_first40.amc").read_bytes())
 
 
-def two_animation_glb() -> bytes:
-    """The CMU fixture as a skinned GLB with a 41-frame "walk" and a 10-frame "start"."""
-    motion = read_bvh(BVH[1])
-    document, binary = gltf_parts(motion, name="walk")
-    start, start_binary = gltf_parts(motion.slice_frames(0, 10), name="start")
-    shift = len(binary)
-    for view in start["bufferViews"]:
-        view["byteOffset"] += shift
-    base = len(document["accessors"])
-    document["accessors"] += [
-        dict(a, bufferView=a["bufferView"] + len(document["bufferViews"]))
-        for a in start["accessors"]
-    ]
-    document["bufferViews"] += start["bufferViews"]
-    animation = start["animations"][0]
-    for sampler in animation["samplers"]:
-        sampler["input"] += base
-        sampler["output"] += base
-    document["animations"].append(animation)
-    document["buffers"][0]["byteLength"] = shift + len(start_binary)
-    return pack_glb(document, binary + start_binary)
-
-
-GLB = ("walk.glb", two_animation_glb())
+GLB = ("walk.glb", two_animation_glb(read_bvh(BVH[1])))
 
 
 @pytest.fixture(scope="module")

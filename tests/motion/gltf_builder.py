@@ -90,3 +90,26 @@ def pack_glb(document: dict[str, Any], binary: bytes | None) -> bytes:
 def build_glb(motion: Motion, *, name: str = "clip") -> bytes:
     """A skinned GLB holding ``motion`` as one animation called ``name``."""
     return pack_glb(*gltf_parts(motion, name=name))
+
+
+def two_animation_glb(motion: Motion) -> bytes:
+    """``motion`` as a skinned GLB with two animations: "walk" (all of it) and "start" (its
+    first 10 frames)."""
+    document, binary = gltf_parts(motion, name="walk")
+    start, start_binary = gltf_parts(motion.slice_frames(0, 10), name="start")
+    shift = len(binary)
+    for view in start["bufferViews"]:
+        view["byteOffset"] += shift
+    base = len(document["accessors"])
+    document["accessors"] += [
+        dict(a, bufferView=a["bufferView"] + len(document["bufferViews"]))
+        for a in start["accessors"]
+    ]
+    document["bufferViews"] += start["bufferViews"]
+    animation = start["animations"][0]
+    for sampler in animation["samplers"]:
+        sampler["input"] += base
+        sampler["output"] += base
+    document["animations"].append(animation)
+    document["buffers"][0]["byteLength"] = shift + len(start_binary)
+    return pack_glb(document, binary + start_binary)
