@@ -12,6 +12,9 @@ both formats are binary input from strangers. They are never read in the server 
 * A crash, a hang, running out of memory: :class:`~app.errors.UnreadableFile` (422
   ``unreadable_file``) for that file, and nothing else notices. A worker that hit
   ``MemoryError`` exits after answering (its heap may be in pieces).
+* The binding's objects are never freed in a worker (freeing them can crash it): a worker
+  keeps every scene it read and retires after :data:`RETIRE_AFTER_FILES` files or half its
+  memory budget, exiting without destructors; the pool starts another.
 * The reader's own errors (ParseError, LimitExceeded) come back as themselves.
 
 Workers are spawned (not forked: the server process has threads) and import only the
@@ -20,6 +23,7 @@ motion core.
 
 from __future__ import annotations
 
+import gc
 import logging
 import multiprocessing
 import os
@@ -43,6 +47,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 START_SECONDS = 60.0  # a worker's imports, on a busy machine
+RETIRE_AFTER_FILES = 32  # a worker exits (and is replaced) after this many files
 READY_SECONDS = 10.0  # a worker's tidying up after a file
 FORMATS = ("fbx", "gltf")
 _START = "start"
@@ -57,12 +62,19 @@ class ParsedScene:
     animation: str
 
 
-def parse_scene(kind: str, data: bytes, animation: str | None, limits: ParseLimits) -> ParsedScene:
-    """Read one animation of an FBX (``kind="fbx"``) or glTF file, in this process."""
+def parse_scene(
+    kind: str,
+    data: bytes,
+    animation: str | None,
+    limits: ParseLimits,
+    keep: list[Any] | None = None,
+) -> ParsedScene:
+    """Read one animation of an FBX (``kind="fbx"``) or glTF file, in this process
+    (``keep``: see :func:`~app.motion.formats.fbx.read_fbx`)."""
     if kind == "fbx":
         from app.motion.formats.fbx import read_fbx
 
-        motion, animations, chosen = read_fbx(data, animation=animation, limits=limits)
+        motion, animations, chosen = read_fbx(data, animation=animation, limits=limits, keep=keep)
     elif kind == "gltf":
         from app.motion.formats.gltf import read_gltf
 
@@ -142,8 +154,14 @@ def _worker_main(conn: Connection, memory_mb: int | None) -> None:
 
     with suppress(ImportError):
         import ufbx  # noqa: F401
+    # The cyclic garbage collector crashes on the binding's objects once scenes are kept
+    # alive (below); nothing here needs it, and the worker retires before it matters.
+    gc.disable()
+    baseline = _address_space()
+    kept: list[Any] = []  # loaded scenes, never freed (see below)
+    kept_bytes: list[bytes] = []
     if memory_mb is not None and hasattr(resource, "RLIMIT_AS"):
-        limit = _address_space() + memory_mb * 1024 * 1024
+        limit = baseline + memory_mb * 1024 * 1024
         with suppress(ValueError, OSError):
             resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
     conn.send(("ready", os.getpid()))
@@ -157,7 +175,7 @@ def _worker_main(conn: Connection, memory_mb: int | None) -> None:
         kind, data, animation, limits = request
         exit_after = False
         try:
-            answer: tuple[Any, ...] = ("ok", parse_scene(kind, data, animation, limits))
+            answer: tuple[Any, ...] = ("ok", parse_scene(kind, data, animation, limits, kept))
         except ParseError as error:
             answer = ("parse_error", error.reason, error.line)
         except LimitExceeded as error:
@@ -169,7 +187,6 @@ def _worker_main(conn: Connection, memory_mb: int | None) -> None:
             answer = ("unreadable", "the file is nested too deeply to read")
         except Exception as error:  # a reader bug on odd input: that file is unreadable
             answer = ("unreadable", f"the reader failed ({type(error).__name__})")
-        del data, request
         try:
             conn.send(answer)
         except MemoryError:
@@ -181,15 +198,21 @@ def _worker_main(conn: Connection, memory_mb: int | None) -> None:
         del answer
         if exit_after:
             os._exit(0)
-        # Scenes are freed here, after answering: a crash while freeing costs this worker,
-        # not the answer. "ready" tells the pool the worker survived it.
-        import gc
-
-        gc.collect()
+        # Scenes are never freed here (freeing the binding's objects can crash it, and a scene
+        # may point into the file's bytes): they are kept, with the bytes, until the worker
+        # retires after RETIRE_AFTER_FILES files or half its memory budget, and exits without
+        # running destructors. "ready" tells the pool it may send the next file.
+        kept_bytes.append(data)
+        del request
+        retire = len(kept_bytes) >= RETIRE_AFTER_FILES or (
+            memory_mb is not None and _address_space() > baseline + memory_mb * 2**19
+        )
         try:
-            conn.send(("ready", None))
+            conn.send(("retire" if retire else "ready", None))
         except (BrokenPipeError, OSError):
             return
+        if retire:
+            os._exit(0)
 
 
 @dataclass(eq=False)
@@ -299,7 +322,7 @@ class ParserPool:
             if worker.conn.poll(READY_SECONDS):
                 message = worker.conn.recv()
                 worker.needs_ready = message[0] != "ready"
-                return not worker.needs_ready
+                return not worker.needs_ready and worker.process.is_alive()
         except (EOFError, OSError):
             pass
         return False

@@ -101,9 +101,17 @@ def list_fbx_animations(data: bytes, *, limits: ParseLimits = DEFAULT_LIMITS) ->
 
 
 def read_fbx(
-    data: bytes, *, animation: str | None = None, limits: ParseLimits = DEFAULT_LIMITS
+    data: bytes,
+    *,
+    animation: str | None = None,
+    limits: ParseLimits = DEFAULT_LIMITS,
+    keep: list[Any] | None = None,
 ) -> tuple[Motion, list[Animation], str]:
     """Read one animation of an FBX file.
+
+    ``keep``: a list the loaded ufbx scene (with its stacks and ``Anim`` wrappers) is
+    appended to, so the caller decides when, or whether, it is freed: freeing them can crash
+    the binding (see the module docstring).
 
     Returns
     -------
@@ -120,6 +128,8 @@ def read_fbx(
         Over ``limits`` (nodes, depth, joints, frames x nodes).
     """
     loaded = _Scene(data, limits)
+    if keep is not None:
+        keep.append(loaded)
     scene = loaded.scene
     nodes = list(scene.nodes)
     if len(nodes) > MAX_SCENE_NODES:
