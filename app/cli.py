@@ -282,7 +282,7 @@ class _ProgressBar:
 
 @command(
     "import",
-    "import every clip under folders (BVH, ASF/AMC) in parallel; skips content already stored",
+    "import every clip under folders (BVH, ASF/AMC, FBX, glTF) in parallel; skips stored content",
     configure=_configure_import,
 )
 def _import(args: argparse.Namespace, settings: Settings) -> int:

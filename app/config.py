@@ -109,6 +109,31 @@ class Settings(BaseSettings):
             "frame and joint in all), whatever its size in bytes (422 above)."
         ),
     )
+    parser_workers: int = Field(
+        default=2,
+        ge=1,
+        le=64,
+        description=(
+            "Worker processes that read FBX and glTF uploads (started when first needed, "
+            "reused; a reader's crash costs its worker, never the server)."
+        ),
+    )
+    parser_timeout_seconds: float = Field(
+        default=30.0,
+        gt=0,
+        description=(
+            "Longest time reading one FBX/glTF file may take in its worker; past it the "
+            "worker is killed and the upload answers 422 `unreadable_file`."
+        ),
+    )
+    parser_memory_mb: int = Field(
+        default=1024,
+        ge=64,
+        description=(
+            "Memory (address space, MB, above an idle worker's) reading one FBX/glTF file "
+            "may take; past it the upload answers 422 `unreadable_file`."
+        ),
+    )
     orphan_file_grace_seconds: float = Field(
         default=600.0,
         ge=0,

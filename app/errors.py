@@ -64,6 +64,12 @@ class SkeletonMappingError(ParseError):
     code = "unmappable_skeleton"
 
 
+class UnreadableFile(InvalidInput):
+    """A file whose reader crashed, hung or ran out of memory (in its worker process)."""
+
+    code = "unreadable_file"
+
+
 class LimitExceeded(InvalidInput):
     """Input over a configured limit (frames, joints, nesting depth, line length...)."""
 

@@ -44,11 +44,13 @@ router = APIRouter(prefix="/clips", tags=["clips"])
     },
 )
 def create_clip(upload: UploadDep, library: LibraryDep, response: Response) -> ClipOut:
-    """Store a clip: one BVH file as `file`, or an ASF skeleton as `skeleton` with an AMC
-    motion as `motion`, with optional `name`, `labels`, `source` and `licence`. The clip is
-    parsed and described under every descriptor before anything is stored.
+    """Store a clip: one BVH, FBX, glTF (.glb/.gltf) or VRM animation (.vrma) file as `file`,
+    or an ASF skeleton as `skeleton` with an AMC motion as `motion`, with optional `name`,
+    `labels`, `source` and `licence`. FBX/glTF: the longest animation of the file, or the
+    one named in `animation`. The clip is parsed and described under every descriptor before
+    anything is stored.
 
-    Uploading identical bytes again stores nothing new: the answer is 200 with the stored
+    Uploading identical content again stores nothing new: the answer is 200 with the stored
     clip and `"duplicate": true`, after applying what the upload brings — its labels are
     added to the clip's (case-insensitively), a given `name`, `source` or `licence` replaces
     the stored one."""
@@ -98,7 +100,10 @@ def get_clip(
     response_class=Response,
     responses={
         200: {
-            "description": "The BVH file, or for ASF/AMC a ZIP of both (or one `part`).",
+            "description": (
+                "The uploaded file, or for ASF/AMC a ZIP of both (or one `part`); with "
+                "`format=bvh`, the clip as a BVH file."
+            ),
             "content": {"application/octet-stream": {}, "application/zip": {}},
         },
         **error_responses(404, 422, 503),
@@ -111,9 +116,25 @@ def download_clip(
         Literal["file", "skeleton", "motion"] | None,
         Query(description="One uploaded part, byte for byte (ASF/AMC: skeleton or motion)."),
     ] = None,
+    file_format: Annotated[
+        Literal["bvh"] | None,
+        Query(
+            alias="format",
+            description=(
+                "`bvh`: the clip (of any format) as a BVH file of its own skeleton: rest "
+                "offsets, ZXY rotation channels on every joint, root translation, the clip's "
+                "frame rate."
+            ),
+        ),
+    ] = None,
 ) -> Response:
-    """The uploaded bytes, unchanged."""
-    download = clip_service.clip_download(library, clip, part)
+    """The uploaded bytes, unchanged; or with `format=bvh` the clip converted to BVH."""
+    if file_format == "bvh":
+        if part is not None:
+            raise InvalidInput("part: not with format=bvh (a BVH export is one file)")
+        download = clip_service.clip_bvh(library, clip)
+    else:
+        download = clip_service.clip_download(library, clip, part)
     return Response(
         content=download.data,
         media_type=download.media_type,

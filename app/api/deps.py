@@ -48,7 +48,14 @@ def _read(part: UploadFile | None) -> tuple[str | None, bytes] | None:
 def read_upload(
     request: Request,
     file: Annotated[
-        UploadFile | None, File(description="One BVH file (`.bvh`). Or send `skeleton` + `motion`.")
+        UploadFile | None,
+        File(
+            description=(
+                "One motion file: BVH (`.bvh`), FBX (`.fbx`, binary or ASCII), glTF 2.0 "
+                "(`.glb`, or `.gltf` with embedded buffers) or VRM animation (`.vrma`). Or "
+                "send `skeleton` + `motion`."
+            )
+        ),
     ] = None,
     skeleton: Annotated[
         UploadFile | None, File(description="An Acclaim skeleton (`.asf`), with `motion`.")
@@ -75,6 +82,15 @@ def read_upload(
         str | None,
         Form(description="Under which terms it may be used, e.g. `CC BY 4.0`; optional."),
     ] = None,
+    animation: Annotated[
+        str | None,
+        Form(
+            description=(
+                "FBX/glTF: which animation of the file to read, by name (see the clip's "
+                "`animations`); default: the longest."
+            )
+        ),
+    ] = None,
 ) -> Upload:
     content_type = request.headers.get("content-type", "")
     if not content_type.lower().startswith("multipart/form-data"):
@@ -89,6 +105,7 @@ def read_upload(
         labels=labels,
         source=source,
         licence=licence,
+        animation=animation,
     )
 
 

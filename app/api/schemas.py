@@ -7,7 +7,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from app.db.repository import ClipRecord, NewClip, StoredVector
+from app.db.repository import AnimationRecord, ClipRecord, NewClip, StoredVector
 from app.services.describe import DescriptorInfo
 from app.services.search import Hit
 
@@ -36,10 +36,15 @@ class ClipFields(BaseModel):
     name: str = Field(
         description="Display name; by default the (motion) file name without extension."
     )
-    filenames: list[str] = Field(description="Original file names: one .bvh, or the .asf and .amc.")
-    format: str = Field(description='"bvh" or "asf/amc".')
+    filenames: list[str] = Field(
+        description="Original file names: one .bvh/.fbx/.glb/.gltf/.vrma, or the .asf and .amc."
+    )
+    format: str = Field(description='"bvh", "asf/amc", "fbx" or "gltf".')
     content_hash: str = Field(
-        description="sha256 of the uploaded bytes (ASF/AMC: sha256 of sha256(asf) + sha256(amc))."
+        description=(
+            "sha256 of the uploaded bytes (ASF/AMC: sha256 of sha256(asf) + sha256(amc); "
+            "FBX/glTF: sha256 of sha256(file), a newline and the animation's name)."
+        )
     )
     frame_count: int = Field(description="Frames in the file.")
     frame_time: float = Field(description="Seconds per frame.")
@@ -56,6 +61,32 @@ class ClipFields(BaseModel):
     licence: str | None = Field(
         default=None, description="Under which terms the clip may be used, if given."
     )
+    animations: list[AnimationOut] | None = Field(
+        default=None,
+        exclude_if=lambda value: value is None,
+        description=(
+            "FBX/glTF: every animation of the file (the clip holds the one marked "
+            "`selected`); absent for BVH and ASF/AMC."
+        ),
+    )
+
+
+class AnimationOut(BaseModel):
+    """One animation of an FBX/glTF file."""
+
+    name: str = Field(description="As the file names it (`animation N` when it does not).")
+    frame_count: int = Field(description="Frames at the rate it is sampled at.")
+    duration: float = Field(description="Seconds from its first to its last key.")
+    selected: bool = Field(description="Whether this clip holds this animation.")
+
+    @classmethod
+    def of(cls, record: AnimationRecord) -> AnimationOut:
+        return cls(
+            name=record.name,
+            frame_count=record.frame_count,
+            duration=record.duration,
+            selected=record.selected,
+        )
 
 
 class DescriptorVector(BaseModel):
@@ -128,6 +159,9 @@ def _clip_fields(clip: ClipRecord | NewClip) -> dict[str, Any]:
         "labels": list(clip.labels),
         "source": clip.source,
         "licence": clip.licence,
+        "animations": None
+        if clip.animations is None
+        else [AnimationOut.of(a) for a in clip.animations],
     }
 
 

@@ -173,6 +173,7 @@ def clip_skeleton(
 def upload_skeleton(
     upload: UploadDep,
     settings: SettingsDep,
+    library: LibraryDep,
     fps: FpsQuery = ui_service.DEFAULT_FPS,
     max_frames: MaxFramesQuery = ui_service.MAX_SKELETON_FRAMES,
 ) -> Response:
@@ -180,7 +181,7 @@ def upload_skeleton(
     the UI previews a file dropped as a search query with it."""
     # The same memory bound as describing an upload (MOCAP_MAX_FRAME_VALUES).
     limits = dataclasses.replace(settings.parse_limits, max_values=settings.max_frame_values)
-    body = ui_service.upload_skeleton(upload, limits, fps, max_frames)
+    body = ui_service.upload_skeleton(upload, limits, fps, max_frames, library.parsers)
     return Response(content=body, media_type="application/json")
 
 

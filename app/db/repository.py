@@ -10,6 +10,7 @@ and batches are ``(N, D)`` float32 C-contiguous with ``(N,)`` int64 clip ids.
 from __future__ import annotations
 
 import contextlib
+import json
 import sqlite3
 import threading
 from collections.abc import Iterable, Iterator, Mapping, Sequence
@@ -52,6 +53,39 @@ class StoredVector:
 
 
 @dataclass(frozen=True)
+class AnimationRecord:
+    """One animation of a multi-animation file (FBX, glTF); ``selected``: the clip's own."""
+
+    name: str
+    frame_count: int
+    duration: float
+    selected: bool
+
+
+def encode_animations(animations: Sequence[AnimationRecord] | None) -> str | None:
+    if animations is None:
+        return None
+    return json.dumps(
+        [
+            {"name": a.name, "frame_count": a.frame_count, "duration": a.duration}
+            | ({"selected": True} if a.selected else {})
+            for a in animations
+        ]
+    )
+
+
+def decode_animations(text: str | None) -> tuple[AnimationRecord, ...] | None:
+    if text is None:
+        return None
+    return tuple(
+        AnimationRecord(
+            str(a["name"]), int(a["frame_count"]), float(a["duration"]), bool(a.get("selected"))
+        )
+        for a in json.loads(text)
+    )
+
+
+@dataclass(frozen=True)
 class NewClip:
     """Everything needed to insert a clip (the database assigns ``id``)."""
 
@@ -70,6 +104,8 @@ class NewClip:
     created_at: datetime = field(default_factory=lambda: datetime.now(UTC))
     source: str | None = None
     licence: str | None = None
+    # FBX/glTF: every animation of the file, the clip's own marked ``selected``; else None.
+    animations: tuple[AnimationRecord, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -91,6 +127,15 @@ class ClipRecord:
     files: tuple[FileRecord, ...]
     source: str | None = None
     licence: str | None = None
+    animations: tuple[AnimationRecord, ...] | None = None
+
+    @property
+    def animation(self) -> str | None:
+        """The animation of the file this clip holds (FBX/glTF), else None."""
+        for animation in self.animations or ():
+            if animation.selected:
+                return animation.name
+        return None
 
     @property
     def filenames(self) -> list[str]:
@@ -183,6 +228,7 @@ _CLIP_COLUMNS = (
     Clip.created_at,
     Clip.source,
     Clip.licence,
+    Clip.animations,
 )
 
 
@@ -229,6 +275,7 @@ def _records(executor: Executor, rows: Sequence[Any]) -> dict[int, ClipRecord]:
             files=tuple(files.get(int(row[0]), ())),
             source=row[11],
             licence=row[12],
+            animations=decode_animations(row[13]),
         )
         for row in rows
     }
@@ -327,6 +374,7 @@ def insert_clips(session: Session, clips: Sequence[NewClip]) -> list[int]:
                     "created_at": new.created_at,
                     "source": new.source,
                     "licence": new.licence,
+                    "animations": encode_animations(new.animations),
                 }
                 for new in clips
             ],
@@ -642,7 +690,8 @@ def checkpoint(engine: Engine) -> None:
 
 _SQLITE_CLIP_COLUMNS = (
     "c.id, c.name, c.format, c.content_hash, c.frame_count, c.frame_time, c.duration, "
-    "c.joint_count, c.skeleton_family, c.lead_in_frames, c.created_at, c.source, c.licence"
+    "c.joint_count, c.skeleton_family, c.lead_in_frames, c.created_at, c.source, c.licence, "
+    "c.animations"
 )
 
 
@@ -722,9 +771,10 @@ class _SqliteSnapshot:
             lead_in_frames=row[9],
             created_at=_parse_timestamp(row[10]),
             labels=tags,
-            files=tuple(FileRecord(r[13], r[14], r[15], r[16]) for r in rows if r[13] is not None),
+            files=tuple(FileRecord(r[14], r[15], r[16], r[17]) for r in rows if r[14] is not None),
             source=row[11],
             licence=row[12],
+            animations=decode_animations(row[13]),
         )
 
     def vector(self, clip_id: int, name: str) -> StoredVector | None:

@@ -15,8 +15,10 @@ from sqlalchemy.exc import SQLAlchemyError
 from app.db import repository as repo
 from app.errors import InvalidInput, NoStoredFile, NotFound, StorageUnavailable
 from app.labels import label_filter
+from app.motion.formats.bvh_writer import write_bvh
+from app.services.describe import read_motion
 from app.services.library import Library
-from app.services.uploads import BVH
+from app.services.uploads import BVH, Upload
 
 log = logging.getLogger(__name__)
 
@@ -151,6 +153,28 @@ def _tidy_after_delete(library: Library, clip_ids: list[int], shas: list[str]) -
             what,
             exc,
         )
+
+
+def stored_upload(library: Library, clip: repo.ClipRecord) -> Upload:
+    """A stored clip's files as the upload they came in (FBX/glTF: its own animation)."""
+    if not clip.files:  # synthetic benchmark clips have vectors but no upload
+        raise NotFound(f"clip {clip.id} has no stored file ({clip.format} clip)")
+    data = {f.role: (f.filename, library.blobs.read(f.sha256)) for f in clip.files}
+    return Upload.from_files(**data, animation=clip.animation)  # type: ignore[arg-type]
+
+
+def clip_bvh(
+    library: Library, clip: repo.ClipRecord, frames: tuple[int, int] | None = None
+) -> Download:
+    """Any clip as a BVH file of its own skeleton (read again from its stored files; FBX and
+    glTF in a parser worker), optionally frames ``start:stop`` of it."""
+    upload = stored_upload(library, clip)
+    motion = read_motion(upload, library.settings.parse_limits, library.parsers).motion
+    text = write_bvh(motion, frames)
+    stem = PurePosixPath(upload.parts[-1].filename).stem or f"clip-{clip.id}"
+    if clip.animation is not None and len(clip.animations or ()) > 1:
+        stem = f"{stem} - {clip.animation}"
+    return Download(f"{stem}.bvh", "application/octet-stream", text.encode())
 
 
 def clip_download(library: Library, clip: repo.ClipRecord, part: str | None) -> Download:

@@ -72,9 +72,27 @@ def find_existing(library: Library, upload: Upload) -> repo.ClipRecord | None:
 
 
 def describe(library: Library, upload: Upload, *, only: Sequence[str] | None = None) -> Described:
-    """Parse and describe ``upload`` (blocking, CPU-bound; stores nothing)."""
+    """Parse and describe ``upload`` (blocking, CPU-bound; stores nothing). An FBX/glTF
+    upload comes back knowing which animation it holds (and so its content hash)."""
     description = library.describer.describe(upload, library.settings.parse_limits, only=only)
-    return Described(upload, description)
+    return Described(described_upload(upload, description), description)
+
+
+def described_upload(upload: Upload, description: Description) -> Upload:
+    """``upload`` with the animation its description read (FBX/glTF), else as it is."""
+    if description.animation is None:
+        return upload
+    return upload.with_animations(description.animations, description.animation)
+
+
+def animation_records(upload: Upload) -> tuple[repo.AnimationRecord, ...] | None:
+    """The file's animations as stored with the clip (None for BVH and ASF/AMC)."""
+    if upload.animation is None:
+        return None
+    return tuple(
+        repo.AnimationRecord(a.name, a.frame_count, a.duration, a.name == upload.animation)
+        for a in upload.animations
+    )
 
 
 def new_clip(library: Library, item: Described) -> repo.NewClip:
@@ -100,6 +118,7 @@ def new_clip(library: Library, item: Described) -> repo.NewClip:
             name: repo.StoredVector(library.descriptors[name].version, vector)
             for name, vector in description.vectors.items()
         },
+        animations=animation_records(upload),
     )
 
 
@@ -253,7 +272,7 @@ def _brings_something(upload: Upload) -> bool:
 
 def ingest(library: Library, upload: Upload) -> IngestResult:
     """Store one upload (or return the clip already holding the same content)."""
-    existing = find_existing(library, upload)
+    existing = find_existing(library, upload) if upload.knows_content_hash else None
     if existing is not None:  # no need to read it again
         if not apply_to_stored(library, [(existing.id, upload)]):
             return IngestResult(existing, created=False)
@@ -277,7 +296,7 @@ def ingest_many(
     batch: list[Described] = []
     for upload in uploads:
         try:
-            if find_existing(library, upload) is None:
+            if not upload.knows_content_hash or find_existing(library, upload) is None:
                 batch.append(describe(library, upload))
             else:
                 batch.append(Described(upload, None))

@@ -41,6 +41,7 @@ from app.index import DescriptorIndex, IndexOptions, IndexSet
 from app.motion.descriptors import DEFAULT_DESCRIPTOR
 from app.services.blobs import BlobStore
 from app.services.describe import Describer, DescriptorInfo, MotionDescriber
+from app.services.parser_pool import ParserPool
 
 log = logging.getLogger(__name__)
 
@@ -111,6 +112,9 @@ class Library:
     blobs: BlobStore
     indexes: IndexSet
     describer: Describer
+    # FBX/glTF readers' worker processes (started when first needed); None: those formats
+    # cannot be read (a describer of the tests' own).
+    parsers: ParserPool | None = None
     write_lock: threading.Lock = field(default_factory=threading.Lock)
     search_reads: repo.SearchReads = field(init=False, repr=False)
     _sync_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
@@ -255,6 +259,8 @@ class Library:
         finally:
             self.search_reads.close()
             self.engine.dispose()
+            if self.parsers is not None:
+                self.parsers.close()
 
 
 def _open_indexes(
@@ -282,8 +288,9 @@ def _open_indexes(
 
 def open_library(settings: Settings, *, describer: Describer | None = None) -> Library:
     """Migrate the database to the newest schema and load (or rebuild) the indexes."""
+    parsers = ParserPool.from_settings(settings)  # no process until an FBX/glTF arrives
     if describer is None:
-        describer = MotionDescriber.from_settings(settings)
+        describer = MotionDescriber.from_settings(settings, parsers=parsers)
     if not describer.descriptors:
         raise RuntimeError("the describer offers no descriptor")
     try:
@@ -291,6 +298,7 @@ def open_library(settings: Settings, *, describer: Describer | None = None) -> L
         engine = create_db_engine(settings.sqlalchemy_url)
         upgrade(engine)
     except (OSError, SQLAlchemyError) as exc:
+        parsers.close()
         raise StorageUnavailable(f"cannot open the database: {exc}") from exc
     reads = read_sessions(engine)
     try:
@@ -299,6 +307,7 @@ def open_library(settings: Settings, *, describer: Describer | None = None) -> L
             clips = repo.count_clips(session)
     except BaseException:
         engine.dispose()
+        parsers.close()
         raise
     for name, size in indexes.sizes().items():
         if size < clips:
@@ -317,6 +326,7 @@ def open_library(settings: Settings, *, describer: Describer | None = None) -> L
         blobs=BlobStore(settings.files_dir),
         indexes=indexes,
         describer=describer,
+        parsers=parsers,
     )
     for name, outdated in library.count_outdated().items():
         if outdated:

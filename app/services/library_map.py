@@ -44,11 +44,13 @@ from app.db import repository as repo
 from app.errors import InvalidInput, NoStoredFile, ParseError
 from app.motion.body import Body, build_body
 from app.motion.descriptors import kinetic
-from app.motion.formats import read_asf_amc, read_bvh
 from app.motion.model import Motion, ParseLimits
 from app.motion.skeleton_map import CANONICAL_BONES, CANONICAL_INDEX, CANONICAL_JOINTS
+from app.services.clips import stored_upload
+from app.services.describe import read_motion
 from app.services.library import Library
-from app.services.uploads import BVH, Upload
+from app.services.parser_pool import ParserPool
+from app.services.uploads import Upload
 
 # -- stick figures --------------------------------------------------------------------------
 
@@ -196,33 +198,19 @@ def read_stored_motion(library: Library, clip: repo.ClipRecord) -> Motion:
     NoStoredFile for a clip without files)."""
     if not clip.files:
         raise NoStoredFile(clip.id, clip.format)
-    limits = library.settings.parse_limits
-    roles = {f.role: f for f in clip.files}
-    if clip.format == BVH:
-        return read_bvh(library.blobs.read(clip.files[0].sha256), limits=limits)
-    return read_asf_amc(
-        library.blobs.read(roles["skeleton"].sha256),
-        library.blobs.read(roles["motion"].sha256),
-        limits=limits,
-        frame_time=clip.frame_time,
-    )
+    upload = stored_upload(library, clip)
+    return read_motion(upload, library.settings.parse_limits, library.parsers).motion
 
 
-def upload_display_motion(upload: Upload, limits: ParseLimits) -> DisplayMotion:
+def upload_display_motion(
+    upload: Upload, limits: ParseLimits, parsers: ParserPool | None = None
+) -> DisplayMotion:
     """Parse and map an uploaded (not stored) clip; errors name the uploaded file."""
+    read = read_motion(upload, limits, parsers)
     try:
-        if upload.format == BVH:
-            motion = read_bvh(upload.parts[0].data, limits=limits)
-        else:
-            motion = read_asf_amc(
-                upload.part("skeleton").data, upload.part("motion").data, limits=limits
-            )
-        return display_motion(motion)
+        return display_motion(read.motion)
     except ParseError as error:
-        if upload.format == BVH:
-            part = upload.parts[0]
-        else:
-            part = upload.part("skeleton" if error.source == "ASF" else "motion")
+        part = upload.parts[0]
         source = f"{part.role} {part.filename!r}"
         raise type(error)(error.reason, line=error.line, source=source) from None
 
@@ -282,10 +270,16 @@ def clip_skeleton(
     return cache.responses.get_or_compute(key, compute)
 
 
-def upload_skeleton(upload: Upload, limits: ParseLimits, fps: int, max_frames: int) -> bytes:
+def upload_skeleton(
+    upload: Upload,
+    limits: ParseLimits,
+    fps: int,
+    max_frames: int,
+    parsers: ParserPool | None = None,
+) -> bytes:
     """The encoded skeleton response of an uploaded clip (nothing stored, nothing cached)."""
     check_skeleton_params(fps, max_frames)
-    display = upload_display_motion(upload, limits)
+    display = upload_display_motion(upload, limits, parsers)
     return _encode(skeleton_payload(display, clip_id=None, fps=fps, max_frames=max_frames))
 
 

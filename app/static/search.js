@@ -5,7 +5,7 @@ import { clipForm, descriptors, getJson, labels as fetchLabels, postForm } from 
 import { formatBadge } from "./clip.js";
 import { Figure, Player } from "./figure.js";
 import { Timeline } from "./timeline.js";
-import { dropTarget, groupFiles } from "./upload.js";
+import { ACCEPT, dropTarget, groupFiles } from "./upload.js";
 import { clear, debounce, el, formatNumber, formatSeconds, labelChips, nextId } from "./util.js";
 
 const PREVIEW = { fps: 30, maxFrames: 600 };
@@ -47,7 +47,7 @@ export async function renderSearch(main, params, { navigate }) {
     placeholder: "type a clip name",
   });
   const options = el("datalist", { id: ids.options });
-  const fileInput = el("input", { id: ids.file, type: "file", multiple: true, accept: ".bvh,.asf,.amc" });
+  const fileInput = el("input", { id: ids.file, type: "file", multiple: true, accept: ACCEPT });
   const descriptorSelect = el("select", { id: ids.descriptor, "aria-describedby": ids.descriptorHelp });
   const descriptorHelp = el("p", { id: ids.descriptorHelp, class: "hint" });
   const kInput = el("input", { id: ids.k, type: "number", min: "1", value: String(state.k), "aria-describedby": ids.kHelp });

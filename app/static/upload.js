@@ -23,6 +23,10 @@ function extension(name) {
  * stem before the first "_" — CMU's 02.asf for 02_01.amc — or the only skeleton around).
  * Returns [{name, bvh} | {name, asf, amc} | {name, error} | {name, note}].
  */
+// Files uploaded alone as the 'file' field (kept under the item's `bvh` key, which api.js sends).
+export const SINGLE_FILE_EXTENSIONS = ["bvh", "fbx", "glb", "gltf", "vrma"];
+export const ACCEPT = ".bvh,.fbx,.glb,.gltf,.vrma,.asf,.amc";
+
 export function groupFiles(files, remembered = rememberedSkeletons) {
   const items = [];
   const skeletons = new Map();
@@ -33,7 +37,7 @@ export function groupFiles(files, remembered = rememberedSkeletons) {
   const allSkeletons = new Map([...remembered, ...skeletons]);
   for (const file of files) {
     const ext = extension(file.name);
-    if (ext === "bvh") {
+    if (SINGLE_FILE_EXTENSIONS.includes(ext)) {
       items.push({ name: file.name, bvh: file });
     } else if (ext === "amc") {
       const key = stem(file.name).toLowerCase();
@@ -56,7 +60,8 @@ export function groupFiles(files, remembered = rememberedSkeletons) {
     } else if (ext !== "asf") {
       items.push({
         name: file.name,
-        error: "not a motion file: drop .bvh files, or .asf skeletons with their .amc motions",
+        error:
+          "not a motion file: drop .bvh, .fbx, .glb, .gltf or .vrma files, or .asf skeletons with their .amc motions",
       });
     }
   }
@@ -147,7 +152,7 @@ export async function renderUpload(main) {
     id: inputId,
     type: "file",
     multiple: true,
-    accept: ".bvh,.asf,.amc",
+    accept: ACCEPT,
     class: "file-input",
   });
   const labelsInput = el("input", { id: labelsId, type: "text", placeholder: "e.g. walk, happy", autocomplete: "off" });
@@ -169,7 +174,7 @@ export async function renderUpload(main) {
   const zone = el(
     "div",
     { class: "dropzone", "data-testid": "dropzone" },
-    el("p", { class: "dropzone-title" }, "Drop BVH files, or ASF skeletons with their AMC motions, anywhere on this page"),
+    el("p", { class: "dropzone-title" }, "Drop BVH, FBX, glTF or VRMA files, or ASF skeletons with their AMC motions, anywhere on this page"),
     el("p", {}, fileInput, el("label", { for: inputId, class: "button" }, "Choose files…")),
     el("p", { class: "hint" }, "Several files at once are fine; each clip is uploaded and checked on its own."),
   );

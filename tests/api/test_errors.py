@@ -46,7 +46,7 @@ def assert_error(response: Any, status: int, code: str, *words: str) -> dict[str
         (
             "post",
             "/clips",
-            {"files": {"file": ("a.fbx", b"x")}},
+            {"files": {"file": ("a.obj", b"x")}},
             415,
             "unsupported_media_type",
             ("'file'",),

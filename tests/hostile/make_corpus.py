@@ -30,6 +30,7 @@ FIXTURES = TESTS / "fixtures"
 BVH_FIXTURE = FIXTURES / "cmu_mb_02_01_first41.bvh"
 ASF_FIXTURE = FIXTURES / "cmu_02.asf"
 AMC_FIXTURE = FIXTURES / "cmu_02_01_first40.amc"
+FBX_FIXTURE = FIXTURES / "ufbx_maya_human_ik_7400_binary.fbx"
 
 
 @dataclass(frozen=True)
@@ -413,7 +414,200 @@ def small_cases() -> list[Case]:
             "skeleton",
         ),
     ]
-    return cases
+    return cases + scene_cases()
+
+
+def scene_cases() -> list[Case]:
+    """Damaged FBX and glTF files (read in the parser workers): garbage, truncation, flipped
+    bytes, non-finite numbers, references to other files, no skeleton, no animation."""
+
+    import numpy as np
+
+    from app.motion.formats import read_bvh
+    from tests.motion.gltf_builder import gltf_parts, pack_glb
+
+    P = "parse_error"
+    rng = random.Random(12)
+    fbx = FBX_FIXTURE.read_bytes()
+    motion = read_bvh(base_bvh(3))
+    document, binary = gltf_parts(motion)
+    glb = pack_glb(document, binary)
+
+    def flipped(data: bytes, count: int, start: int = 0) -> bytes:
+        out = bytearray(data)
+        for _ in range(count):
+            i = rng.randrange(start, len(out))
+            out[i] ^= 1 << rng.randrange(8)
+        return bytes(out)
+
+    def with_buffer(uri: str) -> bytes:
+        changed = json.loads(json.dumps(document))
+        changed["buffers"][0]["uri"] = uri
+        return json.dumps(changed).encode()
+
+    values = np.frombuffer(binary, dtype=np.float32).copy()
+    values[-3] = np.inf
+    huge = json.loads(json.dumps(document))
+    huge["accessors"][1]["count"] = 1_000_000_000
+    return [
+        Case(
+            "fbx_garbage",
+            "random bytes named .fbx",
+            {"file": ("a.fbx", garbage_bytes(rng))},
+            422,
+            P,
+            "a.fbx",
+        ),
+        Case(
+            "fbx_truncated",
+            "the first 4 kB of a binary FBX",
+            {"file": ("t.fbx", fbx[:4096])},
+            422,
+            P,
+            "t.fbx",
+        ),
+        Case(
+            "fbx_header_flipped",
+            "a binary FBX's first 4 kB with 40 bits flipped",
+            {"file": ("f.fbx", flipped(fbx[:4096], 40))},
+            422,
+            P,
+            "f.fbx",
+        ),
+        Case(
+            "fbx_ascii_garbage",
+            "an ASCII FBX header then nonsense",
+            {"file": ("a.fbx", b"; FBX 7.4.0 project file\n{{{ ::: }}}\n\x01\x02" * 50)},
+            422,
+            P,
+            "a.fbx",
+        ),
+        Case(
+            "glb_garbage",
+            "random bytes after a GLB magic",
+            {"file": ("g.glb", b"glTF\x02\x00\x00\x00" + garbage_bytes(rng))},
+            422,
+            P,
+            "g.glb",
+        ),
+        Case(
+            "glb_truncated",
+            "half a GLB",
+            {"file": ("t.glb", glb[: len(glb) // 2])},
+            422,
+            P,
+            "truncated",
+        ),
+        Case(
+            "glb_bad_json",
+            "a GLB whose JSON chunk is random bytes",
+            {"file": ("j.glb", pack_glb_raw(garbage_bytes(rng, 400), binary))},
+            422,
+            P,
+            "j.glb",
+        ),
+        Case(
+            "glb_inf",
+            "an animated translation of +inf",
+            {"file": ("i.glb", pack_glb(document, values.tobytes()))},
+            422,
+            P,
+            "non-finite",
+        ),
+        Case(
+            "glb_no_skeleton",
+            "an animation but no skin",
+            {"file": ("n.glb", pack_glb(dict(document, skins=[]), binary))},
+            422,
+            P,
+            "no skeleton",
+        ),
+        Case(
+            "glb_no_animation",
+            "a skin but no animation",
+            {"file": ("s.glb", pack_glb(dict(document, animations=[]), binary))},
+            422,
+            P,
+            "no animation",
+        ),
+        Case(
+            "glb_huge_accessor",
+            "an accessor claiming a billion values",
+            {"file": ("h.glb", pack_glb(huge, binary))},
+            422,
+            P,
+            "past the end",
+        ),
+        Case(
+            "gltf_relative_uri",
+            "a .gltf whose buffer is a file beside it",
+            {"file": ("r.gltf", with_buffer("walk.bin"))},
+            422,
+            P,
+            "upload a .glb",
+        ),
+        Case(
+            "gltf_parent_uri",
+            "a .gltf whose buffer is ../ outside its folder",
+            {"file": ("p.gltf", with_buffer("../../etc/passwd"))},
+            422,
+            P,
+            "upload a .glb",
+        ),
+        Case(
+            "gltf_absolute_uri",
+            "a .gltf whose buffer is an absolute path",
+            {"file": ("a.gltf", with_buffer("/etc/passwd"))},
+            422,
+            P,
+            "upload a .glb",
+        ),
+        Case(
+            "gltf_http_uri",
+            "a .gltf whose buffer is on the network",
+            {"file": ("h.gltf", with_buffer("http://127.0.0.1:9/a.bin"))},
+            422,
+            P,
+            "upload a .glb",
+        ),
+        Case(
+            "gltf_bad_base64",
+            "a data URI that is not base64",
+            {"file": ("b.gltf", with_buffer("data:application/octet-stream;base64,@@@"))},
+            422,
+            P,
+            "base64",
+        ),
+        Case(
+            "vrma_not_json",
+            "a .vrma that is a text file",
+            {"file": ("v.vrma", b"hello" * 100)},
+            422,
+            P,
+            "v.vrma",
+        ),
+        Case(
+            "gltf_embedded_ok_but_version_1",
+            "a glTF 1.0 document",
+            {"file": ("o.gltf", json.dumps({"asset": {"version": "1.0"}}).encode())},
+            422,
+            P,
+            "2.0",
+        ),
+    ]
+
+
+def pack_glb_raw(json_chunk: bytes, binary: bytes) -> bytes:
+    """A GLB container around any bytes as its JSON chunk."""
+    import struct
+
+    chunks = struct.pack("<I4s", len(json_chunk), b"JSON") + json_chunk
+    chunks += struct.pack("<I4s", len(binary), b"BIN\0") + binary
+    return b"glTF" + struct.pack("<II", 2, 12 + len(chunks)) + chunks
+
+
+def garbage_bytes(rng: random.Random, size: int = 4096) -> bytes:
+    return bytes(rng.randrange(256) for _ in range(size))
 
 
 def _deep_bvh(depth: int) -> str:

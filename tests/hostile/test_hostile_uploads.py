@@ -119,6 +119,15 @@ def test_the_corpus_covers_the_issue() -> None:
         "asf_unknown_unit",
         "gzip_file",
         "zip_file",
+        "fbx_garbage",
+        "fbx_truncated",
+        "glb_garbage",
+        "glb_inf",
+        "glb_no_skeleton",
+        "glb_no_animation",
+        "gltf_parent_uri",
+        "gltf_absolute_uri",
+        "gltf_http_uri",
     }
     assert wanted <= names, wanted - names
 

@@ -208,7 +208,7 @@ def test_skeleton_of_a_broken_upload_names_the_file(ui_client: TestClient) -> No
     assert response.status_code == 422
     body = response.json()
     assert body["error"] == "parse_error" and "'broken.bvh'" in body["detail"]
-    response = ui_client.post("/skeleton", files={"file": ("walk.fbx", b"x")})
+    response = ui_client.post("/skeleton", files={"file": ("walk.obj", b"x")})
     assert response.status_code == 415
 
 
