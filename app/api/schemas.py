@@ -23,6 +23,7 @@ _CLIP_EXAMPLE: dict[str, Any] = {
     "joint_count": 27,
     "skeleton_family": "bandai",
     "lead_in_frames": 0,
+    "warnings": [],
     "labels": ["walk", "happy"],
     "created_at": "2026-11-22T10:15:00Z",
 }
@@ -47,6 +48,12 @@ class ClipFields(BaseModel):
     lead_in_frames: int = Field(
         description="Rest-pose frames at the start left out of the descriptors."
     )
+    warnings: list[str] = Field(
+        default_factory=list,
+        description="Short sentences about what reading the file had to repair or decide "
+        '("mirrored capture: stored un-mirrored", "neck derived from the head\'s parent", '
+        '"3 short lines after the last frame ignored", ...).',
+    )
     labels: list[str] = Field(description="Free-form tags.")
 
 
@@ -67,13 +74,29 @@ class ClipOut(ClipFields):
         exclude_if=lambda value: value is None,
         description="Every stored descriptor vector by name; only with `?include=descriptors`.",
     )
+    mapping: dict[str, Any] | None = Field(
+        default=None,
+        exclude_if=lambda value: value is None,
+        description="Only with `?include=mapping`: `joints` maps each canonical joint to "
+        '`{"joint": source joint name, "how": how it was found}`; `end_sites` lists the '
+        "canonical points that are end effectors; `pose` says whether the rest pose or a "
+        "frame showed the body; `mirrored` whether the capture was stored un-mirrored. "
+        "Empty for clips stored before the mapping was recorded.",
+    )
 
     @classmethod
-    def of(cls, clip: ClipRecord, vectors: dict[str, StoredVector] | None = None) -> ClipOut:
+    def of(
+        cls,
+        clip: ClipRecord,
+        vectors: dict[str, StoredVector] | None = None,
+        *,
+        mapping: bool = False,
+    ) -> ClipOut:
         return cls(
             **_clip_fields(clip),
             id=clip.id,
             created_at=clip.created_at,
+            mapping=dict(clip.joint_mapping or {}) if mapping else None,
             descriptors=None
             if vectors is None
             else {
@@ -104,6 +127,7 @@ def _clip_fields(clip: ClipRecord | NewClip) -> dict[str, Any]:
         "joint_count": clip.joint_count,
         "skeleton_family": clip.skeleton_family,
         "lead_in_frames": clip.lead_in_frames,
+        "warnings": list(clip.warnings),
         "labels": list(clip.labels),
     }
 

@@ -10,6 +10,7 @@ and batches are ``(N, D)`` float32 C-contiguous with ``(N,)`` int64 clip ids.
 from __future__ import annotations
 
 import contextlib
+import json
 import sqlite3
 import threading
 from collections.abc import Iterable, Iterator, Mapping, Sequence
@@ -67,6 +68,8 @@ class NewClip:
     files: tuple[FileRecord, ...]
     vectors: Mapping[str, StoredVector]
     created_at: datetime = field(default_factory=lambda: datetime.now(UTC))
+    warnings: tuple[str, ...] = ()
+    joint_mapping: Mapping[str, object] | None = None
 
 
 @dataclass(frozen=True)
@@ -86,10 +89,22 @@ class ClipRecord:
     created_at: datetime
     labels: tuple[str, ...]
     files: tuple[FileRecord, ...]
+    warnings: tuple[str, ...] = ()
+    joint_mapping: Mapping[str, object] | None = None
 
     @property
     def filenames(self) -> list[str]:
         return [f.filename for f in self.files]
+
+
+def _json_warnings(text: str | None) -> tuple[str, ...]:
+    """The stored warnings (JSON text, ``'[]'`` by default) as a tuple."""
+    return tuple(json.loads(text)) if text else ()
+
+
+def _json_mapping(text: str | None) -> dict[str, object] | None:
+    """The stored joint mapping (JSON text or NULL for clips described before #10)."""
+    return json.loads(text) if text else None
 
 
 def encode_vector(vector: np.ndarray) -> bytes:
@@ -129,6 +144,8 @@ _CLIP_COLUMNS = (
     Clip.skeleton_family,
     Clip.lead_in_frames,
     Clip.created_at,
+    Clip.warnings,
+    Clip.joint_mapping,
 )
 
 
@@ -173,6 +190,8 @@ def _records(executor: Executor, rows: Sequence[Any]) -> dict[int, ClipRecord]:
             created_at=_utc(row[10]),
             labels=tuple(labels.get(int(row[0]), ())),
             files=tuple(files.get(int(row[0]), ())),
+            warnings=_json_warnings(row[11]),
+            joint_mapping=_json_mapping(row[12]),
         )
         for row in rows
     }
@@ -270,6 +289,10 @@ def insert_clips(session: Session, clips: Sequence[NewClip]) -> list[int]:
                     "skeleton_family": new.skeleton_family,
                     "lead_in_frames": new.lead_in_frames,
                     "created_at": new.created_at,
+                    "warnings": json.dumps(list(new.warnings)),
+                    "joint_mapping": None
+                    if new.joint_mapping is None
+                    else json.dumps(new.joint_mapping),
                 }
                 for new in clips
             ],
@@ -525,7 +548,8 @@ def checkpoint(engine: Engine) -> None:
 
 _SQLITE_CLIP_COLUMNS = (
     "c.id, c.name, c.format, c.content_hash, c.frame_count, c.frame_time, c.duration, "
-    "c.joint_count, c.skeleton_family, c.lead_in_frames, c.created_at"
+    "c.joint_count, c.skeleton_family, c.lead_in_frames, c.created_at, c.warnings, "
+    "c.joint_mapping"
 )
 
 
@@ -600,7 +624,9 @@ class _SqliteSnapshot:
             lead_in_frames=row[9],
             created_at=_parse_timestamp(row[10]),
             labels=tags,
-            files=tuple(FileRecord(r[11], r[12], r[13], r[14]) for r in rows if r[11] is not None),
+            files=tuple(FileRecord(r[13], r[14], r[15], r[16]) for r in rows if r[13] is not None),
+            warnings=_json_warnings(row[11]),
+            joint_mapping=_json_mapping(row[12]),
         )
 
     def vector(self, clip_id: int, name: str) -> StoredVector | None:

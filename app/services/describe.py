@@ -8,6 +8,7 @@ and the API are generic over the descriptor registry (and testable with syntheti
 from __future__ import annotations
 
 import dataclasses
+import json
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -48,6 +49,8 @@ class Description:
     skeleton_family: str
     lead_in_frames: int
     vectors: dict[str, np.ndarray]
+    warnings: tuple[str, ...] = ()
+    joint_mapping: dict[str, object] | None = None
 
     @property
     def fields(self) -> dict[str, object]:
@@ -59,6 +62,8 @@ class Description:
             "joint_count": self.joint_count,
             "skeleton_family": self.skeleton_family,
             "lead_in_frames": self.lead_in_frames,
+            "warnings": json.dumps(list(self.warnings)),
+            "joint_mapping": None if self.joint_mapping is None else json.dumps(self.joint_mapping),
         }
 
 
@@ -207,4 +212,6 @@ class MotionDescriber:
             skeleton_family=analysis.skeleton_family,
             lead_in_frames=analysis.lead_in_frames,
             vectors=check_vectors(analysis.descriptors, self._descriptors),
+            warnings=analysis.warnings,
+            joint_mapping=analysis.joint_mapping,
         )
