@@ -125,6 +125,12 @@ MIRROR_INDEX: np.ndarray = np.array(
     ]
 )
 
+# Bones of non-zero length between the root and a limb's end, at least.
+_MIN_LIMB_BONES = 3
+# The shorter limb of a pair is at least this fraction of the longer one's bone path.
+_LIMB_PARTNER = 0.6
+# Head/hands/feet choices walked, cheapest first, before giving up on a pose.
+_TRIED_CHOICES = 12
 # Leaves considered as extremities (head, hands, feet and up to three props/IK targets).
 _CANDIDATES = 8
 # Fractions of the pose's extent (its bounding-box diagonal, about body height).
@@ -296,6 +302,17 @@ class _Tree:
             self.depth[j] = self.depth[p] + 1
             self.path[j] = self.path[p] + self.lengths[j]
         self.leaves = [j for j in range(count) if not self.children[j]]
+        self.bones = np.zeros(count, dtype=np.int64)  # non-zero bones from the root
+        for j in range(1, count):
+            self.bones[j] = self.bones[self.parents[j]] + (self.lengths[j] > 0)
+        self.limb_leaves = [j for j in self.leaves if self.bones[j] >= _MIN_LIMB_BONES]
+        # The body proper: everything but shallow leaves (IK targets, props on the root).
+        shallow = set(self.leaves) - set(self.limb_leaves)
+        self.body_joints = np.array([j for j in range(count) if j not in shallow])
+        self.reach = np.zeros(count)  # longest bone path from a joint down to a descendant
+        for j in range(count - 1, 0, -1):
+            p = int(self.parents[j])
+            self.reach[p] = max(self.reach[p], self.reach[j] + self.lengths[j])
         self.hints: list[NameHint] = [name_hint(n) for n in skeleton.names]
         self.sides: list[str | None] = [name_side(n) for n in skeleton.names]
 
@@ -386,12 +403,16 @@ class _Body:
 
 
 def _extremity_candidates(tree: _Tree) -> list[int]:
-    """Up to :data:`_CANDIDATES` leaves, each the farthest (along bones) from those before."""
-    start = int(np.argmax(tree.path[tree.leaves]))
-    chosen = [tree.leaves[start]]
+    """Up to :data:`_CANDIDATES` leaves, each the farthest (along bones) from those before.
+
+    Only leaves at least :data:`_MIN_LIMB_BONES` bones of non-zero length below the root
+    count: a limb has hip, knee and ankle; an IK target or prop hanging from the root does
+    not.
+    """
+    leaves = np.array(tree.limb_leaves or tree.leaves)
+    chosen = [int(leaves[int(np.argmax(tree.path[leaves]))])]
     nearest = tree.geodesic(chosen[0])
-    leaves = np.array(tree.leaves)
-    while len(chosen) < min(_CANDIDATES, len(tree.leaves)):
+    while len(chosen) < min(_CANDIDATES, len(leaves)):
         gaps = nearest[leaves]
         best = int(np.argmax(gaps))
         if gaps[best] <= 0:
@@ -453,6 +474,14 @@ def _check(
     hips = tree.lca(*feet)
     if hips in feet:
         return None, "one leg hangs from the other", 0
+    # A limb has at least two bones of its own (thigh and shin, upper arm and forearm) and
+    # its partner is about as long: not a twist bone beside the other leg's knee.
+    pairs: list[tuple[int, tuple[int, ...]]] = [(hips, feet), (chest, hands)]
+    for top, limb_ends in pairs:
+        own = [tree.bones[e] - tree.bones[top] for e in limb_ends]
+        reach = [tree.path[e] - tree.path[top] for e in limb_ends]
+        if min(own) < 2 or min(reach) < _LIMB_PARTNER * max(reach):
+            return None, "no two limbs of a pair alike: missing legs or arms", 1
     pelvis = tree.lca(hips, chest)
     spine = pose[chest] - pose[pelvis]
     if np.linalg.norm(spine) < _COINCIDENT * extent:
@@ -484,7 +513,12 @@ def _check(
     cost = abs(leg_lengths[0] - leg_lengths[1]) / max(leg_lengths) + abs(
         arm_lengths[0] - arm_lengths[1]
     ) / max(arm_lengths)
-    for role, ends, top in (("arm", hands, chest), ("leg", feet, pelvis), ("head", (head,), chest)):
+    roles: list[tuple[str, tuple[int, ...], int]] = [
+        ("arm", hands, chest),
+        ("leg", feet, pelvis),
+        ("head", (head,), chest),
+    ]
+    for role, ends, top in roles:
         for end in ends:
             words = tree.role_words(tree.chain(top, end)[1:])
             if words and role not in words:
@@ -499,14 +533,22 @@ def _check(
 
 
 def _map_pose(tree: _Tree, pose: np.ndarray, label: str) -> SkeletonMap:
-    extent = float(np.linalg.norm(np.ptp(pose, axis=0)))
+    extent = float(np.linalg.norm(np.ptp(pose[tree.body_joints], axis=0)))
     if not extent > 0:
         raise _NotHumanoid("every joint of the pose is at one point: no shape to map")
     valid, reason = _hypotheses(tree, pose, extent)
     if not valid:
         raise _NotHumanoid(f"not a whole humanoid: {reason}")
-    body = min(valid, key=lambda b: b.cost)
-    return _Mapper(tree, pose, extent, body, label).run()
+    # The cheapest choice whose limbs have knees and elbows (an IK target hanging from the
+    # root may pass for a leg until its chain is walked).
+    first: _NotHumanoid | None = None
+    for body in sorted(valid, key=lambda b: b.cost)[:_TRIED_CHOICES]:
+        try:
+            return _Mapper(tree, pose, extent, body, label).run()
+        except _NotHumanoid as problem:
+            first = first or problem
+    assert first is not None
+    raise first
 
 
 class _Mapper:
@@ -556,11 +598,17 @@ class _Mapper:
         tree = self.tree
         j = joint
         while True:
-            moving = [c for c in tree.children[j] if tree.lengths[c] > 0 or tree.children[c]]
-            if len(moving) != 1:
+            reaches = sorted(
+                ((tree.lengths[c] + tree.reach[c], c) for c in tree.children[j]), reverse=True
+            )
+            if not reaches or reaches[0][0] == 0:
                 break
-            j = moving[0]
-        if j == joint or (tree.children[j] and any(tree.lengths[c] > 0 for c in tree.children[j])):
+            # Side nubs (twist bones, helpers) shorter than half the main branch do not make
+            # a branching; two comparable branches (face joints beside the skull) do.
+            if len(reaches) > 1 and reaches[1][0] >= 0.5 * reaches[0][0]:
+                return None
+            j = reaches[0][1]
+        if j == joint:
             return None
         step = self.pose[j] - self.pose[joint]
         distance = float(np.linalg.norm(step))
