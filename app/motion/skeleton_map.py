@@ -143,6 +143,8 @@ _STRAIGHT_REST_DEG = 12.0
 _STRAIGHT_FRAME_DEG = 50.0
 # A joint bends a straight-looking limb when its chain turns by more than this, degrees.
 _BEND_DEG = 8.0
+# A later limb top must fit the proportions this much better (log ratio) to be taken.
+_PROPORTION_MARGIN = 0.3
 # Upper arm : forearm and thigh : shin (Drillis & Contini's segment table).
 _UPPER_TO_FORE = 1.27
 _THIGH_TO_SHIN = 1.0
@@ -750,8 +752,22 @@ class _Mapper:
         end = len(above) - 1
         # The top joint is never at the trunk joint's own place (a zero-length clavicle).
         first = next((i for i in range(1, end) if not self.same_place(above[i], above[0])), 1)
-        start = max(self.straight_run_start(above, end), first)
-        split = self.split(above, start, end, ratio)
+        straight = max(self.straight_run_start(above, end), first)
+        # A collar bone nearly in line with a T-posed arm passes for straight: among the tops
+        # of the straight run and the joints below it, the one whose split comes nearest the
+        # limb's proportions wins.
+        best: tuple[float, int, int | None] | None = None
+        for start in range(straight, end - 1):
+            split = self.split(above, start, end, ratio)
+            if split is None:
+                continue
+            path = self.tree.path
+            upper = path[above[split]] - path[above[start]]
+            lower = path[above[end]] - path[above[split]]
+            cost = abs(np.log(max(upper, 1e-12) / max(lower, 1e-12)) - np.log(ratio))
+            if best is None or cost < best[0] - _PROPORTION_MARGIN:
+                best = (cost, start, split)
+        start, split = (straight, None) if best is None else best[1:]
         if split is None:
             raise _NotHumanoid(
                 f"the {what} ending at {self.tree.names[above[-1]]!r} has no {parts[1]} between "
@@ -894,10 +910,12 @@ class _Mapper:
                 else None
             )
 
-        def order(pair: list[_Limb], key: str, top: int) -> tuple[list[_Limb], bool | None, bool]:
+        def order(
+            pair: list[_Limb], keys: tuple[str, ...], top: int
+        ) -> tuple[list[_Limb], bool | None, bool]:
             """(pair as [left, right] by geometry, names agree?, geometry known?)"""
             lateral = (
-                float((pose[pair[0][key]] - pose[pair[1][key]]) @ left)
+                sum(float((pose[pair[0][k]] - pose[pair[1][k]]) @ left) for k in keys)
                 if np.linalg.norm(left)
                 else 0.0
             )
@@ -910,8 +928,10 @@ class _Mapper:
                 return by_geometry, False, known
             return by_geometry, None, known
 
-        legs_lr, legs_agree, legs_known = order(legs, "hip", self.body.pelvis)
-        arms_lr, arms_agree, arms_known = order(arms, "shoulder", self.body.chest)
+        legs_lr, legs_agree, legs_known = order(legs, ("hip", "knee"), self.body.pelvis)
+        arms_lr, arms_agree, arms_known = order(
+            arms, ("shoulder", "elbow", "wrist"), self.body.chest
+        )
         mirrored = False
         if not (legs_known and arms_known) or np.linalg.norm(left) == 0:
             # No usable geometry: names alone (or the file's order) decide.

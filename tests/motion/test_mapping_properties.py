@@ -9,10 +9,16 @@ import numpy as np
 import pytest
 
 from app.motion import transforms
-from app.motion.formats import read_bvh
+from app.motion.formats import read_asf_amc, read_bvh
 from app.motion.model import Motion, Skeleton
 from app.motion.pipeline import ClipAnalysis, analyse
-from tests.motion.conftest import BANDAI_FIXTURE, CMU_BVH_FIXTURE, fixture_bytes
+from tests.motion.conftest import (
+    BANDAI_FIXTURE,
+    CMU_AMC_FIXTURE,
+    CMU_ASF_FIXTURE,
+    CMU_BVH_FIXTURE,
+    fixture_bytes,
+)
 
 FIXTURES = (CMU_BVH_FIXTURE, BANDAI_FIXTURE)
 
@@ -34,9 +40,15 @@ def _renamed(motion: Motion) -> Motion:
     )
 
 
-def test_meaningless_names_keep_mapping_and_descriptors():
-    # The CMU MotionBuilder rig is unambiguous: sides from the feet, joints from the shape.
-    motion = _motion(CMU_BVH_FIXTURE)
+def _cmu_asf() -> Motion:
+    return read_asf_amc(fixture_bytes(CMU_ASF_FIXTURE), fixture_bytes(CMU_AMC_FIXTURE))
+
+
+@pytest.mark.parametrize("load", [lambda: _motion(CMU_BVH_FIXTURE), _cmu_asf], ids=["bvh", "asf"])
+def test_meaningless_names_keep_mapping_and_descriptors(load):
+    # The CMU rigs are unambiguous: sides from the feet, joints from the shape (the ASF's
+    # collar bones run almost in line with its T-posed arms: proportions tell them apart).
+    motion = load()
     named, anonymous = analyse(motion), analyse(_renamed(motion))
     np.testing.assert_array_equal(anonymous.body.mapping.joints, named.body.mapping.joints)
     _same(named, anonymous)
@@ -117,3 +129,31 @@ def test_z_up_and_inches_change_nothing(fixture: str):
     for changed in (analyse(z_up), analyse(inches)):
         np.testing.assert_array_equal(changed.body.mapping.joints, plain.body.mapping.joints)
         _same(plain, changed, atol=1e-5)
+
+
+def test_names_against_the_geometry_on_one_pair_lose_with_a_warning():
+    # The leg chains' names swapped (a converter's mix-up), the arms' kept: no mirror can
+    # explain it, so the geometry decides and says so.
+    motion = _motion(CMU_BVH_FIXTURE)
+    swap = {"Left": "Right", "Right": "Left", "LHip": "RHip", "RHip": "LHip"}
+    legs = ("HipJoint", "UpLeg", "Leg", "Foot", "ToeBase")
+
+    def swapped(name: str) -> str:
+        for word, other in swap.items():
+            if name.startswith(word) and name[len(word) :].split("_")[0] in legs:
+                return other + name[len(word) :]
+        return name
+
+    names = tuple(swapped(n) for n in motion.skeleton.names)
+    assert names != motion.skeleton.names
+    confused = analyse(
+        dataclasses.replace(
+            motion,
+            skeleton=Skeleton(
+                names, motion.skeleton.parents, motion.skeleton.offsets, motion.skeleton.end_site
+            ),
+        )
+    )
+    np.testing.assert_array_equal(confused.body.mapping.joints, analyse(motion).body.mapping.joints)
+    assert confused.body.mapping.mirrored is False
+    assert any("sides taken from the geometry" in w for w in confused.warnings)
