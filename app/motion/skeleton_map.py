@@ -129,6 +129,9 @@ MIRROR_INDEX: np.ndarray = np.array(
 _MIN_LIMB_BONES = 3
 # The shorter limb of a pair is at least this fraction of the longer one's bone path.
 _LIMB_PARTNER = 0.6
+# An end effector continues its joint's direction (up for the head, forward for the toes)
+# within this cosine (45 degrees): a helper nub pointing elsewhere is not the toe tip.
+_EFFECTOR_COS = 0.7
 # Head/hands/feet choices walked, cheapest first, before giving up on a pose.
 _TRIED_CHOICES = 12
 # Leaves considered as extremities (head, hands, feet and up to three props/IK targets).
@@ -308,8 +311,12 @@ class _Tree:
         for j in range(1, count):
             self.bones[j] = self.bones[self.parents[j]] + (self.lengths[j] > 0)
         self.limb_leaves = [j for j in self.leaves if self.bones[j] >= _MIN_LIMB_BONES]
-        # The body proper: everything but shallow leaves (IK targets, props on the root).
+        # The body proper, whose bounding box gives the pose's scale: not shallow leaves (IK
+        # targets, props on the root), nor a root with a single child (a floor-level
+        # "joint_Root" that may stay at the origin while the body runs off).
         shallow = set(self.leaves) - set(self.limb_leaves)
+        if len(self.children[0]) == 1:
+            shallow.add(0)
         self.body_joints = np.array([j for j in range(count) if j not in shallow])
         self.reach = np.zeros(count)  # longest bone path from a joint down to a descendant
         for j in range(count - 1, 0, -1):
@@ -616,7 +623,7 @@ class _Mapper:
         distance = float(np.linalg.norm(step))
         if distance < _HEAD_END_MIN * self.extent:
             return None
-        if along is not None and float(step @ along) < 0.5 * distance:
+        if along is not None and float(step @ along) < _EFFECTOR_COS * distance:
             return None
         return j
 
