@@ -82,16 +82,23 @@ def get_clip(
     library: LibraryDep,
     include: Annotated[
         list[str],
-        Query(description="`descriptors` adds every stored descriptor vector by name."),
+        Query(
+            description="`descriptors` adds every stored descriptor vector by name, `mapping` "
+            "which source joint became each canonical joint and how it was found; "
+            "comma-separated or repeated (`include=descriptors,mapping`)."
+        ),
     ] = [],  # noqa: B006 - FastAPI copies defaults per request
 ) -> ClipOut:
-    """One clip; with `?include=descriptors` also its descriptor vectors."""
+    """One clip; with `?include=descriptors` also its descriptor vectors, with
+    `?include=mapping` its joint mapping."""
     wanted = {word.strip() for value in include for word in value.split(",") if word.strip()}
-    unknown = wanted - {"descriptors"}
+    unknown = wanted - {"descriptors", "mapping"}
     if unknown:
-        raise InvalidInput(f"include: unknown {', '.join(sorted(unknown))}; use 'descriptors'")
-    vectors = clip_service.clip_vectors(library, clip.id) if wanted else None
-    return ClipOut.of(clip, vectors)
+        raise InvalidInput(
+            f"include: unknown {', '.join(sorted(unknown))}; use 'descriptors' or 'mapping'"
+        )
+    vectors = clip_service.clip_vectors(library, clip.id) if "descriptors" in wanted else None
+    return ClipOut.of(clip, vectors, mapping="mapping" in wanted)
 
 
 @router.get(

@@ -23,6 +23,7 @@ _CLIP_EXAMPLE: dict[str, Any] = {
     "joint_count": 27,
     "skeleton_family": "bandai",
     "lead_in_frames": 0,
+    "warnings": [],
     "labels": ["walk", "happy"],
     "source": "Bandai Namco Research Motiondataset",
     "licence": "CC BY-NC-ND 4.0",
@@ -53,6 +54,12 @@ class ClipFields(BaseModel):
     skeleton_family: str = Field(description="Naming convention the skeleton was matched as.")
     lead_in_frames: int = Field(
         description="Rest-pose frames at the start left out of the descriptors."
+    )
+    warnings: list[str] = Field(
+        default_factory=list,
+        description="Short sentences about what reading the file had to repair or decide "
+        '("mirrored capture: stored un-mirrored", "neck derived from the head\'s parent", '
+        '"3 short lines after the last frame ignored", ...).',
     )
     labels: list[str] = Field(
         description="Free-form tags, each once whatever its case (the first spelling is kept)."
@@ -112,6 +119,15 @@ class ClipOut(ClipFields):
         description="Only in the answer to an upload: true when the content was already stored "
         "(status 200; the labels, name, source and licence sent were applied to that clip).",
     )
+    mapping: dict[str, Any] | None = Field(
+        default=None,
+        exclude_if=lambda value: value is None,
+        description="Only with `?include=mapping`: `joints` maps each canonical joint to "
+        '`{"joint": source joint name, "how": how it was found}`; `end_sites` lists the '
+        "canonical points that are end effectors; `pose` says whether the rest pose or a "
+        "frame showed the body; `mirrored` whether the capture was stored un-mirrored. "
+        "Empty for clips stored before the mapping was recorded.",
+    )
 
     @classmethod
     def of(
@@ -120,12 +136,14 @@ class ClipOut(ClipFields):
         vectors: dict[str, StoredVector] | None = None,
         *,
         duplicate: bool | None = None,
+        mapping: bool = False,
     ) -> ClipOut:
         return cls(
             **_clip_fields(clip),
             id=clip.id,
             created_at=clip.created_at,
             duplicate=duplicate,
+            mapping=dict(clip.joint_mapping or {}) if mapping else None,
             descriptors=None
             if vectors is None
             else {
@@ -156,6 +174,7 @@ def _clip_fields(clip: ClipRecord | NewClip) -> dict[str, Any]:
         "joint_count": clip.joint_count,
         "skeleton_family": clip.skeleton_family,
         "lead_in_frames": clip.lead_in_frames,
+        "warnings": list(clip.warnings),
         "labels": list(clip.labels),
         "source": clip.source,
         "licence": clip.licence,

@@ -106,6 +106,8 @@ class NewClip:
     licence: str | None = None
     # FBX/glTF: every animation of the file, the clip's own marked ``selected``; else None.
     animations: tuple[AnimationRecord, ...] | None = None
+    warnings: tuple[str, ...] = ()
+    joint_mapping: Mapping[str, object] | None = None
 
 
 @dataclass(frozen=True)
@@ -128,6 +130,8 @@ class ClipRecord:
     source: str | None = None
     licence: str | None = None
     animations: tuple[AnimationRecord, ...] | None = None
+    warnings: tuple[str, ...] = ()
+    joint_mapping: Mapping[str, object] | None = None
 
     @property
     def animation(self) -> str | None:
@@ -140,6 +144,16 @@ class ClipRecord:
     @property
     def filenames(self) -> list[str]:
         return [f.filename for f in self.files]
+
+
+def _json_warnings(text: str | None) -> tuple[str, ...]:
+    """The stored warnings (JSON text, ``'[]'`` by default) as a tuple."""
+    return tuple(json.loads(text)) if text else ()
+
+
+def _json_mapping(text: str | None) -> dict[str, object] | None:
+    """The stored joint mapping (JSON text or NULL for clips described before #10)."""
+    return json.loads(text) if text else None
 
 
 def encode_vector(vector: np.ndarray) -> bytes:
@@ -229,6 +243,8 @@ _CLIP_COLUMNS = (
     Clip.source,
     Clip.licence,
     Clip.animations,
+    Clip.warnings,
+    Clip.joint_mapping,
 )
 
 
@@ -276,6 +292,8 @@ def _records(executor: Executor, rows: Sequence[Any]) -> dict[int, ClipRecord]:
             source=row[11],
             licence=row[12],
             animations=decode_animations(row[13]),
+            warnings=_json_warnings(row[14]),
+            joint_mapping=_json_mapping(row[15]),
         )
         for row in rows
     }
@@ -375,6 +393,10 @@ def insert_clips(session: Session, clips: Sequence[NewClip]) -> list[int]:
                     "source": new.source,
                     "licence": new.licence,
                     "animations": encode_animations(new.animations),
+                    "warnings": json.dumps(list(new.warnings)),
+                    "joint_mapping": None
+                    if new.joint_mapping is None
+                    else json.dumps(new.joint_mapping),
                 }
                 for new in clips
             ],
@@ -691,7 +713,7 @@ def checkpoint(engine: Engine) -> None:
 _SQLITE_CLIP_COLUMNS = (
     "c.id, c.name, c.format, c.content_hash, c.frame_count, c.frame_time, c.duration, "
     "c.joint_count, c.skeleton_family, c.lead_in_frames, c.created_at, c.source, c.licence, "
-    "c.animations"
+    "c.animations, c.warnings, c.joint_mapping"
 )
 
 
@@ -771,10 +793,12 @@ class _SqliteSnapshot:
             lead_in_frames=row[9],
             created_at=_parse_timestamp(row[10]),
             labels=tags,
-            files=tuple(FileRecord(r[14], r[15], r[16], r[17]) for r in rows if r[14] is not None),
+            files=tuple(FileRecord(r[16], r[17], r[18], r[19]) for r in rows if r[16] is not None),
             source=row[11],
             licence=row[12],
             animations=decode_animations(row[13]),
+            warnings=_json_warnings(row[14]),
+            joint_mapping=_json_mapping(row[15]),
         )
 
     def vector(self, clip_id: int, name: str) -> StoredVector | None:

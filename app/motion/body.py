@@ -46,6 +46,10 @@ _REST_MEAN_ANGLE_DEG = 5.0
 _MAX_BLEND_SECONDS = 0.1
 # ...and changes the pose this many times faster than the clip's median frame-to-frame change.
 _BLEND_SPEED_FACTOR = 2.0
+# A joint this many body heights from the pelvis is a sentinel value, not a pose...
+_MAX_REACH = 3.0
+# ...and a pelvis jumping this many body heights from one frame to the next teleports.
+_TELEPORT = 2.0
 # Frames offered to the skeleton mapper when the rest pose is not a standing figure; the
 # first that shows a humanoid is used (a leg kicked high in one frame is not in the next).
 _POSE_FRAMES = 12
@@ -73,7 +77,9 @@ class Body:
     skeleton_family:
         Naming convention of the source skeleton.
     lead_in_frames:
-        Frames dropped from the start of the clip.
+        Frames dropped from the start of the clip: converter lead-in (rest pose) frames and
+        implausible frames (:func:`implausible_frames`). Implausible frames dropped from the
+        end are only reported in ``warnings``.
     mapping:
         How the source skeleton's joints became the canonical ones.
     warnings:
@@ -132,9 +138,6 @@ def build_body(motion: Motion) -> Body:
     if mapping.mirrored:
         # Left-handed geometry: describe the clip as it would be seen un-mirrored.
         motion = reflect(motion, axis=mapping.mirror_axis)
-    lead_in = count_lead_in_frames(motion)
-    if lead_in:
-        motion = motion.slice_frames(lead_in)
     rotations, positions = forward_kinematics(motion, joints=mapping.joints)
     canon_rot = rotations[:, mapping.joints]
     canon_pos = positions[:, mapping.joints]
@@ -150,6 +153,26 @@ def build_body(motion: Motion) -> Body:
         raise ParseError(
             "the skeleton has zero height (all bones between ankle and head are empty)"
         )
+    # Implausible frames (sentinel values, a teleporting root) at either end go like lead-in
+    # frames; in the middle they are kept and reported.
+    implausible = implausible_frames(canon_pos, height)
+    start, stop = _plausible_span(implausible)
+    if start or stop < len(implausible):
+        motion = motion.slice_frames(start, stop)
+    lead_in = count_lead_in_frames(motion)
+    canon_pos = canon_pos[start + lead_in : stop]
+    canon_rot = canon_rot[start + lead_in : stop]
+    middle = int(implausible[start:stop].sum())
+    if start:
+        warnings.append(f"{start} implausible frames at the start dropped")
+    if stop < len(implausible):
+        warnings.append(f"{len(implausible) - stop} implausible frames at the end dropped")
+    if middle:
+        warnings.append(
+            f"{middle} frames in the middle look implausible (joints far from the body or the "
+            "root jumping); kept"
+        )
+    lead_in += start
     frames = _pelvis_frames(motion, mapping.joints, canon_rot)
     return Body(
         positions=canon_pos,
@@ -163,6 +186,55 @@ def build_body(motion: Motion) -> Body:
         mapping=mapping,
         warnings=tuple(warnings),
     )
+
+
+def implausible_frames(positions: np.ndarray, height: float) -> np.ndarray:
+    """``(F,)`` bool: frames no body can take.
+
+    ``positions`` is ``(F, C, 3)`` canonical joints. A frame is implausible when a joint is
+    more than :data:`_MAX_REACH` body heights from the pelvis (a rigid skeleton cannot; per-
+    joint position channels holding sentinel values can), or when it lies outside the
+    longest stretch of frames without a teleport, a pelvis jump of more than
+    :data:`_TELEPORT` body heights between two frames (a root thrown to a sentinel position
+    and back). A subject walking far away is not a teleport: each step is small.
+    """
+    pelvis = positions[:, CANONICAL_INDEX["pelvis"]]
+    reach = np.linalg.norm(positions - pelvis[:, None], axis=2).max(axis=1) / height
+    jumps = np.linalg.norm(np.diff(pelvis, axis=0), axis=1) / height > _TELEPORT
+    starts = [0, *(np.flatnonzero(jumps) + 1).tolist()]
+    ends = [*starts[1:], len(pelvis)]
+    # Stretches that continue one another (the root came back from its excursion) form one
+    # trajectory; the one with the most frames is the clip.
+    group_of: list[int] = []
+    group_end: list[int] = []  # last frame of each trajectory so far
+    for start, end in zip(starts, ends, strict=True):
+        for g, last in enumerate(group_end):
+            step = np.linalg.norm(pelvis[start] - pelvis[last]) / height
+            if step <= _TELEPORT * (start - last):
+                group_of.append(g)
+                group_end[g] = end - 1
+                break
+        else:
+            group_of.append(len(group_end))
+            group_end.append(end - 1)
+    frames_in = np.zeros(len(group_end), dtype=np.int64)
+    for g, start, end in zip(group_of, starts, ends, strict=True):
+        frames_in[g] += end - start
+    main = int(np.argmax(frames_in))
+    outside = np.ones(len(pelvis), dtype=bool)
+    for g, start, end in zip(group_of, starts, ends, strict=True):
+        if g == main:
+            outside[start:end] = False
+    return np.asarray((reach > _MAX_REACH) | outside)
+
+
+def _plausible_span(implausible: np.ndarray) -> tuple[int, int]:
+    """``(start, stop)`` without the implausible runs at both ends (whole clip if none is
+    plausible: then there is nothing sensible to keep, and the error is elsewhere)."""
+    plausible = np.flatnonzero(~implausible)
+    if len(plausible) == 0:
+        raise ParseError("every frame is implausible (joints far from the body)")
+    return int(plausible[0]), int(plausible[-1]) + 1
 
 
 def _frame_poses(motion: Motion) -> Iterator[tuple[str, np.ndarray]]:

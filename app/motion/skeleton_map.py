@@ -125,6 +125,15 @@ MIRROR_INDEX: np.ndarray = np.array(
     ]
 )
 
+# Bones of non-zero length between the root and a limb's end, at least.
+_MIN_LIMB_BONES = 3
+# The shorter limb of a pair is at least this fraction of the longer one's bone path.
+_LIMB_PARTNER = 0.6
+# An end effector continues its joint's direction (up for the head, forward for the toes)
+# within this cosine (45 degrees): a helper nub pointing elsewhere is not the toe tip.
+_EFFECTOR_COS = 0.7
+# Head/hands/feet choices walked, cheapest first, before giving up on a pose.
+_TRIED_CHOICES = 12
 # Leaves considered as extremities (head, hands, feet and up to three props/IK targets).
 _CANDIDATES = 8
 # Fractions of the pose's extent (its bounding-box diagonal, about body height).
@@ -137,6 +146,8 @@ _STRAIGHT_REST_DEG = 12.0
 _STRAIGHT_FRAME_DEG = 50.0
 # A joint bends a straight-looking limb when its chain turns by more than this, degrees.
 _BEND_DEG = 8.0
+# A later limb top must fit the proportions this much better (log ratio) to be taken.
+_PROPORTION_MARGIN = 0.3
 # Upper arm : forearm and thigh : shin (Drillis & Contini's segment table).
 _UPPER_TO_FORE = 1.27
 _THIGH_TO_SHIN = 1.0
@@ -296,6 +307,21 @@ class _Tree:
             self.depth[j] = self.depth[p] + 1
             self.path[j] = self.path[p] + self.lengths[j]
         self.leaves = [j for j in range(count) if not self.children[j]]
+        self.bones = np.zeros(count, dtype=np.int64)  # non-zero bones from the root
+        for j in range(1, count):
+            self.bones[j] = self.bones[self.parents[j]] + (self.lengths[j] > 0)
+        self.limb_leaves = [j for j in self.leaves if self.bones[j] >= _MIN_LIMB_BONES]
+        # The body proper, whose bounding box gives the pose's scale: not shallow leaves (IK
+        # targets, props on the root), nor a root with a single child (a floor-level
+        # "joint_Root" that may stay at the origin while the body runs off).
+        shallow = set(self.leaves) - set(self.limb_leaves)
+        if len(self.children[0]) == 1:
+            shallow.add(0)
+        self.body_joints = np.array([j for j in range(count) if j not in shallow])
+        self.reach = np.zeros(count)  # longest bone path from a joint down to a descendant
+        for j in range(count - 1, 0, -1):
+            p = int(self.parents[j])
+            self.reach[p] = max(self.reach[p], self.reach[j] + self.lengths[j])
         self.hints: list[NameHint] = [name_hint(n) for n in skeleton.names]
         self.sides: list[str | None] = [name_side(n) for n in skeleton.names]
 
@@ -386,12 +412,16 @@ class _Body:
 
 
 def _extremity_candidates(tree: _Tree) -> list[int]:
-    """Up to :data:`_CANDIDATES` leaves, each the farthest (along bones) from those before."""
-    start = int(np.argmax(tree.path[tree.leaves]))
-    chosen = [tree.leaves[start]]
+    """Up to :data:`_CANDIDATES` leaves, each the farthest (along bones) from those before.
+
+    Only leaves at least :data:`_MIN_LIMB_BONES` bones of non-zero length below the root
+    count: a limb has hip, knee and ankle; an IK target or prop hanging from the root does
+    not.
+    """
+    leaves = np.array(tree.limb_leaves or tree.leaves)
+    chosen = [int(leaves[int(np.argmax(tree.path[leaves]))])]
     nearest = tree.geodesic(chosen[0])
-    leaves = np.array(tree.leaves)
-    while len(chosen) < min(_CANDIDATES, len(tree.leaves)):
+    while len(chosen) < min(_CANDIDATES, len(leaves)):
         gaps = nearest[leaves]
         best = int(np.argmax(gaps))
         if gaps[best] <= 0:
@@ -453,6 +483,14 @@ def _check(
     hips = tree.lca(*feet)
     if hips in feet:
         return None, "one leg hangs from the other", 0
+    # A limb has at least two bones of its own (thigh and shin, upper arm and forearm) and
+    # its partner is about as long: not a twist bone beside the other leg's knee.
+    pairs: list[tuple[int, tuple[int, ...]]] = [(hips, feet), (chest, hands)]
+    for top, limb_ends in pairs:
+        own = [tree.bones[e] - tree.bones[top] for e in limb_ends]
+        reach = [tree.path[e] - tree.path[top] for e in limb_ends]
+        if min(own) < 2 or min(reach) < _LIMB_PARTNER * max(reach):
+            return None, "no two limbs of a pair alike: missing legs or arms", 1
     pelvis = tree.lca(hips, chest)
     spine = pose[chest] - pose[pelvis]
     if np.linalg.norm(spine) < _COINCIDENT * extent:
@@ -484,7 +522,12 @@ def _check(
     cost = abs(leg_lengths[0] - leg_lengths[1]) / max(leg_lengths) + abs(
         arm_lengths[0] - arm_lengths[1]
     ) / max(arm_lengths)
-    for role, ends, top in (("arm", hands, chest), ("leg", feet, pelvis), ("head", (head,), chest)):
+    roles: list[tuple[str, tuple[int, ...], int]] = [
+        ("arm", hands, chest),
+        ("leg", feet, pelvis),
+        ("head", (head,), chest),
+    ]
+    for role, ends, top in roles:
         for end in ends:
             words = tree.role_words(tree.chain(top, end)[1:])
             if words and role not in words:
@@ -499,14 +542,22 @@ def _check(
 
 
 def _map_pose(tree: _Tree, pose: np.ndarray, label: str) -> SkeletonMap:
-    extent = float(np.linalg.norm(np.ptp(pose, axis=0)))
+    extent = float(np.linalg.norm(np.ptp(pose[tree.body_joints], axis=0)))
     if not extent > 0:
         raise _NotHumanoid("every joint of the pose is at one point: no shape to map")
     valid, reason = _hypotheses(tree, pose, extent)
     if not valid:
         raise _NotHumanoid(f"not a whole humanoid: {reason}")
-    body = min(valid, key=lambda b: b.cost)
-    return _Mapper(tree, pose, extent, body, label).run()
+    # The cheapest choice whose limbs have knees and elbows (an IK target hanging from the
+    # root may pass for a leg until its chain is walked).
+    first: _NotHumanoid | None = None
+    for body in sorted(valid, key=lambda b: b.cost)[:_TRIED_CHOICES]:
+        try:
+            return _Mapper(tree, pose, extent, body, label).run()
+        except _NotHumanoid as problem:
+            first = first or problem
+    assert first is not None
+    raise first
 
 
 class _Mapper:
@@ -556,17 +607,23 @@ class _Mapper:
         tree = self.tree
         j = joint
         while True:
-            moving = [c for c in tree.children[j] if tree.lengths[c] > 0 or tree.children[c]]
-            if len(moving) != 1:
+            reaches = sorted(
+                ((tree.lengths[c] + tree.reach[c], c) for c in tree.children[j]), reverse=True
+            )
+            if not reaches or reaches[0][0] == 0:
                 break
-            j = moving[0]
-        if j == joint or (tree.children[j] and any(tree.lengths[c] > 0 for c in tree.children[j])):
+            # Side nubs (twist bones, helpers) shorter than half the main branch do not make
+            # a branching; two comparable branches (face joints beside the skull) do.
+            if len(reaches) > 1 and reaches[1][0] >= 0.5 * reaches[0][0]:
+                return None
+            j = reaches[0][1]
+        if j == joint:
             return None
         step = self.pose[j] - self.pose[joint]
         distance = float(np.linalg.norm(step))
         if distance < _HEAD_END_MIN * self.extent:
             return None
-        if along is not None and float(step @ along) < 0.5 * distance:
+        if along is not None and float(step @ along) < _EFFECTOR_COS * distance:
             return None
         return j
 
@@ -702,8 +759,22 @@ class _Mapper:
         end = len(above) - 1
         # The top joint is never at the trunk joint's own place (a zero-length clavicle).
         first = next((i for i in range(1, end) if not self.same_place(above[i], above[0])), 1)
-        start = max(self.straight_run_start(above, end), first)
-        split = self.split(above, start, end, ratio)
+        straight = max(self.straight_run_start(above, end), first)
+        # A collar bone nearly in line with a T-posed arm passes for straight: among the tops
+        # of the straight run and the joints below it, the one whose split comes nearest the
+        # limb's proportions wins.
+        best: tuple[float, int, int | None] | None = None
+        for start in range(straight, end - 1):
+            split = self.split(above, start, end, ratio)
+            if split is None:
+                continue
+            path = self.tree.path
+            upper = path[above[split]] - path[above[start]]
+            lower = path[above[end]] - path[above[split]]
+            cost = abs(np.log(max(upper, 1e-12) / max(lower, 1e-12)) - np.log(ratio))
+            if best is None or cost < best[0] - _PROPORTION_MARGIN:
+                best = (cost, start, split)
+        start, split = (straight, None) if best is None else best[1:]
         if split is None:
             raise _NotHumanoid(
                 f"the {what} ending at {self.tree.names[above[-1]]!r} has no {parts[1]} between "
@@ -846,10 +917,12 @@ class _Mapper:
                 else None
             )
 
-        def order(pair: list[_Limb], key: str, top: int) -> tuple[list[_Limb], bool | None, bool]:
+        def order(
+            pair: list[_Limb], keys: tuple[str, ...], top: int
+        ) -> tuple[list[_Limb], bool | None, bool]:
             """(pair as [left, right] by geometry, names agree?, geometry known?)"""
             lateral = (
-                float((pose[pair[0][key]] - pose[pair[1][key]]) @ left)
+                sum(float((pose[pair[0][k]] - pose[pair[1][k]]) @ left) for k in keys)
                 if np.linalg.norm(left)
                 else 0.0
             )
@@ -862,8 +935,10 @@ class _Mapper:
                 return by_geometry, False, known
             return by_geometry, None, known
 
-        legs_lr, legs_agree, legs_known = order(legs, "hip", self.body.pelvis)
-        arms_lr, arms_agree, arms_known = order(arms, "shoulder", self.body.chest)
+        legs_lr, legs_agree, legs_known = order(legs, ("hip", "knee"), self.body.pelvis)
+        arms_lr, arms_agree, arms_known = order(
+            arms, ("shoulder", "elbow", "wrist"), self.body.chest
+        )
         mirrored = False
         if not (legs_known and arms_known) or np.linalg.norm(left) == 0:
             # No usable geometry: names alone (or the file's order) decide.

@@ -115,32 +115,42 @@ def opposite_side_names(names: tuple[str, ...]) -> tuple[str, ...]:
     return tuple(out)
 
 
-def reflect(motion: Motion, *, axis: int = 0) -> Motion:
-    """The motion seen in a mirror: world coordinate ``axis`` negated, names unchanged.
+def change_basis(motion: Motion, matrix: np.ndarray) -> Motion:
+    """The same clip written in other coordinates: ``(3, 3)`` orthogonal ``matrix`` ``Q``.
 
-    With ``M`` the reflection, every offset and translation becomes ``M o`` and every
-    rotation ``M R M``; positions from forward kinematics become ``M p``. Undoes a mirrored
-    capture (the limbs called left on the subject's right) without renaming anything.
+    Every offset and translation becomes ``Q o`` and every rotation ``Q R Q^T``, so positions
+    from forward kinematics become ``Q p``: with a rotation, the file of another up axis (a
+    Y-up clip as a Z-up exporter writes it, rest pose included); with a reflection, the
+    clip seen in a mirror.
     """
-    flip = np.ones(3)
-    flip[axis] = -1.0
-    m = np.diag(flip)
+    q = np.asarray(matrix, dtype=np.float64)
     skeleton = motion.skeleton
-    reflected = Skeleton(
+    changed = Skeleton(
         names=skeleton.names,
         parents=skeleton.parents,
-        offsets=skeleton.offsets * flip,
+        offsets=skeleton.offsets @ q.T,
         end_site=skeleton.end_site,
     )
     return _replace(
         motion,
-        skeleton=reflected,
-        root_translation=motion.root_translation * flip,
-        local_rotations=m @ motion.local_rotations @ m,
+        skeleton=changed,
+        root_translation=motion.root_translation @ q.T,
+        local_rotations=q @ motion.local_rotations @ q.T,
         local_translations=None
         if motion.local_translations is None
-        else motion.local_translations * flip,
+        else motion.local_translations @ q.T,
     )
+
+
+def reflect(motion: Motion, *, axis: int = 0) -> Motion:
+    """The motion seen in a mirror: world coordinate ``axis`` negated, names unchanged.
+
+    Undoes a mirrored capture (the limbs called left on the subject's right) without
+    renaming anything; see :func:`change_basis`.
+    """
+    flip = np.ones(3)
+    flip[axis] = -1.0
+    return change_basis(motion, np.diag(flip))
 
 
 def mirror(motion: Motion, *, lateral_axis: int = 0) -> Motion:

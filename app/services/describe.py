@@ -9,6 +9,7 @@ FBX and glTF in parser worker processes) -> ``analyse``.
 from __future__ import annotations
 
 import dataclasses
+import json
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -53,6 +54,8 @@ class Description:
     vectors: dict[str, np.ndarray]
     animation: str | None = None  # FBX/glTF: the animation described
     animations: tuple[Animation, ...] = ()  # FBX/glTF: every animation of the file
+    warnings: tuple[str, ...] = ()
+    joint_mapping: dict[str, object] | None = None
 
     @property
     def fields(self) -> dict[str, object]:
@@ -64,6 +67,8 @@ class Description:
             "joint_count": self.joint_count,
             "skeleton_family": self.skeleton_family,
             "lead_in_frames": self.lead_in_frames,
+            "warnings": json.dumps(list(self.warnings)),
+            "joint_mapping": None if self.joint_mapping is None else json.dumps(self.joint_mapping),
         }
 
 
@@ -260,4 +265,6 @@ class MotionDescriber:
             vectors=check_vectors(analysis.descriptors, self._descriptors),
             animation=read.animation,
             animations=read.animations,
+            warnings=analysis.warnings,
+            joint_mapping=analysis.joint_mapping,
         )

@@ -110,6 +110,8 @@ def new_clip(library: Library, item: Described) -> repo.NewClip:
         joint_count=description.joint_count,
         skeleton_family=description.skeleton_family,
         lead_in_frames=description.lead_in_frames,
+        warnings=description.warnings,
+        joint_mapping=description.joint_mapping,
         labels=upload.labels,
         source=upload.source,
         licence=upload.licence,

@@ -5,10 +5,10 @@ Stick figures (:func:`clip_skeleton`)
     (parse -> :func:`~app.motion.body.build_body`, so converter lead-in frames are dropped as
     for the descriptors). The canonical joints are put in a *display frame*: lengths in body
     heights, y up (the file's vertical axis, see :func:`display_up`), the pelvis's floor
-    point at the first frame at the origin (floor = the lowest any joint gets in the clip),
-    facing +z at the first frame (x is then the subject's left). Frames are resampled to
-    the requested rate by linear interpolation in time and cut after
-    :data:`MAX_SKELETON_FRAMES`.
+    point at the first frame at the origin (floor = the 5th percentile over frames of each
+    frame's lowest joint, so a wild frame cannot move it), facing +z at the first frame (x is
+    then the subject's left). Frames are resampled to the requested rate by linear
+    interpolation in time and cut after :data:`MAX_SKELETON_FRAMES`.
 
 Map (:func:`library_map`)
     For every clip two 2-D views, both from the *stored* vectors (no clip is re-read):
@@ -140,6 +140,10 @@ def display_up(world_up: np.ndarray) -> np.ndarray:
     return up
 
 
+# Percentile over frames of each frame's lowest joint that sets the preview's floor.
+_FLOOR_PERCENTILE = 5.0
+
+
 def display_positions(body: Body) -> np.ndarray:
     """``(F, C, 3)`` canonical joint positions in the display frame (see module docstring).
 
@@ -165,7 +169,9 @@ def display_positions(body: Body) -> np.ndarray:
         z = np.cross(x, up)
     basis = np.stack([x, up, z], axis=1)  # columns: display axes in world coordinates
     pelvis0 = body.positions[0, CANONICAL_INDEX["pelvis"]]
-    floor = float((body.positions @ up).min())
+    # Robust: the lowest point of most frames, so a frame gone wild (a sentinel value kept
+    # in the middle of a clip) cannot lift the figure far above the floor.
+    floor = float(np.percentile((body.positions @ up).min(axis=1), _FLOOR_PERCENTILE))
     origin = horizontal(pelvis0) + floor * up
     return np.asarray(((body.positions - origin) @ basis) / body.height)
 

@@ -210,3 +210,27 @@ def test_frame_and_joint_limits(limited_client: TestClient, fixtures_dir: Path) 
     response = post_asf_amc(limited_client, fixtures_dir)
     assert response.status_code == 422 and response.json()["error"] == "limit_exceeded"
     assert limited_client.get("/clips").json()["total"] == 0
+
+
+def test_warnings_and_the_joint_mapping_are_shown(client: TestClient, fixtures_dir: Path) -> None:
+    clean = post_bvh(client, fixtures_dir, CMU_BVH).json()
+    assert clean["warnings"] == []
+    assert "mapping" not in client.get(f"/clips/{clean['id']}").json()
+    both = client.get(f"/clips/{clean['id']}", params={"include": "descriptors,mapping"}).json()
+    assert set(both["descriptors"]) == set(REGISTRY)
+    mapping = both["mapping"]
+    assert mapping["joints"]["l_elbow"] == {"joint": "LeftForeArm", "how": "name"}
+    assert mapping["joints"]["head"]["joint"] == "Head_end"
+    assert "head" in mapping["end_sites"] and mapping["mirrored"] is False
+    assert mapping["pose"] == "rest pose"
+
+    # A file whose last frame was cut short (a broken download) goes in, saying so.
+    text = read(fixtures_dir, BANDAI).decode()
+    cut = client.post("/clips", files={"file": ("cut.bvh", text[:-500].encode())})
+    assert cut.status_code == 201, cut.text
+    assert cut.json()["frame_count"] == 39
+    assert [w for w in cut.json()["warnings"] if "cut short" in w]
+    assert client.get(f"/clips/{cut.json()['id']}").json()["warnings"] == cut.json()["warnings"]
+
+    unknown = client.get(f"/clips/{clean['id']}", params={"include": "mapping,bones"})
+    assert unknown.status_code == 422 and "bones" in unknown.json()["detail"]
