@@ -21,7 +21,8 @@ class RunningMeans:
     def __init__(self, samples: np.ndarray) -> None:
         samples = np.asarray(samples, dtype=np.float64)
         self.row_shape: tuple[int, ...] = samples.shape[1:]
-        flat = samples.reshape(samples.shape[0], -1)
+        # An explicit row size: a one-frame clip has no velocity samples (0 rows).
+        flat = samples.reshape(samples.shape[0], int(np.prod(self.row_shape, dtype=np.int64)))
         # Sums of deviations from the overall mean: long clips lose no precision to large sums.
         self._offset = flat.mean(axis=0) if flat.shape[0] else np.zeros(flat.shape[1])
         self._prefix = np.zeros((flat.shape[0] + 1, flat.shape[1]))

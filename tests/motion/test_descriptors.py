@@ -249,3 +249,16 @@ def test_a_span_is_described_as_the_clip_cut_to_it(name):
         for (start, stop), vector in zip(spans, described, strict=True):
             alone = descriptor.compute(_sliced_body(body, int(start), int(stop)))
             assert np.allclose(vector, alone, rtol=1e-7, atol=1e-9), (name, start, stop)
+
+
+def test_a_one_frame_clip_is_a_pose():
+    """A single frame (a pose file) has no velocities: energies and travel are zero, posture
+    is the pose's, and every vector is finite."""
+    from tests.motion.conftest import BANDAI_FIXTURE, fixture_bytes
+
+    pose = read_bvh(fixture_bytes(BANDAI_FIXTURE)).slice_frames(0, 1)
+    vectors = analyse(pose).descriptors
+    for name, vector in vectors.items():
+        assert np.all(np.isfinite(vector)), name
+    assert np.all(vectors["kinetic"] == 0)
+    assert np.any(vectors["posture"][:6] != 0) and np.all(vectors["posture"][6:] == 0)
