@@ -18,11 +18,9 @@ canonical joints only, and works out from the skeleton itself:
   same axes, and a frame's features are the same whether computed from the whole clip or a
   part of it. Neither the file's up axis, its units nor the facing direction matter.
 * ``world_up`` — the world's vertical axis, needed to split root speed into horizontal and
-  vertical parts: the coordinate axis (with sign) nearest to the clip's mean direction from
-  the feet (the ankles' midpoint) to the head. Motion-capture files are authored with a
-  coordinate axis up, and a body that leans (a dash leans 30-40 degrees on average) must not
-  tilt the floor. Feet-to-head, not the pelvis's axes: a rig whose pelvis joint is turned
-  against the body (some converters' roots) would otherwise tilt the floor with it.
+  vertical parts: the coordinate axis (with sign) nearest to the clip's mean body-up
+  direction. Motion-capture files are authored with a coordinate axis up, and a body that
+  leans (a dash leans 30-40 degrees on average) must not tilt the floor.
 """
 
 from __future__ import annotations
@@ -182,7 +180,7 @@ def build_body(motion: Motion) -> Body:
         frame_time=motion.frame_time,
         height=height,
         pelvis_frames=frames,
-        world_up=_world_up(canon_pos),
+        world_up=_world_up(frames),
         skeleton_family=mapping.family,
         lead_in_frames=lead_in,
         mapping=mapping,
@@ -353,15 +351,9 @@ def rest_pelvis_basis(motion: Motion, canonical: np.ndarray) -> np.ndarray:
     raise ParseError(problem)
 
 
-def _world_up(positions: np.ndarray) -> np.ndarray:
-    """``(3,)`` vertical axis of the world from ``(F, C, 3)`` canonical joint positions (see
-    module docstring)."""
-    feet = 0.5 * (
-        positions[:, CANONICAL_INDEX["l_ankle"]] + positions[:, CANONICAL_INDEX["r_ankle"]]
-    )
-    upward = positions[:, CANONICAL_INDEX["head"]] - feet
-    norms = np.linalg.norm(upward, axis=1, keepdims=True)
-    mean_up = (upward / np.maximum(norms, 1e-12)).mean(axis=0)
+def _world_up(pelvis_frames: np.ndarray) -> np.ndarray:
+    """``(3,)`` vertical axis of the world (see module docstring)."""
+    mean_up = pelvis_frames[:, :, 1].mean(axis=0)
     norm = np.linalg.norm(mean_up)
     if norm < 1e-9:
         return np.array([0.0, 1.0, 0.0])
