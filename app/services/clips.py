@@ -152,12 +152,7 @@ def remove_orphan_files(library: Library) -> int:
     with library.write_lock:
         try:
             with library.writes.begin() as session:
-                listed = list(library.blobs.stored())
-                shas = [sha for sha, _ in listed]
-                referenced: set[str] = set()
-                for start in range(0, len(shas), 500):
-                    referenced |= repo.referenced_blobs(session, shas[start : start + 500])
-                removed = library.blobs.sweep(listed, referenced, older_than=cutoff)
+                removed = library.blobs.remove_unreferenced(session, older_than=cutoff)
         except SQLAlchemyError as exc:
             log.warning("could not look for unreferenced stored files: %s", exc)
             return 0
