@@ -31,6 +31,7 @@ def list_descriptors(library: LibraryDep) -> DescriptorList:
 )
 def health(library: LibraryDep) -> Health:
     """The service is up and its database answers; how many clips and indexed vectors."""
+    library.refresh()  # index sizes as of now (and a health-checked replica stays current)
     clips = library.clip_count()
     indexes = {}
     for name, info in library.descriptors.items():
