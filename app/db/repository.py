@@ -520,8 +520,12 @@ def checkpoint(engine: Engine) -> None:
 # A search answers from four small queries (the query clip with its vector, the hits, their
 # labels, their files). Through the ORM they cost ~2 ms; here, on SQLite, they run as plain
 # SQL on one DBAPI connection per thread, kept open (~10 us each), inside one read
-# transaction, so a search sees one snapshot. Other databases go through the Core functions
-# above on a pooled connection.
+# transaction, so a search sees one snapshot. On PostgreSQL, where every statement is a round
+# trip to the server, they run as two statements (the clip with its files; the hits' names
+# with their labels) on one psycopg connection per thread in autocommit mode: no pool
+# checkout, ping, BEGIN or ROLLBACK around them. A clip deleted between the two is skipped by
+# the search, as one deleted between the index search and the rows. Other databases go through
+# the Core functions above on a pooled connection.
 
 _SQLITE_CLIP_COLUMNS = (
     "c.id, c.name, c.format, c.content_hash, c.frame_count, c.frame_time, c.duration, "
@@ -564,7 +568,7 @@ class SearchSnapshot(Protocol):
 
 class _SqliteSnapshot:
     def __init__(self, connection: sqlite3.Connection) -> None:
-        self._db = connection
+        self._db: sqlite3.Connection | _Placeholders = connection
 
     def max_clip_id(self) -> int:
         return int(self._db.execute("SELECT max(id) FROM clips").fetchone()[0] or 0)
@@ -634,6 +638,32 @@ class _SqliteSnapshot:
         return np.fromiter((r[0] for r in rows), dtype=np.int64)
 
 
+class _PostgresSnapshot(_SqliteSnapshot):
+    """The same reads with PostgreSQL's placeholders, names and labels in one statement."""
+
+    def __init__(self, connection: Any) -> None:
+        self._db = _Placeholders(connection)
+
+    def names(self, clip_ids: Sequence[int]) -> dict[int, ClipName]:
+        rows = self._db.execute(
+            "SELECT c.id, c.name, coalesce(array_agg(l.label ORDER BY l.position) "
+            "FILTER (WHERE l.label IS NOT NULL), '{}') FROM clips c "
+            "LEFT JOIN clip_labels l ON l.clip_id = c.id WHERE c.id = ANY(?) GROUP BY c.id",
+            ([int(i) for i in clip_ids],),
+        )
+        return {int(i): ClipName(int(i), name, tuple(labels)) for i, name, labels in rows}
+
+
+class _Placeholders:
+    """A psycopg connection taking the ``?`` placeholders of the SQLite statements."""
+
+    def __init__(self, connection: Any) -> None:
+        self._connection = connection
+
+    def execute(self, sql: str, params: Sequence[Any] = ()) -> Any:
+        return self._connection.execute(sql.replace("?", "%s"), params)
+
+
 class _CoreSnapshot:
     def __init__(self, connection: Connection) -> None:
         self._db = connection
@@ -665,8 +695,9 @@ class SearchReads:
     def __init__(self, engine: Engine) -> None:
         self._engine = engine
         self._path = engine.url.database if engine.dialect.name == "sqlite" else None
+        self._postgres = engine.dialect.name == "postgresql"
         self._local = threading.local()
-        self._opened: list[sqlite3.Connection] = []
+        self._opened: list[Any] = []
         self._lock = threading.Lock()
 
     def _connection(self) -> sqlite3.Connection:
@@ -683,8 +714,36 @@ class SearchReads:
                 self._opened.append(connection)
         return connection
 
+    def _postgres_connection(self) -> Any:
+        connection = getattr(self._local, "postgres", None)
+        if connection is None or connection.closed:
+            import psycopg  # the postgres extra; only imported for a PostgreSQL URL
+
+            url = self._engine.url.set(drivername="postgresql")
+            connection = psycopg.connect(url.render_as_string(hide_password=False), autocommit=True)
+            self._local.postgres = connection
+            with self._lock:
+                self._opened.append(connection)
+        return connection
+
+    @contextmanager
+    def _postgres_snapshot(self) -> Iterator[SearchSnapshot]:
+        import psycopg
+        from sqlalchemy.exc import OperationalError
+
+        connection = self._postgres_connection()
+        try:
+            yield _PostgresSnapshot(connection)
+        except psycopg.OperationalError as exc:  # the server went away: reconnect next time
+            connection.close()
+            raise OperationalError("search read", None, exc) from exc
+
     @contextmanager
     def snapshot(self) -> Iterator[SearchSnapshot]:
+        if self._postgres:
+            with self._postgres_snapshot() as snapshot:
+                yield snapshot
+            return
         if self._path is None:
             with self._engine.connect() as core:
                 yield _CoreSnapshot(core)
@@ -700,7 +759,7 @@ class SearchReads:
         with self._lock:
             opened, self._opened = self._opened, []
         for connection in opened:
-            with contextlib.suppress(sqlite3.Error):
+            with contextlib.suppress(Exception):
                 connection.close()
 
 
