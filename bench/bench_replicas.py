@@ -25,6 +25,9 @@ replicas cannot be faster than the cores allow. Loopback only; every wait is bou
 from __future__ import annotations
 
 import argparse
+import os
+import pwd
+import shutil
 import statistics
 import subprocess
 import sys
@@ -96,7 +99,9 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--count", type=int, default=100_000)
     parser.add_argument("--duration", type=int, default=15, help="seconds per wrk run")
-    parser.add_argument("--skip-load", action="store_true", help="only time a fresh replica")
+    parser.add_argument(
+        "--skip-load", action="store_true", help="only time a fresh replica (no SQLite library)"
+    )
     args = parser.parse_args()
     binaries = bin_dir()
     if binaries is None:
@@ -104,9 +109,6 @@ def main() -> int:
         return 2
     print(f"machine: {machine()}")
     work = Path(tempfile.mkdtemp(prefix="mocap-bench-replicas-"))
-    import os
-    import pwd
-
     user = "postgres" if os.geteuid() == 0 else None
     pg_root = Path(tempfile.mkdtemp(prefix="mocap-bench-pg-"))
     if user:
@@ -118,8 +120,9 @@ def main() -> int:
     try:
         url = cluster.new_database()
         print(f"PostgreSQL 15 at {url} (fsync off: a benchmark database)")
-        seconds = fill(args.count, work / "sqlite", None)
-        print(f"SQLite library filled to {args.count} clips in {seconds:.0f} s")
+        if not args.skip_load:
+            seconds = fill(args.count, work / "sqlite", None)
+            print(f"SQLite library filled to {args.count} clips in {seconds:.0f} s")
         seconds = fill(args.count, work / "filler", url)
         print(f"PostgreSQL library filled to {args.count} clips in {seconds:.0f} s")
         pg = {"MOCAP_DATABASE_URL": url}
@@ -160,6 +163,7 @@ def main() -> int:
         for server in servers:
             server.stop()
         cluster.stop()
+        shutil.rmtree(work, ignore_errors=True)
     return 0
 
 

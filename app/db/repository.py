@@ -233,9 +233,9 @@ def count_clips(session: Executor) -> int:
 
 
 def max_clip_id(session: Executor) -> int:
-    """The largest clip id (0 when there is none). Ids only grow — SQLite AUTOINCREMENT never
-    hands one out again, and writers are serialised — so a reader that has seen every clip up
-    to this id has seen every clip committed so far."""
+    """The largest clip id (0 when there is none). Not a way to follow other writers: on
+    PostgreSQL ids can commit out of order, and deletes leave no id; the indexes follow the
+    change feed (:mod:`app.db.changes`)."""
     return int(session.scalar(select(func.max(Clip.id))) or 0)
 
 
@@ -552,8 +552,6 @@ class ClipName:
 class SearchSnapshot(Protocol):
     """The reads of one search, all from one database snapshot."""
 
-    def max_clip_id(self) -> int: ...
-
     def clip(self, clip_id: int, *, labels: bool = True) -> ClipRecord | None:
         """The clip (``labels=False``: without its labels, e.g. when :meth:`names` fetches
         them with the hits), or ``None``."""
@@ -569,9 +567,6 @@ class SearchSnapshot(Protocol):
 class _SqliteSnapshot:
     def __init__(self, connection: sqlite3.Connection) -> None:
         self._db: sqlite3.Connection | _Placeholders = connection
-
-    def max_clip_id(self) -> int:
-        return int(self._db.execute("SELECT max(id) FROM clips").fetchone()[0] or 0)
 
     def clip(self, clip_id: int, *, labels: bool = True) -> ClipRecord | None:
         rows = self._db.execute(
@@ -667,9 +662,6 @@ class _Placeholders:
 class _CoreSnapshot:
     def __init__(self, connection: Connection) -> None:
         self._db = connection
-
-    def max_clip_id(self) -> int:
-        return max_clip_id(self._db)
 
     def clip(self, clip_id: int, *, labels: bool = True) -> ClipRecord | None:
         return get_clip(self._db, clip_id)

@@ -143,9 +143,10 @@ def remove_orphan_files(library: Library) -> int:
     ``MOCAP_ORPHAN_FILE_GRACE_SECONDS``; returns how many went.
 
     A crash between writing an upload's files and committing its clip, or between deleting a
-    clip and removing its files, leaves such files. The database write lock is held while
-    looking, so no clip of this database commits meanwhile (SQLite: ``BEGIN IMMEDIATE``); the
-    grace spares the files another process wrote and has not committed yet.
+    clip and removing its files, leaves such files. On SQLite the database write lock is held
+    while looking (``BEGIN IMMEDIATE``), so no clip commits meanwhile; on PostgreSQL one
+    statement removes the unreferenced rows of ``blobs``. Either way the grace spares the files
+    another process (a replica, an import) wrote and has not committed yet.
     """
     settings = library.settings
     cutoff = time.time() - settings.orphan_file_grace_seconds
