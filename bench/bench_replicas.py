@@ -18,6 +18,12 @@ Run from the repository root (``wrk`` and PostgreSQL 15 must be installed: ``apt
    replica, their requests/s added: what a round-robin proxy in front of them would see,
    without the proxy's own cost).
 
+With ``--rebuild-at N`` it only times a fresh replica's rebuild of every index from a
+PostgreSQL database of ``N`` clips (e.g. 1,000,000), filled in bulk on the server
+(``generate_series`` for the clip rows, ``COPY`` for clustered random vectors: minutes
+instead of the ``fill-synthetic`` run's quarter of an hour), in this process: reading the
+vectors, then ``open_library`` on an empty data directory.
+
 Everything runs on one machine: the replicas, PostgreSQL and ``wrk`` share its cores, so two
 replicas cannot be faster than the cores allow. Loopback only; every wait is bounded.
 """
@@ -64,6 +70,73 @@ def fill(count: int, data_dir: Path, database_url: str | None) -> float:
     return time.perf_counter() - started
 
 
+def bulk_fill(url: str, count: int, seed: int = 7) -> None:
+    """``count`` synthetic clips with vectors around 200 random centres, straight into the
+    database (the triggers fill the change feed as for any insert)."""
+    import numpy as np
+    import psycopg
+
+    from app.config import Settings
+    from app.services.describe import MotionDescriber
+
+    descriptors = MotionDescriber.from_settings(Settings()).descriptors.values()
+    rng = np.random.default_rng(seed)
+    with psycopg.connect(url.replace("+psycopg", ""), autocommit=True) as db:
+        db.execute(
+            "INSERT INTO clips (name, format, content_hash, frame_count, frame_time, duration, "
+            "joint_count, skeleton_family, lead_in_frames, created_at) SELECT 'bulk-' || g, "
+            "'synthetic', md5(g::text) || md5((g + 1)::text), 300, 1 / 30.0, 10, 25, "
+            "'synthetic', 0, now() FROM generate_series(1, %s) g",
+            (count,),
+        )
+        for info in descriptors:
+            centres = rng.normal(size=(200, info.dimension)).astype(np.float32)
+            with db.cursor().copy(
+                "COPY clip_descriptors (clip_id, name, version, dimension, vector) FROM STDIN"
+            ) as copy:
+                for start in range(0, count, 100_000):
+                    n = min(100_000, count - start)
+                    noisy = centres[rng.integers(0, 200, n)] + 0.3 * rng.normal(
+                        size=(n, info.dimension)
+                    ).astype(np.float32)
+                    for i, vector in enumerate(noisy.astype("<f4")):
+                        copy.write_row(
+                            (
+                                start + i + 1,
+                                info.name,
+                                info.version,
+                                info.dimension,
+                                vector.tobytes(),
+                            )
+                        )
+
+
+def time_rebuild(url: str, count: int, work: Path) -> None:
+    from app.config import Settings
+    from app.db import repository as repo
+    from app.services.library import open_library
+
+    started = time.perf_counter()
+    bulk_fill(url, count)
+    print(f"PostgreSQL filled in bulk to {count} clips in {time.perf_counter() - started:.0f} s")
+    settings = Settings(data_dir=work / "rebuild", database_url=url)
+    library = open_library(settings)  # builds the indexes (timed below, on a second replica)
+    try:
+        started = time.perf_counter()
+        with library.reads() as session:
+            for info in library.descriptors.values():
+                repo.load_vectors(session, info.name, info.version, info.dimension)
+        print(f"reading every vector from PostgreSQL: {time.perf_counter() - started:.1f} s")
+    finally:
+        library.close()
+    started = time.perf_counter()
+    fresh = open_library(settings.model_copy(update={"data_dir": work / "rebuild-2"}))
+    kinds = ", ".join(index.kind for index in fresh.indexes.values())
+    print(f"fresh replica, {count} clips: indexes rebuilt in {time.perf_counter() - started:.1f} s")
+    print(f"index kinds: {kinds}")
+    fresh.close()
+
+
 def load(servers: list[Server], connections: int, seconds: int, clips: int) -> dict[str, float]:
     """``connections`` spread evenly over ``servers``, each share its own ``wrk`` run at
     once; requests/s added, latencies of the slowest."""
@@ -99,6 +172,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--count", type=int, default=100_000)
     parser.add_argument("--duration", type=int, default=15, help="seconds per wrk run")
+    parser.add_argument("--rebuild-at", type=int, default=0, help="only time a rebuild at N")
     parser.add_argument(
         "--skip-load", action="store_true", help="only time a fresh replica (no SQLite library)"
     )
@@ -120,6 +194,9 @@ def main() -> int:
     try:
         url = cluster.new_database()
         print(f"PostgreSQL 15 at {url} (fsync off: a benchmark database)")
+        if args.rebuild_at:
+            time_rebuild(url, args.rebuild_at, work)
+            return 0
         if not args.skip_load:
             seconds = fill(args.count, work / "sqlite", None)
             print(f"SQLite library filled to {args.count} clips in {seconds:.0f} s")

@@ -10,6 +10,7 @@ and batches are ``(N, D)`` float32 C-contiguous with ``(N,)`` int64 clip ids.
 from __future__ import annotations
 
 import contextlib
+import queue
 import sqlite3
 import threading
 from collections.abc import Iterable, Iterator, Mapping, Sequence
@@ -688,6 +689,7 @@ class SearchReads:
         self._engine = engine
         self._path = engine.url.database if engine.dialect.name == "sqlite" else None
         self._postgres = engine.dialect.name == "postgresql"
+        self._idle: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._local = threading.local()
         self._opened: list[Any] = []
         self._lock = threading.Lock()
@@ -706,29 +708,33 @@ class SearchReads:
                 self._opened.append(connection)
         return connection
 
-    def _postgres_connection(self) -> Any:
-        connection = getattr(self._local, "postgres", None)
-        if connection is None or connection.closed:
-            import psycopg  # the postgres extra; only imported for a PostgreSQL URL
-
-            url = self._engine.url.set(drivername="postgresql")
-            connection = psycopg.connect(url.render_as_string(hide_password=False), autocommit=True)
-            self._local.postgres = connection
-            with self._lock:
-                self._opened.append(connection)
-        return connection
-
     @contextmanager
     def _postgres_snapshot(self) -> Iterator[SearchSnapshot]:
-        import psycopg
+        """A connection of the idle ones (or a new one) for one search, then back: as many
+        connections as searches ever ran at once (not one per thread of the pool)."""
+        import psycopg  # the postgres extra; only imported for a PostgreSQL URL
         from sqlalchemy.exc import OperationalError
 
-        connection = self._postgres_connection()
+        try:
+            connection = self._idle.get_nowait()
+        except queue.Empty:
+            url = self._engine.url.set(drivername="postgresql")
+            try:
+                connection = psycopg.connect(
+                    url.render_as_string(hide_password=False), autocommit=True
+                )
+            except psycopg.OperationalError as exc:
+                raise OperationalError("search read", None, exc) from exc
+            with self._lock:
+                self._opened.append(connection)
         try:
             yield _PostgresSnapshot(connection)
-        except psycopg.OperationalError as exc:  # the server went away: reconnect next time
+        except psycopg.OperationalError as exc:  # the server went away: a new one next time
             connection.close()
             raise OperationalError("search read", None, exc) from exc
+        finally:
+            if not connection.closed:
+                self._idle.put(connection)
 
     @contextmanager
     def snapshot(self) -> Iterator[SearchSnapshot]:

@@ -8,8 +8,9 @@ sessions begin with ``BEGIN IMMEDIATE`` so they take the write lock up front ins
 when a read transaction is upgraded.
 
 PostgreSQL goes through psycopg 3 (the ``postgres`` extra): a plain ``postgresql://`` URL
-means ``postgresql+psycopg://``. The pool holds up to as many connections as the server has
-request threads, so searches do not queue for a connection.
+means ``postgresql+psycopg://``. The pool holds at most 20 connections per process (searches
+have their own few, see ``SearchReads``), so a handful of replicas fit in PostgreSQL's default
+``max_connections`` of 100.
 """
 
 from __future__ import annotations
@@ -22,8 +23,8 @@ from sqlalchemy.engine import make_url
 from sqlalchemy.orm import Session, sessionmaker
 
 SQLITE_BUSY_TIMEOUT_MS = 30_000
-POOL_SIZE = 10
-POOL_OVERFLOW = 30  # 40 in all: the request thread pool's size
+POOL_SIZE = 5
+POOL_OVERFLOW = 15
 
 
 def create_db_engine(url: str) -> Engine:
