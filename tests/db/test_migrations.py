@@ -74,3 +74,32 @@ def test_transactions_roll_back_selects_and_writes(engine: Engine) -> None:
         connection.execute(text("CREATE TABLE scratch (x INTEGER)"))
         tx.rollback()
     assert "scratch" not in inspect(engine).get_table_names()
+
+
+def test_replicas_starting_together_migrate_one_after_the_other(
+    postgres_cluster: Cluster,
+) -> None:
+    # Two replicas starting at once on an empty PostgreSQL database: both come up at head.
+    import threading
+
+    url = postgres_cluster.new_database(migrated=False)
+    engines = [create_db_engine(url) for _ in range(3)]
+    errors: list[BaseException] = []
+
+    def start(engine: Engine) -> None:
+        try:
+            upgrade(engine)
+        except BaseException as exc:
+            errors.append(exc)
+
+    threads = [threading.Thread(target=start, args=(engine,)) for engine in engines]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(timeout=120)
+    try:
+        assert not errors, errors
+        assert current_revision(engines[0]) == head_revision()
+    finally:
+        for engine in engines:
+            engine.dispose()
