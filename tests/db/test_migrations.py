@@ -3,7 +3,11 @@ SQLite and on PostgreSQL (a fresh database of the session's throwaway server).""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 from alembic.autogenerate import compare_metadata
@@ -14,6 +18,7 @@ from app.config import Settings
 from app.db.migrate import current_revision, downgrade, head_revision, upgrade
 from app.db.models import Base
 from app.db.session import create_db_engine
+from tests.conftest import REPO_ROOT
 from tests.postgres import Cluster
 
 TABLES = {"clips", "clip_files", "clip_labels", "clip_descriptors", "clip_changes", "blobs"}
@@ -77,29 +82,27 @@ def test_transactions_roll_back_selects_and_writes(engine: Engine) -> None:
 
 
 def test_replicas_starting_together_migrate_one_after_the_other(
-    postgres_cluster: Cluster,
+    postgres_cluster: Cluster, tmp_path: Path
 ) -> None:
-    # Two replicas starting at once on an empty PostgreSQL database: both come up at head.
-    import threading
-
+    # Three processes migrating an empty PostgreSQL database at once, as replicas starting
+    # together do: all succeed (without the advisory lock the later ones fail creating tables).
     url = postgres_cluster.new_database(migrated=False)
-    engines = [create_db_engine(url) for _ in range(3)]
-    errors: list[BaseException] = []
-
-    def start(engine: Engine) -> None:
-        try:
-            upgrade(engine)
-        except BaseException as exc:
-            errors.append(exc)
-
-    threads = [threading.Thread(target=start, args=(engine,)) for engine in engines]
-    for thread in threads:
-        thread.start()
-    for thread in threads:
-        thread.join(timeout=120)
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MOCAP_")}
+    command = [sys.executable, "-m", "app.cli", "migrate", "--database-url", url]
+    processes = [
+        subprocess.Popen(
+            [*command, "--data-dir", str(tmp_path / str(n))],
+            cwd=REPO_ROOT,
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+        )
+        for n in range(3)
+    ]
+    outputs = [process.communicate(timeout=120)[0].decode() for process in processes]
+    assert [process.returncode for process in processes] == [0, 0, 0], outputs
+    engine = create_db_engine(url)
     try:
-        assert not errors, errors
-        assert current_revision(engines[0]) == head_revision()
+        assert current_revision(engine) == head_revision()
     finally:
-        for engine in engines:
-            engine.dispose()
+        engine.dispose()
