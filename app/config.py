@@ -35,8 +35,9 @@ class Settings(BaseSettings):
         default=None,
         description=(
             "SQLAlchemy database URL. Default: the SQLite file "
-            f"<data_dir>/{DATABASE_FILE_NAME}. A postgresql:// URL runs the same code on "
-            "PostgreSQL."
+            f"<data_dir>/{DATABASE_FILE_NAME}. A postgresql:// URL (psycopg 3, the `postgres` "
+            "extra) keeps everything, uploaded files included, in PostgreSQL, so any number of "
+            "replicas on any machines can share it; the data dir then holds only the indexes."
         ),
     )
     host: str = Field(default="127.0.0.1", description="Address `mocap-index serve` binds to.")
@@ -218,9 +219,9 @@ class Settings(BaseSettings):
         default=0.1,
         ge=0,
         description=(
-            "How often (at most) a search checks the database for clips stored by another "
-            "process (e.g. `mocap-index import`) and adds them to the in-memory indexes; "
-            "0 = before every search."
+            "How often (at most) a search or /health checks the database for clips stored or "
+            "deleted by another process (another replica, `mocap-index import`) and brings "
+            "the in-memory indexes up to date; 0 = before every search."
         ),
     )
     import_workers: int = Field(

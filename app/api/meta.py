@@ -31,9 +31,10 @@ def list_descriptors(library: LibraryDep) -> DescriptorList:
 def health(library: LibraryDep) -> Health:
     """The service is up and its database answers; how many clips and indexed vectors.
 
-    The indexes first take in clips another process (`mocap-index import`) stored, as a
-    search does; `missing` counts the clips without a current vector in the database, which
-    no search can find until `mocap-index reindex`."""
+    The indexes first take in clips another process (`mocap-index import`, another replica)
+    stored or deleted, as a search does — so a health-checked replica stays current;
+    `missing` counts the clips without a current vector in the database, which no search can
+    find until `mocap-index reindex`."""
     library.refresh()
     clips, stored = library.vector_counts()
     indexes = {}

@@ -17,6 +17,13 @@ clip_labels
 clip_descriptors
     The descriptor vectors (float32 bytes) with the descriptor version that produced them.
     The FAISS indexes are rebuilt from this table.
+clip_changes
+    The change feed the indexes of every process follow: one row per clip inserted, updated
+    or deleted (and per vector updated), written by database triggers (migration 0003), with
+    the writing transaction's id on PostgreSQL. See :mod:`app.db.changes`.
+blobs
+    The uploaded files themselves, by sha256, when the database is PostgreSQL (so a replica
+    on another machine needs nothing but the database); SQLite keeps them in a directory.
 """
 
 from __future__ import annotations
@@ -24,6 +31,7 @@ from __future__ import annotations
 from datetime import datetime
 
 from sqlalchemy import (
+    BigInteger,
     DateTime,
     Float,
     ForeignKey,
@@ -140,3 +148,30 @@ class ClipDescriptor(Base):
     vector: Mapped[bytes] = mapped_column(LargeBinary)  # (dimension,) little-endian float32
 
     clip: Mapped[Clip] = relationship(back_populates="descriptors")
+
+
+class ClipChange(Base):
+    """A clip that changed (rows written by triggers only). ``txid`` is the id of the writing
+    transaction on PostgreSQL (``pg_current_xact_id()``), NULL on SQLite, whose single writer
+    commits in ``seq`` order."""
+
+    __tablename__ = "clip_changes"
+    __table_args__ = (
+        Index("ix_clip_changes_txid", "txid"),
+        {"sqlite_autoincrement": True},
+    )
+
+    seq: Mapped[int] = mapped_column(BigInteger().with_variant(Integer, "sqlite"), primary_key=True)
+    clip_id: Mapped[int] = mapped_column(Integer)
+    txid: Mapped[int | None] = mapped_column(BigInteger, nullable=True)
+
+
+class Blob(Base):
+    """An uploaded file's bytes, content-addressed (PostgreSQL deployments only)."""
+
+    __tablename__ = "blobs"
+
+    sha256: Mapped[str] = mapped_column(String(64), primary_key=True)
+    size: Mapped[int] = mapped_column(Integer)
+    data: Mapped[bytes] = mapped_column(LargeBinary)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))

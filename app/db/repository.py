@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import queue
 import sqlite3
 import threading
 from collections.abc import Iterable, Iterator, Mapping, Sequence
@@ -180,13 +181,15 @@ the labels (any case); ``None``, ``""`` or ``[]`` = no filter."""
 _COUNT_CAP = 10_000
 
 
-def _label_keys(executor: Executor | sqlite3.Connection, labels: LabelFilter) -> list[str]:
+def _label_keys(
+    executor: Executor | sqlite3.Connection | _Placeholders, labels: LabelFilter
+) -> list[str]:
     """The keys of the labels asked for, the rarest first (each counted up to _COUNT_CAP)."""
     keys = list(dict.fromkeys(label_key(label) for label in label_filter(labels)))
     if len(keys) < 2:
         return keys
     sql = "SELECT count(*) FROM (SELECT 1 FROM clip_labels WHERE label_key = ? LIMIT ?)"
-    if isinstance(executor, sqlite3.Connection):
+    if isinstance(executor, sqlite3.Connection | _Placeholders):  # the raw search path
         counts = {k: executor.execute(sql, (k, _COUNT_CAP)).fetchone()[0] for k in keys}
     else:
         counts = {
@@ -353,9 +356,9 @@ def count_clips(session: Executor) -> int:
 
 
 def max_clip_id(session: Executor) -> int:
-    """The largest clip id (0 when there is none). Ids only grow — SQLite AUTOINCREMENT never
-    hands one out again, and writers are serialised — so a reader that has seen every clip up
-    to this id has seen every clip committed so far."""
+    """The largest clip id (0 when there is none). Not a way to follow other writers: on
+    PostgreSQL ids can commit out of order, and deletes leave no id; the indexes follow the
+    change feed (:mod:`app.db.changes`)."""
     return int(session.scalar(select(func.max(Clip.id))) or 0)
 
 
@@ -707,8 +710,12 @@ def checkpoint(engine: Engine) -> None:
 # A search answers from four small queries (the query clip with its vector, the hits, their
 # labels, their files). Through the ORM they cost ~2 ms; here, on SQLite, they run as plain
 # SQL on one DBAPI connection per thread, kept open (~10 us each), inside one read
-# transaction, so a search sees one snapshot. Other databases go through the Core functions
-# above on a pooled connection.
+# transaction, so a search sees one snapshot. On PostgreSQL, where every statement is a round
+# trip to the server, they run as two statements (the clip with its files; the hits' names
+# with their labels) on one psycopg connection per thread in autocommit mode: no pool
+# checkout, ping, BEGIN or ROLLBACK around them. A clip deleted between the two is skipped by
+# the search, as one deleted between the index search and the rows. Other databases go through
+# the Core functions above on a pooled connection.
 
 _SQLITE_CLIP_COLUMNS = (
     "c.id, c.name, c.format, c.content_hash, c.frame_count, c.frame_time, c.duration, "
@@ -739,8 +746,6 @@ class ClipName:
 class SearchSnapshot(Protocol):
     """The reads of one search, all from one database snapshot."""
 
-    def max_clip_id(self) -> int: ...
-
     def clip(self, clip_id: int, *, labels: bool = True) -> ClipRecord | None:
         """The clip (``labels=False``: without its labels, e.g. when :meth:`names` fetches
         them with the hits), or ``None``."""
@@ -757,10 +762,7 @@ class SearchSnapshot(Protocol):
 
 class _SqliteSnapshot:
     def __init__(self, connection: sqlite3.Connection) -> None:
-        self._db = connection
-
-    def max_clip_id(self) -> int:
-        return int(self._db.execute("SELECT max(id) FROM clips").fetchone()[0] or 0)
+        self._db: sqlite3.Connection | _Placeholders = connection
 
     def clip(self, clip_id: int, *, labels: bool = True) -> ClipRecord | None:
         rows = self._db.execute(
@@ -856,12 +858,35 @@ class _SqliteSnapshot:
         return np.fromiter((r[0] for r in rows), dtype=np.int64)
 
 
+class _PostgresSnapshot(_SqliteSnapshot):
+    """The same reads with PostgreSQL's placeholders, names and labels in one statement."""
+
+    def __init__(self, connection: Any) -> None:
+        self._db = _Placeholders(connection)
+
+    def names(self, clip_ids: Sequence[int]) -> dict[int, ClipName]:
+        rows = self._db.execute(
+            "SELECT c.id, c.name, coalesce(array_agg(l.label ORDER BY l.position) "
+            "FILTER (WHERE l.label IS NOT NULL), '{}') FROM clips c "
+            "LEFT JOIN clip_labels l ON l.clip_id = c.id WHERE c.id = ANY(?) GROUP BY c.id",
+            ([int(i) for i in clip_ids],),
+        )
+        return {int(i): ClipName(int(i), name, tuple(labels)) for i, name, labels in rows}
+
+
+class _Placeholders:
+    """A psycopg connection taking the ``?`` placeholders of the SQLite statements."""
+
+    def __init__(self, connection: Any) -> None:
+        self._connection = connection
+
+    def execute(self, sql: str, params: Sequence[Any] = ()) -> Any:
+        return self._connection.execute(sql.replace("?", "%s"), params)
+
+
 class _CoreSnapshot:
     def __init__(self, connection: Connection) -> None:
         self._db = connection
-
-    def max_clip_id(self) -> int:
-        return max_clip_id(self._db)
 
     def clip(self, clip_id: int, *, labels: bool = True) -> ClipRecord | None:
         return get_clip(self._db, clip_id)
@@ -889,8 +914,10 @@ class SearchReads:
     def __init__(self, engine: Engine) -> None:
         self._engine = engine
         self._path = engine.url.database if engine.dialect.name == "sqlite" else None
+        self._postgres = engine.dialect.name == "postgresql"
+        self._idle: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._local = threading.local()
-        self._opened: list[sqlite3.Connection] = []
+        self._opened: list[Any] = []
         self._lock = threading.Lock()
 
     def _connection(self) -> sqlite3.Connection:
@@ -908,7 +935,39 @@ class SearchReads:
         return connection
 
     @contextmanager
+    def _postgres_snapshot(self) -> Iterator[SearchSnapshot]:
+        """A connection of the idle ones (or a new one) for one search, then back: as many
+        connections as searches ever ran at once (not one per thread of the pool)."""
+        import psycopg  # the postgres extra; only imported for a PostgreSQL URL
+        from sqlalchemy.exc import OperationalError
+
+        try:
+            connection = self._idle.get_nowait()
+        except queue.Empty:
+            url = self._engine.url.set(drivername="postgresql")
+            try:
+                connection = psycopg.connect(
+                    url.render_as_string(hide_password=False), autocommit=True
+                )
+            except psycopg.OperationalError as exc:
+                raise OperationalError("search read", None, exc) from exc
+            with self._lock:
+                self._opened.append(connection)
+        try:
+            yield _PostgresSnapshot(connection)
+        except psycopg.OperationalError as exc:  # the server went away: a new one next time
+            connection.close()
+            raise OperationalError("search read", None, exc) from exc
+        finally:
+            if not connection.closed:
+                self._idle.put(connection)
+
+    @contextmanager
     def snapshot(self) -> Iterator[SearchSnapshot]:
+        if self._postgres:
+            with self._postgres_snapshot() as snapshot:
+                yield snapshot
+            return
         if self._path is None:
             with self._engine.connect() as core:
                 yield _CoreSnapshot(core)
@@ -924,7 +983,7 @@ class SearchReads:
         with self._lock:
             opened, self._opened = self._opened, []
         for connection in opened:
-            with contextlib.suppress(sqlite3.Error):
+            with contextlib.suppress(Exception):
                 connection.close()
 
 

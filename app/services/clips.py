@@ -219,21 +219,17 @@ def remove_orphan_files(library: Library) -> int:
     ``MOCAP_ORPHAN_FILE_GRACE_SECONDS``; returns how many went.
 
     A crash between writing an upload's files and committing its clip, or between deleting a
-    clip and removing its files, leaves such files. The database write lock is held while
-    looking, so no clip of this database commits meanwhile (SQLite: ``BEGIN IMMEDIATE``); the
-    grace spares the files another process wrote and has not committed yet.
+    clip and removing its files, leaves such files. On SQLite the database write lock is held
+    while looking (``BEGIN IMMEDIATE``), so no clip commits meanwhile; on PostgreSQL one
+    statement removes the unreferenced rows of ``blobs``. Either way the grace spares the files
+    another process (a replica, an import) wrote and has not committed yet.
     """
     settings = library.settings
     cutoff = time.time() - settings.orphan_file_grace_seconds
     with library.write_lock:
         try:
             with library.writes.begin() as session:
-                listed = list(library.blobs.stored())
-                shas = [sha for sha, _ in listed]
-                referenced: set[str] = set()
-                for start in range(0, len(shas), 500):
-                    referenced |= repo.referenced_blobs(session, shas[start : start + 500])
-                removed = library.blobs.sweep(listed, referenced, older_than=cutoff)
+                removed = library.blobs.remove_unreferenced(session, older_than=cutoff)
         except SQLAlchemyError as exc:
             log.warning("could not look for unreferenced stored files: %s", exc)
             return 0

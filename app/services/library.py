@@ -5,16 +5,14 @@ database, then loads every descriptor's index (bringing a file that is behind up
 the database, rebuilding one that is missing, unreadable or stale), and hand the
 :class:`Library` to the services.
 
-Several processes may write to one data directory at once (the server and ``mocap-index
-import``). Each keeps its indexes in memory and follows the database, the source of truth:
-clip ids only grow, so :meth:`Library.sync_indexes` adds the vectors of the clips above the
-largest id an index has seen. The writes of this process call it after their commit; searches
-call :meth:`Library.refresh`, which checks the database at most every
-``MOCAP_INDEX_REFRESH_SECONDS``, so clips another process stores become searchable without a
-restart. (On PostgreSQL ids come from a sequence, not in commit order: a clip committed by
-another process after one with a larger id is missed until the next start, whose count check
-adds it. Clips deleted by another process stay in this process's indexes until then, but are
-never returned: a search skips ids that have no row.)
+Several processes may write to one database at once (``mocap-index serve`` replicas, on one
+machine or several, and ``mocap-index import``). Each keeps its indexes in memory and follows
+the database, the source of truth, through its change feed (:mod:`app.db.changes`: a row per
+clip added or deleted, written by triggers): :meth:`Library.sync_indexes` applies the clips
+changed since it last looked. The writes of this process call it after their commit; searches
+call :meth:`Library.refresh`, which looks at most every ``MOCAP_INDEX_REFRESH_SECONDS``, so
+clips another process stores or deletes are found, or no longer found, without a restart. On
+PostgreSQL the feed also catches a clip whose transaction commits after one with a larger id.
 """
 
 from __future__ import annotations
@@ -34,12 +32,13 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from app.config import Settings
 from app.db import repository as repo
+from app.db.changes import ChangeFeed, horizon, read_since
 from app.db.migrate import upgrade
 from app.db.session import create_db_engine, read_sessions, write_sessions
 from app.errors import DescriptorOutdated, InvalidInput, StorageUnavailable
 from app.index import DescriptorIndex, IndexOptions, IndexSet
 from app.motion.descriptors import DEFAULT_DESCRIPTOR
-from app.services.blobs import BlobStore
+from app.services.blobs import BlobStore, open_blob_store
 from app.services.describe import Describer, DescriptorInfo, MotionDescriber
 from app.services.parser_pool import ParserPool
 
@@ -60,8 +59,9 @@ def index_options(settings: Settings) -> IndexOptions:
 
 
 class StoredVectors:
-    """One descriptor's vectors in the database, read in ``session`` (one snapshot) up to clip
-    id ``watermark``: what :meth:`DescriptorIndex.load_or_rebuild` checks an index against."""
+    """One descriptor's vectors in the database, read in ``session``, with the change feed
+    position ``watermark`` taken before them: what :meth:`DescriptorIndex.load_or_rebuild`
+    checks an index against."""
 
     def __init__(self, session: Session, info: DescriptorInfo, watermark: int) -> None:
         self._session = session
@@ -78,16 +78,13 @@ class StoredVectors:
         info = self._info
         return repo.vector_ids(self._session, info.name, info.version, info.dimension)
 
-    def vectors(self, after: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    def vectors(self) -> tuple[np.ndarray, np.ndarray]:
         info = self._info
-        return repo.load_vectors(
-            self._session,
-            info.name,
-            info.version,
-            info.dimension,
-            after=after,
-            upto=self._watermark,
-        )
+        return repo.load_vectors(self._session, info.name, info.version, info.dimension)
+
+    def changed(self, since: int) -> np.ndarray:
+        rows = read_since(self._session, since)[1]
+        return np.unique(np.fromiter((r.clip_id for r in rows), dtype=np.int64, count=len(rows)))
 
     def vectors_of(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         info = self._info
@@ -122,9 +119,12 @@ class Library:
     # Descriptor -> stored vectors of an older version, and when that was last counted.
     _outdated: dict[str, int] = field(default_factory=dict, repr=False)
     _outdated_at: float = field(default=0.0, repr=False)
+    _feed: ChangeFeed = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         self.search_reads = repo.SearchReads(self.engine)
+        # Every index is at least this far along the feed (they were loaded from one snapshot).
+        self._feed = ChangeFeed(min((i.synced_to for i in self.indexes.values()), default=0))
 
     @property
     def descriptors(self) -> Mapping[str, DescriptorInfo]:
@@ -179,43 +179,37 @@ class Library:
         """Refill one index from the database (the source of truth) and save it."""
         info = self.descriptors[name]
         with self._sync_lock, self.reads() as session:
-            top = repo.max_clip_id(session)
-            ids, vectors = repo.load_vectors(
-                session, info.name, info.version, info.dimension, upto=top
-            )
-            self.indexes[name].replace_all(ids, vectors, synced_to=top)
+            position = horizon(session)  # before the vectors: nothing older is missed
+            ids, vectors = repo.load_vectors(session, info.name, info.version, info.dimension)
+            self.indexes[name].replace_all(ids, vectors, synced_to=position)
 
     def sync_indexes(self, *, wait: bool = True) -> bool:
-        """Add to the indexes the vectors of clips committed since they last looked (by this
+        """Apply to the indexes the clips added or deleted since they last looked (by this
         process or another one). With ``wait=False`` it returns False at once when another
         thread is syncing (that thread brings the indexes up to date)."""
         if not self._sync_lock.acquire(blocking=wait):
             return False
         try:
-            with self.reads() as session:  # one snapshot: every clip up to ``top``
-                top = repo.max_clip_id(session)
+            with self.reads() as session:
+                poll = self._feed.poll(session)
+                changed = poll.clip_ids
                 for name, info in self.descriptors.items():
                     index = self.indexes[name]
-                    if index.synced_to >= top:
-                        continue
-                    ids, vectors = repo.load_vectors(
-                        session,
-                        info.name,
-                        info.version,
-                        info.dimension,
-                        after=index.synced_to,
-                        upto=top,
+                    ids, vectors = repo.load_vectors_of(
+                        session, info.name, info.version, info.dimension, changed.tolist()
                     )
                     try:
-                        index.add(ids, vectors, synced_to=top)
+                        index.apply_changes(changed, ids, vectors, synced_to=poll.position)
                     except Exception:
                         # The rows are committed; the index is only a cache of them.
-                        log.exception("adding to the %s index failed; rebuilding it", name)
+                        log.exception("updating the %s index failed; rebuilding it", name)
+                        position = horizon(session)
                         everything = repo.load_vectors(
-                            session, info.name, info.version, info.dimension, upto=top
+                            session, info.name, info.version, info.dimension
                         )
-                        index.replace_all(*everything, synced_to=top, persist=False)
+                        index.replace_all(*everything, synced_to=position, persist=False)
                         index.try_save()
+                self._feed.advance(poll)
         finally:
             self._sync_lock.release()
         return True
@@ -228,12 +222,9 @@ class Library:
             return
         self._checked_at = now
         try:
-            with self.search_reads.snapshot() as db:
-                top = db.max_clip_id()
-            if top > min((index.synced_to for index in self.indexes.values()), default=top):
-                self.sync_indexes(wait=False)
+            self.sync_indexes(wait=False)
         except (SQLAlchemyError, sqlite3.Error) as exc:  # the indexes as they are still work
-            log.warning("could not check the database for new clips: %s", exc)
+            log.warning("could not check the database for changed clips: %s", exc)
 
     def save_indexes(self) -> None:
         """Write the indexes that have unsaved changes (large ones are not saved after every
@@ -278,8 +269,8 @@ def _open_indexes(
     with ThreadPoolExecutor(max_workers=max(1, len(indexes))) as pool:
         read = pool.map(DescriptorIndex.read_file, indexes.values())
         files = dict(zip(indexes, read, strict=True))
-    with reads() as session:  # one snapshot of the database for every index
-        watermark = repo.max_clip_id(session)
+    with reads() as session:  # one feed position for every index, taken before their vectors
+        watermark = horizon(session)
         for info in descriptors.values():
             source = StoredVectors(session, info, watermark)
             indexes[info.name].load_or_rebuild(source, files.pop(info.name))
@@ -323,7 +314,7 @@ def open_library(settings: Settings, *, describer: Describer | None = None) -> L
         engine=engine,
         reads=reads,
         writes=write_sessions(engine),
-        blobs=BlobStore(settings.files_dir),
+        blobs=open_blob_store(engine, settings.files_dir),
         indexes=indexes,
         describer=describer,
         parsers=parsers,

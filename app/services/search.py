@@ -37,7 +37,10 @@ def is_quick(library: Library, descriptor: str, k: int, label: repo.LabelFilter)
     """Whether a search by clip takes well under a millisecond (an unfiltered search that
     compares at most :data:`QUICK_SCAN` numbers and fetches at most :data:`QUICK_K` rows), so
     a caller may run it without handing it to a thread. Unknown descriptors count as quick
-    (they fail at once)."""
+    (they fail at once). Never on a database server (PostgreSQL): its rows come over the
+    network, and waiting for them must not hold up the event loop."""
+    if library.engine.dialect.name != "sqlite":
+        return False
     index = library.indexes.get(descriptor)
     if index is None:
         return True

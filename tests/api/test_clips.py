@@ -15,6 +15,7 @@ from fastapi.testclient import TestClient
 from app.config import Settings
 from app.main import create_app
 from app.motion.descriptors import REGISTRY
+from tests.api.conftest import stored_blobs
 
 BANDAI = "bandai_walk_normal_001_first40.bvh"
 CMU_BVH = "cmu_mb_02_01_first41.bvh"
@@ -39,8 +40,8 @@ def post_asf_amc(client: TestClient, fixtures_dir: Path, **data: Any) -> Any:
     return client.post("/clips", files=files, data=data)
 
 
-def stored_files(settings: Settings) -> list[Path]:
-    return [p for p in settings.files_dir.rglob("*") if p.is_file()]
+def stored_files(settings: Settings) -> list[str]:
+    return stored_blobs(settings)
 
 
 def test_upload_bvh_and_duplicate(client: TestClient, fixtures_dir: Path) -> None:
