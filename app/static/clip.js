@@ -238,24 +238,37 @@ export async function renderClip(main, params, { navigate, notify }) {
   };
 }
 
-/** The joint mapping (canonical joint -> source joint), when the clip JSON has one. */
+/**
+ * How the skeleton was mapped, when the clip JSON has it (`?include=mapping`):
+ * `{joints: {canonical: {joint, how}}, end_sites: [...], pose, mirrored}`.
+ */
 function mappingSection(mapping) {
-  if (!mapping || typeof mapping !== "object") return null;
-  const rows = Array.isArray(mapping) ? mapping : Object.entries(mapping).map(([canonical, source]) => ({ canonical, source }));
+  if (!mapping || typeof mapping !== "object" || !mapping.joints) return null;
+  const rows = Object.entries(mapping.joints);
   if (!rows.length) return null;
-  const text = (value) => (value === null || value === undefined ? "—" : typeof value === "object" ? value.joint || value.source || JSON.stringify(value) : String(value));
+  const notes = [];
+  if (mapping.pose) notes.push(`Read from ${mapping.pose}.`);
+  if (mapping.mirrored) notes.push("The capture was mirrored and is stored un-mirrored.");
+  if (Array.isArray(mapping.end_sites) && mapping.end_sites.length) notes.push(`End effectors: ${mapping.end_sites.join(", ")}.`);
   return el(
     "section",
     { class: "clip-mapping", "aria-labelledby": "mapping-head" },
     el("h2", { id: "mapping-head" }, "How the skeleton's joints were mapped"),
+    notes.length ? el("p", { class: "hint" }, notes.join(" ")) : null,
     el(
       "table",
       {},
-      el("thead", {}, el("tr", {}, el("th", { scope: "col" }, "Canonical joint"), el("th", { scope: "col" }, "Joint in the file"))),
+      el(
+        "thead",
+        {},
+        el("tr", {}, el("th", { scope: "col" }, "Canonical joint"), el("th", { scope: "col" }, "Joint in the file"), el("th", { scope: "col" }, "Found by")),
+      ),
       el(
         "tbody",
         {},
-        rows.map((row) => el("tr", {}, el("th", { scope: "row" }, text(row.canonical)), el("td", {}, text(row.source)))),
+        rows.map(([canonical, found]) =>
+          el("tr", {}, el("th", { scope: "row" }, canonical), el("td", {}, (found && found.joint) || "—"), el("td", {}, (found && found.how) || "")),
+        ),
       ),
     ),
   );
