@@ -116,11 +116,11 @@ export async function renderClip(main, params, { navigate, notify }) {
   const actionStatus = el("p", { class: "status", role: "status", "aria-live": "polite" });
   const keyArea = el("div", { class: "key-area" });
   const downloads = el("div", { class: "downloads" });
-  const addDownload = (text, part, hint) => {
+  const addDownload = (text, params, hint) => {
     const button = el("button", { type: "button", class: "secondary", title: hint }, text);
     button.addEventListener("click", async () => {
       try {
-        const name = await download(`/clips/${clip.id}/file`, part ? { part } : null);
+        const name = await download(`/clips/${clip.id}/file`, params);
         actionStatus.textContent = `Downloaded ${name}.`;
       } catch (error) {
         if (error.status !== 401 && error.status !== 403) actionStatus.textContent = `Download failed: ${error.detail || error.message}`;
@@ -132,16 +132,14 @@ export async function renderClip(main, params, { navigate, notify }) {
     downloads.append(el("p", { class: "muted" }, "Synthetic clip: no stored file to download."));
   } else if (clip.filenames.length === 1) {
     addDownload(`Download ${clip.filenames[0]}`, null, "The uploaded file, byte for byte");
+    if (clip.format !== "bvh") addDownload("Download as BVH", { format: "bvh" }, "The clip as a BVH file of its own skeleton");
   } else {
     addDownload("Download all (ZIP)", null, "Both uploaded files in one ZIP");
     for (const role of ["skeleton", "motion"]) {
       const name = clip.filenames[role === "skeleton" ? 0 : 1];
-      if (name) addDownload(`Download ${name}`, role, `The ${role} file, byte for byte`);
+      if (name) addDownload(`Download ${name}`, { part: role }, `The ${role} file, byte for byte`);
     }
-  }
-  for (const other of clip.downloads || []) {
-    // Other formats, when a later service offers them: [{label, url}].
-    if (other && other.url) downloads.append(el("a", { class: "button secondary", href: other.url }, other.label || other.url));
+    addDownload("Download as BVH", { format: "bvh" }, "The clip as a BVH file of its own skeleton");
   }
 
   const form = editForm(clip);

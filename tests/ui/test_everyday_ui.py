@@ -164,6 +164,12 @@ def test_clip_page(browser: Any, tmp_path: Path) -> None:  # noqa: F811
             page.get_by_role("button", name=re.compile(r"^Download 02_0\d\.amc$")).click()
         assert got.value.suggested_filename.endswith(".amc")
         assert Path(got.value.path()).read_bytes() == clips[0]["motion"][1]
+        # ... or as a BVH of its own skeleton (issue #12), which any animation tool opens.
+        with page.expect_download() as got:
+            page.get_by_role("button", name="Download as BVH").click()
+        assert got.value.suggested_filename.endswith(".bvh")
+        exported = Path(got.value.path()).read_text()
+        assert exported.startswith("HIERARCHY") and f"Frames: {clip['frame_count']}" in exported
 
         # Rename and relabel (case-duplicates dropped), set the licence.
         page.get_by_label("Name", exact=True).fill("walk, turning (CMU 02)")
