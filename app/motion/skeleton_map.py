@@ -397,22 +397,35 @@ class _Tree:
             self.reach[p] = max(self.reach[p], self.reach[j] + self.lengths[j])
         self.hints: list[NameHint] = [name_hint(n) for n in skeleton.names]
         self.sides: list[str | None] = [name_side(n) for n in skeleton.names]
+        # The hypotheses ask the same few pairs thousands of times.
+        self._lca: dict[tuple[int, int], int] = {}
+        self._ancestor: dict[tuple[int, int], bool] = {}
 
     def lca(self, a: int, b: int) -> int:
-        while a != b:
-            if self.depth[a] >= self.depth[b]:
-                a = int(self.parents[a])
-            else:
-                b = int(self.parents[b])
-        return a
+        key = (a, b)
+        found = self._lca.get(key)
+        if found is None:
+            while a != b:
+                if self.depth[a] >= self.depth[b]:
+                    a = int(self.parents[a])
+                else:
+                    b = int(self.parents[b])
+            found = self._lca[key] = a
+        return found
 
     def is_ancestor(self, top: int, joint: int) -> bool:
         """``top`` is ``joint`` or one of its ancestors."""
-        while joint >= 0 and self.depth[joint] >= self.depth[top]:
-            if joint == top:
-                return True
-            joint = int(self.parents[joint])
-        return False
+        key = (top, joint)
+        found = self._ancestor.get(key)
+        if found is None:
+            found = False
+            while joint >= 0 and self.depth[joint] >= self.depth[top]:
+                if joint == top:
+                    found = True
+                    break
+                joint = int(self.parents[joint])
+            self._ancestor[key] = found
+        return found
 
     def chain(self, top: int, bottom: int) -> list[int]:
         """Joints from ``top`` down to ``bottom`` inclusive (``top`` is an ancestor)."""
