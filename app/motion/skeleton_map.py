@@ -15,22 +15,31 @@ facing, naming or extra joints (fingers, face, twist bones, props, IK targets, d
    costs are left/right chain-length differences and names that contradict a role (an arm
    chain whose joints are called leg names).
 2. **Chains.** Along each limb chain: the ankle is where the chain turns forward (the rest
-   of the chain drops little for its length); the hip and shoulder start the straight run
-   ending at the ankle or wrist; the knee and elbow split that run (a rest-pose bend decides
-   when there is one, otherwise the split nearest human proportions); the wrist is where
-   the fingers branch (else the joint before the hand's end). Names whole-matched by
+   of the chain drops little for its length; a last bone under half the one before is a
+   foot that points down); the hip and shoulder start the straight run ending at the ankle
+   or wrist (or the joint above it when the run leaves no room for a middle joint); the
+   knee and elbow split that run (a rest-pose bend decides when there is one, otherwise
+   the split nearest human proportions); the wrist is where the fingers branch (else the
+   joint before the hand's end, else the arm's last joint on a rig without hand bones);
+   two legs never share their hip. Names whole-matched by
    :mod:`app.motion.skeleton_names` choose among joints when they name one in the chain.
 3. **End effectors** (Miura et al.: "end effectors are hereafter regarded as joints"): the
-   canonical ``head`` point is the end of the single chain beyond the head joint (an End
-   Site of non-zero length, or a ``HeadTop``-like leaf) when there is one, else the head
-   joint; ``toe`` likewise beyond the toe joint (else the toe joint, else the farthest point
-   beyond the ankle); ``hand_tip`` is the farthest point beyond the wrist, thumbs skipped.
+   canonical ``head`` point is the first point of non-zero length on the single chain
+   beyond the head joint (an End Site, or a ``HeadTop``-like leaf bone: a BVH converted
+   from FBX appends an End Site after that bone, and both files then map the same point)
+   when there is one, else the head joint; ``toe`` likewise beyond the toe joint (else the
+   toe joint, else the farthest point beyond the ankle); ``hand_tip`` is the farthest point
+   beyond the wrist, thumbs skipped (the wrist itself on a rig without hand bones).
    :attr:`SkeletonMap.head_joint` keeps the head *joint* for body height.
 4. **Sides.** Left is ``up x forward`` (forward from the feet, else the knees' bend). Names
    saying left/right on both limb pairs decide which is which; when both pairs disagree with
    the geometry, the capture is mirrored (:attr:`SkeletonMap.mirrored`: the caller reflects
    the motion); when only one pair disagrees, geometry wins with a warning. Rigs without
    side names get sides from geometry alone.
+
+What the tree alone decides (the candidate limb ends, the choices it allows) and, when the
+rest pose shows a standing figure, the whole mapping are kept per skeleton: every clip of a
+rig after the first is mapped without redoing them.
 
 Whatever is not a whole humanoid (quadruped, hand, face, upper body only, all-zero offsets)
 is refused with :class:`~app.errors.SkeletonMappingError` saying what was found and what is
