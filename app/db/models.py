@@ -15,6 +15,11 @@ clip_labels
 clip_descriptors
     The descriptor vectors (float32 bytes) with the descriptor version that produced them.
     The FAISS indexes are rebuilt from this table.
+clip_windows
+    Vectors of overlapping windows of a clip (moments search), one row per (descriptor,
+    window): its length in seconds and its frames ``[start_frame, end_frame)`` of the file as
+    uploaded (lead-in included). The window indexes are rebuilt from this table; ids only
+    grow (AUTOINCREMENT), as the indexes' ``synced_to`` needs.
 """
 
 from __future__ import annotations
@@ -91,6 +96,9 @@ class Clip(Base):
     descriptors: Mapped[list[ClipDescriptor]] = relationship(
         back_populates="clip", cascade="all, delete-orphan", passive_deletes=True
     )
+    windows: Mapped[list[ClipWindow]] = relationship(
+        cascade="all, delete-orphan", passive_deletes=True
+    )
 
 
 class ClipFile(Base):
@@ -134,3 +142,20 @@ class ClipDescriptor(Base):
     vector: Mapped[bytes] = mapped_column(LargeBinary)  # (dimension,) little-endian float32
 
     clip: Mapped[Clip] = relationship(back_populates="descriptors")
+
+
+class ClipWindow(Base):
+    __tablename__ = "clip_windows"
+    __table_args__ = (
+        Index("ix_clip_windows_name_version_length", "name", "version", "length"),
+        {"sqlite_autoincrement": True},
+    )
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    clip_id: Mapped[int] = mapped_column(ForeignKey("clips.id", ondelete="CASCADE"), index=True)
+    name: Mapped[str] = mapped_column(String(64))
+    version: Mapped[int] = mapped_column(Integer)
+    length: Mapped[float] = mapped_column(Float)  # nominal window length, seconds
+    start_frame: Mapped[int] = mapped_column(Integer)
+    end_frame: Mapped[int] = mapped_column(Integer)  # exclusive
+    vector: Mapped[bytes] = mapped_column(LargeBinary)  # (D,) little-endian float32

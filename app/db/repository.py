@@ -19,10 +19,10 @@ from datetime import UTC, datetime
 from typing import Any, Protocol
 
 import numpy as np
-from sqlalchemy import Connection, Engine, Select, func, insert, select
+from sqlalchemy import Connection, Engine, Select, delete, func, insert, select
 from sqlalchemy.orm import Session, selectinload
 
-from app.db.models import Clip, ClipDescriptor, ClipFile, ClipLabel
+from app.db.models import Clip, ClipDescriptor, ClipFile, ClipLabel, ClipWindow
 
 VECTOR_DTYPE = np.dtype("<f4")
 IN_CHUNK = 500  # ids per IN (...) list: far below any backend's parameter limit
@@ -51,6 +51,19 @@ class StoredVector:
 
 
 @dataclass(frozen=True)
+class NewWindows:
+    """One descriptor's windows of a clip: ``lengths`` ``(W,)`` seconds, ``starts`` and
+    ``stops`` ``(W,)`` frames of the file ``[start, stop)``, ``vectors`` ``(W, D)`` float32."""
+
+    name: str
+    version: int
+    lengths: np.ndarray
+    starts: np.ndarray
+    stops: np.ndarray
+    vectors: np.ndarray
+
+
+@dataclass(frozen=True)
 class NewClip:
     """Everything needed to insert a clip (the database assigns ``id``)."""
 
@@ -67,6 +80,7 @@ class NewClip:
     files: tuple[FileRecord, ...]
     vectors: Mapping[str, StoredVector]
     created_at: datetime = field(default_factory=lambda: datetime.now(UTC))
+    windows: tuple[NewWindows, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -303,7 +317,15 @@ def insert_clips(session: Session, clips: Sequence[NewClip]) -> list[int]:
         for clip_id, new in zip(ids, clips, strict=True)
         for name, stored in new.vectors.items()
     ]
-    for table, rows in ((ClipFile, files), (ClipLabel, labels), (ClipDescriptor, vectors)):
+    windows = [
+        row for clip_id, new in zip(ids, clips, strict=True) for row in _window_rows(clip_id, new)
+    ]
+    for table, rows in (
+        (ClipFile, files),
+        (ClipLabel, labels),
+        (ClipDescriptor, vectors),
+        (ClipWindow, windows),
+    ):
         if rows:
             connection.execute(insert(table), rows)
     return ids
@@ -452,18 +474,18 @@ def load_vectors_of(
     session: Executor, name: str, version: int, dimension: int, clip_ids: Iterable[int]
 ) -> tuple[np.ndarray, np.ndarray]:
     """Like :func:`load_vectors`, for the given clips only (those that have such a vector)."""
-    ids = sorted({int(i) for i in clip_ids})
+    query = select(ClipDescriptor.clip_id, ClipDescriptor.vector).where(
+        _vector_filter(name, version, dimension)
+    )
+    return _vector_arrays(_select_in(session, query, ClipDescriptor.clip_id, clip_ids), dimension)
+
+
+def _select_in(session: Executor, query: Any, column: Any, ids: Iterable[int]) -> list[Any]:
+    """The rows of ``query`` whose ``column`` is among ``ids``, ordered by it (in chunks)."""
     rows: list[Any] = []
-    for chunk in _chunks(ids):
-        rows.extend(
-            session.execute(
-                select(ClipDescriptor.clip_id, ClipDescriptor.vector)
-                .where(_vector_filter(name, version, dimension))
-                .where(ClipDescriptor.clip_id.in_(chunk))
-                .order_by(ClipDescriptor.clip_id)
-            ).all()
-        )
-    return _vector_arrays(rows, dimension)
+    for chunk in _chunks(sorted({int(i) for i in ids})):
+        rows.extend(session.execute(query.where(column.in_(chunk)).order_by(column)).all())
+    return rows
 
 
 def put_vectors(session: Session, clip_id: int, vectors: Mapping[str, StoredVector]) -> None:
@@ -496,6 +518,182 @@ def clips_needing_vectors(session: Session, current: Mapping[str, int]) -> dict[
         if missing:
             needing[clip_id] = missing
     return needing
+
+
+# -- windows (moments search) ----------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class WindowKey:
+    """Which windows one window index holds: descriptor ``name`` of ``version`` (whose
+    vectors have ``dimension`` numbers: a version fixes it), windows of ``length`` seconds."""
+
+    name: str
+    version: int
+    dimension: int
+    length: float
+
+
+def _window_filter(key: WindowKey) -> Any:
+    return (
+        (ClipWindow.name == key.name)
+        & (ClipWindow.version == key.version)
+        & (ClipWindow.length == key.length)
+    )
+
+
+def max_window_id(session: Executor) -> int:
+    """The largest window id (0 when there is none); ids only grow, as clip ids do."""
+    return int(session.scalar(select(func.max(ClipWindow.id))) or 0)
+
+
+def count_windows(session: Executor, key: WindowKey) -> int:
+    return int(session.scalar(select(func.count()).where(_window_filter(key))) or 0)
+
+
+def window_ids(session: Executor, key: WindowKey) -> np.ndarray:
+    """``(N,)`` int64 sorted ids of the windows :func:`load_windows` returns."""
+    ids = session.scalars(select(ClipWindow.id).where(_window_filter(key)).order_by(ClipWindow.id))
+    return np.fromiter(ids, dtype=np.int64)
+
+
+def load_windows(
+    session: Executor, key: WindowKey, *, after: int = 0, upto: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Window ids ``(N,)`` int64 and vectors ``(N, D)`` float32 of ``key``, in id order, with
+    ``after < id <= upto``."""
+    query = select(ClipWindow.id, ClipWindow.vector).where(_window_filter(key))
+    if after:
+        query = query.where(ClipWindow.id > after)
+    if upto is not None:
+        query = query.where(ClipWindow.id <= upto)
+    rows = session.execute(query.order_by(ClipWindow.id)).all()
+    return _vector_arrays(rows, key.dimension)
+
+
+def load_windows_of(
+    session: Executor, key: WindowKey, ids: Iterable[int]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Like :func:`load_windows`, for the given window ids only."""
+    query = select(ClipWindow.id, ClipWindow.vector).where(_window_filter(key))
+    return _vector_arrays(_select_in(session, query, ClipWindow.id, ids), key.dimension)
+
+
+def clip_window_ids(session: Executor, clip_id: int) -> np.ndarray:
+    """``(N,)`` int64 ids of every window of a clip."""
+    ids = session.scalars(select(ClipWindow.id).where(ClipWindow.clip_id == clip_id))
+    return np.fromiter(ids, dtype=np.int64)
+
+
+def _window_rows(clip_id: int, windows: NewClip | Sequence[NewWindows]) -> list[dict[str, Any]]:
+    groups = windows.windows if isinstance(windows, NewClip) else windows
+    return [
+        {
+            "clip_id": clip_id,
+            "name": group.name,
+            "version": group.version,
+            "length": length,
+            "start_frame": start,
+            "end_frame": stop,
+            "vector": encode_vector(vector),
+        }
+        for group in groups
+        for length, start, stop, vector in zip(
+            group.lengths.tolist(),
+            group.starts.tolist(),
+            group.stops.tolist(),
+            group.vectors,
+            strict=True,
+        )
+    ]
+
+
+def put_windows(session: Session, clip_id: int, windows: Sequence[NewWindows]) -> None:
+    """Replace a clip's windows of the descriptors in ``windows`` (reindex)."""
+    names = sorted({group.name for group in windows})
+    if names:
+        session.execute(
+            delete(ClipWindow).where((ClipWindow.clip_id == clip_id) & ClipWindow.name.in_(names))
+        )
+    rows = _window_rows(clip_id, windows)
+    if rows:
+        session.connection().execute(insert(ClipWindow), rows)
+
+
+def clips_needing_windows(session: Session, current: Mapping[str, int]) -> dict[int, list[str]]:
+    """Clips with a stored file lacking windows of the current version of a descriptor in
+    ``current`` (name -> version), with those names."""
+    versions: dict[tuple[int, str], set[int]] = {}
+    for clip_id, name, version in session.execute(
+        select(ClipWindow.clip_id, ClipWindow.name, ClipWindow.version).distinct()
+    ):
+        versions.setdefault((clip_id, name), set()).add(version)
+    with_files = set(session.scalars(select(ClipFile.clip_id).distinct()))
+    needing: dict[int, list[str]] = {}
+    for clip_id in all_clip_ids(session):
+        if clip_id not in with_files:
+            continue
+        missing = [n for n, v in current.items() if versions.get((clip_id, n)) != {v}]
+        if missing:
+            needing[clip_id] = missing
+    return needing
+
+
+@dataclass(frozen=True, slots=True)
+class WindowSpan:
+    """Where a stored window lies: its clip, frames ``[start, stop)`` of the file, length."""
+
+    id: int
+    clip_id: int
+    start: int
+    stop: int
+    length: float
+
+
+def window_spans_of(session: Executor, ids: Iterable[int]) -> dict[int, WindowSpan]:
+    """Where the windows ``ids`` lie (those that exist), by id."""
+    wanted = sorted({int(i) for i in ids})
+    found: dict[int, WindowSpan] = {}
+    for chunk in _chunks(wanted):
+        for row in session.execute(
+            select(
+                ClipWindow.id,
+                ClipWindow.clip_id,
+                ClipWindow.start_frame,
+                ClipWindow.end_frame,
+                ClipWindow.length,
+            ).where(ClipWindow.id.in_(chunk))
+        ):
+            found[int(row[0])] = WindowSpan(*row)
+    return found
+
+
+def window_ids_with_label(session: Executor, label: str, key: WindowKey) -> np.ndarray:
+    """``(N,)`` int64 ids of the ``key`` windows of clips carrying ``label``."""
+    ids = session.scalars(
+        select(ClipWindow.id).where(_window_filter(key), ClipWindow.clip_id.in_(_with_label(label)))
+    )
+    return np.fromiter(ids, dtype=np.int64)
+
+
+def clip_windows(session: Executor, clip_id: int, name: str, version: int) -> list[WindowSpan]:
+    """Every window of one clip under descriptor ``name`` of ``version``."""
+    rows = session.execute(
+        select(
+            ClipWindow.id,
+            ClipWindow.clip_id,
+            ClipWindow.start_frame,
+            ClipWindow.end_frame,
+            ClipWindow.length,
+        )
+        .where(
+            ClipWindow.clip_id == clip_id,
+            ClipWindow.name == name,
+            ClipWindow.version == version,
+        )
+        .order_by(ClipWindow.id)
+    )
+    return [WindowSpan(*row) for row in rows]
 
 
 # -- maintenance --------------------------------------------------------------------------
@@ -560,6 +758,18 @@ class SearchSnapshot(Protocol):
     def names(self, clip_ids: Sequence[int]) -> dict[int, ClipName]: ...
 
     def clip_ids_with_label(self, label: str) -> np.ndarray: ...
+
+    def max_window_id(self) -> int: ...
+
+    def window_spans(self, ids: Sequence[int]) -> dict[int, WindowSpan]: ...
+
+    def window_ids_with_label(self, label: str, key: WindowKey) -> np.ndarray: ...
+
+    def clip_windows(self, clip_id: int, name: str, version: int) -> list[WindowSpan]: ...
+
+    def frame_times(self, clip_ids: Sequence[int]) -> dict[int, tuple[str, float, int]]:
+        """``(format, frame_time, frame_count)`` of the clips that exist, by id."""
+        ...
 
 
 class _SqliteSnapshot:
@@ -633,6 +843,49 @@ class _SqliteSnapshot:
         rows = self._db.execute("SELECT clip_id FROM clip_labels WHERE label = ?", (label,))
         return np.fromiter((r[0] for r in rows), dtype=np.int64)
 
+    def max_window_id(self) -> int:
+        return int(self._db.execute("SELECT max(id) FROM clip_windows").fetchone()[0] or 0)
+
+    def window_spans(self, ids: Sequence[int]) -> dict[int, WindowSpan]:
+        found: dict[int, WindowSpan] = {}
+        wanted = [int(i) for i in ids]
+        for chunk in _chunks(wanted):
+            marks = ",".join("?" * len(chunk))
+            for row in self._db.execute(
+                "SELECT id, clip_id, start_frame, end_frame, length FROM clip_windows "
+                f"WHERE id IN ({marks})",
+                chunk,
+            ):
+                found[int(row[0])] = WindowSpan(*row)
+        return found
+
+    def window_ids_with_label(self, label: str, key: WindowKey) -> np.ndarray:
+        rows = self._db.execute(
+            "SELECT w.id FROM clip_labels l JOIN clip_windows w ON w.clip_id = l.clip_id "
+            "WHERE l.label = ? AND w.name = ? AND w.version = ? AND w.length = ?",
+            (label, key.name, key.version, key.length),
+        )
+        return np.fromiter((r[0] for r in rows), dtype=np.int64)
+
+    def clip_windows(self, clip_id: int, name: str, version: int) -> list[WindowSpan]:
+        rows = self._db.execute(
+            "SELECT id, clip_id, start_frame, end_frame, length FROM clip_windows "
+            "WHERE clip_id = ? AND name = ? AND version = ? ORDER BY id",
+            (int(clip_id), name, version),
+        )
+        return [WindowSpan(*row) for row in rows]
+
+    def frame_times(self, clip_ids: Sequence[int]) -> dict[int, tuple[str, float, int]]:
+        found: dict[int, tuple[str, float, int]] = {}
+        for chunk in _chunks([int(i) for i in clip_ids]):
+            marks = ",".join("?" * len(chunk))
+            for clip_id, fmt, frame_time, frames in self._db.execute(
+                f"SELECT id, format, frame_time, frame_count FROM clips WHERE id IN ({marks})",
+                chunk,
+            ):
+                found[int(clip_id)] = (fmt, float(frame_time), int(frames))
+        return found
+
 
 class _CoreSnapshot:
     def __init__(self, connection: Connection) -> None:
@@ -655,6 +908,29 @@ class _CoreSnapshot:
 
     def clip_ids_with_label(self, label: str) -> np.ndarray:
         return clip_ids_with_label(self._db, label)
+
+    def max_window_id(self) -> int:
+        return max_window_id(self._db)
+
+    def window_spans(self, ids: Sequence[int]) -> dict[int, WindowSpan]:
+        return window_spans_of(self._db, ids)
+
+    def window_ids_with_label(self, label: str, key: WindowKey) -> np.ndarray:
+        return window_ids_with_label(self._db, label, key)
+
+    def clip_windows(self, clip_id: int, name: str, version: int) -> list[WindowSpan]:
+        return clip_windows(self._db, clip_id, name, version)
+
+    def frame_times(self, clip_ids: Sequence[int]) -> dict[int, tuple[str, float, int]]:
+        found: dict[int, tuple[str, float, int]] = {}
+        for chunk in _chunks(sorted({int(i) for i in clip_ids})):
+            for clip_id, fmt, frame_time, frames in self._db.execute(
+                select(Clip.id, Clip.format, Clip.frame_time, Clip.frame_count).where(
+                    Clip.id.in_(chunk)
+                )
+            ):
+                found[int(clip_id)] = (fmt, float(frame_time), int(frames))
+        return found
 
 
 class SearchReads:

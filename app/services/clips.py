@@ -75,6 +75,7 @@ def delete_clip(library: Library, clip_id: int) -> None:
     with library.write_lock:
         try:
             with library.writes.begin() as session:
+                windows = repo.clip_window_ids(session, clip_id)
                 shas = repo.delete_clip(session, clip_id)
         except SQLAlchemyError as exc:
             raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
@@ -82,9 +83,12 @@ def delete_clip(library: Library, clip_id: int) -> None:
             raise NotFound(f"no clip with id {clip_id}")
         # Committed: the clip is gone. What follows tidies caches and files; a failure there
         # (a full disk, say) must not report the delete as failed.
-        for name, index in library.indexes.items():
+        removals = [(index, [clip_id]) for index in library.indexes.values()]
+        removals += [(index, windows.tolist()) for index in library.window_indexes.values()]
+        for index, ids in removals:
+            name = index.name
             try:
-                index.remove([clip_id])  # from memory first, then the file is saved
+                index.remove(ids)  # from memory first, then the file is saved
             except OSError as exc:
                 log.warning(
                     "clip %d deleted, but the %s index could not be saved (%s); it is brought "

@@ -21,6 +21,7 @@ from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
+import numpy as np
 from sqlalchemy.exc import IntegrityError, SQLAlchemyError
 
 from app.db import repository as repo
@@ -84,6 +85,26 @@ def new_clip(library: Library, item: Described) -> repo.NewClip:
             name: repo.StoredVector(library.descriptors[name].version, vector)
             for name, vector in description.vectors.items()
         },
+        windows=new_windows(library, description),
+    )
+
+
+def new_windows(library: Library, description: Description) -> tuple[repo.NewWindows, ...]:
+    """The window rows of a described clip (none when it was described without windows)."""
+    windows = description.windows
+    if windows is None:
+        return ()
+    lengths = np.asarray(windows.lengths, dtype=np.float64)[windows.spans[:, 0]]
+    return tuple(
+        repo.NewWindows(
+            name=name,
+            version=library.descriptors[name].version,
+            lengths=lengths,
+            starts=windows.spans[:, 1],
+            stops=windows.spans[:, 2],
+            vectors=vectors,
+        )
+        for name, vectors in windows.vectors.items()
     )
 
 

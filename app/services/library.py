@@ -39,7 +39,13 @@ from app.db.session import create_db_engine, read_sessions, write_sessions
 from app.errors import InvalidInput, StorageUnavailable
 from app.index import DescriptorIndex, IndexOptions, IndexSet
 from app.services.blobs import BlobStore
-from app.services.describe import Describer, DescriptorInfo, MotionDescriber
+from app.services.describe import (
+    WINDOW_DESCRIPTORS,
+    WINDOW_LENGTHS,
+    Describer,
+    DescriptorInfo,
+    MotionDescriber,
+)
 
 log = logging.getLogger(__name__)
 
@@ -93,6 +99,49 @@ class StoredVectors:
         )
 
 
+class StoredWindows:
+    """One window index's vectors in the database (see :class:`StoredVectors`); ids are
+    window ids, ``watermark`` the largest window id of the snapshot."""
+
+    def __init__(self, session: Session, key: repo.WindowKey, watermark: int) -> None:
+        self._session = session
+        self._key = key
+        self._watermark = watermark
+
+    def watermark(self) -> int:
+        return self._watermark
+
+    def count(self) -> int:
+        return repo.count_windows(self._session, self._key)
+
+    def ids(self) -> np.ndarray:
+        return repo.window_ids(self._session, self._key)
+
+    def vectors(self, after: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        return repo.load_windows(self._session, self._key, after=after, upto=self._watermark)
+
+    def vectors_of(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return repo.load_windows_of(self._session, self._key, ids.tolist())
+
+
+def window_index_name(descriptor: str, length: float) -> str:
+    """File stem of the index of ``descriptor`` windows of ``length`` seconds."""
+    return f"windows-{descriptor}-{length:g}s"
+
+
+def window_keys(descriptors: Mapping[str, DescriptorInfo]) -> dict[str, repo.WindowKey]:
+    """Every window index: its name -> which windows it holds (the descriptors of
+    :data:`WINDOW_DESCRIPTORS` the describer has, at each of :data:`WINDOW_LENGTHS`)."""
+    return {
+        window_index_name(name, length): repo.WindowKey(
+            name, descriptors[name].version, descriptors[name].dimension, length
+        )
+        for name in WINDOW_DESCRIPTORS
+        if name in descriptors
+        for length in WINDOW_LENGTHS
+    }
+
+
 @dataclass
 class Library:
     """Everything the services work on.
@@ -109,6 +158,9 @@ class Library:
     blobs: BlobStore
     indexes: IndexSet
     describer: Describer
+    # Moments search: one index per window descriptor and length, keyed like window_keys.
+    window_indexes: IndexSet = field(default_factory=lambda: IndexSet({}))
+    window_keys: dict[str, repo.WindowKey] = field(default_factory=dict)
     write_lock: threading.Lock = field(default_factory=threading.Lock)
     search_reads: repo.SearchReads = field(init=False, repr=False)
     _sync_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
@@ -138,6 +190,14 @@ class Library:
                 session, info.name, info.version, info.dimension, upto=top
             )
             self.indexes[name].replace_all(ids, vectors, synced_to=top)
+
+    def rebuild_window_indexes(self) -> None:
+        """Refill every window index from the database and save it."""
+        with self._sync_lock, self.reads() as session:
+            top = repo.max_window_id(session)
+            for name, key in self.window_keys.items():
+                ids, vectors = repo.load_windows(session, key, upto=top)
+                self.window_indexes[name].replace_all(ids, vectors, synced_to=top)
 
     def sync_indexes(self, *, wait: bool = True) -> bool:
         """Add to the indexes the vectors of clips committed since they last looked (by this
@@ -170,9 +230,35 @@ class Library:
                         )
                         index.replace_all(*everything, synced_to=top, persist=False)
                         index.try_save()
+                if self.window_keys:
+                    self._sync_windows(session)
         finally:
             self._sync_lock.release()
         return True
+
+    def _sync_windows(self, session: Session) -> None:
+        top = repo.max_window_id(session)
+        for name, key in self.window_keys.items():
+            index = self.window_indexes[name]
+            if index.synced_to >= top:
+                continue
+            ids, vectors = repo.load_windows(session, key, after=index.synced_to, upto=top)
+            try:
+                index.add(ids, vectors, synced_to=top)
+            except Exception:
+                log.exception("adding to the %s index failed; rebuilding it", name)
+                everything = repo.load_windows(session, key, upto=top)
+                index.replace_all(*everything, synced_to=top, persist=False)
+                index.try_save()
+
+    def _behind(self, db: repo.SearchSnapshot) -> bool:
+        top = db.max_clip_id()
+        if top > min((index.synced_to for index in self.indexes.values()), default=top):
+            return True
+        if not self.window_keys:
+            return False
+        top = db.max_window_id()
+        return top > min((index.synced_to for index in self.window_indexes.values()), default=top)
 
     def refresh(self) -> None:
         """Bring the indexes up to date with the database when the last check is older than
@@ -183,8 +269,8 @@ class Library:
         self._checked_at = now
         try:
             with self.search_reads.snapshot() as db:
-                top = db.max_clip_id()
-            if top > min((index.synced_to for index in self.indexes.values()), default=top):
+                behind = self._behind(db)
+            if behind:
                 self.sync_indexes(wait=False)
         except (SQLAlchemyError, sqlite3.Error) as exc:  # the indexes as they are still work
             log.warning("could not check the database for new clips: %s", exc)
@@ -193,6 +279,7 @@ class Library:
         """Write the indexes that have unsaved changes (large ones are not saved after every
         change; a file that is behind is brought up to date from the database when loaded)."""
         self.indexes.save(only_changed=True)
+        self.window_indexes.save(only_changed=True)
 
     def clip_count(self) -> int:
         with self.reads() as session:
@@ -208,7 +295,8 @@ class Library:
 
 def _open_indexes(
     settings: Settings, reads: sessionmaker[Session], descriptors: Mapping[str, DescriptorInfo]
-) -> IndexSet:
+) -> tuple[IndexSet, IndexSet]:
+    """The clip indexes and the window indexes, loaded (or rebuilt) from their files."""
     options = index_options(settings)
     indexes = {
         info.name: DescriptorIndex(
@@ -216,17 +304,27 @@ def _open_indexes(
         )
         for info in descriptors.values()
     }
+    keys = window_keys(descriptors)
+    windows = {
+        name: DescriptorIndex(name, key.dimension, key.version, settings.index_dir, options=options)
+        for name, key in keys.items()
+    }
     # Reading and checksumming the files (hundreds of MB at a million clips) releases the
     # GIL: all at once, in threads.
-    with ThreadPoolExecutor(max_workers=max(1, len(indexes))) as pool:
-        read = pool.map(DescriptorIndex.read_file, indexes.values())
-        files = dict(zip(indexes, read, strict=True))
+    every = [*indexes.values(), *windows.values()]
+    with ThreadPoolExecutor(max_workers=max(1, min(8, len(every)))) as pool:
+        files = dict(zip(every, pool.map(DescriptorIndex.read_file, every), strict=True))
     with reads() as session:  # one snapshot of the database for every index
         watermark = repo.max_clip_id(session)
         for info in descriptors.values():
             source = StoredVectors(session, info, watermark)
-            indexes[info.name].load_or_rebuild(source, files.pop(info.name))
-    return IndexSet(indexes)
+            index = indexes[info.name]
+            index.load_or_rebuild(source, files.pop(index))
+        top = repo.max_window_id(session)
+        for name, key in keys.items():
+            index = windows[name]
+            index.load_or_rebuild(StoredWindows(session, key, top), files.pop(index))
+    return IndexSet(indexes), IndexSet(windows)
 
 
 def open_library(settings: Settings, *, describer: Describer | None = None) -> Library:
@@ -243,7 +341,7 @@ def open_library(settings: Settings, *, describer: Describer | None = None) -> L
         raise StorageUnavailable(f"cannot open the database: {exc}") from exc
     reads = read_sessions(engine)
     try:
-        indexes = _open_indexes(settings, reads, describer.descriptors)
+        indexes, windows = _open_indexes(settings, reads, describer.descriptors)
         with reads() as session:
             clips = repo.count_clips(session)
     except BaseException:
@@ -266,4 +364,6 @@ def open_library(settings: Settings, *, describer: Describer | None = None) -> L
         blobs=BlobStore(settings.files_dir),
         indexes=indexes,
         describer=describer,
+        window_indexes=windows,
+        window_keys=window_keys(describer.descriptors),
     )

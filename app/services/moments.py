@@ -1,0 +1,383 @@
+"""Moments search: where in the stored clips a span of motion happens.
+
+The query is a span ``[start, end)`` (seconds from the first frame of the file, lead-in
+included) of a stored clip or of an uploaded file, described under one descriptor exactly as
+a window is (:mod:`app.motion.windows`). It is compared with the stored windows of the window
+length(s) nearest the query's length — the largest at most and the smallest at least as long
+— through their FAISS indexes. Then:
+
+* **merge**: window hits of one clip that overlap or touch (one after another, in distance
+  order) become one moment, whose distance is its best window's;
+* **localise**: a moment lies where its best window lies, moved by the equiangular fit of the
+  distances of that window and its two neighbours of the same length (half a hop at most:
+  the distance grows about linearly with the shift), and is as long as the query (clipped to
+  its clip) — so a moment found from a 3-s query is a 3-s span, not a union of windows;
+* **limit**: at most ``k`` moments, at most ``per_clip`` of one clip, nearest first; a query
+  from a stored clip never returns a moment overlapping its own span.
+
+Windows of clips deleted by another process are skipped (no row), as clip searches do.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from app.db import repository as repo
+from app.errors import InvalidInput, NotFound
+from app.services.describe import (
+    WINDOW_LENGTHS,
+    MotionDescriber,
+    SpanDescription,
+    span_frames,
+)
+from app.services.library import Library
+from app.services.reindex import stored_upload
+from app.services.search import _unavailable, check_k
+from app.services.uploads import Upload
+
+MAX_PER_CLIP = 1000
+MAX_ATTEMPTS = 4
+
+
+@dataclass(frozen=True, slots=True)
+class Moment:
+    """A found span ``[start, end)`` in seconds of the clip's file."""
+
+    clip: repo.ClipName
+    format: str
+    start: float
+    end: float
+    distance: float
+
+
+@dataclass(frozen=True, slots=True)
+class MomentQuery:
+    """The query's span in seconds of its file, and its clip when it is a stored one."""
+
+    clip: repo.ClipRecord | None
+    start: float
+    end: float
+
+
+@dataclass
+class _Group:
+    """Window hits of one clip merged so far: ``cover`` the frames of their union."""
+
+    clip_id: int
+    best: repo.WindowSpan
+    distance: float
+    index: str
+    cover: tuple[int, int]
+
+
+def window_descriptors(library: Library) -> list[str]:
+    return sorted({key.name for key in library.window_keys.values()})
+
+
+def _check(library: Library, descriptor: str, k: int, per_clip: int) -> None:
+    library.descriptor(descriptor)
+    if descriptor not in window_descriptors(library):
+        known = ", ".join(window_descriptors(library)) or "none"
+        raise InvalidInput(
+            f"descriptor: moments are searched under the descriptors with windows ({known}), "
+            f"not {descriptor!r}"
+        )
+    check_k(library, k)
+    if not 1 <= per_clip <= MAX_PER_CLIP:
+        raise InvalidInput(f"per_clip: must be between 1 and {MAX_PER_CLIP}, got {per_clip}")
+
+
+def nearest_lengths(seconds: float, lengths: tuple[float, ...] = WINDOW_LENGTHS) -> list[float]:
+    """The window lengths a query of ``seconds`` is compared with: the longest at most as
+    long and the shortest at least as long (one when the query is shorter or longer than
+    every window, or as long as one)."""
+    ordered = sorted(lengths)
+    below = [length for length in ordered if length <= seconds + 1e-9]
+    above = [length for length in ordered if length >= seconds - 1e-9]
+    chosen = {below[-1] if below else ordered[0], above[0] if above else ordered[-1]}
+    return sorted(chosen)
+
+
+def _index_names(library: Library, descriptor: str, seconds: float) -> list[str]:
+    wanted = nearest_lengths(seconds)
+    return [
+        name
+        for name, key in library.window_keys.items()
+        if key.name == descriptor and key.length in wanted
+    ]
+
+
+def _refined_centre(
+    library: Library, db: repo.SearchSnapshot, group: _Group, vector: np.ndarray
+) -> float:
+    """The frame (fractional) where the moment's centre lies: its best window's centre moved
+    by the equiangular fit of its neighbours' distances (see the module docstring)."""
+    best = group.best
+    centre = (best.start + best.stop) / 2
+    index = library.window_indexes[group.index]
+    neighbours = db.window_spans([best.id - 1, best.id + 1])
+    distances: dict[int, tuple[float, int]] = {}
+    for step in (-1, 1):
+        span = neighbours.get(best.id + step)
+        if span is None or span.clip_id != best.clip_id or span.length != best.length:
+            continue
+        shift = span.start - best.start
+        if shift == 0 or (shift > 0) != (step > 0):
+            continue
+        try:
+            other = index.reconstruct(span.id)
+        except KeyError:
+            continue
+        distances[step] = (float(np.linalg.norm(other - vector)), abs(shift))
+    if len(distances) < 2:
+        return centre
+    (left, hop_left), (right, hop_right) = distances[-1], distances[1]
+    rise = max(left, right) - group.distance
+    if rise <= 1e-12:
+        return centre
+    hop = min(hop_left, hop_right)
+    offset = (left - right) / (2 * rise) * hop
+    return centre + float(np.clip(offset, -hop / 2, hop / 2))
+
+
+def _search(
+    library: Library,
+    db: repo.SearchSnapshot,
+    descriptor: str,
+    vector: np.ndarray,
+    query_seconds: float,
+    k: int,
+    per_clip: int,
+    label: str | None,
+    exclude: tuple[int, int, int] | None,
+) -> list[Moment]:
+    """``exclude``: (clip id, first, stop) frames of the query's own span."""
+    names = _index_names(library, descriptor, query_seconds)
+    allowed = {
+        name: None if label is None else db.window_ids_with_label(label, library.window_keys[name])
+        for name in names
+    }
+    fetch = min(10 * k * per_clip + 50, 4096)
+    groups: dict[int, list[_Group]] = {}
+    for _ in range(MAX_ATTEMPTS):
+        found: list[tuple[float, int, str]] = []
+        exhausted = True
+        for name in names:
+            hits = library.window_indexes[name].search(vector, fetch, allowed=allowed[name])
+            exhausted &= len(hits) < fetch
+            found.extend(
+                (float(d), int(i), name) for i, d in zip(hits.ids, hits.distances, strict=True)
+            )
+        found.sort()
+        spans = db.window_spans([i for _, i, _ in found])
+        groups = {}
+        moments = 0
+        for distance, window_id, name in found:
+            span = spans.get(window_id)
+            if span is None:  # deleted meanwhile
+                continue
+            if _overlaps_query(exclude, span.clip_id, span.start, span.stop):
+                continue
+            of_clip = groups.setdefault(span.clip_id, [])
+            merged = False
+            for group in of_clip:
+                if span.start <= group.cover[1] and group.cover[0] <= span.stop:
+                    group.cover = (min(group.cover[0], span.start), max(group.cover[1], span.stop))
+                    merged = True
+                    break
+            if merged or len(of_clip) >= per_clip or moments >= k:
+                continue
+            of_clip.append(_Group(span.clip_id, span, distance, name, (span.start, span.stop)))
+            moments += 1
+        if moments >= k or exhausted:
+            break
+        fetch *= 4
+    chosen = sorted(
+        (group for of_clip in groups.values() for group in of_clip), key=lambda g: g.distance
+    )[:k]
+    clips = db.names([g.clip_id for g in chosen])
+    facts = db.frame_times([g.clip_id for g in chosen])
+    moments_out: list[Moment] = []
+    for group in chosen:
+        if group.clip_id not in clips or group.clip_id not in facts:
+            continue
+        fmt, frame_time, frame_count = facts[group.clip_id]
+        centre = _refined_centre(library, db, group, vector)
+        length = min(query_seconds / frame_time, float(frame_count))
+        first = min(max(0.0, centre - length / 2), frame_count - length)
+        stop = first + length
+        start_s, end_s = first * frame_time, stop * frame_time
+        if _overlaps_query(exclude, group.clip_id, first, stop):
+            continue
+        moments_out.append(
+            Moment(clips[group.clip_id], fmt, _round(start_s), _round(end_s), group.distance)
+        )
+    return moments_out
+
+
+def _overlaps_query(
+    exclude: tuple[int, int, int] | None, clip_id: int, first: float, stop: float
+) -> bool:
+    """Whether frames ``[first, stop)`` of clip ``clip_id`` overlap the query's own span."""
+    return (
+        exclude is not None and clip_id == exclude[0] and first < exclude[2] and exclude[1] < stop
+    )
+
+
+def _round(seconds: float) -> float:
+    return round(seconds, 6)
+
+
+def search_moments_by_clip(
+    library: Library,
+    clip_id: int,
+    descriptor: str,
+    *,
+    start: float | None,
+    end: float | None,
+    k: int,
+    per_clip: int,
+    label: str | None,
+) -> tuple[MomentQuery, list[Moment]]:
+    """Moments like the span ``[start, end)`` of stored clip ``clip_id`` (``GET
+    /search/moments``); none overlapping that span itself."""
+    _check(library, descriptor, k, per_clip)
+    info = library.descriptor(descriptor)
+    library.refresh()
+    with library.search_reads.snapshot() as db:
+        clip = db.clip(clip_id)
+        if clip is None:
+            raise NotFound(f"no clip with id {clip_id}")
+        first, stop = span_frames(
+            clip.frame_count, clip.frame_time, clip.lead_in_frames, start, end, WINDOW_LENGTHS[0]
+        )
+        vector = _stored_span_vector(library, db, clip, descriptor, info.version, first, stop)
+        if vector is None:
+            vector = _described_span(library, clip, descriptor, first, stop).vector
+        seconds = (stop - first) * clip.frame_time
+        moments = _search(
+            library,
+            db,
+            descriptor,
+            vector,
+            seconds,
+            k,
+            per_clip,
+            label,
+            (clip.id, first, stop),
+        )
+    query = MomentQuery(
+        clip,
+        _round(start if start is not None else 0.0),
+        _round(end if end is not None else clip.duration),
+    )
+    return query, moments
+
+
+def _stored_span_vector(
+    library: Library,
+    db: repo.SearchSnapshot,
+    clip: repo.ClipRecord,
+    descriptor: str,
+    version: int,
+    first: int,
+    stop: int,
+) -> np.ndarray | None:
+    """The query vector without reading the file, when the span is the whole clip (the clip's
+    vector) or exactly a stored window; else ``None``."""
+    if first == clip.lead_in_frames and stop == clip.frame_count:
+        try:
+            return library.indexes[descriptor].reconstruct(clip.id)
+        except KeyError:
+            stored = db.vector(clip.id, descriptor)
+            if stored is None or stored.version != version:
+                raise _unavailable(clip.id, descriptor, version) from None
+            return stored.vector
+    for window in db.clip_windows(clip.id, descriptor, version):
+        if window.start == first and window.stop == stop:
+            for name, key in library.window_keys.items():
+                if key.name == descriptor and key.length == window.length:
+                    try:
+                        return library.window_indexes[name].reconstruct(window.id)
+                    except KeyError:
+                        break
+    return None
+
+
+def _described_span(
+    library: Library, clip: repo.ClipRecord, descriptor: str, first: int, stop: int
+) -> SpanDescription:
+    """Read the clip's stored file and describe frames ``[first, stop)``."""
+    describer = library.describer
+    if not clip.files or not isinstance(describer, MotionDescriber):
+        raise InvalidInput(
+            f"clip {clip.id} has no stored file to describe a part of ({clip.format} clip); "
+            "search from the whole clip or one of its windows"
+        )
+    upload = stored_upload(library, clip)
+    return describer.describe_span(
+        upload,
+        library.settings.parse_limits,
+        descriptor,
+        first * clip.frame_time,
+        stop * clip.frame_time,
+    )
+
+
+def search_moments_by_upload(
+    library: Library,
+    upload: Upload,
+    descriptor: str,
+    *,
+    start: float | None,
+    end: float | None,
+    k: int,
+    per_clip: int,
+    label: str | None,
+) -> tuple[MomentQuery, list[Moment]]:
+    """Moments like the span ``[start, end)`` of an uploaded file, which is stored nowhere
+    (``POST /search/moments``)."""
+    _check(library, descriptor, k, per_clip)
+    describer = library.describer
+    if not isinstance(describer, MotionDescriber):
+        raise InvalidInput("moments search needs the motion describer")
+    span = describer.describe_span(
+        upload,
+        library.settings.parse_limits,
+        descriptor,
+        start,
+        end,
+        min_seconds=WINDOW_LENGTHS[0],
+    )
+    library.refresh()
+    seconds = (span.end_frame - span.start_frame) * span.frame_time
+    with library.search_reads.snapshot() as db:
+        moments = _search(
+            library,
+            db,
+            descriptor,
+            span.vector,
+            seconds,
+            k,
+            per_clip,
+            label,
+            None,
+        )
+    duration = span.frame_count * span.frame_time
+    query = MomentQuery(
+        None,
+        _round(start if start is not None else 0.0),
+        _round(end if end is not None else duration),
+    )
+    return query, moments
+
+
+__all__ = [
+    "Moment",
+    "MomentQuery",
+    "nearest_lengths",
+    "search_moments_by_clip",
+    "search_moments_by_upload",
+]
