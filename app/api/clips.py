@@ -95,9 +95,15 @@ def download_clip(
         Literal["file", "skeleton", "motion"] | None,
         Query(description="One uploaded part, byte for byte (ASF/AMC: skeleton or motion)."),
     ] = None,
+    start: Annotated[
+        float | None, Query(description="Cut from here: seconds from the first frame.")
+    ] = None,
+    end: Annotated[float | None, Query(description="Cut up to here (exclusive), seconds.")] = None,
 ) -> Response:
-    """The uploaded bytes, unchanged."""
-    download = clip_service.clip_download(library, clip, part)
+    """The uploaded bytes, unchanged; with `start` and/or `end` the motion cut to that span
+    (BVH: same hierarchy, only those frames; ASF/AMC: the ASF and the cut AMC, frames
+    renumbered from 1)."""
+    download = clip_service.clip_download(library, clip, part, start, end)
     return Response(
         content=download.data,
         media_type=download.media_type,

@@ -12,7 +12,10 @@ from pathlib import PurePosixPath
 from sqlalchemy.exc import SQLAlchemyError
 
 from app.db import repository as repo
-from app.errors import InvalidInput, NotFound, StorageUnavailable
+from app.errors import InvalidInput, NotFound, ParseError, StorageUnavailable
+from app.motion.formats import decode_text
+from app.motion.formats.cut import cut_amc, cut_bvh
+from app.services.describe import span_frames
 from app.services.library import Library
 from app.services.uploads import BVH
 
@@ -111,35 +114,71 @@ def delete_clip(library: Library, clip_id: int) -> None:
             )
 
 
-def clip_download(library: Library, clip: repo.ClipRecord, part: str | None) -> Download:
+def _cut_name(filename: str, start: float, end: float) -> str:
+    path = PurePosixPath(filename)
+    return f"{path.stem}_{start:.2f}-{end:.2f}s{path.suffix}"
+
+
+def _cut_part(
+    library: Library, clip: repo.ClipRecord, record: repo.FileRecord, frames: tuple[int, int]
+) -> tuple[str, bytes]:
+    """A stored part cut to ``frames`` ``[first, stop)`` (the skeleton unchanged)."""
+    data = library.blobs.read(record.sha256)
+    if record.role == "skeleton":
+        return record.filename, data
+    cut = cut_bvh if record.role == "file" else cut_amc
+    try:
+        text = cut(decode_text(data), *frames)
+    except (ParseError, ValueError) as error:
+        raise InvalidInput(f"clip {clip.id}'s {record.role} cannot be cut: {error}") from None
+    first, stop = frames
+    name = _cut_name(record.filename, first * clip.frame_time, stop * clip.frame_time)
+    return name, text.encode()
+
+
+def clip_download(
+    library: Library,
+    clip: repo.ClipRecord,
+    part: str | None,
+    start: float | None = None,
+    end: float | None = None,
+) -> Download:
     """The original upload: the BVH file itself, or for ASF/AMC a ZIP of both files — or one
-    ``part`` (``"file"``, ``"skeleton"``, ``"motion"``) byte for byte."""
+    ``part`` (``"file"``, ``"skeleton"``, ``"motion"``) byte for byte. With ``start`` and/or
+    ``end`` (seconds from the first frame) the motion is cut to that span (see
+    :mod:`app.motion.formats.cut`)."""
     if not clip.files:  # synthetic benchmark clips have vectors but no upload
         raise NotFound(f"clip {clip.id} has no stored file ({clip.format} clip)")
     roles = {f.role: f for f in clip.files}
-    if part is not None:
-        if part not in roles:
-            raise InvalidInput(f"part: clip {clip.id} has the parts {', '.join(roles)}")
-        record = roles[part]
+    if part is not None and part not in roles:
+        raise InvalidInput(f"part: clip {clip.id} has the parts {', '.join(roles)}")
+    if start is not None or end is not None:
+        frames = span_frames(clip.frame_count, clip.frame_time, 0, start, end)
+        wanted = [roles[part]] if part is not None else list(clip.files)
+        cut = [_cut_part(library, clip, record, frames) for record in wanted]
+        if len(cut) == 1:
+            return Download(cut[0][0], "application/octet-stream", cut[0][1])
+        return _zip(clip, cut, cut[-1][0])
+    if part is not None or clip.format == BVH or len(clip.files) == 1:
+        record = roles[part] if part is not None else clip.files[0]
         return Download(
             record.filename, "application/octet-stream", library.blobs.read(record.sha256)
         )
-    if clip.format == BVH or len(clip.files) == 1:
-        record = clip.files[0]
-        return Download(
-            record.filename, "application/octet-stream", library.blobs.read(record.sha256)
-        )
+    motion = roles.get("motion", clip.files[-1])
+    files = [(record.filename, library.blobs.read(record.sha256)) for record in clip.files]
+    return _zip(clip, files, motion.filename)
+
+
+def _zip(clip: repo.ClipRecord, files: list[tuple[str, bytes]], named_after: str) -> Download:
+    """A ZIP of ``files`` (name, bytes), called like ``named_after``."""
     buffer = io.BytesIO()
     stamp = clip.created_at.timetuple()[:6]
     with zipfile.ZipFile(buffer, "w", compression=zipfile.ZIP_DEFLATED) as archive:
-        for record in clip.files:
-            info = zipfile.ZipInfo(record.filename, date_time=stamp)
+        for filename, data in files:
+            info = zipfile.ZipInfo(filename, date_time=stamp)
             info.compress_type = zipfile.ZIP_DEFLATED
-            archive.writestr(info, library.blobs.read(record.sha256))
-    motion = roles.get("motion", clip.files[-1])
-    return Download(
-        f"{PurePosixPath(motion.filename).stem}.zip", "application/zip", buffer.getvalue()
-    )
+            archive.writestr(info, data)
+    return Download(f"{PurePosixPath(named_after).stem}.zip", "application/zip", buffer.getvalue())
 
 
 def remove_orphan_files(library: Library) -> int:

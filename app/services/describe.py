@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
@@ -21,7 +21,13 @@ from app.motion.descriptors import REGISTRY
 from app.motion.formats import read_asf_amc, read_bvh
 from app.motion.model import Motion, ParseLimits
 from app.motion.pipeline import analyse
-from app.motion.windows import DEFAULT_LENGTHS, describe_windows, slice_body, window_spans
+from app.motion.windows import (
+    DEFAULT_LENGTHS,
+    describe_windows,
+    slice_body,
+    window_frames,
+    window_spans,
+)
 from app.services.uploads import BVH, Upload
 
 if TYPE_CHECKING:
@@ -68,6 +74,11 @@ class SpanDescription:
     start_frame: int
     end_frame: int
     vector: np.ndarray
+    # The span's own windows of ``part_length`` seconds: ``part_offsets`` (J,) frames from
+    # ``start_frame``, ``parts`` (J, D) float32 (empty when not asked for or too short).
+    part_length: float = 0.0
+    part_offsets: np.ndarray = dataclasses.field(default_factory=lambda: np.empty(0, np.int64))
+    parts: np.ndarray = dataclasses.field(default_factory=lambda: np.empty((0, 0), np.float32))
 
 
 @dataclass(frozen=True)
@@ -285,10 +296,14 @@ class MotionDescriber:
         end: float | None,
         *,
         min_seconds: float = 0.0,
+        part_length: Callable[[float], float] | None = None,
+        part_step: float = 1 / 30,
     ) -> SpanDescription:
         """Describe the part ``[start, end)`` (seconds from the file's first frame; ``None``:
         its start / end) of ``upload`` under descriptor ``name``. A span of the whole clip
-        gives the clip's vector."""
+        gives the clip's vector. With ``part_length`` (span seconds -> window seconds) also
+        the span's own windows of that length, one every ``part_step`` seconds (and one
+        ending with the span)."""
         started = time.monotonic()
         motion = self.read(upload, limits)
         self._check_time(started, "reading the file")
@@ -303,7 +318,27 @@ class MotionDescriber:
         part = slice_body(body, first - lead_in, stop - lead_in)
         vector = check_vectors({name: REGISTRY[name].compute(part)}, self._descriptors)[name]
         self._check_time(started, "computing the descriptor")
-        return SpanDescription(motion.frame_count, motion.frame_time, lead_in, first, stop, vector)
+        description = SpanDescription(
+            motion.frame_count, motion.frame_time, lead_in, first, stop, vector
+        )
+        if part_length is None:
+            return description
+        length = part_length(part.frame_count * motion.frame_time)
+        size = window_frames(length, motion.frame_time)
+        if size > part.frame_count:
+            return description
+        step = max(1, int(np.floor(part_step / motion.frame_time + 0.5)))
+        offsets = np.arange(0, part.frame_count - size + 1, step, dtype=np.int64)
+        if offsets[-1] + size < part.frame_count:
+            offsets = np.append(offsets, part.frame_count - size)
+        spans = np.stack([np.zeros_like(offsets), offsets, offsets + size], axis=1)
+        parts = describe_windows(part, spans, [name])[name]
+        self._check_time(started, "describing the span's windows")
+        if not np.all(np.isfinite(parts)):
+            return description
+        return dataclasses.replace(
+            description, part_length=length, part_offsets=offsets, parts=parts
+        )
 
 
 def span_frames(

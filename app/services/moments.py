@@ -26,13 +26,14 @@ import numpy as np
 
 from app.db import repository as repo
 from app.errors import InvalidInput, NotFound
+from app.index import DescriptorIndex
 from app.services.describe import (
     WINDOW_LENGTHS,
     MotionDescriber,
     SpanDescription,
     span_frames,
 )
-from app.services.library import Library
+from app.services.library import Library, window_index_name
 from app.services.reindex import stored_upload
 from app.services.search import _unavailable, check_k
 from app.services.uploads import Upload
@@ -59,6 +60,25 @@ class MomentQuery:
     clip: repo.ClipRecord | None
     start: float
     end: float
+
+
+@dataclass(frozen=True)
+class Parts:
+    """The query's own windows of one ``length`` (seconds): ``offsets`` ``(J,)`` seconds from
+    the query's start, ``vectors`` ``(J, D)`` float32. They place a moment to a frame or so:
+    a window stored in the found clip matches the query's part at the same place."""
+
+    length: float
+    offsets: np.ndarray
+    vectors: np.ndarray
+
+
+def part_length(seconds: float) -> float:
+    """The window length a query of ``seconds`` is split into to place its moments: the
+    longest whose stored windows (every half length) always fit one whole into a span of the
+    query's length, else the shortest."""
+    fitting = [length for length in WINDOW_LENGTHS if 1.5 * length <= seconds + 1e-9]
+    return fitting[-1] if fitting else min(WINDOW_LENGTHS)
 
 
 @dataclass
@@ -98,6 +118,12 @@ def nearest_lengths(seconds: float, lengths: tuple[float, ...] = WINDOW_LENGTHS)
     above = [length for length in ordered if length >= seconds - 1e-9]
     chosen = {below[-1] if below else ordered[0], above[0] if above else ordered[-1]}
     return sorted(chosen)
+
+
+def _window_index(library: Library, descriptor: str, length: float) -> DescriptorIndex | None:
+    """The index of ``descriptor`` windows of ``length`` seconds, if there is one."""
+    name = window_index_name(descriptor, length)
+    return library.window_indexes.get(name) if name in library.window_keys else None
 
 
 def _index_names(library: Library, descriptor: str, seconds: float) -> list[str]:
@@ -142,6 +168,46 @@ def _refined_centre(
     return centre + float(np.clip(offset, -hop / 2, hop / 2))
 
 
+def _aligned_start(
+    library: Library,
+    db: repo.SearchSnapshot,
+    group: _Group,
+    parts: Parts,
+    descriptor: str,
+    version: int,
+    frame_time: float,
+    query_seconds: float,
+    exclude: tuple[int, int, int] | None,
+) -> float | None:
+    """Where (seconds) the moment of ``group`` starts: the stored window of its clip nearest to
+    one of the query's parts, minus that part's offset (``None``: no window to compare)."""
+    index = _window_index(library, descriptor, parts.length)
+    if index is None or parts.vectors.size == 0:
+        return None
+    reach = query_seconds / frame_time
+    low, high = group.cover[0] - reach, group.cover[1] + reach
+    starts, vectors = [], []
+    for window in db.clip_windows(group.clip_id, descriptor, version):
+        if window.length != parts.length or window.stop < low or window.start > high:
+            continue
+        if _overlaps_query(exclude, window.clip_id, window.start, window.stop):
+            continue
+        try:
+            vectors.append(index.reconstruct(window.id))
+        except KeyError:
+            continue
+        starts.append(window.start)
+    if not vectors:
+        return None
+    stored = np.stack(vectors).astype(np.float64)
+    query = parts.vectors.astype(np.float64)
+    squared = (
+        (query**2).sum(axis=1)[:, None] + (stored**2).sum(axis=1)[None, :] - 2 * query @ stored.T
+    )
+    j, m = np.unravel_index(int(np.argmin(squared)), squared.shape)
+    return float(starts[int(m)] * frame_time - parts.offsets[int(j)])
+
+
 def _search(
     library: Library,
     db: repo.SearchSnapshot,
@@ -152,8 +218,10 @@ def _search(
     per_clip: int,
     label: str | None,
     exclude: tuple[int, int, int] | None,
+    parts: Parts | None = None,
 ) -> list[Moment]:
-    """``exclude``: (clip id, first, stop) frames of the query's own span."""
+    """``exclude``: (clip id, first, stop) frames of the query's own span; ``parts``: the
+    query's own windows, to place the moments (else their best window's neighbours do)."""
     names = _index_names(library, descriptor, query_seconds)
     allowed = {
         name: None if label is None else db.window_ids_with_label(label, library.window_keys[name])
@@ -204,13 +272,24 @@ def _search(
         if group.clip_id not in clips or group.clip_id not in facts:
             continue
         fmt, frame_time, frame_count = facts[group.clip_id]
-        centre = _refined_centre(library, db, group, vector)
         length = min(query_seconds / frame_time, float(frame_count))
-        first = min(max(0.0, centre - length / 2), frame_count - length)
+        start = None
+        if parts is not None:
+            version = library.window_keys[group.index].version
+            start = _aligned_start(
+                library, db, group, parts, descriptor, version, frame_time, query_seconds, exclude
+            )
+        if start is None:
+            start = (_refined_centre(library, db, group, vector) - length / 2) * frame_time
+        first = min(max(0.0, start / frame_time), frame_count - length)
+        if exclude is not None and _overlaps_query(exclude, group.clip_id, first, first + length):
+            # Placed over the query's own span: next to it, on the side of the best window.
+            after = group.best.start >= exclude[1]
+            first = float(exclude[2]) if after else exclude[1] - length
+            if first < 0 or first + length > frame_count:
+                continue
         stop = first + length
         start_s, end_s = first * frame_time, stop * frame_time
-        if _overlaps_query(exclude, group.clip_id, first, stop):
-            continue
         moments_out.append(
             Moment(clips[group.clip_id], fmt, _round(start_s), _round(end_s), group.distance)
         )
@@ -253,10 +332,12 @@ def search_moments_by_clip(
         first, stop = span_frames(
             clip.frame_count, clip.frame_time, clip.lead_in_frames, start, end, WINDOW_LENGTHS[0]
         )
-        vector = _stored_span_vector(library, db, clip, descriptor, info.version, first, stop)
+        stored = _StoredSpan(clip, descriptor, info.version, first, stop)
+        vector = _stored_span_vector(library, db, stored)
         if vector is None:
             vector = _described_span(library, clip, descriptor, first, stop).vector
         seconds = (stop - first) * clip.frame_time
+        parts = _stored_parts(library, db, stored)
         moments = _search(
             library,
             db,
@@ -267,6 +348,7 @@ def search_moments_by_clip(
             per_clip,
             label,
             (clip.id, first, stop),
+            parts,
         )
     query = MomentQuery(
         clip,
@@ -276,17 +358,29 @@ def search_moments_by_clip(
     return query, moments
 
 
+@dataclass(frozen=True)
+class _StoredSpan:
+    """Frames ``[first, stop)`` of a stored clip, queried under ``descriptor`` of ``version``."""
+
+    clip: repo.ClipRecord
+    descriptor: str
+    version: int
+    first: int
+    stop: int
+
+
 def _stored_span_vector(
-    library: Library,
-    db: repo.SearchSnapshot,
-    clip: repo.ClipRecord,
-    descriptor: str,
-    version: int,
-    first: int,
-    stop: int,
+    library: Library, db: repo.SearchSnapshot, span: _StoredSpan
 ) -> np.ndarray | None:
     """The query vector without reading the file, when the span is the whole clip (the clip's
     vector) or exactly a stored window; else ``None``."""
+    clip, descriptor, version, first, stop = (
+        span.clip,
+        span.descriptor,
+        span.version,
+        span.first,
+        span.stop,
+    )
     if first == clip.lead_in_frames and stop == clip.frame_count:
         try:
             return library.indexes[descriptor].reconstruct(clip.id)
@@ -296,14 +390,33 @@ def _stored_span_vector(
                 raise _unavailable(clip.id, descriptor, version) from None
             return stored.vector
     for window in db.clip_windows(clip.id, descriptor, version):
-        if window.start == first and window.stop == stop:
-            for name, key in library.window_keys.items():
-                if key.name == descriptor and key.length == window.length:
-                    try:
-                        return library.window_indexes[name].reconstruct(window.id)
-                    except KeyError:
-                        break
+        index = _window_index(library, descriptor, window.length)
+        if window.start == first and window.stop == stop and index is not None:
+            try:
+                return index.reconstruct(window.id)
+            except KeyError:
+                break
     return None
+
+
+def _stored_parts(library: Library, db: repo.SearchSnapshot, span: _StoredSpan) -> Parts | None:
+    """The query's parts from the stored windows of its clip inside its span."""
+    clip, first, stop = span.clip, span.first, span.stop
+    length = part_length((stop - first) * clip.frame_time)
+    index = _window_index(library, span.descriptor, length)
+    if index is None:
+        return None
+    offsets, vectors = [], []
+    for window in db.clip_windows(clip.id, span.descriptor, span.version):
+        if window.length == length and first <= window.start and window.stop <= stop:
+            try:
+                vectors.append(index.reconstruct(window.id))
+            except KeyError:
+                continue
+            offsets.append((window.start - first) * clip.frame_time)
+    if not vectors:
+        return None
+    return Parts(length, np.array(offsets), np.stack(vectors))
 
 
 def _described_span(
@@ -350,9 +463,11 @@ def search_moments_by_upload(
         start,
         end,
         min_seconds=WINDOW_LENGTHS[0],
+        part_length=part_length,
     )
     library.refresh()
     seconds = (span.end_frame - span.start_frame) * span.frame_time
+    parts = Parts(span.part_length, span.part_offsets * span.frame_time, span.parts)
     with library.search_reads.snapshot() as db:
         moments = _search(
             library,
@@ -364,6 +479,7 @@ def search_moments_by_upload(
             per_clip,
             label,
             None,
+            parts,
         )
     duration = span.frame_count * span.frame_time
     query = MomentQuery(
