@@ -199,13 +199,87 @@ def _aligned_start(
         starts.append(window.start)
     if not vectors:
         return None
-    stored = np.stack(vectors).astype(np.float64)
+    order = np.argsort(starts, kind="stable")
+    sorted_starts = np.asarray(starts, dtype=np.int64)[order]
+    stored = np.stack(vectors).astype(np.float64)[order]
     query = parts.vectors.astype(np.float64)
     squared = (
         (query**2).sum(axis=1)[:, None] + (stored**2).sum(axis=1)[None, :] - 2 * query @ stored.T
     )
-    j, m = np.unravel_index(int(np.argmin(squared)), squared.shape)
-    return float(starts[int(m)] * frame_time - parts.offsets[int(j)])
+    distances = np.sqrt(np.maximum(squared, 0.0))
+    j, m = np.unravel_index(int(np.argmin(distances)), distances.shape)
+    if 0 < j < len(parts.offsets) - 1:
+        # Parts on both sides fit worse: this part lies on the stored window itself.
+        return float(sorted_starts[m] * frame_time - parts.offsets[int(j)])
+    # The best place is beyond the parts' offsets (no stored window fits whole in the
+    # query's span): between two stored windows, where their distance branches cross.
+    crossing = branch_crossing(distances, sorted_starts * frame_time, parts.offsets, int(j), int(m))
+    if crossing is not None:
+        return crossing
+    shift, lowest = fitted_minima(distances, sorted_starts)
+    j, m = np.unravel_index(int(np.argmin(lowest)), lowest.shape)
+    return float(shift[j, m] * frame_time - parts.offsets[int(j)])
+
+
+def branch_crossing(
+    distances: np.ndarray, starts: np.ndarray, offsets: np.ndarray, best_part: int, best: int
+) -> float | None:
+    """Where (seconds) the query starts when its best pair is an end part ``best_part`` and
+    stored window ``best``: every part against one stored window puts the query's start at
+    ``start - offset``; along those places the distance of a window is one branch of a V
+    (about linear). The best window's branch and the neighbouring window's on the other side
+    of the true place, each fitted with a line over the parts, cross there — each with its
+    own slope, which a fit from three windows cannot have. ``None`` when the branches do not
+    go down towards each other (or too few parts to fit a line).
+
+    ``distances`` ``(J, M)``, ``starts`` ``(M,)`` sorted seconds, ``offsets`` ``(J,)``
+    seconds (ascending).
+    """
+    count = len(offsets)
+    if count < 3:
+        return None
+    other = best + 1 if best_part == 0 else best - 1
+    if not 0 <= other < distances.shape[1]:
+        return None
+    here, there = starts[best] - offsets, starts[other] - offsets
+    slope_here, at_here = np.polyfit(here, distances[:, best], 1)
+    slope_there, at_there = np.polyfit(there, distances[:, other], 1)
+    rising = 1.0 if best_part == 0 else -1.0  # the true place is above (below) this branch
+    if not (slope_here * rising < 0 < slope_there * rising):
+        return None
+    place = (at_there - at_here) / (slope_here - slope_there)
+    edges = sorted((float(here[best_part]), float(there[count - 1 - best_part])))
+    return float(np.clip(place, edges[0], edges[1]))
+
+
+def fitted_minima(distances: np.ndarray, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where between the stored windows each query part fits best, and how well.
+
+    ``distances`` ``(J, M)`` from each query part to each stored window, whose ``starts``
+    ``(M,)`` (frames) are sorted. A window's distance grows about linearly with how far it
+    is shifted from the best place (means over shifted frames change linearly), so at a
+    window nearer than both its neighbours (an equal hop ``h`` away) the equiangular fit
+    gives the best place ``start + x`` with ``x = h (d_left - d_right) / (2 rise)`` and its
+    distance ``d - rise |x| / h`` (``rise = max(d_left, d_right) - d``). Elsewhere the
+    window's own start and distance stand.
+
+    Returns ``(J, M)`` fitted starts (frames) and fitted distances.
+    """
+    shift = np.broadcast_to(starts.astype(np.float64), distances.shape).copy()
+    lowest = distances.copy()
+    if distances.shape[1] < 3:
+        return shift, lowest
+    left, centre, right = distances[:, :-2], distances[:, 1:-1], distances[:, 2:]
+    hop_left = (starts[1:-1] - starts[:-2]).astype(np.float64)
+    hop_right = (starts[2:] - starts[1:-1]).astype(np.float64)
+    rise = np.maximum(left, right) - centre
+    ok = (rise > 1e-12) & (centre <= np.minimum(left, right)) & (hop_left == hop_right)
+    ok &= hop_left > 0
+    safe_rise = np.where(ok, rise, 1.0)
+    x = np.clip((left - right) / (2 * safe_rise), -0.5, 0.5) * hop_left
+    shift[:, 1:-1] += np.where(ok, x, 0.0)
+    lowest[:, 1:-1] = np.where(ok, centre - safe_rise * np.abs(x) / np.maximum(hop_left, 1), centre)
+    return shift, lowest
 
 
 def _search(
