@@ -579,6 +579,27 @@ def load_windows_of(
     return _vector_arrays(_select_in(session, query, ClipWindow.id, ids), key.dimension)
 
 
+def load_window_rows(
+    session: Executor, key: WindowKey, clip_ids: Iterable[int]
+) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The ``key`` windows of some clips: clip id -> starts ``(W,)``, stops ``(W,)``, vectors
+    ``(W, D)`` float32, in id order (benchmark fills)."""
+    query = select(
+        ClipWindow.clip_id, ClipWindow.start_frame, ClipWindow.end_frame, ClipWindow.vector
+    ).where(_window_filter(key))
+    rows: dict[int, list[Any]] = {}
+    for row in _select_in(session, query, ClipWindow.clip_id, clip_ids):
+        rows.setdefault(int(row[0]), []).append(row)
+    return {
+        clip_id: (
+            np.array([r[1] for r in group], np.int64),
+            np.array([r[2] for r in group], np.int64),
+            _vector_arrays([(0, r[3]) for r in group], key.dimension)[1],
+        )
+        for clip_id, group in rows.items()
+    }
+
+
 def clip_window_ids(session: Executor, clip_id: int) -> np.ndarray:
     """``(N,)`` int64 ids of every window of a clip."""
     ids = session.scalars(select(ClipWindow.id).where(ClipWindow.clip_id == clip_id))
