@@ -4,6 +4,7 @@ Run from the repository root::
 
     .venv/bin/python bench/bench_moments.py exact [--spans 500] [--seed 0]
     .venv/bin/python bench/bench_moments.py styles [--seed 0]
+    .venv/bin/python bench/bench_moments.py scale [--hours 100] [--data-dir DIR]
 
 ``exact``
     Imports Bandai dataset 1 and the CMU ASF/AMC trials of ``../shared/data`` into a fresh
@@ -20,6 +21,14 @@ Run from the repository root::
     70 % of the queries whose action appears in another style's take). Also printed: IoU >=
     0.3 / 0.7, and the whole-clip baselines — the whole take as the moment, and the 1-NN
     action accuracy of whole clips of other styles under the same descriptor.
+``scale``
+    Fills ``DIR`` (default ``$TMPDIR/mocap-bench-moments-100h``) with ``--hours`` of motion
+    windows: Bandai dataset 1 imported, then ``mocap-index fill-synthetic`` clips (each a
+    noisy copy of a real clip with its windows) up to that many hours. Times three server
+    starts, then ``wrk`` (``bench/search.lua``) on ``GET /search/moments?clip=<random>&k=10``
+    (the whole clip as the query) at 1 and 32 connections, with the server's peak VmRSS.
+    Targets: median <= 20 ms at 1 connection, >= 300 requests/s at 32, RSS <= 3 GB,
+    start-up <= 10 s. Needs ``wrk``.
 """
 
 from __future__ import annotations
@@ -297,6 +306,85 @@ def styles(args: argparse.Namespace) -> int:
     return 0 if share[0.5] >= 0.70 else 1
 
 
+def scale(args: argparse.Namespace) -> int:
+    import math
+    import sqlite3
+    import subprocess
+
+    from bench_search import CLI, Server, environment, wrk
+
+    data_dir: Path = args.data_dir
+    database = data_dir / "mocap-index.sqlite3"
+    print(f"machine: {machine()}")
+    started = time.perf_counter()
+    if not database.exists():
+        subprocess.run(
+            [
+                CLI,
+                "import",
+                "--no-progress",
+                "--data-dir",
+                str(data_dir),
+                str(shared_data() / "bandai-ds1"),
+            ],
+            check=True,
+            env=environment(),
+        )
+    db = sqlite3.connect(database)
+    clips, seconds = db.execute("SELECT count(*), sum(duration) FROM clips").fetchone()
+    db.close()
+    target = args.hours * 3600
+    if seconds < target:
+        count = clips + math.ceil((target - seconds) / (seconds / clips))
+        subprocess.run(
+            [CLI, "fill-synthetic", "--count", str(count), "--data-dir", str(data_dir)],
+            check=True,
+            env=environment(),
+        )
+        print(f"filled in {time.perf_counter() - started:.0f} s")
+    db = sqlite3.connect(database)
+    clips, seconds, top = db.execute(
+        "SELECT count(*), sum(duration), max(id) FROM clips"
+    ).fetchone()
+    windows = db.execute("SELECT count(*) FROM clip_windows").fetchone()[0]
+    db.close()
+    print(
+        f"library: {clips} clips, {seconds / 3600:.1f} h of motion, {windows} windows "
+        f"({data_dir}, {database.stat().st_size / 2**30:.2f} GiB database)"
+    )
+    log = data_dir.parent / "mocap-bench-moments-server.log"
+    startups = []
+    for _ in range(3):
+        server = Server(data_dir, log)
+        startups.append(server.startup)
+        server.stop()
+    print(f"start-up: median {statistics.median(startups):.2f} s of {startups} (target 10 s)")
+    server = Server(data_dir, log)
+    try:
+        wrk(server.base, 1, 5, top, path="/search/moments", descriptor=DESCRIPTOR)  # warm-up
+        one = wrk(server.base, 1, args.duration, top, path="/search/moments", descriptor=DESCRIPTOR)
+        many = wrk(
+            server.base, 32, args.duration, top, path="/search/moments", descriptor=DESCRIPTOR
+        )
+    finally:
+        server.stop()
+    for name, result in (("1 connection", one), ("32 connections", many)):
+        print(
+            f"{name}: {result['rps']:.0f} requests/s, median {result['p50_ms']:.1f} ms, p99 "
+            f"{result['p99_ms']:.1f} ms, {result['bad']:.0f} bad of {result['checked']:.0f}"
+        )
+    print(f"peak server RSS: {server.peak_rss / 2**30:.2f} GiB (target 3 GB)")
+    print(f"load average after: {__import__('os').getloadavg()[0]:.2f}")
+    ok = (
+        one["p50_ms"] <= 20
+        and many["rps"] >= 300
+        and server.peak_rss <= 3 * 10**9
+        and statistics.median(startups) <= 10
+        and one["bad"] == many["bad"] == 0
+    )
+    return 0 if ok else 1
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     commands = parser.add_subparsers(dest="command", required=True)
@@ -305,8 +393,17 @@ def main() -> int:
     one.add_argument("--seed", type=int, default=0)
     two = commands.add_parser("styles", help="localisation across Bandai styles")
     two.add_argument("--seed", type=int, default=0)
+    three = commands.add_parser("scale", help="moment search with 100 hours of windows")
+    three.add_argument("--hours", type=float, default=100.0)
+    three.add_argument(
+        "--data-dir",
+        type=Path,
+        default=Path(tempfile.gettempdir()) / "mocap-bench-moments-100h" / "data",
+    )
+    three.add_argument("--duration", type=int, default=20, help="seconds per wrk run")
     args = parser.parse_args()
-    return exact(args) if args.command == "exact" else styles(args)
+    run = {"exact": exact, "styles": styles, "scale": scale}[args.command]
+    return run(args)
 
 
 if __name__ == "__main__":

@@ -96,9 +96,10 @@ PerClipQuery = Annotated[
 MomentDescriptorQuery = Annotated[
     str, Query(description="Descriptor with windows to compare with.", examples=["motion"])
 ]
-# A moments search reads the index and a few rows, but may describe a span of a stored file:
-# always in a thread.
-MOMENT_THREADS = anyio.CapacityLimiter(4)
+# A moments search reads the index and a few rows (a few ms of Python), but may describe a
+# span of a stored file: always in a thread, at most two at once (more only fight over the
+# GIL on two cores).
+MOMENT_THREADS = anyio.CapacityLimiter(2)
 
 
 def _body(

@@ -148,11 +148,20 @@ class ClipWindow(Base):
     __tablename__ = "clip_windows"
     __table_args__ = (
         Index("ix_clip_windows_name_version_length", "name", "version", "length"),
+        # A clip's windows of one length in order (placing moments; cascade deletes).
+        Index(
+            "ix_clip_windows_clip_id_name_length",
+            "clip_id",
+            "name",
+            "version",
+            "length",
+            "start_frame",
+        ),
         {"sqlite_autoincrement": True},
     )
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
-    clip_id: Mapped[int] = mapped_column(ForeignKey("clips.id", ondelete="CASCADE"), index=True)
+    clip_id: Mapped[int] = mapped_column(ForeignKey("clips.id", ondelete="CASCADE"))
     name: Mapped[str] = mapped_column(String(64))
     version: Mapped[int] = mapped_column(Integer)
     length: Mapped[float] = mapped_column(Float)  # nominal window length, seconds

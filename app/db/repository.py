@@ -437,6 +437,15 @@ def count_vectors(session: Executor, name: str, version: int) -> int:
     )
 
 
+def _window_arrays(
+    rows: Sequence[Any], dimension: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Starts, stops and vectors of (start, stop, vector bytes) rows."""
+    starts = np.fromiter((r[0] for r in rows), dtype=np.int64, count=len(rows))
+    stops = np.fromiter((r[1] for r in rows), dtype=np.int64, count=len(rows))
+    return starts, stops, _vector_arrays([(0, r[2]) for r in rows], dimension)[1]
+
+
 def _vector_arrays(rows: Sequence[Any], dimension: int) -> tuple[np.ndarray, np.ndarray]:
     ids = np.fromiter((r[0] for r in rows), dtype=np.int64, count=len(rows))
     data = b"".join([r[1] for r in rows])
@@ -591,11 +600,7 @@ def load_window_rows(
     for row in _select_in(session, query, ClipWindow.clip_id, clip_ids):
         rows.setdefault(int(row[0]), []).append(row)
     return {
-        clip_id: (
-            np.array([r[1] for r in group], np.int64),
-            np.array([r[2] for r in group], np.int64),
-            _vector_arrays([(0, r[3]) for r in group], key.dimension)[1],
-        )
+        clip_id: _window_arrays([r[1:] for r in group], key.dimension)
         for clip_id, group in rows.items()
     }
 
@@ -792,6 +797,13 @@ class SearchSnapshot(Protocol):
         """``(format, frame_time, frame_count)`` of the clips that exist, by id."""
         ...
 
+    def window_vectors(
+        self, clip_id: int, key: WindowKey, low: int, high: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The ``key`` windows of one clip ending at or after frame ``low`` and starting at or
+        before ``high``: starts ``(W,)``, stops ``(W,)`` and vectors ``(W, D)``, by start."""
+        ...
+
 
 class _SqliteSnapshot:
     def __init__(self, connection: sqlite3.Connection) -> None:
@@ -896,6 +908,17 @@ class _SqliteSnapshot:
         )
         return [WindowSpan(*row) for row in rows]
 
+    def window_vectors(
+        self, clip_id: int, key: WindowKey, low: int, high: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        rows = self._db.execute(
+            "SELECT start_frame, end_frame, vector FROM clip_windows WHERE clip_id = ? "
+            "AND name = ? AND version = ? AND length = ? AND end_frame >= ? AND start_frame <= ? "
+            "ORDER BY start_frame",
+            (int(clip_id), key.name, key.version, key.length, int(low), int(high)),
+        ).fetchall()
+        return _window_arrays(rows, key.dimension)
+
     def frame_times(self, clip_ids: Sequence[int]) -> dict[int, tuple[str, float, int]]:
         found: dict[int, tuple[str, float, int]] = {}
         for chunk in _chunks([int(i) for i in clip_ids]):
@@ -941,6 +964,21 @@ class _CoreSnapshot:
 
     def clip_windows(self, clip_id: int, name: str, version: int) -> list[WindowSpan]:
         return clip_windows(self._db, clip_id, name, version)
+
+    def window_vectors(
+        self, clip_id: int, key: WindowKey, low: int, high: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        rows = self._db.execute(
+            select(ClipWindow.start_frame, ClipWindow.end_frame, ClipWindow.vector)
+            .where(
+                _window_filter(key),
+                ClipWindow.clip_id == clip_id,
+                ClipWindow.end_frame >= low,
+                ClipWindow.start_frame <= high,
+            )
+            .order_by(ClipWindow.start_frame)
+        ).all()
+        return _window_arrays(rows, key.dimension)
 
     def frame_times(self, clip_ids: Sequence[int]) -> dict[int, tuple[str, float, int]]:
         found: dict[int, tuple[str, float, int]] = {}

@@ -181,27 +181,19 @@ def _aligned_start(
 ) -> float | None:
     """Where (seconds) the moment of ``group`` starts: the stored window of its clip nearest to
     one of the query's parts, minus that part's offset (``None``: no window to compare)."""
-    index = _window_index(library, descriptor, parts.length)
-    if index is None or parts.vectors.size == 0:
+    key = library.window_keys.get(window_index_name(descriptor, parts.length))
+    if key is None or parts.vectors.size == 0:
         return None
     reach = query_seconds / frame_time
     low, high = group.cover[0] - reach, group.cover[1] + reach
-    starts, vectors = [], []
-    for window in db.clip_windows(group.clip_id, descriptor, version):
-        if window.length != parts.length or window.stop < low or window.start > high:
-            continue
-        if _overlaps_query(exclude, window.clip_id, window.start, window.stop):
-            continue
-        try:
-            vectors.append(index.reconstruct(window.id))
-        except KeyError:
-            continue
-        starts.append(window.start)
-    if not vectors:
+    starts, stops, vectors = db.window_vectors(group.clip_id, key, int(low), int(high) + 1)
+    if exclude is not None and group.clip_id == exclude[0]:
+        keep = (stops <= exclude[1]) | (starts >= exclude[2])
+        starts, vectors = starts[keep], vectors[keep]
+    if not len(starts):
         return None
-    order = np.argsort(starts, kind="stable")
-    sorted_starts = np.asarray(starts, dtype=np.int64)[order]
-    stored = np.stack(vectors).astype(np.float64)[order]
+    sorted_starts = starts
+    stored = vectors.astype(np.float64)
     query = parts.vectors.astype(np.float64)
     squared = (
         (query**2).sum(axis=1)[:, None] + (stored**2).sum(axis=1)[None, :] - 2 * query @ stored.T
@@ -242,14 +234,21 @@ def branch_crossing(
     if not 0 <= other < distances.shape[1]:
         return None
     here, there = starts[best] - offsets, starts[other] - offsets
-    slope_here, at_here = np.polyfit(here, distances[:, best], 1)
-    slope_there, at_there = np.polyfit(there, distances[:, other], 1)
+    slope_here, at_here = _line(here, distances[:, best])
+    slope_there, at_there = _line(there, distances[:, other])
     rising = 1.0 if best_part == 0 else -1.0  # the true place is above (below) this branch
     if not (slope_here * rising < 0 < slope_there * rising):
         return None
     place = (at_there - at_here) / (slope_here - slope_there)
     edges = sorted((float(here[best_part]), float(there[count - 1 - best_part])))
     return float(np.clip(place, edges[0], edges[1]))
+
+
+def _line(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """Least-squares slope and intercept of ``y`` over ``x`` (both ``(N,)``)."""
+    dx = x - x.mean()
+    slope = float((dx * (y - y.mean())).sum() / max(float((dx**2).sum()), 1e-18))
+    return slope, float(y.mean() - slope * x.mean())
 
 
 def fitted_minima(distances: np.ndarray, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -301,7 +300,7 @@ def _search(
         name: None if label is None else db.window_ids_with_label(label, library.window_keys[name])
         for name in names
     }
-    fetch = min(10 * k * per_clip + 50, 4096)
+    fetch = min(4 * k + 20, 4096)  # windows per index; more when too few moments came of them
     groups: dict[int, list[_Group]] = {}
     for _ in range(MAX_ATTEMPTS):
         found: list[tuple[float, int, str]] = []

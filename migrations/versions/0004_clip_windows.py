@@ -38,7 +38,11 @@ def upgrade() -> None:
         sa.PrimaryKeyConstraint("id", name=op.f("pk_clip_windows")),
         sqlite_autoincrement=True,
     )
-    op.create_index(op.f("ix_clip_windows_clip_id"), "clip_windows", ["clip_id"])
+    op.create_index(
+        "ix_clip_windows_clip_id_name_length",
+        "clip_windows",
+        ["clip_id", "name", "version", "length", "start_frame"],
+    )
     op.create_index(
         "ix_clip_windows_name_version_length", "clip_windows", ["name", "version", "length"]
     )
