@@ -157,6 +157,9 @@ class ClipWindow(Base):
             "length",
             "start_frame",
         ),
+        # Where the windows a search found lie, without reading their rows (each row holds a
+        # vector: 120 random rows of a large table cost ~10 ms, the index a fraction of it).
+        Index("ix_clip_windows_span", "id", "clip_id", "start_frame", "end_frame", "length"),
         {"sqlite_autoincrement": True},
     )
 

@@ -46,6 +46,11 @@ def upgrade() -> None:
     op.create_index(
         "ix_clip_windows_name_version_length", "clip_windows", ["name", "version", "length"]
     )
+    op.create_index(
+        "ix_clip_windows_span",
+        "clip_windows",
+        ["id", "clip_id", "start_frame", "end_frame", "length"],
+    )
 
 
 def downgrade() -> None:

@@ -212,6 +212,7 @@ def test_delete_removes_the_windows(
 def test_window_indexes_are_rebuilt_or_caught_up_at_start(
     settings: Settings, tmp_path: Path
 ) -> None:
+    settings = settings.model_copy(update={"index_refresh_seconds": 0.0})  # check every search
     with TestClient(create_app(settings)) as client:
         take = upload(client, long_take(), "take.bvh")["id"]
         expected = client.get("/search/moments", params={"clip": take, "start": 0, "end": 1.3})
