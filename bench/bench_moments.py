@@ -334,7 +334,7 @@ def scale(args: argparse.Namespace) -> int:
     clips, seconds = db.execute("SELECT count(*), sum(duration) FROM clips").fetchone()
     db.close()
     target = args.hours * 3600
-    if seconds < target:
+    if seconds < 0.999 * target:  # not again for rounding
         count = clips + math.ceil((target - seconds) / (seconds / clips))
         subprocess.run(
             [CLI, "fill-synthetic", "--count", str(count), "--data-dir", str(data_dir)],

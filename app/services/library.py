@@ -15,6 +15,10 @@ restart. (On PostgreSQL ids come from a sequence, not in commit order: a clip co
 another process after one with a larger id is missed until the next start, whose count check
 adds it. Clips deleted by another process stay in this process's indexes until then, but are
 never returned: a search skips ids that have no row.)
+
+The window indexes of moments search (one per windowed descriptor and window length, ids =
+window ids of ``clip_windows``, which only grow too) are loaded, synced, refreshed and rebuilt
+the same way, beside the clip indexes.
 """
 
 from __future__ import annotations
