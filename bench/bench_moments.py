@@ -225,6 +225,7 @@ def styles(args: argparse.Namespace) -> int:
             run_import(clips_settings, [shared_data() / "bandai-ds1"])
             clip_library = open_library(clips_settings)
             scores: list[float] = []
+            centred: list[bool] = []  # the moment's centre lies in a segment of the action
             whole_take: list[float] = []
             nn_hits, counted, skipped, times = 0, 0, 0, []
             for path in bandai:
@@ -265,6 +266,14 @@ def styles(args: argparse.Namespace) -> int:
                     default=0.0,
                 )
                 scores.append(best)
+                centre = (top.start + top.end) / 2
+                centred.append(
+                    any(
+                        first * frame_time <= centre < stop * frame_time
+                        for name, first, stop in wanted
+                        if name == take
+                    )
+                )
                 duration = next(c.duration for c in take_of.values() if c.id == top.clip.id)
                 whole_take.append(
                     max(
@@ -291,6 +300,10 @@ def styles(args: argparse.Namespace) -> int:
     print(
         f"  IoU >= 0.3: {share[0.3]:.1%}   IoU >= 0.5: {share[0.5]:.1%} (target 70 %)   "
         f"IoU >= 0.7: {share[0.7]:.1%}"
+    )
+    print(
+        f"  the top moment's centre lies in a segment of the same action for "
+        f"{sum(centred) / counted:.1%} (the action is found; IoU then says how well it is cut)"
     )
     print(
         f"  mean IoU {statistics.mean(scores):.3f}; search by upload median "
