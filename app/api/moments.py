@@ -26,7 +26,10 @@ class MomentOut(BaseModel):
     format: str
     start: float = Field(description="Start of the moment, seconds from the file's first frame.")
     end: float = Field(description="End of the moment (exclusive), seconds.")
-    distance: float = Field(description="Euclidean distance to the moment's best window.")
+    distance: float = Field(
+        description="How far the moment is from the query: the mean Euclidean distance of the "
+        "clip's windows inside the moment to the query's own windows at the same offsets."
+    )
 
     @classmethod
     def of(cls, moment: moment_service.Moment) -> MomentOut:

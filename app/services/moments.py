@@ -12,6 +12,10 @@ length(s) nearest the query's length — the largest at most and the smallest at
   distances of that window and its two neighbours of the same length (half a hop at most:
   the distance grows about linearly with the shift), and is as long as the query (clipped to
   its clip) — so a moment found from a 3-s query is a 3-s span, not a union of windows;
+* **rank**: ``3 k`` moments are placed, then ranked by how well their whole span fits (the
+  mean distance of the stored windows inside it to the query's parts at the same offsets):
+  one window's distance ranks a long query by a few seconds of it, and windows straddle
+  the boundaries between the motions of a take;
 * **limit**: at most ``k`` moments, at most ``per_clip`` of one clip, nearest first; a query
   from a stored clip never returns a moment overlapping its own span.
 
@@ -39,6 +43,7 @@ from app.services.search import _unavailable, check_k
 from app.services.uploads import Upload
 
 MAX_PER_CLIP = 1000
+RANKED = 3  # moments placed per moment returned, ranked by how well their whole span fits
 MAX_ATTEMPTS = 4
 
 
@@ -178,9 +183,11 @@ def _aligned_start(
     frame_time: float,
     query_seconds: float,
     exclude: tuple[int, int, int] | None,
-) -> float | None:
-    """Where (seconds) the moment of ``group`` starts: the stored window of its clip nearest to
-    one of the query's parts, minus that part's offset (``None``: no window to compare)."""
+) -> tuple[float, float] | None:
+    """Where (seconds) the moment of ``group`` starts — the stored window of its clip nearest
+    to one of the query's parts, minus that part's offset — and how well the whole span fits:
+    the mean distance of the stored windows inside the placed span to the query's parts at
+    the same offsets (``None``: no window to compare)."""
     key = library.window_keys.get(window_index_name(descriptor, parts.length))
     if key is None or parts.vectors.size == 0:
         return None
@@ -199,6 +206,14 @@ def _aligned_start(
         (query**2).sum(axis=1)[:, None] + (stored**2).sum(axis=1)[None, :] - 2 * query @ stored.T
     )
     distances = np.sqrt(np.maximum(squared, 0.0))
+    start = _placed_start(distances, sorted_starts, parts, frame_time)
+    return start, _span_fit(distances, sorted_starts * frame_time - start, parts, query_seconds)
+
+
+def _placed_start(
+    distances: np.ndarray, sorted_starts: np.ndarray, parts: Parts, frame_time: float
+) -> float:
+    """See :func:`_aligned_start`: ``distances`` ``(J, M)`` parts x stored windows."""
     j, m = np.unravel_index(int(np.argmin(distances)), distances.shape)
     if 0 < j < len(parts.offsets) - 1:
         # Parts on both sides fit worse: this part lies on the stored window itself.
@@ -211,6 +226,25 @@ def _aligned_start(
     shift, lowest = fitted_minima(distances, sorted_starts)
     j, m = np.unravel_index(int(np.argmin(lowest)), lowest.shape)
     return float(shift[j, m] * frame_time - parts.offsets[int(j)])
+
+
+def _span_fit(
+    distances: np.ndarray, offsets: np.ndarray, parts: Parts, query_seconds: float
+) -> float:
+    """Mean distance of the stored windows at ``offsets`` (seconds from the placed start)
+    inside the placed span to the query's parts nearest those offsets; the best distance
+    when no stored window lies inside."""
+    inside = (offsets >= -0.02) & (offsets <= query_seconds - parts.length + 0.02)
+    if not inside.any():
+        return float(distances.min())
+    columns = np.flatnonzero(inside)
+    rows = np.clip(np.searchsorted(parts.offsets, offsets[columns]), 0, len(parts.offsets) - 1)
+    below = np.clip(rows - 1, 0, len(parts.offsets) - 1)
+    nearer = np.abs(parts.offsets[below] - offsets[columns]) < np.abs(
+        parts.offsets[rows] - offsets[columns]
+    )
+    rows = np.where(nearer, below, rows)
+    return float(distances[rows, columns].mean())
 
 
 def branch_crossing(
@@ -300,7 +334,11 @@ def _search(
         name: None if label is None else db.window_ids_with_label(label, library.window_keys[name])
         for name in names
     }
-    fetch = min(4 * k + 20, 4096)  # windows per index; more when too few moments came of them
+    # More moments than asked for are placed, then ranked by how well their whole span fits.
+    candidates = k * (RANKED if parts is not None else 1)
+    fetch = min(
+        4 * candidates + 20, 4096
+    )  # windows per index; more when too few moments came of them
     groups: dict[int, list[_Group]] = {}
     for _ in range(MAX_ATTEMPTS):
         found: list[tuple[float, int, str]] = []
@@ -328,16 +366,16 @@ def _search(
                     group.cover = (min(group.cover[0], span.start), max(group.cover[1], span.stop))
                     merged = True
                     break
-            if merged or len(of_clip) >= per_clip or moments >= k:
+            if merged or len(of_clip) >= per_clip or moments >= candidates:
                 continue
             of_clip.append(_Group(span.clip_id, span, distance, name, (span.start, span.stop)))
             moments += 1
-        if moments >= k or exhausted:
+        if moments >= candidates or exhausted:
             break
         fetch *= 4
     chosen = sorted(
         (group for of_clip in groups.values() for group in of_clip), key=lambda g: g.distance
-    )[:k]
+    )[:candidates]
     clips = db.names([g.clip_id for g in chosen])
     facts = db.frame_times([g.clip_id for g in chosen])
     moments_out: list[Moment] = []
@@ -347,11 +385,14 @@ def _search(
         fmt, frame_time, frame_count = facts[group.clip_id]
         length = min(query_seconds / frame_time, float(frame_count))
         start = None
+        distance = group.distance
         if parts is not None:
             version = library.window_keys[group.index].version
-            start = _aligned_start(
+            placed = _aligned_start(
                 library, db, group, parts, descriptor, version, frame_time, query_seconds, exclude
             )
+            if placed is not None:
+                start, distance = placed
         if start is None:
             start = (_refined_centre(library, db, group, vector) - length / 2) * frame_time
         first = min(max(0.0, start / frame_time), frame_count - length)
@@ -364,9 +405,10 @@ def _search(
         stop = first + length
         start_s, end_s = first * frame_time, stop * frame_time
         moments_out.append(
-            Moment(clips[group.clip_id], fmt, _round(start_s), _round(end_s), group.distance)
+            Moment(clips[group.clip_id], fmt, _round(start_s), _round(end_s), distance)
         )
-    return moments_out
+    moments_out.sort(key=lambda moment: moment.distance)
+    return moments_out[:k]
 
 
 def _overlaps_query(
