@@ -156,6 +156,7 @@ class ClipWindow(Base):
             "version",
             "length",
             "start_frame",
+            "end_frame",
         ),
         # Where the windows a search found lie, without reading their rows (each row holds a
         # vector: 120 random rows of a large table cost ~10 ms, the index a fraction of it).

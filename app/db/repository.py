@@ -446,6 +446,12 @@ def _window_arrays(
     return starts, stops, _vector_arrays([(0, r[2]) for r in rows], dimension)[1]
 
 
+def _place_arrays(rows: Sequence[Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ids, starts and stops ``(W,)`` int64 of (id, start, stop) rows."""
+    array = np.array(rows, dtype=np.int64).reshape(-1, 3)
+    return array[:, 0].copy(), array[:, 1].copy(), array[:, 2].copy()
+
+
 def _vector_arrays(rows: Sequence[Any], dimension: int) -> tuple[np.ndarray, np.ndarray]:
     ids = np.fromiter((r[0] for r in rows), dtype=np.int64, count=len(rows))
     data = b"".join([r[1] for r in rows])
@@ -797,11 +803,12 @@ class SearchSnapshot(Protocol):
         """``(format, frame_time, frame_count)`` of the clips that exist, by id."""
         ...
 
-    def window_vectors(
+    def window_places(
         self, clip_id: int, key: WindowKey, low: int, high: int
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The ``key`` windows of one clip ending at or after frame ``low`` and starting at or
-        before ``high``: starts ``(W,)``, stops ``(W,)`` and vectors ``(W, D)``, by start."""
+        before ``high``: ids, starts and stops ``(W,)``, by start (from an index alone: the
+        vectors are in the window index)."""
         ...
 
 
@@ -909,16 +916,17 @@ class _SqliteSnapshot:
         )
         return [WindowSpan(*row) for row in rows]
 
-    def window_vectors(
+    def window_places(
         self, clip_id: int, key: WindowKey, low: int, high: int
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         rows = self._db.execute(
-            "SELECT start_frame, end_frame, vector FROM clip_windows WHERE clip_id = ? "
+            "SELECT id, start_frame, end_frame FROM clip_windows "
+            "INDEXED BY ix_clip_windows_clip_id_name_length WHERE clip_id = ? "
             "AND name = ? AND version = ? AND length = ? AND end_frame >= ? AND start_frame <= ? "
             "ORDER BY start_frame",
             (int(clip_id), key.name, key.version, key.length, int(low), int(high)),
         ).fetchall()
-        return _window_arrays(rows, key.dimension)
+        return _place_arrays(rows)
 
     def frame_times(self, clip_ids: Sequence[int]) -> dict[int, tuple[str, float, int]]:
         found: dict[int, tuple[str, float, int]] = {}
@@ -966,11 +974,11 @@ class _CoreSnapshot:
     def clip_windows(self, clip_id: int, name: str, version: int) -> list[WindowSpan]:
         return clip_windows(self._db, clip_id, name, version)
 
-    def window_vectors(
+    def window_places(
         self, clip_id: int, key: WindowKey, low: int, high: int
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         rows = self._db.execute(
-            select(ClipWindow.start_frame, ClipWindow.end_frame, ClipWindow.vector)
+            select(ClipWindow.id, ClipWindow.start_frame, ClipWindow.end_frame)
             .where(
                 _window_filter(key),
                 ClipWindow.clip_id == clip_id,
@@ -979,7 +987,7 @@ class _CoreSnapshot:
             )
             .order_by(ClipWindow.start_frame)
         ).all()
-        return _window_arrays(rows, key.dimension)
+        return _place_arrays(rows)
 
     def frame_times(self, clip_ids: Sequence[int]) -> dict[int, tuple[str, float, int]]:
         found: dict[int, tuple[str, float, int]] = {}

@@ -193,13 +193,15 @@ def _aligned_start(
         return None
     reach = query_seconds / frame_time
     low, high = group.cover[0] - reach, group.cover[1] + reach
-    starts, stops, vectors = db.window_vectors(group.clip_id, key, int(low), int(high) + 1)
+    ids, starts, stops = db.window_places(group.clip_id, key, int(low), int(high) + 1)
     if exclude is not None and group.clip_id == exclude[0]:
         keep = (stops <= exclude[1]) | (starts >= exclude[2])
-        starts, vectors = starts[keep], vectors[keep]
-    if not len(starts):
+        ids, starts = ids[keep], starts[keep]
+    index = library.window_indexes[window_index_name(descriptor, parts.length)]
+    held, vectors = index.reconstruct_many(ids)
+    if not len(held):
         return None
-    sorted_starts = starts
+    sorted_starts = starts[np.isin(ids, held)]
     stored = vectors.astype(np.float64)
     query = parts.vectors.astype(np.float64)
     squared = (

@@ -41,7 +41,7 @@ def upgrade() -> None:
     op.create_index(
         "ix_clip_windows_clip_id_name_length",
         "clip_windows",
-        ["clip_id", "name", "version", "length", "start_frame"],
+        ["clip_id", "name", "version", "length", "start_frame", "end_frame"],
     )
     op.create_index(
         "ix_clip_windows_name_version_length", "clip_windows", ["name", "version", "length"]
