@@ -1,5 +1,6 @@
-# mocap-index: the web service on the embedded SQLite database, data in the /data volume.
-#   docker compose up --build        (see docker-compose.yml)
+# mocap-index: the web service, on the embedded SQLite database with its data in the /data
+# volume, or on PostgreSQL (MOCAP_DATABASE_URL; /data then holds only the index cache).
+#   docker compose up --build        (PostgreSQL and two replicas, see docker-compose.yml)
 #   docker build -t mocap-index . && docker run -p 8000:8000 -v mocap-data:/data mocap-index
 FROM python:3.11-slim
 
@@ -20,9 +21,10 @@ RUN groupadd --system mocap \
 
 WORKDIR /app
 
-# Dependencies first, in their own layer, so a code change does not reinstall them.
+# Dependencies (with the postgres extra) first, in their own layer, so a code change does not
+# reinstall them.
 COPY pyproject.toml README.md ./
-RUN python -c "import tomllib; print('\n'.join(tomllib.load(open('pyproject.toml', 'rb'))['project']['dependencies']))" > /tmp/requirements.txt \
+RUN python -c "import tomllib; p = tomllib.load(open('pyproject.toml', 'rb'))['project']; print('\n'.join(p['dependencies'] + p['optional-dependencies']['postgres']))" > /tmp/requirements.txt \
     && pip install -r /tmp/requirements.txt \
     && rm /tmp/requirements.txt
 

@@ -7,7 +7,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 INSTALLED := $(VENV)/.installed
 
-.PHONY: install browser serve test lint clean
+.PHONY: install browser postgres serve test lint clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -32,7 +32,12 @@ lint: install
 browser: install
 	-bash scripts/install_browser.sh $(BIN)/python
 
-test: lint browser
+# Debian's PostgreSQL 15 for the tests on PostgreSQL (apt-get; needs root or sudo). Where it
+# cannot be installed those tests skip with a reason, except in CI (CI=true).
+postgres:
+	-bash scripts/install_postgres.sh
+
+test: lint browser postgres
 	$(BIN)/pytest
 
 clean:

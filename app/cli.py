@@ -62,14 +62,24 @@ def _configure_serve(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", type=int, help="port (default 8000, MOCAP_PORT)")
 
 
-@command("serve", "start the web service (API and its docs at /docs)", configure=_configure_serve)
+@command(
+    "serve",
+    "start the web service (the web UI at /, the API docs at /docs)",
+    configure=_configure_serve,
+)
 def _serve(args: argparse.Namespace, settings: Settings) -> int:
     import uvicorn
 
     from app.main import create_app
 
+    # An unspecified address is reachable locally as localhost; IPv6 needs brackets.
+    host = {"0.0.0.0": "localhost", "::": "localhost", "": "localhost"}.get(
+        settings.host, settings.host
+    )
+    base = f"http://{f'[{host}]' if ':' in host else host}:{settings.port}"
     print(f"mocap-index: data in {settings.data_dir}", file=sys.stderr)
-    print(f"mocap-index: API docs at http://{settings.host}:{settings.port}/docs", file=sys.stderr)
+    print(f"mocap-index: web UI at {base}/", file=sys.stderr)
+    print(f"mocap-index: API docs at {base}/docs", file=sys.stderr)
     uvicorn.run(
         create_app(settings),
         host=settings.host,
@@ -105,6 +115,14 @@ def _configure_reindex(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="recompute every vector, not only the missing or outdated ones",
     )
+    progress = parser.add_mutually_exclusive_group()
+    progress.add_argument(
+        "--progress",
+        action="store_true",
+        default=None,
+        help="show a progress bar (default: when stderr is a terminal)",
+    )
+    progress.add_argument("--no-progress", dest="progress", action="store_false")
 
 
 @command(
@@ -116,16 +134,18 @@ def _reindex(args: argparse.Namespace, settings: Settings) -> int:
     from app.services.library import open_library
     from app.services.reindex import reindex
 
+    show = sys.stderr.isatty() if args.progress is None else args.progress
+    bar = _ProgressBar("reindexing")
+
+    def progress(done: int, total: int, clip: Any) -> None:
+        bar.total = total
+        bar.set_done(done)
+
     library = open_library(settings)
     try:
-        report = reindex(
-            library,
-            everything=args.all,
-            progress=lambda done, total, clip: print(
-                f"[{done}/{total}] {clip.name}", file=sys.stderr
-            ),
-        )
+        report = reindex(library, everything=args.all, progress=progress if show else None)
     finally:
+        bar.stop()
         library.close()
     for clip_id, why in report.failed.items():
         print(f"clip {clip_id}: {why}", file=sys.stderr)
@@ -173,13 +193,22 @@ def _configure_import(parser: argparse.ArgumentParser) -> None:
         "--labels-tsv",
         type=Path,
         metavar="FILE",
-        help="TSV with a header row: clip key (file stem), then one column per label kind",
+        help="TSV with a header row: clip key (file stem), then one column per label kind; "
+        "columns named 'source' and 'licence' give those fields instead",
+    )
+    parser.add_argument(
+        "--label-columns",
+        action="append",
+        metavar="COLUMN[,COLUMN...]",
+        help="the --labels-tsv columns to use as labels (default: every column except those "
+        "holding free text: a value over 40 characters or 3 words, like a description)",
     )
     parser.add_argument(
         "--labels-regex",
         metavar="REGEX",
         help="regular expression with named groups over each clip's path relative to the "
-        r"folder given, e.g. 'dataset-1_(?P<content>[^_]+)_(?P<style>[^_]+)_\d+'",
+        r"folder given, e.g. 'dataset-1_(?P<content>[^_]+)_(?P<style>[^_]+)_\d+' "
+        "(JavaScript's (?<content>...) works too)",
     )
     parser.add_argument(
         "--label",
@@ -202,11 +231,12 @@ def _configure_import(parser: argparse.ArgumentParser) -> None:
     )
 
 
-class _ImportProgress:
+class _ProgressBar:
     """A rich progress bar (clips, clips/s, elapsed, ETA) on stderr, started on the first
     update — after the worker processes are forked, as it runs a thread."""
 
-    def __init__(self) -> None:
+    def __init__(self, doing: str = "importing") -> None:
+        self._doing = doing
         self._progress: Any = None
         self._task: Any = None
         self.total = 0
@@ -215,6 +245,9 @@ class _ImportProgress:
         self.total = found
 
     def update(self, report: Any) -> None:
+        self.set_done(report.done)
+
+    def set_done(self, done: int) -> None:
         if self._progress is None:
             from rich.console import Console
             from rich.progress import (
@@ -227,7 +260,7 @@ class _ImportProgress:
             )
 
             self._progress = Progress(
-                TextColumn("importing"),
+                TextColumn(self._doing),
                 BarColumn(),
                 MofNCompleteColumn(),
                 TextColumn("{task.fields[rate]}"),
@@ -240,7 +273,7 @@ class _ImportProgress:
             self._task = self._progress.add_task("import", total=self.total, rate="")
         task = self._progress.tasks[0]
         rate = f"{task.speed:.0f} clips/s" if task.speed else ""
-        self._progress.update(self._task, completed=report.done, rate=rate)
+        self._progress.update(self._task, completed=done, rate=rate)
 
     def stop(self) -> None:
         if self._progress is not None:
@@ -249,18 +282,29 @@ class _ImportProgress:
 
 @command(
     "import",
-    "import every clip under folders (BVH, ASF/AMC) in parallel; skips content already stored",
+    "import every clip under folders (BVH, ASF/AMC, FBX, glTF) in parallel; skips stored content",
     configure=_configure_import,
 )
 def _import(args: argparse.Namespace, settings: Settings) -> int:
     from app.importer import LabelRules, run_import
 
-    rules = LabelRules.build(tsv=args.labels_tsv, regex=args.labels_regex, fixed=args.label)
+    rules = LabelRules.build(
+        tsv=args.labels_tsv,
+        regex=args.labels_regex,
+        fixed=args.label,
+        columns=args.label_columns,
+    )
+    if rules.left_out:
+        print(
+            f"mocap-index: labels file columns left out (free text): {', '.join(rules.left_out)}; "
+            "choose columns with --label-columns",
+            file=sys.stderr,
+        )
     if args.workers is not None and args.workers < 1:
         print("mocap-index: --workers must be at least 1", file=sys.stderr)
         return 2
     show = sys.stderr.isatty() if args.progress is None else args.progress
-    bar = _ImportProgress()
+    bar = _ProgressBar()
     try:
         report = run_import(
             settings,
@@ -278,7 +322,10 @@ def _import(args: argparse.Namespace, settings: Settings) -> int:
             paired = f" (skeleton {clip.skeleton})" if clip.skeleton else ""
             print(f"imported  {clip.path} as clip {clip.clip_id}{paired}")
         for dup in report.duplicates:
-            print(f"duplicate {dup.path}: same content as clip {dup.clip_id} {dup.clip_name!r}")
+            news = "; given new labels, source or licence" if dup.updated else ""
+            print(
+                f"duplicate {dup.path}: same content as clip {dup.clip_id} {dup.clip_name!r}{news}"
+            )
     for skeleton, count in sorted(report.skeletons().items()):
         print(f"skeleton {skeleton} used for {count} .amc clip{'s' if count != 1 else ''}")
     if report.failed:
@@ -286,9 +333,11 @@ def _import(args: argparse.Namespace, settings: Settings) -> int:
         for failure in sorted(report.failed, key=lambda f: str(f.path)):
             print(f"  {failure.path}: {failure.reason}")
     rate = report.done / report.seconds if report.seconds else 0.0
+    updated = sum(d.updated for d in report.duplicates)
     print(
         f"{'interrupted: ' if report.interrupted else ''}"
-        f"imported {len(report.imported)}, skipped {len(report.duplicates)} as duplicates, "
+        f"imported {len(report.imported)}, skipped {len(report.duplicates)} as duplicates"
+        f"{f' ({updated} given new labels, source or licence)' if updated else ''}, "
         f"failed {len(report.failed)} of {report.found} clips found, in {report.seconds:.2f} s "
         f"({rate:.0f} clips/s, {report.workers} worker{'s' if report.workers != 1 else ''})"
     )
@@ -319,7 +368,9 @@ def _configure_fill(parser: argparse.ArgumentParser) -> None:
 
 @command(
     "fill-synthetic",
-    "add synthetic clips (label and format 'synthetic', no stored file) for benchmarks",
+    "add synthetic clips (label and format 'synthetic', no stored file) for benchmarks. They "
+    "show up in searches: use a separate --data-dir (a copy of a library), never your own "
+    "library; 'mocap-index delete --label synthetic --yes' removes them",
     configure=_configure_fill,
 )
 def _fill_synthetic(args: argparse.Namespace, settings: Settings) -> int:
@@ -343,6 +394,57 @@ def _fill_synthetic(args: argparse.Namespace, settings: Settings) -> int:
     return 0
 
 
+# -- delete --------------------------------------------------------------------------------
+
+
+def _configure_delete(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--label",
+        action="append",
+        required=True,
+        metavar="LABEL",
+        help="delete the clips carrying this label (repeat, or separate with commas, for "
+        "clips carrying all of them; any case)",
+    )
+    parser.add_argument(
+        "--yes",
+        action="store_true",
+        help="really delete; without it, only say how many clips would go (exit status 1)",
+    )
+
+
+@command(
+    "delete",
+    "delete every clip carrying a label (e.g. the synthetic ones), with its files and vectors",
+    configure=_configure_delete,
+)
+def _delete(args: argparse.Namespace, settings: Settings) -> int:
+    from app.labels import label_filter
+    from app.services import clips as clip_service
+    from app.services.library import open_library
+
+    labels = label_filter(args.label)
+    if not labels:
+        print("mocap-index: --label: name the label of the clips to delete", file=sys.stderr)
+        return 2
+    named = ", ".join(labels)
+    library = open_library(settings)
+    try:
+        if not args.yes:
+            count = len(clip_service.clips_with_labels(library, labels))
+            print(
+                f"would delete {count} clip{'s' if count != 1 else ''} labelled {named} "
+                f"(of {library.clip_count()}); add --yes to delete them"
+            )
+            return 1 if count else 0
+        deleted = clip_service.delete_clips_with(library, labels)
+        remaining = library.clip_count()
+    finally:
+        library.close()
+    print(f"deleted {deleted} clip{'s' if deleted != 1 else ''} labelled {named}; {remaining} left")
+    return 0
+
+
 # -- entry point ---------------------------------------------------------------------------
 
 
@@ -350,6 +452,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="mocap-index", description="Find similar motion-capture clips."
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {version()}")
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument(
         "--data-dir", type=Path, help="data directory (default ./data, MOCAP_DATA_DIR)"
@@ -367,6 +470,17 @@ def build_parser() -> argparse.ArgumentParser:
             cmd.configure(sub)
         sub.set_defaults(run=cmd.run)
     return parser
+
+
+def version() -> str:
+    """The installed package's version (the source tree's when not installed)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as installed
+
+    try:
+        return installed("mocap-index")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
 
 
 def settings_from(args: argparse.Namespace) -> Settings:

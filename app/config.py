@@ -35,8 +35,9 @@ class Settings(BaseSettings):
         default=None,
         description=(
             "SQLAlchemy database URL. Default: the SQLite file "
-            f"<data_dir>/{DATABASE_FILE_NAME}. A postgresql:// URL runs the same code on "
-            "PostgreSQL."
+            f"<data_dir>/{DATABASE_FILE_NAME}. A postgresql:// URL (psycopg 3, the `postgres` "
+            "extra) keeps everything, uploaded files included, in PostgreSQL, so any number of "
+            "replicas on any machines can share it; the data dir then holds only the indexes."
         ),
     )
     host: str = Field(default="127.0.0.1", description="Address `mocap-index serve` binds to.")
@@ -107,6 +108,31 @@ class Settings(BaseSettings):
             "Most numbers the frames of one clip may expand to (frames x max(channels, "
             "9 x joints)); bounds the memory one upload can take (about 400 bytes per "
             "frame and joint in all), whatever its size in bytes (422 above)."
+        ),
+    )
+    parser_workers: int = Field(
+        default=2,
+        ge=1,
+        le=64,
+        description=(
+            "Worker processes that read FBX and glTF uploads (started when first needed, "
+            "reused; a reader's crash costs its worker, never the server)."
+        ),
+    )
+    parser_timeout_seconds: float = Field(
+        default=30.0,
+        gt=0,
+        description=(
+            "Longest time reading one FBX/glTF file may take in its worker; past it the "
+            "worker is killed and the upload answers 422 `unreadable_file`."
+        ),
+    )
+    parser_memory_mb: int = Field(
+        default=1024,
+        ge=64,
+        description=(
+            "Memory (address space, MB, above an idle worker's) reading one FBX/glTF file "
+            "may take; past it the upload answers 422 `unreadable_file`."
         ),
     )
     orphan_file_grace_seconds: float = Field(
@@ -193,9 +219,9 @@ class Settings(BaseSettings):
         default=0.1,
         ge=0,
         description=(
-            "How often (at most) a search checks the database for clips stored by another "
-            "process (e.g. `mocap-index import`) and adds them to the in-memory indexes; "
-            "0 = before every search."
+            "How often (at most) a search or /health checks the database for clips stored or "
+            "deleted by another process (another replica, `mocap-index import`) and brings "
+            "the in-memory indexes up to date; 0 = before every search."
         ),
     )
     import_workers: int = Field(

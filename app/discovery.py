@@ -28,11 +28,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-ClipKind = Literal["bvh", "asf/amc"]
+ClipKind = Literal["bvh", "asf/amc", "fbx", "gltf"]
 
 BVH_SUFFIX = ".bvh"
 AMC_SUFFIX = ".amc"
 ASF_SUFFIX = ".asf"
+# Files that may hold several animations (each its own clip), found with ``scenes=True``.
+SCENE_SUFFIXES = {".fbx": "fbx", ".glb": "gltf", ".gltf": "gltf", ".vrma": "gltf"}
 
 
 @dataclass(frozen=True)
@@ -42,9 +44,10 @@ class ClipSource:
     Attributes
     ----------
     kind:
-        ``"bvh"`` (one file) or ``"asf/amc"`` (a skeleton plus a motion).
+        ``"bvh"`` (one file), ``"asf/amc"`` (a skeleton plus a motion), ``"fbx"`` or
+        ``"gltf"`` (one file of one or more animations).
     motion:
-        The ``.bvh`` or ``.amc`` file.
+        The ``.bvh``, ``.amc``, ``.fbx``, ``.glb``, ``.gltf`` or ``.vrma`` file.
     skeleton:
         The ``.asf`` file for ``"asf/amc"``, else ``None``.
     name:
@@ -112,17 +115,20 @@ def _pair_skeleton(amc: Path, asf_files: Sequence[Path]) -> Path | str:
 
 
 def _folder_clips(
-    folder: Path, files: Sequence[Path], root: Path
+    folder: Path, files: Sequence[Path], root: Path, scenes: bool = False
 ) -> tuple[list[ClipSource], list[DiscoveryFailure]]:
     sources: list[ClipSource] = []
     failures: list[DiscoveryFailure] = []
     asf_files = sorted(f for f in files if _suffix(f) == ASF_SUFFIX)
     for file in sorted(files):
         suffix = _suffix(file)
-        if suffix not in (BVH_SUFFIX, AMC_SUFFIX):
+        scene = SCENE_SUFFIXES.get(suffix) if scenes else None
+        if suffix not in (BVH_SUFFIX, AMC_SUFFIX) and scene is None:
             continue
         relative = file.relative_to(root).as_posix() if file != root else file.name
-        if suffix == BVH_SUFFIX:
+        if scene is not None:
+            sources.append(ClipSource(scene, file, None, file.stem, relative, root))  # type: ignore[arg-type]
+        elif suffix == BVH_SUFFIX:
             sources.append(ClipSource("bvh", file, None, file.stem, relative, root))
         elif suffix == AMC_SUFFIX:
             skeleton = _pair_skeleton(file, asf_files)
@@ -137,21 +143,22 @@ def _visible(name: str) -> bool:
     return not name.startswith(".")
 
 
-def _walk(root: Path) -> tuple[list[ClipSource], list[DiscoveryFailure]]:
+def _walk(root: Path, scenes: bool) -> tuple[list[ClipSource], list[DiscoveryFailure]]:
     sources: list[ClipSource] = []
     failures: list[DiscoveryFailure] = []
     for dirpath, dirnames, filenames in os.walk(root):
         dirnames[:] = sorted(d for d in dirnames if _visible(d))
         folder = Path(dirpath)
         files = [folder / name for name in filenames if _visible(name)]
-        found, failed = _folder_clips(folder, [f for f in files if f.is_file()], root)
+        found, failed = _folder_clips(folder, [f for f in files if f.is_file()], root, scenes)
         sources.extend(found)
         failures.extend(failed)
     return sources, failures
 
 
-def discover(paths: Sequence[Path]) -> DiscoveryResult:
-    """Every clip under ``paths`` (folders, walked recursively, or ``.bvh``/``.amc`` files).
+def discover(paths: Sequence[Path], *, scenes: bool = False) -> DiscoveryResult:
+    """Every clip under ``paths`` (folders, walked recursively, or ``.bvh``/``.amc`` files;
+    with ``scenes`` also ``.fbx``/``.glb``/``.gltf``/``.vrma`` files).
 
     A path that does not exist or a file of another kind is reported as a failure.
     """
@@ -161,15 +168,16 @@ def discover(paths: Sequence[Path]) -> DiscoveryResult:
     for given in paths:
         root = Path(given)
         if root.is_dir():
-            found, failed = _walk(root)
+            found, failed = _walk(root, scenes)
             found.sort(key=lambda s: s.relative_path)
         elif root.is_file():
-            if _suffix(root) not in (BVH_SUFFIX, AMC_SUFFIX):
-                failures.append(DiscoveryFailure(root, "not a .bvh or .amc file"))
+            readable = [BVH_SUFFIX, AMC_SUFFIX, *(SCENE_SUFFIXES if scenes else ())]
+            if _suffix(root) not in readable:
+                failures.append(DiscoveryFailure(root, f"not a {' or '.join(readable)} file"))
                 continue
             siblings = [f for f in root.parent.iterdir() if f.is_file() and _visible(f.name)]
             asf_files = [f for f in siblings if _suffix(f) == ASF_SUFFIX]
-            found, failed = _folder_clips(root.parent, [root, *asf_files], root)
+            found, failed = _folder_clips(root.parent, [root, *asf_files], root, scenes)
         else:
             failures.append(DiscoveryFailure(root, "no such file or folder"))
             continue
@@ -197,6 +205,13 @@ def content_hash_of_bytes(motion: bytes, skeleton: bytes | None = None) -> str:
         return hashlib.sha256(motion).hexdigest()
     pair = hashlib.sha256(skeleton).hexdigest() + hashlib.sha256(motion).hexdigest()
     return hashlib.sha256(pair.encode("ascii")).hexdigest()
+
+
+def content_hash_of_animation(data: bytes, animation: str) -> str:
+    """The content hash of one animation of an FBX/glTF file: each animation is its own clip,
+    and the same file uploaded or imported again hashes the same."""
+    digest = hashlib.sha256(data).hexdigest()
+    return hashlib.sha256(f"{digest}\n{animation}".encode()).hexdigest()
 
 
 def content_hash(source: ClipSource) -> str:

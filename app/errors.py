@@ -64,6 +64,12 @@ class SkeletonMappingError(ParseError):
     code = "unmappable_skeleton"
 
 
+class UnreadableFile(InvalidInput):
+    """A file whose reader crashed, hung or ran out of memory (in its worker process)."""
+
+    code = "unreadable_file"
+
+
 class LimitExceeded(InvalidInput):
     """Input over a configured limit (frames, joints, nesting depth, line length...)."""
 
@@ -86,6 +92,17 @@ class NotFound(MocapError):
     code = "not_found"
 
 
+class NoStoredFile(NotFound):
+    """A clip without uploaded files (a synthetic benchmark clip): nothing to download or draw."""
+
+    code = "no_stored_file"
+
+    def __init__(self, clip_id: int, kind: str) -> None:
+        super().__init__(
+            f"clip {clip_id} is a {kind} clip: it has no stored file to download or preview"
+        )
+
+
 class Unauthorized(MocapError):
     code = "unauthorized"
 
@@ -98,6 +115,21 @@ class StorageUnavailable(MocapError):
     """The data directory or database cannot be written (disk full, read-only, locked)."""
 
     code = "storage_unavailable"
+
+
+class DescriptorUnavailable(MocapError):
+    """The query clip has no vector of the descriptor's current version (the descriptor is
+    newer than the clip); ``mocap-index reindex`` computes it."""
+
+    code = "descriptor_unavailable"
+
+
+class DescriptorOutdated(DescriptorUnavailable):
+    """Stored clips still hold vectors of an older version of the descriptor (a library
+    written by an earlier release): a search under it would miss them, so it is refused
+    until ``mocap-index reindex`` recomputes them."""
+
+    code = "descriptor_outdated"
 
 
 class DescribeTimeout(MocapError):

@@ -2,7 +2,10 @@
 
 Pipeline
     :func:`app.discovery.discover` finds the clips (``.bvh`` files, ``.amc`` files paired with
-    an ``.asf`` of their folder; an ``.amc`` without one is a failure). Worker processes (one
+    an ``.asf`` of their folder — an ``.amc`` without one is a failure —, and ``.fbx``,
+    ``.glb``, ``.gltf``, ``.vrma`` files, whose every animation of at least
+    :data:`MIN_ANIMATION_FRAMES` frames becomes a clip named ``<file> · <animation>``; a file
+    with none that long gives its longest). Worker processes (one
     per core by default) read, parse and describe the clips, a few per task, and send back
     only the measurements and vectors. The main process meanwhile opens the library (imports,
     migration, indexes) in a thread, then stores the described clips in batches through
@@ -25,13 +28,16 @@ Workers
     from a fork server. A worker that dies (a crash in native code, the out-of-memory killer)
     costs one clip: the clips of its task are retried one by one in a new worker, and the one
     that kills a worker again is reported as failed. Workers exit when the main process goes
-    away.
+    away. FBX/glTF readers run in the workers themselves under MOCAP_PARSER_TIMEOUT_SECONDS
+    and MOCAP_PARSER_MEMORY_MB (:class:`~app.services.parser_pool.InlineParser`): a reader
+    that crashes or overruns costs its worker, like any crash here.
 
 This module imports neither SQLAlchemy nor FAISS at module level (workers import it too).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import multiprocessing
 import os
 import re
@@ -40,7 +46,7 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
@@ -49,11 +55,18 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from app.discovery import ClipSource, discover
-from app.errors import MocapError
-from app.labels import compile_label_regex, labels_from_regex, labels_from_tsv
+from app.errors import InvalidInput, MocapError
+from app.labels import (
+    choose_label_columns,
+    compile_label_regex,
+    labels_from_regex,
+    labels_from_tsv,
+    normalise_labels,
+)
 from app.motion.model import ParseLimits
 from app.services.describe import Description, MotionDescriber
-from app.services.uploads import Upload, normalise_labels
+from app.services.parser_pool import InlineParser
+from app.services.uploads import Upload
 
 if TYPE_CHECKING:
     from app.config import Settings
@@ -61,6 +74,7 @@ if TYPE_CHECKING:
     from app.services.library import Library
 
 DEFAULT_BATCH_SIZE = 64
+MIN_ANIMATION_FRAMES = 5  # shorter animations of a multi-animation file are not imported
 MAX_TASK_CLIPS = 8
 TASKS_PER_WORKER = 2  # in flight: one being described, one waiting
 FLUSH_AFTER_SECONDS = 1.0  # store a partial batch once its oldest clip waited this long
@@ -83,6 +97,7 @@ class Duplicate:
     path: Path
     clip_id: int
     clip_name: str
+    updated: bool = False  # the import gave the stored clip new labels (or source, licence)
 
 
 @dataclass(frozen=True)
@@ -118,6 +133,9 @@ class ImportReport:
 
 # ------------------------------------------------------------------------------- labels
 
+# TSV columns that say where a clip comes from and how it may be used: not labels.
+NOTE_COLUMNS = {"source": "source", "licence": "licence", "license": "licence"}
+
 
 @dataclass(frozen=True)
 class LabelRules:
@@ -127,21 +145,50 @@ class LabelRules:
     relative to the folder given (``kind`` = group name); ``fixed``: labels every clip gets.
     A clip is stored with the values (kinds are not stored), TSV first, then the regex's
     groups, then ``fixed``; repeated values are kept once.
+
+    The TSV columns named ``source`` and ``licence`` (or ``license``) are not labels: they
+    give the clip's source and licence (``notes``). Of the other columns, ``columns`` chooses
+    the label columns; by default those not holding free text
+    (:func:`app.labels.choose_label_columns`); ``left_out`` names the others.
     """
 
     tsv: dict[str, dict[str, str]] | None = None
     regex: re.Pattern[str] | None = None
     fixed: tuple[str, ...] = ()
+    notes: dict[str, dict[str, str]] = field(default_factory=dict)
+    left_out: tuple[str, ...] = ()
 
     @classmethod
     def build(
-        cls, *, tsv: Path | None = None, regex: str | None = None, fixed: Sequence[str] = ()
+        cls,
+        *,
+        tsv: Path | None = None,
+        regex: str | None = None,
+        fixed: Sequence[str] = (),
+        columns: Sequence[str] | None = None,
     ) -> LabelRules:
         """Read the TSV and compile the regex (:class:`InvalidInput` when unusable)."""
+        table: dict[str, dict[str, str]] | None = None
+        notes: dict[str, dict[str, str]] = {}
+        left_out: tuple[str, ...] = ()
+        if tsv is not None:
+            rows = labels_from_tsv(tsv)
+            notes = {
+                key: {NOTE_COLUMNS[k]: v for k, v in row.items() if k in NOTE_COLUMNS}
+                for key, row in rows.items()
+            }
+            tags = {
+                k: {c: v for c, v in r.items() if c not in NOTE_COLUMNS} for k, r in rows.items()
+            }
+            table, left_out = choose_label_columns(tags, columns)
+        elif columns is not None:
+            raise InvalidInput("--label-columns chooses columns of --labels-tsv; give that too")
         return cls(
-            tsv=labels_from_tsv(tsv) if tsv is not None else None,
+            tsv=table,
             regex=compile_label_regex(regex) if regex is not None else None,
             fixed=normalise_labels(fixed),
+            notes=notes,
+            left_out=left_out,
         )
 
     def labels(self, source: ClipSource) -> list[str]:
@@ -156,36 +203,62 @@ class LabelRules:
 # ------------------------------------------------------------------------------ workers
 
 TaskClip = tuple[int, str, tuple[str, ...]]  # (item number, kind, paths: bvh | asf, amc)
-Outcome = tuple[str, Any, Any]  # ("ok", Description, part sha256s) | ("error", reason, None)
+# ("ok", [Description, ...], part sha256s) | ("error", reason, None); FBX/glTF files give a
+# description per animation imported (each knows its animation), others one.
+Outcome = tuple[str, Any, Any]
 
 
-def read_upload(source: ClipSource, labels: Sequence[str] = ()) -> Upload:
-    """The clip's files as an :class:`Upload` (what ``POST /clips`` would receive)."""
-    if source.skeleton is None:
-        return Upload.from_files(
-            file=(source.motion.name, source.motion.read_bytes()), labels=labels
-        )
+def read_upload(
+    source: ClipSource, labels: Sequence[str] = (), notes: Mapping[str, str] | None = None
+) -> Upload:
+    """The clip's files as an :class:`Upload` (what ``POST /clips`` would receive);
+    ``notes`` may give its ``source`` and ``licence``."""
+    notes = notes or {}
+    motion = (source.motion.name, source.motion.read_bytes())
+    skeleton = (
+        None if source.skeleton is None else (source.skeleton.name, source.skeleton.read_bytes())
+    )
     return Upload.from_files(
-        skeleton=(source.skeleton.name, source.skeleton.read_bytes()),
-        motion=(source.motion.name, source.motion.read_bytes()),
+        file=motion if skeleton is None else None,
+        skeleton=skeleton,
+        motion=None if skeleton is None else motion,
         labels=labels,
+        source=notes.get("source"),
+        licence=notes.get("licence"),
     )
 
 
 def _source_of(kind: str, paths: tuple[str, ...]) -> ClipSource:
-    if kind == "bvh":
+    if kind != "asf/amc":
         motion = Path(paths[0])
-        return ClipSource("bvh", motion, None, motion.stem, motion.name, motion.parent)
+        return ClipSource(kind, motion, None, motion.stem, motion.name, motion.parent)  # type: ignore[arg-type]
     skeleton, motion = Path(paths[0]), Path(paths[1])
     return ClipSource("asf/amc", motion, skeleton, motion.stem, motion.name, motion.parent)
+
+
+def describe_animations(
+    describer: MotionDescriber, upload: Upload, limits: ParseLimits
+) -> list[Description]:
+    """Every clip of an upload: one, or for an FBX/glTF file one per animation of at least
+    :data:`MIN_ANIMATION_FRAMES` frames (the longest when none is that long)."""
+    first = describer.describe(upload, limits)
+    if first.animation is None:
+        return [first]
+    described = {first.animation: first}
+    for animation in first.animations:
+        if animation.frame_count < MIN_ANIMATION_FRAMES or animation.name in described:
+            continue
+        chosen = dataclasses.replace(upload, animation=animation.name)
+        described[animation.name] = describer.describe(chosen, limits)
+    return list(described.values())
 
 
 def _describe_one(describer: MotionDescriber, limits: ParseLimits, clip: TaskClip) -> Outcome:
     _, kind, paths = clip
     try:
         upload = read_upload(_source_of(kind, paths))
-        description = describer.describe(upload, limits)
-        return ("ok", description, tuple(part.sha256 for part in upload.parts))
+        descriptions = describe_animations(describer, upload, limits)
+        return ("ok", descriptions, tuple(part.sha256 for part in upload.parts))
     except MocapError as error:
         return ("error", error.detail, None)
     except OSError as error:
@@ -197,7 +270,11 @@ def _describe_one(describer: MotionDescriber, limits: ParseLimits, clip: TaskCli
 
 
 def _worker_main(
-    conn: Connection, parent: int, limits: ParseLimits, max_values: int | None
+    conn: Connection,
+    parent: int,
+    limits: ParseLimits,
+    max_values: int | None,
+    parser_limits: tuple[float | None, int | None] = (None, None),
 ) -> None:
     """A worker's loop: describe the clips of each task until told to stop or orphaned."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is for the main process to handle
@@ -206,7 +283,9 @@ def _worker_main(
         # Below the main process, whose work (opening the library, storing) is what the
         # workers wait for; and kinder to whatever else the machine runs.
         os.nice(WORKER_NICENESS)
-    describer = MotionDescriber(max_values=max_values)
+    time_limit, memory_mb = parser_limits
+    parsers = InlineParser(time_limit=time_limit, memory_mb=memory_mb)
+    describer = MotionDescriber(max_values=max_values, parsers=parsers)
     while True:
         try:
             if not conn.poll(1.0):
@@ -249,9 +328,16 @@ class _Worker:
 class WorkerPool:
     """``size`` worker processes, each fed up to :data:`TASKS_PER_WORKER` tasks at a time."""
 
-    def __init__(self, size: int, limits: ParseLimits, max_values: int | None) -> None:
+    def __init__(
+        self,
+        size: int,
+        limits: ParseLimits,
+        max_values: int | None,
+        parser_limits: tuple[float | None, int | None] = (None, None),
+    ) -> None:
         self._limits = limits
         self._max_values = max_values
+        self._parser_limits = parser_limits
         self._context = _context()
         self.workers: list[_Worker] = []
         for _ in range(size):
@@ -263,7 +349,7 @@ class WorkerPool:
         ours, theirs = context.Pipe()
         process = context.Process(
             target=_worker_main,
-            args=(theirs, os.getpid(), self._limits, self._max_values),
+            args=(theirs, os.getpid(), self._limits, self._max_values, self._parser_limits),
             name="mocap-import-worker",
             daemon=True,
         )
@@ -336,6 +422,7 @@ class _Item:
     number: int
     source: ClipSource
     labels: list[str]
+    notes: dict[str, str] = field(default_factory=dict)  # source, licence
     upload: Upload | None = None  # read by the main process (for hashing and storing)
     shas: tuple[str, ...] | None = None  # sha256 of each file as the worker read it
     retried: bool = False
@@ -382,11 +469,12 @@ def run_import(
     """
     started = time.perf_counter()
     rules = labels or LabelRules()
-    found = discover([Path(p) for p in paths])
+    found = discover([Path(p) for p in paths], scenes=True)
     report = ImportReport(found=len(found.sources) + len(found.failures))
     report.failed.extend(Failed(f.path, f.reason) for f in found.failures)
     items = deque(
-        _Item(number, source, rules.labels(source)) for number, source in enumerate(found.sources)
+        _Item(number, source, rules.labels(source), rules.notes.get(source.name, {}))
+        for number, source in enumerate(found.sources)
     )
     size = max(1, min(workers or default_workers(settings), len(items)))
     report.workers = size if items else 0
@@ -396,7 +484,12 @@ def run_import(
         report.seconds = time.perf_counter() - started
         return report
 
-    pool = WorkerPool(size, settings.parse_limits, settings.max_frame_values)
+    pool = WorkerPool(
+        size,
+        settings.parse_limits,
+        settings.max_frame_values,
+        (settings.parser_timeout_seconds, settings.parser_memory_mb),
+    )
     opener = ThreadPoolExecutor(max_workers=1, thread_name_prefix="mocap-import-open")
     library_future: Future[Library] = opener.submit(_open_library, settings)
     run = _Run(report, pool, library_future, items, batch_size, progress)
@@ -466,7 +559,7 @@ class _Run:
     def upload_of(self, item: _Item) -> Upload | None:
         if item.upload is None:
             try:
-                item.upload = read_upload(item.source, item.labels)
+                item.upload = read_upload(item.source, item.labels, item.notes)
             except MocapError as error:
                 self.fail(item, error.detail)
             except OSError as error:
@@ -483,13 +576,18 @@ class _Run:
             from app.db import repository as repo
 
             readable = [item for item in chosen if self.upload_of(item) is not None]
-            hashes = [item.upload.content_hash for item in readable if item.upload]
+            # An FBX/glTF file's clips are known once it is read: always described.
+            hashes = [
+                item.upload.content_hash
+                for item in readable
+                if item.upload and item.upload.knows_content_hash
+            ]
             with library.reads() as session:
                 stored = repo.clip_ids_by_hash(session, hashes)
             chosen = []
             for item in readable:
                 assert item.upload is not None
-                if item.upload.content_hash in stored:
+                if item.upload.knows_content_hash and item.upload.content_hash in stored:
                     self.queue(item, None)
                 else:
                     chosen.append(item)
@@ -538,7 +636,8 @@ class _Run:
             self.progress(self.report)
             return
         item.shas = shas
-        self.queue(item, value)
+        for description in value:
+            self.queue(item, description)
 
     def requeue(self, task: list[TaskClip]) -> None:
         """The worker describing ``task`` died: retry its clips one at a time; a clip that
@@ -557,17 +656,21 @@ class _Run:
             self.task_clips = 1  # isolate the culprit
 
     def store(self, library: Library) -> None:
-        from app.services.ingest import Described, store_many
+        from app.services.ingest import Described, described_upload, store_many
 
         batch, self.ready = self.ready, []
         described: list[tuple[_Item, Described]] = []
+        failed: set[int] = set()
         for item, description in sorted(batch, key=lambda pair: pair[0].number):
             upload = self.upload_of(item)
-            if upload is None:
+            if upload is None or item.number in failed:
                 continue
             if item.shas is not None and item.shas != tuple(p.sha256 for p in upload.parts):
                 self.fail(item, "the file changed while it was being imported")
+                failed.add(item.number)
                 continue
+            if description is not None:
+                upload = described_upload(upload, description)
             described.append((item, Described(upload, description)))
         try:
             results = store_many(library, [d for _, d in described])
@@ -583,7 +686,9 @@ class _Run:
                     )
                 else:
                     self.report.duplicates.append(
-                        Duplicate(item.source.motion, result.clip.id, result.clip.name)
+                        Duplicate(
+                            item.source.motion, result.clip.id, result.clip.name, result.changed
+                        )
                     )
         self.progress(self.report)
 

@@ -19,13 +19,14 @@ threshold, so a library near the threshold does not flip kind at each start.
 The database is the source of truth; an index is a cache of its vectors that can always be
 rebuilt. Each index is persisted as ``<dir>/<descriptor>.faiss`` with a ``<descriptor>.json``
 beside it recording the descriptor version, dimension, kind, vector count, the sha256 of the
-index file and ``synced_to``, the largest clip id of the database the index reflects. Clip
-ids only grow (SQLite AUTOINCREMENT, writers serialised), so :meth:`DescriptorIndex.load_or_rebuild`
-brings a file that is merely behind up to date by adding the vectors of clips above
-``synced_to`` (cheap: an import killed half way or a server killed before it saved costs only
-the rows it missed), then checks the vector count against the database; a count that still
-disagrees (clips deleted by another process) is repaired by comparing ids. A missing,
-unreadable or damaged file, or one of another version or dimension, is rebuilt.
+index file and ``feed_position``, the position in the database's change feed
+(:mod:`app.db.changes`) the index reflects: every clip added, deleted or re-described before
+it is in the index as the database has it. :meth:`DescriptorIndex.load_or_rebuild` brings a
+file that is merely behind up to date by applying the clips changed since (cheap: an import
+killed half way or a server killed before it saved costs only the rows it missed), then checks
+the vector count against the database; a count that still disagrees is repaired by comparing
+ids. A missing, unreadable or damaged file, or one of another version or dimension, is
+rebuilt. (``synced_to`` in the code is that feed position.)
 
 Files: saves write a temporary file and rename it, under an exclusive ``fcntl.flock`` on
 ``<dir>/.lock`` (loads take it shared), so two processes (the server and ``mocap-index
@@ -112,7 +113,8 @@ class VectorSource(Protocol):
     """The database's view of one descriptor's vectors (one consistent snapshot)."""
 
     def watermark(self) -> int:
-        """The largest clip id in the database (0 when empty)."""
+        """The feed position of this snapshot: every change before it is reflected by what
+        the other methods return."""
         ...
 
     def count(self) -> int:
@@ -123,8 +125,13 @@ class VectorSource(Protocol):
         """``(N,)`` int64 sorted ids of every vector."""
         ...
 
-    def vectors(self, after: int = 0) -> tuple[np.ndarray, np.ndarray]:
-        """Ids ``(N,)`` and vectors ``(N, D)`` of the clips with ``after < id <= watermark``."""
+    def vectors(self) -> tuple[np.ndarray, np.ndarray]:
+        """Ids ``(N,)`` and vectors ``(N, D)`` of every clip (id order)."""
+        ...
+
+    def changed(self, since: int) -> np.ndarray:
+        """``(N,)`` int64 ids of the clips changed (added, deleted, re-described) at or after
+        feed position ``since``."""
         ...
 
     def vectors_of(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -524,6 +531,54 @@ class DescriptorIndex:
             self._autosave(persist)
         return removed
 
+    def apply_changes(
+        self,
+        changed: np.ndarray,
+        ids: np.ndarray,
+        vectors: np.ndarray,
+        *,
+        persist: bool | None = None,
+        synced_to: int | None = None,
+    ) -> tuple[int, int]:
+        """Make the index agree with the database about the ``changed`` ``(C,)`` clips, whose
+        current vectors are ``vectors`` ``(N, D)`` under ``ids`` ``(N,)`` (those that still
+        have one): a clip gone from the database leaves the index, a new one enters, one whose
+        vector differs is replaced. Applying the same changes twice changes nothing. Returns
+        how many vectors were added and removed."""
+        changed_ = np.unique(_as_ids(changed))
+        ids_ = _as_ids(ids)
+        array = (
+            _as_vectors(vectors, self.dimension)
+            if ids_.size
+            else np.empty((0, self.dimension), np.float32)
+        )
+        current = {int(i): row for row, i in enumerate(ids_.tolist())}
+        with self._lock.write():
+            remove: set[int] = set()
+            add: list[int] = []
+            for clip_id in changed_.tolist():
+                try:
+                    held = self._index.reconstruct(clip_id)
+                except RuntimeError:  # not in the index
+                    held = None
+                row = current.get(clip_id)
+                if held is not None and (row is None or not np.array_equal(held, array[row])):
+                    remove.add(clip_id)
+                if row is not None and (held is None or clip_id in remove):
+                    add.append(row)
+            if remove:
+                gone = _as_ids(sorted(remove))  # kept alive while FAISS reads it
+                self._index.remove_ids(_selector(self._index, gone))
+            if add:
+                rows = np.asarray(add, dtype=np.int64)
+                self._index.add_with_ids(np.ascontiguousarray(array[rows]), ids_[rows])
+            self._unsaved += len(add) + len(remove)
+            if synced_to is not None:
+                self._synced_to = max(self._synced_to, int(synced_to))
+        if add or remove:
+            self._autosave(persist)
+        return len(add), len(remove)
+
     def search(
         self,
         query: np.ndarray,
@@ -693,7 +748,7 @@ class DescriptorIndex:
                     "kind": kind,
                     "nprobe": self.nprobe,
                     "count": count,
-                    "synced_to": synced_to,
+                    "feed_position": synced_to,
                     "sha256": _file_sha256(tmp),
                     "saved_at": time.time(),
                 }
@@ -763,25 +818,27 @@ class DescriptorIndex:
             self._index = index
             self._synced_to = 0
             self._unsaved = 0
-        synced_to = meta.get("synced_to")
+        position = meta.get("feed_position")
         changed = bool(meta.get("resave"))
         problem: str | None = None
-        if isinstance(synced_to, int) and 0 <= synced_to <= watermark:
-            self._synced_to = synced_to
-            if synced_to < watermark:  # behind: add what it has not seen
-                new_ids, new_vectors = source.vectors(after=synced_to)
-                if new_ids.size:
-                    keep = ~np.isin(new_ids, self.ids())
-                    self.add(new_ids[keep], new_vectors[keep], persist=False)
-                self._synced_to = watermark
-                changed = bool(new_ids.size)
+        if isinstance(position, int) and 0 <= position <= watermark:
+            self._synced_to = position
+            # Behind: apply what changed since (also at the same position on PostgreSQL,
+            # where transactions running then may have committed since).
+            touched = source.changed(since=position)
+            if touched.size:
+                ids, vectors = source.vectors_of(touched)
+                added, removed = self.apply_changes(touched, ids, vectors, persist=False)
+                changed = changed or bool(added or removed)
+            changed = changed or position != watermark
+            self._synced_to = watermark
             expected = source.count()
             if self.size != expected:
                 problem = f"index holds {self.size} vectors, database {expected}"
         else:
             problem = (
                 "index was saved from another database"
-                if isinstance(synced_to, int)
+                if isinstance(position, int)
                 else "index records no database position"
             )
         if problem is not None:
@@ -825,7 +882,7 @@ class DescriptorIndex:
         return None
 
     def _rebuild(self, source: VectorSource, watermark: int, problem: str) -> str:
-        ids, vectors = source.vectors(after=0)
+        ids, vectors = source.vectors()
         self.replace_all(ids, vectors, synced_to=watermark, persist=True)
         # A new, empty library has no index yet: that is no news.
         level = logging.WARNING if ids.size else logging.INFO

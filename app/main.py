@@ -21,16 +21,17 @@ from app.api.limits import BodySizeLimit
 from app.api.ui import mount_ui
 from app.config import Settings
 from app.services.clips import remove_orphan_files
-from app.services.describe import Describer, MotionDescriber
+from app.services.describe import Describer
 from app.services.library import open_library
 
 DESCRIPTION = """
 Find similar motion-capture clips.
 
-Upload clips (one **BVH** file, or an **ASF** skeleton with an **AMC** motion); each is
-described under every descriptor (see `GET /descriptors`) and stored. `GET /search` returns
-the *k* clips nearest to a stored clip, `POST /search` those nearest to an uploaded file;
-`GET` / `POST /search/moments` find *where* in the stored clips a span of motion happens.
+Upload clips (one **BVH**, **FBX**, **glTF** (`.glb`/`.gltf`) or **VRM animation** (`.vrma`)
+file, or an **ASF** skeleton with an **AMC** motion); each is described under every
+descriptor (see `GET /descriptors`) and stored. `GET /search` returns the *k* clips nearest
+to a stored clip, `POST /search` those nearest to an uploaded file; `GET` / `POST
+/search/moments` find *where* in the stored clips a span of motion happens.
 
 Every error answers `{"error": "<code>", "detail": "<message>"}`.
 """
@@ -50,8 +51,6 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
     library in ``app.state.library``. ``describer`` replaces the motion core (tests).
     """
     settings = settings if settings is not None else Settings()
-    if describer is None:
-        describer = MotionDescriber.from_settings(settings)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:

@@ -181,15 +181,14 @@ def rss_bytes(pid: int) -> int:
 
 
 class Server:
-    def __init__(self, data_dir: Path, log: Path) -> None:
+    def __init__(self, data_dir: Path, log: Path, **settings: str) -> None:
         self.port = free_port()
         self.base = f"http://127.0.0.1:{self.port}"
         command = [CLI, "serve", "--data-dir", str(data_dir), "--port", str(self.port)]
         self.started = time.perf_counter()
+        env = environment(MOCAP_LOG_LEVEL="warning", **settings)
         with open(log, "ab") as out:
-            self.process = subprocess.Popen(
-                command, env=environment(MOCAP_LOG_LEVEL="warning"), stdout=out, stderr=out
-            )
+            self.process = subprocess.Popen(command, env=env, stdout=out, stderr=out)
         deadline = time.monotonic() + 120
         while True:
             if self.process.poll() is not None:

@@ -1,11 +1,11 @@
 """Compute the frozen block scales of the ``motion`` descriptor from the reference corpus.
 
-The reference corpus is every clip of ``../shared/data`` (Bandai dataset 1 and the CMU
-clips in all formats). For each block (limbs, energy, travel) the scale is the square root
-of the summed per-dimension variance over the corpus, so every block contributes unit total
-variance before its weight. The printed constants are pasted into
-``app/motion/descriptors/motion.py`` together with a version bump; they never change at run
-time, so a clip's vector does not depend on the library it is stored in.
+The reference corpus is Bandai dataset 1 and the CMU clips (all formats) of
+``../shared/data``. For each block the scale is the square root of the summed per-dimension
+variance over the corpus, so every block contributes unit total variance before its weight.
+The printed constants are pasted into ``app/motion/descriptors/motion.py`` together with a
+version bump; they never change at run time, so a clip's vector does not depend on the
+library it is stored in.
 
 Run: ``.venv/bin/python bench/motion_scales.py [SHARED_DATA_DIR]``
 """
@@ -17,20 +17,21 @@ from pathlib import Path
 
 import numpy as np
 
+from app.discovery import discover
 from app.motion.body import build_body
-from app.motion.descriptors.kinetic import compute_kinetic
-from app.motion.descriptors.motion import limb_block, travel_block
+from app.motion.descriptors.motion import motion_blocks
 from app.motion.formats import read_asf_amc, read_bvh
+from app.motion.model import Motion
+from app.motion.spans import whole_clip
+
+REFERENCE_FOLDERS = ("bandai-ds1", "cmu")
 
 
-def corpus(root: Path) -> list:
+def corpus(root: Path) -> list[Motion]:
     motions = []
-    for path in sorted(root.rglob("*.bvh")):
-        motions.append(read_bvh(path.read_bytes()))
-    for amc in sorted(root.rglob("*.amc")):
-        subject = amc.stem.split("_")[0]
-        asf = amc.with_name(f"{subject}.asf")
-        motions.append(read_asf_amc(asf.read_bytes(), amc.read_bytes()))
+    for source in discover([root / folder for folder in REFERENCE_FOLDERS]).sources:
+        data = [path.read_bytes() for path in source.paths]
+        motions.append(read_bvh(data[0]) if source.kind == "bvh" else read_asf_amc(*data))
     return motions
 
 
@@ -40,16 +41,15 @@ def main() -> None:
         if len(sys.argv) > 1
         else Path(__file__).resolve().parents[1].parent / "shared" / "data"
     )
-    bodies = [build_body(m) for m in corpus(root)]
-    blocks = {
-        "limbs": np.stack([limb_block(b) for b in bodies]),
-        "energy": np.stack([compute_kinetic(b) for b in bodies]),
-        "travel": np.stack([travel_block(b) for b in bodies]),
-    }
-    print(f"# {len(bodies)} clips from {root}")
+    rows = []
+    for motion in corpus(root):
+        body = build_body(motion)
+        rows.append({k: v[0] for k, v in motion_blocks(body, whole_clip(body.frame_count)).items()})
+    print(f"# {len(rows)} clips from {root}")
     print("BLOCK_SCALES = {")
-    for name, values in blocks.items():
-        print(f'    "{name}": {float(np.sqrt(values.var(axis=0).sum())):.6g},')
+    for name in rows[0]:
+        values = np.stack([row[name] for row in rows])
+        print(f'    "{name}": {float(np.sqrt(values.var(axis=0).sum())):.3g},')
     print("}")
 
 

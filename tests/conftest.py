@@ -15,6 +15,7 @@ from sqlalchemy import Engine
 from app.config import Settings
 from app.db.migrate import upgrade
 from app.db.session import create_db_engine
+from tests import postgres
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 FIXTURES_DIR = Path(__file__).resolve().parent / "fixtures"
@@ -71,3 +72,19 @@ def shared_data() -> Path:
     if not path.is_dir():
         pytest.skip(f"real motion data not found at {path} (set MOCAP_SHARED_DATA to its location)")
     return path
+
+
+@pytest.fixture(scope="session")
+def postgres_cluster() -> Iterator[postgres.Cluster]:
+    """A throwaway PostgreSQL 15 server for the session (skips, or fails in CI, without one)."""
+    cluster = postgres.start_cluster()
+    try:
+        yield cluster
+    finally:
+        cluster.stop()
+
+
+@pytest.fixture
+def postgres_url(postgres_cluster: postgres.Cluster) -> str:
+    """A fresh database at the newest schema revision on the session's PostgreSQL server."""
+    return postgres_cluster.new_database()

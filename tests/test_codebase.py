@@ -41,6 +41,21 @@ def test_motion_core_imports_no_web_database_or_index_code() -> None:
             assert module.split(".")[0] not in FRAMEWORKS, f"{path.relative_to(ROOT)}: {module}"
 
 
+SCENE_READERS = {"app.motion.formats.fbx", "app.motion.formats.gltf", "ufbx"}
+# Where the FBX/glTF readers may be called from: worker processes only (the parser pool's
+# workers, and the bulk import's workers through its InlineParser).
+SCENE_READER_CALLERS = {"app/services/parser_pool.py"}
+
+
+def test_only_the_parser_workers_import_the_scene_readers() -> None:
+    for path in sorted((ROOT / "app").rglob("*.py")):
+        relative = path.relative_to(ROOT).as_posix()
+        if relative.startswith("app/motion/formats/"):
+            continue
+        used = imported_modules(path) & SCENE_READERS
+        assert not used or relative in SCENE_READER_CALLERS, f"{relative}: {used}"
+
+
 def test_every_setting_is_documented() -> None:
     readme = (ROOT / "README.md").read_text()
     for name, field in Settings.model_fields.items():

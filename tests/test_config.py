@@ -9,6 +9,7 @@ from pydantic import ValidationError
 
 from app.cli import build_parser, main, settings_from
 from app.config import Settings
+from app.db.migrate import head_revision
 
 
 def test_defaults(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -52,9 +53,6 @@ def test_command_line_overrides_environment(
 def test_migrate_and_reindex_commands(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["migrate", "--data-dir", str(tmp_path)]) == 0
     assert (tmp_path / "mocap-index.sqlite3").is_file()
-    from app.db.migrate import head_revision
-
-    # The newest revision, whichever it is (0001 was hard-coded and failed once 0002 came).
     assert f"revision {head_revision()}" in capsys.readouterr().out
     assert main(["reindex", "--data-dir", str(tmp_path)]) == 0
     assert "recomputed 0 clips" in capsys.readouterr().out

@@ -13,6 +13,7 @@ import pytest
 
 from app.cli import main
 from app.config import Settings
+from app.db import repository as repo
 from app.importer import LabelRules, WorkerPool, run_import
 from app.services.library import open_library
 from app.services.search import search_by_clip_id
@@ -174,8 +175,33 @@ def test_a_worker_that_dies_is_replaced_and_its_task_handed_back(
         outcomes: list = []
         while not outcomes and time.monotonic() < deadline:
             outcomes, _ = pool.collect(0.2)
-        [(number, (status, description, shas))] = outcomes
-        assert number == 0 and status == "ok" and description.frame_count == 40
+        [(number, (status, descriptions, shas))] = outcomes
+        assert number == 0 and status == "ok" and descriptions[0].frame_count == 40
         assert len(shas) == 1
     finally:
         pool.close()
+
+
+def test_every_animation_of_a_scene_file_is_a_clip_and_a_rerun_skips_them(
+    tmp_path: Path, settings: Settings, fixtures_dir: Path
+) -> None:
+    from app.motion.formats import read_bvh
+    from tests.motion.gltf_builder import two_animation_glb
+
+    folder = tmp_path / "scenes"
+    folder.mkdir()
+    motion = read_bvh((fixtures_dir / "cmu_mb_02_01_first41.bvh").read_bytes())
+    (folder / "walk.glb").write_bytes(two_animation_glb(motion))
+    first = run_import(settings, [folder], workers=1)
+    assert not first.failed and len(first.imported) == 2
+    library = open_library(settings)
+    try:
+        with library.reads() as session:
+            clips = repo.get_clips(session, [c.clip_id for c in first.imported])
+    finally:
+        library.close()
+    assert sorted(c.name for c in clips.values()) == ["walk · start", "walk · walk"]
+    assert {c.animation for c in clips.values()} == {"walk", "start"}
+    assert len({c.content_hash for c in clips.values()}) == 2
+    again = run_import(settings, [folder], workers=1)
+    assert not again.imported and len(again.duplicates) == 2

@@ -16,12 +16,21 @@ D = 8
 
 
 class Source:
-    """The database as :meth:`DescriptorIndex.load_or_rebuild` sees it (in memory)."""
+    """The database as :meth:`DescriptorIndex.load_or_rebuild` sees it (in memory). Its change
+    feed, as on SQLite without deletes: clip ``i`` was added at feed position ``i``; ``changes``
+    adds (position, clip id) rows (a delete, a new vector)."""
 
-    def __init__(self, ids: np.ndarray, vectors: np.ndarray, watermark: int | None = None):
+    def __init__(
+        self,
+        ids: np.ndarray,
+        vectors: np.ndarray,
+        watermark: int | None = None,
+        changes: list[tuple[int, int]] | None = None,
+    ):
         order = np.argsort(ids)
         self._ids, self._vectors = ids[order], vectors[order]
         self._watermark = int(ids.max()) if watermark is None and ids.size else watermark or 0
+        self._changes = changes or []
         self.full_reads = 0
 
     def watermark(self) -> int:
@@ -33,11 +42,13 @@ class Source:
     def ids(self) -> np.ndarray:
         return self._ids
 
-    def vectors(self, after: int = 0) -> tuple[np.ndarray, np.ndarray]:
-        if after == 0:
-            self.full_reads += 1
-        keep = (self._ids > after) & (self._ids <= self._watermark)
-        return self._ids[keep], self._vectors[keep]
+    def vectors(self) -> tuple[np.ndarray, np.ndarray]:
+        self.full_reads += 1
+        return self._ids, self._vectors
+
+    def changed(self, since: int) -> np.ndarray:
+        more = [clip_id for position, clip_id in self._changes if position >= since]
+        return np.unique(np.concatenate([self._ids[self._ids >= since], np.array(more, np.int64)]))
 
     def vectors_of(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         keep = np.isin(self._ids, ids)
@@ -134,7 +145,7 @@ def test_persisted_index_is_loaded_when_it_matches(tmp_path: Path) -> None:
     assert (tmp_path / "posture.faiss").is_file()
     meta = json.loads((tmp_path / "posture.json").read_text())
     assert meta["version"] == 1 and meta["count"] == 30 and meta["kind"] == FLAT
-    assert meta["synced_to"] == ids.max()
+    assert meta["feed_position"] == ids.max()
 
     reopened = DescriptorIndex("posture", D, 1, tmp_path)
     source = Source(ids, vectors)
@@ -200,7 +211,7 @@ def test_index_behind_the_database_catches_up_without_a_rebuild(tmp_path: Path) 
     assert reopened.size == 40 and reopened.synced_to == ids.max()
     assert reopened.search(vectors[33], 1).ids.tolist() == [ids[33]]
     meta = json.loads((tmp_path / "posture.json").read_text())
-    assert meta["count"] == 40 and meta["synced_to"] == ids.max()  # saved after catching up
+    assert meta["count"] == 40 and meta["feed_position"] == ids.max()  # saved after catching up
 
 
 def test_index_disagreeing_with_database_is_repaired_or_rebuilt(tmp_path: Path) -> None:
@@ -413,3 +424,34 @@ def test_small_indexes_save_after_each_change_large_ones_on_request(tmp_path: Pa
     IndexSet({"kinetic": large}).save()
     assert json.loads((tmp_path / "kinetic.json").read_text())["count"] == 30
     assert large.unsaved_changes == 0
+
+
+def test_apply_changes_adds_removes_and_replaces_idempotently(index: DescriptorIndex) -> None:
+    ids, vectors = make_data(10)
+    index.add(ids[:6], vectors[:6])
+    # the database now: clip 0 deleted, clip 1 re-described, clips 6-9 added
+    now_ids = ids[1:]
+    now_vectors = vectors[1:].copy()
+    now_vectors[0] += 1.0
+    changed = np.concatenate([ids[:2], ids[6:]])
+    wanted = now_vectors[np.isin(now_ids, changed)]
+    assert index.apply_changes(changed, changed[1:], wanted, synced_to=7) == (5, 2)
+    assert sorted(index.ids().tolist()) == sorted(now_ids.tolist())
+    np.testing.assert_array_equal(index.reconstruct(int(ids[1])), now_vectors[0])
+    assert index.synced_to == 7
+    # applying the same changes again (a feed row read twice) changes nothing
+    assert index.apply_changes(changed, changed[1:], wanted, synced_to=7) == (0, 0)
+    assert index.size == 9
+
+
+def test_index_behind_applies_deletes_from_the_feed(tmp_path: Path) -> None:
+    ids, vectors = make_data(30)
+    DescriptorIndex("posture", D, 1, tmp_path).add(
+        ids, vectors, synced_to=int(ids.max()), persist=True
+    )
+    # another process deleted clip 0 (feed row after the saved position) and added none
+    source = Source(ids[1:], vectors[1:], watermark=int(ids.max()) + 5,
+                    changes=[(int(ids.max()) + 1, int(ids[0]))])  # fmt: skip
+    reopened = DescriptorIndex("posture", D, 1, tmp_path)
+    assert reopened.load_or_rebuild(source) is None  # caught up, not repaired
+    assert reopened.size == 29 and source.full_reads == 0

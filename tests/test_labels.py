@@ -90,3 +90,50 @@ def test_regex_named_groups() -> None:
 def test_regex_errors(pattern: str, message: str) -> None:
     with pytest.raises(InvalidInput, match=message):
         labels_from_regex(pattern, "x")
+
+
+# -- issue #14 -------------------------------------------------------------------------------
+
+
+def test_normalise_labels_is_case_insensitive_and_keeps_the_first_spelling() -> None:
+    from app.labels import label_filter, merge_labels, normalise_labels
+
+    assert normalise_labels([" Walk , Happy ,,walk", "HAPPY"]) == ("Walk", "Happy")
+    assert label_filter(["walk,happy", ""]) == ("walk", "happy")
+    assert label_filter("") == label_filter([""]) == label_filter(None) == ()
+    assert merge_labels(["Walk"], ["walk", "Run", "RUN"]) == ("Walk", "Run")
+
+
+@pytest.mark.parametrize(
+    "pattern",
+    [
+        r"dataset-1_(?P<content>[^_]+)_(?P<style>[^_]+)_\d+",
+        r"dataset-1_(?<content>[^_]+)_(?<style>[^_]+)_\d+",
+    ],
+)
+def test_both_named_group_spellings(pattern: str) -> None:
+    assert labels_from_regex(pattern, "x/dataset-1_walk_happy_001.bvh") == {
+        "content": "walk",
+        "style": "happy",
+    }
+
+
+def test_javascript_spelling_keeps_lookbehind_and_backreferences() -> None:
+    from app.labels import python_regex
+
+    assert python_regex(r"(?<=a)(?<!b)(?<x>c)\k<x>\(?<y>") == r"(?<=a)(?<!b)(?P<x>c)(?P=x)\(?<y>"
+
+
+def test_free_text_columns_are_left_out_by_default() -> None:
+    from app.labels import choose_label_columns
+
+    table = {
+        "01_01": {"coarse": "jump", "description": "playground - forward jumps, turn around"},
+        "01_02": {"coarse": "climb", "description": "climb"},
+    }
+    chosen, left_out = choose_label_columns(table)
+    assert left_out == ("description",) and chosen["01_02"] == {"coarse": "climb"}
+    chosen, left_out = choose_label_columns(table, ["description"])
+    assert left_out == ("coarse",) and chosen["01_02"] == {"description": "climb"}
+    with pytest.raises(InvalidInput, match="no column 'mood'"):
+        choose_label_columns(table, ["coarse,mood"])

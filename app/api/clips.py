@@ -6,15 +6,25 @@ from typing import Annotated, Literal
 from urllib.parse import quote
 
 from fastapi import APIRouter, Query, Response, status
+from pydantic import BaseModel, Field
 
 from app.api.auth import WriteAccess
-from app.api.deps import ClipDep, LibraryDep, SettingsDep, UploadDep
+from app.api.deps import (
+    LABEL_FILTER_DOC,
+    ClipDep,
+    LabelQuery,
+    LibraryDep,
+    SettingsDep,
+    UploadDep,
+)
 from app.api.errors import error_responses
 from app.api.schemas import ClipOut, ClipPage, ClipUpdate
+from app.config import Settings
 from app.errors import InvalidInput
+from app.labels import label_filter, normalise_labels
 from app.services import clips as clip_service
 from app.services.ingest import ingest
-from app.services.uploads import normalise_labels, normalise_name
+from app.services.uploads import normalise_name, normalise_note
 
 router = APIRouter(prefix="/clips", tags=["clips"])
 
@@ -25,20 +35,31 @@ router = APIRouter(prefix="/clips", tags=["clips"])
     summary="Upload a clip",
     dependencies=[WriteAccess],
     responses={
-        200: {"model": ClipOut, "description": "The same content was already stored: that clip."},
+        200: {
+            "model": ClipOut,
+            "description": "The same content was already stored: that clip, as stored now "
+            '(what the upload brought applied), with `"duplicate": true`.',
+        },
         **error_responses(400, 401, 403, 413, 415, 422, 503),
     },
 )
 def create_clip(upload: UploadDep, library: LibraryDep, response: Response) -> ClipOut:
-    """Store a clip: one BVH file as `file`, or an ASF skeleton as `skeleton` with an AMC
-    motion as `motion`. The clip is parsed and described under every descriptor before
-    anything is stored; uploading identical bytes again returns the stored clip (200)."""
+    """Store a clip: one BVH, FBX, glTF (.glb/.gltf) or VRM animation (.vrma) file as `file`,
+    or an ASF skeleton as `skeleton` with an AMC motion as `motion`, with optional `name`,
+    `labels`, `source` and `licence`. FBX/glTF: the longest animation of the file, or the
+    one named in `animation`. The clip is parsed and described under every descriptor before
+    anything is stored.
+
+    Uploading identical content again stores nothing new: the answer is 200 with the stored
+    clip and `"duplicate": true`, after applying what the upload brings — its labels are
+    added to the clip's (case-insensitively), a given `name`, `source` or `licence` replaces
+    the stored one."""
     result = ingest(library, upload)
     if result.created:
         response.headers["Location"] = f"/clips/{result.clip.id}"
-    else:
-        response.status_code = status.HTTP_200_OK
-    return ClipOut.of(result.clip)
+        return ClipOut.of(result.clip)
+    response.status_code = status.HTTP_200_OK
+    return ClipOut.of(result.clip, duplicate=True)
 
 
 @router.get("", summary="List clips", responses=error_responses(422, 503))
@@ -46,14 +67,11 @@ def list_clips(
     library: LibraryDep,
     settings: SettingsDep,
     limit: Annotated[int, Query(description="Page size, 1 to MOCAP_MAX_PAGE_SIZE.")] = 50,
-    offset: Annotated[int, Query(description="Clips to skip.")] = 0,
-    label: Annotated[str | None, Query(description="Only clips carrying this label.")] = None,
+    offset: Annotated[int, Query(description="Clips to skip (≥ 0).")] = 0,
+    label: LabelQuery = None,
 ) -> ClipPage:
     """Clips in id order, a page at a time, with the total count."""
-    if not 1 <= limit <= settings.max_page_size:
-        raise InvalidInput(f"limit: must be between 1 and {settings.max_page_size}, got {limit}")
-    if not 0 <= offset <= clip_service.MAX_ID:
-        raise InvalidInput(f"offset: must be between 0 and {clip_service.MAX_ID}, got {offset}")
+    check_page(settings, limit, offset)
     items, total = clip_service.list_clips(library, label=label, limit=limit, offset=offset)
     return ClipPage(total=total, limit=limit, offset=offset, items=[ClipOut.of(c) for c in items])
 
@@ -64,16 +82,23 @@ def get_clip(
     library: LibraryDep,
     include: Annotated[
         list[str],
-        Query(description="`descriptors` adds every stored descriptor vector by name."),
+        Query(
+            description="`descriptors` adds every stored descriptor vector by name, `mapping` "
+            "which source joint became each canonical joint and how it was found; "
+            "comma-separated or repeated (`include=descriptors,mapping`)."
+        ),
     ] = [],  # noqa: B006 - FastAPI copies defaults per request
 ) -> ClipOut:
-    """One clip; with `?include=descriptors` also its descriptor vectors."""
+    """One clip; with `?include=descriptors` also its descriptor vectors, with
+    `?include=mapping` its joint mapping."""
     wanted = {word.strip() for value in include for word in value.split(",") if word.strip()}
-    unknown = wanted - {"descriptors"}
+    unknown = wanted - {"descriptors", "mapping"}
     if unknown:
-        raise InvalidInput(f"include: unknown {', '.join(sorted(unknown))}; use 'descriptors'")
-    vectors = clip_service.clip_vectors(library, clip.id) if wanted else None
-    return ClipOut.of(clip, vectors)
+        raise InvalidInput(
+            f"include: unknown {', '.join(sorted(unknown))}; use 'descriptors' or 'mapping'"
+        )
+    vectors = clip_service.clip_vectors(library, clip.id) if "descriptors" in wanted else None
+    return ClipOut.of(clip, vectors, mapping="mapping" in wanted)
 
 
 @router.get(
@@ -82,7 +107,10 @@ def get_clip(
     response_class=Response,
     responses={
         200: {
-            "description": "The BVH file, or for ASF/AMC a ZIP of both (or one `part`).",
+            "description": (
+                "The uploaded file, or for ASF/AMC a ZIP of both (or one `part`); with "
+                "`format=bvh`, the clip as a BVH file."
+            ),
             "content": {"application/octet-stream": {}, "application/zip": {}},
         },
         **error_responses(404, 422, 503),
@@ -95,15 +123,29 @@ def download_clip(
         Literal["file", "skeleton", "motion"] | None,
         Query(description="One uploaded part, byte for byte (ASF/AMC: skeleton or motion)."),
     ] = None,
+    file_format: Annotated[
+        Literal["bvh"] | None,
+        Query(
+            alias="format",
+            description=(
+                "`bvh`: the clip (of any format) as a BVH file of its own skeleton: rest "
+                "offsets, ZXY rotation channels on every joint, root translation, the clip's "
+                "frame rate."
+            ),
+        ),
+    ] = None,
     start: Annotated[
         float | None, Query(description="Cut from here: seconds from the first frame.")
     ] = None,
     end: Annotated[float | None, Query(description="Cut up to here (exclusive), seconds.")] = None,
 ) -> Response:
-    """The uploaded bytes, unchanged; with `start` and/or `end` the motion cut to that span
-    (BVH: same hierarchy, only those frames; ASF/AMC: the ASF and the cut AMC, frames
-    renumbered from 1)."""
-    download = clip_service.clip_download(library, clip, part, start, end)
+    """The uploaded bytes, unchanged; with `format=bvh` the clip converted to BVH. With
+    `start` and/or `end` the motion cut to that span: BVH in BVH (same hierarchy, only those
+    frames), ASF/AMC as the ASF and the cut AMC (frames renumbered from 1), and FBX/glTF —
+    which cannot be cut as they are — as the BVH export of the span (as with `format=bvh`)."""
+    download = clip_service.clip_download(
+        library, clip, part, start, end, as_bvh=file_format == "bvh"
+    )
     return Response(
         content=download.data,
         media_type=download.media_type,
@@ -118,12 +160,20 @@ def download_clip(
     responses=error_responses(400, 401, 403, 404, 422, 503),
 )
 def update_clip(clip: ClipDep, changes: ClipUpdate, library: LibraryDep) -> ClipOut:
-    """Change the name and/or replace the labels; fields left out keep their value."""
+    """Change the name, replace the labels, set or clear `source` and `licence`; fields left
+    out keep their value."""
     name = normalise_name(changes.name) if changes.name is not None else None
     if changes.name is not None and name is None:
         raise InvalidInput("name: must not be blank")
     labels = normalise_labels(changes.labels) if changes.labels is not None else None
-    return ClipOut.of(clip_service.update_clip(library, clip.id, name=name, labels=labels))
+    notes: dict[str, str | None] = {
+        key: normalise_note(key, getattr(changes, key))
+        for key in ("source", "licence")
+        if key in changes.model_fields_set
+    }
+    return ClipOut.of(
+        clip_service.update_clip(library, clip.id, name=name, labels=labels, notes=notes)
+    )
 
 
 @router.delete(
@@ -138,6 +188,55 @@ def delete_clip(clip: ClipDep, library: LibraryDep) -> Response:
     """Remove the clip, its vectors from every index and its stored files."""
     clip_service.delete_clip(library, clip.id)
     return Response(status_code=status.HTTP_204_NO_CONTENT)
+
+
+class DeletedClips(BaseModel):
+    deleted: int = Field(description="How many clips were deleted.")
+    labels: list[str] = Field(description="The labels the deleted clips carried (all of them).")
+
+
+@router.delete(
+    "",
+    summary="Delete every clip carrying a label",
+    dependencies=[WriteAccess],
+    responses=error_responses(401, 403, 422, 503),
+)
+def delete_clips(
+    library: LibraryDep,
+    label: Annotated[
+        list[str] | None,
+        Query(
+            description="The clips to delete: those carrying this label (required). "
+            + LABEL_FILTER_DOC.split(". ", 1)[1]
+        ),
+    ] = None,
+    confirm: Annotated[
+        bool,
+        Query(description="Must be `true`; without it nothing is deleted (422 with the count)."),
+    ] = False,
+) -> DeletedClips:
+    """Delete, in one transaction, every clip carrying all the labels given (e.g. the
+    `synthetic` clips `mocap-index fill-synthetic` added), with their vectors and stored files.
+    Without `confirm=true` nothing is deleted and the answer (422) says how many would be."""
+    labels = label_filter(label)
+    if not confirm:
+        count = len(clip_service.clips_with_labels(library, labels))
+        raise InvalidInput(
+            f"confirm: this would delete {count} clip{'s' if count != 1 else ''} labelled "
+            f"{', '.join(labels)}; add confirm=true to delete them"
+        )
+    deleted = clip_service.delete_clips_with(library, labels)
+    return DeletedClips(deleted=deleted, labels=list(labels))
+
+
+def check_page(settings: Settings, limit: int, offset: int) -> None:
+    """422 for a page size outside 1..MOCAP_MAX_PAGE_SIZE or a negative offset."""
+    if not 1 <= limit <= settings.max_page_size:
+        raise InvalidInput(f"limit: must be between 1 and {settings.max_page_size}, got {limit}")
+    if offset < 0:
+        raise InvalidInput(f"offset: must be ≥ 0, got {offset}")
+    if offset > clip_service.MAX_ID:
+        raise InvalidInput(f"offset: must be at most {clip_service.MAX_ID}, got {offset}")
 
 
 # Characters kept in the plain-ASCII ``filename=`` fallback; anything else (quotes,

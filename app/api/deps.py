@@ -15,7 +15,7 @@ from app.config import Settings
 from app.db.repository import ClipRecord
 from app.errors import UnsupportedMediaType
 from app.services import clips as clip_service
-from app.services.library import DEFAULT_DESCRIPTOR, Library
+from app.services.library import Library
 from app.services.uploads import Upload
 
 
@@ -48,7 +48,14 @@ def _read(part: UploadFile | None) -> tuple[str | None, bytes] | None:
 def read_upload(
     request: Request,
     file: Annotated[
-        UploadFile | None, File(description="One BVH file (`.bvh`). Or send `skeleton` + `motion`.")
+        UploadFile | None,
+        File(
+            description=(
+                "One motion file: BVH (`.bvh`), FBX (`.fbx`, binary or ASCII), glTF 2.0 "
+                "(`.glb`, or `.gltf` with embedded buffers) or VRM animation (`.vrma`). Or "
+                "send `skeleton` + `motion`."
+            )
+        ),
     ] = None,
     skeleton: Annotated[
         UploadFile | None, File(description="An Acclaim skeleton (`.asf`), with `motion`.")
@@ -62,7 +69,27 @@ def read_upload(
     ] = None,
     labels: Annotated[
         list[str] | None,
-        Form(description="Free-form tags: repeat the field and/or separate them with commas."),
+        Form(
+            description="Free-form tags: repeat the field and/or separate them with commas. "
+            "Trimmed; compared case-insensitively (the first spelling is kept)."
+        ),
+    ] = None,
+    source: Annotated[
+        str | None,
+        Form(description="Where the clip comes from (a URL, a dataset, a person); optional."),
+    ] = None,
+    licence: Annotated[
+        str | None,
+        Form(description="Under which terms it may be used, e.g. `CC BY 4.0`; optional."),
+    ] = None,
+    animation: Annotated[
+        str | None,
+        Form(
+            description=(
+                "FBX/glTF: which animation of the file to read, by name (see the clip's "
+                "`animations`); default: the longest."
+            )
+        ),
     ] = None,
 ) -> Upload:
     content_type = request.headers.get("content-type", "")
@@ -71,24 +98,37 @@ def read_upload(
             f"send the files as multipart/form-data (got {content_type or 'no content type'!r})"
         )
     return Upload.from_files(
-        file=_read(file), skeleton=_read(skeleton), motion=_read(motion), name=name, labels=labels
+        file=_read(file),
+        skeleton=_read(skeleton),
+        motion=_read(motion),
+        name=name,
+        labels=labels,
+        source=source,
+        licence=licence,
+        animation=animation,
     )
 
 
 UploadDep = Annotated[Upload, Depends(read_upload)]
 
 
+DescriptorQuery = Annotated[
+    str | None,
+    Query(
+        description="Descriptor to compare with (see GET /descriptors); default: the one "
+        "GET /descriptors names as `default` (`motion`).",
+        examples=["motion"],
+    ),
+]
+
+
 def descriptor_param(
     library: LibraryDep,
-    descriptor: Annotated[
-        str,
-        Query(
-            description="Descriptor to compare with (see GET /descriptors).", examples=["posture"]
-        ),
-    ] = DEFAULT_DESCRIPTOR,
+    descriptor: DescriptorQuery = None,
 ) -> str:
-    library.descriptor(descriptor)  # 422 naming the known descriptors
-    return descriptor
+    name = library.default_descriptor if descriptor is None else descriptor
+    library.descriptor(name)  # 422 naming the known descriptors
+    return name
 
 
 DescriptorDep = Annotated[str, Depends(descriptor_param)]
@@ -97,6 +137,11 @@ KQuery = Annotated[
     int,
     Query(description="How many neighbours, 1 to MOCAP_MAX_K (default 1000).", examples=[10]),
 ]
+LABEL_FILTER_DOC = (
+    "Only clips carrying this label. Repeat `label` or separate labels with commas "
+    "(`label=walk&label=happy` = `label=walk,happy`) for clips carrying all of them; labels "
+    "are compared case-insensitively; an empty value is no filter."
+)
 LabelQuery = Annotated[
-    str | None, Query(description="Only clips carrying this label.", examples=["walk"])
+    list[str] | None, Query(description=LABEL_FILTER_DOC, examples=[["walk", "happy"]])
 ]

@@ -20,6 +20,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from app.errors import (
     DescribeTimeout,
+    DescriptorUnavailable,
     Forbidden,
     InvalidInput,
     MocapError,
@@ -29,7 +30,6 @@ from app.errors import (
     Unauthorized,
     UnsupportedMediaType,
 )
-from app.services.search import DescriptorUnavailable
 
 log = logging.getLogger(__name__)
 
@@ -48,11 +48,12 @@ STATUS_BY_ERROR: dict[type[MocapError], int] = {
     MocapError: 400,
 }
 
-# Codes for errors raised by the framework, by status.
+# Codes for errors raised by the framework, by status. A bad parameter is ``invalid_input``
+# whether FastAPI's validation or our own check finds it (``k=abc`` and ``k=0`` alike).
 _FRAMEWORK_CODES = {
     413: PayloadTooLarge.code,
     415: UnsupportedMediaType.code,
-    422: "validation_error",
+    422: InvalidInput.code,
     500: "internal_error",
 }
 
@@ -111,7 +112,7 @@ async def _on_domain_error(_request: Request, exc: Exception) -> JSONResponse:
 
 async def _on_validation_error(_request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, RequestValidationError)
-    return error_json(422, "validation_error", describe_validation_error(exc))
+    return error_json(422, InvalidInput.code, describe_validation_error(exc))
 
 
 async def _on_http_error(_request: Request, exc: Exception) -> JSONResponse:
@@ -159,7 +160,13 @@ ERROR_EXAMPLES: dict[int, dict[str, tuple[str, str]]] = {
     400: {"bad_request": ("Malformed request", "There was an error parsing the body")},
     401: {"unauthorized": ("Missing or wrong API key", "missing API key")},
     403: {"forbidden": ("Key without the right", "this API key may not change clips")},
-    404: {"not_found": ("Unknown clip", "no clip with id 42")},
+    404: {
+        "not_found": ("Unknown clip", "no clip with id 42"),
+        "no_stored_file": (
+            "Clip without a stored file",
+            "clip 9 is a synthetic clip: it has no stored file to download or preview",
+        ),
+    },
     409: {
         "descriptor_unavailable": (
             "Clip lacks a current vector",
@@ -189,10 +196,9 @@ ERROR_EXAMPLES: dict[int, dict[str, tuple[str, str]]] = {
             "file 'long.bvh', line 9: 200000 frames, more than the limit of 100000",
         ),
         "invalid_input": (
-            "Missing part",
-            "field 'motion': an .asf skeleton must come with the 'motion'",
+            "Bad parameter or missing part",
+            "query.k: Input should be a valid integer",
         ),
-        "validation_error": ("Bad parameter", "query.k: Input should be a valid integer"),
     },
     503: {
         "storage_unavailable": (

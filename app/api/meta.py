@@ -11,7 +11,6 @@ from fastapi import APIRouter
 from app.api.deps import LibraryDep
 from app.api.errors import error_responses
 from app.api.schemas import DescriptorList, DescriptorOut, Health, IndexHealth
-from app.services.library import DEFAULT_DESCRIPTOR
 
 router = APIRouter(tags=["service"])
 read_router = APIRouter(tags=["service"])
@@ -21,7 +20,7 @@ read_router = APIRouter(tags=["service"])
 def list_descriptors(library: LibraryDep) -> DescriptorList:
     """Every descriptor a search can use, with its dimension, version and what it measures."""
     return DescriptorList(
-        default=DEFAULT_DESCRIPTOR,
+        default=library.default_descriptor,
         descriptors=[DescriptorOut.of(info) for info in library.descriptors.values()],
     )
 
@@ -30,12 +29,20 @@ def list_descriptors(library: LibraryDep) -> DescriptorList:
     "/health", summary="Liveness, clip count and index sizes", responses=error_responses(503)
 )
 def health(library: LibraryDep) -> Health:
-    """The service is up and its database answers; how many clips and indexed vectors."""
-    clips = library.clip_count()
+    """The service is up and its database answers; how many clips and indexed vectors.
+
+    The indexes first take in clips another process (`mocap-index import`, another replica)
+    stored or deleted, as a search does — so a health-checked replica stays current;
+    `missing` counts the clips without a current vector in the database, which no search can
+    find until `mocap-index reindex`."""
+    library.refresh()
+    clips, stored = library.vector_counts()
     indexes = {}
     for name, info in library.descriptors.items():
-        size = library.indexes[name].size
         indexes[name] = IndexHealth(
-            size=size, dimension=info.dimension, version=info.version, missing=max(clips - size, 0)
+            size=library.indexes[name].size,
+            dimension=info.dimension,
+            version=info.version,
+            missing=max(clips - stored[name], 0),
         )
     return Health(status="ok", clips=clips, indexes=indexes)

@@ -7,7 +7,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from app.db.repository import ClipRecord, NewClip, StoredVector
+from app.db.repository import AnimationRecord, ClipRecord, NewClip, StoredVector
 from app.services.describe import DescriptorInfo
 from app.services.search import Hit
 
@@ -23,7 +23,10 @@ _CLIP_EXAMPLE: dict[str, Any] = {
     "joint_count": 27,
     "skeleton_family": "bandai",
     "lead_in_frames": 0,
+    "warnings": [],
     "labels": ["walk", "happy"],
+    "source": "Bandai Namco Research Motiondataset",
+    "licence": "CC BY-NC-ND 4.0",
     "created_at": "2026-11-22T10:15:00Z",
 }
 
@@ -34,10 +37,15 @@ class ClipFields(BaseModel):
     name: str = Field(
         description="Display name; by default the (motion) file name without extension."
     )
-    filenames: list[str] = Field(description="Original file names: one .bvh, or the .asf and .amc.")
-    format: str = Field(description='"bvh" or "asf/amc".')
+    filenames: list[str] = Field(
+        description="Original file names: one .bvh/.fbx/.glb/.gltf/.vrma, or the .asf and .amc."
+    )
+    format: str = Field(description='"bvh", "asf/amc", "fbx" or "gltf".')
     content_hash: str = Field(
-        description="sha256 of the uploaded bytes (ASF/AMC: sha256 of sha256(asf) + sha256(amc))."
+        description=(
+            "sha256 of the uploaded bytes (ASF/AMC: sha256 of sha256(asf) + sha256(amc); "
+            "FBX/glTF: sha256 of sha256(file), a newline and the animation's name)."
+        )
     )
     frame_count: int = Field(description="Frames in the file.")
     frame_time: float = Field(description="Seconds per frame.")
@@ -47,7 +55,45 @@ class ClipFields(BaseModel):
     lead_in_frames: int = Field(
         description="Rest-pose frames at the start left out of the descriptors."
     )
-    labels: list[str] = Field(description="Free-form tags.")
+    warnings: list[str] = Field(
+        default_factory=list,
+        description="Short sentences about what reading the file had to repair or decide "
+        '("mirrored capture: stored un-mirrored", "neck derived from the head\'s parent", '
+        '"3 short lines after the last frame ignored", ...).',
+    )
+    labels: list[str] = Field(
+        description="Free-form tags, each once whatever its case (the first spelling is kept)."
+    )
+    source: str | None = Field(default=None, description="Where the clip comes from, if given.")
+    licence: str | None = Field(
+        default=None, description="Under which terms the clip may be used, if given."
+    )
+    animations: list[AnimationOut] | None = Field(
+        default=None,
+        exclude_if=lambda value: value is None,
+        description=(
+            "FBX/glTF: every animation of the file (the clip holds the one marked "
+            "`selected`); absent for BVH and ASF/AMC."
+        ),
+    )
+
+
+class AnimationOut(BaseModel):
+    """One animation of an FBX/glTF file."""
+
+    name: str = Field(description="As the file names it (`animation N` when it does not).")
+    frame_count: int = Field(description="Frames at the rate it is sampled at.")
+    duration: float = Field(description="Seconds from its first to its last key.")
+    selected: bool = Field(description="Whether this clip holds this animation.")
+
+    @classmethod
+    def of(cls, record: AnimationRecord) -> AnimationOut:
+        return cls(
+            name=record.name,
+            frame_count=record.frame_count,
+            duration=record.duration,
+            selected=record.selected,
+        )
 
 
 class DescriptorVector(BaseModel):
@@ -67,13 +113,37 @@ class ClipOut(ClipFields):
         exclude_if=lambda value: value is None,
         description="Every stored descriptor vector by name; only with `?include=descriptors`.",
     )
+    duplicate: bool | None = Field(
+        default=None,
+        exclude_if=lambda value: value is None,
+        description="Only in the answer to an upload: true when the content was already stored "
+        "(status 200; the labels, name, source and licence sent were applied to that clip).",
+    )
+    mapping: dict[str, Any] | None = Field(
+        default=None,
+        exclude_if=lambda value: value is None,
+        description="Only with `?include=mapping`: `joints` maps each canonical joint to "
+        '`{"joint": source joint name, "how": how it was found}`; `end_sites` lists the '
+        "canonical points that are end effectors; `pose` says whether the rest pose or a "
+        "frame showed the body; `mirrored` whether the capture was stored un-mirrored. "
+        "Empty for clips stored before the mapping was recorded.",
+    )
 
     @classmethod
-    def of(cls, clip: ClipRecord, vectors: dict[str, StoredVector] | None = None) -> ClipOut:
+    def of(
+        cls,
+        clip: ClipRecord,
+        vectors: dict[str, StoredVector] | None = None,
+        *,
+        duplicate: bool | None = None,
+        mapping: bool = False,
+    ) -> ClipOut:
         return cls(
             **_clip_fields(clip),
             id=clip.id,
             created_at=clip.created_at,
+            duplicate=duplicate,
+            mapping=dict(clip.joint_mapping or {}) if mapping else None,
             descriptors=None
             if vectors is None
             else {
@@ -104,7 +174,13 @@ def _clip_fields(clip: ClipRecord | NewClip) -> dict[str, Any]:
         "joint_count": clip.joint_count,
         "skeleton_family": clip.skeleton_family,
         "lead_in_frames": clip.lead_in_frames,
+        "warnings": list(clip.warnings),
         "labels": list(clip.labels),
+        "source": clip.source,
+        "licence": clip.licence,
+        "animations": None
+        if clip.animations is None
+        else [AnimationOut.of(a) for a in clip.animations],
     }
 
 
@@ -126,25 +202,61 @@ class ClipUpdate(BaseModel):
     )
 
     name: str | None = Field(default=None, min_length=1, max_length=255)
-    labels: list[str] | None = Field(default=None, description="Replaces every label.")
+    labels: list[str] | None = Field(
+        default=None,
+        description="Replaces every label (split on commas, trimmed, case-insensitive "
+        "duplicates dropped).",
+    )
+    source: str | None = Field(
+        default=None, max_length=500, description="Where the clip comes from; null or '' clears."
+    )
+    licence: str | None = Field(
+        default=None, max_length=500, description="Terms of use; null or '' clears."
+    )
 
 
 class SearchHit(BaseModel):
     id: int
     name: str
     labels: list[str]
+    format: str = Field(description='"bvh", "asf/amc" (or "synthetic"): same-named clips differ.')
+    filenames: list[str] = Field(description="Original file names.")
+    skeleton_family: str = Field(description="Naming convention the skeleton was matched as.")
     distance: float = Field(description="Euclidean distance between the descriptor vectors.")
 
     @classmethod
     def of(cls, hit: Hit) -> SearchHit:
+        clip = hit.clip
         return cls(
-            id=hit.clip.id, name=hit.clip.name, labels=list(hit.clip.labels), distance=hit.distance
+            id=clip.id,
+            name=clip.name,
+            labels=list(clip.labels),
+            format=clip.format,
+            filenames=list(clip.filenames),
+            skeleton_family=clip.skeleton_family,
+            distance=hit.distance,
         )
 
 
 _HITS_EXAMPLE: list[Any] = [
-    {"id": 12, "name": "dataset-1_walk_sad_001", "labels": ["walk"], "distance": 0.0123},
-    {"id": 31, "name": "dataset-1_walk_proud_001", "labels": ["walk"], "distance": 0.0201},
+    {
+        "id": 12,
+        "name": "dataset-1_walk_sad_001",
+        "labels": ["walk"],
+        "format": "bvh",
+        "filenames": ["dataset-1_walk_sad_001.bvh"],
+        "skeleton_family": "bandai",
+        "distance": 0.0123,
+    },
+    {
+        "id": 31,
+        "name": "dataset-1_walk_proud_001",
+        "labels": ["walk"],
+        "format": "bvh",
+        "filenames": ["dataset-1_walk_proud_001.bvh"],
+        "skeleton_family": "bandai",
+        "distance": 0.0201,
+    },
 ]
 
 
@@ -154,7 +266,7 @@ class ClipSearchResponse(BaseModel):
     model_config = ConfigDict(
         json_schema_extra={
             "examples": [
-                {"query": _CLIP_EXAMPLE, "descriptor": "posture", "k": 2, "results": _HITS_EXAMPLE}
+                {"query": _CLIP_EXAMPLE, "descriptor": "motion", "k": 2, "results": _HITS_EXAMPLE}
             ]
         }
     )
@@ -175,7 +287,7 @@ class UploadSearchResponse(BaseModel):
                     "query": {
                         k: v for k, v in _CLIP_EXAMPLE.items() if k not in ("id", "created_at")
                     },
-                    "descriptor": "posture",
+                    "descriptor": "motion",
                     "k": 2,
                     "results": _HITS_EXAMPLE,
                 }
@@ -210,13 +322,14 @@ class DescriptorList(BaseModel):
         json_schema_extra={
             "examples": [
                 {
-                    "default": "posture",
+                    "default": "motion",
                     "descriptors": [
                         {
                             "name": "posture",
                             "dimension": 12,
-                            "version": 1,
-                            "description": "Posture variation: mean and std of joint covariance.",
+                            "version": 2,
+                            "description": "How the body is held: how spread out, tall or "
+                            "leaning the pose is on average and how much it varies.",
                         }
                     ],
                 }
@@ -229,11 +342,15 @@ class DescriptorList(BaseModel):
 
 
 class IndexHealth(BaseModel):
-    size: int = Field(description="Vectors in the index.")
+    size: int = Field(
+        description="Vectors in this server's index, brought up to date with the database "
+        "(clips another process stored included) when /health is asked."
+    )
     dimension: int
     version: int
     missing: int = Field(
-        description="Clips without a vector of this version (found after `mocap-index reindex`)."
+        description="Clips with no vector of this version in the database: no search with this "
+        "descriptor finds them until `mocap-index reindex` computes it."
     )
 
 

@@ -7,7 +7,14 @@ from typing import Annotated
 import anyio
 from fastapi import APIRouter, Query, Request, Response
 
-from app.api.deps import DescriptorDep, KQuery, LabelQuery, LibraryDep, UploadDep
+from app.api.deps import (
+    DescriptorDep,
+    DescriptorQuery,
+    KQuery,
+    LabelQuery,
+    LibraryDep,
+    UploadDep,
+)
 from app.api.errors import error_responses
 from app.api.schemas import (
     ClipOut,
@@ -16,8 +23,9 @@ from app.api.schemas import (
     UploadedClipOut,
     UploadSearchResponse,
 )
+from app.errors import InvalidInput
 from app.services import search as search_service
-from app.services.library import DEFAULT_DESCRIPTOR, Library
+from app.services.library import Library
 
 router = APIRouter(prefix="/search", tags=["search"])
 
@@ -32,12 +40,7 @@ async def search_by_clip(
     request: Request,
     clip: Annotated[int, Query(description="Id of the query clip.", examples=[7])],
     k: KQuery = 10,
-    descriptor: Annotated[
-        str,
-        Query(
-            description="Descriptor to compare with (see GET /descriptors).", examples=["posture"]
-        ),
-    ] = DEFAULT_DESCRIPTOR,
+    descriptor: DescriptorQuery = None,
     label: LabelQuery = None,
 ) -> Response:
     """The `k` clips nearest to clip `clip` under `descriptor`, nearest first, never the
@@ -50,6 +53,8 @@ async def search_by_clip(
     # cost more than the search (at 32 clients, 1,000 instead of 1,550 requests/s on two
     # cores). Anything longer goes to the thread pool, so it never holds up the loop.
     library: Library = request.app.state.library
+    if descriptor is None:
+        descriptor = library.default_descriptor
     if search_service.is_quick(library, descriptor, k, label):
         body = _search_by_clip(library, clip, descriptor, k, label)
     else:
@@ -64,7 +69,7 @@ SEARCH_THREADS = anyio.CapacityLimiter(4)
 
 
 def _search_by_clip(
-    library: Library, clip: int, descriptor: str, k: int, label: str | None
+    library: Library, clip: int, descriptor: str, k: int, label: list[str] | None
 ) -> bytes:
     query, hits = search_service.search_by_clip_id(library, clip, descriptor, k, label=label)
     body = ClipSearchResponse(
@@ -87,10 +92,16 @@ def search_by_upload(
     descriptor: DescriptorDep,
     k: KQuery = 10,
     label: LabelQuery = None,
+    clip: Annotated[
+        str | None,
+        Query(description="Not allowed here: search by a stored clip with `GET /search?clip=`."),
+    ] = None,
 ) -> UploadSearchResponse:
     """Describe the uploaded clip (same fields as `POST /clips`) without storing it and
     return the `k` nearest stored clips; nothing is excluded (an identical stored clip comes
     first, at distance 0)."""
+    if clip is not None:
+        raise InvalidInput("clip: give a clip id or a file, not both")
     query, hits = search_service.search_by_upload(library, upload, descriptor, k, label=label)
     return UploadSearchResponse(
         query=UploadedClipOut.of(query),

@@ -25,10 +25,10 @@ from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, Field
 
 from app.api.auth import read_dependencies
-from app.api.deps import ClipDep, DescriptorDep, LibraryDep, SettingsDep, UploadDep
+from app.api.clips import check_page
+from app.api.deps import ClipDep, DescriptorDep, LabelQuery, LibraryDep, SettingsDep, UploadDep
 from app.api.errors import error_responses
 from app.api.schemas import ClipOut, ClipPage
-from app.errors import InvalidInput
 from app.services import library_map as ui_service
 
 STATIC_DIR = Path(__file__).resolve().parent.parent / "static"
@@ -173,6 +173,7 @@ def clip_skeleton(
 def upload_skeleton(
     upload: UploadDep,
     settings: SettingsDep,
+    library: LibraryDep,
     fps: FpsQuery = ui_service.DEFAULT_FPS,
     max_frames: MaxFramesQuery = ui_service.MAX_SKELETON_FRAMES,
 ) -> Response:
@@ -180,7 +181,7 @@ def upload_skeleton(
     the UI previews a file dropped as a search query with it."""
     # The same memory bound as describing an upload (MOCAP_MAX_FRAME_VALUES).
     limits = dataclasses.replace(settings.parse_limits, max_values=settings.max_frame_values)
-    body = ui_service.upload_skeleton(upload, limits, fps, max_frames)
+    body = ui_service.upload_skeleton(upload, limits, fps, max_frames, library.parsers)
     return Response(content=body, media_type="application/json")
 
 
@@ -208,24 +209,22 @@ def find_clips(
     q: Annotated[
         str | None, Query(description="Only clips whose name contains this (any case).")
     ] = None,
-    label: Annotated[str | None, Query(description="Only clips carrying this label.")] = None,
+    label: LabelQuery = None,
     limit: Annotated[int, Query(description="Page size, 1 to MOCAP_MAX_PAGE_SIZE.")] = 50,
-    offset: Annotated[int, Query(description="Clips to skip.")] = 0,
+    offset: Annotated[int, Query(description="Clips to skip (≥ 0).")] = 0,
 ) -> ClipPage:
     """As `GET /clips`, with a name filter: clips in id order, a page at a time."""
-    if not 1 <= limit <= settings.max_page_size:
-        raise InvalidInput(f"limit: must be between 1 and {settings.max_page_size}, got {limit}")
-    if offset < 0:
-        raise InvalidInput(f"offset: must not be negative, got {offset}")
+    check_page(settings, limit, offset)
     items, total = ui_service.find_clips(
-        library, q=(q or "").strip() or None, label=label or None, limit=limit, offset=offset
+        library, q=(q or "").strip() or None, label=label, limit=limit, offset=offset
     )
     return ClipPage(total=total, limit=limit, offset=offset, items=[ClipOut.of(c) for c in items])
 
 
 @router.get("/library/labels", summary="Labels in use")
 def list_labels(library: LibraryDep) -> list[LabelCount]:
-    """Every label carried by some clip, with its number of clips, most used first."""
+    """Every label carried by some clip, with its number of clips, most used first (labels
+    differing only in case count as one)."""
     return [LabelCount(label=label, count=n) for label, n in ui_service.label_counts(library)]
 
 

@@ -15,6 +15,7 @@ log = logging.getLogger(__name__)
 
 # migrations/ sits beside app/ (repository root), as alembic.ini expects.
 MIGRATIONS_DIR = Path(__file__).resolve().parents[2] / "migrations"
+MIGRATION_LOCK = 0x6D6F636170  # "mocap": the advisory lock id migrations take on PostgreSQL
 
 
 def alembic_config() -> Config:
@@ -32,8 +33,11 @@ def alembic_config() -> Config:
 def upgrade(engine: Engine, revision: str = "head") -> None:
     """Bring the database behind ``engine`` to ``revision`` (default: the newest)."""
     config = alembic_config()
-    # IMMEDIATE on SQLite: two processes starting together migrate one after the other.
+    # Two processes starting together (replicas) migrate one after the other: IMMEDIATE on
+    # SQLite takes the write lock; on PostgreSQL a transaction-scoped advisory lock.
     with engine.execution_options(sqlite_begin="IMMEDIATE").begin() as connection:
+        if connection.dialect.name == "postgresql":
+            connection.exec_driver_sql(f"SELECT pg_advisory_xact_lock({MIGRATION_LOCK})")
         before = MigrationContext.configure(connection).get_current_revision()
         config.attributes["connection"] = connection
         command.upgrade(config, revision)

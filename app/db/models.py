@@ -11,15 +11,25 @@ clip_files
     The uploaded parts of a clip (one for BVH; skeleton + motion for ASF/AMC), each kept as a
     content-addressed file named by its sha256.
 clip_labels
-    Free-form tags, one row per (clip, label); indexed by label for filtering.
+    Free-form tags, one row per (clip, label), with ``label_key`` the case-folded label
+    (``app.labels.label_key``): filters compare keys, through the unique (key, clip) index,
+    which also keeps one spelling of a label per clip.
 clip_descriptors
     The descriptor vectors (float32 bytes) with the descriptor version that produced them.
     The FAISS indexes are rebuilt from this table.
 clip_windows
     Vectors of overlapping windows of a clip (moments search), one row per (descriptor,
     window): its length in seconds and its frames ``[start_frame, end_frame)`` of the file as
-    uploaded (lead-in included). The window indexes are rebuilt from this table; ids only
-    grow (AUTOINCREMENT), as the indexes' ``synced_to`` needs.
+    uploaded (lead-in included). The window indexes are rebuilt from this table; a window's id
+    is ``clip id << 20 | ordinal`` (see ``repository.WINDOW_ID_BITS``), so an index finds a
+    clip's windows by their ids.
+clip_changes
+    The change feed the indexes of every process follow: one row per clip inserted, updated
+    or deleted (and per vector updated), written by database triggers (migration 0003), with
+    the writing transaction's id on PostgreSQL. See :mod:`app.db.changes`.
+blobs
+    The uploaded files themselves, by sha256, when the database is PostgreSQL (so a replica
+    on another machine needs nothing but the database); SQLite keeps them in a directory.
 """
 
 from __future__ import annotations
@@ -27,6 +37,7 @@ from __future__ import annotations
 from datetime import datetime
 
 from sqlalchemy import (
+    BigInteger,
     DateTime,
     Float,
     ForeignKey,
@@ -118,12 +129,16 @@ class ClipFile(Base):
 
 class ClipLabel(Base):
     __tablename__ = "clip_labels"
-    __table_args__ = (Index("ix_clip_labels_label_clip_id", "label", "clip_id"),)
+    __table_args__ = (
+        Index("ix_clip_labels_label_clip_id", "label", "clip_id"),
+        Index("ix_clip_labels_label_key_clip_id", "label_key", "clip_id", unique=True),
+    )
 
     clip_id: Mapped[int] = mapped_column(
         ForeignKey("clips.id", ondelete="CASCADE"), primary_key=True
     )
     label: Mapped[str] = mapped_column(String(100), primary_key=True)
+    label_key: Mapped[str] = mapped_column(String(100))
     position: Mapped[int] = mapped_column(Integer)
 
     clip: Mapped[Clip] = relationship(back_populates="labels")
@@ -161,10 +176,12 @@ class ClipWindow(Base):
         # Where the windows a search found lie, without reading their rows (each row holds a
         # vector: 120 random rows of a large table cost ~10 ms, the index a fraction of it).
         Index("ix_clip_windows_span", "id", "clip_id", "start_frame", "end_frame", "length"),
-        {"sqlite_autoincrement": True},
     )
 
-    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    # Set by the writer (not a sequence); INTEGER on SQLite: the rowid itself (64 bits).
+    id: Mapped[int] = mapped_column(
+        BigInteger().with_variant(Integer, "sqlite"), primary_key=True, autoincrement=False
+    )
     clip_id: Mapped[int] = mapped_column(ForeignKey("clips.id", ondelete="CASCADE"))
     name: Mapped[str] = mapped_column(String(64))
     version: Mapped[int] = mapped_column(Integer)
@@ -172,3 +189,30 @@ class ClipWindow(Base):
     start_frame: Mapped[int] = mapped_column(Integer)
     end_frame: Mapped[int] = mapped_column(Integer)  # exclusive
     vector: Mapped[bytes] = mapped_column(LargeBinary)  # (D,) little-endian float32
+
+
+class ClipChange(Base):
+    """A clip that changed (rows written by triggers only). ``txid`` is the id of the writing
+    transaction on PostgreSQL (``pg_current_xact_id()``), NULL on SQLite, whose single writer
+    commits in ``seq`` order."""
+
+    __tablename__ = "clip_changes"
+    __table_args__ = (
+        Index("ix_clip_changes_txid", "txid"),
+        {"sqlite_autoincrement": True},
+    )
+
+    seq: Mapped[int] = mapped_column(BigInteger().with_variant(Integer, "sqlite"), primary_key=True)
+    clip_id: Mapped[int] = mapped_column(Integer)
+    txid: Mapped[int | None] = mapped_column(BigInteger, nullable=True)
+
+
+class Blob(Base):
+    """An uploaded file's bytes, content-addressed (PostgreSQL deployments only)."""
+
+    __tablename__ = "blobs"
+
+    sha256: Mapped[str] = mapped_column(String(64), primary_key=True)
+    size: Mapped[int] = mapped_column(Integer)
+    data: Mapped[bytes] = mapped_column(LargeBinary)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))

@@ -10,6 +10,8 @@ and batches are ``(N, D)`` float32 C-contiguous with ``(N,)`` int64 clip ids.
 from __future__ import annotations
 
 import contextlib
+import json
+import queue
 import sqlite3
 import threading
 from collections.abc import Iterable, Iterator, Mapping, Sequence
@@ -19,10 +21,11 @@ from datetime import UTC, datetime
 from typing import Any, Protocol
 
 import numpy as np
-from sqlalchemy import Connection, Engine, Select, delete, func, insert, select
-from sqlalchemy.orm import Session, selectinload
+from sqlalchemy import Connection, Engine, Select, delete, exists, func, insert, select
+from sqlalchemy.orm import Session, aliased, selectinload
 
 from app.db.models import Clip, ClipDescriptor, ClipFile, ClipLabel, ClipWindow
+from app.labels import label_filter, label_key
 
 VECTOR_DTYPE = np.dtype("<f4")
 IN_CHUNK = 500  # ids per IN (...) list: far below any backend's parameter limit
@@ -64,6 +67,39 @@ class NewWindows:
 
 
 @dataclass(frozen=True)
+class AnimationRecord:
+    """One animation of a multi-animation file (FBX, glTF); ``selected``: the clip's own."""
+
+    name: str
+    frame_count: int
+    duration: float
+    selected: bool
+
+
+def encode_animations(animations: Sequence[AnimationRecord] | None) -> str | None:
+    if animations is None:
+        return None
+    return json.dumps(
+        [
+            {"name": a.name, "frame_count": a.frame_count, "duration": a.duration}
+            | ({"selected": True} if a.selected else {})
+            for a in animations
+        ]
+    )
+
+
+def decode_animations(text: str | None) -> tuple[AnimationRecord, ...] | None:
+    if text is None:
+        return None
+    return tuple(
+        AnimationRecord(
+            str(a["name"]), int(a["frame_count"]), float(a["duration"]), bool(a.get("selected"))
+        )
+        for a in json.loads(text)
+    )
+
+
+@dataclass(frozen=True)
 class NewClip:
     """Everything needed to insert a clip (the database assigns ``id``)."""
 
@@ -80,6 +116,12 @@ class NewClip:
     files: tuple[FileRecord, ...]
     vectors: Mapping[str, StoredVector]
     created_at: datetime = field(default_factory=lambda: datetime.now(UTC))
+    source: str | None = None
+    licence: str | None = None
+    # FBX/glTF: every animation of the file, the clip's own marked ``selected``; else None.
+    animations: tuple[AnimationRecord, ...] | None = None
+    warnings: tuple[str, ...] = ()
+    joint_mapping: Mapping[str, object] | None = None
     windows: tuple[NewWindows, ...] = ()
 
 
@@ -100,10 +142,33 @@ class ClipRecord:
     created_at: datetime
     labels: tuple[str, ...]
     files: tuple[FileRecord, ...]
+    source: str | None = None
+    licence: str | None = None
+    animations: tuple[AnimationRecord, ...] | None = None
+    warnings: tuple[str, ...] = ()
+    joint_mapping: Mapping[str, object] | None = None
+
+    @property
+    def animation(self) -> str | None:
+        """The animation of the file this clip holds (FBX/glTF), else None."""
+        for animation in self.animations or ():
+            if animation.selected:
+                return animation.name
+        return None
 
     @property
     def filenames(self) -> list[str]:
         return [f.filename for f in self.files]
+
+
+def _json_warnings(text: str | None) -> tuple[str, ...]:
+    """The stored warnings (JSON text, ``'[]'`` by default) as a tuple."""
+    return tuple(json.loads(text)) if text else ()
+
+
+def _json_mapping(text: str | None) -> dict[str, object] | None:
+    """The stored joint mapping (JSON text or NULL for clips described before #10)."""
+    return json.loads(text) if text else None
 
 
 def encode_vector(vector: np.ndarray) -> bytes:
@@ -120,8 +185,65 @@ def _utc(value: datetime) -> datetime:
     return value if value.tzinfo is not None else value.replace(tzinfo=UTC)
 
 
-def _with_label(label: str) -> Select[int]:
-    return select(ClipLabel.clip_id).where(ClipLabel.label == label)
+LabelFilter = str | Sequence[str] | None
+"""A ``label`` filter as :func:`app.labels.label_filter` reads it: clips carrying all of
+the labels (any case); ``None``, ``""`` or ``[]`` = no filter."""
+
+
+# Rows counted per label when choosing which label drives an all-of filter: enough to tell a
+# rare label from a common one, cheap (an index range) even when millions carry it.
+_COUNT_CAP = 10_000
+
+
+def _label_keys(
+    executor: Executor | sqlite3.Connection | _Placeholders, labels: LabelFilter
+) -> list[str]:
+    """The keys of the labels asked for, the rarest first (each counted up to _COUNT_CAP)."""
+    keys = list(dict.fromkeys(label_key(label) for label in label_filter(labels)))
+    if len(keys) < 2:
+        return keys
+    sql = "SELECT count(*) FROM (SELECT 1 FROM clip_labels WHERE label_key = ? LIMIT ?)"
+    if isinstance(executor, sqlite3.Connection | _Placeholders):  # the raw search path
+        counts = {k: executor.execute(sql, (k, _COUNT_CAP)).fetchone()[0] for k in keys}
+    else:
+        counts = {
+            k: executor.scalar(
+                select(func.count()).select_from(
+                    select(ClipLabel.clip_id)
+                    .where(ClipLabel.label_key == k)
+                    .limit(_COUNT_CAP)
+                    .subquery()
+                )
+            )
+            for k in keys
+        }
+    return sorted(keys, key=lambda k: counts[k])
+
+
+def _labelled_ids(keys: Sequence[str]) -> Select[Any]:
+    """Ids of the clips carrying every key: the rarest key's index range, each row checked
+    against the others' (label_key, clip_id) index, never a scan of a common label."""
+    query = select(ClipLabel.clip_id).where(ClipLabel.label_key == keys[0])
+    for key in keys[1:]:
+        other = aliased(ClipLabel)
+        query = query.where(
+            exists().where(other.clip_id == ClipLabel.clip_id, other.label_key == key)
+        )
+    return query
+
+
+def _labelled_sql(keys: Sequence[str]) -> str:
+    """:func:`_labelled_ids` as SQL text for the raw search path (one ``?`` per key)."""
+    return "SELECT l.clip_id FROM clip_labels l WHERE l.label_key = ?" + "".join(
+        " AND EXISTS (SELECT 1 FROM clip_labels o WHERE o.clip_id = l.clip_id AND o.label_key = ?)"
+        for _ in keys[1:]
+    )
+
+
+def _label_conditions(executor: Executor, labels: LabelFilter) -> list[Any]:
+    """``[Clip.id IN (ids carrying every label)]``, or ``[]`` for no filter."""
+    keys = _label_keys(executor, labels)
+    return [Clip.id.in_(_labelled_ids(keys))] if keys else []
 
 
 def _chunks(values: Sequence[Any], size: int = IN_CHUNK) -> Iterable[Sequence[Any]]:
@@ -143,6 +265,11 @@ _CLIP_COLUMNS = (
     Clip.skeleton_family,
     Clip.lead_in_frames,
     Clip.created_at,
+    Clip.source,
+    Clip.licence,
+    Clip.animations,
+    Clip.warnings,
+    Clip.joint_mapping,
 )
 
 
@@ -187,6 +314,11 @@ def _records(executor: Executor, rows: Sequence[Any]) -> dict[int, ClipRecord]:
             created_at=_utc(row[10]),
             labels=tuple(labels.get(int(row[0]), ())),
             files=tuple(files.get(int(row[0]), ())),
+            source=row[11],
+            licence=row[12],
+            animations=decode_animations(row[13]),
+            warnings=_json_warnings(row[14]),
+            joint_mapping=_json_mapping(row[15]),
         )
         for row in rows
     }
@@ -228,14 +360,13 @@ def clip_ids_by_hash(session: Executor, hashes: Iterable[str]) -> dict[str, int]
 
 
 def list_clips(
-    session: Session, *, label: str | None, limit: int, offset: int
+    session: Session, *, label: LabelFilter, limit: int, offset: int
 ) -> tuple[list[ClipRecord], int]:
-    """One page of clips in id order, and how many match in total."""
-    query = _clip_rows().order_by(Clip.id)
-    count = select(func.count()).select_from(Clip)
-    if label is not None:
-        query = query.where(Clip.id.in_(_with_label(label)))
-        count = count.where(Clip.id.in_(_with_label(label)))
+    """One page of clips in id order (those carrying every label of ``label``), and how many
+    match in total."""
+    conditions = _label_conditions(session, label)
+    query = _clip_rows().where(*conditions).order_by(Clip.id)
+    count = select(func.count()).select_from(Clip).where(*conditions)
     total = session.scalar(count) or 0
     rows = session.execute(query.limit(limit).offset(offset)).all()
     records = _records(session, rows)
@@ -247,9 +378,9 @@ def count_clips(session: Executor) -> int:
 
 
 def max_clip_id(session: Executor) -> int:
-    """The largest clip id (0 when there is none). Ids only grow — SQLite AUTOINCREMENT never
-    hands one out again, and writers are serialised — so a reader that has seen every clip up
-    to this id has seen every clip committed so far."""
+    """The largest clip id (0 when there is none). Not a way to follow other writers: on
+    PostgreSQL ids can commit out of order, and deletes leave no id; the indexes follow the
+    change feed (:mod:`app.db.changes`)."""
     return int(session.scalar(select(func.max(Clip.id))) or 0)
 
 
@@ -284,6 +415,13 @@ def insert_clips(session: Session, clips: Sequence[NewClip]) -> list[int]:
                     "skeleton_family": new.skeleton_family,
                     "lead_in_frames": new.lead_in_frames,
                     "created_at": new.created_at,
+                    "source": new.source,
+                    "licence": new.licence,
+                    "animations": encode_animations(new.animations),
+                    "warnings": json.dumps(list(new.warnings)),
+                    "joint_mapping": None
+                    if new.joint_mapping is None
+                    else json.dumps(new.joint_mapping),
                 }
                 for new in clips
             ],
@@ -302,7 +440,7 @@ def insert_clips(session: Session, clips: Sequence[NewClip]) -> list[int]:
         for i, f in enumerate(new.files)
     ]
     labels = [
-        {"clip_id": clip_id, "label": label, "position": i}
+        {"clip_id": clip_id, "label": label, "label_key": label_key(label), "position": i}
         for clip_id, new in zip(ids, clips, strict=True)
         for i, label in enumerate(new.labels)
     ]
@@ -331,6 +469,10 @@ def insert_clips(session: Session, clips: Sequence[NewClip]) -> list[int]:
     return ids
 
 
+# Fields of a clip that ``update_clip`` may set to ``None`` (clear): pass UNSET to keep them.
+UNSET: Any = object()
+
+
 def update_clip(
     session: Session,
     clip_id: int,
@@ -338,17 +480,27 @@ def update_clip(
     name: str | None = None,
     labels: Sequence[str] | None = None,
     analysis: Mapping[str, object] | None = None,
+    source: str | None = UNSET,
+    licence: str | None = UNSET,
 ) -> bool:
-    """Change a clip's name, labels and/or measured fields; False when it does not exist."""
+    """Change a clip's name, labels (already normalised: no two with one key), source,
+    licence and/or measured fields; False when it does not exist."""
     clip = session.get(Clip, clip_id, options=[selectinload(Clip.labels)])
     if clip is None:
         return False
     if name is not None:
         clip.name = name
+    if source is not UNSET:
+        clip.source = source
+    if licence is not UNSET:
+        clip.licence = licence
     if labels is not None:
         clip.labels = []
         session.flush()  # delete the old rows before inserting ones with the same key
-        clip.labels = [ClipLabel(label=label, position=i) for i, label in enumerate(labels)]
+        clip.labels = [
+            ClipLabel(label=label, label_key=label_key(label), position=i)
+            for i, label in enumerate(labels)
+        ]
     for key, value in (analysis or {}).items():
         setattr(clip, key, value)
     session.flush()
@@ -367,6 +519,25 @@ def delete_clip(session: Session, clip_id: int) -> list[str] | None:
     return shas
 
 
+def clip_ids_with_labels(session: Executor, labels: LabelFilter) -> list[int]:
+    """Ids (ascending) of the clips carrying every label of ``labels``; every clip when the
+    filter is empty."""
+    return list(
+        session.scalars(
+            select(Clip.id).where(*_label_conditions(session, labels)).order_by(Clip.id)
+        )
+    )
+
+
+def delete_clips(session: Session, clip_ids: Sequence[int]) -> list[str]:
+    """Delete clips (files, labels and vectors cascade); returns their files' sha256s."""
+    shas: list[str] = []
+    for chunk in _chunks(sorted({int(i) for i in clip_ids})):
+        shas.extend(session.scalars(select(ClipFile.sha256).where(ClipFile.clip_id.in_(chunk))))
+        session.execute(delete(Clip).where(Clip.id.in_(chunk)))
+    return shas
+
+
 def referenced_blobs(session: Session, shas: Iterable[str]) -> set[str]:
     """The sha256s among ``shas`` still used by some clip."""
     wanted = sorted(set(shas))
@@ -378,9 +549,13 @@ def referenced_blobs(session: Session, shas: Iterable[str]) -> set[str]:
 # -- labels -------------------------------------------------------------------------------
 
 
-def clip_ids_with_label(session: Executor, label: str) -> np.ndarray:
-    """``(N,)`` int64 ids of the clips carrying ``label``."""
-    return np.fromiter(session.scalars(_with_label(label)), dtype=np.int64)
+def clip_ids_with_label(session: Executor, label: LabelFilter) -> np.ndarray:
+    """``(N,)`` int64 ids of the clips carrying every label of ``label`` (any case)."""
+    keys = _label_keys(session, label)
+    if not keys:
+        return np.zeros(0, dtype=np.int64)
+    query = _labelled_ids(keys).order_by(ClipLabel.clip_id)
+    return np.fromiter(session.scalars(query), dtype=np.int64)
 
 
 # -- vectors ------------------------------------------------------------------------------
@@ -450,6 +625,29 @@ def _place_arrays(rows: Sequence[Any]) -> tuple[np.ndarray, np.ndarray, np.ndarr
     """Ids, starts and stops ``(W,)`` int64 of (id, start, stop) rows."""
     array = np.array(rows, dtype=np.int64).reshape(-1, 3)
     return array[:, 0].copy(), array[:, 1].copy(), array[:, 2].copy()
+
+
+def count_outdated_vectors(session: Executor, name: str, version: int) -> int:
+    """How many ``name`` vectors of a version older than ``version`` are stored (written by
+    an earlier release; ``mocap-index reindex`` replaces them)."""
+    return int(
+        session.scalar(
+            select(func.count()).where(
+                ClipDescriptor.name == name, ClipDescriptor.version < version
+            )
+        )
+        or 0
+    )
+
+
+def delete_vectors(session: Session, clip_id: int, names: Iterable[str]) -> None:
+    """Drop the clip's vectors of the descriptors ``names`` (e.g. outdated ones that cannot
+    be recomputed)."""
+    session.execute(
+        delete(ClipDescriptor).where(
+            ClipDescriptor.clip_id == clip_id, ClipDescriptor.name.in_(list(names))
+        )
+    )
 
 
 def _vector_arrays(rows: Sequence[Any], dimension: int) -> tuple[np.ndarray, np.ndarray]:
@@ -557,11 +755,6 @@ def _window_filter(key: WindowKey) -> Any:
     )
 
 
-def max_window_id(session: Executor) -> int:
-    """The largest window id (0 when there is none); ids only grow, as clip ids do."""
-    return int(session.scalar(select(func.max(ClipWindow.id))) or 0)
-
-
 def count_windows(session: Executor, key: WindowKey) -> int:
     return int(session.scalar(select(func.count()).where(_window_filter(key))) or 0)
 
@@ -572,16 +765,9 @@ def window_ids(session: Executor, key: WindowKey) -> np.ndarray:
     return np.fromiter(ids, dtype=np.int64)
 
 
-def load_windows(
-    session: Executor, key: WindowKey, *, after: int = 0, upto: int | None = None
-) -> tuple[np.ndarray, np.ndarray]:
-    """Window ids ``(N,)`` int64 and vectors ``(N, D)`` float32 of ``key``, in id order, with
-    ``after < id <= upto``."""
+def load_windows(session: Executor, key: WindowKey) -> tuple[np.ndarray, np.ndarray]:
+    """Window ids ``(N,)`` int64 and vectors ``(N, D)`` float32 of ``key``, in id order."""
     query = select(ClipWindow.id, ClipWindow.vector).where(_window_filter(key))
-    if after:
-        query = query.where(ClipWindow.id > after)
-    if upto is not None:
-        query = query.where(ClipWindow.id <= upto)
     rows = session.execute(query.order_by(ClipWindow.id)).all()
     return _vector_arrays(rows, key.dimension)
 
@@ -592,6 +778,22 @@ def load_windows_of(
     """Like :func:`load_windows`, for the given window ids only."""
     query = select(ClipWindow.id, ClipWindow.vector).where(_window_filter(key))
     return _vector_arrays(_select_in(session, query, ClipWindow.id, ids), key.dimension)
+
+
+def load_windows_of_clips(
+    session: Executor, key: WindowKey, clip_ids: Iterable[int]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Like :func:`load_windows`, for the windows of the given clips only."""
+    query = select(ClipWindow.id, ClipWindow.vector).where(_window_filter(key))
+    rows = sorted(_select_in(session, query, ClipWindow.clip_id, clip_ids))
+    return _vector_arrays(rows, key.dimension)
+
+
+def window_ids_of_clips(session: Executor, key: WindowKey, clip_ids: Iterable[int]) -> np.ndarray:
+    """``(N,)`` int64 sorted ids of the ``key`` windows of the given clips."""
+    query = select(ClipWindow.id).where(_window_filter(key))
+    rows = _select_in(session, query, ClipWindow.clip_id, clip_ids)
+    return np.sort(np.fromiter((r[0] for r in rows), dtype=np.int64, count=len(rows)))
 
 
 def load_window_rows(
@@ -611,15 +813,16 @@ def load_window_rows(
     }
 
 
-def clip_window_ids(session: Executor, clip_id: int) -> np.ndarray:
-    """``(N,)`` int64 ids of every window of a clip."""
-    ids = session.scalars(select(ClipWindow.id).where(ClipWindow.clip_id == clip_id))
-    return np.fromiter(ids, dtype=np.int64)
+# A clip's windows have the ids ``clip id << WINDOW_ID_BITS | ordinal`` (ordinal 0, 1, ...
+# over all its windows): a window index finds a clip's windows without the database (the
+# change feed names clips, and a deleted clip's rows are gone), and a clip's windows keep their
+# ids when recomputed. 2**20 windows cover a take of over 70 hours.
+WINDOW_ID_BITS = 20
 
 
 def _window_rows(clip_id: int, windows: NewClip | Sequence[NewWindows]) -> list[dict[str, Any]]:
     groups = windows.windows if isinstance(windows, NewClip) else windows
-    return [
+    rows = [
         {
             "clip_id": clip_id,
             "name": group.name,
@@ -638,15 +841,18 @@ def _window_rows(clip_id: int, windows: NewClip | Sequence[NewWindows]) -> list[
             strict=True,
         )
     ]
+    if len(rows) > 1 << WINDOW_ID_BITS:
+        raise ValueError(f"a clip has at most {1 << WINDOW_ID_BITS} windows, not {len(rows)}")
+    for ordinal, row in enumerate(rows):
+        row["id"] = clip_id << WINDOW_ID_BITS | ordinal
+    return rows
 
 
 def put_windows(session: Session, clip_id: int, windows: Sequence[NewWindows]) -> None:
-    """Replace a clip's windows of the descriptors in ``windows`` (reindex)."""
-    names = sorted({group.name for group in windows})
-    if names:
-        session.execute(
-            delete(ClipWindow).where((ClipWindow.clip_id == clip_id) & ClipWindow.name.in_(names))
-        )
+    """Replace every window of a clip by ``windows`` (reindex; pass the windows of every
+    windowed descriptor: the ids restart at ordinal 0). Inserting ordinal 0 puts the clip on
+    the change feed (trigger, migration 0004), so every process's window indexes follow."""
+    session.execute(delete(ClipWindow).where(ClipWindow.clip_id == clip_id))
     rows = _window_rows(clip_id, windows)
     if rows:
         session.connection().execute(insert(ClipWindow), rows)
@@ -700,10 +906,15 @@ def window_spans_of(session: Executor, ids: Iterable[int]) -> dict[int, WindowSp
     return found
 
 
-def window_ids_with_label(session: Executor, label: str, key: WindowKey) -> np.ndarray:
-    """``(N,)`` int64 ids of the ``key`` windows of clips carrying ``label``."""
+def window_ids_with_label(session: Executor, label: LabelFilter, key: WindowKey) -> np.ndarray:
+    """``(N,)`` int64 ids of the ``key`` windows of clips carrying every label of ``label``."""
+    keys = _label_keys(session, label)
+    if not keys:
+        return np.zeros(0, dtype=np.int64)
     ids = session.scalars(
-        select(ClipWindow.id).where(_window_filter(key), ClipWindow.clip_id.in_(_with_label(label)))
+        select(ClipWindow.id).where(
+            _window_filter(key), ClipWindow.clip_id.in_(_labelled_ids(keys))
+        )
     )
     return np.fromiter(ids, dtype=np.int64)
 
@@ -750,12 +961,17 @@ def checkpoint(engine: Engine) -> None:
 # A search answers from four small queries (the query clip with its vector, the hits, their
 # labels, their files). Through the ORM they cost ~2 ms; here, on SQLite, they run as plain
 # SQL on one DBAPI connection per thread, kept open (~10 us each), inside one read
-# transaction, so a search sees one snapshot. Other databases go through the Core functions
-# above on a pooled connection.
+# transaction, so a search sees one snapshot. On PostgreSQL, where every statement is a round
+# trip to the server, they run as two statements (the clip with its files; the hits' names
+# with their labels) on one psycopg connection per thread in autocommit mode: no pool
+# checkout, ping, BEGIN or ROLLBACK around them. A clip deleted between the two is skipped by
+# the search, as one deleted between the index search and the rows. Other databases go through
+# the Core functions above on a pooled connection.
 
 _SQLITE_CLIP_COLUMNS = (
     "c.id, c.name, c.format, c.content_hash, c.frame_count, c.frame_time, c.duration, "
-    "c.joint_count, c.skeleton_family, c.lead_in_frames, c.created_at"
+    "c.joint_count, c.skeleton_family, c.lead_in_frames, c.created_at, c.source, c.licence, "
+    "c.animations, c.warnings, c.joint_mapping"
 )
 
 
@@ -768,17 +984,18 @@ def _parse_timestamp(value: Any) -> datetime:
 
 @dataclass(frozen=True, slots=True)
 class ClipName:
-    """What a search result shows of a clip."""
+    """What a search result shows of a clip: enough to tell same-named clips apart."""
 
     id: int
     name: str
     labels: tuple[str, ...]
+    format: str = ""
+    filenames: tuple[str, ...] = ()
+    skeleton_family: str = ""
 
 
 class SearchSnapshot(Protocol):
     """The reads of one search, all from one database snapshot."""
-
-    def max_clip_id(self) -> int: ...
 
     def clip(self, clip_id: int, *, labels: bool = True) -> ClipRecord | None:
         """The clip (``labels=False``: without its labels, e.g. when :meth:`names` fetches
@@ -789,13 +1006,13 @@ class SearchSnapshot(Protocol):
 
     def names(self, clip_ids: Sequence[int]) -> dict[int, ClipName]: ...
 
-    def clip_ids_with_label(self, label: str) -> np.ndarray: ...
-
-    def max_window_id(self) -> int: ...
+    def clip_ids_with_label(self, label: LabelFilter) -> np.ndarray:
+        """Ids of the clips carrying every label of ``label`` (any case)."""
+        ...
 
     def window_spans(self, ids: Sequence[int]) -> dict[int, WindowSpan]: ...
 
-    def window_ids_with_label(self, label: str, key: WindowKey) -> np.ndarray: ...
+    def window_ids_with_label(self, label: LabelFilter, key: WindowKey) -> np.ndarray: ...
 
     def clip_windows(self, clip_id: int, name: str, version: int) -> list[WindowSpan]: ...
 
@@ -814,10 +1031,7 @@ class SearchSnapshot(Protocol):
 
 class _SqliteSnapshot:
     def __init__(self, connection: sqlite3.Connection) -> None:
-        self._db = connection
-
-    def max_clip_id(self) -> int:
-        return int(self._db.execute("SELECT max(id) FROM clips").fetchone()[0] or 0)
+        self._db: sqlite3.Connection | _Placeholders = connection
 
     def clip(self, clip_id: int, *, labels: bool = True) -> ClipRecord | None:
         rows = self._db.execute(
@@ -850,7 +1064,12 @@ class _SqliteSnapshot:
             lead_in_frames=row[9],
             created_at=_parse_timestamp(row[10]),
             labels=tags,
-            files=tuple(FileRecord(r[11], r[12], r[13], r[14]) for r in rows if r[11] is not None),
+            files=tuple(FileRecord(r[16], r[17], r[18], r[19]) for r in rows if r[16] is not None),
+            source=row[11],
+            licence=row[12],
+            animations=decode_animations(row[13]),
+            warnings=_json_warnings(row[14]),
+            joint_mapping=_json_mapping(row[15]),
         )
 
     def vector(self, clip_id: int, name: str) -> StoredVector | None:
@@ -862,13 +1081,26 @@ class _SqliteSnapshot:
 
     def names(self, clip_ids: Sequence[int]) -> dict[int, ClipName]:
         ids = [int(i) for i in clip_ids]
-        names: dict[int, str] = {}
+        names: dict[int, tuple[str, str, str]] = {}
         labels: dict[int, list[str]] = {}
+        files: dict[int, list[str]] = {}
         for chunk in _chunks(ids):
             marks = ",".join("?" * len(chunk))
             names.update(
-                self._db.execute(f"SELECT id, name FROM clips WHERE id IN ({marks})", chunk)
+                (i, (name, fmt, family))
+                for i, name, fmt, family in self._db.execute(
+                    f"SELECT id, name, format, skeleton_family FROM clips WHERE id IN ({marks})",
+                    chunk,
+                )
             )
+            for clip_id, _, filename in sorted(
+                self._db.execute(
+                    "SELECT clip_id, position, filename FROM clip_files "
+                    f"WHERE clip_id IN ({marks})",
+                    chunk,
+                )
+            ):
+                files.setdefault(clip_id, []).append(filename)
             # Sorted here: cheaper than a temporary B-tree for ORDER BY.
             for clip_id, _, label in sorted(
                 self._db.execute(
@@ -877,14 +1109,23 @@ class _SqliteSnapshot:
                 )
             ):
                 labels.setdefault(clip_id, []).append(label)
-        return {i: ClipName(i, name, tuple(labels.get(i, ()))) for i, name in names.items()}
+        return {
+            i: ClipName(i, name, tuple(labels.get(i, ())), fmt, tuple(files.get(i, ())), family)
+            for i, (name, fmt, family) in names.items()
+        }
 
-    def clip_ids_with_label(self, label: str) -> np.ndarray:
-        rows = self._db.execute("SELECT clip_id FROM clip_labels WHERE label = ?", (label,))
+    # SQLite may pick a worse index for the window reads; PostgreSQL has no INDEXED BY.
+    _index_hints = True
+
+    def _indexed_by(self, index: str) -> str:
+        return f"INDEXED BY {index} " if self._index_hints else ""
+
+    def clip_ids_with_label(self, label: LabelFilter) -> np.ndarray:
+        keys = _label_keys(self._db, label)
+        if not keys:
+            return np.zeros(0, dtype=np.int64)
+        rows = self._db.execute(_labelled_sql(keys) + " ORDER BY l.clip_id", keys)
         return np.fromiter((r[0] for r in rows), dtype=np.int64)
-
-    def max_window_id(self) -> int:
-        return int(self._db.execute("SELECT max(id) FROM clip_windows").fetchone()[0] or 0)
 
     def window_spans(self, ids: Sequence[int]) -> dict[int, WindowSpan]:
         found: dict[int, WindowSpan] = {}
@@ -894,17 +1135,20 @@ class _SqliteSnapshot:
             for row in self._db.execute(
                 # The covering index, not the rows (see models.ClipWindow).
                 "SELECT id, clip_id, start_frame, end_frame, length FROM clip_windows "
-                f"INDEXED BY ix_clip_windows_span WHERE id IN ({marks})",
+                f"{self._indexed_by('ix_clip_windows_span')}WHERE id IN ({marks})",
                 chunk,
             ):
                 found[int(row[0])] = WindowSpan(*row)
         return found
 
-    def window_ids_with_label(self, label: str, key: WindowKey) -> np.ndarray:
+    def window_ids_with_label(self, label: LabelFilter, key: WindowKey) -> np.ndarray:
+        keys = _label_keys(self._db, label)
+        if not keys:
+            return np.zeros(0, dtype=np.int64)
         rows = self._db.execute(
-            "SELECT w.id FROM clip_labels l JOIN clip_windows w ON w.clip_id = l.clip_id "
-            "WHERE l.label = ? AND w.name = ? AND w.version = ? AND w.length = ?",
-            (label, key.name, key.version, key.length),
+            "SELECT w.id FROM clip_windows w WHERE w.name = ? AND w.version = ? "
+            f"AND w.length = ? AND w.clip_id IN ({_labelled_sql(keys)})",
+            (key.name, key.version, key.length, *keys),
         )
         return np.fromiter((r[0] for r in rows), dtype=np.int64)
 
@@ -921,7 +1165,7 @@ class _SqliteSnapshot:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         rows = self._db.execute(
             "SELECT id, start_frame, end_frame FROM clip_windows "
-            "INDEXED BY ix_clip_windows_clip_id_name_length WHERE clip_id = ? "
+            f"{self._indexed_by('ix_clip_windows_clip_id_name_length')}WHERE clip_id = ? "
             "AND name = ? AND version = ? AND length = ? AND end_frame >= ? AND start_frame <= ? "
             "ORDER BY start_frame",
             (int(clip_id), key.name, key.version, key.length, int(low), int(high)),
@@ -940,12 +1184,37 @@ class _SqliteSnapshot:
         return found
 
 
+class _PostgresSnapshot(_SqliteSnapshot):
+    """The same reads with PostgreSQL's placeholders, names and labels in one statement."""
+
+    _index_hints = False
+
+    def __init__(self, connection: Any) -> None:
+        self._db = _Placeholders(connection)
+
+    def names(self, clip_ids: Sequence[int]) -> dict[int, ClipName]:
+        rows = self._db.execute(
+            "SELECT c.id, c.name, coalesce(array_agg(l.label ORDER BY l.position) "
+            "FILTER (WHERE l.label IS NOT NULL), '{}') FROM clips c "
+            "LEFT JOIN clip_labels l ON l.clip_id = c.id WHERE c.id = ANY(?) GROUP BY c.id",
+            ([int(i) for i in clip_ids],),
+        )
+        return {int(i): ClipName(int(i), name, tuple(labels)) for i, name, labels in rows}
+
+
+class _Placeholders:
+    """A psycopg connection taking the ``?`` placeholders of the SQLite statements."""
+
+    def __init__(self, connection: Any) -> None:
+        self._connection = connection
+
+    def execute(self, sql: str, params: Sequence[Any] = ()) -> Any:
+        return self._connection.execute(sql.replace("?", "%s"), params)
+
+
 class _CoreSnapshot:
     def __init__(self, connection: Connection) -> None:
         self._db = connection
-
-    def max_clip_id(self) -> int:
-        return max_clip_id(self._db)
 
     def clip(self, clip_id: int, *, labels: bool = True) -> ClipRecord | None:
         return get_clip(self._db, clip_id)
@@ -955,20 +1224,19 @@ class _CoreSnapshot:
 
     def names(self, clip_ids: Sequence[int]) -> dict[int, ClipName]:
         return {
-            i: ClipName(i, clip.name, clip.labels)
+            i: ClipName(
+                i, clip.name, clip.labels, clip.format, tuple(clip.filenames), clip.skeleton_family
+            )
             for i, clip in get_clips(self._db, clip_ids).items()
         }
 
-    def clip_ids_with_label(self, label: str) -> np.ndarray:
+    def clip_ids_with_label(self, label: LabelFilter) -> np.ndarray:
         return clip_ids_with_label(self._db, label)
-
-    def max_window_id(self) -> int:
-        return max_window_id(self._db)
 
     def window_spans(self, ids: Sequence[int]) -> dict[int, WindowSpan]:
         return window_spans_of(self._db, ids)
 
-    def window_ids_with_label(self, label: str, key: WindowKey) -> np.ndarray:
+    def window_ids_with_label(self, label: LabelFilter, key: WindowKey) -> np.ndarray:
         return window_ids_with_label(self._db, label, key)
 
     def clip_windows(self, clip_id: int, name: str, version: int) -> list[WindowSpan]:
@@ -1009,8 +1277,10 @@ class SearchReads:
     def __init__(self, engine: Engine) -> None:
         self._engine = engine
         self._path = engine.url.database if engine.dialect.name == "sqlite" else None
+        self._postgres = engine.dialect.name == "postgresql"
+        self._idle: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._local = threading.local()
-        self._opened: list[sqlite3.Connection] = []
+        self._opened: list[Any] = []
         self._lock = threading.Lock()
 
     def _connection(self) -> sqlite3.Connection:
@@ -1028,7 +1298,39 @@ class SearchReads:
         return connection
 
     @contextmanager
+    def _postgres_snapshot(self) -> Iterator[SearchSnapshot]:
+        """A connection of the idle ones (or a new one) for one search, then back: as many
+        connections as searches ever ran at once (not one per thread of the pool)."""
+        import psycopg  # the postgres extra; only imported for a PostgreSQL URL
+        from sqlalchemy.exc import OperationalError
+
+        try:
+            connection = self._idle.get_nowait()
+        except queue.Empty:
+            url = self._engine.url.set(drivername="postgresql")
+            try:
+                connection = psycopg.connect(
+                    url.render_as_string(hide_password=False), autocommit=True
+                )
+            except psycopg.OperationalError as exc:
+                raise OperationalError("search read", None, exc) from exc
+            with self._lock:
+                self._opened.append(connection)
+        try:
+            yield _PostgresSnapshot(connection)
+        except psycopg.OperationalError as exc:  # the server went away: a new one next time
+            connection.close()
+            raise OperationalError("search read", None, exc) from exc
+        finally:
+            if not connection.closed:
+                self._idle.put(connection)
+
+    @contextmanager
     def snapshot(self) -> Iterator[SearchSnapshot]:
+        if self._postgres:
+            with self._postgres_snapshot() as snapshot:
+                yield snapshot
+            return
         if self._path is None:
             with self._engine.connect() as core:
                 yield _CoreSnapshot(core)
@@ -1044,7 +1346,7 @@ class SearchReads:
         with self._lock:
             opened, self._opened = self._opened, []
         for connection in opened:
-            with contextlib.suppress(sqlite3.Error):
+            with contextlib.suppress(Exception):
                 connection.close()
 
 
@@ -1093,16 +1395,14 @@ def _contains_pattern(text: str) -> str:
 
 
 def find_clip_ids(
-    session: Session, *, name_contains: str | None, label: str | None, limit: int, offset: int
+    session: Session, *, name_contains: str | None, label: LabelFilter, limit: int, offset: int
 ) -> tuple[list[int], int]:
     """One page (id order) of the ids of clips whose name contains ``name_contains``
-    (case-insensitive) and that carry ``label``; and how many match in total."""
-    conditions = []
+    (case-insensitive) and that carry every label of ``label``; and how many match in total."""
+    conditions = _label_conditions(session, label)
     if name_contains:
         pattern = _contains_pattern(name_contains.lower())
         conditions.append(func.lower(Clip.name).like(pattern, escape="\\"))
-    if label:
-        conditions.append(Clip.id.in_(select(ClipLabel.clip_id).where(ClipLabel.label == label)))
     total = session.scalar(select(func.count()).select_from(Clip).where(*conditions)) or 0
     page = session.scalars(
         select(Clip.id).where(*conditions).order_by(Clip.id).limit(limit).offset(offset)
@@ -1111,10 +1411,11 @@ def find_clip_ids(
 
 
 def label_counts(session: Session) -> list[tuple[str, int]]:
-    """Every label in use with its number of clips, most used first."""
+    """Every label in use (one spelling per case-insensitive label: the first in sort order)
+    with its number of clips, most used first."""
     rows = session.execute(
-        select(ClipLabel.label, func.count())
-        .group_by(ClipLabel.label)
-        .order_by(func.count().desc(), ClipLabel.label)
+        select(func.min(ClipLabel.label), func.count())
+        .group_by(ClipLabel.label_key)
+        .order_by(func.count().desc(), ClipLabel.label_key)
     ).all()
     return [(str(label), int(count)) for label, count in rows]

@@ -6,6 +6,11 @@ transactions — the ``sqlite3`` driver's legacy mode would not BEGIN before SEL
 SQLAlchemy emits BEGIN itself (the recipe of the SQLAlchemy SQLite documentation). Write
 sessions begin with ``BEGIN IMMEDIATE`` so they take the write lock up front instead of failing
 when a read transaction is upgraded.
+
+PostgreSQL goes through psycopg 3 (the ``postgres`` extra): a plain ``postgresql://`` URL
+means ``postgresql+psycopg://``. The pool holds at most 20 connections per process (searches
+have their own few, see ``SearchReads``), so a handful of replicas fit in PostgreSQL's default
+``max_connections`` of 100.
 """
 
 from __future__ import annotations
@@ -18,13 +23,19 @@ from sqlalchemy.engine import make_url
 from sqlalchemy.orm import Session, sessionmaker
 
 SQLITE_BUSY_TIMEOUT_MS = 30_000
+POOL_SIZE = 5
+POOL_OVERFLOW = 15
 
 
 def create_db_engine(url: str) -> Engine:
     """An engine for ``url``; for SQLite the parent directory of the file is created."""
     parsed = make_url(url)
+    if parsed.drivername == "postgresql":
+        parsed = parsed.set(drivername="postgresql+psycopg")
     if parsed.get_backend_name() != "sqlite":
-        return create_engine(url, pool_pre_ping=True)
+        return create_engine(
+            parsed, pool_pre_ping=True, pool_size=POOL_SIZE, max_overflow=POOL_OVERFLOW
+        )
 
     database = parsed.database or ""
     if database in ("", ":memory:") or database.startswith("file:"):

@@ -8,11 +8,15 @@ canonical joints only, and works out from the skeleton itself:
   sides averaged) plus the trunk's (pelvis -> ... -> head). It is a property of the skeleton
   and so the same in every frame, and independent of units once positions are divided by it.
 * ``pelvis_frames`` — per frame an orthonormal body frame fixed to the pelvis, columns
-  (lateral = subject's left, up, forward) in world coordinates. It is the pelvis joint's world
-  rotation times a constant basis found in pelvis coordinates: lateral from the right hip to
-  the left hip, up along the clip's mean pelvis->neck direction (orthogonalised), forward =
-  lateral x up. Because the basis is found in the pelvis's own coordinates, neither the
-  file's up axis, its units, the facing direction nor the rig's rest-pose conventions matter.
+  (lateral = subject's left, up, forward) in world coordinates. Miura et al. (2013): "The
+  position of each joint is described in the coordinate system fixed to the pelvis". The
+  frame is the pelvis joint's world rotation times one constant basis per *skeleton*, found
+  in the rest pose (where every local rotation is the identity, so rest-pose directions are
+  the pelvis joint's own coordinates): lateral from the right hip to the left hip, up from
+  the pelvis toward the neck (orthogonalised), forward = lateral x up. It depends on the
+  pelvis alone — never on the clip's other frames — so every clip of one skeleton has the
+  same axes, and a frame's features are the same whether computed from the whole clip or a
+  part of it. Neither the file's up axis, its units nor the facing direction matter.
 * ``world_up`` — the world's vertical axis, needed to split root speed into horizontal and
   vertical parts: the coordinate axis (with sign) nearest to the clip's mean body-up
   direction. Motion-capture files are authored with a coordinate axis up, and a body that
@@ -21,7 +25,7 @@ canonical joints only, and works out from the skeleton itself:
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
@@ -30,7 +34,8 @@ import numpy as np
 from app.errors import ParseError
 from app.motion.kinematics import bone_lengths, forward_kinematics
 from app.motion.model import Motion
-from app.motion.skeleton_map import CANONICAL_INDEX, CANONICAL_JOINTS, map_skeleton
+from app.motion.skeleton_map import CANONICAL_INDEX, CANONICAL_JOINTS, SkeletonMap, map_skeleton
+from app.motion.transforms import reflect
 
 T = TypeVar("T")
 
@@ -41,6 +46,13 @@ _REST_MEAN_ANGLE_DEG = 5.0
 _MAX_BLEND_SECONDS = 0.1
 # ...and changes the pose this many times faster than the clip's median frame-to-frame change.
 _BLEND_SPEED_FACTOR = 2.0
+# A joint this many body heights from the pelvis is a sentinel value, not a pose...
+_MAX_REACH = 3.0
+# ...and a pelvis jumping this many body heights from one frame to the next teleports.
+_TELEPORT = 2.0
+# Frames offered to the skeleton mapper when the rest pose is not a standing figure; the
+# first that shows a humanoid is used (a leg kicked high in one frame is not in the next).
+_POSE_FRAMES = 12
 
 
 @dataclass(frozen=True, eq=False)
@@ -65,7 +77,14 @@ class Body:
     skeleton_family:
         Naming convention of the source skeleton.
     lead_in_frames:
-        Frames dropped from the start of the clip.
+        Frames dropped from the start of the clip: converter lead-in (rest pose) frames and
+        implausible frames (:func:`implausible_frames`). Implausible frames dropped from the
+        end are only reported in ``warnings``.
+    mapping:
+        How the source skeleton's joints became the canonical ones.
+    warnings:
+        Short sentences about what had to be decided or repaired (mirrored capture, derived
+        joints, parser repairs recorded in ``Motion.notes["warnings"]``).
     """
 
     positions: np.ndarray
@@ -76,6 +95,8 @@ class Body:
     world_up: np.ndarray
     skeleton_family: str
     lead_in_frames: int
+    mapping: SkeletonMap | None = None
+    warnings: tuple[str, ...] = ()
     _memo: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
     def memo(self, key: str, compute: Callable[[], T]) -> T:
@@ -111,10 +132,12 @@ def build_body(motion: Motion) -> Body:
     ParseError
         If the skeleton is degenerate (zero height, coincident hips) or no frame remains.
     """
-    mapping = map_skeleton(motion.skeleton)
-    lead_in = count_lead_in_frames(motion)
-    if lead_in:
-        motion = motion.slice_frames(lead_in)
+    mapping = map_skeleton(motion.skeleton, poses=_frame_poses(motion))
+    warnings = [str(w) for w in motion.notes.get("warnings", ())]  # type: ignore[attr-defined]
+    warnings.extend(mapping.warnings)
+    if mapping.mirrored:
+        # Left-handed geometry: describe the clip as it would be seen un-mirrored.
+        motion = reflect(motion, axis=mapping.mirror_axis)
     rotations, positions = forward_kinematics(motion, joints=mapping.joints)
     canon_rot = rotations[:, mapping.joints]
     canon_pos = positions[:, mapping.joints]
@@ -125,12 +148,32 @@ def build_body(motion: Motion) -> Body:
     if not np.all(np.isfinite(canon_pos)) or not np.all(np.isfinite(canon_rot)):
         raise ParseError("forward kinematics produced non-finite joint positions")
 
-    height = body_height(motion, mapping.joints)
+    height = body_height(motion, mapping.joints, head_joint=mapping.head_joint)
     if not height > 0:
         raise ParseError(
             "the skeleton has zero height (all bones between ankle and head are empty)"
         )
-    frames = _pelvis_frames(canon_pos, canon_rot)
+    # Implausible frames (sentinel values, a teleporting root) at either end go like lead-in
+    # frames; in the middle they are kept and reported.
+    implausible = implausible_frames(canon_pos, height)
+    start, stop = _plausible_span(implausible)
+    if start or stop < len(implausible):
+        motion = motion.slice_frames(start, stop)
+    lead_in = count_lead_in_frames(motion)
+    canon_pos = canon_pos[start + lead_in : stop]
+    canon_rot = canon_rot[start + lead_in : stop]
+    middle = int(implausible[start:stop].sum())
+    if start:
+        warnings.append(f"{start} implausible frames at the start dropped")
+    if stop < len(implausible):
+        warnings.append(f"{len(implausible) - stop} implausible frames at the end dropped")
+    if middle:
+        warnings.append(
+            f"{middle} frames in the middle look implausible (joints far from the body or the "
+            "root jumping); kept"
+        )
+    lead_in += start
+    frames = _pelvis_frames(motion, mapping.joints, canon_rot)
     return Body(
         positions=canon_pos,
         rotations=canon_rot,
@@ -140,11 +183,75 @@ def build_body(motion: Motion) -> Body:
         world_up=_world_up(frames),
         skeleton_family=mapping.family,
         lead_in_frames=lead_in,
+        mapping=mapping,
+        warnings=tuple(warnings),
     )
 
 
-def body_height(motion: Motion, canonical: np.ndarray) -> float:
-    """Leg plus trunk bone-path length in file units (see module docstring)."""
+def implausible_frames(positions: np.ndarray, height: float) -> np.ndarray:
+    """``(F,)`` bool: frames no body can take.
+
+    ``positions`` is ``(F, C, 3)`` canonical joints. A frame is implausible when a joint is
+    more than :data:`_MAX_REACH` body heights from the pelvis (a rigid skeleton cannot; per-
+    joint position channels holding sentinel values can), or when it lies outside the
+    longest stretch of frames without a teleport, a pelvis jump of more than
+    :data:`_TELEPORT` body heights between two frames (a root thrown to a sentinel position
+    and back). A subject walking far away is not a teleport: each step is small.
+    """
+    pelvis = positions[:, CANONICAL_INDEX["pelvis"]]
+    reach = np.linalg.norm(positions - pelvis[:, None], axis=2).max(axis=1) / height
+    jumps = np.linalg.norm(np.diff(pelvis, axis=0), axis=1) / height > _TELEPORT
+    starts = [0, *(np.flatnonzero(jumps) + 1).tolist()]
+    ends = [*starts[1:], len(pelvis)]
+    # Stretches that continue one another (the root came back from its excursion) form one
+    # trajectory; the one with the most frames is the clip.
+    group_of: list[int] = []
+    group_end: list[int] = []  # last frame of each trajectory so far
+    for start, end in zip(starts, ends, strict=True):
+        for g, last in enumerate(group_end):
+            step = np.linalg.norm(pelvis[start] - pelvis[last]) / height
+            if step <= _TELEPORT * (start - last):
+                group_of.append(g)
+                group_end[g] = end - 1
+                break
+        else:
+            group_of.append(len(group_end))
+            group_end.append(end - 1)
+    frames_in = np.zeros(len(group_end), dtype=np.int64)
+    for g, start, end in zip(group_of, starts, ends, strict=True):
+        frames_in[g] += end - start
+    main = int(np.argmax(frames_in))
+    outside = np.ones(len(pelvis), dtype=bool)
+    for g, start, end in zip(group_of, starts, ends, strict=True):
+        if g == main:
+            outside[start:end] = False
+    return np.asarray((reach > _MAX_REACH) | outside)
+
+
+def _plausible_span(implausible: np.ndarray) -> tuple[int, int]:
+    """``(start, stop)`` without the implausible runs at both ends (whole clip if none is
+    plausible: then there is nothing sensible to keep, and the error is elsewhere)."""
+    plausible = np.flatnonzero(~implausible)
+    if len(plausible) == 0:
+        raise ParseError("every frame is implausible (joints far from the body)")
+    return int(plausible[0]), int(plausible[-1]) + 1
+
+
+def _frame_poses(motion: Motion) -> Iterator[tuple[str, np.ndarray]]:
+    """``(J, 3)`` world positions at a few frames, computed one at a time as the mapper asks,
+    for rigs whose rest pose is not a standing figure (joint orientation in rotations)."""
+    count = motion.frame_count
+    for f in sorted({round(i * (count - 1) / (_POSE_FRAMES - 1)) for i in range(_POSE_FRAMES)}):
+        _, positions = forward_kinematics(motion.slice_frames(f, f + 1))
+        yield f"frame {f}", positions[0]
+
+
+def body_height(motion: Motion, canonical: np.ndarray, *, head_joint: int = -1) -> float:
+    """Leg plus trunk bone-path length in file units (see module docstring).
+
+    The trunk ends at the head *joint* (``head_joint`` when given): an end effector beyond
+    it (the top of the head) does not count, so the height means the same with or without.
+    """
     lengths = bone_lengths(motion)
     parents = motion.skeleton.parents
 
@@ -154,6 +261,8 @@ def body_height(motion: Motion, canonical: np.ndarray) -> float:
             int(canonical[CANONICAL_INDEX[top]]),
             0.0,
         )
+        if bottom == "head" and head_joint >= 0:
+            j = head_joint
         while j != stop and j >= 0:
             total += float(lengths[j])
             j = int(parents[j])
@@ -197,27 +306,49 @@ def _pose_change(local: np.ndarray) -> np.ndarray:
     return np.arccos(cos_angle.min(axis=1))
 
 
-def _pelvis_frames(positions: np.ndarray, rotations: np.ndarray) -> np.ndarray:
-    """``(F, 3, 3)`` pelvis-fixed body frames; columns lateral (left), up, forward."""
-    pelvis = CANONICAL_INDEX["pelvis"]
-    pelvis_rot = rotations[:, pelvis]
-    lateral_world = positions[:, CANONICAL_INDEX["l_hip"]] - positions[:, CANONICAL_INDEX["r_hip"]]
-    up_world = positions[:, CANONICAL_INDEX["neck"]] - positions[:, pelvis]
-    # Express both in the pelvis joint's own coordinates and average over the clip.
-    lateral = np.einsum("fba,fb->a", pelvis_rot, lateral_world)
-    up = np.einsum("fba,fb->a", pelvis_rot, up_world)
-    lateral_norm = np.linalg.norm(lateral)
-    if lateral_norm < 1e-9:
-        raise ParseError("the left and right hips coincide; cannot tell left from right")
-    x = lateral / lateral_norm
-    up = up - np.dot(up, x) * x
-    up_norm = np.linalg.norm(up)
-    if up_norm < 1e-9:
-        raise ParseError("the neck is level with the hips; cannot find the body's up direction")
-    y = up / up_norm
-    z = np.cross(x, y)
-    basis = np.stack([x, y, z], axis=1)
-    return pelvis_rot @ basis
+def _pelvis_frames(motion: Motion, canonical: np.ndarray, rotations: np.ndarray) -> np.ndarray:
+    """``(F, 3, 3)`` pelvis-fixed body frames; columns lateral (left), up, forward.
+
+    ``canonical`` is the ``(C,)`` source joint index per canonical joint and ``rotations`` the
+    ``(F, C, 3, 3)`` world rotations of the canonical joints.
+    """
+    basis = rest_pelvis_basis(motion, canonical)
+    return rotations[:, CANONICAL_INDEX["pelvis"]] @ basis
+
+
+def rest_pelvis_basis(motion: Motion, canonical: np.ndarray) -> np.ndarray:
+    """``(3, 3)`` body axes (columns lateral, up, forward) in the pelvis joint's coordinates.
+
+    Found in the rest pose of the skeleton's offsets; a rig whose offsets are empty and whose
+    shape lives in per-frame position channels uses those of its first frame instead.
+    """
+    skeleton = motion.skeleton
+    candidates = [skeleton.offsets]
+    if motion.local_translations is not None:
+        candidates.append(motion.local_translations[0])
+    problem = ""
+    for offsets in candidates:
+        rest = np.zeros((skeleton.joint_count, 3))
+        for j in range(1, skeleton.joint_count):
+            rest[j] = rest[skeleton.parents[j]] + offsets[j]
+        at = {name: rest[canonical[CANONICAL_INDEX[name]]] for name in ("pelvis", "neck")}
+        lateral = (
+            rest[canonical[CANONICAL_INDEX["l_hip"]]] - rest[canonical[CANONICAL_INDEX["r_hip"]]]
+        )
+        lateral_norm = float(np.linalg.norm(lateral))
+        if lateral_norm < 1e-9:
+            problem = "the left and right hips coincide; cannot tell left from right"
+            continue
+        x = lateral / lateral_norm
+        up = at["neck"] - at["pelvis"]
+        up = up - np.dot(up, x) * x
+        up_norm = float(np.linalg.norm(up))
+        if up_norm < 1e-9:
+            problem = "the neck is level with the hips; cannot find the body's up direction"
+            continue
+        y = up / up_norm
+        return np.stack([x, y, np.cross(x, y)], axis=1)
+    raise ParseError(problem)
 
 
 def _world_up(pelvis_frames: np.ndarray) -> np.ndarray:

@@ -28,6 +28,11 @@ class ClipAnalysis:
         Which naming convention the skeleton follows (e.g. ``"cmu-asf"``, ``"motionbuilder"``).
     lead_in_frames:
         Rest-pose frames a converter added at the start, dropped before describing.
+    warnings:
+        Short sentences about what reading and mapping had to repair or decide.
+    joint_mapping:
+        Which source joint became each canonical joint and how it was found (JSON-ready:
+        ``{"joints": {canonical: {"joint", "how"}}, "end_sites", "pose", "mirrored"}``).
     descriptors:
         Descriptor name -> ``(D,)`` float32 vector.
     body:
@@ -40,6 +45,8 @@ class ClipAnalysis:
     joint_count: int
     skeleton_family: str
     lead_in_frames: int
+    warnings: tuple[str, ...]
+    joint_mapping: dict[str, object]
     descriptors: dict[str, np.ndarray]
     body: Body
 
@@ -58,6 +65,21 @@ def analyse(motion: Motion, *, descriptors: list[str] | None = None) -> ClipAnal
         joint_count=motion.skeleton.joint_count,
         skeleton_family=body.skeleton_family,
         lead_in_frames=body.lead_in_frames,
+        warnings=body.warnings,
+        joint_mapping=mapping_summary(body, motion),
         descriptors=vectors,
         body=body,
     )
+
+
+def mapping_summary(body: Body, motion: Motion) -> dict[str, object]:
+    """How ``motion``'s joints became ``body``'s canonical joints, as plain JSON data."""
+    mapping = body.mapping
+    if mapping is None:
+        return {}
+    return {
+        "joints": mapping.describe(motion.skeleton.names),
+        "end_sites": list(mapping.end_sites),
+        "pose": mapping.pose,
+        "mirrored": mapping.mirrored,
+    }

@@ -1,37 +1,60 @@
-"""Source joint names -> the canonical joints every descriptor uses.
+"""Source skeleton -> the canonical joints every descriptor uses, by the body's structure.
 
-Names are compared whole, never as substrings: a source name is lower-cased, a namespace
-prefix such as ``mixamorig:`` and known rig prefixes are removed, and separators
-(``_ - . :`` and spaces) are dropped, so ``UpperLeg_L``, ``upperleg.l`` and ``LeftUpperLeg``
-all compare equal to the generated forms of base ``upperleg`` on the left side
-(``leftupperleg``, ``lupperleg``, ``upperlegl``, ``upperlegleft``).
+A humanoid is a tree with a pelvis from which two legs go down and a spine goes up to the
+head, with two arms branching off the upper spine. That shape is visible in a standing pose
+(the rest pose of the offsets, or a frame of the motion when the rest pose is not a standing
+figure, as in rigs that bake joint orientation into rotations) whatever the up axis, units,
+facing, naming or extra joints (fingers, face, twist bones, props, IK targets, dummies).
 
-Each canonical joint has an ordered list of base names; the first base that some joint
-matches wins. The order resolves names that mean different things in different families:
-``LeftShoulder`` is the upper-arm joint in the 3ds Max conversion of CMU data but the
-clavicle in MotionBuilder/Mixamo rigs, so ``arm``/``upperarm`` come before ``shoulder``.
+1. **Extremities.** Leaves far apart along bones are found greedily (the farthest leaf from
+   the ones already chosen, up to :data:`_CANDIDATES`); every choice of five of them as head,
+   two hands and two feet is checked: the arms' branch point (chest) must carry the head
+   and not the feet, the feet must lie well below the pelvis (the branch point of legs and
+   spine) along the pelvis->chest direction, and the legs must point opposite the spine
+   (a horizontal spine over four limbs is a quadruped). The cheapest valid choice wins;
+   costs are left/right chain-length differences and names that contradict a role (an arm
+   chain whose joints are called leg names).
+2. **Chains.** Along each limb chain: the ankle is where the chain turns forward (the rest
+   of the chain drops little for its length); the hip and shoulder start the straight run
+   ending at the ankle or wrist; the knee and elbow split that run (a rest-pose bend decides
+   when there is one, otherwise the split nearest human proportions); the wrist is where
+   the fingers branch (else the joint before the hand's end). Names whole-matched by
+   :mod:`app.motion.skeleton_names` choose among joints when they name one in the chain.
+3. **End effectors** (Miura et al.: "end effectors are hereafter regarded as joints"): the
+   canonical ``head`` point is the end of the single chain beyond the head joint (an End
+   Site of non-zero length, or a ``HeadTop``-like leaf) when there is one, else the head
+   joint; ``toe`` likewise beyond the toe joint (else the toe joint, else the farthest point
+   beyond the ankle); ``hand_tip`` is the farthest point beyond the wrist, thumbs skipped.
+   :attr:`SkeletonMap.head_joint` keeps the head *joint* for body height.
+4. **Sides.** Left is ``up x forward`` (forward from the feet, else the knees' bend). Names
+   saying left/right on both limb pairs decide which is which; when both pairs disagree with
+   the geometry, the capture is mirrored (:attr:`SkeletonMap.mirrored`: the caller reflects
+   the motion); when only one pair disagrees, geometry wins with a warning. Rigs without
+   side names get sides from geometry alone.
 
-Joints that some families lack are derived from the tree instead of failing:
-
-* ``chest`` is the parent of the neck (the joint the upper trunk hangs from);
-* ``spine`` is the first joint on the pelvis->neck path that sits away from the pelvis;
-* ``hand_tip`` is the descendant of the wrist farthest from it along bones (thumbs skipped);
-* ``toe`` falls back to the farthest descendant of the ankle (DAZ rigs have no toe joint).
-
-A skeleton missing any required joint is refused with
-:class:`~app.errors.SkeletonMappingError` naming the missing canonical joints.
+Whatever is not a whole humanoid (quadruped, hand, face, upper body only, all-zero offsets)
+is refused with :class:`~app.errors.SkeletonMappingError` saying what was found and what is
+missing.
 """
 
 from __future__ import annotations
 
-import re
-from collections.abc import Callable
-from dataclasses import dataclass
+import itertools
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from app.errors import SkeletonMappingError
 from app.motion.model import Skeleton
+from app.motion.skeleton_names import (
+    ARM_PARTS,
+    LEG_PARTS,
+    NameHint,
+    name_hint,
+    name_side,
+    normalise_name,
+)
 
 SIDES = ("l", "r")
 
@@ -102,55 +125,49 @@ MIRROR_INDEX: np.ndarray = np.array(
     ]
 )
 
-_UNSIDED_BASES: dict[str, tuple[str, ...]] = {
-    # Bandai's static "joint_Root" sits above "Hips": hips must win over root.
-    "pelvis": ("hips", "hip", "pelvis", "root"),
-    "neck": ("lowerneck", "neck", "neck1", "neck01"),
-    "head": ("head",),
-}
-_SIDED_BASES: dict[str, tuple[str, ...]] = {
-    "shoulder": ("arm", "upperarm", "shldr", "humerus", "shoulder"),
-    "elbow": ("forearm", "lowerarm", "elbow", "radius"),
-    "wrist": ("wrist", "hand"),
-    "hip": ("upleg", "upperleg", "thigh", "femur", "hip"),
-    "knee": ("leg", "lowerleg", "shin", "knee", "tibia", "calf"),
-    "ankle": ("foot", "ankle"),
-    "toe": ("toebase", "toe", "toes", "ball"),
-}
-REQUIRED = (
-    "pelvis",
-    "neck",
-    "head",
-    *(
-        f"{side}_{part}"
-        for side in SIDES
-        for part in ("shoulder", "elbow", "wrist", "hip", "knee", "ankle")
-    ),
+# Bones of non-zero length between the root and a limb's end, at least.
+_MIN_LIMB_BONES = 3
+# The shorter limb of a pair is at least this fraction of the longer one's bone path.
+_LIMB_PARTNER = 0.6
+# An end effector continues its joint's direction (up for the head, forward for the toes)
+# within this cosine (45 degrees): a helper nub pointing elsewhere is not the toe tip.
+_EFFECTOR_COS = 0.7
+# Head/hands/feet choices walked, cheapest first, before giving up on a pose.
+_TRIED_CHOICES = 12
+# Leaves considered as extremities (head, hands, feet and up to three props/IK targets).
+_CANDIDATES = 8
+# Fractions of the pose's extent (its bounding-box diagonal, about body height).
+_COINCIDENT = 1e-4  # joints closer than this share a position
+_MIN_LEG = 0.15  # a leg chain is at least this long
+_MIN_ARM = 0.15  # an arm chain is at least this long
+_HEAD_END_MIN = 0.005  # an end effector is at least this far from its joint
+# Degrees: bones of a straight limb in the rest pose (frame poses bend at knee and elbow).
+_STRAIGHT_REST_DEG = 12.0
+_STRAIGHT_FRAME_DEG = 50.0
+# A joint bends a straight-looking limb when its chain turns by more than this, degrees.
+_BEND_DEG = 8.0
+# A later limb top must fit the proportions this much better (log ratio) to be taken.
+_PROPORTION_MARGIN = 0.3
+# Upper arm : forearm and thigh : shin (Drillis & Contini's segment table).
+_UPPER_TO_FORE = 1.27
+_THIGH_TO_SHIN = 1.0
+# The foot turns away from the shin by at least this much at the ankle, degrees.
+_ANKLE_TURN_DEG = 25.0
+# Feet lie below the pelvis by at least this fraction of the leg chain's length.
+_LEG_DROP_RATIO = 0.5
+# cos of the smallest angle between the spine and the legs of a standing biped (120 deg).
+_LEGS_OPPOSITE_SPINE = -0.5
+
+FAMILY_NAMES = (
+    "cmu-asf",
+    "motionbuilder",
+    "3dsmax",
+    "daz",
+    "bandai",
+    "mixamo",
+    "biped",
+    "generic",
 )
-
-_PREFIXES = ("mixamorig", "bip01", "bip001", "character1", "def")
-_SEPARATORS = re.compile(r"[\s_\-.:|]+")
-
-
-def normalise_name(name: str) -> str:
-    """Lower-case ``name`` without namespace, rig prefix or separators.
-
-    ``mixamorig:LeftArm`` -> ``leftarm``, ``UpperLeg_L`` -> ``upperlegl``.
-    """
-    lowered = name.strip().lower()
-    if ":" in lowered:
-        lowered = lowered.rsplit(":", 1)[1]
-    compact = _SEPARATORS.sub("", lowered)
-    for prefix in _PREFIXES:
-        if compact.startswith(prefix) and len(compact) > len(prefix):
-            compact = compact[len(prefix) :]
-            break
-    return compact
-
-
-def _sided_forms(side: str, base: str) -> tuple[str, ...]:
-    word = "left" if side == "l" else "right"
-    return (f"{word}{base}", f"{side}{base}", f"{base}{side}", f"{base}{word}")
 
 
 @dataclass(frozen=True)
@@ -162,15 +179,47 @@ class SkeletonMap:
     joints:
         ``(C,)`` int64 source joint index per canonical joint, ``C = len(CANONICAL_JOINTS)``.
     family:
-        The naming convention recognised (``"cmu-asf"``, ``"motionbuilder"``, ``"3dsmax"``,
-        ``"daz"``, ``"bandai"``, ``"mixamo"``, ``"biped"`` or ``"generic"``).
+        The naming convention recognised (informational, see :data:`FAMILY_NAMES`).
     derived:
-        Canonical joints that were derived from the tree rather than matched by name.
+        Canonical joints placed by a rule rather than found as their own joint (``spine``,
+        ``chest``, a neck taken from the head's parent, ``hand_tip``, a toe from the ankle).
+    end_sites:
+        Canonical points that are end effectors (End Sites or leaves without a frame of
+        their own): ``head``, ``*_toe``, ``*_hand_tip`` where the rig has them.
+    head_joint:
+        Source index of the head *joint* (the head point's parent when the head point is an
+        end effector); body height is measured to it.
+    how:
+        Canonical joint -> how it was found (``"name"``, ``"structure"``, ``"geometry"``,
+        ``"end effector"``, ``"derived: ..."``).
+    mirrored:
+        The geometry is left-handed (the limbs called left lie on the subject's right): the
+        motion must be reflected across ``mirror_axis`` before it is described.
+    mirror_axis:
+        World axis (0, 1, 2) nearest the body's lateral direction, to reflect across.
+    pose:
+        Which pose the geometry was read from: ``"rest pose"`` or ``"frame N"``.
+    warnings:
+        Short sentences for the user about what the mapping had to decide.
     """
 
     joints: np.ndarray
     family: str
     derived: tuple[str, ...]
+    end_sites: tuple[str, ...] = ()
+    head_joint: int = -1
+    how: dict[str, str] = field(default_factory=dict)
+    mirrored: bool = False
+    mirror_axis: int = 0
+    pose: str = "rest pose"
+    warnings: tuple[str, ...] = ()
+
+    def describe(self, names: Sequence[str]) -> dict[str, dict[str, str]]:
+        """Canonical joint -> ``{"joint": source name, "how": ...}`` for people to read."""
+        return {
+            canonical: {"joint": names[int(j)], "how": self.how.get(canonical, "structure")}
+            for canonical, j in zip(CANONICAL_JOINTS, self.joints, strict=True)
+        }
 
 
 def detect_family(names: tuple[str, ...]) -> str:
@@ -193,73 +242,731 @@ def detect_family(names: tuple[str, ...]) -> str:
     return "generic"
 
 
-def map_skeleton(skeleton: Skeleton) -> SkeletonMap:
+def rest_pose(skeleton: Skeleton) -> np.ndarray:
+    """``(J, 3)`` joint positions of the rest pose (offsets only), root at the origin."""
+    out = np.zeros((skeleton.joint_count, 3))
+    for j in range(1, skeleton.joint_count):
+        out[j] = out[skeleton.parents[j]] + skeleton.offsets[j]
+    return out
+
+
+class _NotHumanoid(Exception):
+    """Why one pose does not show a humanoid (turned into SkeletonMappingError at the end)."""
+
+
+def map_skeleton(skeleton: Skeleton, poses: Iterable[tuple[str, np.ndarray]] = ()) -> SkeletonMap:
     """Find every canonical joint in ``skeleton``.
+
+    Parameters
+    ----------
+    skeleton:
+        The source skeleton.
+    poses:
+        Further ``(label, (J, 3) world positions)`` poses to read the geometry from when
+        the rest pose is not a standing figure (frames of the motion); consumed lazily, only
+        as far as needed.
 
     Raises
     ------
     SkeletonMappingError
-        If a required canonical joint has no match; the message lists all missing ones.
+        The skeleton is not a whole humanoid; the message says what was found and missing.
     """
-    normal = [normalise_name(n) for n in skeleton.names]
-    candidates = [j for j in range(skeleton.joint_count) if not skeleton.end_site[j]]
-    by_name: dict[str, int] = {}
-    for j in candidates:
-        by_name.setdefault(normal[j], j)
-
-    found: dict[str, int] = {}
-    for canon, bases in _UNSIDED_BASES.items():
-        for base in bases:
-            if base in by_name:
-                found[canon] = by_name[base]
-                break
-    for side in SIDES:
-        for part, bases in _SIDED_BASES.items():
-            for base in bases:
-                hit = next((by_name[f] for f in _sided_forms(side, base) if f in by_name), None)
-                if hit is not None:
-                    found[f"{side}_{part}"] = hit
-                    break
-
-    missing = [c for c in REQUIRED if c not in found]
-    if missing:
+    rest = rest_pose(skeleton)
+    tree = _Tree(skeleton)
+    if float(np.linalg.norm(np.ptp(rest, axis=0))) <= 0.0 or not np.any(tree.lengths > 0):
         raise SkeletonMappingError(
-            "cannot find the canonical joints "
-            + ", ".join(missing)
-            + " in this skeleton (joints: "
-            + ", ".join(skeleton.names[:40])
-            + (" ..." if skeleton.joint_count > 40 else "")
-            + ")"
+            "every OFFSET is 0: the skeleton has no shape to map "
+            f"({skeleton.joint_count} joints collapse to one point)"
+        )
+    reasons: list[str] = []
+    for label, pose in itertools.chain([("rest pose", rest)], poses):
+        try:
+            return _map_pose(tree, pose, label)
+        except _NotHumanoid as reason:
+            reasons.append(str(reason))
+    raise SkeletonMappingError(reasons[0])
+
+
+class _Tree:
+    """Index helpers over one skeleton: children, depths, bone path lengths, name hints."""
+
+    def __init__(self, skeleton: Skeleton) -> None:
+        self.skeleton = skeleton
+        self.names = skeleton.names
+        self.parents = skeleton.parents
+        count = skeleton.joint_count
+        self.children: list[list[int]] = [[] for _ in range(count)]
+        for j in range(1, count):
+            self.children[int(self.parents[j])].append(j)
+        self.lengths = np.linalg.norm(skeleton.offsets, axis=1)
+        self.lengths[0] = 0.0
+        self.depth = np.zeros(count, dtype=np.int64)
+        self.path = np.zeros(count)  # bone path length from the root
+        for j in range(1, count):
+            p = int(self.parents[j])
+            self.depth[j] = self.depth[p] + 1
+            self.path[j] = self.path[p] + self.lengths[j]
+        self.leaves = [j for j in range(count) if not self.children[j]]
+        self.bones = np.zeros(count, dtype=np.int64)  # non-zero bones from the root
+        for j in range(1, count):
+            self.bones[j] = self.bones[self.parents[j]] + (self.lengths[j] > 0)
+        self.limb_leaves = [j for j in self.leaves if self.bones[j] >= _MIN_LIMB_BONES]
+        # The body proper, whose bounding box gives the pose's scale: not shallow leaves (IK
+        # targets, props on the root), nor a root with a single child (a floor-level
+        # "joint_Root" that may stay at the origin while the body runs off).
+        shallow = set(self.leaves) - set(self.limb_leaves)
+        if len(self.children[0]) == 1:
+            shallow.add(0)
+        self.body_joints = np.array([j for j in range(count) if j not in shallow])
+        self.reach = np.zeros(count)  # longest bone path from a joint down to a descendant
+        for j in range(count - 1, 0, -1):
+            p = int(self.parents[j])
+            self.reach[p] = max(self.reach[p], self.reach[j] + self.lengths[j])
+        self.hints: list[NameHint] = [name_hint(n) for n in skeleton.names]
+        self.sides: list[str | None] = [name_side(n) for n in skeleton.names]
+
+    def lca(self, a: int, b: int) -> int:
+        while a != b:
+            if self.depth[a] >= self.depth[b]:
+                a = int(self.parents[a])
+            else:
+                b = int(self.parents[b])
+        return a
+
+    def is_ancestor(self, top: int, joint: int) -> bool:
+        """``top`` is ``joint`` or one of its ancestors."""
+        while joint >= 0 and self.depth[joint] >= self.depth[top]:
+            if joint == top:
+                return True
+            joint = int(self.parents[joint])
+        return False
+
+    def chain(self, top: int, bottom: int) -> list[int]:
+        """Joints from ``top`` down to ``bottom`` inclusive (``top`` is an ancestor)."""
+        out = [bottom]
+        while out[-1] != top:
+            out.append(int(self.parents[out[-1]]))
+        return out[::-1]
+
+    def geodesic(self, start: int) -> np.ndarray:
+        """``(J,)`` bone path length from ``start`` to every joint."""
+        out = np.full(len(self.names), -1.0)
+        out[start] = 0.0
+        stack = [start]
+        while stack:
+            j = stack.pop()
+            neighbours = list(self.children[j])
+            if self.parents[j] >= 0:
+                neighbours.append(int(self.parents[j]))
+            for n in neighbours:
+                if out[n] < 0:
+                    step = self.lengths[n] if self.parents[n] == j else self.lengths[j]
+                    out[n] = out[j] + step
+                    stack.append(n)
+        return out
+
+    def descendants(self, joint: int) -> list[int]:
+        out, stack = [], [joint]
+        while stack:
+            j = stack.pop()
+            out.append(j)
+            stack.extend(self.children[j])
+        return out
+
+    def role_words(self, joints: Sequence[int]) -> set[str]:
+        """Which of ``arm``/``leg``/``head`` the names along ``joints`` say."""
+        words: set[str] = set()
+        for j in joints:
+            parts = set(self.hints[j].parts)
+            if parts & ARM_PARTS:
+                words.add("arm")
+            if parts & LEG_PARTS:
+                words.add("leg")
+            if parts & {"head", "neck"}:
+                words.add("head")
+        return words
+
+
+@dataclass
+class _Limb:
+    """One arm or leg: part (``hip``, ``knee``...) -> source joint, and how each was found."""
+
+    joints: dict[str, int]
+    how: dict[str, str]
+
+    def __getitem__(self, part: str) -> int:
+        return self.joints[part]
+
+
+@dataclass
+class _Body:
+    """One hypothesis: which leaves are head, hands and feet, and what follows from it."""
+
+    head: int
+    hands: tuple[int, int]
+    feet: tuple[int, int]
+    chest: int
+    pelvis: int
+    up: np.ndarray
+    cost: float
+
+
+def _extremity_candidates(tree: _Tree) -> list[int]:
+    """Up to :data:`_CANDIDATES` leaves, each the farthest (along bones) from those before.
+
+    Only leaves at least :data:`_MIN_LIMB_BONES` bones of non-zero length below the root
+    count: a limb has hip, knee and ankle; an IK target or prop hanging from the root does
+    not.
+    """
+    leaves = np.array(tree.limb_leaves or tree.leaves)
+    chosen = [int(leaves[int(np.argmax(tree.path[leaves]))])]
+    nearest = tree.geodesic(chosen[0])
+    while len(chosen) < min(_CANDIDATES, len(leaves)):
+        gaps = nearest[leaves]
+        best = int(np.argmax(gaps))
+        if gaps[best] <= 0:
+            break
+        chosen.append(int(leaves[best]))
+        nearest = np.minimum(nearest, tree.geodesic(chosen[-1]))
+    return chosen
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = float(np.linalg.norm(v))
+    return v / n if n > 0 else v
+
+
+def _hypotheses(tree: _Tree, pose: np.ndarray, extent: float) -> tuple[list[_Body], str]:
+    """Every valid head/hands/feet choice among the candidate leaves, and the best reason a
+    rejected one gave (for the error message)."""
+    candidates = _extremity_candidates(tree)
+    valid: list[_Body] = []
+    found = ", ".join(tree.names[c] for c in candidates)
+    if len(candidates) < 5:
+        reason = (
+            f"found only {len(candidates)} limb ends ({found}) where a body has five (head, "
+            "two hands, two feet): missing legs, arms or head"
+        )
+    else:
+        reason = (
+            f"found {len(candidates)} limb ends ({found}) but missing a pelvis with two legs "
+            "going down and a spine going up to a head between two arms"
+        )
+    best_partial = -1
+    for five in itertools.combinations(candidates, 5):
+        for head in five:
+            rest = [c for c in five if c != head]
+            for feet in itertools.combinations(rest, 2):
+                hands = tuple(c for c in rest if c not in feet)
+                body, why, progress = _check(tree, pose, extent, head, hands, feet)  # type: ignore[arg-type]
+                if body is not None:
+                    valid.append(body)
+                elif progress > best_partial:
+                    best_partial, reason = progress, why
+    return valid, reason
+
+
+def _check(
+    tree: _Tree,
+    pose: np.ndarray,
+    extent: float,
+    head: int,
+    hands: tuple[int, int],
+    feet: tuple[int, int],
+) -> tuple[_Body | None, str, int]:
+    """A hypothesis if the choice is a humanoid, else (None, why, how far it got)."""
+    chest = tree.lca(*hands)
+    if chest in hands or not tree.is_ancestor(chest, head) or head == chest:
+        return None, "no joint carries two arms and a head", 0
+    if any(tree.is_ancestor(chest, f) for f in feet):
+        return None, "the legs hang from the arms' branch point", 0
+    hips = tree.lca(*feet)
+    if hips in feet:
+        return None, "one leg hangs from the other", 0
+    # A limb has at least two bones of its own (thigh and shin, upper arm and forearm) and
+    # its partner is about as long: not a twist bone beside the other leg's knee.
+    pairs: list[tuple[int, tuple[int, ...]]] = [(hips, feet), (chest, hands)]
+    for top, limb_ends in pairs:
+        own = [tree.bones[e] - tree.bones[top] for e in limb_ends]
+        reach = [tree.path[e] - tree.path[top] for e in limb_ends]
+        if min(own) < 2 or min(reach) < _LIMB_PARTNER * max(reach):
+            return None, "no two limbs of a pair alike: missing legs or arms", 1
+    pelvis = tree.lca(hips, chest)
+    spine = pose[chest] - pose[pelvis]
+    if np.linalg.norm(spine) < _COINCIDENT * extent:
+        spine = pose[head] - pose[pelvis]
+    up = _unit(spine)
+    if not np.linalg.norm(up) > 0:
+        return None, "the spine has no length", 1
+    drops = [float((pose[pelvis] - pose[f]) @ up) for f in feet]
+    leg_lengths = [tree.path[f] - tree.path[pelvis] for f in feet]
+    legs = [_unit(pose[f] - pose[pelvis]) for f in feet]
+    leg_dir = _unit(legs[0] + legs[1])
+    if min(leg_lengths) < _MIN_LEG * extent:
+        return None, "no two legs reach down from the pelvis: missing legs", 2
+    if float(leg_dir @ up) > _LEGS_OPPOSITE_SPINE:
+        names = ", ".join(tree.names[j] for j in (*feet, *hands))
+        return (
+            None,
+            "the spine is horizontal in the rest pose with the limbs hanging down "
+            f"({names}): a four-legged animal, not a humanoid",
+            3,
+        )
+    if min(d / length for d, length in zip(drops, leg_lengths, strict=True)) < _LEG_DROP_RATIO:
+        return None, "no two legs reach down from the pelvis: missing legs", 2
+    if float((pose[head] - pose[chest]) @ up) <= 0:
+        return None, "no head above the arms: missing head", 2
+    arm_lengths = [tree.path[h] - tree.path[chest] for h in hands]
+    if min(arm_lengths) < _MIN_ARM * extent:
+        return None, "no two arms branch off the spine: missing arms", 2
+    cost = abs(leg_lengths[0] - leg_lengths[1]) / max(leg_lengths) + abs(
+        arm_lengths[0] - arm_lengths[1]
+    ) / max(arm_lengths)
+    roles: list[tuple[str, tuple[int, ...], int]] = [
+        ("arm", hands, chest),
+        ("leg", feet, pelvis),
+        ("head", (head,), chest),
+    ]
+    for role, ends, top in roles:
+        for end in ends:
+            words = tree.role_words(tree.chain(top, end)[1:])
+            if words and role not in words:
+                cost += 3.0
+            elif role in words:
+                cost -= 0.5
+    # Prefer the highest head and the longest limbs among otherwise equal choices (a leaf at
+    # the knee is a marker joint, not the foot).
+    cost -= 0.1 * float((pose[head] - pose[pelvis]) @ up) / extent
+    cost -= 0.5 * (sum(leg_lengths) + sum(arm_lengths)) / extent
+    return _Body(head, hands, feet, chest, pelvis, up, cost), "", 4
+
+
+def _map_pose(tree: _Tree, pose: np.ndarray, label: str) -> SkeletonMap:
+    extent = float(np.linalg.norm(np.ptp(pose[tree.body_joints], axis=0)))
+    if not extent > 0:
+        raise _NotHumanoid("every joint of the pose is at one point: no shape to map")
+    valid, reason = _hypotheses(tree, pose, extent)
+    if not valid:
+        raise _NotHumanoid(f"not a whole humanoid: {reason}")
+    # The cheapest choice whose limbs have knees and elbows (an IK target hanging from the
+    # root may pass for a leg until its chain is walked).
+    first: _NotHumanoid | None = None
+    for body in sorted(valid, key=lambda b: b.cost)[:_TRIED_CHOICES]:
+        try:
+            return _Mapper(tree, pose, extent, body, label).run()
+        except _NotHumanoid as problem:
+            first = first or problem
+    assert first is not None
+    raise first
+
+
+class _Mapper:
+    """Places every canonical joint once head, hands and feet are known."""
+
+    def __init__(self, tree: _Tree, pose: np.ndarray, extent: float, body: _Body, label: str):
+        self.tree = tree
+        self.pose = pose
+        self.extent = extent
+        self.body = body
+        self.rest = label == "rest pose"
+        self.label = label
+        self.found: dict[str, int] = {}
+        self.how: dict[str, str] = {}
+        self.derived: list[str] = []
+        self.warnings: list[str] = []
+
+    # -- small helpers -------------------------------------------------------------------
+
+    def same_place(self, a: int, b: int) -> bool:
+        return bool(np.linalg.norm(self.pose[a] - self.pose[b]) <= _COINCIDENT * self.extent)
+
+    def deepest_coincident(self, joint: int, chain: list[int]) -> int:
+        """The last joint of ``chain`` at ``joint``'s position from ``joint`` on (dummies)."""
+        i = chain.index(joint)
+        while i + 1 < len(chain) and self.same_place(chain[i + 1], joint):
+            i += 1
+        return chain[i]
+
+    def named(self, chain: Sequence[int], part: str) -> int | None:
+        """The joint of ``chain`` whose name says ``part`` best (nearest the root on ties)."""
+        best: tuple[int, int] | None = None
+        for i, j in enumerate(chain):
+            rank = self.tree.hints[j].parts.get(part)
+            if rank is not None and (best is None or rank < best[0]):
+                best = (rank, i)
+        return None if best is None else chain[best[1]]
+
+    def put(self, canonical: str, joint: int, how: str) -> None:
+        self.found[canonical] = joint
+        self.how[canonical] = how
+
+    def effector(self, joint: int, *, along: np.ndarray | None) -> int | None:
+        """End of the single unbranched chain beyond ``joint`` (End Site or leaf), when it
+        lies at least :data:`_HEAD_END_MIN` away and, if ``along`` is given, in that
+        direction more than sideways."""
+        tree = self.tree
+        j = joint
+        while True:
+            reaches = sorted(
+                ((tree.lengths[c] + tree.reach[c], c) for c in tree.children[j]), reverse=True
+            )
+            if not reaches or reaches[0][0] == 0:
+                break
+            # Side nubs (twist bones, helpers) shorter than half the main branch do not make
+            # a branching; two comparable branches (face joints beside the skull) do.
+            if len(reaches) > 1 and reaches[1][0] >= 0.5 * reaches[0][0]:
+                return None
+            j = reaches[0][1]
+        if j == joint:
+            return None
+        step = self.pose[j] - self.pose[joint]
+        distance = float(np.linalg.norm(step))
+        if distance < _HEAD_END_MIN * self.extent:
+            return None
+        if along is not None and float(step @ along) < _EFFECTOR_COS * distance:
+            return None
+        return j
+
+    # -- the body ------------------------------------------------------------------------
+
+    def run(self) -> SkeletonMap:
+        tree, body = self.tree, self.body
+        self.put("pelvis", body.pelvis, "structure: where the legs and the spine meet")
+        self.put("chest", body.chest, "structure: where the arms branch off the spine")
+        self.derived.append("chest")
+        self.map_head()
+        self.map_spine()
+        legs = [self.map_leg(f) for f in body.feet]
+        arms = [self.map_arm(h) for h in body.hands]
+        mirrored, axis = self.assign_sides(legs, arms)
+        joints = np.array([self.found[name] for name in CANONICAL_JOINTS], dtype=np.int64)
+        end_sites = tuple(
+            name
+            for name in CANONICAL_JOINTS
+            if self.how[name].startswith("end effector") or tree.skeleton.end_site[self.found[name]]
+        )
+        return SkeletonMap(
+            joints=joints,
+            family=detect_family(tree.names),
+            derived=tuple(self.derived),
+            end_sites=end_sites,
+            head_joint=self.head_joint,
+            how=self.how,
+            mirrored=mirrored,
+            mirror_axis=axis,
+            pose=self.label,
+            warnings=tuple(self.warnings),
         )
 
-    derived: list[str] = []
-    lengths = np.linalg.norm(skeleton.offsets, axis=1)
-    parents = skeleton.parents
+    def map_head(self) -> None:
+        tree, body = self.tree, self.body
+        chain = tree.chain(body.chest, body.head)
+        named = self.named(chain[1:], "head")
+        if named is not None:
+            head_joint, how = named, "name"
+        else:
+            # The leaf itself, or its parent when the last bone is a skull-long end effector.
+            leaf = body.head
+            while tree.lengths[leaf] == 0 and tree.parents[leaf] != body.chest:
+                leaf = int(tree.parents[leaf])
+            parent = int(tree.parents[leaf])
+            long_end = tree.lengths[leaf] >= 2 * _HEAD_END_MIN * self.extent
+            head_joint = parent if long_end and parent != body.chest else leaf
+            how = "structure: top of the spine chain"
+        self.head_joint = head_joint
+        tip = self.effector(head_joint, along=body.up)
+        if tip is not None:
+            self.put("head", tip, "end effector beyond the head joint")
+        else:
+            self.put("head", head_joint, how)
+        between = chain[1 : chain.index(head_joint)]
+        neck = self.named(between, "neck")
+        if neck is not None:
+            self.put("neck", neck, "name")
+        elif between:
+            self.put("neck", between[0], "structure: first joint above the arms")
+        else:
+            self.put("neck", body.chest, "derived: the head's parent")
+            self.derived.append("neck")
+            self.warnings.append("neck derived from the head's parent")
 
-    path_to_neck = _path_between(parents, found["pelvis"], found["neck"])
-    if path_to_neck is None:
-        raise SkeletonMappingError("the neck is not below the pelvis in this skeleton's hierarchy")
-    # Chest: the joint the neck hangs from (the pelvis itself in a very coarse rig).
-    found["chest"] = (
-        int(parents[found["neck"]]) if found["neck"] != found["pelvis"] else found["pelvis"]
-    )
-    derived.append("chest")
-    # Spine: first joint above the pelvis that is not at the pelvis, else the chest.
-    spine = next((j for j in path_to_neck[1:] if lengths[j] > 0), found["chest"])
-    found["spine"] = int(spine)
-    derived.append("spine")
+    def map_spine(self) -> None:
+        chain = self.tree.chain(self.body.pelvis, self.found["neck"])
+        spine = next((j for j in chain[1:] if self.tree.lengths[j] > 0), self.body.chest)
+        if not self.tree.is_ancestor(spine, self.body.chest):
+            spine = self.body.chest
+        self.put("spine", spine, "structure: first bone above the pelvis")
+        self.derived.append("spine")
 
-    for side in SIDES:
-        found[f"{side}_hand_tip"] = _farthest_descendant(
-            skeleton, found[f"{side}_wrist"], skip=_is_thumb
+    def straight_run_start(self, chain: list[int], end: int) -> int:
+        """Index in ``chain`` where the straight run of bones ending at ``chain[end]`` starts."""
+        limit = np.cos(np.radians(_STRAIGHT_REST_DEG if self.rest else _STRAIGHT_FRAME_DEG))
+        start = end - 1
+        while start > 1:
+            candidate = start - 1
+            whole = _unit(self.pose[chain[end]] - self.pose[chain[candidate]])
+            segment = _unit(self.pose[chain[start]] - self.pose[chain[candidate]])
+            if np.linalg.norm(segment) == 0:
+                start = candidate
+                continue
+            if float(segment @ whole) < limit:
+                break
+            start = candidate
+        return start
+
+    def split(self, chain: list[int], start: int, end: int, ratio: float) -> int | None:
+        """Index of the middle joint (knee, elbow) between ``chain[start]`` and ``chain[end]``."""
+        pose = self.pose
+        inner = [
+            i
+            for i in range(start + 1, end)
+            if not self.same_place(chain[i], chain[start])
+            and not self.same_place(chain[i], chain[end])
+        ]
+        if not inner:
+            return None
+        bends = []
+        for i in inner:
+            a = _unit(pose[chain[i]] - pose[chain[start]])
+            b = _unit(pose[chain[end]] - pose[chain[i]])
+            bends.append(np.degrees(np.arccos(np.clip(a @ b, -1.0, 1.0))))
+        if max(bends) > _BEND_DEG:
+            return inner[int(np.argmax(bends))]
+        distance = self.tree.path
+        scores = [
+            abs(
+                np.log(
+                    max(distance[chain[i]] - distance[chain[start]], 1e-12)
+                    / max(distance[chain[end]] - distance[chain[i]], 1e-12)
+                )
+                - np.log(ratio)
+            )
+            for i in inner
+        ]
+        return inner[int(np.argmin(scores))]
+
+    def upper_and_middle(
+        self, limb: _Limb, above: list[int], parts: tuple[str, str], ratio: float, what: str
+    ) -> None:
+        """Put the limb's top joint (hip, shoulder) and middle joint (knee, elbow) on the
+        chain ``above`` that ends at the ankle or wrist: by name when both names are there
+        in order, else the straight run's start and its split nearest ``ratio``."""
+        top, middle = (self.named(above[1:-1], part) for part in parts)
+        if top is not None and middle is not None and above.index(top) < above.index(middle):
+            for part, joint in zip(parts, (top, middle), strict=True):
+                limb.joints[part], limb.how[part] = joint, "name"
+            return
+        end = len(above) - 1
+        # The top joint is never at the trunk joint's own place (a zero-length clavicle).
+        first = next((i for i in range(1, end) if not self.same_place(above[i], above[0])), 1)
+        straight = max(self.straight_run_start(above, end), first)
+        # A collar bone nearly in line with a T-posed arm passes for straight: among the tops
+        # of the straight run and the joints below it, the one whose split comes nearest the
+        # limb's proportions wins.
+        best: tuple[float, int, int | None] | None = None
+        for start in range(straight, end - 1):
+            split = self.split(above, start, end, ratio)
+            if split is None:
+                continue
+            path = self.tree.path
+            upper = path[above[split]] - path[above[start]]
+            lower = path[above[end]] - path[above[split]]
+            cost = abs(np.log(max(upper, 1e-12) / max(lower, 1e-12)) - np.log(ratio))
+            if best is None or cost < best[0] - _PROPORTION_MARGIN:
+                best = (cost, start, split)
+        start, split = (straight, None) if best is None else best[1:]
+        if split is None:
+            raise _NotHumanoid(
+                f"the {what} ending at {self.tree.names[above[-1]]!r} has no {parts[1]} between "
+                f"its {parts[0]} and its end"
+            )
+        limb.joints[parts[0]] = self.deepest_coincident(above[start], above)
+        limb.joints[parts[1]] = self.deepest_coincident(above[split], above)
+        limb.how[parts[0]] = f"geometry: top of the straight {what}"
+        limb.how[parts[1]] = f"geometry: middle of the {what}"
+
+    def map_leg(self, foot: int) -> _Limb:
+        tree, pose, up = self.tree, self.pose, self.body.up
+        chain = tree.chain(self.body.pelvis, foot)
+        # The sole: points after the lowest one that rise again are end sites pointing
+        # nowhere in particular (SMPL exports), not the foot.
+        heights = pose[chain] @ up
+        sole = len(chain) - 1
+        while sole > 1 and heights[sole] > heights.min() + 0.03 * self.extent:
+            sole -= 1
+        foot = chain[sole]
+        chain = chain[: sole + 1]
+        # Ankle: where the chain, having come down the leg, turns most towards the toes.
+        turned: int | None = None
+        best_turn = np.radians(_ANKLE_TURN_DEG)
+        previous = 0
+        for i in range(1, len(chain) - 1):
+            incoming = _unit(pose[chain[i]] - pose[chain[previous]])
+            if not np.linalg.norm(incoming):
+                continue
+            previous = i
+            outgoing = _unit(pose[foot] - pose[chain[i]])
+            # Coming down the leg, leaving more level than it came.
+            if float(incoming @ up) > -0.5 or float(outgoing @ up) < float(incoming @ up) + 0.2:
+                continue
+            turn = float(np.arccos(np.clip(incoming @ outgoing, -1.0, 1.0)))
+            if turn > best_turn:
+                turned, best_turn = i, turn
+        ankle_found = turned is not None
+        if turned is not None:
+            ankle_i = turned
+        else:
+            ankle_i = len(chain) - 1
+            while ankle_i > 1 and (
+                tree.skeleton.end_site[chain[ankle_i]] or tree.lengths[chain[ankle_i]] == 0
+            ):
+                ankle_i -= 1
+        # Names choose among the joints next to the geometric ankle (``foot`` is the ankle in
+        # most rigs and the ball of the foot in some), or alone when the foot never turns.
+        named_ankles = [i for i, j in enumerate(chain) if i > 0 and "ankle" in tree.hints[j].parts]
+        near = [i for i in named_ankles if abs(i - ankle_i) <= 1]
+        if ankle_found and near:
+            ankle = chain[min(near, key=lambda i: (abs(i - ankle_i), i))]
+            ankle_how = "name"
+        elif not ankle_found and named_ankles:
+            ankle = chain[min(named_ankles, key=lambda i: (tree.hints[chain[i]].parts["ankle"], i))]
+            ankle_how = "name"
+        else:
+            ankle = self.deepest_coincident(chain[ankle_i], chain)
+            ankle_how = "geometry: where the foot turns forward"
+        ankle_i = chain.index(ankle)
+        limb = _Limb({"ankle": ankle}, {"ankle": ankle_how})
+        self.upper_and_middle(limb, chain[: ankle_i + 1], ("hip", "knee"), _THIGH_TO_SHIN, "leg")
+        result, how = limb.joints, limb.how
+
+        below = chain[ankle_i + 1 :]
+        toe_joint = next(
+            (j for j in below if not tree.skeleton.end_site[j] and not self.same_place(j, ankle)),
+            None,
         )
-        derived.append(f"{side}_hand_tip")
-        if f"{side}_toe" not in found:
-            found[f"{side}_toe"] = _farthest_descendant(skeleton, found[f"{side}_ankle"])
-            derived.append(f"{side}_toe")
+        forward = pose[foot] - pose[ankle]
+        forward = _unit(forward - (forward @ up) * up)
+        if toe_joint is not None:
+            tip = self.effector(toe_joint, along=forward if np.linalg.norm(forward) else None)
+            if tip is not None:
+                result["toe"], how["toe"] = tip, "end effector beyond the toe joint"
+            else:
+                result["toe"], how["toe"] = toe_joint, "structure: first joint past the ankle"
+        else:
+            result["toe"] = _farthest_descendant(tree, ankle)
+            how["toe"] = "derived: farthest point beyond the ankle"
+        return _Limb(result, how)
 
-    joints = np.array([found[name] for name in CANONICAL_JOINTS], dtype=np.int64)
-    return SkeletonMap(joints=joints, family=detect_family(skeleton.names), derived=tuple(derived))
+    def map_arm(self, hand: int) -> _Limb:
+        tree = self.tree
+        chain = tree.chain(self.body.chest, hand)
+        named_wrist = self.named(chain[1:], "wrist")
+        if named_wrist is not None:
+            wrist, wrist_how = named_wrist, "name"
+        else:
+            branching = [
+                j
+                for j in chain[1:-1]
+                if sum(1 for c in tree.children[j] if tree.lengths[c] > 0 or tree.children[c]) >= 2
+            ]
+            if branching:
+                wrist, wrist_how = branching[-1], "structure: where the fingers branch"
+            else:
+                last = len(chain) - 1
+                while last > 1 and tree.lengths[chain[last]] == 0:
+                    last -= 1
+                wrist = chain[last - 1] if last > 1 else chain[last]
+                wrist_how = "structure: the joint before the hand's end"
+        limb = _Limb({"wrist": wrist}, {"wrist": wrist_how})
+        above = chain[: chain.index(wrist) + 1]
+        self.upper_and_middle(limb, above, ("shoulder", "elbow"), _UPPER_TO_FORE, "arm")
+        result, how = limb.joints, limb.how
+        result["hand_tip"] = _farthest_descendant(tree, wrist, skip=_is_thumb)
+        how["hand_tip"] = "derived: farthest point beyond the wrist"
+        return _Limb(result, how)
+
+    # -- sides ---------------------------------------------------------------------------
+
+    def assign_sides(self, legs: list[_Limb], arms: list[_Limb]) -> tuple[bool, int]:
+        """Put the limbs on their sides; returns (mirrored, lateral world axis)."""
+        tree, pose, up = self.tree, self.pose, self.body.up
+        forward = np.zeros(3)
+        for leg in legs:
+            step = pose[leg["toe"]] - pose[leg["ankle"]]
+            forward += step - (step @ up) * up
+        if np.linalg.norm(forward) < 0.02 * self.extent:
+            for leg in legs:
+                mid = 0.5 * (pose[leg["hip"]] + pose[leg["ankle"]])
+                step = pose[leg["knee"]] - mid
+                forward += step - (step @ up) * up
+        forward = _unit(forward)
+        left = _unit(np.cross(up, forward))
+        axis = int(np.argmax(np.abs(left))) if np.linalg.norm(left) else 0
+
+        def name_of(limb: _Limb, top: int) -> str | None:
+            votes = [
+                tree.sides[j]
+                for j in tree.chain(top, limb["ankle" if "ankle" in limb.joints else "wrist"])[1:]
+                if tree.sides[j] is not None
+            ]
+            if not votes:
+                return None
+            return (
+                max(set(votes), key=votes.count)
+                if votes.count(votes[0]) * 2 != len(votes)
+                else None
+            )
+
+        def order(
+            pair: list[_Limb], keys: tuple[str, ...], top: int
+        ) -> tuple[list[_Limb], bool | None, bool]:
+            """(pair as [left, right] by geometry, names agree?, geometry known?)"""
+            lateral = (
+                sum(float((pose[pair[0][k]] - pose[pair[1][k]]) @ left) for k in keys)
+                if np.linalg.norm(left)
+                else 0.0
+            )
+            known = abs(lateral) > _COINCIDENT * self.extent
+            by_geometry = pair if lateral >= 0 else pair[::-1]
+            sides = [name_of(limb, top) for limb in by_geometry]
+            if sides == ["l", "r"]:
+                return by_geometry, True, known
+            if sides == ["r", "l"]:
+                return by_geometry, False, known
+            return by_geometry, None, known
+
+        legs_lr, legs_agree, legs_known = order(legs, ("hip", "knee"), self.body.pelvis)
+        arms_lr, arms_agree, arms_known = order(
+            arms, ("shoulder", "elbow", "wrist"), self.body.chest
+        )
+        mirrored = False
+        if not (legs_known and arms_known) or np.linalg.norm(left) == 0:
+            # No usable geometry: names alone (or the file's order) decide.
+            if legs_agree is False:
+                legs_lr = legs_lr[::-1]
+            if arms_agree is False:
+                arms_lr = arms_lr[::-1]
+            if legs_agree is None or arms_agree is None:
+                self.warnings.append("left and right could not be told apart; sides are a guess")
+        elif legs_agree is False and arms_agree is False:
+            mirrored = True
+            legs_lr, arms_lr = legs_lr[::-1], arms_lr[::-1]
+            self.warnings.append("mirrored capture: stored un-mirrored")
+        elif legs_agree is False or arms_agree is False:
+            which = "legs" if legs_agree is False else "arms"
+            self.warnings.append(
+                f"the joint names put the {which} on the other side from the geometry; "
+                "sides taken from the geometry"
+            )
+        for side, leg, arm in zip(SIDES, legs_lr, arms_lr, strict=True):
+            for part, joint in leg.joints.items():
+                self.put(f"{side}_{part}", joint, leg.how[part])
+            for part, joint in arm.joints.items():
+                self.put(f"{side}_{part}", joint, arm.how[part])
+            self.derived.append(f"{side}_hand_tip")
+            if self.how[f"{side}_toe"].startswith("derived"):
+                self.derived.append(f"{side}_toe")
+        return mirrored, axis
 
 
 def _is_thumb(name: str) -> bool:
@@ -267,31 +974,29 @@ def _is_thumb(name: str) -> bool:
     return "thumb" in normalise_name(name)
 
 
-def _path_between(parents: np.ndarray, top: int, bottom: int) -> list[int] | None:
-    """Joints from ``top`` down to ``bottom`` inclusive, or None if ``top`` is no ancestor."""
-    path = [bottom]
-    j = bottom
-    while j != top:
-        j = int(parents[j])
-        if j < 0:
-            return None
-        path.append(j)
-    return path[::-1]
-
-
-def _farthest_descendant(
-    skeleton: Skeleton, start: int, skip: Callable[[str], bool] | None = None
-) -> int:
+def _farthest_descendant(tree: _Tree, start: int, skip: Callable[[str], bool] | None = None) -> int:
     """Descendant of ``start`` (inclusive) with the longest bone path from it."""
-    lengths = np.linalg.norm(skeleton.offsets, axis=1)
     best, best_distance = start, 0.0
     stack = [(start, 0.0)]
     while stack:
         joint, distance = stack.pop()
         if distance > best_distance:
             best, best_distance = joint, distance
-        for child in skeleton.children(joint):
-            if skip is not None and skip(skeleton.names[child]):
+        for child in tree.children[joint]:
+            if skip is not None and skip(tree.names[child]):
                 continue
-            stack.append((child, distance + float(lengths[child])))
+            stack.append((child, distance + float(tree.lengths[child])))
     return best
+
+
+__all__ = [
+    "CANONICAL_BONES",
+    "CANONICAL_INDEX",
+    "CANONICAL_JOINTS",
+    "CANONICAL_PARENT",
+    "MIRROR_INDEX",
+    "SkeletonMap",
+    "map_skeleton",
+    "normalise_name",
+    "rest_pose",
+]

@@ -115,29 +115,57 @@ def opposite_side_names(names: tuple[str, ...]) -> tuple[str, ...]:
     return tuple(out)
 
 
-def mirror(motion: Motion, *, lateral_axis: int = 0) -> Motion:
-    """Mirror the motion left-to-right.
+def change_basis(motion: Motion, matrix: np.ndarray) -> Motion:
+    """The same clip written in other coordinates: ``(3, 3)`` orthogonal ``matrix`` ``Q``.
 
-    World coordinate ``lateral_axis`` is negated (a reflection ``M`` across a plane containing
-    the up axis), every rotation ``R`` becomes ``M R M`` and every offset ``M o``, and joint
-    names swap sides so the joint labelled left is again on the subject's left.
+    Every offset and translation becomes ``Q o`` and every rotation ``Q R Q^T``, so positions
+    from forward kinematics become ``Q p``: with a rotation, the file of another up axis (a
+    Y-up clip as a Z-up exporter writes it, rest pose included); with a reflection, the
+    clip seen in a mirror.
     """
-    reflect = np.ones(3)
-    reflect[lateral_axis] = -1.0
-    m = np.diag(reflect)
+    q = np.asarray(matrix, dtype=np.float64)
     skeleton = motion.skeleton
-    mirrored = Skeleton(
-        names=opposite_side_names(skeleton.names),
+    changed = Skeleton(
+        names=skeleton.names,
         parents=skeleton.parents,
-        offsets=skeleton.offsets * reflect,
+        offsets=skeleton.offsets @ q.T,
         end_site=skeleton.end_site,
     )
     return _replace(
         motion,
-        skeleton=mirrored,
-        root_translation=motion.root_translation * reflect,
-        local_rotations=m @ motion.local_rotations @ m,
+        skeleton=changed,
+        root_translation=motion.root_translation @ q.T,
+        local_rotations=q @ motion.local_rotations @ q.T,
         local_translations=None
         if motion.local_translations is None
-        else motion.local_translations * reflect,
+        else motion.local_translations @ q.T,
     )
+
+
+def reflect(motion: Motion, *, axis: int = 0) -> Motion:
+    """The motion seen in a mirror: world coordinate ``axis`` negated, names unchanged.
+
+    Undoes a mirrored capture (the limbs called left on the subject's right) without
+    renaming anything; see :func:`change_basis`.
+    """
+    flip = np.ones(3)
+    flip[axis] = -1.0
+    return change_basis(motion, np.diag(flip))
+
+
+def mirror(motion: Motion, *, lateral_axis: int = 0) -> Motion:
+    """Mirror the motion left-to-right.
+
+    World coordinate ``lateral_axis`` is negated (a reflection ``M`` across a plane containing
+    the up axis, see :func:`reflect`), and joint names swap sides so the joint labelled left
+    is again on the subject's left.
+    """
+    reflected = reflect(motion, axis=lateral_axis)
+    skeleton = reflected.skeleton
+    renamed = Skeleton(
+        names=opposite_side_names(skeleton.names),
+        parents=skeleton.parents,
+        offsets=skeleton.offsets,
+        end_site=skeleton.end_site,
+    )
+    return _replace(reflected, skeleton=renamed)

@@ -11,9 +11,10 @@ query of a few seconds can be matched against the part of a take that looks like
 
 The contract :func:`describe_windows` keeps, whatever its implementation: a window's vector
 equals ``REGISTRY[name].compute`` on the body sliced to the window's frames (1e-5), so the
-whole clip's span gives the clip's vector. This first implementation does exactly that, one
-window at a time; a faster one (cumulative sums of per-frame quantities) must give the same
-numbers. No web, database or FAISS code here.
+whole clip's span gives the clip's vector. The descriptors' ``compute_spans`` keep it from
+prefix sums of per-frame quantities (:mod:`app.motion.spans`), one pass per clip whatever the
+number of windows; tests/motion/test_windows.py checks the contract. No web, database or FAISS
+code here.
 """
 
 from __future__ import annotations
@@ -93,12 +94,13 @@ def describe_windows(body: Body, spans: np.ndarray, names: Sequence[str]) -> dic
         raise ValueError(f"window spans must lie within the body's {body.frame_count} frames")
     if np.any(spans[:, 2] <= spans[:, 1]):
         raise ValueError("window spans must hold at least one frame (start < stop)")
-    out = {name: np.empty((spans.shape[0], REGISTRY[name].dimension), np.float32) for name in names}
-    for row, (_, start, stop) in enumerate(spans.tolist()):
-        part = body if start == 0 and stop == body.frame_count else slice_body(body, start, stop)
-        for name in names:
-            out[name][row] = REGISTRY[name].compute(part)
-    return out
+    # One pass per descriptor: prefix sums give every window in O(1) (app/motion/spans.py).
+    return {
+        name: np.ascontiguousarray(
+            REGISTRY[name].compute_spans(body, np.ascontiguousarray(spans[:, 1:])), np.float32
+        )
+        for name in names
+    }
 
 
 __all__ = ["DEFAULT_LENGTHS", "describe_windows", "slice_body", "window_frames", "window_spans"]

@@ -1,10 +1,18 @@
-"""Uploaded files, kept content-addressed: ``<root>/<sha256[:2]>/<sha256>``.
+"""Uploaded files, kept content-addressed (by the sha256 of their bytes), in one of two stores
+behind one interface, :class:`BlobStore`:
+
+:class:`FileBlobStore` (SQLite)
+    ``<root>/<sha256[:2]>/<sha256>`` files beside the database file: one machine.
+:class:`DatabaseBlobStore` (PostgreSQL)
+    rows of the ``blobs`` table, so every replica, on any machine, needs nothing but the
+    database URL, and a database backup holds the files too.
 
 Identical bytes are stored once (a CMU skeleton shared by many motions, say); the database's
 ``clip_files`` rows say which clips use a file, and the service deletes a file only when no
-clip refers to it any more.
+clip refers to it any more. Files are stored (and committed) before the clip rows that name
+them; those a crash left without a clip are removed by :meth:`BlobStore.remove_unreferenced`.
 
-Paths come from sha256 hex digests only (:meth:`BlobStore.path` refuses anything else): a
+Paths come from sha256 hex digests only (:meth:`FileBlobStore.path` refuses anything else): a
 file name a user uploads is kept in the database as text and never becomes a path.
 """
 
@@ -16,21 +24,60 @@ import os
 import re
 import threading
 from collections.abc import Iterator
+from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any, Protocol
 
+from sqlalchemy import Engine, Exists, delete, exists, select
+from sqlalchemy.dialects.postgresql import insert as pg_insert
+from sqlalchemy.exc import SQLAlchemyError
+from sqlalchemy.orm import Session
+
+from app.db import repository as repo
+from app.db.models import Blob, ClipFile
 from app.errors import StorageUnavailable
 
 _SHA256 = re.compile(r"[0-9a-f]{64}")
 
 
-class BlobStore:
+def _check_sha256(sha256: str) -> str:
+    if len(sha256) != 64 or any(c not in "0123456789abcdef" for c in sha256):
+        raise ValueError(f"not a sha256 hex digest: {sha256!r}")
+    return sha256
+
+
+class BlobStore(Protocol):
+    """Where uploaded files are kept; every file is named by the sha256 of its bytes."""
+
+    def put(self, data: bytes) -> tuple[str, bool]:
+        """Store ``data`` durably; returns its sha256 and whether it was not stored before."""
+        ...
+
+    def read(self, sha256: str) -> bytes:
+        """The stored bytes (:class:`StorageUnavailable` when they cannot be read)."""
+        ...
+
+    def exists(self, sha256: str) -> bool: ...
+
+    def delete(self, sha256: str) -> None:
+        """Remove a file (the caller checked that no clip refers to it)."""
+        ...
+
+    def remove_unreferenced(self, session: Session, *, older_than: float) -> int:
+        """Remove the files no clip refers to (as ``session`` sees the database) and any
+        half-written ones, last written before ``older_than`` (a ``time.time()`` value);
+        returns how many went."""
+        ...
+
+
+class FileBlobStore:
+    """Files under ``root`` (SQLite deployments: one machine)."""
+
     def __init__(self, root: Path) -> None:
         self.root = root
 
     def path(self, sha256: str) -> Path:
-        if len(sha256) != 64 or any(c not in "0123456789abcdef" for c in sha256):
-            raise ValueError(f"not a sha256 hex digest: {sha256!r}")
-        return self.root / sha256[:2] / sha256
+        return self.root / sha256[:2] / _check_sha256(sha256)
 
     def put(self, data: bytes) -> tuple[str, bool]:
         """Store ``data``; returns its sha256 and whether a new file was written."""
@@ -106,3 +153,75 @@ class BlobStore:
             with contextlib.suppress(OSError):
                 path.parent.rmdir()
         return removed
+
+    def remove_unreferenced(self, session: Session, *, older_than: float) -> int:
+        listed = list(self.stored())
+        shas = [sha for sha, _ in listed]
+        referenced: set[str] = set()
+        for start in range(0, len(shas), repo.IN_CHUNK):
+            referenced |= repo.referenced_blobs(session, shas[start : start + repo.IN_CHUNK])
+        return self.sweep(listed, referenced, older_than=older_than)
+
+
+class DatabaseBlobStore:
+    """Rows of the ``blobs`` table (PostgreSQL deployments: any number of machines). Each
+    ``put`` commits on its own, before the clip that names the file, as a file is written
+    before its clip on SQLite."""
+
+    def __init__(self, engine: Engine) -> None:
+        self._engine = engine
+
+    def put(self, data: bytes) -> tuple[str, bool]:
+        sha = hashlib.sha256(data).hexdigest()
+        statement = (
+            pg_insert(Blob)
+            .values(sha256=sha, size=len(data), data=data, created_at=datetime.now(UTC))
+            .on_conflict_do_nothing(index_elements=[Blob.sha256])
+            .returning(Blob.sha256)
+        )
+        try:
+            with self._engine.begin() as connection:
+                new = connection.execute(statement).first() is not None
+        except SQLAlchemyError as exc:
+            raise StorageUnavailable(f"cannot store the uploaded file: {exc}") from exc
+        return sha, new
+
+    def read(self, sha256: str) -> bytes:
+        try:
+            with self._engine.connect() as connection:
+                data = connection.scalar(
+                    select(Blob.data).where(Blob.sha256 == _check_sha256(sha256))
+                )
+        except SQLAlchemyError as exc:
+            raise StorageUnavailable(f"stored file {sha256[:12]}... cannot be read: {exc}") from exc
+        if data is None:
+            raise StorageUnavailable(f"stored file {sha256[:12]}... is missing from the database")
+        return bytes(data)
+
+    def exists(self, sha256: str) -> bool:
+        with self._engine.connect() as connection:
+            found = connection.scalar(select(Blob.sha256).where(Blob.sha256 == sha256))
+        return found is not None
+
+    def delete(self, sha256: str) -> None:
+        # Only while unreferenced: a clip committed meanwhile by another replica keeps it.
+        with self._engine.begin() as connection:
+            connection.execute(delete(Blob).where(Blob.sha256 == sha256, ~_referenced(Blob.sha256)))
+
+    def remove_unreferenced(self, session: Session, *, older_than: float) -> int:
+        cutoff = datetime.fromtimestamp(older_than, UTC)
+        result = session.execute(
+            delete(Blob).where(Blob.created_at < cutoff, ~_referenced(Blob.sha256))
+        )
+        return int(result.rowcount or 0)  # type: ignore[attr-defined]
+
+
+def _referenced(sha256: Any) -> Exists:
+    return exists().where(ClipFile.sha256 == sha256)
+
+
+def open_blob_store(engine: Engine, files_dir: Path) -> BlobStore:
+    """The database itself on PostgreSQL, the ``files_dir`` directory otherwise."""
+    if engine.dialect.name == "postgresql":
+        return DatabaseBlobStore(engine)
+    return FileBlobStore(files_dir)

@@ -6,18 +6,21 @@ import io
 import logging
 import time
 import zipfile
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import PurePosixPath
 
 from sqlalchemy.exc import SQLAlchemyError
 
 from app.db import repository as repo
-from app.errors import InvalidInput, NotFound, ParseError, StorageUnavailable
+from app.errors import InvalidInput, NoStoredFile, NotFound, ParseError, StorageUnavailable
+from app.labels import label_filter
 from app.motion.formats import decode_text
+from app.motion.formats.bvh_writer import write_bvh
 from app.motion.formats.cut import cut_amc, cut_bvh
-from app.services.describe import span_frames
-from app.services.library import Library
-from app.services.uploads import BVH
+from app.services.describe import read_motion, span_frames
+from app.services.library import Library, drop_clip_windows
+from app.services.uploads import ASF_AMC, BVH, Upload
 
 log = logging.getLogger(__name__)
 
@@ -45,9 +48,9 @@ def get_clip(library: Library, clip_id: int) -> repo.ClipRecord:
 
 
 def list_clips(
-    library: Library, *, label: str | None, limit: int, offset: int
+    library: Library, *, label: repo.LabelFilter, limit: int, offset: int
 ) -> tuple[list[repo.ClipRecord], int]:
-    """One page of clips in id order and the total matching ``label``."""
+    """One page of clips in id order and the total carrying every label of ``label``."""
     with library.reads() as session:
         return repo.list_clips(session, label=label, limit=limit, offset=offset)
 
@@ -59,12 +62,26 @@ def clip_vectors(library: Library, clip_id: int) -> dict[str, repo.StoredVector]
 
 
 def update_clip(
-    library: Library, clip_id: int, *, name: str | None, labels: tuple[str, ...] | None
+    library: Library,
+    clip_id: int,
+    *,
+    name: str | None,
+    labels: tuple[str, ...] | None,
+    notes: Mapping[str, str | None] | None = None,
 ) -> repo.ClipRecord:
-    """Rename and/or relabel a clip (``None`` leaves a field as it is)."""
+    """Rename and/or relabel a clip (``None`` leaves a field as it is); ``notes`` sets
+    ``source`` and/or ``licence`` (a ``None`` value clears one)."""
     try:
         with library.writes.begin() as session:
-            found = repo.update_clip(session, clip_id, name=name, labels=labels)
+            notes = notes or {}
+            found = repo.update_clip(
+                session,
+                clip_id,
+                name=name,
+                labels=labels,
+                source=notes.get("source", repo.UNSET),
+                licence=notes.get("licence", repo.UNSET),
+            )
     except SQLAlchemyError as exc:
         raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
     if not found:
@@ -78,40 +95,92 @@ def delete_clip(library: Library, clip_id: int) -> None:
     with library.write_lock:
         try:
             with library.writes.begin() as session:
-                windows = repo.clip_window_ids(session, clip_id)
                 shas = repo.delete_clip(session, clip_id)
         except SQLAlchemyError as exc:
             raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
         if shas is None:
             raise NotFound(f"no clip with id {clip_id}")
-        # Committed: the clip is gone. What follows tidies caches and files; a failure there
-        # (a full disk, say) must not report the delete as failed.
-        removals = [(index, [clip_id]) for index in library.indexes.values()]
-        removals += [(index, windows.tolist()) for index in library.window_indexes.values()]
-        for index, ids in removals:
-            name = index.name
-            try:
-                index.remove(ids)  # from memory first, then the file is saved
-            except OSError as exc:
-                log.warning(
-                    "clip %d deleted, but the %s index could not be saved (%s); it is brought "
-                    "up to date from the database at the next start",
-                    clip_id,
-                    name,
-                    exc,
-                )
+        _tidy_after_delete(library, [clip_id], shas)
+
+
+def clips_with_labels(library: Library, labels: repo.LabelFilter) -> list[int]:
+    """Ids of the clips carrying every label of ``labels`` (see :func:`delete_clips_with`)."""
+    if not label_filter(labels):
+        raise InvalidInput("label: name the label(s) of the clips to delete")
+    with library.reads() as session:
+        return repo.clip_ids_with_labels(session, labels)
+
+
+def delete_clips_with(library: Library, labels: repo.LabelFilter) -> int:
+    """Delete every clip carrying all of ``labels`` (at least one label; compared
+    case-insensitively) in one transaction, as :func:`delete_clip` does one; returns how many."""
+    if not label_filter(labels):
+        raise InvalidInput("label: name the label(s) of the clips to delete")
+    with library.write_lock:
         try:
-            with library.reads() as session:
-                still_used = repo.referenced_blobs(session, shas)
-            for sha in set(shas) - still_used:
-                library.blobs.delete(sha)
-        except (SQLAlchemyError, OSError) as exc:
+            with library.writes.begin() as session:
+                ids = repo.clip_ids_with_labels(session, labels)
+                shas = repo.delete_clips(session, ids)
+        except SQLAlchemyError as exc:
+            raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
+        if ids:
+            _tidy_after_delete(library, ids, shas)
+    return len(ids)
+
+
+def _tidy_after_delete(library: Library, clip_ids: list[int], shas: list[str]) -> None:
+    """Committed: the clips are gone. Drop them from the indexes and remove the files no clip
+    uses; a failure here (a full disk, say) must not report the delete as failed."""
+    what = f"clip {clip_ids[0]}" if len(clip_ids) == 1 else f"{len(clip_ids)} clips"
+    for name, index in library.indexes.items():
+        try:
+            index.remove(clip_ids)  # from memory first, then the file is saved
+        except OSError as exc:
             log.warning(
-                "clip %d deleted, but its files could not be removed (%s); they go at a later "
-                "start (MOCAP_ORPHAN_FILE_GRACE_SECONDS)",
-                clip_id,
+                "%s deleted, but the %s index could not be saved (%s); it is brought "
+                "up to date from the database at the next start",
+                what,
+                name,
                 exc,
             )
+    drop_clip_windows(library, clip_ids)
+    try:
+        with library.reads() as session:
+            still_used = repo.referenced_blobs(session, shas)
+        for sha in set(shas) - still_used:
+            library.blobs.delete(sha)
+    except (SQLAlchemyError, OSError) as exc:
+        log.warning(
+            "%s deleted, but its files could not be removed (%s); they go at a later "
+            "start (MOCAP_ORPHAN_FILE_GRACE_SECONDS)",
+            what,
+            exc,
+        )
+
+
+def stored_upload(library: Library, clip: repo.ClipRecord) -> Upload:
+    """A stored clip's files as the upload they came in (FBX/glTF: its own animation)."""
+    if not clip.files:  # synthetic benchmark clips have vectors but no upload
+        raise NotFound(f"clip {clip.id} has no stored file ({clip.format} clip)")
+    data = {f.role: (f.filename, library.blobs.read(f.sha256)) for f in clip.files}
+    return Upload.from_files(**data, animation=clip.animation)  # type: ignore[arg-type]
+
+
+def clip_bvh(
+    library: Library, clip: repo.ClipRecord, frames: tuple[int, int] | None = None
+) -> Download:
+    """Any clip as a BVH file of its own skeleton (read again from its stored files; FBX and
+    glTF in a parser worker), optionally frames ``start:stop`` of it."""
+    upload = stored_upload(library, clip)
+    motion = read_motion(upload, library.settings.parse_limits, library.parsers).motion
+    text = write_bvh(motion, frames)
+    stem = PurePosixPath(upload.parts[-1].filename).stem or f"clip-{clip.id}"
+    if clip.animation is not None and len(clip.animations or ()) > 1:
+        stem = f"{stem} - {clip.animation}"
+    name = f"{stem}.bvh"
+    if frames is not None:
+        name = _cut_name(name, frames[0] * clip.frame_time, frames[1] * clip.frame_time)
+    return Download(name, "application/octet-stream", text.encode())
 
 
 def _cut_name(filename: str, start: float, end: float) -> str:
@@ -142,18 +211,34 @@ def clip_download(
     part: str | None,
     start: float | None = None,
     end: float | None = None,
+    *,
+    as_bvh: bool = False,
 ) -> Download:
-    """The original upload: the BVH file itself, or for ASF/AMC a ZIP of both files — or one
-    ``part`` (``"file"``, ``"skeleton"``, ``"motion"``) byte for byte. With ``start`` and/or
-    ``end`` (seconds from the first frame) the motion is cut to that span (see
-    :mod:`app.motion.formats.cut`)."""
+    """The original upload: the file itself, or for ASF/AMC a ZIP of both files — or one
+    ``part`` (``"file"``, ``"skeleton"``, ``"motion"``) byte for byte; with ``as_bvh`` the clip
+    as a BVH file (:func:`clip_bvh`). With ``start`` and/or ``end`` (seconds from the first
+    frame) the motion is cut to that span: BVH and ASF/AMC in their own format (see
+    :mod:`app.motion.formats.cut`); FBX and glTF, which cannot be cut as they are, as the BVH
+    export of the span."""
     if not clip.files:  # synthetic benchmark clips have vectors but no upload
-        raise NotFound(f"clip {clip.id} has no stored file ({clip.format} clip)")
+        raise NoStoredFile(clip.id, clip.format)
     roles = {f.role: f for f in clip.files}
+    if as_bvh and part is not None:
+        raise InvalidInput("part: not with format=bvh (a BVH export is one file)")
     if part is not None and part not in roles:
+        if len(roles) == 1:
+            (only,) = roles.values()
+            raise InvalidInput(
+                f"part: clip {clip.id} is a single {clip.format.upper()} file "
+                f"({only.filename}); leave out 'part' or use part={only.role}"
+            )
         raise InvalidInput(f"part: clip {clip.id} has the parts {', '.join(roles)}")
+    frames = None
     if start is not None or end is not None:
         frames = span_frames(clip.frame_count, clip.frame_time, 0, start, end)
+    if as_bvh or (frames is not None and clip.format not in (BVH, ASF_AMC)):
+        return clip_bvh(library, clip, frames)
+    if frames is not None:
         wanted = [roles[part]] if part is not None else list(clip.files)
         cut = [_cut_part(library, clip, record, frames) for record in wanted]
         if len(cut) == 1:
@@ -186,21 +271,17 @@ def remove_orphan_files(library: Library) -> int:
     ``MOCAP_ORPHAN_FILE_GRACE_SECONDS``; returns how many went.
 
     A crash between writing an upload's files and committing its clip, or between deleting a
-    clip and removing its files, leaves such files. The database write lock is held while
-    looking, so no clip of this database commits meanwhile (SQLite: ``BEGIN IMMEDIATE``); the
-    grace spares the files another process wrote and has not committed yet.
+    clip and removing its files, leaves such files. On SQLite the database write lock is held
+    while looking (``BEGIN IMMEDIATE``), so no clip commits meanwhile; on PostgreSQL one
+    statement removes the unreferenced rows of ``blobs``. Either way the grace spares the files
+    another process (a replica, an import) wrote and has not committed yet.
     """
     settings = library.settings
     cutoff = time.time() - settings.orphan_file_grace_seconds
     with library.write_lock:
         try:
             with library.writes.begin() as session:
-                listed = list(library.blobs.stored())
-                shas = [sha for sha, _ in listed]
-                referenced: set[str] = set()
-                for start in range(0, len(shas), 500):
-                    referenced |= repo.referenced_blobs(session, shas[start : start + 500])
-                removed = library.blobs.sweep(listed, referenced, older_than=cutoff)
+                removed = library.blobs.remove_unreferenced(session, older_than=cutoff)
         except SQLAlchemyError as exc:
             log.warning("could not look for unreferenced stored files: %s", exc)
             return 0

@@ -2,23 +2,26 @@
 
 The service talks to the motion core only through a :class:`Describer`, so storage, indexes
 and the API are generic over the descriptor registry (and testable with synthetic vectors).
-:class:`MotionDescriber` is the real one: parse (BVH or ASF/AMC) -> ``analyse``.
+:class:`MotionDescriber` is the real one: read (:func:`read_motion`: BVH and ASF/AMC here,
+FBX and glTF in parser worker processes) -> ``analyse``.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from app.errors import DescribeTimeout, InvalidInput, LimitExceeded, ParseError
+from app.errors import DescribeTimeout, InvalidInput, LimitExceeded, ParseError, UnreadableFile
 from app.motion.body import Body, build_body
 from app.motion.descriptors import REGISTRY
 from app.motion.formats import read_asf_amc, read_bvh
+from app.motion.formats.scene import Animation
 from app.motion.model import Motion, ParseLimits
 from app.motion.pipeline import analyse
 from app.motion.windows import (
@@ -28,7 +31,8 @@ from app.motion.windows import (
     window_frames,
     window_spans,
 )
-from app.services.uploads import BVH, Upload
+from app.services.parser_pool import SceneParser
+from app.services.uploads import ASF_AMC, BVH, Upload
 
 if TYPE_CHECKING:
     from app.config import Settings
@@ -95,6 +99,10 @@ class Description:
     lead_in_frames: int
     vectors: dict[str, np.ndarray]
     windows: Windows | None = None
+    animation: str | None = None  # FBX/glTF: the animation described
+    animations: tuple[Animation, ...] = ()  # FBX/glTF: every animation of the file
+    warnings: tuple[str, ...] = ()
+    joint_mapping: dict[str, object] | None = None
 
     @property
     def fields(self) -> dict[str, object]:
@@ -106,6 +114,8 @@ class Description:
             "joint_count": self.joint_count,
             "skeleton_family": self.skeleton_family,
             "lead_in_frames": self.lead_in_frames,
+            "warnings": json.dumps(list(self.warnings)),
+            "joint_mapping": None if self.joint_mapping is None else json.dumps(self.joint_mapping),
         }
 
 
@@ -149,25 +159,67 @@ def check_vectors(
     return checked
 
 
+def _part_of(upload: Upload, source: str | None) -> Any:
+    """The uploaded part a parser's message is about (``source`` "ASF"/"AMC" or None)."""
+    if upload.format != ASF_AMC:
+        return upload.parts[0]
+    role = {"ASF": "skeleton", "AMC": "motion"}.get(source or "")
+    return upload.part(role) if role is not None else None
+
+
 def _name_limit_source(error: LimitExceeded, upload: Upload) -> LimitExceeded:
     """A limit the parser hit, saying which uploaded field and file it is about."""
-    if upload.format == BVH:
-        part = upload.parts[0]
-    else:  # the parsers say "ASF line ..." / "AMC line ..."
-        part = upload.part("skeleton" if error.detail.startswith("ASF") else "motion")
+    part = _part_of(upload, "ASF" if error.detail.startswith("ASF") else "AMC")
     return LimitExceeded(f"{part.role} {part.filename!r}: {error.detail}")
 
 
 def _name_source(error: ParseError, upload: Upload) -> ParseError:
     """The parser's error, saying which uploaded field and file it is about."""
-    if upload.format == BVH:
-        part = upload.parts[0]
-    else:
-        role = {"ASF": "skeleton", "AMC": "motion"}.get(error.source or "")
-        if role is None:
-            return error
-        part = upload.part(role)
+    part = _part_of(upload, error.source)
+    if part is None:
+        return error
     return type(error)(error.reason, line=error.line, source=f"{part.role} {part.filename!r}")
+
+
+@dataclass(frozen=True, eq=False)
+class ReadMotion:
+    """An upload read: its motion, and for FBX/glTF the animation read and every one."""
+
+    motion: Motion
+    animation: str | None = None
+    animations: tuple[Animation, ...] = ()
+
+
+def read_motion(upload: Upload, limits: ParseLimits, parsers: SceneParser | None) -> ReadMotion:
+    """Read an upload's motion: BVH and ASF/AMC in this process, FBX and glTF in a worker
+    of ``parsers`` (the one way every part of the service reads a clip).
+
+    Raises ParseError / LimitExceeded naming the uploaded field and file, and UnreadableFile
+    when a worker crashed, hung or ran out of memory.
+    """
+    try:
+        if upload.format == BVH:
+            return ReadMotion(read_bvh(upload.parts[0].data, limits=limits))
+        if upload.format == ASF_AMC:
+            return ReadMotion(
+                read_asf_amc(
+                    upload.part("skeleton").data, upload.part("motion").data, limits=limits
+                )
+            )
+        part = upload.parts[0]
+        if parsers is None:
+            raise UnreadableFile(f"{part.role} {part.filename!r}: no FBX/glTF reader here")
+        try:
+            parsed = parsers.parse(
+                upload.format, part.data, animation=upload.animation, limits=limits
+            )
+        except UnreadableFile as error:
+            raise UnreadableFile(f"{part.role} {part.filename!r}: {error.detail}") from None
+        return ReadMotion(parsed.motion, parsed.animation, parsed.animations)
+    except ParseError as error:
+        raise _name_source(error, upload) from None
+    except LimitExceeded as error:
+        raise _name_limit_source(error, upload) from None
 
 
 class MotionDescriber:
@@ -186,21 +238,36 @@ class MotionDescriber:
         upload does not (joints without channels cost memory but no bytes).
     """
 
-    def __init__(self, *, time_limit: float | None = None, max_values: int | None = None) -> None:
+    def __init__(
+        self,
+        *,
+        time_limit: float | None = None,
+        max_values: int | None = None,
+        parsers: SceneParser | None = None,
+    ) -> None:
         self._descriptors = {
             d.name: DescriptorInfo(d.name, d.dimension, d.version, d.description)
             for d in REGISTRY.values()
         }
         self.time_limit = time_limit
         self.max_values = max_values
+        self.parsers = parsers
 
     @classmethod
-    def from_settings(cls, settings: Settings) -> MotionDescriber:
+    def from_settings(
+        cls, settings: Settings, *, parsers: SceneParser | None = None
+    ) -> MotionDescriber:
         """The describer the service uses: MOCAP_DESCRIBE_TIMEOUT_SECONDS and
-        MOCAP_MAX_FRAME_VALUES applied."""
+        MOCAP_MAX_FRAME_VALUES applied; FBX/glTF read by ``parsers``."""
         return cls(
-            time_limit=settings.describe_timeout_seconds, max_values=settings.max_frame_values
+            time_limit=settings.describe_timeout_seconds,
+            max_values=settings.max_frame_values,
+            parsers=parsers,
         )
+
+    def read(self, upload: Upload, limits: ParseLimits) -> ReadMotion:
+        """:func:`read_motion` under this describer's value cap and parser pool."""
+        return read_motion(upload, self._capped(limits), self.parsers)
 
     def _capped(self, limits: ParseLimits) -> ParseLimits:
         if self.max_values is None:
@@ -224,22 +291,6 @@ class MotionDescriber:
     def descriptors(self) -> Mapping[str, DescriptorInfo]:
         return self._descriptors
 
-    def read(self, upload: Upload, limits: ParseLimits) -> Motion:
-        """Parse ``upload`` (errors name the uploaded field and file)."""
-        limits = self._capped(limits)
-        try:
-            if upload.format == BVH:
-                motion = read_bvh(upload.parts[0].data, limits=limits)
-            else:
-                motion = read_asf_amc(
-                    upload.part("skeleton").data, upload.part("motion").data, limits=limits
-                )
-        except ParseError as error:
-            raise _name_source(error, upload) from None
-        except LimitExceeded as error:
-            raise _name_limit_source(error, upload) from None
-        return motion
-
     def describe(
         self,
         upload: Upload,
@@ -251,10 +302,10 @@ class MotionDescriber:
         """:meth:`Describer.describe`; with ``windows`` (default: when describing every
         descriptor) also the windows of :data:`WINDOW_DESCRIPTORS`."""
         started = time.monotonic()
-        motion = self.read(upload, limits)
+        read = self.read(upload, limits)
         self._check_time(started, "reading the file")
         try:
-            analysis = analyse(motion, descriptors=None if only is None else list(only))
+            analysis = analyse(read.motion, descriptors=None if only is None else list(only))
         except ParseError as error:  # e.g. SkeletonMappingError: joints the descriptors need
             raise _name_source(error, upload) from None
         self._check_time(started, "computing the descriptors")
@@ -270,6 +321,10 @@ class MotionDescriber:
             skeleton_family=analysis.skeleton_family,
             lead_in_frames=analysis.lead_in_frames,
             vectors=check_vectors(analysis.descriptors, self._descriptors),
+            animation=read.animation,
+            animations=read.animations,
+            warnings=analysis.warnings,
+            joint_mapping=analysis.joint_mapping,
             windows=described_windows,
         )
 
@@ -305,7 +360,7 @@ class MotionDescriber:
         the span's own windows of that length, one every ``part_step`` seconds (and one
         ending with the span)."""
         started = time.monotonic()
-        motion = self.read(upload, limits)
+        motion = self.read(upload, limits).motion
         self._check_time(started, "reading the file")
         try:
             body = build_body(motion)

@@ -4,8 +4,10 @@ Order matters. The files are written before the rows that name them, the databas
 before the indexes change (the database is the source of truth: an index can be rebuilt from
 it, not the other way round), and a failure before the commit leaves no row, no vector and
 no file behind. Identical content (same content hash) is stored once: a repeated upload returns
-the existing clip, also when two arrive at once (the UNIQUE content hash settles races with
-other processes; the library's write lock those within this one).
+the existing clip after applying what it brings (its labels are added, its name, source and
+licence replace the stored ones; :func:`apply_to_stored`), also when two arrive at once (the
+UNIQUE content hash settles races with other processes; the library's write lock those within
+this one).
 
 :func:`store_many` is the one way clips are stored: a batch of described uploads goes in one
 transaction (a few multi-row INSERTs), then the indexes follow the database
@@ -16,16 +18,19 @@ worker processes and stores them here in batches; :func:`ingest_many` does both 
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from sqlalchemy.exc import IntegrityError, SQLAlchemyError
 
 from app.db import repository as repo
 from app.errors import MocapError, StorageUnavailable
+from app.labels import merge_labels
 from app.services.describe import Description
 from app.services.library import Library
 from app.services.uploads import Upload, UploadPart
@@ -51,6 +56,15 @@ class Described:
 class IngestResult:
     clip: repo.ClipRecord
     created: bool  # False: the same content was already stored, ``clip`` is that clip
+    changed: bool = False  # a duplicate whose labels, name, source or licence were applied
+
+
+def get_stored(library: Library, clip_id: int) -> repo.ClipRecord:
+    with library.reads() as session:
+        clip = repo.get_clip(session, clip_id)
+    if clip is None:  # deleted by another request meanwhile
+        raise StorageUnavailable("the clip was deleted while it was being changed; try again")
+    return clip
 
 
 def find_existing(library: Library, upload: Upload) -> repo.ClipRecord | None:
@@ -59,9 +73,27 @@ def find_existing(library: Library, upload: Upload) -> repo.ClipRecord | None:
 
 
 def describe(library: Library, upload: Upload, *, only: Sequence[str] | None = None) -> Described:
-    """Parse and describe ``upload`` (blocking, CPU-bound; stores nothing)."""
+    """Parse and describe ``upload`` (blocking, CPU-bound; stores nothing). An FBX/glTF
+    upload comes back knowing which animation it holds (and so its content hash)."""
     description = library.describer.describe(upload, library.settings.parse_limits, only=only)
-    return Described(upload, description)
+    return Described(described_upload(upload, description), description)
+
+
+def described_upload(upload: Upload, description: Description) -> Upload:
+    """``upload`` with the animation its description read (FBX/glTF), else as it is."""
+    if description.animation is None:
+        return upload
+    return upload.with_animations(description.animations, description.animation)
+
+
+def animation_records(upload: Upload) -> tuple[repo.AnimationRecord, ...] | None:
+    """The file's animations as stored with the clip (None for BVH and ASF/AMC)."""
+    if upload.animation is None:
+        return None
+    return tuple(
+        repo.AnimationRecord(a.name, a.frame_count, a.duration, a.name == upload.animation)
+        for a in upload.animations
+    )
 
 
 def new_clip(library: Library, item: Described) -> repo.NewClip:
@@ -79,13 +111,18 @@ def new_clip(library: Library, item: Described) -> repo.NewClip:
         joint_count=description.joint_count,
         skeleton_family=description.skeleton_family,
         lead_in_frames=description.lead_in_frames,
+        warnings=description.warnings,
+        joint_mapping=description.joint_mapping,
         labels=upload.labels,
+        source=upload.source,
+        licence=upload.licence,
         files=tuple(repo.FileRecord(p.role, p.filename, p.sha256, p.size) for p in upload.parts),
         vectors={
             name: repo.StoredVector(library.descriptors[name].version, vector)
             for name, vector in description.vectors.items()
         },
         windows=new_windows(library, description),
+        animations=animation_records(upload),
     )
 
 
@@ -198,21 +235,71 @@ def store_many(library: Library, items: Sequence[Described]) -> list[IngestResul
             break
         with library.reads() as session:
             by_hash = repo.clip_ids_by_hash(session, hashes)
+        changed = apply_to_stored(
+            library,
+            [
+                (by_hash[item.upload.content_hash], item.upload)
+                for item in items
+                if item.upload.content_hash not in created and item.upload.content_hash in by_hash
+            ],
+        )
+        with library.reads() as session:
             clips = repo.get_clips(session, by_hash.values())
     results = []
     reported: set[str] = set()
     for content_hash in hashes:
         is_new = content_hash in created and content_hash not in reported
         reported.add(content_hash)
-        results.append(IngestResult(clips[by_hash[content_hash]], is_new))
+        clip_id = by_hash[content_hash]
+        results.append(IngestResult(clips[clip_id], is_new, clip_id in changed))
     return results
+
+
+def apply_to_stored(library: Library, duplicates: Sequence[tuple[int, Upload]]) -> set[int]:
+    """Apply to already-stored clips what repeated uploads of their content bring: labels are
+    added (those the clip lacks, in any case), a given name, source or licence replaces the
+    stored one. One transaction; returns the ids of the clips that changed."""
+    wanted = [(clip_id, upload) for clip_id, upload in duplicates if _brings_something(upload)]
+    if not wanted:
+        return set()
+    changed: set[int] = set()
+    try:
+        with library.writes.begin() as session:
+            stored = repo.get_clips(session, [clip_id for clip_id, _ in wanted])
+            for clip_id, upload in wanted:
+                clip = stored.get(clip_id)
+                if clip is None:
+                    continue
+                labels = merge_labels(clip.labels, upload.labels)
+                updates: dict[str, Any] = {}
+                if labels != clip.labels:
+                    updates["labels"] = labels
+                for key in ("name", "source", "licence"):
+                    value = getattr(upload, key)
+                    if value is not None and value != getattr(clip, key):
+                        updates[key] = value
+                if updates:
+                    repo.update_clip(session, clip_id, **updates)
+                    stored[clip_id] = dataclasses.replace(clip, **updates)
+                    changed.add(clip_id)
+    except SQLAlchemyError as exc:
+        raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
+    return changed
+
+
+def _brings_something(upload: Upload) -> bool:
+    return bool(upload.labels) or any(
+        value is not None for value in (upload.name, upload.source, upload.licence)
+    )
 
 
 def ingest(library: Library, upload: Upload) -> IngestResult:
     """Store one upload (or return the clip already holding the same content)."""
-    existing = find_existing(library, upload)
-    if existing is not None:
-        return IngestResult(existing, created=False)  # no need to read it again
+    existing = find_existing(library, upload) if upload.knows_content_hash else None
+    if existing is not None:  # no need to read it again
+        if not apply_to_stored(library, [(existing.id, upload)]):
+            return IngestResult(existing, created=False)
+        return IngestResult(get_stored(library, existing.id), created=False, changed=True)
     return store_many(library, [describe(library, upload)])[0]
 
 
@@ -232,7 +319,7 @@ def ingest_many(
     batch: list[Described] = []
     for upload in uploads:
         try:
-            if find_existing(library, upload) is None:
+            if not upload.knows_content_hash or find_existing(library, upload) is None:
                 batch.append(describe(library, upload))
             else:
                 batch.append(Described(upload, None))

@@ -5,20 +5,18 @@ database, then loads every descriptor's index (bringing a file that is behind up
 the database, rebuilding one that is missing, unreadable or stale), and hand the
 :class:`Library` to the services.
 
-Several processes may write to one data directory at once (the server and ``mocap-index
-import``). Each keeps its indexes in memory and follows the database, the source of truth:
-clip ids only grow, so :meth:`Library.sync_indexes` adds the vectors of the clips above the
-largest id an index has seen. The writes of this process call it after their commit; searches
-call :meth:`Library.refresh`, which checks the database at most every
-``MOCAP_INDEX_REFRESH_SECONDS``, so clips another process stores become searchable without a
-restart. (On PostgreSQL ids come from a sequence, not in commit order: a clip committed by
-another process after one with a larger id is missed until the next start, whose count check
-adds it. Clips deleted by another process stay in this process's indexes until then, but are
-never returned: a search skips ids that have no row.)
+Several processes may write to one database at once (``mocap-index serve`` replicas, on one
+machine or several, and ``mocap-index import``). Each keeps its indexes in memory and follows
+the database, the source of truth, through its change feed (:mod:`app.db.changes`: a row per
+clip added or deleted, written by triggers): :meth:`Library.sync_indexes` applies the clips
+changed since it last looked. The writes of this process call it after their commit; searches
+call :meth:`Library.refresh`, which looks at most every ``MOCAP_INDEX_REFRESH_SECONDS``, so
+clips another process stores or deletes are found, or no longer found, without a restart. On
+PostgreSQL the feed also catches a clip whose transaction commits after one with a larger id.
 
 The window indexes of moments search (one per windowed descriptor and window length, ids =
-window ids of ``clip_windows``, which only grow too) are loaded, synced, refreshed and rebuilt
-the same way, beside the clip indexes.
+window ids of ``clip_windows``) are loaded, rebuilt and kept up to date the same way, from the
+same feed: a clip's windows come and go with it.
 """
 
 from __future__ import annotations
@@ -27,7 +25,7 @@ import logging
 import sqlite3
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -38,11 +36,13 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from app.config import Settings
 from app.db import repository as repo
+from app.db.changes import ChangeFeed, horizon, read_since
 from app.db.migrate import upgrade
 from app.db.session import create_db_engine, read_sessions, write_sessions
-from app.errors import InvalidInput, StorageUnavailable
+from app.errors import DescriptorOutdated, InvalidInput, StorageUnavailable
 from app.index import DescriptorIndex, IndexOptions, IndexSet
-from app.services.blobs import BlobStore
+from app.motion.descriptors import DEFAULT_DESCRIPTOR
+from app.services.blobs import BlobStore, open_blob_store
 from app.services.describe import (
     WINDOW_DESCRIPTORS,
     WINDOW_LENGTHS,
@@ -50,10 +50,12 @@ from app.services.describe import (
     DescriptorInfo,
     MotionDescriber,
 )
+from app.services.parser_pool import ParserPool
 
 log = logging.getLogger(__name__)
 
-DEFAULT_DESCRIPTOR = "posture"
+# While a descriptor has outdated vectors, how often a search recounts them.
+OUTDATED_RECOUNT_SECONDS = 5.0
 
 
 def index_options(settings: Settings) -> IndexOptions:
@@ -67,8 +69,9 @@ def index_options(settings: Settings) -> IndexOptions:
 
 
 class StoredVectors:
-    """One descriptor's vectors in the database, read in ``session`` (one snapshot) up to clip
-    id ``watermark``: what :meth:`DescriptorIndex.load_or_rebuild` checks an index against."""
+    """One descriptor's vectors in the database, read in ``session``, with the change feed
+    position ``watermark`` taken before them: what :meth:`DescriptorIndex.load_or_rebuild`
+    checks an index against."""
 
     def __init__(self, session: Session, info: DescriptorInfo, watermark: int) -> None:
         self._session = session
@@ -85,16 +88,13 @@ class StoredVectors:
         info = self._info
         return repo.vector_ids(self._session, info.name, info.version, info.dimension)
 
-    def vectors(self, after: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    def vectors(self) -> tuple[np.ndarray, np.ndarray]:
         info = self._info
-        return repo.load_vectors(
-            self._session,
-            info.name,
-            info.version,
-            info.dimension,
-            after=after,
-            upto=self._watermark,
-        )
+        return repo.load_vectors(self._session, info.name, info.version, info.dimension)
+
+    def changed(self, since: int) -> np.ndarray:
+        rows = read_since(self._session, since)[1]
+        return np.unique(np.fromiter((r.clip_id for r in rows), dtype=np.int64, count=len(rows)))
 
     def vectors_of(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         info = self._info
@@ -105,12 +105,17 @@ class StoredVectors:
 
 class StoredWindows:
     """One window index's vectors in the database (see :class:`StoredVectors`); ids are
-    window ids, ``watermark`` the largest window id of the snapshot."""
+    window ids, ``watermark`` the change feed position taken before them. The feed names
+    clips: a changed clip's windows are those ``index`` holds under its id plus those the
+    database holds (a clip's window ids are ``clip id << WINDOW_ID_BITS | ordinal``)."""
 
-    def __init__(self, session: Session, key: repo.WindowKey, watermark: int) -> None:
+    def __init__(
+        self, session: Session, key: repo.WindowKey, watermark: int, index: DescriptorIndex
+    ) -> None:
         self._session = session
         self._key = key
         self._watermark = watermark
+        self._index = index
 
     def watermark(self) -> int:
         return self._watermark
@@ -121,11 +126,47 @@ class StoredWindows:
     def ids(self) -> np.ndarray:
         return repo.window_ids(self._session, self._key)
 
-    def vectors(self, after: int = 0) -> tuple[np.ndarray, np.ndarray]:
-        return repo.load_windows(self._session, self._key, after=after, upto=self._watermark)
+    def vectors(self) -> tuple[np.ndarray, np.ndarray]:
+        return repo.load_windows(self._session, self._key)
+
+    def changed(self, since: int) -> np.ndarray:
+        rows = read_since(self._session, since)[1]
+        clips = np.unique(np.fromiter((r.clip_id for r in rows), dtype=np.int64, count=len(rows)))
+        stored = repo.window_ids_of_clips(self._session, self._key, clips.tolist())
+        return touched_windows(self._index, clips, stored)
 
     def vectors_of(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return repo.load_windows_of(self._session, self._key, ids.tolist())
+
+
+def windows_of_clips(index: DescriptorIndex, clip_ids: np.ndarray) -> np.ndarray:
+    """``(N,)`` int64 ids of the windows ``index`` holds of the clips ``clip_ids``."""
+    if not len(clip_ids) or not index.size:
+        return np.zeros(0, dtype=np.int64)
+    held = index.ids()
+    return held[np.isin(held >> repo.WINDOW_ID_BITS, np.asarray(clip_ids, dtype=np.int64))]
+
+
+def touched_windows(index: DescriptorIndex, clip_ids: np.ndarray, stored: np.ndarray) -> np.ndarray:
+    """The window ids to check when the clips ``clip_ids`` changed: those ``index`` holds of
+    them and ``stored`` ``(N,)``, those the database holds now."""
+    return np.union1d(windows_of_clips(index, clip_ids), stored)
+
+
+def drop_clip_windows(library: Library, clip_ids: Sequence[int]) -> None:
+    """Remove deleted clips' windows from this process's window indexes (the feed would, at
+    the next sync; searches meanwhile skip windows without a row)."""
+    clips = np.asarray(list(clip_ids), dtype=np.int64)
+    for name, index in library.window_indexes.items():
+        try:
+            index.remove(windows_of_clips(index, clips))
+        except OSError as exc:
+            log.warning(
+                "clips deleted, but the %s index could not be saved (%s); it is brought up "
+                "to date from the database at the next start",
+                name,
+                exc,
+            )
 
 
 def window_index_name(descriptor: str, length: float) -> str:
@@ -165,17 +206,63 @@ class Library:
     # Moments search: one index per window descriptor and length, keyed like window_keys.
     window_indexes: IndexSet = field(default_factory=lambda: IndexSet({}))
     window_keys: dict[str, repo.WindowKey] = field(default_factory=dict)
+    # FBX/glTF readers' worker processes (started when first needed); None: those formats
+    # cannot be read (a describer of the tests' own).
+    parsers: ParserPool | None = None
     write_lock: threading.Lock = field(default_factory=threading.Lock)
     search_reads: repo.SearchReads = field(init=False, repr=False)
     _sync_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
     _checked_at: float = field(default=0.0, repr=False)
+    # Descriptor -> stored vectors of an older version, and when that was last counted.
+    _outdated: dict[str, int] = field(default_factory=dict, repr=False)
+    _outdated_at: float = field(default=0.0, repr=False)
+    _feed: ChangeFeed = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         self.search_reads = repo.SearchReads(self.engine)
+        # Every index is at least this far along the feed (they were loaded from one snapshot).
+        self._feed = ChangeFeed(min((i.synced_to for i in self.indexes.values()), default=0))
 
     @property
     def descriptors(self) -> Mapping[str, DescriptorInfo]:
         return self.describer.descriptors
+
+    @property
+    def default_descriptor(self) -> str:
+        """The descriptor a search uses when none is named: ``motion`` (the best all-round
+        one) when the describer has it, else the describer's first."""
+        if DEFAULT_DESCRIPTOR in self.descriptors:
+            return DEFAULT_DESCRIPTOR
+        return next(iter(self.descriptors))
+
+    def count_outdated(self) -> dict[str, int]:
+        """Descriptor -> how many stored vectors are of an older version (counted now)."""
+        with self.reads() as session:
+            counts = {
+                name: repo.count_outdated_vectors(session, name, info.version)
+                for name, info in self.descriptors.items()
+            }
+        self._outdated, self._outdated_at = counts, time.monotonic()
+        return counts
+
+    def require_current(self, name: str) -> None:
+        """Refuse (409 ``descriptor_outdated``) a search under descriptor ``name`` while stored
+        clips hold vectors of an older version of it — a library written by an earlier
+        release: the search would silently miss them. Free once the library is current
+        (counted at start; recounted at most every few seconds while it is not)."""
+        if not self._outdated.get(name):
+            return
+        if time.monotonic() - self._outdated_at > OUTDATED_RECOUNT_SECONDS:
+            self.count_outdated()
+        outdated = self._outdated.get(name, 0)
+        if outdated:
+            version = self.descriptors[name].version
+            raise DescriptorOutdated(
+                f"{outdated} stored clips have {name!r} vectors of an older version than "
+                f"{version} (written by an earlier release of mocap-index); stop the service "
+                "and run `mocap-index reindex` to recompute them, or search with another "
+                "descriptor"
+            )
 
     def descriptor(self, name: str) -> DescriptorInfo:
         """The descriptor called ``name``; :class:`InvalidInput` (422) names the known ones."""
@@ -189,80 +276,65 @@ class Library:
         """Refill one index from the database (the source of truth) and save it."""
         info = self.descriptors[name]
         with self._sync_lock, self.reads() as session:
-            top = repo.max_clip_id(session)
-            ids, vectors = repo.load_vectors(
-                session, info.name, info.version, info.dimension, upto=top
-            )
-            self.indexes[name].replace_all(ids, vectors, synced_to=top)
+            position = horizon(session)  # before the vectors: nothing older is missed
+            ids, vectors = repo.load_vectors(session, info.name, info.version, info.dimension)
+            self.indexes[name].replace_all(ids, vectors, synced_to=position)
 
     def rebuild_window_indexes(self) -> None:
         """Refill every window index from the database and save it."""
         with self._sync_lock, self.reads() as session:
-            top = repo.max_window_id(session)
+            position = horizon(session)  # before the vectors: nothing older is missed
             for name, key in self.window_keys.items():
-                ids, vectors = repo.load_windows(session, key, upto=top)
-                self.window_indexes[name].replace_all(ids, vectors, synced_to=top)
+                ids, vectors = repo.load_windows(session, key)
+                self.window_indexes[name].replace_all(ids, vectors, synced_to=position)
 
     def sync_indexes(self, *, wait: bool = True) -> bool:
-        """Add to the indexes the vectors of clips committed since they last looked (by this
+        """Apply to the indexes the clips added or deleted since they last looked (by this
         process or another one). With ``wait=False`` it returns False at once when another
         thread is syncing (that thread brings the indexes up to date)."""
         if not self._sync_lock.acquire(blocking=wait):
             return False
         try:
-            with self.reads() as session:  # one snapshot: every clip up to ``top``
-                top = repo.max_clip_id(session)
+            with self.reads() as session:
+                poll = self._feed.poll(session)
+                changed = poll.clip_ids
                 for name, info in self.descriptors.items():
                     index = self.indexes[name]
-                    if index.synced_to >= top:
-                        continue
-                    ids, vectors = repo.load_vectors(
-                        session,
-                        info.name,
-                        info.version,
-                        info.dimension,
-                        after=index.synced_to,
-                        upto=top,
+                    ids, vectors = repo.load_vectors_of(
+                        session, info.name, info.version, info.dimension, changed.tolist()
                     )
                     try:
-                        index.add(ids, vectors, synced_to=top)
+                        index.apply_changes(changed, ids, vectors, synced_to=poll.position)
                     except Exception:
                         # The rows are committed; the index is only a cache of them.
-                        log.exception("adding to the %s index failed; rebuilding it", name)
+                        log.exception("updating the %s index failed; rebuilding it", name)
+                        position = horizon(session)
                         everything = repo.load_vectors(
-                            session, info.name, info.version, info.dimension, upto=top
+                            session, info.name, info.version, info.dimension
                         )
-                        index.replace_all(*everything, synced_to=top, persist=False)
+                        index.replace_all(*everything, synced_to=position, persist=False)
                         index.try_save()
-                if self.window_keys:
-                    self._sync_windows(session)
+                self._sync_windows(session, changed, poll.position)
+                self._feed.advance(poll)
         finally:
             self._sync_lock.release()
         return True
 
-    def _sync_windows(self, session: Session) -> None:
-        top = repo.max_window_id(session)
+    def _sync_windows(self, session: Session, changed: np.ndarray, position: int) -> None:
+        """The window indexes follow the same feed: a changed clip's windows are replaced
+        by those the database holds now (none when it was deleted)."""
         for name, key in self.window_keys.items():
             index = self.window_indexes[name]
-            if index.synced_to >= top:
-                continue
-            ids, vectors = repo.load_windows(session, key, after=index.synced_to, upto=top)
             try:
-                index.add(ids, vectors, synced_to=top)
+                ids, vectors = repo.load_windows_of_clips(session, key, changed.tolist())
+                touched = touched_windows(index, changed, ids)
+                index.apply_changes(touched, ids, vectors, synced_to=position)
             except Exception:
-                log.exception("adding to the %s index failed; rebuilding it", name)
-                everything = repo.load_windows(session, key, upto=top)
-                index.replace_all(*everything, synced_to=top, persist=False)
+                log.exception("updating the %s index failed; rebuilding it", name)
+                position = horizon(session)
+                everything = repo.load_windows(session, key)
+                index.replace_all(*everything, synced_to=position, persist=False)
                 index.try_save()
-
-    def _behind(self, db: repo.SearchSnapshot) -> bool:
-        top = db.max_clip_id()
-        if top > min((index.synced_to for index in self.indexes.values()), default=top):
-            return True
-        if not self.window_keys:
-            return False
-        top = db.max_window_id()
-        return top > min((index.synced_to for index in self.window_indexes.values()), default=top)
 
     def refresh(self) -> None:
         """Bring the indexes up to date with the database when the last check is older than
@@ -272,18 +344,24 @@ class Library:
             return
         self._checked_at = now
         try:
-            with self.search_reads.snapshot() as db:
-                behind = self._behind(db)
-            if behind:
-                self.sync_indexes(wait=False)
+            self.sync_indexes(wait=False)
         except (SQLAlchemyError, sqlite3.Error) as exc:  # the indexes as they are still work
-            log.warning("could not check the database for new clips: %s", exc)
+            log.warning("could not check the database for changed clips: %s", exc)
 
     def save_indexes(self) -> None:
         """Write the indexes that have unsaved changes (large ones are not saved after every
         change; a file that is behind is brought up to date from the database when loaded)."""
         self.indexes.save(only_changed=True)
         self.window_indexes.save(only_changed=True)
+
+    def vector_counts(self) -> tuple[int, dict[str, int]]:
+        """The number of clips and, per descriptor, of current vectors (one snapshot)."""
+        with self.reads() as session:
+            clips = repo.count_clips(session)
+            return clips, {
+                name: repo.count_vectors(session, name, info.version)
+                for name, info in self.descriptors.items()
+            }
 
     def clip_count(self) -> int:
         with self.reads() as session:
@@ -295,6 +373,8 @@ class Library:
         finally:
             self.search_reads.close()
             self.engine.dispose()
+            if self.parsers is not None:
+                self.parsers.close()
 
 
 def _open_indexes(
@@ -318,30 +398,31 @@ def _open_indexes(
     every = [*indexes.values(), *windows.values()]
     with ThreadPoolExecutor(max_workers=max(1, min(8, len(every)))) as pool:
         files = dict(zip(every, pool.map(DescriptorIndex.read_file, every), strict=True))
-    with reads() as session:  # one snapshot of the database for every index
-        watermark = repo.max_clip_id(session)
+    with reads() as session:  # one feed position for every index, taken before their vectors
+        watermark = horizon(session)
         for info in descriptors.values():
             source = StoredVectors(session, info, watermark)
             index = indexes[info.name]
             index.load_or_rebuild(source, files.pop(index))
-        top = repo.max_window_id(session)
         for name, key in keys.items():
             index = windows[name]
-            index.load_or_rebuild(StoredWindows(session, key, top), files.pop(index))
+            index.load_or_rebuild(StoredWindows(session, key, watermark, index), files.pop(index))
     return IndexSet(indexes), IndexSet(windows)
 
 
 def open_library(settings: Settings, *, describer: Describer | None = None) -> Library:
     """Migrate the database to the newest schema and load (or rebuild) the indexes."""
+    parsers = ParserPool.from_settings(settings)  # no process until an FBX/glTF arrives
     if describer is None:
-        describer = MotionDescriber.from_settings(settings)
-    if DEFAULT_DESCRIPTOR not in describer.descriptors:
-        raise RuntimeError(f"the default descriptor {DEFAULT_DESCRIPTOR!r} is not registered")
+        describer = MotionDescriber.from_settings(settings, parsers=parsers)
+    if not describer.descriptors:
+        raise RuntimeError("the describer offers no descriptor")
     try:
         settings.data_dir.mkdir(parents=True, exist_ok=True)
         engine = create_db_engine(settings.sqlalchemy_url)
         upgrade(engine)
     except (OSError, SQLAlchemyError) as exc:
+        parsers.close()
         raise StorageUnavailable(f"cannot open the database: {exc}") from exc
     reads = read_sessions(engine)
     try:
@@ -350,6 +431,7 @@ def open_library(settings: Settings, *, describer: Describer | None = None) -> L
             clips = repo.count_clips(session)
     except BaseException:
         engine.dispose()
+        parsers.close()
         raise
     for name, size in indexes.sizes().items():
         if size < clips:
@@ -360,14 +442,25 @@ def open_library(settings: Settings, *, describer: Describer | None = None) -> L
                 clips,
                 name,
             )
-    return Library(
+    library = Library(
         settings=settings,
         engine=engine,
         reads=reads,
         writes=write_sessions(engine),
-        blobs=BlobStore(settings.files_dir),
+        blobs=open_blob_store(engine, settings.files_dir),
         indexes=indexes,
         describer=describer,
         window_indexes=windows,
         window_keys=window_keys(describer.descriptors),
+        parsers=parsers,
     )
+    for name, outdated in library.count_outdated().items():
+        if outdated:
+            log.warning(
+                "%d clips have %r vectors of an older version: searches under %r answer 409 "
+                "until `mocap-index reindex` recomputes them",
+                outdated,
+                name,
+                name,
+            )
+    return library

@@ -5,10 +5,10 @@ Stick figures (:func:`clip_skeleton`)
     (parse -> :func:`~app.motion.body.build_body`, so converter lead-in frames are dropped as
     for the descriptors). The canonical joints are put in a *display frame*: lengths in body
     heights, y up (the file's vertical axis, see :func:`display_up`), the pelvis's floor
-    point at the first frame at the origin (floor = the lowest any joint gets in the clip),
-    facing +z at the first frame (x is then the subject's left). Frames are resampled to
-    the requested rate by linear interpolation in time and cut after
-    :data:`MAX_SKELETON_FRAMES`.
+    point at the first frame at the origin (floor = the 5th percentile over frames of each
+    frame's lowest joint, so a wild frame cannot move it), facing +z at the first frame (x is
+    then the subject's left). Frames are resampled to the requested rate by linear
+    interpolation in time and cut after :data:`MAX_SKELETON_FRAMES`.
 
 Map (:func:`library_map`)
     For every clip two 2-D views, both from the *stored* vectors (no clip is re-read):
@@ -41,14 +41,16 @@ from typing import Any, Generic, TypeVar
 import numpy as np
 
 from app.db import repository as repo
-from app.errors import InvalidInput, ParseError
+from app.errors import InvalidInput, NoStoredFile, ParseError
 from app.motion.body import Body, build_body
 from app.motion.descriptors import kinetic
-from app.motion.formats import read_asf_amc, read_bvh
 from app.motion.model import Motion, ParseLimits
 from app.motion.skeleton_map import CANONICAL_BONES, CANONICAL_INDEX, CANONICAL_JOINTS
+from app.services.clips import stored_upload
+from app.services.describe import read_motion
 from app.services.library import Library
-from app.services.uploads import BVH, Upload
+from app.services.parser_pool import ParserPool
+from app.services.uploads import Upload
 
 # -- stick figures --------------------------------------------------------------------------
 
@@ -138,6 +140,10 @@ def display_up(world_up: np.ndarray) -> np.ndarray:
     return up
 
 
+# Percentile over frames of each frame's lowest joint that sets the preview's floor.
+_FLOOR_PERCENTILE = 5.0
+
+
 def display_positions(body: Body) -> np.ndarray:
     """``(F, C, 3)`` canonical joint positions in the display frame (see module docstring).
 
@@ -163,7 +169,9 @@ def display_positions(body: Body) -> np.ndarray:
         z = np.cross(x, up)
     basis = np.stack([x, up, z], axis=1)  # columns: display axes in world coordinates
     pelvis0 = body.positions[0, CANONICAL_INDEX["pelvis"]]
-    floor = float((body.positions @ up).min())
+    # Robust: the lowest point of most frames, so a frame gone wild (a sentinel value kept
+    # in the middle of a clip) cannot lift the figure far above the floor.
+    floor = float(np.percentile((body.positions @ up).min(axis=1), _FLOOR_PERCENTILE))
     origin = horizontal(pelvis0) + floor * up
     return np.asarray(((body.positions - origin) @ basis) / body.height)
 
@@ -192,34 +200,23 @@ def resample(
 
 
 def read_stored_motion(library: Library, clip: repo.ClipRecord) -> Motion:
-    """Parse a stored clip's file(s) again (ParseError if they no longer parse)."""
-    limits = library.settings.parse_limits
-    roles = {f.role: f for f in clip.files}
-    if clip.format == BVH:
-        return read_bvh(library.blobs.read(clip.files[0].sha256), limits=limits)
-    return read_asf_amc(
-        library.blobs.read(roles["skeleton"].sha256),
-        library.blobs.read(roles["motion"].sha256),
-        limits=limits,
-        frame_time=clip.frame_time,
-    )
+    """Parse a stored clip's file(s) again (ParseError if they no longer parse;
+    NoStoredFile for a clip without files)."""
+    if not clip.files:
+        raise NoStoredFile(clip.id, clip.format)
+    upload = stored_upload(library, clip)
+    return read_motion(upload, library.settings.parse_limits, library.parsers).motion
 
 
-def upload_display_motion(upload: Upload, limits: ParseLimits) -> DisplayMotion:
+def upload_display_motion(
+    upload: Upload, limits: ParseLimits, parsers: ParserPool | None = None
+) -> DisplayMotion:
     """Parse and map an uploaded (not stored) clip; errors name the uploaded file."""
+    read = read_motion(upload, limits, parsers)
     try:
-        if upload.format == BVH:
-            motion = read_bvh(upload.parts[0].data, limits=limits)
-        else:
-            motion = read_asf_amc(
-                upload.part("skeleton").data, upload.part("motion").data, limits=limits
-            )
-        return display_motion(motion)
+        return display_motion(read.motion)
     except ParseError as error:
-        if upload.format == BVH:
-            part = upload.parts[0]
-        else:
-            part = upload.part("skeleton" if error.source == "ASF" else "motion")
+        part = upload.parts[0]
         source = f"{part.role} {part.filename!r}"
         raise type(error)(error.reason, line=error.line, source=source) from None
 
@@ -279,10 +276,16 @@ def clip_skeleton(
     return cache.responses.get_or_compute(key, compute)
 
 
-def upload_skeleton(upload: Upload, limits: ParseLimits, fps: int, max_frames: int) -> bytes:
+def upload_skeleton(
+    upload: Upload,
+    limits: ParseLimits,
+    fps: int,
+    max_frames: int,
+    parsers: ParserPool | None = None,
+) -> bytes:
     """The encoded skeleton response of an uploaded clip (nothing stored, nothing cached)."""
     check_skeleton_params(fps, max_frames)
-    display = upload_display_motion(upload, limits)
+    display = upload_display_motion(upload, limits, parsers)
     return _encode(skeleton_payload(display, clip_id=None, fps=fps, max_frames=max_frames))
 
 
@@ -505,10 +508,10 @@ def library_map(library: Library, descriptor: str, cache: MapCache | None = None
 
 
 def find_clips(
-    library: Library, *, q: str | None, label: str | None, limit: int, offset: int
+    library: Library, *, q: str | None, label: repo.LabelFilter, limit: int, offset: int
 ) -> tuple[list[repo.ClipRecord], int]:
     """One page (id order) of the clips whose name contains ``q`` (case-insensitive) and
-    that carry ``label``; and how many match in total."""
+    that carry every label of ``label``; and how many match in total."""
     with library.reads() as session:
         page_ids, total = repo.find_clip_ids(
             session, name_contains=q, label=label, limit=limit, offset=offset

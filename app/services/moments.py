@@ -31,6 +31,8 @@ import numpy as np
 from app.db import repository as repo
 from app.errors import InvalidInput, NotFound
 from app.index import DescriptorIndex
+from app.labels import label_filter
+from app.services.clips import stored_upload
 from app.services.describe import (
     WINDOW_LENGTHS,
     MotionDescriber,
@@ -38,7 +40,6 @@ from app.services.describe import (
     span_frames,
 )
 from app.services.library import Library, window_index_name
-from app.services.reindex import stored_upload
 from app.services.search import _unavailable, check_k
 from app.services.uploads import Upload
 
@@ -325,7 +326,7 @@ def _search(
     query_seconds: float,
     k: int,
     per_clip: int,
-    label: str | None,
+    label: repo.LabelFilter,
     exclude: tuple[int, int, int] | None,
     parts: Parts | None = None,
 ) -> list[Moment]:
@@ -333,7 +334,9 @@ def _search(
     query's own windows, to place the moments (else their best window's neighbours do)."""
     names = _index_names(library, descriptor, query_seconds)
     allowed = {
-        name: None if label is None else db.window_ids_with_label(label, library.window_keys[name])
+        name: db.window_ids_with_label(label, library.window_keys[name])
+        if label_filter(label)
+        else None
         for name in names
     }
     # More moments than asked for are placed, then ranked by how well their whole span fits.
@@ -435,7 +438,7 @@ def search_moments_by_clip(
     end: float | None,
     k: int,
     per_clip: int,
-    label: str | None,
+    label: repo.LabelFilter,
 ) -> tuple[MomentQuery, list[Moment]]:
     """Moments like the span ``[start, end)`` of stored clip ``clip_id`` (``GET
     /search/moments``); none overlapping that span itself."""
@@ -565,7 +568,7 @@ def search_moments_by_upload(
     end: float | None,
     k: int,
     per_clip: int,
-    label: str | None,
+    label: repo.LabelFilter,
 ) -> tuple[MomentQuery, list[Moment]]:
     """Moments like the span ``[start, end)`` of an uploaded file, which is stored nowhere
     (``POST /search/moments``)."""

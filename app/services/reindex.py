@@ -1,7 +1,11 @@
 """Recompute descriptor vectors from the stored files, then rebuild every index.
 
 Needed when a descriptor's version changes or a new descriptor is registered: stored clips
-then lack a current vector and cannot be found with it until this runs.
+then lack a current vector and cannot be found with it until this runs (searches under a
+descriptor with outdated vectors answer 409 meanwhile). A clip whose vectors cannot be
+recomputed (its file no longer reads, or a synthetic clip without a file) loses its outdated
+vectors, so the library is current afterwards; it is reported, and stays listed and
+downloadable.
 """
 
 from __future__ import annotations
@@ -10,7 +14,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from app.db import repository as repo
-from app.errors import MocapError
+from app.errors import InvalidInput, MocapError
 from app.services.describe import Description, MotionDescriber
 from app.services.ingest import new_windows
 from app.services.library import Library
@@ -73,9 +77,16 @@ def reindex(
             progress(done, len(needing), clip)
         with_windows = clip_id in windows_needed and bool(clip.files)
         try:
+            if not clip.files:
+                raise InvalidInput("a synthetic clip has no stored file to describe again")
             upload = stored_upload(library, clip)
             description = describe_stored(library, upload, names, with_windows)
-        except MocapError as error:
+        except InvalidInput as error:  # the clip cannot be described: its old vectors go
+            report.failed[clip_id] = error.detail
+            with library.write_lock, library.writes.begin() as session:
+                repo.delete_vectors(session, clip_id, names)
+            continue
+        except MocapError as error:  # storage trouble: keep everything, run again later
             report.failed[clip_id] = error.detail
             continue
         vectors = {
@@ -84,7 +95,8 @@ def reindex(
         }
         with library.write_lock, library.writes.begin() as session:
             repo.put_vectors(session, clip_id, vectors)
-            repo.put_windows(session, clip_id, new_windows(library, description))
+            if with_windows:
+                repo.put_windows(session, clip_id, new_windows(library, description))
             repo.update_clip(session, clip_id, analysis=description.fields)
         report.recomputed += 1
     with library.write_lock:
@@ -92,4 +104,5 @@ def reindex(
             library.rebuild_index(name)
     library.rebuild_window_indexes()
     report.index_sizes = {**library.indexes.sizes(), **library.window_indexes.sizes()}
+    library.count_outdated()  # searches need not wait for the next recount
     return report

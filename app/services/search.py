@@ -2,7 +2,8 @@
 
 Distances are Euclidean (not squared). A search by a stored clip never returns that clip; a
 search by an uploaded file excludes nothing. With a label, only clips carrying it are
-searched — exactly, as FAISS skips the other ids while scanning.
+searched — exactly, as FAISS skips the other ids while scanning. Several labels (or a
+comma-separated one) keep the clips carrying all of them, compared case-insensitively.
 """
 
 from __future__ import annotations
@@ -13,22 +14,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.db import repository as repo
-from app.errors import InvalidInput, MocapError, NotFound
+from app.errors import DescriptorUnavailable, InvalidInput, NotFound
+from app.labels import label_filter
 from app.services.ingest import describe, new_clip
 from app.services.library import Library
 from app.services.uploads import Upload
 
 MAX_ATTEMPTS = 3
-
-
-class DescriptorUnavailable(MocapError):
-    """The query clip has no vector of the descriptor's current version (the descriptor is
-    newer than the clip); ``mocap-index reindex`` computes it.
-
-    Belongs in ``app/errors.py``; kept here until that file is changed.
-    """
-
-    code = "descriptor_unavailable"
 
 
 @dataclass(frozen=True, slots=True)
@@ -41,15 +33,18 @@ QUICK_SCAN = 1_000_000  # numbers compared per query below which a search is "qu
 QUICK_K = 100
 
 
-def is_quick(library: Library, descriptor: str, k: int, label: str | None) -> bool:
+def is_quick(library: Library, descriptor: str, k: int, label: repo.LabelFilter) -> bool:
     """Whether a search by clip takes well under a millisecond (an unfiltered search that
     compares at most :data:`QUICK_SCAN` numbers and fetches at most :data:`QUICK_K` rows), so
     a caller may run it without handing it to a thread. Unknown descriptors count as quick
-    (they fail at once)."""
+    (they fail at once). Never on a database server (PostgreSQL): its rows come over the
+    network, and waiting for them must not hold up the event loop."""
+    if library.engine.dialect.name != "sqlite":
+        return False
     index = library.indexes.get(descriptor)
     if index is None:
         return True
-    return label is None and k <= QUICK_K and index.scan_cost() <= QUICK_SCAN
+    return not label_filter(label) and k <= QUICK_K and index.scan_cost() <= QUICK_SCAN
 
 
 def check_k(library: Library, k: int) -> None:
@@ -64,13 +59,13 @@ def _nearest(
     vector: np.ndarray,
     k: int,
     *,
-    label: str | None,
+    label: repo.LabelFilter,
     exclude: int | None,
 ) -> tuple[list[Hit], repo.ClipName | None]:
     """The hits, and the name and labels of ``exclude`` (the query clip; fetched with the
     hits' to save a query)."""
     index = library.indexes[descriptor]
-    allowed = None if label is None else db.clip_ids_with_label(label)
+    allowed = db.clip_ids_with_label(label) if label_filter(label) else None
     also = [] if exclude is None else [exclude]
     wanted = k
     for _ in range(MAX_ATTEMPTS):
@@ -96,12 +91,13 @@ def search_vector(
     vector: np.ndarray,
     k: int,
     *,
-    label: str | None = None,
+    label: repo.LabelFilter = None,
     exclude: int | None = None,
 ) -> list[Hit]:
     """The ``k`` stored clips nearest to ``vector`` ``(D,)`` under ``descriptor``."""
     check_k(library, k)
     library.descriptor(descriptor)
+    library.require_current(descriptor)
     library.refresh()
     with library.search_reads.snapshot() as db:
         return _nearest(library, db, descriptor, vector, k, label=label, exclude=exclude)[0]
@@ -115,19 +111,20 @@ def _unavailable(clip_id: int, descriptor: str, version: int) -> DescriptorUnava
 
 
 def search_by_clip(
-    library: Library, clip: repo.ClipRecord, descriptor: str, k: int, *, label: str | None
+    library: Library, clip: repo.ClipRecord, descriptor: str, k: int, *, label: repo.LabelFilter
 ) -> list[Hit]:
     """Neighbours of a stored clip (never the clip itself)."""
     return search_by_clip_id(library, clip.id, descriptor, k, label=label)[1]
 
 
 def search_by_clip_id(
-    library: Library, clip_id: int, descriptor: str, k: int, *, label: str | None
+    library: Library, clip_id: int, descriptor: str, k: int, *, label: repo.LabelFilter
 ) -> tuple[repo.ClipRecord, list[Hit]]:
     """The stored clip ``clip_id`` and its neighbours (never the clip itself), read from one
     database snapshot: ``GET /search``. :class:`NotFound` when there is no such clip."""
     info = library.descriptor(descriptor)
     check_k(library, k)
+    library.require_current(descriptor)
     library.refresh()
     with library.search_reads.snapshot() as db:
         clip = db.clip(clip_id, labels=False)
@@ -152,7 +149,7 @@ def search_by_clip_id(
 
 
 def search_by_upload(
-    library: Library, upload: Upload, descriptor: str, k: int, *, label: str | None
+    library: Library, upload: Upload, descriptor: str, k: int, *, label: repo.LabelFilter
 ) -> tuple[repo.NewClip, list[Hit]]:
     """Describe an upload without storing it and find its neighbours (nothing excluded).
 
@@ -160,6 +157,7 @@ def search_by_upload(
     """
     library.descriptor(descriptor)
     check_k(library, k)  # before the costly part
+    library.require_current(descriptor)
     described = describe(library, upload, only=[descriptor])
     query = new_clip(library, described)
     vector = query.vectors[descriptor].vector

@@ -1,11 +1,13 @@
-"""What a user uploads: one BVH file, or an ASF skeleton plus an AMC motion.
+"""What a user uploads: one BVH, FBX or glTF file, or an ASF skeleton plus an AMC motion.
 
 :class:`Upload` checks which parts were sent and their file types, names the clip by default,
 normalises labels, and computes the content hash that identifies the clip:
 
 * BVH: ``sha256(file bytes)``;
 * ASF/AMC: ``sha256`` of the two files' hex digests joined (skeleton first), so the hash
-  depends on both files and on which is which.
+  depends on both files and on which is which;
+* FBX / glTF: ``sha256`` of the file's hex digest and the animation's name, so each
+  animation of a file is its own clip (known once the file is read, see ``animation``).
 
 The rule has one definition, :func:`app.discovery.content_hash_of_bytes`, which the bulk
 import uses too: a clip uploaded over HTTP and the same files imported from disk are one clip.
@@ -16,22 +18,33 @@ from __future__ import annotations
 import hashlib
 import unicodedata
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import PurePosixPath, PureWindowsPath
 
-from app.discovery import content_hash_of_bytes
+from app.discovery import content_hash_of_animation, content_hash_of_bytes
 from app.errors import InvalidInput, UnsupportedMediaType
+from app.labels import normalise_labels
+from app.motion.formats.scene import Animation
 
 MAX_NAME_LENGTH = 255
-MAX_LABEL_LENGTH = 100
-MAX_LABELS = 100
+MAX_SOURCE_LENGTH = 500  # source and licence: the columns' size
 
 BVH = "bvh"
 ASF_AMC = "asf/amc"
+FBX = "fbx"
+GLTF = "gltf"
+SCENE_FORMATS = (FBX, GLTF)  # files with several animations, read in parser workers
 
-# Upload field -> the one file extension it takes.
-EXTENSIONS = {"file": ".bvh", "skeleton": ".asf", "motion": ".amc"}
+# The format of a lone 'file' by its extension.
+FILE_FORMATS = {".bvh": BVH, ".fbx": FBX, ".glb": GLTF, ".gltf": GLTF, ".vrma": GLTF}
+# Upload field -> the file extensions it takes.
+EXTENSIONS = {"file": tuple(FILE_FORMATS), "skeleton": (".asf",), "motion": (".amc",)}
+ACCEPTED = (
+    "supported: .bvh, .fbx, .glb, .gltf or .vrma as 'file', or .asf as 'skeleton' with .amc "
+    "as 'motion'"
+)
+MAX_ANIMATION_NAME = 255
 
 
 @dataclass(frozen=True)
@@ -61,23 +74,13 @@ def clean_filename(raw: str | None, role: str) -> str:
     return name[-MAX_NAME_LENGTH:]
 
 
-def normalise_labels(values: Iterable[str] | None) -> tuple[str, ...]:
-    """Labels from repeated fields and/or comma-separated values: stripped, empty ones dropped,
-    duplicates removed (first one kept)."""
-    labels: dict[str, None] = {}
-    for value in values or ():
-        for label in value.split(","):
-            label = label.strip()
-            if not label:
-                continue
-            if len(label) > MAX_LABEL_LENGTH:
-                raise InvalidInput(
-                    f"labels: {label[:20]!r}... is over {MAX_LABEL_LENGTH} characters"
-                )
-            labels[label] = None
-    if len(labels) > MAX_LABELS:
-        raise InvalidInput(f"labels: at most {MAX_LABELS} labels per clip")
-    return tuple(labels)
+def normalise_animation(value: str | None) -> str | None:
+    """The requested animation name (surrounding space kept off); ``None`` when blank."""
+    if value is None or not value.strip():
+        return None
+    if len(value) > MAX_ANIMATION_NAME:
+        raise InvalidInput(f"animation: at most {MAX_ANIMATION_NAME} characters")
+    return value.strip()
 
 
 def normalise_name(value: str | None) -> str | None:
@@ -90,6 +93,16 @@ def normalise_name(value: str | None) -> str | None:
     return name
 
 
+def normalise_note(field: str, value: str | None) -> str | None:
+    """A source or licence text stripped of surrounding space; ``None`` when absent or blank."""
+    if value is None or not value.strip():
+        return None
+    text = value.strip()
+    if len(text) > MAX_SOURCE_LENGTH:
+        raise InvalidInput(f"{field}: at most {MAX_SOURCE_LENGTH} characters")
+    return text
+
+
 @dataclass(frozen=True)
 class Upload:
     """A validated upload; build it with :meth:`from_files`."""
@@ -97,6 +110,10 @@ class Upload:
     parts: tuple[UploadPart, ...]
     name: str | None = None
     labels: tuple[str, ...] = ()
+    source: str | None = None
+    licence: str | None = None
+    animation: str | None = None  # FBX/glTF: the one to read (None: the longest), once read
+    animations: tuple[Animation, ...] = ()  # FBX/glTF: every animation, once read
 
     @classmethod
     def from_files(
@@ -107,6 +124,9 @@ class Upload:
         motion: tuple[str | None, bytes] | None = None,
         name: str | None = None,
         labels: Iterable[str] | None = None,
+        source: str | None = None,
+        licence: str | None = None,
+        animation: str | None = None,
     ) -> Upload:
         """Check which parts were sent and their types.
 
@@ -117,39 +137,65 @@ class Upload:
         if file is not None and (skeleton is not None or motion is not None):
             extra = "skeleton" if skeleton is not None else "motion"
             raise InvalidInput(
-                f"field '{extra}': send either 'file' (one .bvh) or 'skeleton' (.asf) with "
-                "'motion' (.amc), not both"
+                f"field '{extra}': send either 'file' (one .bvh, .fbx, .glb, .gltf or .vrma) "
+                "or 'skeleton' (.asf) with 'motion' (.amc), not both"
             )
         if file is not None:
             given = {"file": file}
         elif skeleton is not None and motion is not None:
             given = {"skeleton": skeleton, "motion": motion}
         elif skeleton is not None:
-            raise InvalidInput("field 'motion': an .amc motion must come with the 'skeleton'")
+            raise InvalidInput("field 'motion': the .asf skeleton must come with an .amc 'motion'")
         elif motion is not None:
-            raise InvalidInput("field 'skeleton': an .asf skeleton must come with the 'motion'")
+            raise InvalidInput(
+                "field 'skeleton': the .amc motion must come with its .asf 'skeleton'"
+            )
         else:
             raise InvalidInput(
-                "field 'file': no upload; send 'file' (one .bvh) or 'skeleton' (.asf) with "
-                "'motion' (.amc) as multipart/form-data"
+                "field 'file': no upload; send 'file' (one .bvh, .fbx, .glb, .gltf or .vrma) "
+                "or 'skeleton' (.asf) with 'motion' (.amc) as multipart/form-data"
             )
         parts = []
         for role, (raw_name, data) in given.items():
             filename = clean_filename(raw_name, role)
             suffix = PurePosixPath(filename).suffix.lower()
-            if suffix != EXTENSIONS[role]:
+            if suffix not in EXTENSIONS[role]:
+                expected = " or ".join(EXTENSIONS[role])
                 raise UnsupportedMediaType(
-                    f"field '{role}': expected a {EXTENSIONS[role]} file, got {filename!r} "
-                    "(supported: .bvh as 'file', or .asf as 'skeleton' with .amc as 'motion')"
+                    f"field '{role}': expected a {expected} file, got {filename!r} ({ACCEPTED})"
                 )
             if not data:
                 raise InvalidInput(f"field '{role}': the file {filename!r} is empty")
             parts.append(UploadPart(role, filename, data))
-        return cls(tuple(parts), normalise_name(name), normalise_labels(labels))
+        upload = cls(
+            tuple(parts),
+            normalise_name(name),
+            normalise_labels(labels),
+            normalise_note("source", source),
+            normalise_note("licence", licence),
+        )
+        chosen = normalise_animation(animation)
+        if chosen is not None and upload.format not in SCENE_FORMATS:
+            raise InvalidInput(
+                "animation: only FBX and glTF files hold several animations; leave it out for "
+                f"a {upload.format.upper()} upload"
+            )
+        return upload if chosen is None else replace(upload, animation=chosen)
 
     @property
     def format(self) -> str:
-        return BVH if len(self.parts) == 1 else ASF_AMC
+        if len(self.parts) > 1:
+            return ASF_AMC
+        return FILE_FORMATS.get(PurePosixPath(self.parts[0].filename).suffix.lower(), BVH)
+
+    @property
+    def knows_content_hash(self) -> bool:
+        """False for an FBX/glTF upload whose animation is not known until it is read."""
+        return self.format not in SCENE_FORMATS or self.animation is not None
+
+    def with_animations(self, animations: tuple[Animation, ...], chosen: str) -> Upload:
+        """The upload once read: which animation it holds and every one of the file."""
+        return replace(self, animation=chosen, animations=animations)
 
     def part(self, role: str) -> UploadPart:
         for part in self.parts:
@@ -159,14 +205,22 @@ class Upload:
 
     @cached_property
     def content_hash(self) -> str:
+        if self.format in SCENE_FORMATS:
+            if self.animation is None:
+                raise ValueError("the content hash of an FBX/glTF upload needs its animation")
+            return content_hash_of_animation(self.parts[0].data, self.animation)
         if self.format == BVH:
             return content_hash_of_bytes(self.parts[0].data)
         return content_hash_of_bytes(self.part("motion").data, self.part("skeleton").data)
 
     @property
     def clip_name(self) -> str:
-        """The name to store: the given one, else the (motion) file name without extension."""
+        """The name to store: the given one, else the (motion) file name without extension,
+        followed by `` · <animation>`` for a file that holds several animations."""
         if self.name:
             return self.name
-        main = self.parts[0] if self.format == BVH else self.part("motion")
-        return PurePosixPath(main.filename).stem or main.filename
+        main = self.part("motion") if self.format == ASF_AMC else self.parts[0]
+        stem = PurePosixPath(main.filename).stem or main.filename
+        if self.animation is not None and len(self.animations) > 1:
+            return f"{stem} · {self.animation}"[:MAX_NAME_LENGTH]
+        return stem

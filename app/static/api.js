@@ -91,6 +91,70 @@ export async function getJson(path, params, { signal } = {}) {
 }
 
 /**
+ * PATCH/DELETE/POST a JSON body (or none); resolves to the JSON answer (null for 204).
+ * With quietAuth a 401/403 is only thrown, not reported to onAuthError: the caller asks for
+ * the key itself (and keeps what the user typed).
+ */
+export async function sendJson(method, path, body, { params, quietAuth = false } = {}) {
+  let response;
+  try {
+    response = await fetch(url(path, params), {
+      method,
+      headers: {
+        Accept: "application/json",
+        ...(body === undefined ? {} : { "Content-Type": "application/json" }),
+        ...authHeaders(),
+      },
+      body: body === undefined ? undefined : JSON.stringify(body),
+    });
+  } catch (error) {
+    throw new ApiError(0, "network_error", `the service cannot be reached (${error.message})`);
+  }
+  if (!response.ok) {
+    const error = await errorOf(response);
+    throw quietAuth ? error : reportAuth(error);
+  }
+  return response.status === 204 ? null : response.json();
+}
+
+/** The file name a Content-Disposition header gives (filename* first). */
+function dispositionName(header, fallback) {
+  const exact = /filename\*=UTF-8''([^;]+)/i.exec(header || "");
+  if (exact) {
+    try {
+      return decodeURIComponent(exact[1]);
+    } catch {
+      // fall through to the plain name
+    }
+  }
+  const plain = /filename="([^"]*)"/i.exec(header || "");
+  return plain ? plain[1] : fallback;
+}
+
+/**
+ * Download a file the API serves, with the API key if one is set (a plain link could not
+ * send it): the browser saves it under the name the service gives.
+ */
+export async function download(path, params, fallbackName = "download") {
+  let response;
+  try {
+    response = await fetch(url(path, params), { headers: authHeaders() });
+  } catch (error) {
+    throw new ApiError(0, "network_error", `the service cannot be reached (${error.message})`);
+  }
+  if (!response.ok) throw reportAuth(await errorOf(response));
+  const name = dispositionName(response.headers.get("Content-Disposition"), fallbackName);
+  const link = document.createElement("a");
+  link.href = URL.createObjectURL(await response.blob());
+  link.download = name;
+  document.body.append(link);
+  link.click();
+  link.remove();
+  setTimeout(() => URL.revokeObjectURL(link.href), 10_000);
+  return name;
+}
+
+/**
  * POST multipart form data with upload progress (fetch has none): resolves to
  * {status, body}; rejects with ApiError. onProgress(fraction) gets 0..1.
  */

@@ -1,4 +1,5 @@
-// The single page: hash routes #/library, #/upload, #/search, #/map -> one view at a time.
+// The single page: hash routes #/library, #/upload, #/search, #/map and #/clips/{id} -> one
+// view at a time. Only hashes starting with "#/" are routes: "#view" (the skip link) is not.
 
 import { apiKey, onAuthError, setApiKey } from "./api.js";
 import { clear, el, nextId } from "./util.js";
@@ -6,12 +7,14 @@ import { renderLibrary } from "./library.js";
 import { renderUpload } from "./upload.js";
 import { renderSearch } from "./search.js";
 import { renderMap } from "./map.js";
+import { renderClip } from "./clip.js";
 
 const VIEWS = {
   library: { title: "Library", render: renderLibrary },
   upload: { title: "Upload", render: renderUpload },
   search: { title: "Search", render: renderSearch },
   map: { title: "Map", render: renderMap },
+  clip: { title: "Clip", render: renderClip },
 };
 
 let current = null; // {name, cleanup}
@@ -20,18 +23,32 @@ let current = null; // {name, cleanup}
 export function parseRoute(hash = location.hash) {
   const text = hash.replace(/^#\/?/, "");
   const [path, query = ""] = text.split("?");
-  const view = path in VIEWS ? path : "library";
-  return { view, params: new URLSearchParams(query) };
+  const params = new URLSearchParams(query);
+  const clip = /^clips\/([^/]+)$/.exec(path);
+  if (clip) {
+    params.set("id", clip[1]);
+    return { view: "clip", params };
+  }
+  const view = path in VIEWS && path !== "clip" ? path : "library";
+  return { view, params };
+}
+
+/** The hash of a view: #/clips/{id} for a clip, #/{view}?{params} for the others. */
+export function routeHash(view, params = {}) {
+  const query = new URLSearchParams();
+  let path = view;
+  for (const [key, value] of Object.entries(params)) {
+    if (value === null || value === undefined || value === "") continue;
+    if (view === "clip" && key === "id") path = `clips/${encodeURIComponent(value)}`;
+    else query.set(key, String(value));
+  }
+  const text = query.toString();
+  return `#/${path}${text ? `?${text}` : ""}`;
 }
 
 /** Go to a view; params is an object (empty values dropped). */
 export function navigate(view, params = {}, { replace = false } = {}) {
-  const query = new URLSearchParams();
-  for (const [key, value] of Object.entries(params)) {
-    if (value !== null && value !== undefined && value !== "") query.set(key, String(value));
-  }
-  const text = query.toString();
-  const hash = `#/${view}${text ? `?${text}` : ""}`;
+  const hash = routeHash(view, params);
   if (replace) {
     history.replaceState(null, "", hash);
     route({ keepFocus: true });
@@ -42,8 +59,9 @@ export function navigate(view, params = {}, { replace = false } = {}) {
   }
 }
 
-export function showAlert(message) {
+export function showAlert(message, { kind = "error" } = {}) {
   const alert = document.getElementById("alert");
+  alert.classList.toggle("notice", kind === "notice");
   if (!message) {
     alert.hidden = true;
     alert.textContent = "";
@@ -51,6 +69,12 @@ export function showAlert(message) {
   }
   alert.textContent = message;
   alert.hidden = false;
+}
+
+let pendingNotice = null;
+/** A message to show (as a notice, not an error) once the next view is drawn. */
+export function notify(message) {
+  pendingNotice = message;
 }
 
 /** The API key form, in the alert area: shown when the service asks for a key. */
@@ -112,7 +136,7 @@ async function route({ keepFocus = false } = {}) {
   current = { name: view, cleanup: null };
   const mine = current;
   try {
-    const cleanup = await VIEWS[view].render(main, params, { navigate, showAlert });
+    const cleanup = await VIEWS[view].render(main, params, { navigate, showAlert, notify });
     if (mine === current) mine.cleanup = cleanup || null;
     else if (cleanup) cleanup();
   } catch (error) {
@@ -120,6 +144,10 @@ async function route({ keepFocus = false } = {}) {
     if (error.status !== 401 && error.status !== 403) {
       showAlert(error.detail || error.message || String(error));
     }
+  }
+  if (pendingNotice && mine === current) {
+    showAlert(pendingNotice, { kind: "notice" });
+    pendingNotice = null;
   }
   if (!keepFocus && mine === current && !main.contains(document.activeElement)) {
     main.focus({ preventScroll: true });
@@ -134,5 +162,21 @@ document.getElementById("key-button").addEventListener("click", () =>
       : "If the library needs a key to upload (or to read), enter it here; it is kept for this tab only.",
   ),
 );
-window.addEventListener("hashchange", () => route());
+// "Skip to content" moves the focus; it must not change the route (#view is no view).
+document.querySelector(".skip-link").addEventListener("click", (event) => {
+  event.preventDefault();
+  document.getElementById("view").focus();
+});
+window.addEventListener("hashchange", () => {
+  if (location.hash && !location.hash.startsWith("#/")) return;
+  route();
+});
+
+// A file dropped anywhere the page does not take it must not make the browser open it (and
+// leave the app); the Search and Upload pages take drops on the whole page.
+for (const type of ["dragover", "drop"]) {
+  window.addEventListener(type, (event) => {
+    if (event.dataTransfer && [...event.dataTransfer.types].includes("Files")) event.preventDefault();
+  });
+}
 route({ keepFocus: true });

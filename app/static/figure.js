@@ -227,7 +227,8 @@ export class Figure {
     g.setTransform(ratio, 0, 0, ratio, 0, 0);
     g.clearRect(0, 0, width, height);
     if (this.error) {
-      drawMessage(g, width, height, "no preview");
+      const synthetic = this.error.code === "no_stored_file";
+      drawMessage(g, width, height, synthetic ? "synthetic clip: no preview" : "no preview");
       return;
     }
     if (!this.skeleton || this.skeleton.frame_count === 0) {

@@ -1,6 +1,7 @@
 // Library: clips a page at a time, filtered by name and label, each with a moving preview.
 
 import { getJson, labels as fetchLabels } from "./api.js";
+import { formatBadge } from "./clip.js";
 import { Figure, libraryPlayer } from "./figure.js";
 import { clear, debounce, el, formatSeconds, labelChips, nextId, plural } from "./util.js";
 
@@ -140,18 +141,23 @@ export function card(clip) {
   });
   const figure = new Figure(canvas, { player: libraryPlayer, clipId: clip.id, name: clip.name });
   figure.load(PREVIEW);
+  const page = `#/clips/${clip.id}`;
+  const title = `${clip.name} — ${clip.filenames.join(", ") || clip.format}`;
   return el(
     "li",
     { class: "card", dataset: { clipId: String(clip.id) } },
     el(
       "article",
       { "aria-labelledby": headingId },
-      canvas,
-      el("h2", { id: headingId, class: "clip-name", title: clip.name }, clip.name),
+      // The figure opens the clip's page too (a link around it, skipped by the keyboard: the
+      // name is the same link).
+      el("a", { href: page, tabindex: "-1", "aria-hidden": "true", class: "figure-link" }, canvas),
+      el("h2", { id: headingId, class: "clip-name", title }, el("a", { href: page }, clip.name)),
       el(
         "p",
         { class: "meta" },
-        `${formatSeconds(clip.duration)} · ${plural(clip.frame_count, "frame")} · ${clip.format.toUpperCase()}`,
+        formatBadge(clip.format),
+        ` ${formatSeconds(clip.duration)} · ${plural(clip.frame_count, "frame")}`,
       ),
       labelChips(clip.labels),
       el(

@@ -39,7 +39,7 @@ export async function renderMap(main, params, { navigate }) {
   const known = await descriptors();
   const ids = { descriptor: nextId("descriptor"), projection: nextId("projection"), help: nextId("map-help") };
   const state = {
-    descriptor: known.descriptors.some((d) => d.name === params.get("descriptor")) ? params.get("descriptor") : "kinetic",
+    descriptor: known.descriptors.some((d) => d.name === params.get("descriptor")) ? params.get("descriptor") : known.default,
     projection: params.get("projection") in PROJECTIONS ? params.get("projection") : "3man-ul",
   };
   if (!known.descriptors.some((d) => d.name === state.descriptor)) state.descriptor = known.default;

@@ -4,8 +4,10 @@
 // only its span, with a thin timeline showing where in its clip it lies.
 
 import { clipForm, descriptors, getJson, labels as fetchLabels, postForm } from "./api.js";
+import { formatBadge } from "./clip.js";
 import { Figure, Player } from "./figure.js";
-import { groupFiles } from "./upload.js";
+import { Timeline } from "./timeline.js";
+import { ACCEPT, dropTarget, groupFiles } from "./upload.js";
 import { clear, debounce, el, formatNumber, formatSeconds, labelChips, nextId } from "./util.js";
 
 const PREVIEW = { fps: 30, maxFrames: 600 };
@@ -14,19 +16,23 @@ function nearestPhrase(count) {
   return count === 1 ? "The clip nearest to" : `The ${count} clips nearest to`;
 }
 const DEFAULT_K = 8;
+// Each result is an animated figure: more than this makes the page crawl. The API itself
+// answers up to MOCAP_MAX_K (GET /search?k=...).
 const MAX_K = 50;
 
 export async function renderSearch(main, params, { navigate }) {
   const clipParam = Number.parseInt(params.get("clip") || "", 10);
+  const askedK = Number.parseInt(params.get("k") || "", 10) || DEFAULT_K;
   const state = {
     clip: Number.isFinite(clipParam) ? clipParam : null,
     descriptor: params.get("descriptor") || "",
-    k: Math.min(MAX_K, Math.max(1, Number.parseInt(params.get("k") || "", 10) || DEFAULT_K)),
+    k: Math.min(MAX_K, Math.max(1, askedK)),
     label: params.get("label") || "",
     mode: params.get("mode") === "moments" ? "moments" : "clips",
     start: params.get("start") ?? "",
     end: params.get("end") ?? "",
   };
+  let capped = askedK > MAX_K; // say so rather than silently showing fewer
 
   const ids = {
     query: nextId("query"),
@@ -35,8 +41,8 @@ export async function renderSearch(main, params, { navigate }) {
     descriptor: nextId("descriptor"),
     descriptorHelp: nextId("descriptor-help"),
     k: nextId("k"),
+    kHelp: nextId("k-help"),
     label: nextId("label"),
-    scrub: nextId("time"),
     mode: nextId("mode"),
   };
   const modeButtons = ["clips", "moments"].map((value) =>
@@ -59,26 +65,20 @@ export async function renderSearch(main, params, { navigate }) {
     placeholder: "type a clip name",
   });
   const options = el("datalist", { id: ids.options });
-  const fileInput = el("input", { id: ids.file, type: "file", multiple: true, accept: ".bvh,.asf,.amc" });
+  const fileInput = el("input", { id: ids.file, type: "file", multiple: true, accept: ACCEPT });
   const descriptorSelect = el("select", { id: ids.descriptor, "aria-describedby": ids.descriptorHelp });
   const descriptorHelp = el("p", { id: ids.descriptorHelp, class: "hint" });
-  const kInput = el("input", { id: ids.k, type: "number", min: "1", max: String(MAX_K), value: String(state.k) });
+  const kInput = el("input", { id: ids.k, type: "number", min: "1", value: String(state.k), "aria-describedby": ids.kHelp });
+  const kHelp = el("p", { id: ids.kHelp, class: "hint" }, `Results: 1–${MAX_K} on this page, as each one is animated; the API (GET /search?k=) gives more.`);
   const labelSelect = el("select", { id: ids.label }, el("option", { value: "" }, "Any"));
   const status = el("p", { class: "status", role: "status", "aria-live": "polite" });
   const results = el("ol", { class: "cards results", "aria-label": "Query and nearest clips" });
 
-  const player = new Player({ playing: true });
-  const playButton = el("button", { type: "button", class: "play", "aria-pressed": "true" }, "Pause");
-  const scrub = el("input", { id: ids.scrub, type: "range", min: "0", max: "1", step: "0.01", value: "0" });
-  const clock = el("output", { for: ids.scrub, class: "clock" }, "0.0 s");
-  const controls = el(
-    "div",
-    { class: "player-controls", role: "group", "aria-label": "Playback" },
-    playButton,
-    el("label", { for: ids.scrub }, "Time"),
-    scrub,
-    clock,
-  );
+  // Nothing plays until there are results to play.
+  const player = new Player({ playing: false });
+  const timeline = new Timeline(player, { label: "Playback" });
+  const controls = timeline.node;
+  controls.hidden = true;
 
   const form = el(
     "form",
@@ -91,7 +91,8 @@ export async function renderSearch(main, params, { navigate }) {
     el("div", { class: "field" }, el("label", { for: ids.label }, "Only label"), labelSelect),
     el("div", { class: "field" }, el("button", { type: "submit" }, "Search")),
   );
-  main.append(el("div", { class: "view-head" }, el("h1", {}, "Search")), form, descriptorHelp, status, controls, results);
+  const dropHint = el("p", { class: "hint drop-hint" }, "Drop a .bvh file (or an .asf with its .amc) anywhere on this page to search with it.");
+  main.append(el("div", { class: "view-head" }, el("h1", {}, "Search")), form, descriptorHelp, kHelp, dropHint, status, controls, results);
 
   // -- form data ---------------------------------------------------------------------------
   const known = await descriptors();
@@ -134,34 +135,16 @@ export async function renderSearch(main, params, { navigate }) {
 
   // -- playback ------------------------------------------------------------------------------
   const figures = [];
-  const setPlaying = (playing) => {
-    player.setPlaying(playing);
-    playButton.textContent = playing ? "Pause" : "Play";
-    playButton.setAttribute("aria-pressed", String(playing));
-  };
-  playButton.addEventListener("click", () => setPlaying(!player.playing));
-  scrub.addEventListener("input", () => {
-    setPlaying(false);
-    player.seek(Number(scrub.value));
-  });
-  const syncLoop = () => {
-    const longest = Math.max(0, ...figures.map((f) => f.duration));
-    player.loop = longest;
-    scrub.max = String(longest || 1);
-  };
-  const timer = setInterval(() => {
-    scrub.value = String(player.time);
-    clock.textContent = formatSeconds(player.time);
-    playButton.textContent = player.playing ? "Pause" : "Play";
-    playButton.setAttribute("aria-pressed", String(player.playing));
-  }, 100);
+  const syncLoop = () => timeline.setLength(Math.max(0, ...figures.map((f) => f.duration)));
 
   function searchParams() {
-    const params = { descriptor: state.descriptor, k: state.k, label: state.label };
+    // The URL keeps the k asked for: the page shows at most MAX_K, and says so.
+    const k = Math.max(1, Number.parseInt(kInput.value, 10) || DEFAULT_K);
+    const params = { descriptor: state.descriptor, k, label: state.label };
     return state.mode === "moments" ? { ...params, mode: "moments" } : params;
   }
 
-  function figureCard({ clipId, name, labels, detail, role, rank, span = null }) {
+  function figureCard({ clipId, name, labels, detail, role, rank, format, filenames = [], family = "", span = null }) {
     const headingId = nextId("result");
     const canvas = el("canvas", {
       class: "figure",
@@ -171,14 +154,16 @@ export async function renderSearch(main, params, { navigate }) {
     });
     const figure = new Figure(canvas, { player, clipId, name });
     figures.push(figure);
+    // Same-named clips (one capture in several formats) differ by format and file names.
+    const title = [name, filenames.join(", "), family && `skeleton ${family}`, clipId !== null && `clip #${clipId}`].filter(Boolean).join(" — ");
     const link =
       clipId === null
         ? el("span", {}, name)
         : el(
             "a",
             {
-              href: searchHash(clipId),
-              "aria-label": role === "query" ? `${name} (the query)` : `Search from ${name}`,
+              href: `#/clips/${clipId}`,
+              "aria-label": role === "query" ? `${name} (the query): details` : `${name}: details`,
             },
             name,
           );
@@ -193,7 +178,15 @@ export async function renderSearch(main, params, { navigate }) {
         { "aria-labelledby": headingId },
         el("p", { class: "rank" }, role === "query" ? "Query" : `#${rank}`),
         canvas,
-        el("h2", { id: headingId, class: "clip-name", title: name }, link),
+        el("h2", { id: headingId, class: "clip-name", title }, link),
+        el(
+          "p",
+          { class: "meta format-line" },
+          format ? formatBadge(format) : null,
+          el("span", { class: "filenames" }, filenames.join(", ")),
+          family ? el("span", { class: "family" }, `· ${family}`) : null,
+          clipId !== null ? el("span", { class: "clip-id" }, `· #${clipId}`) : null,
+        ),
         detail,
         labelChips(labels),
       ),
@@ -208,13 +201,6 @@ export async function renderSearch(main, params, { navigate }) {
     return { node, figure };
   }
 
-  function searchHash(clipId) {
-    const query = new URLSearchParams({ clip: String(clipId), descriptor: state.descriptor, k: String(state.k) });
-    if (state.label) query.set("label", state.label);
-    if (state.mode === "moments") query.set("mode", "moments");
-    return `#/search?${query}`;
-  }
-
   function showResults(query, hits, queryFigureLoad) {
     for (const f of figures.splice(0)) f.dispose();
     clear(results);
@@ -223,7 +209,10 @@ export async function renderSearch(main, params, { navigate }) {
       name: query.name,
       labels: query.labels,
       role: "query",
-      detail: el("p", { class: "meta" }, `${formatSeconds(query.duration)} · ${query.format.toUpperCase()}`),
+      format: query.format,
+      filenames: query.filenames,
+      family: query.skeleton_family,
+      detail: el("p", { class: "meta" }, formatSeconds(query.duration)),
     });
     results.append(q.node);
     const loads = [queryFigureLoad(q.figure)];
@@ -234,19 +223,24 @@ export async function renderSearch(main, params, { navigate }) {
         labels: hit.labels,
         role: "result",
         rank: i + 1,
+        format: hit.format,
+        filenames: hit.filenames,
+        family: hit.skeleton_family,
         detail: el("p", { class: "meta distance" }, "distance ", el("strong", { class: "distance-value" }, formatNumber(hit.distance, 4))),
       });
       results.append(card.node);
       loads.push(card.figure.load(PREVIEW));
     });
     player.seek(0);
+    controls.hidden = false;
+    timeline.setPlaying(true);
     Promise.all(loads).then(syncLoop);
   }
 
   // -- moments ---------------------------------------------------------------------------------
   const MOMENT_DESCRIPTOR = "motion";
 
-  function timeline(start, end, duration) {
+  function spanBar(start, end, duration) {
     const whole = Math.max(duration, end, 1e-6);
     const bar = el("span", { class: "timeline-span" });
     bar.style.left = `${(100 * start) / whole}%`;
@@ -254,7 +248,7 @@ export async function renderSearch(main, params, { navigate }) {
     return el(
       "div",
       { class: "moment-time" },
-      el("div", { class: "timeline", role: "img", "aria-label": `${formatSeconds(start)} to ${formatSeconds(end)} of ${formatSeconds(duration)}` }, bar),
+      el("div", { class: "moment-timeline", role: "img", "aria-label": `${formatSeconds(start)} to ${formatSeconds(end)} of ${formatSeconds(duration)}` }, bar),
       el("p", { class: "meta span-text" }, `${formatSeconds(start)} – ${formatSeconds(end)} of ${formatSeconds(duration)}`),
     );
   }
@@ -278,7 +272,10 @@ export async function renderSearch(main, params, { navigate }) {
       name: queryClip.name,
       labels: queryClip.labels || [],
       role: "query",
-      detail: timeline(start, end, queryClip.duration),
+      format: queryClip.format,
+      filenames: queryClip.filenames || [],
+      family: queryClip.skeleton_family || "",
+      detail: spanBar(start, end, queryClip.duration),
     });
     results.append(q.node);
     const loads = [queryLoad(q.figure)];
@@ -300,6 +297,9 @@ export async function renderSearch(main, params, { navigate }) {
         labels: moment.labels,
         role: "result",
         rank: i + 1,
+        format: moment.format,
+        filenames: moment.filenames || [],
+        family: moment.skeleton_family || "",
         span: [moment.start, moment.end],
         detail: el(
           "div",
@@ -313,12 +313,14 @@ export async function renderSearch(main, params, { navigate }) {
       results.append(card.node);
       loads.push(
         getJson(`/clips/${moment.id}`).then((clip) => {
-          holder.append(timeline(moment.start, moment.end, clip.duration));
+          holder.append(spanBar(moment.start, moment.end, clip.duration));
           return loadSpan(card.figure, clip, moment.start, moment.end);
         }),
       );
     });
     player.seek(0);
+    controls.hidden = false;
+    timeline.setPlaying(true);
     Promise.allSettled(loads).then(syncLoop);
   }
 
@@ -360,7 +362,7 @@ export async function renderSearch(main, params, { navigate }) {
       byOption.set(queryInput.value, body.query.id);
       showResults(body.query, body.results, (figure) => figure.load(PREVIEW));
       status.textContent = body.results.length
-        ? `${nearestPhrase(body.results.length)} ${body.query.name} under ${body.descriptor}, nearest first.`
+        ? `${nearestPhrase(body.results.length)} ${body.query.name} under ${body.descriptor}, nearest first.${cappedNote()}`
         : `No other clip to compare ${body.query.name} with${state.label ? ` under the label ${state.label}` : ""}.`;
     } catch (error) {
       clear(results);
@@ -398,17 +400,22 @@ export async function renderSearch(main, params, { navigate }) {
       showResults({ ...body.query, id: null }, body.results, (figure) =>
         preview.then(({ body: skeleton }) => figure.setSkeleton(skeleton), (error) => figure.setError(error)),
       );
-      status.textContent = `${nearestPhrase(body.results.length)} the file ${item.name} under ${body.descriptor}, nearest first.`;
+      status.textContent = `${nearestPhrase(body.results.length)} the file ${item.name} under ${body.descriptor}, nearest first.${cappedNote()}`;
     } catch (error) {
       clear(results);
       status.textContent = `Search with ${item.name} failed: ${error.detail || error.message}`;
     }
   }
 
+  function cappedNote() {
+    return capped ? ` (At most ${MAX_K} here, each animated: GET /search?k= gives more.)` : "";
+  }
+
   function readForm() {
     state.descriptor = descriptorSelect.value;
-    state.k = Math.min(MAX_K, Math.max(1, Number.parseInt(kInput.value, 10) || DEFAULT_K));
-    kInput.value = String(state.k);
+    const asked = Number.parseInt(kInput.value, 10) || DEFAULT_K;
+    capped = asked > MAX_K;
+    state.k = Math.min(MAX_K, Math.max(1, asked));
     state.label = labelSelect.value;
     const mode = modeButtons.find((b) => b.checked);
     if (mode && mode.value !== state.mode) {
@@ -450,6 +457,10 @@ export async function renderSearch(main, params, { navigate }) {
   fileInput.addEventListener("change", () => {
     if (fileInput.files.length) form.requestSubmit();
   });
+  const stopDrops = dropTarget(main, (files) => {
+    readForm();
+    searchFile(files);
+  }, "Drop to search with this file");
 
   if (state.clip !== null) {
     await searchClip(state.clip);
@@ -458,7 +469,8 @@ export async function renderSearch(main, params, { navigate }) {
   }
 
   return () => {
-    clearInterval(timer);
+    stopDrops();
+    timeline.dispose();
     for (const f of figures) f.dispose();
     player.dispose();
   };

@@ -23,6 +23,10 @@ function extension(name) {
  * stem before the first "_" — CMU's 02.asf for 02_01.amc — or the only skeleton around).
  * Returns [{name, bvh} | {name, asf, amc} | {name, error} | {name, note}].
  */
+// Files uploaded alone as the 'file' field (kept under the item's `bvh` key, which api.js sends).
+export const SINGLE_FILE_EXTENSIONS = ["bvh", "fbx", "glb", "gltf", "vrma"];
+export const ACCEPT = ".bvh,.fbx,.glb,.gltf,.vrma,.asf,.amc";
+
 export function groupFiles(files, remembered = rememberedSkeletons) {
   const items = [];
   const skeletons = new Map();
@@ -33,7 +37,7 @@ export function groupFiles(files, remembered = rememberedSkeletons) {
   const allSkeletons = new Map([...remembered, ...skeletons]);
   for (const file of files) {
     const ext = extension(file.name);
-    if (ext === "bvh") {
+    if (SINGLE_FILE_EXTENSIONS.includes(ext)) {
       items.push({ name: file.name, bvh: file });
     } else if (ext === "amc") {
       const key = stem(file.name).toLowerCase();
@@ -56,7 +60,8 @@ export function groupFiles(files, remembered = rememberedSkeletons) {
     } else if (ext !== "asf") {
       items.push({
         name: file.name,
-        error: "not a motion file: drop .bvh files, or .asf skeletons with their .amc motions",
+        error:
+          "not a motion file: drop .bvh, .fbx, .glb, .gltf or .vrma files, or .asf skeletons with their .amc motions",
       });
     }
   }
@@ -72,10 +77,67 @@ export function groupFiles(files, remembered = rememberedSkeletons) {
   return items;
 }
 
+/**
+ * Take files dropped anywhere on the page while this view is shown: an overlay says what a
+ * drop does; `onFiles(files)` gets them. Returns the function that stops it.
+ */
+export function dropTarget(main, onFiles, message) {
+  const overlay = el("div", { class: "drop-overlay", hidden: true, "aria-hidden": "true" }, el("p", {}, message));
+  document.body.append(overlay);
+  let depth = 0; // dragenter/dragleave pairs over nested elements
+  const hasFiles = (event) => event.dataTransfer && [...event.dataTransfer.types].includes("Files");
+  const show = (on) => {
+    overlay.hidden = !on;
+    main.classList.toggle("dragging", on);
+  };
+  const handlers = {
+    dragenter(event) {
+      if (!hasFiles(event)) return;
+      event.preventDefault();
+      depth += 1;
+      show(true);
+    },
+    dragover(event) {
+      if (!hasFiles(event)) return;
+      event.preventDefault();
+      event.dataTransfer.dropEffect = "copy";
+    },
+    dragleave() {
+      depth = Math.max(0, depth - 1);
+      if (depth === 0) show(false);
+    },
+    drop(event) {
+      if (!hasFiles(event)) return;
+      event.preventDefault();
+      depth = 0;
+      show(false);
+      if (event.dataTransfer.files.length) onFiles([...event.dataTransfer.files]);
+    },
+  };
+  for (const [type, handler] of Object.entries(handlers)) document.addEventListener(type, handler);
+  return () => {
+    for (const [type, handler] of Object.entries(handlers)) document.removeEventListener(type, handler);
+    overlay.remove();
+  };
+}
+
+/**
+ * A regular expression from a Python or JavaScript spelling: Python's named groups
+ * (?P<name>...) and back-references (?P=name) become JavaScript's (?<name>...), \k<name>
+ * (the CLI's --labels-regex takes both spellings too).
+ */
+export function jsRegex(pattern) {
+  return new RegExp(
+    pattern
+      .replace(/(?<!\\)((?:\\\\)*)\(\?P<(?=\w+>)/g, "$1(?<")
+      .replace(/(?<!\\)((?:\\\\)*)\(\?P=(\w+)\)/g, "$1\\k<$2>"),
+  );
+}
+
 /** Labels for a file name from a regular expression: its named groups, else its groups. */
 export function labelsFromName(pattern, fileName) {
   if (!pattern) return [];
-  const match = new RegExp(pattern).exec(stem(fileName));
+  const match = jsRegex(pattern).exec(stem(fileName));
   if (!match) return [];
   const values = match.groups ? Object.values(match.groups) : match.slice(1);
   return values.filter((v) => v !== undefined && v !== "");
@@ -90,7 +152,7 @@ export async function renderUpload(main) {
     id: inputId,
     type: "file",
     multiple: true,
-    accept: ".bvh,.asf,.amc",
+    accept: ACCEPT,
     class: "file-input",
   });
   const labelsInput = el("input", { id: labelsId, type: "text", placeholder: "e.g. walk, happy", autocomplete: "off" });
@@ -105,14 +167,14 @@ export async function renderUpload(main) {
   const patternHelp = el(
     "p",
     { id: patternHelpId, class: "hint" },
-    "Optional regular expression over each file name: what its groups match become labels too.",
+    "Optional regular expression over each file name: what its groups match become labels too. Named groups may be written (?<name>…) or (?P<name>…).",
   );
   const summary = el("p", { class: "status", role: "status", "aria-live": "polite" });
   const list = el("ol", { class: "uploads", "aria-label": "Uploads" });
   const zone = el(
     "div",
     { class: "dropzone", "data-testid": "dropzone" },
-    el("p", { class: "dropzone-title" }, "Drop BVH files, or ASF skeletons with their AMC motions, here"),
+    el("p", { class: "dropzone-title" }, "Drop BVH, FBX, glTF or VRMA files, or ASF skeletons with their AMC motions, anywhere on this page"),
     el("p", {}, fileInput, el("label", { for: inputId, class: "button" }, "Choose files…")),
     el("p", { class: "hint" }, "Several files at once are fine; each clip is uploaded and checked on its own."),
   );
@@ -145,7 +207,7 @@ export async function renderUpload(main) {
     const pattern = patternInput.value.trim();
     if (pattern) {
       try {
-        new RegExp(pattern);
+        jsRegex(pattern);
         patternInput.removeAttribute("aria-invalid");
         patternHelp.classList.remove("error-text");
       } catch (error) {
@@ -194,7 +256,7 @@ export async function renderUpload(main) {
       const { status, body } = await postForm("/clips", null, clipForm(item, labels), {
         onProgress: (fraction) => row.progress(fraction),
       });
-      row.succeed(body, status === 201);
+      row.succeed(body, status === 201, labels.length > 0);
       totals.done += 1;
     } catch (error) {
       row.fail(error.detail || error.message, error.code);
@@ -206,16 +268,8 @@ export async function renderUpload(main) {
     addFiles(fileInput.files);
     fileInput.value = "";
   });
-  zone.addEventListener("dragover", (event) => {
-    event.preventDefault();
-    zone.classList.add("over");
-  });
-  zone.addEventListener("dragleave", () => zone.classList.remove("over"));
-  zone.addEventListener("drop", (event) => {
-    event.preventDefault();
-    zone.classList.remove("over");
-    addFiles(event.dataTransfer.files);
-  });
+  // Files dropped anywhere on the page are uploaded (the zone is only the obvious place).
+  return dropTarget(main, addFiles, "Drop to upload these files");
 }
 
 function uploadRow(item) {
@@ -239,11 +293,15 @@ function uploadRow(item) {
       bar.value = fraction;
       set("uploading", fraction < 1 ? `uploading… ${Math.round(fraction * 100)} %` : "reading and describing…");
     },
-    succeed(clip, created) {
+    succeed(clip, created, labelled) {
       bar.value = 1;
       set("done", "");
       message.append(
-        created ? `stored as clip #${clip.id} ` : `already in the library as clip #${clip.id} `,
+        created
+          ? `stored as clip #${clip.id} `
+          : `already in the library as clip #${clip.id}${labelled ? ", labels added" : ""} `,
+        el("a", { href: `#/clips/${clip.id}` }, "open"),
+        " · ",
         el("a", { href: `#/search?clip=${clip.id}` }, "find similar"),
       );
       node.dataset.clipId = String(clip.id);

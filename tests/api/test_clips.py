@@ -15,6 +15,7 @@ from fastapi.testclient import TestClient
 from app.config import Settings
 from app.main import create_app
 from app.motion.descriptors import REGISTRY
+from tests.api.conftest import stored_blobs
 
 BANDAI = "bandai_walk_normal_001_first40.bvh"
 CMU_BVH = "cmu_mb_02_01_first41.bvh"
@@ -39,8 +40,8 @@ def post_asf_amc(client: TestClient, fixtures_dir: Path, **data: Any) -> Any:
     return client.post("/clips", files=files, data=data)
 
 
-def stored_files(settings: Settings) -> list[Path]:
-    return [p for p in settings.files_dir.rglob("*") if p.is_file()]
+def stored_files(settings: Settings) -> list[str]:
+    return stored_blobs(settings)
 
 
 def test_upload_bvh_and_duplicate(client: TestClient, fixtures_dir: Path) -> None:
@@ -58,9 +59,10 @@ def test_upload_bvh_and_duplicate(client: TestClient, fixtures_dir: Path) -> Non
     assert len(clip["content_hash"]) == 64 and clip["created_at"].endswith("Z")
     assert "descriptors" not in clip
 
+    # The same content again stores nothing new; what it brings is applied (issue #14).
     again = post_bvh(client, fixtures_dir, BANDAI, name="another name")
     assert again.status_code == 200
-    assert again.json() == clip
+    assert again.json() == {**clip, "name": "another name", "duplicate": True}
     assert client.get("/clips").json()["total"] == 1
 
 
@@ -167,9 +169,10 @@ def test_search_by_clip_and_by_upload_under_every_descriptor(
         hits = by_upload.json()["results"]
         assert hits[0]["id"] == ids[1] and hits[0]["distance"] == pytest.approx(0, abs=1e-5)
         assert len(hits) == 3
-    # the default descriptor is posture
+    # the default descriptor is motion, and GET /descriptors says so
     default = client.get("/search", params={"clip": ids[0]}).json()
-    assert default["descriptor"] == "posture" and default["k"] == 10
+    assert default["descriptor"] == "motion" and default["k"] == 10
+    assert client.get("/descriptors").json()["default"] == "motion"
 
 
 def test_unreadable_upload_leaves_no_row_vector_or_file(
@@ -208,3 +211,27 @@ def test_frame_and_joint_limits(limited_client: TestClient, fixtures_dir: Path) 
     response = post_asf_amc(limited_client, fixtures_dir)
     assert response.status_code == 422 and response.json()["error"] == "limit_exceeded"
     assert limited_client.get("/clips").json()["total"] == 0
+
+
+def test_warnings_and_the_joint_mapping_are_shown(client: TestClient, fixtures_dir: Path) -> None:
+    clean = post_bvh(client, fixtures_dir, CMU_BVH).json()
+    assert clean["warnings"] == []
+    assert "mapping" not in client.get(f"/clips/{clean['id']}").json()
+    both = client.get(f"/clips/{clean['id']}", params={"include": "descriptors,mapping"}).json()
+    assert set(both["descriptors"]) == set(REGISTRY)
+    mapping = both["mapping"]
+    assert mapping["joints"]["l_elbow"] == {"joint": "LeftForeArm", "how": "name"}
+    assert mapping["joints"]["head"]["joint"] == "Head_end"
+    assert "head" in mapping["end_sites"] and mapping["mirrored"] is False
+    assert mapping["pose"] == "rest pose"
+
+    # A file whose last frame was cut short (a broken download) goes in, saying so.
+    text = read(fixtures_dir, BANDAI).decode()
+    cut = client.post("/clips", files={"file": ("cut.bvh", text[:-500].encode())})
+    assert cut.status_code == 201, cut.text
+    assert cut.json()["frame_count"] == 39
+    assert [w for w in cut.json()["warnings"] if "cut short" in w]
+    assert client.get(f"/clips/{cut.json()['id']}").json()["warnings"] == cut.json()["warnings"]
+
+    unknown = client.get(f"/clips/{clean['id']}", params={"include": "mapping,bones"})
+    assert unknown.status_code == 422 and "bones" in unknown.json()["detail"]

@@ -4,14 +4,15 @@ real motion core (small real files from tests/fixtures)."""
 from __future__ import annotations
 
 import io
-import sqlite3
 import zipfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from fastapi.testclient import TestClient
+from sqlalchemy import create_engine, text
 
 from app.config import Settings
 from app.main import create_app
@@ -48,12 +49,21 @@ def iou(a: tuple[float, float], b: tuple[float, float]) -> float:
     return inter / (max(a[1], b[1]) - min(a[0], b[0]))
 
 
+def sql(settings: Settings, statement: str, **params: Any) -> Any:
+    """Run one statement on the test's database (SQLite or PostgreSQL); its scalar, if any."""
+    engine = create_engine(settings.sqlalchemy_url)
+    try:
+        with engine.begin() as connection:
+            result = connection.execute(text(statement), params)
+            return result.scalar() if result.returns_rows else None
+    finally:
+        engine.dispose()
+
+
 def window_rows(settings: Settings, clip_id: int | None = None) -> int:
-    with sqlite3.connect(settings.data_dir / "mocap-index.sqlite3") as db:
-        if clip_id is None:
-            return int(db.execute("SELECT count(*) FROM clip_windows").fetchone()[0])
-        query = "SELECT count(*) FROM clip_windows WHERE clip_id = ?"
-        return int(db.execute(query, (clip_id,)).fetchone()[0])
+    if clip_id is None:
+        return int(sql(settings, "SELECT count(*) FROM clip_windows"))
+    return int(sql(settings, "SELECT count(*) FROM clip_windows WHERE clip_id = :c", c=clip_id))
 
 
 def window_index_sizes(client: TestClient) -> int:
@@ -242,8 +252,7 @@ def test_window_indexes_are_rebuilt_or_caught_up_at_start(
 def test_reindex_rebuilds_the_windows(settings: Settings) -> None:
     with TestClient(create_app(settings)) as client:
         take = upload(client, long_take(), "take.bvh")["id"]
-    with sqlite3.connect(settings.data_dir / "mocap-index.sqlite3") as db:
-        db.execute("DELETE FROM clip_windows")
+    sql(settings, "DELETE FROM clip_windows")
     library = open_library(settings)
     try:
         assert sum(library.window_indexes.sizes().values()) == 0  # repaired to the database
@@ -253,3 +262,48 @@ def test_reindex_rebuilds_the_windows(settings: Settings) -> None:
         assert sum(library.window_indexes.sizes().values()) == 11
     finally:
         library.close()
+
+
+def test_window_indexes_follow_another_process_through_the_feed(settings: Settings) -> None:
+    """Deletes and rewritten windows reach a running server's window indexes through the
+    change feed (a delete cascades to the windows; a rewrite puts the clip on the feed)."""
+    from app.db import repository as repo
+    from app.services.clips import delete_clip
+
+    settings = settings.model_copy(update={"index_refresh_seconds": 0.0})  # check every search
+    with TestClient(create_app(settings)) as client:
+        take = upload(client, long_take(), "take.bvh")["id"]
+        walk = upload(client, fixture_bytes(BANDAI_FIXTURE), "walk.bvh")["id"]
+        assert window_index_sizes(client) == 13
+        library = open_library(settings)  # another process
+        try:
+            key = next(k for k in library.window_keys.values() if k.length == 1.0)
+            before = sql(settings, "SELECT count(*) FROM clip_changes")
+            with library.writes.begin() as session:  # the walk's 1-s windows rewritten
+                walk_windows = repo.load_window_rows(session, key, [walk])[walk]
+                starts, stops, vectors = walk_windows
+                repo.put_windows(
+                    session,
+                    walk,
+                    [
+                        repo.NewWindows(
+                            "motion",
+                            key.version,
+                            np.full(len(starts), 1.0),
+                            starts,
+                            stops,
+                            vectors + 1.0,
+                        )
+                    ],
+                )
+            assert sql(settings, "SELECT count(*) FROM clip_changes") == before + 1
+            delete_clip(library, take)
+        finally:
+            library.close()
+        results = client.get("/search/moments", params={"clip": walk}).json()["results"]
+        assert all(r["id"] != take for r in results)
+        library = client.app.state.library  # type: ignore[attr-defined]
+        assert window_index_sizes(client) == window_rows(settings) == 2
+        index = library.window_indexes["windows-motion-1s"]
+        held = index.reconstruct_many(index.ids())[1]
+        np.testing.assert_allclose(np.sort(held, axis=0), np.sort(vectors + 1.0, axis=0))

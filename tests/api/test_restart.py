@@ -1,5 +1,9 @@
 """A real server restarted on the same data directory answers searches as before, also when
-its index files were deleted or damaged in between (they are rebuilt from the database)."""
+its index files were deleted or damaged in between (they are rebuilt from the database).
+
+SQLite only (the default a server gets from its data directory): restarts on PostgreSQL, with
+and without index files, are tested in tests/hardening/test_replicas.py and
+tests/db/test_changes.py."""
 
 from __future__ import annotations
 

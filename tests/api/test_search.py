@@ -57,7 +57,15 @@ def test_search_by_clip_is_exact_and_excludes_the_query(fake_client: TestClient)
     full = dict(results(fake_client.get("/search", params={"clip": ids[0], "k": 10}).json()))
     assert full[ids[1]] == 5.0
     first = body["results"][0]
-    assert set(first) == {"id", "name", "labels", "distance"} and first["labels"] == ["even"]
+    assert set(first) == {
+        "id",
+        "name",
+        "labels",
+        "format",
+        "filenames",
+        "skeleton_family",
+        "distance",
+    } and first["labels"] == ["even"]
 
 
 def test_fewer_than_k_only_when_the_library_is_smaller(fake_client: TestClient) -> None:

@@ -1,7 +1,15 @@
-"""The schema comes only from the Alembic migrations, and they agree with the models."""
+"""The schema comes only from the Alembic migrations, and they agree with the models — on
+SQLite and on PostgreSQL (a fresh database of the session's throwaway server)."""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
 from alembic.autogenerate import compare_metadata
 from alembic.runtime.migration import MigrationContext
 from sqlalchemy import Engine, inspect, text
@@ -10,22 +18,42 @@ from app.config import Settings
 from app.db.migrate import current_revision, downgrade, head_revision, upgrade
 from app.db.models import Base
 from app.db.session import create_db_engine
+from tests.conftest import REPO_ROOT
+from tests.postgres import Cluster
+
+TABLES = {"clips", "clip_files", "clip_labels", "clip_descriptors", "clip_changes", "blobs"}
 
 
-def test_fresh_database_is_migrated_to_head(engine: Engine) -> None:
-    assert current_revision(engine) == head_revision()
-    tables = set(inspect(engine).get_table_names())
-    assert {"clips", "clip_files", "clip_labels", "clip_descriptors"} <= tables
+@pytest.fixture(params=["sqlite", "postgresql"])
+def empty_url(request: pytest.FixtureRequest, settings: Settings) -> str:
+    """The URL of a database without any table, on each backend."""
+    if request.param == "postgresql":
+        cluster: Cluster = request.getfixturevalue("postgres_cluster")
+        return cluster.new_database(migrated=False)
+    return settings.sqlalchemy_url
 
 
-def test_models_match_migrations(engine: Engine) -> None:
-    with engine.connect() as connection:
+@pytest.fixture
+def migrated(empty_url: str) -> Iterator[Engine]:
+    engine = create_db_engine(empty_url)
+    upgrade(engine)
+    yield engine
+    engine.dispose()
+
+
+def test_fresh_database_is_migrated_to_head(migrated: Engine) -> None:
+    assert current_revision(migrated) == head_revision()
+    assert set(inspect(migrated).get_table_names()) >= TABLES
+
+
+def test_models_match_migrations(migrated: Engine) -> None:
+    with migrated.connect() as connection:
         diff = compare_metadata(MigrationContext.configure(connection), Base.metadata)
     assert diff == []
 
 
-def test_upgrade_is_idempotent_and_downgrade_works(settings: Settings) -> None:
-    engine = create_db_engine(settings.sqlalchemy_url)
+def test_upgrade_is_idempotent_and_downgrade_works(empty_url: str) -> None:
+    engine = create_db_engine(empty_url)
     try:
         upgrade(engine)
         upgrade(engine)  # a second start-up changes nothing
@@ -38,6 +66,7 @@ def test_upgrade_is_idempotent_and_downgrade_works(settings: Settings) -> None:
 
 
 def test_sqlite_pragmas(engine: Engine) -> None:
+    # SQLite only: PostgreSQL has no such settings to make.
     with engine.connect() as connection:
         assert connection.exec_driver_sql("PRAGMA journal_mode").scalar() == "wal"
         assert connection.exec_driver_sql("PRAGMA foreign_keys").scalar() == 1
@@ -50,3 +79,58 @@ def test_transactions_roll_back_selects_and_writes(engine: Engine) -> None:
         connection.execute(text("CREATE TABLE scratch (x INTEGER)"))
         tx.rollback()
     assert "scratch" not in inspect(engine).get_table_names()
+
+
+def test_0005_keys_existing_labels_and_drops_case_duplicates(settings: Settings) -> None:
+    engine = create_db_engine(settings.sqlalchemy_url)
+    try:
+        upgrade(engine, "0002")
+        with engine.begin() as db:
+            db.execute(
+                text(
+                    "INSERT INTO clips (id, name, format, content_hash, frame_count, frame_time, "
+                    "duration, joint_count, skeleton_family, lead_in_frames, created_at) VALUES "
+                    "(1, 'a', 'bvh', 'h1', 1, 0.1, 0.1, 1, 'x', 0, '2026-01-01 00:00:00')"
+                )
+            )
+            db.execute(
+                text(
+                    "INSERT INTO clip_labels (clip_id, label, position) VALUES "
+                    "(1, 'Walk', 0), (1, 'Straße', 1), (1, 'walk', 2), (1, 'STRASSE', 3)"
+                )
+            )
+        upgrade(engine, "0005")
+        with engine.connect() as db:
+            rows = db.execute(
+                text("SELECT label, label_key FROM clip_labels ORDER BY position")
+            ).all()
+        assert [tuple(r) for r in rows] == [("Walk", "walk"), ("Straße", "strasse")]
+    finally:
+        engine.dispose()
+
+
+def test_replicas_starting_together_migrate_one_after_the_other(
+    postgres_cluster: Cluster, tmp_path: Path
+) -> None:
+    # Three processes migrating an empty PostgreSQL database at once, as replicas starting
+    # together do: all succeed (without the advisory lock the later ones fail creating tables).
+    url = postgres_cluster.new_database(migrated=False)
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MOCAP_")}
+    command = [sys.executable, "-m", "app.cli", "migrate", "--database-url", url]
+    processes = [
+        subprocess.Popen(
+            [*command, "--data-dir", str(tmp_path / str(n))],
+            cwd=REPO_ROOT,
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+        )
+        for n in range(3)
+    ]
+    outputs = [process.communicate(timeout=120)[0].decode() for process in processes]
+    assert [process.returncode for process in processes] == [0, 0, 0], outputs
+    engine = create_db_engine(url)
+    try:
+        assert current_revision(engine) == head_revision()
+    finally:
+        engine.dispose()

@@ -133,3 +133,36 @@ def test_clips_needing_vectors_and_put_vectors(engine: Engine) -> None:
         assert repo.get_vector(session, clip_id, "kinetic") is not None
         stored = repo.get_vector(session, clip_id, "kinetic")
         assert stored is not None and stored.vector.shape == (6,)
+
+
+def test_label_filters_every_read_path(engine: Engine) -> None:
+    """All-of and any-case, alike on the Core functions (PostgreSQL's search path), the
+    SQLite search snapshot and the browsing query; the bulk delete goes by the same rule."""
+    sets = [("Walk", "happy"), ("walk",), ("HAPPY", "run"), ("walk", "Happy", "x"), ()]
+    with write_sessions(engine).begin() as session:
+        ids = repo.insert_clips(session, [new_clip(f"h{i}", labels=s) for i, s in enumerate(sets)])
+    want = {
+        "walk,happy": [ids[0], ids[3]],
+        "HAPPY": [ids[0], ids[2], ids[3]],
+        "x,walk,HAPPY": [ids[3]],
+        "walk,nothing": [],
+    }
+    reads = repo.SearchReads(engine)
+    try:
+        with read_sessions(engine)() as session, reads.snapshot() as snapshot:
+            for label, expected in want.items():
+                assert repo.clip_ids_with_label(session, label).tolist() == expected, label
+                assert repo.clip_ids_with_label(session, label.split(",")).tolist() == expected
+                assert snapshot.clip_ids_with_label(label).tolist() == expected, label
+                assert repo.clip_ids_with_labels(session, label) == expected
+                found, total = repo.find_clip_ids(
+                    session, name_contains=None, label=label, limit=10, offset=0
+                )
+                assert (found, total) == (expected, len(expected))
+            assert repo.clip_ids_with_labels(session, "") == ids  # no filter: every clip
+    finally:
+        reads.close()
+    with write_sessions(engine).begin() as session:
+        repo.delete_clips(session, repo.clip_ids_with_labels(session, "WALK"))
+    with read_sessions(engine)() as session:
+        assert repo.clip_ids_with_labels(session, None) == [ids[2], ids[4]]

@@ -16,6 +16,7 @@ from app.discovery import ClipSource, discover
 from app.evaluation import runner
 from app.evaluation.cli import add_eval_parser, run_eval
 from app.evaluation.runner import VectorCache, builtin_labels, clip_format, describe_clips
+from app.motion.descriptors import REGISTRY
 from tests.conftest import FIXTURES_DIR, shared_data_dir
 
 REAL_DESCRIBE = runner.describe_source
@@ -115,7 +116,13 @@ def test_describe_skips_bad_clips_and_caches(
         assert vectors["three_man"].shape == (3,)
         assert np.all(np.isfinite(vectors["kinetic"]))
         code = runner.motion_code_fingerprint()
-        assert (cache / "v1" / digest[:2] / digest / f"three_man-kinetic-v1-{code}.npy").is_file()
+        assert (
+            cache
+            / "v1"
+            / digest[:2]
+            / digest
+            / f"three_man-kinetic-v{REGISTRY['kinetic'].version}-{code}.npy"
+        ).is_file()
 
     # A second run reads every vector from the cache: describing is never called.
     def fail(*_args: Any) -> Any:

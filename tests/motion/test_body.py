@@ -52,3 +52,35 @@ def test_rest_pose_lead_in_is_dropped_and_a_real_clip_is_kept():
     )
     assert count_lead_in_frames(with_tpose) == 1
     assert build_body(with_tpose).lead_in_frames == 1
+
+
+def _sentinel(motion: Motion, frames: list[int]) -> Motion:
+    """``motion`` with the root thrown to a sentinel position in ``frames`` (as broken
+    exporters write -99999 or 1e6 where tracking was lost)."""
+    root = motion.root_translation.copy()
+    root[frames] = 1e6
+    translations = None
+    if motion.local_translations is not None:
+        translations = motion.local_translations.copy()
+        translations[frames, 0] = 1e6
+    return transforms._replace(motion, root_translation=root, local_translations=translations)
+
+
+def test_implausible_frames_at_the_ends_go_like_lead_in_frames():
+    from app.motion.formats import read_bvh
+    from app.motion.pipeline import analyse
+    from tests.motion.conftest import BANDAI_FIXTURE, fixture_bytes
+
+    motion = read_bvh(fixture_bytes(BANDAI_FIXTURE))
+    broken = analyse(_sentinel(motion, [0, 1, 2, 38, 39]))
+    clean = analyse(motion.slice_frames(3, 38))
+    assert broken.lead_in_frames == 3
+    assert broken.body.frame_count == 35
+    assert "3 implausible frames at the start dropped" in broken.warnings
+    assert "2 implausible frames at the end dropped" in broken.warnings
+    for name, vector in clean.descriptors.items():
+        np.testing.assert_allclose(broken.descriptors[name], vector, atol=1e-6)
+    # In the middle: kept, and said.
+    middle = analyse(_sentinel(motion, [20]))
+    assert middle.body.frame_count == 40
+    assert any("1 frames in the middle look implausible" in w for w in middle.warnings)

@@ -1,33 +1,62 @@
+"""Mapping by structure on real rigs (tests/fixtures), and refusals of what is not a person."""
+
+import dataclasses
+
 import numpy as np
 import pytest
 
 from app.errors import SkeletonMappingError
+from app.motion.body import _frame_poses
+from app.motion.formats import read_asf_amc, read_bvh
+from app.motion.model import Motion, Skeleton
 from app.motion.skeleton_map import (
     CANONICAL_BONES,
     CANONICAL_JOINTS,
     MIRROR_INDEX,
+    SkeletonMap,
     map_skeleton,
-    normalise_name,
+    rest_pose,
 )
-from tests.motion.skeleton_trees import (
-    BANDAI,
-    CMU_ASF,
-    DAZ,
-    MAX,
-    MIXAMO,
-    MOTIONBUILDER,
-    skeleton_from_tree,
+from app.motion.skeleton_names import name_hint, name_side, normalise_name
+from tests.motion.conftest import (
+    BANDAI_FIXTURE,
+    CMU_AMC_FIXTURE,
+    CMU_ASF_FIXTURE,
+    CMU_BVH_FIXTURE,
+    fixture_bytes,
 )
 
-# canonical joint -> expected source joint name, per family
+
+def _cmu_bvh() -> Motion:
+    return read_bvh(fixture_bytes(CMU_BVH_FIXTURE))
+
+
+def _bandai() -> Motion:
+    return read_bvh(fixture_bytes(BANDAI_FIXTURE))
+
+
+def _cmu_asf() -> Motion:
+    return read_asf_amc(fixture_bytes(CMU_ASF_FIXTURE), fixture_bytes(CMU_AMC_FIXTURE))
+
+
+def _map(motion: Motion) -> SkeletonMap:
+    return map_skeleton(motion.skeleton, _frame_poses(motion))
+
+
+def _named(motion: Motion, mapping: SkeletonMap) -> dict[str, str]:
+    names = motion.skeleton.names
+    return {c: names[j] for c, j in zip(CANONICAL_JOINTS, mapping.joints, strict=True)}
+
+
 EXPECTED = {
-    "motionbuilder": (
-        MOTIONBUILDER,
+    "cmu-bvh-motionbuilder": (
+        _cmu_bvh,
         {
             "pelvis": "Hips",
             "chest": "Spine1",
             "neck": "Neck",
-            "head": "Head",
+            # The spine chain's end effector: the End Site above the head joint.
+            "head": "Head_end",
             "l_shoulder": "LeftArm",
             "l_elbow": "LeftForeArm",
             "l_wrist": "LeftHand",
@@ -35,51 +64,21 @@ EXPECTED = {
             "l_hip": "LeftUpLeg",
             "l_knee": "LeftLeg",
             "l_ankle": "LeftFoot",
-            "l_toe": "LeftToeBase",
+            "l_toe": "LeftToeBase_end",
             "r_shoulder": "RightArm",
-        },
-    ),
-    "3dsmax": (
-        MAX,
-        {
-            "pelvis": "Hips",
-            "chest": "Chest2",
-            "neck": "lowerneck",
-            "l_shoulder": "LeftShoulder",
-            "l_elbow": "LeftElbow",
-            "l_wrist": "LeftWrist",
-            "l_hand_tip": "LFingers_end",
-            "l_hip": "LeftHip",
-            "l_knee": "LeftKnee",
-            "l_ankle": "LeftAnkle",
-            "l_toe": "LeftToe",
-        },
-    ),
-    "daz": (
-        DAZ,
-        {
-            "pelvis": "hip",
-            "spine": "abdomen",
-            "chest": "chest",
-            "neck": "neck",
-            "head": "head",
-            "l_shoulder": "lShldr",
-            "l_elbow": "lForeArm",
-            "l_wrist": "lHand",
-            "l_hip": "lThigh",
-            "l_knee": "lShin",
-            "l_ankle": "lFoot",
-            # DAZ has no toe joint: the foot's end site stands in for it.
-            "l_toe": "lFoot_end",
-            "r_toe": "rFoot_end",
+            "r_toe": "RightToeBase_end",
         },
     ),
     "bandai": (
-        BANDAI,
+        # The rest pose of these offsets is not a standing figure (bones along local x):
+        # the geometry is read from frames of the motion.
+        _bandai,
         {
             "pelvis": "Hips",
             "spine": "Spine",
             "chest": "Chest",
+            "neck": "Neck",
+            "head": "Head",  # its End Site has zero length: the head joint is the point
             "l_shoulder": "UpperArm_L",
             "l_elbow": "LowerArm_L",
             "l_wrist": "Hand_L",
@@ -91,12 +90,12 @@ EXPECTED = {
         },
     ),
     "cmu-asf": (
-        CMU_ASF,
+        _cmu_asf,
         {
             "pelvis": "root",
             "chest": "thorax",
             "neck": "lowerneck",
-            "head": "head",
+            "head": "head_end",
             "l_shoulder": "lhumerus",
             "l_elbow": "lradius",
             "l_wrist": "lwrist",
@@ -104,67 +103,164 @@ EXPECTED = {
             "l_hip": "lfemur",
             "l_knee": "ltibia",
             "l_ankle": "lfoot",
-            "l_toe": "ltoes",
-        },
-    ),
-    "mixamo": (
-        MIXAMO,
-        {
-            "pelvis": "mixamorig:Hips",
-            "chest": "mixamorig:Spine2",
-            "l_shoulder": "mixamorig:LeftArm",
-            "l_elbow": "mixamorig:LeftForeArm",
-            "l_wrist": "mixamorig:LeftHand",
-            "l_hand_tip": "mixamorig:LeftHandMiddle2_end",
-            "l_hip": "mixamorig:LeftUpLeg",
-            "l_knee": "mixamorig:LeftLeg",
-            "l_toe": "mixamorig:LeftToeBase",
+            "l_toe": "ltoes_end",
         },
     ),
 }
 
 
-@pytest.mark.parametrize("family", sorted(EXPECTED))
-def test_each_family_maps_to_the_right_joints(family):
-    tree, expected = EXPECTED[family]
-    skeleton = skeleton_from_tree(tree)
-    mapping = map_skeleton(skeleton)
-    assert mapping.family == family
-    got = {
-        name: skeleton.names[j] for name, j in zip(CANONICAL_JOINTS, mapping.joints, strict=True)
-    }
+@pytest.mark.parametrize("rig", sorted(EXPECTED))
+def test_real_rigs_map_to_the_right_joints(rig):
+    load, expected = EXPECTED[rig]
+    motion = load()
+    mapping = _map(motion)
+    got = _named(motion, mapping)
     for canonical, source in expected.items():
         assert got[canonical] == source, canonical
-    # Left and right never map to the same joint.
     for name in CANONICAL_JOINTS:
         if name.startswith("l_"):
             assert got[name] != got["r_" + name[2:]]
+    assert mapping.mirrored is False
+    assert mapping.warnings == ()
 
 
-def test_names_are_normalised_whole():
+def test_end_effectors_are_listed_and_the_head_joint_kept_for_height():
+    motion = _cmu_bvh()
+    mapping = _map(motion)
+    assert {"head", "l_toe", "r_toe", "l_hand_tip", "r_hand_tip"} <= set(mapping.end_sites)
+    assert motion.skeleton.names[mapping.head_joint] == "Head"
+    assert mapping.how["head"].startswith("end effector")
+    described = mapping.describe(motion.skeleton.names)
+    assert described["l_elbow"] == {"joint": "LeftForeArm", "how": "name"}
+
+
+def test_names_are_hints_read_whole():
     assert normalise_name("mixamorig:LeftUpLeg") == "leftupleg"
     assert normalise_name("UpperLeg_L") == "upperlegl"
-    assert normalise_name("Left Arm") == "leftarm"
-    assert normalise_name("Bip01_L_Thigh") == "lthigh"
+    assert name_hint("mixamorig:LeftUpLeg").parts == {"hip": 0}
+    assert name_hint("f_avg_L_Hip").side == "l"
+    assert "hip" in name_hint("Bip01_R_Thigh").parts
+    assert name_hint("upperarm01.L").side == "l" and "shoulder" in name_hint("upperarm01.L").parts
+    assert "knee" in name_hint("LoLeg_L").parts
+    assert "elbow" in name_hint("LeftLowArm").parts
+    # Substrings never count: a helper bone named after a leg says nothing.
+    assert name_hint("LeftUpLegHelper").parts == {}
+    assert name_hint("Hips").parts == {"pelvis": 0}
+    assert name_side("lfemur") == "l" and name_side("RightHandThumb1") == "r"
+    assert name_side("Hips") is None
 
 
-def test_substrings_never_match():
-    # "LeftHipHelper" contains "LeftHip" and "Hips" contains "hip": neither may be taken
-    # for the left hip, so the mapping must fail naming the hips.
-    tree = MOTIONBUILDER.replace("LeftUpLeg", "LeftUpLegHelper")
+def _renamed(motion: Motion, names: tuple[str, ...]) -> Motion:
+    skeleton = motion.skeleton
+    return dataclasses.replace(
+        motion, skeleton=Skeleton(names, skeleton.parents, skeleton.offsets, skeleton.end_site)
+    )
+
+
+def test_a_helper_bone_named_like_a_leg_changes_nothing():
+    motion = _cmu_bvh()
+    names = tuple(n.replace("LeftUpLeg", "LeftUpLegHelper") for n in motion.skeleton.names)
+    np.testing.assert_array_equal(_map(_renamed(motion, names)).joints, _map(motion).joints)
+
+
+def test_meaningless_names_map_the_same_joints():
+    motion = _cmu_bvh()
+    names = tuple(f"j{i}" for i in range(motion.skeleton.joint_count))
+    np.testing.assert_array_equal(_map(_renamed(motion, names)).joints, _map(motion).joints)
+
+
+def _subtree(skeleton: Skeleton, top: int) -> Skeleton:
+    """The part of ``skeleton`` from joint ``top`` down, as a skeleton of its own."""
+    keep = [j for j in range(skeleton.joint_count) if _under(skeleton, j, top)]
+    index = {j: i for i, j in enumerate(keep)}
+    parents = np.array([index.get(int(skeleton.parents[j]), -1) for j in keep])
+    offsets = skeleton.offsets[keep].copy()
+    offsets[0] = 0.0
+    return Skeleton(
+        tuple(skeleton.names[j] for j in keep), parents, offsets, skeleton.end_site[keep]
+    )
+
+
+def _under(skeleton: Skeleton, joint: int, top: int) -> bool:
+    while joint >= 0:
+        if joint == top:
+            return True
+        joint = int(skeleton.parents[joint])
+    return False
+
+
+def _refused(skeleton: Skeleton) -> str:
     with pytest.raises(SkeletonMappingError) as caught:
-        map_skeleton(skeleton_from_tree(tree))
-    assert "l_hip" in str(caught.value)
-    assert "r_hip" not in str(caught.value)
+        map_skeleton(skeleton)
+    return str(caught.value)
 
 
-def test_unmappable_skeleton_names_every_missing_joint():
-    tree = "\n".join(["Root", "  Bone1", "    Bone2", "      Bone2_end*"])
-    with pytest.raises(SkeletonMappingError) as caught:
-        map_skeleton(skeleton_from_tree(tree))
-    message = str(caught.value)
-    for missing in ("neck", "head", "l_shoulder", "r_knee", "l_ankle"):
-        assert missing in message
+def test_a_hand_alone_is_refused():
+    skeleton = _cmu_asf().skeleton
+    message = _refused(_subtree(skeleton, skeleton.index("lhumerus")))
+    assert "not a whole humanoid" in message and "missing" in message
+
+
+def test_an_upper_body_alone_is_refused_for_missing_legs():
+    skeleton = _cmu_asf().skeleton
+    message = _refused(_subtree(skeleton, skeleton.index("lowerback")))
+    assert "not a whole humanoid" in message
+    assert "legs" in message
+
+
+def test_a_head_alone_is_refused():
+    skeleton = _cmu_asf().skeleton
+    message = _refused(_subtree(skeleton, skeleton.index("lowerneck")))
+    assert "not a whole humanoid" in message
+
+
+def test_all_zero_offsets_are_refused():
+    skeleton = _cmu_bvh().skeleton
+    flat = Skeleton(
+        skeleton.names, skeleton.parents, np.zeros_like(skeleton.offsets), skeleton.end_site
+    )
+    assert "every OFFSET is 0" in _refused(flat)
+
+
+def test_a_chain_of_three_bones_names_what_is_missing():
+    skeleton = Skeleton(
+        ("Root", "Bone1", "Bone2", "Bone2_end"),
+        np.array([-1, 0, 1, 2]),
+        np.array([[0, 0, 0], [0, 1, 0], [0, 1, 0], [0, 1, 0]], dtype=float),
+        np.array([False, False, False, True]),
+    )
+    message = _refused(skeleton)
+    assert "not a whole humanoid" in message
+
+
+def _quadruped(skeleton: Skeleton) -> Skeleton:
+    """A real biped's rest offsets re-posed on all fours: the trunk (pelvis to head) tipped
+    forward to horizontal, the arms hanging straight down like front legs."""
+    pose = rest_pose(skeleton)
+    pelvis = skeleton.index("Hips")
+    tip = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # +y (up) -> +z
+    trunk = {
+        j for j in range(skeleton.joint_count) if _under(skeleton, j, skeleton.index("LowerBack"))
+    }
+    arms = {
+        j
+        for side in ("Left", "Right")
+        for j in range(skeleton.joint_count)
+        if _under(skeleton, j, skeleton.index(f"{side}Arm"))
+    }
+    offsets = skeleton.offsets.copy()
+    for j in trunk - arms:
+        offsets[j] = tip @ offsets[j]
+    for j in arms:
+        length = np.linalg.norm(skeleton.offsets[j])
+        offsets[j] = (0.0, -length, 0.0)
+    del pose, pelvis
+    return Skeleton(skeleton.names, skeleton.parents, offsets, skeleton.end_site)
+
+
+def test_a_quadruped_with_biped_names_is_refused():
+    message = _refused(_quadruped(_cmu_bvh().skeleton))
+    assert "four-legged" in message
 
 
 def test_bones_and_mirror_tables_are_consistent():

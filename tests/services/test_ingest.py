@@ -12,14 +12,20 @@ from sqlalchemy.exc import OperationalError
 
 from app.config import Settings
 from app.db import repository as repo
-from app.errors import MocapError, NotFound, ParseError, StorageUnavailable
+from app.errors import (
+    DescriptorOutdated,
+    MocapError,
+    NotFound,
+    ParseError,
+    StorageUnavailable,
+)
 from app.services import clips as clip_service
 from app.services import ingest as ingest_service
 from app.services.describe import DescriptorInfo
 from app.services.ingest import ingest, ingest_many
 from app.services.library import Library, open_library
 from app.services.reindex import reindex
-from app.services.search import DescriptorUnavailable, search_by_clip
+from app.services.search import search_by_clip
 from app.services.uploads import Upload
 from tests.services.fakes import FAKE_DESCRIPTORS, FakeDescriber, fake_motion
 
@@ -193,7 +199,7 @@ def test_reindex_recomputes_outdated_vectors(settings: Settings) -> None:
     library = open_library(settings, describer=FakeDescriber(newer))
     try:
         assert library.indexes.sizes() == {"posture": 2, "kinetic": 0, "extra": 0}
-        with pytest.raises(DescriptorUnavailable):
+        with pytest.raises(DescriptorOutdated, match="mocap-index reindex"):
             search_by_clip(library, clip, "kinetic", 5, label=None)
         report = reindex(library)
         assert report.recomputed == 2 and not report.failed
@@ -204,5 +210,28 @@ def test_reindex_recomputes_outdated_vectors(settings: Settings) -> None:
         assert stored.version == 2 and stored.vector.shape == (3,)
         assert reindex(library).recomputed == 0  # nothing left to do
         assert reindex(library, everything=True).recomputed == 2
+    finally:
+        library.close()
+
+
+def test_reindex_drops_outdated_vectors_it_cannot_recompute(settings: Settings) -> None:
+    """A stored file that no longer describes (here: damaged on disk) must not keep the
+    library refusing searches: its outdated vectors go, the clip stays, the failure is
+    reported."""
+    library = open_library(settings, describer=FakeDescriber())
+    good = ingest(library, bvh([1, 2, 3])).clip
+    bad = ingest(library, bvh([1, 2, 4], name="b.bvh")).clip
+    library.blobs.path(bad.files[0].sha256).write_bytes(b"not json any more")
+    library.close()
+
+    newer = {**FAKE_DESCRIPTORS, "kinetic": DescriptorInfo("kinetic", 3, 2, "fake kinetic v2")}
+    library = open_library(settings, describer=FakeDescriber(newer))
+    try:
+        report = reindex(library)
+        assert report.recomputed == 1 and set(report.failed) == {bad.id}
+        assert "not JSON" in report.failed[bad.id]
+        assert search_by_clip(library, good, "kinetic", 5, label=None) == []
+        assert "kinetic" not in clip_service.clip_vectors(library, bad.id)
+        assert clip_service.clip_vectors(library, bad.id)["posture"].version == 1
     finally:
         library.close()

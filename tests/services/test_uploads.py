@@ -53,7 +53,8 @@ def test_missing_or_surplus_parts_name_the_field(
 @pytest.mark.parametrize(
     "parts",
     [
-        {"file": ("walk.fbx", b"x")},
+        {"file": ("walk.obj", b"x")},
+        {"file": ("walk.asf", b"x")},
         {"file": ("walk.amc", b"x")},
         {"file": ("walk", b"x")},
         {"skeleton": ("a.bvh", b"x"), "motion": ("a.amc", b"x")},

@@ -160,6 +160,14 @@ def page(browser: Any, server: str) -> Iterator[Any]:
     context = browser.new_context(viewport={"width": 1280, "height": 900}, base_url=server)
     context.set_default_timeout(TIMEOUT_MS)
     page = context.new_page()
+    problems = watch_problems(page)
+    yield page
+    context.close()
+    assert not problems, problems
+
+
+def watch_problems(page: Any) -> list[str]:
+    """The page's script errors and console errors (4xx answers are expected), as they come."""
     problems: list[str] = []
     page.on("pageerror", lambda error: problems.append(f"page error: {error}"))
     page.on(
@@ -170,9 +178,7 @@ def page(browser: Any, server: str) -> Iterator[Any]:
             else None
         ),
     )
-    yield page
-    context.close()
-    assert not problems, problems
+    return problems
 
 
 def screenshot(page: Any, name: str) -> None:

@@ -52,12 +52,14 @@ def test_skeleton_is_the_motion_cores_joints_in_a_display_frame(
         got = np.linalg.norm(frames[f, :, None] - frames[f, None, :], axis=-1)
         np.testing.assert_allclose(got, want, atol=2e-4)
     heights = scaled @ core.world_up
-    np.testing.assert_allclose(frames[..., 1], heights - heights.min(), atol=1e-4)
+    floor = np.percentile(heights.min(axis=1), 5)  # robust to a frame gone wild
+    np.testing.assert_allclose(frames[..., 1], heights - floor, atol=1e-4)
 
     pelvis, head = CANONICAL_INDEX["pelvis"], CANONICAL_INDEX["head"]
-    # Origin: the floor under the first frame's pelvis; the floor is the lowest joint.
+    # Origin: the floor under the first frame's pelvis; the floor is where the lowest joint
+    # is in all but the 5 % of frames where it is lowest.
     np.testing.assert_allclose(frames[0, pelvis, [0, 2]], [0.0, 0.0], atol=1e-4)
-    assert frames[..., 1].min() == pytest.approx(0.0, abs=1e-4)
+    assert np.percentile(frames[..., 1].min(axis=1), 5) == pytest.approx(0.0, abs=1e-4)
     assert frames[0, head, 1] > frames[0, pelvis, 1] > frames[0, CANONICAL_INDEX["l_ankle"], 1]
     # Facing +z at the first frame: the subject's left hip is on +x, toes ahead of ankles.
     assert frames[0, CANONICAL_INDEX["l_hip"], 0] > frames[0, CANONICAL_INDEX["r_hip"], 0]
@@ -147,7 +149,7 @@ def test_unknown_clip_is_404_and_non_number_is_422(
     assert response.json() == {"error": "not_found", "detail": "no clip with id 999"}
     clip_id = upload_bvh(ui_client, fixtures_dir / BANDAI)
     response = ui_client.get(f"/clips/{clip_id}/skeleton", params={"fps": "fast"})
-    assert response.status_code == 422 and response.json()["error"] == "validation_error"
+    assert response.status_code == 422 and response.json()["error"] == "invalid_input"
 
 
 def test_skeletons_are_cached_and_carry_an_etag(
@@ -208,7 +210,7 @@ def test_skeleton_of_a_broken_upload_names_the_file(ui_client: TestClient) -> No
     assert response.status_code == 422
     body = response.json()
     assert body["error"] == "parse_error" and "'broken.bvh'" in body["detail"]
-    response = ui_client.post("/skeleton", files={"file": ("walk.fbx", b"x")})
+    response = ui_client.post("/skeleton", files={"file": ("walk.obj", b"x")})
     assert response.status_code == 415
 
 

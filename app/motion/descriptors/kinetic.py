@@ -30,9 +30,10 @@ from __future__ import annotations
 import numpy as np
 
 from app.motion.body import Body
-from app.motion.descriptors import Descriptor
+from app.motion.descriptors import Descriptor, whole_clip_vector
 from app.motion.kinematics import rotation_log
 from app.motion.skeleton_map import CANONICAL_INDEX
+from app.motion.spans import RunningMeans, whole_clip
 
 VELOCITY_SPAN_SECONDS = 0.1
 
@@ -125,8 +126,44 @@ def root_velocity(body: Body) -> tuple[np.ndarray, np.ndarray]:
     return horizontal, vertical
 
 
+class EnergySamples:
+    """Per-sample energies of one clip, ready for means over any frame span.
+
+    Sample ``i`` is the velocity from frame ``i`` to frame ``i + span``; the samples of frame
+    range ``[start, stop)`` are ``start .. stop - span``.
+    """
+
+    def __init__(self, body: Body) -> None:
+        self.span = velocity_span(body.frame_time, body.frame_count)
+        if body.frame_count < 2:
+            joints = np.zeros((0, len(KINETIC_JOINTS) * 3))
+            root = np.zeros((0, 2))
+        else:
+            omega = body_angular_velocity(body)
+            horizontal, vertical = root_velocity(body)
+            joints = (omega**2).reshape(len(omega), -1)
+            root = np.stack([horizontal**2, vertical**2], axis=1)
+        self.joints = RunningMeans(joints)
+        self.root = RunningMeans(root)
+
+    def sample_range(self, spans: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(W,)`` first and ``(W,)`` one-past-last sample of each frame span."""
+        return spans[:, 0], spans[:, 1] - self.span
+
+    def mean_energies(self, spans: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(W, 16, 3)`` mean ω² per joint DOF and ``(W, 2)`` mean root speed² per span."""
+        starts, stops = self.sample_range(spans)
+        joints = self.joints.mean(starts, stops).reshape(len(spans), len(KINETIC_JOINTS), 3)
+        return joints, self.root.mean(starts, stops)
+
+
+def energy_samples(body: Body) -> EnergySamples:
+    """The clip's :class:`EnergySamples`, computed once per body."""
+    return body.memo("kinetic.energy_samples", lambda: EnergySamples(body))
+
+
 def mean_energies(body: Body) -> tuple[np.ndarray, np.ndarray]:
-    """Mean approximate kinetic energies (unit weights).
+    """Mean approximate kinetic energies (unit weights) over the whole clip.
 
     Returns
     -------
@@ -135,21 +172,14 @@ def mean_energies(body: Body) -> tuple[np.ndarray, np.ndarray]:
     root:
         ``(2,)`` mean horizontal and vertical pelvis speed², (body heights/s)².
     """
-    return body.memo("kinetic.mean_energies", lambda: _mean_energies(body))
+    joints, root = energy_samples(body).mean_energies(whole_clip(body.frame_count))
+    return joints[0], root[0]
 
 
-def _mean_energies(body: Body) -> tuple[np.ndarray, np.ndarray]:
-    if body.frame_count < 2:
-        return np.zeros((len(KINETIC_JOINTS), 3)), np.zeros(2)
-    omega = body_angular_velocity(body)
-    horizontal, vertical = root_velocity(body)
-    return (omega**2).mean(axis=0), np.array([(horizontal**2).mean(), (vertical**2).mean()])
-
-
-def compute_kinetic(body: Body) -> np.ndarray:
-    """``(50,)`` log(mean energy + 1) per joint DOF, then root horizontal and vertical."""
-    joints, root = mean_energies(body)
-    return np.log1p(np.concatenate([joints.ravel(), root]))
+def kinetic_spans(body: Body, spans: np.ndarray) -> np.ndarray:
+    """``(W, 50)`` log(mean energy + 1) per joint DOF, then root horizontal and vertical."""
+    joints, root = energy_samples(body).mean_energies(spans)
+    return np.log1p(np.concatenate([joints.reshape(len(spans), -1), root], axis=1))
 
 
 def three_man(body: Body) -> np.ndarray:
@@ -190,8 +220,10 @@ def three_man_from_vectors(vectors: np.ndarray) -> np.ndarray:
 DESCRIPTOR = Descriptor(
     name="kinetic",
     dimension=len(KINETIC_JOINTS) * 3 + 2,
-    version=1,
-    description="Kinetic energy (FMDistance, Onuma et al. 2008): log(mean ω²+1) per joint DOF in "
-    "the body frame plus root horizontal/vertical speed.",
-    compute=compute_kinetic,
+    version=2,
+    description="How much each part of the body moves: the energy of every joint's rotation "
+    "and of the body's travel. Finds clips of similar vigour and rhythm (a punch, a kick, a "
+    "dance) whatever the pose; blind to where the limbs point.",
+    compute_spans=kinetic_spans,
 )
+compute_kinetic = whole_clip_vector(DESCRIPTOR)

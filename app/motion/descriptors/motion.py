@@ -1,9 +1,10 @@
-"""``motion``: our descriptor — limb-direction posture, kinetic energy and root trajectory.
+"""``motion``: our descriptor — where the limbs point, how each body part moves, and how the
+body travels, each measured so that a different actor, style or skeleton changes it little.
 
 Both papers say what they miss: posture variation ignores locomotion and speed, kinetic
 energy ignores the direction of travel; and joint-offset features change when a converter
-changes the skeleton's proportions. This descriptor concatenates three blocks, each
-computed in the pelvis-fixed body frame (x = left, y = up, z = forward):
+changes the skeleton's proportions. This descriptor concatenates five blocks, each computed
+in the pelvis-fixed body frame of :mod:`app.motion.body` (x = left, y = up, z = forward):
 
 ``limbs`` (60 numbers, dimensionless)
     Unit direction of ten segments — left/right upper arm, forearm, thigh and shin, the
@@ -12,18 +13,33 @@ computed in the pelvis-fixed body frame (x = left, y = up, z = forward):
     proportions (a DAZ generic figure vs the CMU subject) matter little.
 ``energy`` (50 numbers)
     The ``kinetic`` descriptor: log(mean ω² + 1) per joint DOF plus root speeds.
+``parts`` (16 numbers)
+    Each joint's share of the body's kinetic energy (its three DOFs summed, divided by the
+    sum over the 16 joints), as ``log(share + 1e-4)``. A style makes a whole motion more or
+    less vigorous (tired, active, giant); which parts carry the motion is the action's.
 ``travel`` (8 numbers)
     Root motion in the body's own heading frame (forward projected on the floor): mean
     forward and lateral velocity (signed: walking back or to the left is negative forward /
     positive lateral), mean signed turning rate (rad/s, positive = turning left), mean
     horizontal speed, std of forward and lateral velocity, rms vertical velocity and the
     net displacement per second — velocities in body heights per second.
+``sideways`` (1 number)
+    The sideways part of the direction of travel: mean lateral velocity divided by mean
+    horizontal speed, times ``s² / (s² + 0.2²)`` for mean speed ``s`` in body heights per
+    second. It tells walking to the side from walking ahead whatever the speed (which is
+    the style's), and fades out below 0.2 body heights per second, where a clip stands
+    rather than travels and the direction of a drift means nothing. Forward vs backward is
+    already in the signed forward velocity.
 
-Each block is divided by a fixed scale (the root-mean-square of the block's per-dimension
-standard deviations over the reference corpus of ``bench/`` — Bandai dataset 1 and the CMU
-clips in ``../shared/data``, computed once and frozen here with the descriptor's version) and
-multiplied by a fixed block weight, so no block dominates by its units and a clip's vector
-never depends on which other clips are in a library.
+Each block is divided by a fixed scale (the square root of the block's summed per-dimension
+variance over the reference corpus — Bandai dataset 1 and the CMU clips of ``../shared/data``
+— computed once by ``bench/motion_scales.py`` and frozen here with the descriptor's version)
+and multiplied by a fixed block weight, so no block dominates by its units and a clip's
+vector never depends on which other clips are in a library. What was tried and why these
+weights: ``docs/evaluation.md``.
+
+Every number is a mean (or a function of means) of per-frame quantities, so any span of
+frames is described in O(1) after one pass over the clip (:mod:`app.motion.spans`).
 """
 
 from __future__ import annotations
@@ -31,10 +47,10 @@ from __future__ import annotations
 import numpy as np
 
 from app.motion.body import Body
-from app.motion.descriptors import Descriptor
-from app.motion.descriptors.kinetic import DESCRIPTOR as KINETIC
-from app.motion.descriptors.kinetic import compute_kinetic, velocity_span
+from app.motion.descriptors import Descriptor, whole_clip_vector
+from app.motion.descriptors.kinetic import KINETIC_JOINTS, energy_samples, kinetic_spans
 from app.motion.skeleton_map import CANONICAL_INDEX
+from app.motion.spans import RunningMeans, std_from_moments
 
 LIMB_SEGMENTS: tuple[tuple[str, str], ...] = (
     *((f"{s}_shoulder", f"{s}_elbow") for s in "lr"),
@@ -47,24 +63,58 @@ LIMB_SEGMENTS: tuple[tuple[str, str], ...] = (
 _SEGMENT_FROM = np.array([CANONICAL_INDEX[a] for a, _ in LIMB_SEGMENTS])
 _SEGMENT_TO = np.array([CANONICAL_INDEX[b] for _, b in LIMB_SEGMENTS])
 
-KINETIC_DIMENSION = KINETIC.dimension
+LIMBS_DIMENSION = len(LIMB_SEGMENTS) * 6
+ENERGY_DIMENSION = len(KINETIC_JOINTS) * 3 + 2
+PARTS_DIMENSION = len(KINETIC_JOINTS)
 TRAVEL_DIMENSION = 8
+SIDEWAYS_DIMENSION = 1
+
+# Energy shares below this are noise, not a part that moves.
+PART_SHARE_FLOOR = 1e-4
+# Below this mean horizontal speed (body heights/s) a clip stands rather than travels.
+TRAVEL_SPEED = 0.2
 
 # Frozen block scales (reference corpus, see module docstring) and block weights.
-# Scales: `bench/motion_scales.py` on the 263 clips of ../shared/data (version 1).
-BLOCK_SCALES = {"limbs": 1.4204, "energy": 3.98354, "travel": 1.31194}
+# Scales: `bench/motion_scales.py` on Bandai dataset 1 + CMU (263 clips; version 2).
+BLOCK_SCALES = {
+    "limbs": 1.39,
+    "energy": 3.98,
+    "parts": 5.71,
+    "travel": 1.31,
+    "sideways": 0.14,
+}
 # Weights: energy and travel count fully; limb directions, the block most affected by how a
-# converter poses a skeleton, at half weight. The ablation behind it is in docs/evaluation.md.
-BLOCK_WEIGHTS = {"limbs": 0.5, "energy": 1.0, "travel": 1.0}
+# converter poses a skeleton, at half weight; the two style-independent blocks (parts,
+# sideways) at half weight. The ablation behind them is in docs/evaluation.md.
+BLOCK_WEIGHTS = {"limbs": 0.5, "energy": 1.0, "parts": 0.5, "travel": 1.0, "sideways": 0.5}
 
 
-def limb_block(body: Body) -> np.ndarray:
-    """``(60,)`` mean then std over frames of the limb unit directions in the body frame."""
+def limb_directions(body: Body) -> np.ndarray:
+    """``(F, 10, 3)`` unit direction of each limb segment in the body frame."""
     relative = body.positions[:, _SEGMENT_TO] - body.positions[:, _SEGMENT_FROM]
     local = relative @ body.pelvis_frames
     norms = np.linalg.norm(local, axis=2, keepdims=True)
-    directions = local / np.maximum(norms, 1e-12)
-    return np.concatenate([directions.mean(axis=0).ravel(), directions.std(axis=0).ravel()])
+    return local / np.maximum(norms, 1e-12)
+
+
+def limb_spans(body: Body, spans: np.ndarray) -> np.ndarray:
+    """``(W, 60)`` mean then std over each span's frames of the limb unit directions."""
+    directions = limb_directions(body).reshape(body.frame_count, -1)
+    moments = RunningMeans(np.concatenate([directions, directions**2], axis=1)).mean(
+        spans[:, 0], spans[:, 1]
+    )
+    half = directions.shape[1]
+    mean, mean_square = moments[:, :half], moments[:, half:]
+    return np.concatenate([mean, std_from_moments(mean, mean_square)], axis=1)
+
+
+def part_spans(body: Body, spans: np.ndarray) -> np.ndarray:
+    """``(W, 16)`` log share of each kinetic joint in the body's kinetic energy."""
+    joints, _ = energy_samples(body).mean_energies(spans)
+    per_joint = joints.sum(axis=2)
+    total = per_joint.sum(axis=1, keepdims=True)
+    share = np.where(total > 0, per_joint / np.maximum(total, 1e-300), 1.0 / per_joint.shape[1])
+    return np.log(share + PART_SHARE_FLOOR)
 
 
 def heading_frames(body: Body) -> tuple[np.ndarray, np.ndarray]:
@@ -82,61 +132,119 @@ def heading_frames(body: Body) -> tuple[np.ndarray, np.ndarray]:
     return forward, left
 
 
-def travel_block(body: Body) -> np.ndarray:
-    """``(8,)`` root trajectory features in the heading frame (see module docstring)."""
-    frames = body.frame_count
-    if frames < 2:
-        return np.zeros(TRAVEL_DIMENSION)
-    span = velocity_span(body.frame_time, frames)
-    seconds = span * body.frame_time
-    pelvis = body.joint("pelvis") / body.height
-    velocity = (pelvis[span:] - pelvis[:-span]) / seconds
-    forward, left = heading_frames(body)
-    up = body.world_up
-    v_forward = np.einsum("fa,fa->f", velocity, forward[:-span])
-    v_left = np.einsum("fa,fa->f", velocity, left[:-span])
-    v_up = velocity @ up
-    horizontal_speed = np.hypot(v_forward, v_left)
-    # Signed yaw change of the heading about the up axis over the span.
-    sin_turn = np.einsum(
-        "fa,fa->f", np.cross(forward[:-span], forward[span:]), np.tile(up, (len(v_up), 1))
-    )
-    cos_turn = np.einsum("fa,fa->f", forward[:-span], forward[span:])
-    turn_rate = np.arctan2(sin_turn, cos_turn) / seconds
-    duration = (frames - 1) * body.frame_time
-    displacement = pelvis[-1] - pelvis[0]
-    net_rate = np.linalg.norm(displacement - (displacement @ up) * up) / max(duration, 1e-9)
-    return np.array(
-        [
-            v_forward.mean(),
-            v_left.mean(),
-            turn_rate.mean(),
-            horizontal_speed.mean(),
-            v_forward.std(),
-            v_left.std(),
-            np.sqrt((v_up**2).mean()),
-            net_rate,
-        ]
-    )
+class TravelSamples:
+    """Per-sample root motion in the heading frame; sample ``i`` spans frames ``i .. i+h``
+    with ``h`` the kinetic velocity span."""
+
+    def __init__(self, body: Body) -> None:
+        self.span = energy_samples(body).span
+        self.frame_time = body.frame_time
+        self.up = body.world_up
+        self.pelvis = body.joint("pelvis") / body.height
+        h = self.span
+        if body.frame_count < 2:
+            samples = np.zeros((0, 7))
+        else:
+            seconds = h * body.frame_time
+            velocity = (self.pelvis[h:] - self.pelvis[:-h]) / seconds
+            forward, left = heading_frames(body)
+            v_forward = np.einsum("fa,fa->f", velocity, forward[:-h])
+            v_left = np.einsum("fa,fa->f", velocity, left[:-h])
+            v_up = velocity @ self.up
+            # Signed yaw change of the heading about the up axis over the span.
+            sin_turn = np.cross(forward[:-h], forward[h:]) @ self.up
+            cos_turn = np.einsum("fa,fa->f", forward[:-h], forward[h:])
+            turn_rate = np.arctan2(sin_turn, cos_turn) / seconds
+            samples = np.stack(
+                [
+                    v_forward,
+                    v_left,
+                    turn_rate,
+                    np.hypot(v_forward, v_left),
+                    v_forward**2,
+                    v_left**2,
+                    v_up**2,
+                ],
+                axis=1,
+            )
+        self.samples = RunningMeans(samples)
+
+    def travel(self, spans: np.ndarray) -> np.ndarray:
+        """``(W, 8)`` the travel block of each span (see module docstring)."""
+        starts, stops = spans[:, 0], spans[:, 1]
+        means = self.samples.mean(starts, stops - self.span)
+        v_forward, v_left, turn, speed = means[:, 0], means[:, 1], means[:, 2], means[:, 3]
+        last = np.maximum(stops - 1, starts)
+        displacement = self.pelvis[last] - self.pelvis[starts]
+        horizontal = displacement - (displacement @ self.up)[:, None] * self.up
+        duration = (last - starts) * self.frame_time
+        net_rate = np.where(
+            duration > 0, np.linalg.norm(horizontal, axis=1) / np.maximum(duration, 1e-9), 0.0
+        )
+        return np.stack(
+            [
+                v_forward,
+                v_left,
+                turn,
+                speed,
+                std_from_moments(v_forward, means[:, 4]),
+                std_from_moments(v_left, means[:, 5]),
+                np.sqrt(means[:, 6]),
+                net_rate,
+            ],
+            axis=1,
+        )
 
 
-def compute_motion(body: Body) -> np.ndarray:
-    """``(118,)`` scaled and weighted limbs (60), energy (50) and travel (8) blocks."""
-    blocks = {
-        "limbs": limb_block(body),
-        "energy": compute_kinetic(body),
-        "travel": travel_block(body),
+def travel_samples(body: Body) -> TravelSamples:
+    """The clip's :class:`TravelSamples`, computed once per body."""
+    return body.memo("motion.travel_samples", lambda: TravelSamples(body))
+
+
+def travel_spans(body: Body, spans: np.ndarray) -> np.ndarray:
+    """``(W, 8)`` root trajectory features of each span in the heading frame."""
+    return travel_samples(body).travel(spans)
+
+
+def sideways_from_travel(travel: np.ndarray) -> np.ndarray:
+    """``(W, 1)`` the sideways share of the direction of travel (see module docstring)."""
+    v_left, speed = travel[:, 1], travel[:, 3]
+    gate = speed**2 / (speed**2 + TRAVEL_SPEED**2)
+    return (v_left / np.maximum(speed, 1e-9) * gate)[:, None]
+
+
+def motion_blocks(body: Body, spans: np.ndarray) -> dict[str, np.ndarray]:
+    """Each block's raw ``(W, block dimension)`` values, before scales and weights."""
+    travel = travel_spans(body, spans)
+    return {
+        "limbs": limb_spans(body, spans),
+        "energy": kinetic_spans(body, spans),
+        "parts": part_spans(body, spans),
+        "travel": travel,
+        "sideways": sideways_from_travel(travel),
     }
+
+
+def motion_spans(body: Body, spans: np.ndarray) -> np.ndarray:
+    """``(W, 135)`` scaled and weighted blocks: limbs 60, energy 50, parts 16, travel 8,
+    sideways 1."""
+    blocks = motion_blocks(body, spans)
     return np.concatenate(
-        [blocks[name] * (BLOCK_WEIGHTS[name] / BLOCK_SCALES[name]) for name in blocks]
+        [blocks[name] * (BLOCK_WEIGHTS[name] / BLOCK_SCALES[name]) for name in blocks], axis=1
     )
 
 
 DESCRIPTOR = Descriptor(
     name="motion",
-    dimension=len(LIMB_SEGMENTS) * 6 + KINETIC_DIMENSION + TRAVEL_DIMENSION,
-    version=1,
-    description="mocap-index's own: limb directions, kinetic energy and body-frame root travel "
-    "(direction, speed, turning), each block scaled by frozen corpus constants.",
-    compute=compute_motion,
+    dimension=LIMBS_DIMENSION
+    + ENERGY_DIMENSION
+    + PARTS_DIMENSION
+    + TRAVEL_DIMENSION
+    + SIDEWAYS_DIMENSION,
+    version=2,
+    description="The best all-round choice (the default): what the body does — where the "
+    "limbs point, which parts move and how hard, and how the body travels (ahead, back, to "
+    "the side, turning). Finds the same action across actors, styles and skeletons.",
+    compute_spans=motion_spans,
 )
+compute_motion = whole_clip_vector(DESCRIPTOR)

@@ -1,13 +1,18 @@
 """``posture``: posture-variation descriptor of Miura et al. (2013), exactly as in the paper.
 
-Sixteen joints — left/right shoulder, elbow, wrist, finger tip (``hand_tip``), knee, ankle,
-toe, plus neck and head — are expressed in the pelvis-fixed body frame (root translation and
-rotation removed; x = subject's left, y = up, z = forward) and divided by body height, so
-every coordinate is dimensionless. Per frame ``n`` the covariance of the joint coordinates
-with 1/J normalisation gives six numbers ``f(n) = (σxx, σyy, σzz, σxy, σyz, σzx)`` (paper eq. 2);
-the clip's vector is their mean over frames followed by their population standard
-deviation (eq. 3): 12 numbers in units of (body heights)². Compared with the Euclidean
-distance. Mirroring a motion left-to-right flips the sign of σxy and σzx only.
+"Consider the constellation of the joints and end effectors … shoulders, elbows, wrists,
+fingers, knees, ankles, toes, neck and head. End effectors are hereafter regarded as
+joints." and "The position of each joint is described in the coordinate system fixed to the
+pelvis". Sixteen points — left/right shoulder, elbow, wrist, finger tip (``hand_tip``), knee,
+ankle, toe, plus neck and head, where head, toes and finger tips are the end effectors the
+skeleton has (:mod:`app.motion.skeleton_map`) — are expressed in the pelvis-fixed body frame
+of :mod:`app.motion.body` (x = subject's left, y = up, z = forward, one set of axes per
+skeleton found in its rest pose) and divided by body height, so every coordinate is
+dimensionless. Per frame ``n`` the covariance of the joint coordinates with 1/J
+normalisation gives six numbers ``f(n) = (σxx, σyy, σzz, σxy, σyz, σzx)`` (paper eq. 2); the
+clip's vector is their mean over frames followed by their population standard deviation
+(eq. 3): 12 numbers in units of (body heights)². Compared with the Euclidean distance.
+Mirroring a motion left-to-right flips the sign of σxy and σzx only.
 """
 
 from __future__ import annotations
@@ -15,8 +20,9 @@ from __future__ import annotations
 import numpy as np
 
 from app.motion.body import Body
-from app.motion.descriptors import Descriptor
+from app.motion.descriptors import Descriptor, whole_clip_vector
 from app.motion.skeleton_map import CANONICAL_INDEX
+from app.motion.spans import RunningMeans, std_from_moments
 
 POSTURE_JOINTS: tuple[str, ...] = (
     *(f"{s}_{p}" for s in ("l", "r") for p in ("shoulder", "elbow", "wrist", "hand_tip")),
@@ -47,17 +53,25 @@ def posture_features(local_positions: np.ndarray) -> np.ndarray:
     )
 
 
-def compute_posture(body: Body) -> np.ndarray:
-    """``(12,)`` mean then population standard deviation of the per-frame features."""
+def posture_spans(body: Body, spans: np.ndarray) -> np.ndarray:
+    """``(W, 12)`` mean then population std of the per-frame features over each span.
+
+    ``spans`` is ``(W, 2)`` frame ranges ``[start, stop)`` of ``body``.
+    """
     features = posture_features(body.local_positions()[:, _POSTURE_INDEX])
-    return np.concatenate([features.mean(axis=0), features.std(axis=0)])
+    means = RunningMeans(np.concatenate([features, features**2], axis=1))
+    moments = means.mean(spans[:, 0], spans[:, 1])
+    mean, mean_square = moments[:, :6], moments[:, 6:]
+    return np.concatenate([mean, std_from_moments(mean, mean_square)], axis=1)
 
 
 DESCRIPTOR = Descriptor(
     name="posture",
     dimension=12,
-    version=1,
-    description="Posture variation (Miura et al. 2013): mean and std of the 16-joint covariance "
-    "in the pelvis frame, body-height units.",
-    compute=compute_posture,
+    version=2,
+    description="How the body is held: how spread out, tall or leaning the pose is on average "
+    "and how much it varies, whatever the speed. Finds clips of similar stance (crouching, "
+    "upright, arms out); blind to direction and speed of travel.",
+    compute_spans=posture_spans,
 )
+compute_posture = whole_clip_vector(DESCRIPTOR)

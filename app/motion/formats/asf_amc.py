@@ -149,13 +149,16 @@ def parse_asf_amc(
         raise error.with_source("ASF") from None
     layout = _column_layout(asf)
     try:
-        values, first_frame, amc_angle_unit = _parse_amc(
+        values, first_frame, amc_angle_unit, warnings = _parse_amc(
             _split_lines(amc_text), asf, layout, len(joints), limits
         )
     except ParseError as error:
         raise error.with_source("AMC") from None
     angle_unit = amc_angle_unit or asf.angle_unit
-    return _build_motion(asf, joints, layout, values, angle_unit, frame_time, first_frame)
+    motion = _build_motion(asf, joints, layout, values, angle_unit, frame_time, first_frame)
+    if warnings:
+        motion.notes["warnings"] = warnings
+    return motion
 
 
 def _split_lines(text: str) -> list[str]:
@@ -458,8 +461,9 @@ def _parse_amc(
     layout: dict[str, tuple[int, int]],
     joint_count: int,
     limits: ParseLimits,
-) -> tuple[np.ndarray, int, str | None]:
-    """Returns the ``(F, D)`` values, the first frame number and any header angle unit."""
+) -> tuple[np.ndarray, int, str | None, list[str]]:
+    """Returns the ``(F, D)`` values, the first frame number, any header angle unit and
+    warnings about repairs."""
     angle_unit: str | None = None
     start = 0
     while start < len(lines):
@@ -478,14 +482,43 @@ def _parse_amc(
     if start == end:
         raise ParseError("the AMC file has no frames")
     body = lines[start:end]
+    body, warnings = _drop_cut_last_frame(body, start + 1, layout)
     column_count = sum(count for _, count in layout.values())
     fast = _read_regular_amc(body, layout, column_count, joint_count, limits)
     if fast is not None:
-        return fast[0], fast[1], angle_unit
+        return fast[0], fast[1], angle_unit, warnings
     values, first_frame = _read_amc_lines(
         body, start + 1, asf, layout, column_count, joint_count, limits
     )
-    return values, first_frame, angle_unit
+    return values, first_frame, angle_unit, warnings
+
+
+def _drop_cut_last_frame(
+    body: list[str], first_line: int, layout: dict[str, tuple[int, int]]
+) -> tuple[list[str], list[str]]:
+    """``body`` without a last frame cut short (a truncated download), and a warning.
+
+    The last frame counts as cut when its lines are all whole lines of known bones except
+    that bones are missing at its end or its last line is short; anything else in it is left
+    for the readers to report. The first frame is never dropped.
+    """
+    numbered = [i for i, line in enumerate(body) if _FRAME_NUMBER_RE.fullmatch(line.strip())]
+    if len(numbered) < 2:
+        return body, []
+    last = numbered[-1]
+    entries = [line.split() for line in body[last + 1 :]]
+    entries = [tokens for tokens in entries if tokens and not tokens[0].startswith("#")]
+    seen = [tokens[0] for tokens in entries]
+    if any(name not in layout for name in seen) or len(set(seen)) != len(seen):
+        return body, []
+    whole = [len(tokens) - 1 == layout[tokens[0]][1] for tokens in entries]
+    if all(whole) and len(seen) == len(layout):
+        return body, []
+    if not all(whole[:-1]):
+        return body, []
+    return body[:last], [
+        f"the last frame ({body[last].strip()}, line {first_line + last}) was cut short: dropped"
+    ]
 
 
 def _check_amc_limits(

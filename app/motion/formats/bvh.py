@@ -12,8 +12,10 @@ What the numbers mean
 * Position channels may sit on any joint. On the root they give ``Motion.root_translation``;
   elsewhere they give ``Motion.local_translations``. A position value *replaces* that
   component of the joint's ``OFFSET`` for that frame (checked on the Bandai files, whose
-  non-root position channels repeat their offsets); components without a channel keep the
-  offset.
+  non-root position channels repeat their offsets) unless the file's values are plainly
+  changes from the offsets (Blender/MakeHuman exports write values near 0 where offsets are
+  not; see ``_positions_are_deltas``), then they are added; components without a channel
+  keep the offset.
 * ``Frame Time`` is seconds per frame.
 * ``End Site`` blocks become joints named ``"<parent>_end"`` with ``end_site=True`` and
   identity rotation.
@@ -238,8 +240,13 @@ def parse_bvh(text: str, *, limits: ParseLimits = DEFAULT_LIMITS) -> Motion:
     if channel_count == 0:
         raise ParseError("the hierarchy declares no CHANNELS, so frames hold no data")
     _check_frame_limits(frame_count, channel_count, len(joints), limits)
-    values = _read_frames(text, lines.pos, lines.line + 1, frame_count, frames_line, channel_count)
-    return _build_motion(joints, values, frame_time)
+    values, warnings = _read_frames(
+        text, lines.pos, lines.line + 1, frame_count, frames_line, channel_count
+    )
+    motion = _build_motion(joints, values, frame_time)
+    if warnings:
+        motion.notes["warnings"] = warnings
+    return motion
 
 
 def _read_hierarchy(lines: _Lines, limits: ParseLimits) -> list[_Joint]:
@@ -465,7 +472,11 @@ def _read_motion_header(lines: _Lines) -> tuple[int, int, float]:
         raise ParseError(f"Frames: {show(token)} is not a whole number", line=lines.line)
     # a 10**18 stand-in for absurdly long numbers is caught by the frame limit
     frame_count = int(token) if len(token) <= 18 else (10**18 if token[0] != "-" else -1)
-    if frame_count <= 0:
+    if frame_count == 0:
+        raise ParseError(
+            "Frames: 0 — a skeleton without motion, nothing to describe", line=lines.line
+        )
+    if frame_count < 0:
         raise ParseError("Frames: must be at least 1", line=lines.line)
     frames_line_number = lines.line
 
@@ -500,75 +511,152 @@ def _read_frames(
     frame_count: int,
     frames_line: int,
     channel_count: int,
-) -> np.ndarray:
-    """The ``(F, C)`` frame values from ``text[start:]``; exact errors via a slow pass."""
+) -> tuple[np.ndarray, list[str]]:
+    """The ``(F, C)`` frame values from ``text[start:]`` and warnings about repairs.
+
+    Fast path: exactly ``Frames:`` lines of finite numbers, read by numpy's C reader.
+    Otherwise :func:`_frame_lines` walks the block line by line (see its rules).
+    """
     block = text[start:].rstrip()
     # Counting lines first bounds the C reader's work by the header (no max_rows: numpy
     # warns when a blank line meets max_rows) and sends blank or extra lines to the slow pass.
     if block and block.count("\n") + 1 == frame_count:
         try:
             values = np.loadtxt(io.StringIO(block), dtype=np.float64, comments=None, ndmin=2)
-        except ValueError as error:
-            reason = str(error)
+        except ValueError:
+            pass
         else:
             if values.shape == (frame_count, channel_count) and np.isfinite(values).all():
-                return values
-            reason = f"read {values.shape[0]} x {values.shape[1]} values"
-    else:
-        reason = "the number of lines differs from Frames:"
-    _diagnose_frames(block, first_line, frame_count, frames_line, channel_count)
-    # The block is valid after all (blank lines between frames): the C reader skips them.
+                return values, []
+    lines, warnings = _frame_lines(block, first_line, frame_count, frames_line, channel_count)
     try:
-        values = np.loadtxt(io.StringIO(block), dtype=np.float64, comments=None, ndmin=2)
-    except ValueError as error:
-        reason = str(error)
-    else:
-        if values.shape == (frame_count, channel_count) and np.isfinite(values).all():
-            return values
-    # The diagnostic pass is stricter than numpy's reader, so this is not expected.
-    raise ParseError(f"the frame data could not be read ({reason})", line=first_line)
+        values = np.loadtxt(io.StringIO("\n".join(lines)), dtype=np.float64, comments=None, ndmin=2)
+    except ValueError as error:  # the line pass is stricter than numpy's reader
+        raise ParseError(f"the frame data could not be read ({error})", line=first_line) from None
+    if values.shape != (len(lines), channel_count):
+        raise ParseError(
+            f"the frame data could not be read (read {values.shape[0]} x {values.shape[1]})",
+            line=first_line,
+        )
+    missing = np.isnan(values)
+    if missing.any():
+        values = _fill_missing(values, missing)
+        warnings.append(
+            f"{int(missing.sum())} values written as nan in {int(missing.any(axis=1).sum())} "
+            "frames were filled in from the neighbouring frames"
+        )
+    return values, warnings
 
 
-def _diagnose_frames(
+#: A declared frame count is accepted when at least this share of its frames is complete.
+MIN_COMPLETE_SHARE = 0.9
+#: At most this many broken lines after the last complete frame are ignored as a tool's
+#: trailer or a cut (a download cut short); more, or complete frames after them, is damage.
+MAX_TRAILING_LINES = 5
+
+
+def _frame_lines(
     block: str, first_line: int, frame_count: int, frames_line: int, channel_count: int
-) -> None:
-    """Walk the frame block line by line and raise for the first problem found."""
-    frame_lines = 0
+) -> tuple[list[str], list[str]]:
+    """The frame lines to read, and warnings; raises :class:`ParseError` for real damage.
+
+    ``Frames:`` is a claim, not a contract: lines beyond the declared count are ignored; a
+    last frame cut short and a few short lines a tool appended are dropped; fewer complete
+    frames than declared are accepted down to :data:`MIN_COMPLETE_SHARE` of the claim. A
+    broken line *between* complete frames, a non-number or an infinite value is damage and
+    named by its line. ``nan`` values are missing data (filled in by the caller).
+    """
+    complete: list[str] = []
+    trailing: list[tuple[int, str]] = []  # (line number, problem) of broken lines at the end
+    extra = short_extra = 0
     for number, line in enumerate(block.split("\n"), start=first_line):
         # maxsplit keeps a hostile 10 MB line from becoming millions of tokens
         tokens = line.split(None, channel_count)
         if not tokens:
             continue
-        frame_lines += 1
-        if len(tokens) > channel_count:
-            # an exact count only when it is cheap to make
-            found = len(line.split()) if len(line) < 1_000_000 else f"more than {channel_count}"
-            raise ParseError(
-                f"frame line has {found} values, more than the {channel_count} channels "
-                "the hierarchy declares",
-                line=number,
-            )
-        if len(tokens) < channel_count:
-            raise ParseError(
-                f"frame line has {len(tokens)} values, expected {channel_count} (one per channel)",
-                line=number,
-            )
-        for column, token in enumerate(tokens, start=1):
-            if NUMBER_RE.fullmatch(token) is None:
-                raise ParseError(
-                    f"value {column} of the frame line, {show(token)}, is not a number",
-                    line=number,
-                )
-            if not math.isfinite(float(token)):
-                raise ParseError(
-                    f"value {column} of the frame line, {show(token)}, is not finite",
-                    line=number,
-                )
-    if frame_lines != frame_count:
-        raise ParseError(
-            f"Frames: says {frame_count} but the file has {frame_lines} frame lines",
-            line=frames_line,
+        if len(complete) >= frame_count:
+            if len(tokens) == channel_count:
+                extra += 1
+            else:
+                short_extra += 1
+            continue
+        problem = _frame_line_problem(tokens, line, channel_count)
+        if problem is None:
+            if trailing:  # a complete frame after a broken one: the broken one is damage
+                raise ParseError(trailing[0][1], line=trailing[0][0])
+            complete.append(line)
+            continue
+        if problem.startswith("!"):  # never tolerated (not a number, not finite)
+            raise ParseError(problem[1:], line=number)
+        trailing.append((number, problem))
+        if len(trailing) > MAX_TRAILING_LINES:
+            raise ParseError(trailing[0][1], line=trailing[0][0])
+
+    warnings: list[str] = []
+    if extra:
+        warnings.append(
+            f"{extra} line{'s' if extra > 1 else ''} after the {frame_count} frames that "
+            "Frames: declares ignored"
         )
+    if short_extra or len(trailing) > 1:
+        count = short_extra + len(trailing)
+        warnings.append(
+            f"{count} short line{'s' if count > 1 else ''} after the last frame ignored"
+        )
+    elif trailing:
+        warnings.append(f"the last frame (line {trailing[0][0]}) was cut short: dropped")
+    if len(complete) < frame_count:
+        where = f" (line {trailing[0][0]}: {trailing[0][1]})" if trailing else ""
+        if len(complete) < MIN_COMPLETE_SHARE * frame_count or not complete:
+            raise ParseError(
+                f"Frames: says {frame_count} but the file has {len(complete)} complete frame "
+                f"lines{where}; at least {MIN_COMPLETE_SHARE:.0%} of the declared frames "
+                "are needed",
+                line=frames_line,
+            )
+        if len(complete) + len(trailing) < frame_count:  # else the cut says it all
+            warnings.append(
+                f"Frames: says {frame_count} but the file has {len(complete)} complete "
+                f"frames; read {len(complete)}"
+            )
+    return complete, warnings
+
+
+def _frame_line_problem(tokens: list[str], line: str, channel_count: int) -> str | None:
+    """None for a complete frame line, else why not (``"!"`` first: never tolerated)."""
+    if len(tokens) > channel_count:
+        # an exact count only when it is cheap to make
+        found = len(line.split()) if len(line) < 1_000_000 else f"more than {channel_count}"
+        return (
+            f"frame line has {found} values, more than the {channel_count} channels "
+            "the hierarchy declares"
+        )
+    for column, token in enumerate(tokens, start=1):
+        if NUMBER_RE.fullmatch(token) is None:
+            return f"!value {column} of the frame line, {show(token)}, is not a number"
+        if math.isinf(float(token)):
+            return f"!value {column} of the frame line, {show(token)}, is not finite"
+    if len(tokens) < channel_count:
+        return f"frame line has {len(tokens)} values, expected {channel_count} (one per channel)"
+    return None
+
+
+def _fill_missing(values: np.ndarray, missing: np.ndarray) -> np.ndarray:
+    """``values`` with nan entries interpolated along frames per channel (held at the ends).
+
+    Raises ParseError when a channel has no number in any frame, or nan in more than half.
+    """
+    frames = np.arange(values.shape[0])
+    out = values.copy()
+    for column in np.flatnonzero(missing.any(axis=0)):
+        gaps = missing[:, column]
+        if gaps.sum() * 2 > len(gaps):
+            raise ParseError(
+                f"channel {column + 1} of the frame lines is nan in {int(gaps.sum())} of "
+                f"{len(gaps)} frames: too little data to fill in"
+            )
+        out[gaps, column] = np.interp(frames[gaps], frames[~gaps], values[~gaps, column])
+    return out
 
 
 def _build_motion(joints: list[_Joint], values: np.ndarray, frame_time: float) -> Motion:
@@ -618,9 +706,11 @@ def _build_motion(joints: list[_Joint], values: np.ndarray, frame_time: float) -
     root_translation[:, axis_index[on_root]] = values[:, column_index[on_root]]
     if (~on_root).any():
         local_translations = np.repeat(offsets[None], frame_count, axis=0)
-        local_translations[:, joint_index[~on_root], axis_index[~on_root]] = values[
-            :, column_index[~on_root]
-        ]
+        channel_values = values[:, column_index[~on_root]]
+        rest = offsets[joint_index[~on_root], axis_index[~on_root]]
+        if _positions_are_deltas(channel_values, rest):
+            channel_values = channel_values + rest
+        local_translations[:, joint_index[~on_root], axis_index[~on_root]] = channel_values
         local_translations[:, 0] = root_translation
 
     skeleton = Skeleton(names=names, parents=parents, offsets=offsets, end_site=end_site)
@@ -633,6 +723,21 @@ def _build_motion(joints: list[_Joint], values: np.ndarray, frame_time: float) -
         source_format="bvh",
         length_unit="file units",
     )
+
+
+def _positions_are_deltas(values: np.ndarray, rest: np.ndarray) -> bool:
+    """Whether non-root position channels hold offsets from the rest ``OFFSET`` rather than
+    the offset itself.
+
+    Exporters disagree: Bandai's and most mocap tools' non-root position channels repeat
+    the OFFSET (the value replaces it), Blender-based ones (MakeHuman) write the change from
+    it (values near 0 where the OFFSET is not). ``values`` is ``(F, K)`` for the K non-root
+    position channels, ``rest`` ``(K,)`` their OFFSET components; whichever reading is nearer
+    the numbers wins, ties (all offsets 0) reading values as replacements.
+    """
+    replace_error = float(np.abs(values - rest).mean())
+    delta_error = float(np.abs(values).mean())
+    return delta_error < 0.5 * replace_error
 
 
 def _unique_names(joints: list[_Joint]) -> tuple[str, ...]:

@@ -1,0 +1,291 @@
+"""FBX (binary and ASCII, 6.x and 7.x; ufbx reads 5.0 too) -> :class:`Motion`.
+
+Read with ufbx (its Python binding, pinned exactly: young, with object-lifetime bugs). **Call
+these functions only in a worker process** (:mod:`app.services.parser_pool`): a crash in
+the binding takes the process with it.
+
+* Axes and units: ufbx converts the scene to right-handed Y-up metres from the file's own
+  settings (``target_axes``, ``target_unit_meters``); ``length_unit`` says "metres".
+* Skeleton: the limb nodes and the bones skin clusters name, the joinable nodes between
+  them (nulls limbs hang from) — see :mod:`app.motion.formats.scene`; meshes, cameras,
+  lights, markers and helper nulls that carry no bones are left out.
+* Motion: every node's local transform baked by ufbx (pre/post rotation, pivots and offsets
+  folded in, inherit modes compensated: ``inherit_mode_handling=COMPENSATE``) at the scene's
+  frame rate, over the animation stack's time span.
+* Several stacks: :func:`list_fbx_animations` lists them; :func:`read_fbx` reads the one
+  named, else the longest.
+
+Binding lifetime rules honoured here (see ``../shared/data/fbx-gltf/README.md``): the stack
+list and each ``.anim`` are taken once and kept referenced until the end; parents come from
+``children`` lists, never ``node.parent``.
+"""
+
+from __future__ import annotations
+
+from itertools import chain
+from typing import Any
+
+import numpy as np
+
+from app.errors import LimitExceeded, ParseError
+from app.motion.formats.scene import (
+    Animation,
+    NodeGraph,
+    check_frame_budget,
+    motion_from_graph,
+    pick_animation,
+    unique_names,
+)
+from app.motion.model import Motion, ParseLimits
+
+DEFAULT_LIMITS = ParseLimits()
+MAX_SCENE_NODES = 100_000
+
+
+def _load(data: bytes, limits: ParseLimits) -> Any:
+    import ufbx
+
+    options: dict[str, Any] = {
+        "ignore_geometry": True,
+        "ignore_embedded": True,
+        "load_external_files": False,
+        "target_axes": ufbx.axes_right_handed_y_up,
+        "target_unit_meters": 1.0,
+        "space_conversion": ufbx.SpaceConversion.TRANSFORM_ROOT,
+        "inherit_mode_handling": ufbx.InheritModeHandling.COMPENSATE,
+        "file_format": ufbx.FileFormat.FBX,
+    }
+    if limits.max_depth is not None:
+        options["node_depth_limit"] = limits.max_depth
+    try:
+        return ufbx.load_memory(data, **options)
+    except ufbx.NodeDepthLimitError:
+        raise LimitExceeded(
+            f"the node hierarchy is nested deeper than the limit of {limits.max_depth}"
+        ) from None
+    except (ufbx.OutOfMemoryError, ufbx.MemoryLimitError, ufbx.AllocationLimitError):
+        raise MemoryError from None
+    except ufbx.UfbxError as error:
+        raise ParseError(f"cannot read the FBX file: {_ufbx_message(error)}") from None
+
+
+def _ufbx_message(error: Exception) -> str:
+    text = str(error).strip().splitlines()
+    return (text[0] if text else type(error).__name__)[:300]
+
+
+class _Scene:
+    """A loaded scene with its stacks and their ``Anim`` objects taken exactly once."""
+
+    def __init__(self, data: bytes, limits: ParseLimits) -> None:
+        self.scene = _load(data, limits)
+        self.fps = float(self.scene.settings.frames_per_second) or 30.0
+        if not np.isfinite(self.fps) or not 1.0 <= self.fps <= 1000.0:
+            raise ParseError(f"the file's frame rate {self.fps!r} is not usable")
+        self.stacks = list(self.scene.anim_stacks)
+        self.anims = [stack.anim for stack in self.stacks]
+        names = unique_names(
+            [stack.name for stack in self.stacks], blank="animation {i}", repeat="{name} ({n})"
+        )
+        self.spans = [(float(s.time_begin), float(s.time_end)) for s in self.stacks]
+        self.animations = []
+        for name, (begin, end) in zip(names, self.spans, strict=True):
+            span = end - begin if np.isfinite(end - begin) and end >= begin else 0.0
+            frames = int(np.floor(span * self.fps + 0.5)) + 1
+            self.animations.append(Animation(name, frames, (frames - 1) / self.fps))
+
+
+def list_fbx_animations(data: bytes, *, limits: ParseLimits = DEFAULT_LIMITS) -> list[Animation]:
+    """The animation stacks of an FBX file, in file order."""
+    return _Scene(data, limits).animations
+
+
+def read_fbx(
+    data: bytes,
+    *,
+    animation: str | None = None,
+    limits: ParseLimits = DEFAULT_LIMITS,
+    keep: list[Any] | None = None,
+) -> tuple[Motion, list[Animation], str]:
+    """Read one animation of an FBX file.
+
+    ``keep``: a list the loaded ufbx scene (with its stacks and ``Anim`` wrappers) is
+    appended to, so the caller decides when, or whether, it is freed: freeing them can crash
+    the binding (see the module docstring).
+
+    Returns
+    -------
+    (motion, animations, chosen)
+        The motion (``source_format="fbx"``, metres, Y up), every animation of the file and
+        the name of the one read.
+
+    Raises
+    ------
+    ParseError
+        Not FBX, damaged, no skeleton, a skeleton without animation, non-finite numbers,
+        an unknown ``animation``.
+    LimitExceeded
+        Over ``limits`` (nodes, depth, joints, frames x nodes).
+    """
+    loaded = _Scene(data, limits)
+    if keep is not None:
+        keep.append(loaded)
+    scene = loaded.scene
+    nodes = list(scene.nodes)
+    if len(nodes) > MAX_SCENE_NODES:
+        raise LimitExceeded(
+            f"the scene has {len(nodes)} nodes, more than the limit of {MAX_SCENE_NODES}"
+        )
+    # Parents from ``node.parent`` on nodes kept referenced in ``nodes`` (iterating
+    # ``node.children`` crashes this binding), checked against the nodes' depths.
+    node_ids = {node.typed_id: i for i, node in enumerate(nodes)}
+    parents = np.full(len(nodes), -1, dtype=np.int64)
+    depths = [node.node_depth for node in nodes]
+    for i, node in enumerate(nodes):
+        parent = node.parent
+        if parent is None:
+            continue
+        index = node_ids.get(parent.typed_id)
+        if index is None or depths[index] != depths[i] - 1:
+            raise ParseError(f"the node hierarchy is inconsistent at node {node.name!r}")
+        parents[i] = index
+    is_bone = np.array([node.bone is not None for node in nodes], dtype=bool)
+    clusters = list(scene.skin_clusters)
+    bone_nodes = [cluster.bone_node for cluster in clusters]
+    for bone in bone_nodes:
+        if bone is not None and bone.typed_id in node_ids:
+            is_bone[node_ids[bone.typed_id]] = True
+    joinable = np.array(
+        [
+            not (node.is_root or node.is_scale_helper or node.is_geometry_transform_helper)
+            for node in nodes
+        ],
+        dtype=bool,
+    )
+    if not is_bone.any():
+        raise ParseError("the file has no skeleton (no bones or skin clusters)")
+    if not loaded.animations:
+        raise ParseError(
+            f"the file has a skeleton ({int(is_bone.sum())} bones) but no animation: nothing moves"
+        )
+    chosen = pick_animation(loaded.animations, animation)
+    info = loaded.animations[chosen]
+    check_frame_budget(limits, info.frame_count, len(nodes))
+    rest_t, rest_r, rest_s = _static(nodes)
+    begin = loaded.spans[chosen][0]
+    times = begin + np.arange(info.frame_count) / loaded.fps
+    translation, rotation, scale = _baked(
+        scene, loaded.anims[chosen], nodes, node_ids, times, loaded.fps, rest_t, rest_r, rest_s
+    )
+    graph = NodeGraph(
+        names=[node.name for node in nodes],
+        parents=parents,
+        is_bone=is_bone,
+        joinable=joinable,
+        rest_translation=rest_t,
+        rest_rotation=rest_r,
+        rest_scale=rest_s,
+        translation=translation,
+        rotation=rotation,
+        scale=scale,
+    )
+    motion = motion_from_graph(
+        graph,
+        frame_time=1.0 / loaded.fps,
+        source_format="fbx",
+        length_unit="metres",
+        limits=limits,
+        notes={"animation": info.name},
+    )
+    return motion, loaded.animations, info.name
+
+
+def _static(nodes: list[Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(N, 3)``, ``(N, 4)``, ``(N, 3)`` rest local translation, rotation, scale."""
+    count = len(nodes)
+    out = np.empty((count, 10))
+    for i, node in enumerate(nodes):
+        transform = node.local_transform
+        t, r, s = transform.translation, transform.rotation, transform.scale
+        out[i] = (t.x, t.y, t.z, r.x, r.y, r.z, r.w, s.x, s.y, s.z)
+    return out[:, :3], out[:, 3:7], out[:, 7:]
+
+
+def _baked(
+    scene: Any,
+    anim: Any,
+    nodes: list[Any],
+    node_ids: dict[int, int],
+    times: np.ndarray,
+    fps: float,
+    rest_t: np.ndarray,
+    rest_r: np.ndarray,
+    rest_s: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-frame local transforms ``(F, N, 3)``, ``(F, N, 4)``, ``(F, N, 3)``: nodes the
+    stack animates from ufbx's bake (keys at every frame), the others at rest."""
+    import ufbx
+
+    frames = len(times)
+    translation = np.broadcast_to(rest_t, (frames, *rest_t.shape)).copy()
+    rotation = np.broadcast_to(rest_r, (frames, *rest_r.shape)).copy()
+    scale = np.broadcast_to(rest_s, (frames, *rest_s.shape)).copy()
+    try:
+        bake = ufbx.bake_anim(scene, anim, resample_rate=fps, minimum_sample_rate=fps)
+    except ufbx.UfbxError as error:
+        raise ParseError(f"cannot sample the animation: {_ufbx_message(error)}") from None
+    for baked in list(bake.nodes):
+        index = node_ids.get(baked.typed_id)
+        if index is None:
+            continue
+        for keys, out, width in (
+            (baked.translation_keys, translation, 3),
+            (baked.rotation_keys, rotation, 4),
+            (baked.scale_keys, scale, 3),
+        ):
+            table = _key_table(keys, width)
+            if table is None:
+                continue
+            if width == 4:
+                out[:, index] = _sample_quaternions(table, times)
+            else:
+                out[:, index] = _sample(table, times)
+    return translation, rotation, scale
+
+
+def _key_table(keys: Any, width: int) -> np.ndarray | None:
+    """``(K, 1 + width)`` rows ``(time, values...)`` of baked keys, or None when there are
+    none. Keys are read once each and flattened straight into numpy: the binding builds a
+    Python object per key and value, which is most of an FBX's reading time."""
+    keys = list(keys)
+    if not keys:
+        return None
+    values = [key.value for key in keys]
+    table = np.empty((len(keys), 1 + width))
+    table[:, 0] = np.fromiter((key.time for key in keys), float, count=len(keys))
+    table[:, 1:] = np.fromiter(chain.from_iterable(values), float, count=width * len(keys)).reshape(
+        -1, width
+    )
+    return table
+
+
+def _sample(keys: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """``(F, D)`` linear interpolation of ``(K, 1 + D)`` keys ``(time, values...)``."""
+    if (
+        len(keys) == len(times)
+        and abs(keys[0, 0] - times[0]) < 1e-6
+        and abs(keys[-1, 0] - times[-1]) < 1e-6
+    ):
+        return keys[:, 1:]  # baked at the frame rate: a key per frame
+    return np.stack([np.interp(times, keys[:, 0], keys[:, c]) for c in range(1, keys.shape[1])], 1)
+
+
+def _sample_quaternions(keys: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """``(F, 4)`` normalised linear interpolation of quaternion keys (signs made continuous)."""
+    quats = keys[:, 1:]
+    flips = np.ones(len(quats))
+    flips[1:] = np.cumprod(np.where(np.sum(quats[1:] * quats[:-1], axis=1) < 0, -1.0, 1.0))
+    quats = quats * flips[:, None]
+    out = _sample(np.column_stack([keys[:, 0], quats]), times)
+    norm = np.linalg.norm(out, axis=1, keepdims=True)
+    return out / np.where(norm > 1e-12, norm, 1.0)

@@ -1,0 +1,477 @@
+"""glTF 2.0 (``.glb``, ``.gltf`` with embedded buffers) and VRM animation (``.vrma``) ->
+:class:`Motion`.
+
+Read with the standard library (GLB chunks, JSON) and numpy (buffers, accessors,
+sampling): pygltflib's dataclass decoding took 3-7 s on files with a few dozen animations
+(Sketchbook's boxman.glb, raylib's robot.glb), more than parsing everything else. Run in a
+parser worker (:mod:`app.services.parser_pool`) like the FBX reader: the files are untrusted
+binary input.
+
+* Buffers: the GLB binary chunk or ``data:`` URIs only. A ``uri`` naming anything else (a
+  file beside it, ``../``, an absolute path, ``http://``) is refused: nothing is ever read
+  from the file system or the network; upload a ``.glb``.
+* Skeleton: the joints of every skin, or for a ``.vrma`` the nodes of its
+  ``VRMC_vrm_animation`` ``humanBones`` map (named after the human bone, e.g. ``leftUpperArm``),
+  plus the nodes between them (:mod:`app.motion.formats.scene`).
+* Motion: channels sampled with their interpolation (``LINEAR`` — quaternions slerped —,
+  ``STEP``, ``CUBICSPLINE``) at the keyframe rate when the keys are evenly spaced (raised to
+  a whole multiple of it of at least 24 fps, so every key is still a frame), else 30 fps.
+* Units: glTF says metres, Y up; files do not always keep to it (the body-height
+  normalisation downstream makes the scale not matter). ``length_unit`` says "metres (glTF)".
+"""
+
+from __future__ import annotations
+
+import base64
+import binascii
+import json
+import struct
+from typing import Any
+
+import numpy as np
+
+from app.errors import LimitExceeded, ParseError
+from app.motion.formats.scene import (
+    Animation,
+    NodeGraph,
+    check_frame_budget,
+    motion_from_graph,
+    pick_animation,
+    unique_names,
+)
+from app.motion.model import Motion, ParseLimits
+
+DEFAULT_LIMITS = ParseLimits()
+GLB_MAGIC = b"glTF"
+MAX_NODES = 100_000
+DEFAULT_FPS = 30.0
+MIN_FPS = 24.0
+MAX_KEY_FPS = 240.0
+
+_COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+_DTYPES = {5120: "i1", 5121: "u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}
+_NORMALISE = {5120: 127.0, 5121: 255.0, 5122: 32767.0, 5123: 65535.0}
+_PATHS = {"translation": 3, "rotation": 4, "scale": 3}
+UPLOAD_GLB = "upload a .glb (binary glTF) with everything embedded instead"
+
+
+def _load(data: bytes) -> tuple[Any, bytes | None]:
+    """The JSON document and the GLB binary chunk (``None`` for JSON glTF)."""
+    blob = None
+    try:
+        if data[:4] == GLB_MAGIC:
+            text, blob = _glb_chunks(data)
+        else:
+            text = data.decode("utf-8-sig")
+        document = json.loads(text)
+    except UnicodeDecodeError:
+        raise ParseError("not a glTF file (neither a GLB nor UTF-8 JSON)") from None
+    except json.JSONDecodeError as error:
+        raise ParseError(f"not a glTF file: JSON error at line {error.lineno}") from None
+    except RecursionError:
+        raise LimitExceeded("the glTF JSON is nested too deeply") from None
+    if not isinstance(document, dict) or not isinstance(document.get("asset"), dict):
+        raise ParseError("not a glTF file (no 'asset' object)")
+    version = str(document["asset"].get("version", ""))
+    if not version.startswith("2."):
+        raise ParseError(f"glTF version {version!r}: only glTF 2.0 is read")
+    for key in ("nodes", "accessors", "bufferViews", "buffers", "animations", "skins"):
+        value = document.get(key, [])
+        if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
+            raise ParseError(f"not a usable glTF file ('{key}' is not a list of objects)")
+    return _Doc(document), blob
+
+
+class _Doc:
+    """Attribute access to a glTF JSON object (``doc.nodes``, ``node.name``; None if absent)."""
+
+    def __init__(self, raw: dict[str, Any]) -> None:
+        self._raw = raw
+
+    def __getattr__(self, key: str) -> Any:
+        value = self._raw.get(key)
+        if isinstance(value, dict) and key not in ("extensions", "extras"):
+            return _Doc(value)
+        if isinstance(value, list):
+            return [_Doc(v) if isinstance(v, dict) else v for v in value]
+        return value
+
+
+def _glb_chunks(data: bytes) -> tuple[str, bytes | None]:
+    """The JSON text and binary chunk of a GLB container (glTF 2.0 spec, "GLB File Format")."""
+    if len(data) < 20:
+        raise ParseError("the GLB file is truncated")
+    version, length = struct.unpack("<II", data[4:12])
+    if version != 2:
+        raise ParseError(f"GLB container version {version}: only version 2 is read")
+    if length > len(data):
+        raise ParseError(f"the GLB file is truncated ({len(data)} of {length} bytes)")
+    offset, text, blob = 12, None, None
+    while offset + 8 <= length:
+        size, kind = struct.unpack("<I4s", data[offset : offset + 8])
+        chunk = data[offset + 8 : offset + 8 + size]
+        if len(chunk) != size:
+            raise ParseError("a GLB chunk runs past the end of the file")
+        if kind == b"JSON" and text is None:
+            text = chunk.decode("utf-8-sig")
+        elif kind == b"BIN\x00" and blob is None:
+            blob = chunk
+        offset += 8 + size + (-size % 4)
+    if text is None:
+        raise ParseError("the GLB file has no JSON chunk")
+    return text, blob
+
+
+def _buffers(document: Any, blob: bytes | None) -> list[bytes]:
+    """Every buffer's bytes; refuses any ``uri`` that is not a ``data:`` URI."""
+    out = []
+    for i, buffer in enumerate(document.buffers or []):
+        uri = getattr(buffer, "uri", None)
+        if uri is None:
+            if i != 0 or blob is None:
+                raise ParseError(f"buffer {i} has no data (no uri and no GLB binary chunk)")
+            out.append(blob)
+            continue
+        out.append(_data_uri(uri, f"buffer {i}"))
+    for i, image in enumerate(document.images or []):
+        uri = getattr(image, "uri", None)
+        if uri is not None:
+            _check_uri(uri, f"image {i}")
+    return out
+
+
+def _check_uri(uri: Any, what: str) -> None:
+    if not isinstance(uri, str) or not uri.startswith("data:"):
+        shown = str(uri)[:80]
+        raise ParseError(
+            f"{what} refers to an external file or address ({shown!r}), which is never "
+            f"read; {UPLOAD_GLB}"
+        )
+
+
+def _data_uri(uri: Any, what: str) -> bytes:
+    _check_uri(uri, what)
+    header, _, payload = uri.partition(",")
+    if not header.endswith(";base64"):
+        raise ParseError(f"{what}: only base64 data URIs are supported")
+    try:
+        return base64.b64decode(payload, validate=True)
+    except (binascii.Error, ValueError):
+        raise ParseError(f"{what}: the base64 data URI is damaged") from None
+
+
+def _accessor(document: Any, buffers: list[bytes], index: Any) -> np.ndarray:
+    """``(count, components)`` float64 of accessor ``index`` (normalised integers scaled)."""
+    accessors = document.accessors or []
+    if not isinstance(index, int) or not 0 <= index < len(accessors):
+        raise ParseError(f"accessor {index!r} does not exist")
+    accessor = accessors[index]
+    if getattr(accessor, "sparse", None) is not None:
+        raise ParseError(f"accessor {index}: sparse accessors are not supported in animations")
+    components = _COMPONENTS.get(accessor.type)
+    dtype = _DTYPES.get(accessor.componentType)
+    count = accessor.count
+    if components is None or dtype is None or not isinstance(count, int) or count < 0:
+        raise ParseError(f"accessor {index}: unknown type or component type")
+    if accessor.bufferView is None:
+        return np.zeros((count, components))
+    views = document.bufferViews or []
+    if not isinstance(accessor.bufferView, int) or not 0 <= accessor.bufferView < len(views):
+        raise ParseError(f"accessor {index}: buffer view {accessor.bufferView!r} does not exist")
+    view = views[accessor.bufferView]
+    if not isinstance(view.buffer, int) or not 0 <= view.buffer < len(buffers):
+        raise ParseError(f"accessor {index}: buffer {view.buffer!r} does not exist")
+    data = buffers[view.buffer]
+    item = np.dtype(dtype).itemsize * components
+    stride = view.byteStride or item
+    start = (view.byteOffset or 0) + (accessor.byteOffset or 0)
+    end_needed = start + (stride * (count - 1) + item if count else 0)
+    view_end = (view.byteOffset or 0) + (view.byteLength or 0)
+    if start < 0 or stride < item or end_needed > min(len(data), view_end):
+        raise ParseError(f"accessor {index}: reads past the end of its buffer")
+    if count == 0:
+        return np.zeros((0, components))
+    raw = np.lib.stride_tricks.as_strided(
+        np.frombuffer(data, dtype=np.uint8, count=end_needed - start, offset=start),
+        shape=(count, item),
+        strides=(stride, 1),
+    )
+    values = np.ascontiguousarray(raw).view(dtype).reshape(count, components).astype(np.float64)
+    if accessor.normalized and accessor.componentType in _NORMALISE:
+        values = np.maximum(values / _NORMALISE.get(accessor.componentType, 1.0), -1.0)
+    return values
+
+
+def _node_transform(node: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A node's rest local translation, rotation ``(x, y, z, w)`` and scale."""
+    matrix = getattr(node, "matrix", None)
+    if matrix is not None and len(matrix) == 16:
+        m = np.asarray(matrix, dtype=np.float64).reshape(4, 4).T  # column-major
+        translation = m[:3, 3].copy()
+        linear = m[:3, :3]
+        scale = np.linalg.norm(linear, axis=0)
+        rotation = linear / np.where(scale > 1e-12, scale, 1.0)
+        if np.linalg.det(rotation) < 0:
+            scale[0], rotation[:, 0] = -scale[0], -rotation[:, 0]
+        return translation, _matrix_quaternion(rotation), scale
+    t = node.translation if node.translation is not None else [0.0, 0.0, 0.0]
+    r = node.rotation if node.rotation is not None else [0.0, 0.0, 0.0, 1.0]
+    s = node.scale if node.scale is not None else [1.0, 1.0, 1.0]
+    try:
+        return (
+            np.asarray(t, dtype=np.float64).reshape(3),
+            np.asarray(r, dtype=np.float64).reshape(4),
+            np.asarray(s, dtype=np.float64).reshape(3),
+        )
+    except (TypeError, ValueError):
+        raise ParseError(f"node {node.name!r}: malformed translation/rotation/scale") from None
+
+
+def _matrix_quaternion(m: np.ndarray) -> np.ndarray:
+    """``(x, y, z, w)`` of a ``(3, 3)`` rotation matrix."""
+    trace = m[0, 0] + m[1, 1] + m[2, 2]
+    if trace > 0:
+        s = 2.0 * np.sqrt(trace + 1.0)
+        q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4]
+    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+        s = 2.0 * np.sqrt(max(1.0 + m[0, 0] - m[1, 1] - m[2, 2], 1e-12))
+        q = [s / 4, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s]
+    elif m[1, 1] > m[2, 2]:
+        s = 2.0 * np.sqrt(max(1.0 + m[1, 1] - m[0, 0] - m[2, 2], 1e-12))
+        q = [(m[0, 1] + m[1, 0]) / s, s / 4, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s]
+    else:
+        s = 2.0 * np.sqrt(max(1.0 + m[2, 2] - m[0, 0] - m[1, 1], 1e-12))
+        q = [(m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4, (m[1, 0] - m[0, 1]) / s]
+    return np.asarray(q)
+
+
+def _human_bones(document: Any) -> dict[int, str]:
+    """VRM animation: node index -> human bone name (``hips``, ``leftUpperArm``...)."""
+    extensions = document.extensions or {}
+    vrma = extensions.get("VRMC_vrm_animation") if isinstance(extensions, dict) else None
+    if not isinstance(vrma, dict):
+        return {}
+    humanoid = vrma.get("humanoid")
+    bones = humanoid.get("humanBones") if isinstance(humanoid, dict) else None
+    if not isinstance(bones, dict):
+        return {}
+    out = {}
+    for name, entry in bones.items():
+        node = entry.get("node") if isinstance(entry, dict) else None
+        if isinstance(node, int) and isinstance(name, str):
+            out[node] = name
+    return out
+
+
+class _Document:
+    def __init__(self, data: bytes, limits: ParseLimits) -> None:
+        self.document, blob = _load(data)
+        self.buffers = _buffers(self.document, blob)
+        nodes = self.document.nodes or []
+        if len(nodes) > MAX_NODES:
+            raise LimitExceeded(
+                f"the file has {len(nodes)} nodes, more than the limit of {MAX_NODES}"
+            )
+        self.limits = limits
+        self.animations: list[Animation] = []
+        self.rates: list[float] = []
+        self.spans: list[tuple[float, float]] = []
+        self._inputs: dict[int, np.ndarray] = {}
+        animations = self.document.animations or []
+        names = unique_names(
+            [a.name or "" for a in animations], blank="animation {i}", repeat="{name} ({n})"
+        )
+        for name, animation in zip(names, animations, strict=True):
+            begin, end, rate = self._timing(animation)
+            frames = int(np.floor((end - begin) * rate + 0.5)) + 1
+            self.animations.append(Animation(name, frames, (frames - 1) / rate))
+            self.rates.append(rate)
+            self.spans.append((begin, end))
+
+    def times(self, index: int) -> np.ndarray:
+        if index not in self._inputs:
+            keys = _accessor(self.document, self.buffers, index)[:, 0]
+            if not np.all(np.isfinite(keys)):
+                raise ParseError(f"accessor {index}: non-finite key times (inf or NaN)")
+            if keys.size > 1 and np.any(np.diff(keys) < 0):
+                raise ParseError(f"accessor {index}: key times go backwards")
+            self._inputs[index] = keys
+        return self._inputs[index]
+
+    def _timing(self, animation: Any) -> tuple[float, float, float]:
+        """First and last key time and the sampling rate of one animation."""
+        keys = []
+        for sampler in animation.samplers or []:
+            keys.append(self.times(sampler.input))
+        if not keys or all(k.size == 0 for k in keys):
+            return 0.0, 0.0, DEFAULT_FPS
+        every = np.unique(np.concatenate(keys))
+        begin, end = float(every[0]), float(every[-1])
+        rate = DEFAULT_FPS
+        if every.size > 1:
+            steps = np.diff(every)
+            step = float(np.median(steps))
+            if step > 0 and np.all(np.abs(steps - step) <= 1e-3 * step + 1e-6):
+                key_rate = 1.0 / step
+                if key_rate <= MAX_KEY_FPS:
+                    rate = key_rate * max(1, int(np.ceil(MIN_FPS / key_rate - 1e-3)))
+        return begin, end, rate
+
+
+def list_gltf_animations(data: bytes, *, limits: ParseLimits = DEFAULT_LIMITS) -> list[Animation]:
+    """The animations of a glTF / GLB / VRMA file, in file order."""
+    return _Document(data, limits).animations
+
+
+def read_gltf(
+    data: bytes, *, animation: str | None = None, limits: ParseLimits = DEFAULT_LIMITS
+) -> tuple[Motion, list[Animation], str]:
+    """Read one animation of a glTF 2.0 / GLB / VRMA file (see the module docstring).
+
+    Returns ``(motion, animations, chosen)`` like :func:`~app.motion.formats.fbx.read_fbx`.
+    """
+    loaded = _Document(data, limits)
+    document = loaded.document
+    nodes = document.nodes or []
+    count = len(nodes)
+    parents = np.full(count, -1, dtype=np.int64)
+    for i, node in enumerate(nodes):
+        for child in node.children or []:
+            if not isinstance(child, int) or not 0 <= child < count:
+                raise ParseError(f"node {i} has a child {child!r} that does not exist")
+            if parents[child] >= 0 or child == i:
+                raise ParseError(f"node {child} has two parents (or is its own child)")
+            parents[child] = i
+    human = _human_bones(document)
+    is_bone = np.zeros(count, dtype=bool)
+    for skin in document.skins or []:
+        for joint in skin.joints or []:
+            if isinstance(joint, int) and 0 <= joint < count:
+                is_bone[joint] = True
+    for node in human:
+        if 0 <= node < count:
+            is_bone[node] = True
+    if not is_bone.any():
+        raise ParseError("the file has no skeleton (no skin joints or VRM humanoid bones)")
+    if not loaded.animations:
+        raise ParseError(
+            f"the file has a skeleton ({int(is_bone.sum())} joints) but no animation: nothing moves"
+        )
+    chosen = pick_animation(loaded.animations, animation)
+    info = loaded.animations[chosen]
+    check_frame_budget(limits, info.frame_count, count)
+    rest = [_node_transform(node) for node in nodes]
+    rest_t = np.array([r[0] for r in rest])
+    rest_r = np.array([r[1] for r in rest])
+    rest_s = np.array([r[2] for r in rest])
+    begin = loaded.spans[chosen][0]
+    times = begin + np.arange(info.frame_count) / loaded.rates[chosen]
+    tracks = {
+        "translation": np.broadcast_to(rest_t, (len(times), count, 3)).copy(),
+        "rotation": np.broadcast_to(rest_r, (len(times), count, 4)).copy(),
+        "scale": np.broadcast_to(rest_s, (len(times), count, 3)).copy(),
+    }
+    gltf_animation = document.animations[chosen]
+    samplers = gltf_animation.samplers or []
+    for channel in gltf_animation.channels or []:
+        target = channel.target
+        path = getattr(target, "path", None)
+        node = getattr(target, "node", None)
+        if path not in _PATHS or not isinstance(node, int) or not 0 <= node < count:
+            continue  # morph weights, pointer extensions, or no node: not the skeleton's
+        if not isinstance(channel.sampler, int) or not 0 <= channel.sampler < len(samplers):
+            raise ParseError(f"a channel names sampler {channel.sampler!r}, which does not exist")
+        sampler = samplers[channel.sampler]
+        keys = loaded.times(sampler.input)
+        values = _accessor(document, loaded.buffers, sampler.output)
+        tracks[path][:, node] = _sample_channel(
+            keys, values, times, sampler.interpolation or "LINEAR", _PATHS[path], path
+        )
+    names = [node.name or f"node{i}" for i, node in enumerate(nodes)]
+    for node, bone in human.items():
+        if 0 <= node < count:
+            names[node] = bone
+    graph = NodeGraph(
+        names=names,
+        parents=parents,
+        is_bone=is_bone,
+        joinable=np.ones(count, dtype=bool),
+        rest_translation=rest_t,
+        rest_rotation=rest_r,
+        rest_scale=rest_s,
+        translation=tracks["translation"],
+        rotation=tracks["rotation"],
+        scale=tracks["scale"],
+    )
+    motion = motion_from_graph(
+        graph,
+        frame_time=1.0 / loaded.rates[chosen],
+        source_format="gltf",
+        length_unit="metres (glTF)",
+        limits=limits,
+        notes={"animation": info.name},
+    )
+    return motion, loaded.animations, info.name
+
+
+def _sample_channel(
+    keys: np.ndarray,
+    values: np.ndarray,
+    times: np.ndarray,
+    interpolation: str,
+    width: int,
+    path: str,
+) -> np.ndarray:
+    """``(F, width)`` values of one channel at ``times`` (held constant outside the keys)."""
+    cubic = interpolation == "CUBICSPLINE"
+    per_key = 3 if cubic else 1
+    if values.shape[1] != width or len(values) != per_key * len(keys) or len(keys) == 0:
+        raise ParseError(
+            f"an animation channel of {path} has {len(values)} values of {values.shape[1]} "
+            f"numbers for {len(keys)} keys ({interpolation})"
+        )
+    if not np.all(np.isfinite(values)):
+        raise ParseError(f"non-finite number (inf or NaN) in an animated {path}")
+    if cubic:
+        tangent_in, points, tangent_out = values[0::3], values[1::3], values[2::3]
+    else:
+        points = values
+    if len(keys) == 1:
+        return np.broadcast_to(points[0], (len(times), width)).copy()
+    clipped = np.clip(times, keys[0], keys[-1])
+    segment = np.clip(np.searchsorted(keys, clipped, side="right") - 1, 0, len(keys) - 2)
+    t0, t1 = keys[segment], keys[segment + 1]
+    span = np.where(t1 > t0, t1 - t0, 1.0)
+    u = np.clip((clipped - t0) / span, 0.0, 1.0)[:, None]
+    a, b = points[segment], points[segment + 1]
+    if interpolation == "STEP":
+        return np.where(u >= 1.0, b, a)
+    if cubic:
+        u2, u3 = u * u, u * u * u
+        d = span[:, None]
+        out = (
+            (2 * u3 - 3 * u2 + 1) * a
+            + (u3 - 2 * u2 + u) * d * tangent_out[segment]
+            + (-2 * u3 + 3 * u2) * b
+            + (u3 - u2) * d * tangent_in[segment + 1]
+        )
+        return out
+    if path == "rotation":
+        return _slerp(a, b, u)
+    return a + (b - a) * u
+
+
+def _slerp(a: np.ndarray, b: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Spherical interpolation of ``(F, 4)`` quaternions (shortest path)."""
+    a = a / np.maximum(np.linalg.norm(a, axis=1, keepdims=True), 1e-12)
+    b = b / np.maximum(np.linalg.norm(b, axis=1, keepdims=True), 1e-12)
+    dot = np.sum(a * b, axis=1, keepdims=True)
+    b = np.where(dot < 0, -b, b)
+    dot = np.abs(dot)
+    angle = np.arccos(np.clip(dot, -1.0, 1.0))
+    sin = np.sin(angle)
+    near = sin < 1e-6
+    safe = np.where(near, 1.0, sin)
+    wa = np.where(near, 1.0 - u, np.sin((1.0 - u) * angle) / safe)
+    wb = np.where(near, u, np.sin(u * angle) / safe)
+    return wa * a + wb * b

@@ -1,0 +1,421 @@
+"""Worker processes that run the FBX and glTF readers, so their crashes are nobody else's.
+
+The FBX reader is C code (ufbx) behind a young Python binding with object-lifetime bugs, and
+both formats are binary input from strangers. They are never read in the server process:
+:class:`ParserPool` hands each file to one of a few reused worker processes and waits for the
+:class:`ParsedScene` (plain numpy arrays, pickled back).
+
+* A worker is started when first needed (at most ``size`` of them), kept for later files,
+  and started anew when it dies.
+* Per file: ``time_limit`` seconds, after which the worker is killed; ``memory_mb``
+  megabytes of address space (``RLIMIT_AS``) above what the worker uses when idle.
+* A crash, a hang, running out of memory: :class:`~app.errors.UnreadableFile` (422
+  ``unreadable_file``) for that file, and nothing else notices. A worker that hit
+  ``MemoryError`` exits after answering (its heap may be in pieces).
+* The binding's objects are never freed in a worker (freeing them can crash it): a worker
+  keeps every scene it read and retires after :data:`RETIRE_AFTER_FILES` files or half its
+  memory budget, exiting without destructors; the pool starts another.
+* The reader's own errors (ParseError, LimitExceeded) come back as themselves.
+
+Workers are spawned (not forked: the server process has threads) and import only the
+motion core.
+"""
+
+from __future__ import annotations
+
+import gc
+import logging
+import multiprocessing
+import os
+import queue
+import resource
+import signal
+import threading
+import time
+from contextlib import suppress
+from dataclasses import dataclass, field
+from multiprocessing.connection import Connection
+from typing import TYPE_CHECKING, Any, Protocol
+
+from app.errors import LimitExceeded, ParseError, UnreadableFile
+from app.motion.formats.scene import Animation
+from app.motion.model import Motion, ParseLimits
+
+if TYPE_CHECKING:
+    from app.config import Settings
+
+log = logging.getLogger(__name__)
+
+START_SECONDS = 60.0  # a worker's imports, on a busy machine
+RETIRE_AFTER_FILES = 32  # a worker exits (and is replaced) after this many files
+READY_SECONDS = 10.0  # a worker's tidying up after a file
+FORMATS = ("fbx", "gltf")
+_START = "start"
+
+
+@dataclass(frozen=True, eq=False)
+class ParsedScene:
+    """What a worker sends back: the motion of one animation and the file's animations."""
+
+    motion: Motion
+    animations: tuple[Animation, ...]
+    animation: str
+
+
+def parse_scene(
+    kind: str,
+    data: bytes,
+    animation: str | None,
+    limits: ParseLimits,
+    keep: list[Any] | None = None,
+) -> ParsedScene:
+    """Read one animation of an FBX (``kind="fbx"``) or glTF file, in this process
+    (``keep``: see :func:`~app.motion.formats.fbx.read_fbx`)."""
+    if kind == "fbx":
+        from app.motion.formats.fbx import read_fbx
+
+        motion, animations, chosen = read_fbx(data, animation=animation, limits=limits, keep=keep)
+    elif kind == "gltf":
+        from app.motion.formats.gltf import read_gltf
+
+        motion, animations, chosen = read_gltf(data, animation=animation, limits=limits)
+    else:
+        raise ValueError(f"unknown scene format {kind!r}")
+    return ParsedScene(motion, tuple(animations), chosen)
+
+
+class SceneParser(Protocol):
+    def parse(
+        self, kind: str, data: bytes, *, animation: str | None, limits: ParseLimits
+    ) -> ParsedScene:
+        """Read one animation of an FBX/glTF file (ParseError, LimitExceeded,
+        UnreadableFile)."""
+        ...
+
+
+class InlineParser:
+    """The readers run in *this* process, under the pool's limits: for processes that are
+    expendable workers already (the bulk import's, whose deaths cost one clip).
+
+    Time: a real-time timer whose SIGALRM, left to its default action, ends the process
+    even inside C code. Memory: the soft ``RLIMIT_AS`` lowered for the read, then restored.
+    """
+
+    def __init__(self, *, time_limit: float | None = 30.0, memory_mb: int | None = 1024):
+        self.time_limit = time_limit
+        self.memory_mb = memory_mb
+
+    def parse(
+        self, kind: str, data: bytes, *, animation: str | None, limits: ParseLimits
+    ) -> ParsedScene:
+        soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+        if self.memory_mb is not None:
+            wanted = _address_space() + self.memory_mb * 1024 * 1024
+            if hard != resource.RLIM_INFINITY:
+                wanted = min(wanted, hard)
+            resource.setrlimit(resource.RLIMIT_AS, (wanted, hard))
+        previous = signal.signal(signal.SIGALRM, signal.SIG_DFL)
+        if self.time_limit is not None:
+            signal.setitimer(signal.ITIMER_REAL, self.time_limit)
+        try:
+            return parse_scene(kind, data, animation, limits)
+        except (ParseError, LimitExceeded):
+            raise
+        except MemoryError:
+            raise UnreadableFile(
+                f"reading the file needed more than {self.memory_mb} MB "
+                "(MOCAP_PARSER_MEMORY_MB); it cannot be read"
+            ) from None
+        except RecursionError:
+            raise UnreadableFile("the file is nested too deeply to read") from None
+        except Exception as error:  # a reader bug on odd input: that file is unreadable
+            raise UnreadableFile(
+                f"the reader failed ({type(error).__name__}); the file cannot be read"
+            ) from None
+        finally:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, previous)
+            resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
+
+
+def _address_space() -> int:
+    """Bytes of address space this process maps now."""
+    with open("/proc/self/statm") as stream:
+        return int(stream.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+
+
+def _worker_main(conn: Connection, memory_mb: int | None) -> None:
+    """Answer requests ``(kind, data, animation, limits)`` until the pipe closes."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is for the server to handle
+    import numpy  # noqa: F401 - import before measuring the baseline address space
+
+    import app.motion.formats.fbx
+    import app.motion.formats.gltf  # noqa: F401
+
+    with suppress(ImportError):
+        import ufbx  # noqa: F401
+    # The cyclic garbage collector crashes on the binding's objects once scenes are kept
+    # alive (below); nothing here needs it, and the worker retires before it matters.
+    gc.disable()
+    baseline = _address_space()
+    kept: list[Any] = []  # loaded scenes, never freed (see below)
+    kept_bytes: list[bytes] = []
+    if memory_mb is not None and hasattr(resource, "RLIMIT_AS"):
+        limit = baseline + memory_mb * 1024 * 1024
+        with suppress(ValueError, OSError):
+            resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+    conn.send(("ready", os.getpid()))
+    while True:
+        try:
+            request = conn.recv()
+        except (EOFError, OSError):
+            return
+        if request is None:
+            return
+        kind, data, animation, limits = request
+        exit_after = False
+        try:
+            answer: tuple[Any, ...] = ("ok", parse_scene(kind, data, animation, limits, kept))
+        except ParseError as error:
+            answer = ("parse_error", error.reason, error.line)
+        except LimitExceeded as error:
+            answer = ("limit", error.detail)
+        except MemoryError:
+            answer = ("memory", None)
+            exit_after = True
+        except RecursionError:
+            answer = ("unreadable", "the file is nested too deeply to read")
+        except Exception as error:  # a reader bug on odd input: that file is unreadable
+            answer = ("unreadable", f"the reader failed ({type(error).__name__})")
+        try:
+            conn.send(answer)
+        except MemoryError:
+            exit_after = True
+            with suppress(Exception):
+                conn.send(("memory", None))
+        except (BrokenPipeError, OSError):
+            return
+        del answer
+        if exit_after:
+            os._exit(0)
+        # Scenes are never freed here (freeing the binding's objects can crash it, and a scene
+        # may point into the file's bytes): they are kept, with the bytes, until the worker
+        # retires after RETIRE_AFTER_FILES files or half its memory budget, and exits without
+        # running destructors. "ready" tells the pool it may send the next file.
+        kept_bytes.append(data)
+        del request
+        retire = len(kept_bytes) >= RETIRE_AFTER_FILES or (
+            memory_mb is not None and _address_space() > baseline + memory_mb * 2**19
+        )
+        try:
+            conn.send(("retire" if retire else "ready", None))
+        except (BrokenPipeError, OSError):
+            return
+        if retire:
+            os._exit(0)
+
+
+@dataclass(eq=False)
+class _Worker:
+    process: Any
+    conn: Connection
+    pid: int
+    needs_ready: bool = False
+    busy_since: float | None = field(default=None)
+
+
+class ParserPool:
+    """Up to ``size`` reused worker processes reading FBX/glTF files (see module docstring).
+
+    Thread-safe: each call borrows an idle worker (waiting for one when all are busy).
+    """
+
+    def __init__(
+        self,
+        size: int = 2,
+        *,
+        time_limit: float | None = 30.0,
+        memory_mb: int | None = 1024,
+    ) -> None:
+        self.size = max(1, size)
+        self.time_limit = time_limit
+        self.memory_mb = memory_mb
+        self._context = multiprocessing.get_context("spawn")
+        # Idle workers, and a _START token per worker slot not yet filled (LIFO: a warm
+        # worker is taken before a new one is started); None once closed.
+        self._idle: queue.LifoQueue[_Worker | str | None] = queue.LifoQueue()
+        for _ in range(self.size):
+            self._idle.put(_START)
+        self._lock = threading.Lock()
+        self._workers: list[_Worker] = []
+        self._closed = False
+        self.crashes = 0  # workers lost mid-file (crash, hang, out of memory)
+
+    @classmethod
+    def from_settings(cls, settings: Settings) -> ParserPool:
+        """MOCAP_PARSER_WORKERS, MOCAP_PARSER_TIMEOUT_SECONDS, MOCAP_PARSER_MEMORY_MB."""
+        return cls(
+            settings.parser_workers,
+            time_limit=settings.parser_timeout_seconds,
+            memory_mb=settings.parser_memory_mb,
+        )
+
+    # -- workers ------------------------------------------------------------------------
+
+    def _spawn(self) -> _Worker:
+        ours, theirs = self._context.Pipe()
+        process = self._context.Process(
+            target=_worker_main,
+            args=(theirs, self.memory_mb),
+            name="mocap-parser",
+            daemon=True,
+        )
+        process.start()
+        theirs.close()
+        try:
+            if not ours.poll(START_SECONDS):
+                raise UnreadableFile("the file reader did not start in time; try again")
+            _, pid = ours.recv()
+        except (EOFError, OSError):
+            process.join(timeout=1)
+            raise UnreadableFile("the file reader could not start; try again") from None
+        except UnreadableFile:
+            process.kill()
+            process.join()
+            raise
+        worker = _Worker(process, ours, int(pid))
+        with self._lock:
+            self._workers.append(worker)
+        return worker
+
+    def _borrow(self) -> _Worker:
+        item = self._idle.get()
+        if item is None or self._closed:
+            self._idle.put(None)
+            raise UnreadableFile("the service is shutting down")
+        if isinstance(item, _Worker):
+            return item
+        try:
+            return self._spawn()
+        except BaseException:
+            self._idle.put(_START)
+            raise
+
+    def _discard(self, worker: _Worker) -> None:
+        """Stop ``worker`` for good (its slot frees up for a new one)."""
+        with suppress(Exception):
+            worker.process.kill()
+        with suppress(Exception):
+            worker.process.join(timeout=5)
+        with suppress(Exception):
+            worker.conn.close()
+        with self._lock:
+            if worker in self._workers:
+                self._workers.remove(worker)
+        self._idle.put(_START)
+
+    def _ready(self, worker: _Worker) -> bool:
+        """Wait for the worker's "ready" after its previous file (False: it died)."""
+        if not worker.needs_ready:
+            return worker.process.is_alive()
+        try:
+            if worker.conn.poll(READY_SECONDS):
+                message = worker.conn.recv()
+                worker.needs_ready = message[0] != "ready"
+                return not worker.needs_ready and worker.process.is_alive()
+        except (EOFError, OSError):
+            pass
+        return False
+
+    def pids(self) -> list[int]:
+        """Process ids of the live workers."""
+        with self._lock:
+            return [w.pid for w in self._workers]
+
+    def busy_pids(self) -> list[int]:
+        """Process ids of the workers reading a file right now."""
+        with self._lock:
+            return [w.pid for w in self._workers if w.busy_since is not None]
+
+    # -- reading ------------------------------------------------------------------------
+
+    def parse(
+        self, kind: str, data: bytes, *, animation: str | None, limits: ParseLimits
+    ) -> ParsedScene:
+        """Read one animation of ``data`` in a worker.
+
+        Raises
+        ------
+        ParseError, LimitExceeded
+            The reader refused the file.
+        UnreadableFile
+            The worker crashed, ran out of time or memory.
+        """
+        if kind not in FORMATS:
+            raise ValueError(f"unknown scene format {kind!r}")
+        for _ in range(self.size + 1):  # an idle worker may have died since its last file
+            worker = self._borrow()
+            if self._ready(worker):
+                break
+            self._discard(worker)
+        else:
+            raise UnreadableFile("the file readers keep failing to start; try again")
+        try:
+            worker.busy_since = time.monotonic()
+            worker.conn.send((kind, data, animation, limits))
+            if not worker.conn.poll(self.time_limit):
+                self._lost(worker)
+                raise UnreadableFile(
+                    f"reading the file took longer than {self.time_limit:g} s "
+                    "(MOCAP_PARSER_TIMEOUT_SECONDS); it cannot be read"
+                )
+            answer = worker.conn.recv()
+        except (EOFError, OSError, BrokenPipeError):
+            self._lost(worker)
+            raise UnreadableFile(
+                "the file reader crashed on this file; it is damaged or not a motion file"
+            ) from None
+        worker.busy_since = None
+        worker.needs_ready = True
+        status = answer[0]
+        if status == "memory":
+            self._discard(worker)
+            raise UnreadableFile(
+                f"reading the file needed more than {self.memory_mb} MB "
+                "(MOCAP_PARSER_MEMORY_MB); it cannot be read"
+            )
+        self._idle.put(worker)
+        if status == "ok":
+            parsed: ParsedScene = answer[1]
+            return parsed
+        if status == "parse_error":
+            raise ParseError(answer[1], line=answer[2])
+        if status == "limit":
+            raise LimitExceeded(answer[1])
+        raise UnreadableFile(f"{answer[1]}; the file cannot be read")
+
+    def _lost(self, worker: _Worker) -> None:
+        self.crashes += 1
+        log.warning("a file reader process (pid %d) died or hung; starting anew", worker.pid)
+        self._discard(worker)
+
+    def close(self) -> None:
+        """Stop every worker (idle ones politely, busy ones are killed)."""
+        with self._lock:
+            self._closed = True
+            workers = list(self._workers)
+        self._idle.put(None)
+        for worker in workers:
+            with suppress(Exception):
+                worker.conn.send(None)
+        deadline = time.monotonic() + 2
+        for worker in workers:
+            with suppress(Exception):
+                worker.process.join(timeout=max(0.0, deadline - time.monotonic()))
+            if worker.process.is_alive():
+                worker.process.kill()
+                worker.process.join()
+            with suppress(Exception):
+                worker.conn.close()
+        with self._lock:
+            self._workers = []

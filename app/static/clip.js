@@ -1,0 +1,404 @@
+// The clip page, #/clips/{id}: a large moving preview with its timeline, every stored fact,
+// download, rename/relabel/source/licence, delete (with confirmation) and "find similar".
+//
+// Changing a clip may need the API key: on 401/403 the page asks for it next to the button
+// that needed it and tries again, keeping what was typed.
+
+import { ApiError, apiKey, download, getJson, sendJson, setApiKey } from "./api.js";
+import { Figure, Player } from "./figure.js";
+import { Timeline, formatTime } from "./timeline.js";
+import { clear, el, labelChips, nextId, plural } from "./util.js";
+
+const PREVIEW = { fps: 30, maxFrames: 600 };
+
+/** A format as a short badge text ("bvh" -> "BVH", "asf/amc" -> "ASF/AMC"). */
+export function formatBadge(format) {
+  return el("span", { class: `badge format-${String(format).replace(/[^a-z0-9]+/gi, "-")}` }, String(format).toUpperCase());
+}
+
+/** The clip, with its joint mapping when the service offers it (older services: without). */
+async function loadClip(id) {
+  try {
+    return await getJson(`/clips/${id}`, { include: "mapping" });
+  } catch (error) {
+    if (error.status === 422) return getJson(`/clips/${id}`);
+    throw error;
+  }
+}
+
+export async function renderClip(main, params, { navigate, notify }) {
+  const id = Number.parseInt(params.get("id") || "", 10);
+  if (!Number.isSafeInteger(id) || id < 1) {
+    main.append(el("h1", {}, "No such clip"), el("p", {}, "The address names no clip. ", el("a", { href: "#/library" }, "Back to the library")));
+    return null;
+  }
+  let clip;
+  try {
+    clip = await loadClip(id);
+  } catch (error) {
+    if (error.status === 404) {
+      main.append(
+        el("h1", {}, `No clip #${id}`),
+        el("p", {}, "It was deleted, or never existed. ", el("a", { href: "#/library" }, "Back to the library")),
+      );
+      return null;
+    }
+    throw error;
+  }
+  document.title = `${clip.name} · mocap-index`;
+
+  // -- preview ---------------------------------------------------------------------------------
+  const player = new Player({ playing: true });
+  const timeline = new Timeline(player, { label: `Playback of ${clip.name}` });
+  const canvas = el("canvas", {
+    class: "figure large",
+    role: "img",
+    "aria-label": `Animated stick figure of ${clip.name}`,
+    dataset: { role: "clip", clipId: String(clip.id) },
+  });
+  const figure = new Figure(canvas, { player, clipId: clip.id, name: clip.name });
+  const previewNote = el("p", { class: "hint preview-note" });
+  figure.load(PREVIEW).then(() => {
+    const skeleton = figure.skeleton;
+    if (!skeleton) {
+      timeline.node.hidden = true;
+      previewNote.textContent =
+        figure.error && figure.error.code === "no_stored_file"
+          ? "Synthetic clip: no preview (it has no stored file)."
+          : `No preview: ${figure.error ? figure.error.message || figure.error : "unknown error"}`;
+      return;
+    }
+    // The readout counts the file's own frames; the preview leaves out the lead-in frames.
+    timeline.setLength(figure.duration, {
+      fps: 1 / clip.frame_time,
+      frameCount: clip.frame_count,
+      firstFrame: clip.lead_in_frames,
+    });
+    const notes = [];
+    if (clip.lead_in_frames) notes.push(`the first ${plural(clip.lead_in_frames, "rest-pose frame")} left out`);
+    if (skeleton.truncated) notes.push(`the first ${formatTime(skeleton.duration)} of ${formatTime(skeleton.source_duration)} shown`);
+    previewNote.textContent = notes.length ? `Preview: ${notes.join("; ")}.` : "";
+  });
+
+  // -- a span of the clip: drag on the band under the timeline (or type the times) ----------------
+  // Times in the form are seconds of the file as uploaded (lead-in included), like the API's;
+  // the preview leaves the lead-in out, so its time is shifted by it.
+  const leadIn = clip.lead_in_frames * clip.frame_time;
+  const spanBox = el("div", { class: "span-box", hidden: true });
+  const spanBand = el("div", { class: "span-band", title: "Drag across to pick a span of the clip" }, spanBox);
+  timeline.track.append(spanBand);
+  const spanIds = { start: nextId("span-start"), end: nextId("span-end") };
+  const step = clip.frame_time > 0 ? String(clip.frame_time) : "any";
+  const spanStart = el("input", { id: spanIds.start, type: "number", min: "0", step, required: true, inputmode: "decimal" });
+  const spanEnd = el("input", { id: spanIds.end, type: "number", min: "0", step, required: true, inputmode: "decimal" });
+  const spanForm = el(
+    "form",
+    { class: "span-form", "aria-label": "Find moments like a span of this clip" },
+    el("p", { class: "hint" }, "Drag across the band under the timeline to pick a span, or type it, then find where in the library the same motion happens."),
+    el("div", { class: "field" }, el("label", { for: spanIds.start }, "From (s)"), spanStart),
+    el("div", { class: "field" }, el("label", { for: spanIds.end }, "To (s)"), spanEnd),
+    el("div", { class: "field" }, el("button", { type: "submit" }, "Find moments like this span")),
+  );
+  const showSpan = (from, to) => {
+    const left = timeline.xAt(Math.max(0, from - leadIn));
+    const right = timeline.xAt(Math.max(0, to - leadIn));
+    spanBox.hidden = !(to > from);
+    spanBox.style.left = `${left}px`;
+    spanBox.style.width = `${Math.max(2, right - left)}px`;
+  };
+  const round = (t) => Math.round(t * 100) / 100;
+  let dragFrom = null;
+  spanBand.addEventListener("pointerdown", (event) => {
+    if (!timeline.duration) return;
+    dragFrom = timeline.timeAt(event.clientX);
+    spanBand.setPointerCapture(event.pointerId);
+    event.preventDefault();
+  });
+  spanBand.addEventListener("pointermove", (event) => {
+    if (dragFrom === null) return;
+    const at = timeline.timeAt(event.clientX);
+    const [a, b] = [Math.min(dragFrom, at), Math.max(dragFrom, at)];
+    spanStart.value = String(round(a + leadIn));
+    spanEnd.value = String(round(b + leadIn));
+    showSpan(a + leadIn, b + leadIn);
+  });
+  const endDrag = () => {
+    if (dragFrom === null) return;
+    dragFrom = null;
+    // The figure plays the span picked, so it can be checked before searching.
+    const from = Number(spanStart.value) - leadIn;
+    if (Number.isFinite(from)) player.seek(Math.max(0, from));
+  };
+  spanBand.addEventListener("pointerup", endDrag);
+  spanBand.addEventListener("pointercancel", endDrag);
+  for (const input of [spanStart, spanEnd]) {
+    input.addEventListener("input", () => showSpan(Number(spanStart.value), Number(spanEnd.value)));
+  }
+  spanForm.addEventListener("submit", (event) => {
+    event.preventDefault();
+    const start = Number(spanStart.value);
+    const end = Number(spanEnd.value);
+    if (!(end > start)) {
+      actionStatus.textContent = "Pick a span: its end must come after its start.";
+      spanEnd.focus();
+      return;
+    }
+    navigate("search", { clip: clip.id, mode: "moments", start: String(start), end: String(end) });
+  });
+
+  // -- facts -----------------------------------------------------------------------------------
+  const fps = clip.frame_time > 0 ? 1 / clip.frame_time : NaN;
+  const facts = [
+    ["Format", formatBadge(clip.format)],
+    ["Files", el("ul", { class: "plain" }, clip.filenames.map((name) => el("li", { class: "filename" }, name)))],
+    ["Frames", clip.frame_count.toLocaleString("en")],
+    ["Frame rate", Number.isFinite(fps) ? `${fps.toFixed(fps % 1 < 0.01 || fps % 1 > 0.99 ? 0 : 2)} fps` : "–"],
+    ["Duration", formatTime(clip.duration)],
+    ["Joints", String(clip.joint_count)],
+    ["Skeleton family", clip.skeleton_family],
+    ["Lead-in frames", `${clip.lead_in_frames}${clip.lead_in_frames ? " (rest pose, left out of the descriptors)" : ""}`],
+    ["Labels", labelChips(clip.labels)],
+    ["Source", clip.source || el("span", { class: "muted" }, "not given")],
+    ["Licence", clip.licence || el("span", { class: "muted" }, "not given")],
+    ["Stored", `${clip.created_at.replace("T", " ").replace(/(:\d\d)(\.\d+)?(Z|[+-]00:00)$/, "$1")} UTC`],
+    ["Content hash", el("code", { class: "hash", title: clip.content_hash }, clip.content_hash)],
+  ];
+  const factList = el(
+    "dl",
+    { class: "facts" },
+    facts.map(([term, value]) => [el("dt", {}, term), el("dd", { dataset: { fact: term.toLowerCase().replace(/\s+/g, "-") } }, value)]),
+  );
+  const warnings = Array.isArray(clip.warnings) && clip.warnings.length
+    ? el(
+        "section",
+        { class: "clip-warnings", "aria-labelledby": "warnings-head" },
+        el("h2", { id: "warnings-head" }, "Reading warnings"),
+        el("ul", {}, clip.warnings.map((text) => el("li", {}, text))),
+      )
+    : null;
+  const mapping = mappingSection(clip.mapping);
+
+  // -- actions ---------------------------------------------------------------------------------
+  const actionStatus = el("p", { class: "status", role: "status", "aria-live": "polite" });
+  const keyArea = el("div", { class: "key-area" });
+  const downloads = el("div", { class: "downloads" });
+  const addDownload = (text, part, hint) => {
+    const button = el("button", { type: "button", class: "secondary", title: hint }, text);
+    button.addEventListener("click", async () => {
+      try {
+        const name = await download(`/clips/${clip.id}/file`, part ? { part } : null);
+        actionStatus.textContent = `Downloaded ${name}.`;
+      } catch (error) {
+        if (error.status !== 401 && error.status !== 403) actionStatus.textContent = `Download failed: ${error.detail || error.message}`;
+      }
+    });
+    downloads.append(button);
+  };
+  if (!clip.filenames.length) {
+    downloads.append(el("p", { class: "muted" }, "Synthetic clip: no stored file to download."));
+  } else if (clip.filenames.length === 1) {
+    addDownload(`Download ${clip.filenames[0]}`, null, "The uploaded file, byte for byte");
+  } else {
+    addDownload("Download all (ZIP)", null, "Both uploaded files in one ZIP");
+    for (const role of ["skeleton", "motion"]) {
+      const name = clip.filenames[role === "skeleton" ? 0 : 1];
+      if (name) addDownload(`Download ${name}`, role, `The ${role} file, byte for byte`);
+    }
+  }
+  for (const other of clip.downloads || []) {
+    // Other formats, when a later service offers them: [{label, url}].
+    if (other && other.url) downloads.append(el("a", { class: "button secondary", href: other.url }, other.label || other.url));
+  }
+
+  const form = editForm(clip);
+  const deleteButton = el("button", { type: "button", class: "danger" }, "Delete clip…");
+  const dialog = confirmDialog(clip);
+
+  const asking = (error) => error instanceof ApiError && (error.status === 401 || error.status === 403);
+
+  /** Run `action`; on 401/403 ask for the key next to the buttons and run it again. */
+  async function withKey(action, what) {
+    try {
+      return await action();
+    } catch (error) {
+      if (!asking(error)) throw error;
+      const key = await askForKey(keyArea, error, what);
+      if (key === null) return undefined;
+      return withKey(action, what);
+    }
+  }
+
+  form.node.addEventListener("submit", async (event) => {
+    event.preventDefault();
+    actionStatus.textContent = "Saving…";
+    try {
+      const saved = await withKey(
+        () => sendJson("PATCH", `/clips/${clip.id}`, form.changes(), { quietAuth: true }),
+        "save the changes",
+      );
+      if (saved === undefined) {
+        actionStatus.textContent = "Not saved.";
+        return;
+      }
+      notify(`Saved the changes to clip #${clip.id}.`);
+      navigate("clip", { id: clip.id }, { replace: true });
+    } catch (error) {
+      actionStatus.textContent = `Not saved: ${error.detail || error.message}`;
+    }
+  });
+
+  deleteButton.addEventListener("click", () => dialog.node.showModal());
+  dialog.onConfirm(async () => {
+    actionStatus.textContent = "Deleting…";
+    try {
+      const done = await withKey(
+        () => sendJson("DELETE", `/clips/${clip.id}`, undefined, { quietAuth: true }),
+        "delete the clip",
+      );
+      if (done === undefined) {
+        actionStatus.textContent = "Not deleted.";
+        return;
+      }
+      notify(`Deleted clip #${clip.id} “${clip.name}”.`);
+      navigate("library", {});
+    } catch (error) {
+      actionStatus.textContent = `Not deleted: ${error.detail || error.message}`;
+    }
+  });
+
+  main.append(
+    ...[
+    el(
+      "div",
+      { class: "view-head clip-head" },
+      el("h1", { class: "clip-title" }, clip.name, " ", formatBadge(clip.format)),
+      el("a", { class: "button", href: `#/search?clip=${clip.id}`, "aria-label": `Find clips similar to ${clip.name}` }, "Find similar"),
+    ),
+    el(
+      "div",
+      { class: "clip-layout" },
+      el("section", { class: "clip-preview", "aria-label": "Preview" }, canvas, timeline.node, previewNote, clip.filenames.length ? spanForm : null),
+      el("section", { class: "clip-facts", "aria-labelledby": "facts-head" }, el("h2", { id: "facts-head" }, "About this clip"), factList),
+    ),
+    warnings,
+    mapping,
+    el(
+      "section",
+      { class: "clip-actions", "aria-labelledby": "actions-head" },
+      el("h2", { id: "actions-head" }, "Download, change or delete"),
+      downloads,
+      form.node,
+      el("div", { class: "danger-zone" }, deleteButton),
+      keyArea,
+      actionStatus,
+    ),
+    dialog.node,
+    ].filter(Boolean), // no section for facts the clip does not have
+  );
+
+  return () => {
+    timeline.dispose();
+    figure.dispose();
+    player.dispose();
+    if (dialog.node.open) dialog.node.close();
+  };
+}
+
+/** The joint mapping (canonical joint -> source joint), when the clip JSON has one. */
+function mappingSection(mapping) {
+  if (!mapping || typeof mapping !== "object") return null;
+  const rows = Array.isArray(mapping) ? mapping : Object.entries(mapping).map(([canonical, source]) => ({ canonical, source }));
+  if (!rows.length) return null;
+  const text = (value) => (value === null || value === undefined ? "—" : typeof value === "object" ? value.joint || value.source || JSON.stringify(value) : String(value));
+  return el(
+    "section",
+    { class: "clip-mapping", "aria-labelledby": "mapping-head" },
+    el("h2", { id: "mapping-head" }, "How the skeleton's joints were mapped"),
+    el(
+      "table",
+      {},
+      el("thead", {}, el("tr", {}, el("th", { scope: "col" }, "Canonical joint"), el("th", { scope: "col" }, "Joint in the file"))),
+      el(
+        "tbody",
+        {},
+        rows.map((row) => el("tr", {}, el("th", { scope: "row" }, text(row.canonical)), el("td", {}, text(row.source)))),
+      ),
+    ),
+  );
+}
+
+function editForm(clip) {
+  const ids = { name: nextId("name"), labels: nextId("labels"), source: nextId("source"), licence: nextId("licence") };
+  const name = el("input", { id: ids.name, type: "text", value: clip.name, required: true, maxlength: "255", autocomplete: "off" });
+  const labels = el("input", { id: ids.labels, type: "text", value: clip.labels.join(", "), autocomplete: "off", placeholder: "e.g. walk, happy" });
+  const source = el("input", { id: ids.source, type: "text", value: clip.source || "", maxlength: "500", autocomplete: "off", placeholder: "where it comes from" });
+  const licence = el("input", { id: ids.licence, type: "text", value: clip.licence || "", maxlength: "500", autocomplete: "off", placeholder: "e.g. CC BY 4.0" });
+  const node = el(
+    "form",
+    { class: "filters edit-form", "aria-label": "Change the clip" },
+    el("div", { class: "field wide" }, el("label", { for: ids.name }, "Name"), name),
+    el("div", { class: "field wide" }, el("label", { for: ids.labels }, "Labels (comma-separated)"), labels),
+    el("div", { class: "field wide" }, el("label", { for: ids.source }, "Source"), source),
+    el("div", { class: "field wide" }, el("label", { for: ids.licence }, "Licence"), licence),
+    el("div", { class: "field" }, el("button", { type: "submit" }, "Save changes")),
+  );
+  return {
+    node,
+    changes: () => ({
+      name: name.value.trim() || clip.name,
+      labels: labels.value.split(","),
+      source: source.value.trim() || null,
+      licence: licence.value.trim() || null,
+    }),
+  };
+}
+
+function confirmDialog(clip) {
+  const headingId = nextId("confirm");
+  let confirmed = null;
+  const yes = el("button", { type: "button", class: "danger" }, "Delete");
+  const no = el("button", { type: "button", class: "secondary", autofocus: true }, "Cancel");
+  const node = el(
+    "dialog",
+    { class: "confirm", "aria-labelledby": headingId },
+    el("h2", { id: headingId }, `Delete “${clip.name}”?`),
+    el("p", {}, `Clip #${clip.id} (${clip.filenames.join(", ") || clip.format}), its descriptor vectors and its stored files are removed. This cannot be undone.`),
+    el("div", { class: "dialog-buttons" }, no, yes),
+  );
+  no.addEventListener("click", () => node.close());
+  yes.addEventListener("click", () => {
+    node.close();
+    if (confirmed) confirmed();
+  });
+  return { node, onConfirm: (fn) => (confirmed = fn) };
+}
+
+/** Ask for the API key in `area`; resolves to the key, or null when the user gives up. */
+function askForKey(area, error, what) {
+  return new Promise((resolve) => {
+    const inputId = nextId("clip-key");
+    const input = el("input", { id: inputId, type: "password", autocomplete: "off", value: apiKey() });
+    const reason = error.status === 401 ? `The service needs an API key to ${what}.` : `The API key was refused (${error.detail}); another key is needed to ${what}.`;
+    const done = (key) => {
+      clear(area);
+      resolve(key);
+    };
+    const form = el(
+      "form",
+      { class: "key-form inline", "aria-label": "Give the API key" },
+      el("p", { role: "alert" }, reason),
+      el("label", { for: inputId }, "API key"),
+      input,
+      el("button", { type: "submit" }, "Use this key"),
+      el("button", { type: "button", class: "secondary", onclick: () => done(null) }, "Cancel"),
+    );
+    form.addEventListener("submit", (event) => {
+      event.preventDefault();
+      setApiKey(input.value.trim());
+      done(input.value.trim());
+    });
+    clear(area);
+    area.append(form);
+    input.focus();
+  });
+}

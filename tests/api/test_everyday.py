@@ -1,0 +1,339 @@
+"""Issue #14 over HTTP: label filters, duplicates, source/licence, bulk delete, one code for a
+bad parameter, clips without files, /health (fake motion core: vectors chosen here)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from sqlalchemy import Engine
+from sqlalchemy.orm import Session
+
+from app.config import Settings
+from app.db import repository as repo
+from app.services.ingest import ingest
+from app.services.library import open_library
+from app.services.uploads import Upload
+from tests.services.fakes import FakeDescriber, fake_motion
+
+
+def upload(client: TestClient, stem: str, posture: list[float], **data: Any) -> Any:
+    return client.post("/clips", files={"file": (f"{stem}.bvh", fake_motion(posture))}, data=data)
+
+
+def stored(client: TestClient, name: str, posture: list[float], labels: list[str]) -> int:
+    response = upload(client, name, posture, labels=labels)
+    assert response.status_code == 201, response.text
+    clip_id: int = response.json()["id"]
+    return clip_id
+
+
+@pytest.fixture
+def labelled(fake_client: TestClient) -> dict[str, int]:
+    return {
+        "walk_happy": stored(fake_client, "walk_happy", [0, 0, 0], ["walk", "happy"]),
+        "walk_sad": stored(fake_client, "walk_sad", [1, 0, 0], ["Walk", "sad"]),
+        "run_happy": stored(fake_client, "run_happy", [2, 0, 0], ["run", "HAPPY"]),
+        "idle": stored(fake_client, "idle", [3, 0, 0], []),
+    }
+
+
+def names(page: dict[str, Any]) -> list[str]:
+    return [clip["name"] for clip in page["items"]]
+
+
+# -- 6, 7: label filters: all of them, any case, empty = none --------------------------------
+
+
+@pytest.mark.parametrize(
+    "query, expected",
+    [
+        ("label=walk&label=happy", ["walk_happy"]),
+        ("label=walk,happy", ["walk_happy"]),
+        ("label=WALK&label=happy,", ["walk_happy"]),
+        ("label=happy", ["walk_happy", "run_happy"]),
+        ("label=walk", ["walk_happy", "walk_sad"]),
+        ("label=", ["walk_happy", "walk_sad", "run_happy", "idle"]),
+        ("label=&label=%20,", ["walk_happy", "walk_sad", "run_happy", "idle"]),
+        ("label=walk&label=run", []),
+    ],
+)
+def test_label_filters_mean_all_of_them_in_any_case(
+    fake_client: TestClient, labelled: dict[str, int], query: str, expected: list[str]
+) -> None:
+    for route in ("/clips", "/library/clips"):
+        response = fake_client.get(f"{route}?{query}")
+        assert response.status_code == 200, response.text
+        assert names(response.json()) == expected, route
+        assert response.json()["total"] == len(expected)
+    search = fake_client.get(f"/search?clip={labelled['idle']}&k=10&{query}")
+    assert search.status_code == 200, search.text
+    assert sorted(h["name"] for h in search.json()["results"]) == sorted(
+        n for n in expected if n != "idle"
+    )
+
+
+def test_label_filter_on_upload_search(fake_client: TestClient, labelled: dict[str, int]) -> None:
+    response = fake_client.post(
+        "/search?label=Happy,walk&k=10",
+        files={"file": ("q.bvh", fake_motion([0, 0, 0.5]))},
+    )
+    assert response.status_code == 200, response.text
+    assert [h["name"] for h in response.json()["results"]] == ["walk_happy"]
+
+
+def test_labels_are_stored_once_whatever_their_case(fake_client: TestClient) -> None:
+    response = upload(fake_client, "x", [0, 0, 9], labels=[" Walk , Happy ,,walk", "HAPPY"])
+    assert response.status_code == 201
+    clip = response.json()
+    assert clip["labels"] == ["Walk", "Happy"]
+    patched = fake_client.patch(f"/clips/{clip['id']}", json={"labels": ["a", "A", " b ,B"]})
+    assert patched.json()["labels"] == ["a", "b"]
+    counts = {
+        row["label"].lower(): row["count"] for row in fake_client.get("/library/labels").json()
+    }
+    assert counts == {"a": 1, "b": 1}
+
+
+def test_label_counts_merge_spellings(fake_client: TestClient, labelled: dict[str, int]) -> None:
+    counts = {
+        row["label"].lower(): row["count"] for row in fake_client.get("/library/labels").json()
+    }
+    assert counts == {"walk": 2, "happy": 2, "sad": 1, "run": 1}
+
+
+def test_label_filter_is_documented(fake_client: TestClient) -> None:
+    spec = fake_client.get("/openapi.json").json()
+    for path, method in (("/clips", "get"), ("/search", "get"), ("/search", "post")):
+        params = {p["name"]: p for p in spec["paths"][path][method]["parameters"]}
+        text = params["label"]["description"]
+        assert "all of them" in text and "case-insensitively" in text, path
+
+
+def test_label_migration_index_serves_the_filter(engine: Engine) -> None:
+    # The case-insensitive filter must stay an index lookup (1M clips: bench/bench_search.py).
+    with engine.connect() as connection:
+        plan = connection.exec_driver_sql(
+            "EXPLAIN QUERY PLAN SELECT clip_id FROM clip_labels WHERE label_key = 'walk'"
+        ).all()
+    assert any("ix_clip_labels_label_key_clip_id" in str(row) for row in plan), plan
+
+
+# -- 10: a duplicate upload applies what it brings -----------------------------------------
+
+
+def test_duplicate_upload_adds_labels_and_renames(fake_client: TestClient) -> None:
+    first = upload(fake_client, "dup", [5, 5, 5], labels=["walk"]).json()
+    again = upload(fake_client, "dup", [5, 5, 5], labels=["WALK", "happy"], name="happy walk")
+    assert again.status_code == 200
+    body = again.json()
+    assert body["duplicate"] is True and body["id"] == first["id"]
+    assert body["labels"] == ["walk", "happy"] and body["name"] == "happy walk"
+    assert fake_client.get(f"/clips/{first['id']}").json()["labels"] == ["walk", "happy"]
+    assert (
+        "duplicate" not in first and "duplicate" not in fake_client.get("/clips").json()["items"][0]
+    )
+    plain = upload(fake_client, "dup", [5, 5, 5])
+    assert plain.status_code == 200 and plain.json()["name"] == "happy walk"
+
+
+def test_duplicate_upload_needs_write_access(tmp_path: Any) -> None:
+    from app.main import create_app
+
+    settings = Settings(data_dir=tmp_path / "data", api_key="s3cret")
+    with TestClient(create_app(settings, describer=FakeDescriber())) as client:
+        files = {"file": ("k.bvh", fake_motion([1, 2, 3]))}
+        keyed = {"X-API-Key": "s3cret"}
+        assert client.post("/clips", files=files, headers=keyed).status_code == 201
+        refused = client.post("/clips", files=files, data={"labels": ["new"]})
+        assert refused.status_code == 401
+        assert client.get("/clips", headers=keyed).json()["items"][0]["labels"] == []
+
+
+# -- 11: missing-part messages -------------------------------------------------------------
+
+
+def test_missing_part_messages(fake_client: TestClient) -> None:
+    alone = fake_client.post("/clips", files={"skeleton": ("02.asf", b"x")})
+    assert alone.status_code == 422
+    assert alone.json()["detail"] == (
+        "field 'motion': the .asf skeleton must come with an .amc 'motion'"
+    )
+    alone = fake_client.post("/clips", files={"motion": ("02_01.amc", b"x")})
+    assert alone.json()["detail"] == (
+        "field 'skeleton': the .amc motion must come with its .asf 'skeleton'"
+    )
+
+
+# -- 12: a clip without stored files -------------------------------------------------------
+
+
+def synthetic_clip(engine: Engine) -> int:
+    with Session(engine) as session, session.begin():
+        return repo.insert_clip(
+            session,
+            repo.NewClip(
+                name="synthetic-1",
+                format="synthetic",
+                content_hash="f" * 64,
+                frame_count=10,
+                frame_time=0.1,
+                duration=1.0,
+                joint_count=0,
+                skeleton_family="synthetic",
+                lead_in_frames=0,
+                labels=("synthetic",),
+                files=(),
+                vectors={"posture": repo.StoredVector(1, np.zeros(3, np.float32))},
+            ),
+        )
+
+
+def test_clip_without_files_answers_404_not_500(fake_client: TestClient, engine: Engine) -> None:
+    clip_id = synthetic_clip(engine)
+    for path in (f"/clips/{clip_id}/skeleton", f"/clips/{clip_id}/file"):
+        response = fake_client.get(path)
+        assert response.status_code == 404, path
+        assert response.json()["error"] == "no_stored_file"
+        assert "synthetic clip" in response.json()["detail"]
+
+
+# -- 13: bulk delete by label --------------------------------------------------------------
+
+
+def test_bulk_delete_by_label(fake_client: TestClient, labelled: dict[str, int]) -> None:
+    unconfirmed = fake_client.delete("/clips?label=Happy")
+    assert unconfirmed.status_code == 422
+    assert "would delete 2 clips" in unconfirmed.json()["detail"]
+    assert fake_client.get("/clips").json()["total"] == 4
+    nothing = fake_client.delete("/clips?label=&confirm=true")
+    assert nothing.status_code == 422 and nothing.json()["error"] == "invalid_input"
+    done = fake_client.delete("/clips?label=Happy&confirm=true")
+    assert done.status_code == 200
+    assert done.json() == {"deleted": 2, "labels": ["Happy"]}
+    assert names(fake_client.get("/clips").json()) == ["walk_sad", "idle"]
+    hits = fake_client.get(f"/search?clip={labelled['idle']}&k=10").json()["results"]
+    assert [h["name"] for h in hits] == ["walk_sad"]
+
+
+def test_bulk_delete_needs_the_key(tmp_path: Any) -> None:
+    from app.main import create_app
+
+    settings = Settings(data_dir=tmp_path / "data", api_key="s3cret")
+    with TestClient(create_app(settings, describer=FakeDescriber())) as client:
+        assert client.delete("/clips?label=x&confirm=true").status_code == 401
+        bad = client.delete("/clips?label=x&confirm=true", headers={"X-API-Key": "no"})
+        assert bad.status_code == 403
+        ok = client.delete("/clips?label=x&confirm=true", headers={"X-API-Key": "s3cret"})
+        assert ok.status_code == 200 and ok.json()["deleted"] == 0
+
+
+# -- 14: source and licence ----------------------------------------------------------------
+
+
+def test_source_and_licence(fake_client: TestClient) -> None:
+    response = upload(
+        fake_client, "cc", [7, 7, 7], source=" https://mocap.cs.cmu.edu ", licence="free to use"
+    )
+    clip = response.json()
+    assert (clip["source"], clip["licence"]) == ("https://mocap.cs.cmu.edu", "free to use")
+    got = fake_client.get(f"/clips/{clip['id']}").json()
+    assert (got["source"], got["licence"]) == ("https://mocap.cs.cmu.edu", "free to use")
+    patched = fake_client.patch(f"/clips/{clip['id']}", json={"licence": "CC BY 4.0"}).json()
+    assert (patched["source"], patched["licence"]) == ("https://mocap.cs.cmu.edu", "CC BY 4.0")
+    cleared = fake_client.patch(f"/clips/{clip['id']}", json={"source": None}).json()
+    assert cleared["source"] is None and cleared["licence"] == "CC BY 4.0"
+    # read through the search path's own SQL too
+    other = upload(fake_client, "other", [7, 7, 8]).json()
+    query = fake_client.get(f"/search?clip={clip['id']}").json()["query"]
+    assert query["licence"] == "CC BY 4.0" and other["source"] is None
+    too_long = upload(fake_client, "long", [1, 1, 1], licence="x" * 501)
+    assert too_long.status_code == 422 and "licence" in too_long.json()["detail"]
+
+
+# -- 4: results tell same-named clips apart ------------------------------------------------
+
+
+def test_hits_carry_format_and_file_names(fake_client: TestClient) -> None:
+    query = stored(fake_client, "q", [0, 0, 0], [])
+    bvh = stored(fake_client, "02_04", [1, 0, 0], [])
+    amc = fake_client.post(
+        "/clips",
+        files={"skeleton": ("02.asf", b"asf"), "motion": ("02_04.amc", fake_motion([2, 0, 0]))},
+    ).json()["id"]
+    hits = fake_client.get(f"/search?clip={query}").json()["results"]
+    assert [(h["id"], h["name"], h["format"], h["filenames"]) for h in hits] == [
+        (bvh, "02_04", "bvh", ["02_04.bvh"]),
+        (amc, "02_04", "asf/amc", ["02.asf", "02_04.amc"]),
+    ]
+
+
+# -- 15: one code for a bad parameter ------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "path",
+    [
+        "/search?clip=1&k=0",
+        "/search?clip=1&k=abc",
+        "/search?clip=abc",
+        "/search?clip=1&k=2.5",
+        "/search?clip=1&descriptor=foo",
+        "/clips?limit=0",
+        "/clips?offset=-1",
+        "/clips/abc",
+    ],
+)
+def test_one_code_for_a_bad_parameter(fake_client: TestClient, path: str) -> None:
+    stored(fake_client, "one", [0, 0, 0], [])
+    response = fake_client.get(path)
+    assert response.status_code == 422
+    assert response.json()["error"] == "invalid_input", response.json()
+
+
+def test_bad_parameter_messages(fake_client: TestClient, fixtures_dir: Any) -> None:
+    assert fake_client.get("/clips?offset=-1").json()["detail"] == "offset: must be ≥ 0, got -1"
+    clip = stored(fake_client, "one", [0, 0, 0], [])
+    both = fake_client.post(
+        f"/search?clip={clip}", files={"file": ("q.bvh", fake_motion([0, 0, 0]))}
+    )
+    assert both.status_code == 422
+    assert both.json() == {
+        "error": "invalid_input",
+        "detail": "clip: give a clip id or a file, not both",
+    }
+    part = fake_client.get(f"/clips/{clip}/file?part=skeleton")
+    assert part.status_code == 422
+    assert part.json()["detail"].startswith(f"part: clip {clip} is a single BVH file")
+
+
+# -- 16: /health tells the truth -----------------------------------------------------------
+
+
+def test_health_sees_clips_another_process_stored(
+    fake_client: TestClient, settings: Settings
+) -> None:
+    stored(fake_client, "here", [0, 0, 0], [])
+    other = open_library(settings, describer=FakeDescriber())
+    try:
+        for i in range(3):
+            ingest(other, Upload.from_files(file=(f"o{i}.bvh", fake_motion([i, 1, 1]))))
+    finally:
+        other.close()
+    health = fake_client.get("/health").json()
+    assert health["clips"] == 4
+    assert health["indexes"]["posture"] == {"size": 4, "dimension": 3, "version": 1, "missing": 0}
+
+
+def test_health_missing_counts_clips_without_a_vector(
+    fake_client: TestClient, engine: Engine
+) -> None:
+    stored(fake_client, "here", [0, 0, 0], [])
+    synthetic_clip(engine)  # has a posture vector, no kinetic one
+    health = fake_client.get("/health").json()
+    assert health["clips"] == 2
+    assert health["indexes"]["posture"]["missing"] == 0
+    assert health["indexes"]["posture"]["size"] == 2
+    assert health["indexes"]["kinetic"]["missing"] == 1

@@ -1,0 +1,181 @@
+"""FBX, glTF and VRM animation uploads over HTTP (real app, real readers in real worker
+processes), the animation field, and BVH export of every kind of clip."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import threading
+import time
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from app.config import Settings
+from app.main import create_app
+from app.motion.formats import read_bvh
+from tests.conftest import FIXTURES_DIR
+from tests.motion.gltf_builder import gltf_parts, two_animation_glb
+
+FBX = ("human_ik.fbx", (FIXTURES_DIR / "ufbx_maya_human_ik_7400_binary.fbx").read_bytes())
+VRMA = ("test.vrma", (FIXTURES_DIR / "three_vrm_test.vrma").read_bytes())
+BVH = ("walk.bvh", (FIXTURES_DIR / "cmu_mb_02_01_first41.bvh").read_bytes())
+ASF = ("02.asf", (FIXTURES_DIR / "cmu_02.asf").read_bytes())
+AMC = ("02_01.amc", (FIXTURES_DIR / "cmu_02_01_first40.amc").read_bytes())
+
+
+GLB = ("walk.glb", two_animation_glb(read_bvh(BVH[1])))
+
+
+@pytest.fixture(scope="module")
+def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TestClient]:
+    settings = Settings(data_dir=tmp_path_factory.mktemp("scenes") / "data", parser_workers=1)
+    with TestClient(create_app(settings)) as client:
+        yield client
+
+
+def test_an_fbx_upload_is_a_clip_listing_its_animations(live):
+    response = live.post("/clips", files={"file": FBX})
+    assert response.status_code in (200, 201), response.text
+    clip = response.json()
+    assert clip["format"] == "fbx" and clip["name"] == "human_ik"
+    assert clip["animations"] == [
+        {
+            "name": "Take 001",
+            "frame_count": 120,
+            "duration": pytest.approx(119 / 24),
+            "selected": True,
+        }
+    ]
+    # The same animation of the same file, named or not, is the same clip.
+    again = live.post("/clips", files={"file": FBX}, data={"animation": "Take 001"})
+    assert again.status_code == 200 and again.json()["id"] == clip["id"]
+    assert live.get(f"/clips/{clip['id']}").json()["animations"] == clip["animations"]
+
+
+def test_the_longest_animation_or_the_named_one(live):
+    longest = live.post("/clips", files={"file": GLB})
+    assert longest.status_code in (200, 201), longest.text
+    body = longest.json()
+    assert body["format"] == "gltf" and body["name"] == "walk · walk"
+    assert [(a["name"], a["selected"]) for a in body["animations"]] == [
+        ("walk", True),
+        ("start", False),
+    ]
+    named = live.post("/clips", files={"file": GLB}, data={"animation": "start"})
+    assert named.status_code == 201 and named.json()["name"] == "walk · start"
+    assert named.json()["frame_count"] == 10
+    assert named.json()["content_hash"] != body["content_hash"]
+    unknown = live.post("/clips", files={"file": GLB}, data={"animation": "run"})
+    assert unknown.status_code == 422
+    assert "'walk', 'start'" in unknown.json()["detail"]
+    on_bvh = live.post("/clips", files={"file": BVH}, data={"animation": "walk"})
+    assert on_bvh.status_code == 422 and "animation" in on_bvh.json()["detail"]
+
+
+def test_a_vrm_animation_upload_and_an_fbx_search(live):
+    response = live.post("/clips", files={"file": VRMA})
+    assert response.status_code in (200, 201), response.text
+    assert response.json()["format"] == "gltf"
+    found = live.post("/search?k=1", files={"file": FBX})
+    assert found.status_code == 200 and found.json()["query"]["format"] == "fbx"
+
+
+def test_a_gltf_naming_another_file_is_refused(live):
+    document, _ = gltf_parts(read_bvh(BVH[1]))
+    document["buffers"][0]["uri"] = "../walk.bin"
+    response = live.post("/clips", files={"file": ("walk.gltf", json.dumps(document).encode())})
+    assert response.status_code == 422
+    assert "upload a .glb" in response.json()["detail"]
+
+
+def test_unsupported_extensions_are_listed(live):
+    response = live.post("/clips", files={"file": ("walk.obj", b"x")})
+    assert response.status_code == 415
+    for extension in (".bvh", ".fbx", ".glb", ".gltf", ".vrma", ".asf", ".amc"):
+        assert extension in response.json()["detail"]
+
+
+def test_a_reader_killed_mid_parse_answers_422_and_the_next_upload_works(live):
+    pool = live.app.state.library.parsers
+    live.post("/search?k=1", files={"file": VRMA})  # a warm worker
+
+    def kill() -> None:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            busy = pool.busy_pids()
+            if busy:
+                os.kill(busy[0], signal.SIGKILL)
+                return
+            time.sleep(0.0005)
+
+    killer = threading.Thread(target=kill)
+    killer.start()
+    response = live.post("/clips", files={"file": ("killed.fbx", FBX[1])}, data={"name": "x"})
+    killer.join()
+    assert response.status_code == 422, response.text
+    assert response.json()["error"] == "unreadable_file"
+    assert "'killed.fbx'" in response.json()["detail"]
+    assert live.get("/health").json()["status"] == "ok"
+    after = live.post("/search?k=1", files={"file": FBX})
+    assert after.status_code == 200, after.text
+
+
+@pytest.mark.parametrize(
+    "files",
+    [{"file": BVH}, {"skeleton": ASF, "motion": AMC}, {"file": FBX}, {"file": GLB}, {"file": VRMA}],
+    ids=["bvh", "asf/amc", "fbx", "glb", "vrma"],
+)
+def test_bvh_export_reuploaded_is_the_clips_nearest_neighbour(live, files):
+    clip = live.post("/clips", files=files).json()
+    response = live.get(f"/clips/{clip['id']}/file?format=bvh")
+    assert response.status_code == 200, response.text
+    assert response.headers["content-disposition"].startswith("attachment;")
+    assert ".bvh" in response.headers["content-disposition"]
+    exported = ("export.bvh", response.content)
+    vectors = live.get(f"/clips/{clip['id']}?include=descriptors").json()["descriptors"]
+    for descriptor in ("posture", "kinetic", "motion"):
+        found = live.post(f"/search?k=1&descriptor={descriptor}", files={"file": exported})
+        hit = found.json()["results"][0]
+        norm = float(np.linalg.norm(vectors[descriptor]["vector"]))
+        assert hit["id"] == clip["id"], (descriptor, hit)
+        assert hit["distance"] <= 1e-3 * norm, (descriptor, hit["distance"], norm)
+
+
+def test_export_refuses_a_part(live):
+    clip = live.post("/clips", files={"file": BVH}).json()
+    response = live.get(f"/clips/{clip['id']}/file?format=bvh&part=file")
+    assert response.status_code == 422
+    assert live.get(f"/clips/{clip['id']}/file?format=obj").status_code == 422
+
+
+@pytest.mark.parametrize(
+    ("files", "params"),
+    [
+        ({"file": BVH}, {"format": "bvh"}),
+        ({"skeleton": ASF, "motion": AMC}, {"format": "bvh"}),
+        ({"file": FBX}, {"format": "bvh"}),
+        ({"file": FBX}, {}),  # FBX cannot be cut as it is: the span's BVH export
+        ({"file": GLB}, {}),
+    ],
+    ids=["bvh", "asf/amc", "fbx", "fbx-cut", "glb-cut"],
+)
+def test_a_span_of_any_clip_as_bvh(live, files, params):
+    clip = live.post("/clips", files=files).json()
+    whole = read_bvh(live.get(f"/clips/{clip['id']}/file?format=bvh").content)
+    frame_time = clip["frame_time"]
+    first, stop = clip["frame_count"] // 4, clip["frame_count"] * 3 // 4
+    start, end = first * frame_time, stop * frame_time
+    response = live.get(f"/clips/{clip['id']}/file", params={**params, "start": start, "end": end})
+    assert response.status_code == 200, response.text
+    assert f"{start:.2f}-{end:.2f}s.bvh" in response.headers["content-disposition"]
+    cut = read_bvh(response.content)
+    assert cut.frame_count == stop - first
+    np.testing.assert_allclose(
+        cut.local_rotations, whole.local_rotations[first:stop], atol=1e-6, rtol=0
+    )
+    outside = live.get(f"/clips/{clip['id']}/file", params={**params, "start": 0, "end": 999})
+    assert outside.status_code == 422 and "outside the clip" in outside.json()["detail"]

@@ -1,0 +1,93 @@
+"""The FBX reader (app/motion/formats/fbx.py) on the real Maya HumanIK fixture.
+
+These tests call the reader in the test process (the service never does: see
+tests/services/test_parser_pool.py); the fixture is one ufbx reads cleanly.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.errors import LimitExceeded, ParseError
+from app.motion.body import build_body
+from app.motion.formats.fbx import list_fbx_animations, read_fbx
+from app.motion.kinematics import forward_kinematics
+from app.motion.model import ParseLimits
+from tests.conftest import FIXTURES_DIR
+from tests.motion.canonical import check_canonical_body
+
+FBX = FIXTURES_DIR / "ufbx_maya_human_ik_7400_binary.fbx"
+
+
+@pytest.fixture(scope="module")
+def data() -> bytes:
+    return FBX.read_bytes()
+
+
+@pytest.fixture(scope="module")
+def read(data):
+    return read_fbx(data)
+
+
+def test_stack_sampled_at_the_scene_frame_rate(read):
+    motion, animations, chosen = read
+    assert [a.name for a in animations] == ["Take 001"] and chosen == "Take 001"
+    assert motion.frame_time == pytest.approx(1 / 24)
+    assert motion.frame_count == animations[0].frame_count == 120
+    assert motion.source_format == "fbx" and motion.length_unit == "metres"
+
+
+def test_skeleton_is_the_bones_without_effectors_or_the_reference_node(read):
+    motion = read[0]
+    names = motion.skeleton.names
+    assert names[0] == "Character1_Hips" and motion.skeleton.joint_count == 62
+    assert not any("Effector" in n or "Reference" in n for n in names)
+    assert (motion.skeleton.parents[1:] < np.arange(1, len(names))).all()
+
+
+def test_joint_positions_match_ufbx_evaluated_world_transforms(data, read):
+    # "Ignore parent scale" joints under a reference node scaled 0.01: composing local
+    # transforms naively is off by about a metre here; the reader must agree with ufbx's own
+    # evaluation of the scene, in metres and Y up.
+    import ufbx
+
+    motion = read[0]
+    scene = ufbx.load_memory(
+        data,
+        ignore_geometry=True,
+        target_axes=ufbx.axes_right_handed_y_up,
+        target_unit_meters=1.0,
+    )
+    stacks = list(scene.anim_stacks)
+    anims = [stack.anim for stack in stacks]  # kept referenced: the binding frees them
+    begin = stacks[0].time_begin
+    _, positions = forward_kinematics(motion)
+    for frame in (0, 37, 119):
+        evaluated = ufbx.evaluate_scene(scene, anims[0], begin + frame * motion.frame_time)
+        nodes = list(evaluated.nodes)
+        world = {node.name: tuple(node.node_to_world.c3) for node in nodes}
+        for j, name in enumerate(motion.skeleton.names):
+            np.testing.assert_allclose(positions[frame, j], world[name], atol=1e-6, err_msg=name)
+
+
+def test_the_person_is_upright_with_human_proportions(read):
+    body = build_body(read[0])
+    check_canonical_body(body, FBX.name)
+    assert 1.3 < body.height < 2.0  # metres
+
+
+def test_limits_and_unknown_animation(data):
+    with pytest.raises(LimitExceeded):
+        read_fbx(data, limits=ParseLimits(max_frames=50))
+    with pytest.raises(LimitExceeded):
+        read_fbx(data, limits=ParseLimits(max_joints=10))
+    with pytest.raises(ParseError, match="'Take 001'"):
+        read_fbx(data, animation="Take 002")
+    assert [a.name for a in list_fbx_animations(data)] == ["Take 001"]
+
+
+@pytest.mark.parametrize("junk", [b"Kaydara FBX Binary  \x00\x1a\x00" + bytes(100), b"; FBX\n{"])
+def test_garbage_is_a_parse_error(junk):
+    with pytest.raises(ParseError):
+        read_fbx(junk)

@@ -1,0 +1,132 @@
+"""The glTF / GLB / VRMA reader (app/motion/formats/gltf.py), on files built from the BVH
+fixtures (a known motion) and on the real VRM animation fixture."""
+
+from __future__ import annotations
+
+import base64
+import json
+
+import numpy as np
+import pytest
+
+from app.errors import LimitExceeded, ParseError
+from app.motion.body import build_body
+from app.motion.formats import read_bvh
+from app.motion.formats.gltf import list_gltf_animations, read_gltf
+from app.motion.kinematics import forward_kinematics
+from app.motion.model import ParseLimits
+from tests.conftest import FIXTURES_DIR
+from tests.motion.canonical import check_canonical_body
+from tests.motion.gltf_builder import build_glb, gltf_parts, pack_glb
+
+BVH = FIXTURES_DIR / "cmu_mb_02_01_first41.bvh"
+VRMA = FIXTURES_DIR / "three_vrm_test.vrma"
+
+
+@pytest.fixture(scope="module")
+def bvh_motion():
+    return read_bvh(BVH.read_bytes())
+
+
+def _positions_by_name(motion):
+    _, positions = forward_kinematics(motion)
+    return {name: positions[:, j] for j, name in enumerate(motion.skeleton.names)}
+
+
+def test_a_skinned_glb_gives_back_the_motion_it_holds(bvh_motion):
+    motion, animations, chosen = read_gltf(build_glb(bvh_motion, name="walk"))
+    assert chosen == "walk" and [a.name for a in animations] == ["walk"]
+    assert motion.source_format == "gltf" and motion.frame_count == bvh_motion.frame_count
+    assert motion.frame_time == pytest.approx(bvh_motion.frame_time, rel=1e-5)
+    want, got = _positions_by_name(bvh_motion), _positions_by_name(motion)
+    size = np.ptp(np.concatenate(list(want.values())), axis=0).max()
+    for name, positions in want.items():
+        np.testing.assert_allclose(got[name], positions, atol=1e-5 * size, err_msg=name)
+
+
+def test_embedded_data_uri_gltf_reads_like_the_glb(bvh_motion):
+    document, binary = gltf_parts(bvh_motion)
+    document["buffers"][0]["uri"] = (
+        "data:application/octet-stream;base64," + base64.b64encode(binary).decode()
+    )
+    from_json = read_gltf(json.dumps(document).encode())[0]
+    from_glb = read_gltf(pack_glb(*gltf_parts(bvh_motion)))[0]
+    np.testing.assert_array_equal(from_json.local_rotations, from_glb.local_rotations)
+
+
+@pytest.mark.parametrize(
+    "uri", ["walk.bin", "../secret.bin", "/etc/passwd", "http://example.com/a.bin", "file:///x"]
+)
+def test_a_uri_that_is_not_embedded_is_refused_without_touching_it(bvh_motion, uri):
+    document, _ = gltf_parts(bvh_motion)
+    document["buffers"][0]["uri"] = uri
+    with pytest.raises(ParseError, match=r"upload a \.glb"):
+        read_gltf(json.dumps(document).encode())
+
+
+def test_several_animations_are_listed_and_one_is_read_by_name(bvh_motion):
+    document, binary = gltf_parts(bvh_motion, name="long")
+    short = json.loads(json.dumps(document["animations"][0]))
+    short["name"] = "short"
+    document["animations"].append(short)
+    data = pack_glb(document, binary)
+    assert [a.name for a in list_gltf_animations(data)] == ["long", "short"]
+    assert read_gltf(data, animation="short")[2] == "short"
+    with pytest.raises(ParseError, match="'long', 'short'"):
+        read_gltf(data, animation="nope")
+
+
+def test_non_finite_numbers_no_skeleton_and_no_animation_are_told_apart(bvh_motion):
+    document, binary = gltf_parts(bvh_motion)
+    values = np.frombuffer(binary, dtype=np.float32).copy()
+    values[len(values) // 2] = np.nan
+    with pytest.raises(ParseError, match="non-finite"):
+        read_gltf(pack_glb(document, values.tobytes()))
+    no_skin = dict(document, skins=[])
+    with pytest.raises(ParseError, match="no skeleton"):
+        read_gltf(pack_glb(no_skin, binary))
+    still = dict(document, animations=[])
+    with pytest.raises(ParseError, match="no animation"):
+        read_gltf(pack_glb(still, binary))
+
+
+@pytest.mark.parametrize(
+    "data",
+    [b"glTF\x02\x00\x00\x00\xff\xff\xff\x7f", b"glTF" + bytes(30), b"{", b"\xff\xfe{}", b"[]"],
+)
+def test_garbage_is_a_parse_error(data):
+    with pytest.raises(ParseError):
+        read_gltf(data)
+
+
+def test_frame_limits_are_kept(bvh_motion):
+    with pytest.raises(LimitExceeded):
+        read_gltf(build_glb(bvh_motion), limits=ParseLimits(max_frames=10))
+    with pytest.raises(LimitExceeded):
+        read_gltf(build_glb(bvh_motion), limits=ParseLimits(max_joints=5))
+
+
+def test_vrm_animation_reads_its_humanoid_bones_as_an_upright_person():
+    motion, animations, _ = read_gltf(VRMA.read_bytes())
+    assert len(animations) == 1
+    assert {"hips", "leftUpperArm", "rightFoot"} <= set(motion.skeleton.names)
+    check_canonical_body(build_body(motion), VRMA.name)
+
+
+def test_step_and_cubic_samplers():
+    from app.motion.formats.gltf import _sample_channel
+
+    keys = np.array([0.0, 1.0])
+    values = np.array([[0.0], [2.0]])
+    times = np.array([0.0, 0.5, 1.0])
+    np.testing.assert_allclose(
+        _sample_channel(keys, values, times, "STEP", 1, "x")[:, 0], [0, 0, 2]
+    )
+    np.testing.assert_allclose(
+        _sample_channel(keys, values, times, "LINEAR", 1, "x")[:, 0], [0, 1, 2]
+    )
+    # Hermite with zero tangents: smoothstep, 1.0 at the middle.
+    cubic = np.array([[0.0], [0.0], [0.0], [0.0], [2.0], [0.0]])
+    np.testing.assert_allclose(
+        _sample_channel(keys, cubic, times, "CUBICSPLINE", 1, "x")[:, 0], [0, 1, 2]
+    )

@@ -1,0 +1,159 @@
+"""What must not change the canonical body: names, extra joints, axes, units; and a mirrored
+capture must be recognised and undone. On the real CMU and Bandai excerpts in tests/fixtures."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from app.motion import transforms
+from app.motion.formats import read_asf_amc, read_bvh
+from app.motion.model import Motion, Skeleton
+from app.motion.pipeline import ClipAnalysis, analyse
+from tests.motion.conftest import (
+    BANDAI_FIXTURE,
+    CMU_AMC_FIXTURE,
+    CMU_ASF_FIXTURE,
+    CMU_BVH_FIXTURE,
+    fixture_bytes,
+)
+
+FIXTURES = (CMU_BVH_FIXTURE, BANDAI_FIXTURE)
+
+
+def _motion(name: str) -> Motion:
+    return read_bvh(fixture_bytes(name))
+
+
+def _same(a: ClipAnalysis, b: ClipAnalysis, atol: float = 1e-6) -> None:
+    for name, vector in a.descriptors.items():
+        np.testing.assert_allclose(b.descriptors[name], vector, atol=atol, err_msg=name)
+
+
+def _renamed(motion: Motion) -> Motion:
+    skeleton = motion.skeleton
+    names = tuple(f"j{i}" for i in range(skeleton.joint_count))
+    return dataclasses.replace(
+        motion, skeleton=Skeleton(names, skeleton.parents, skeleton.offsets, skeleton.end_site)
+    )
+
+
+def _cmu_asf() -> Motion:
+    return read_asf_amc(fixture_bytes(CMU_ASF_FIXTURE), fixture_bytes(CMU_AMC_FIXTURE))
+
+
+@pytest.mark.parametrize("load", [lambda: _motion(CMU_BVH_FIXTURE), _cmu_asf], ids=["bvh", "asf"])
+def test_meaningless_names_keep_mapping_and_descriptors(load):
+    # The CMU rigs are unambiguous: sides from the feet, joints from the shape (the ASF's
+    # collar bones run almost in line with its T-posed arms: proportions tell them apart).
+    motion = load()
+    named, anonymous = analyse(motion), analyse(_renamed(motion))
+    np.testing.assert_array_equal(anonymous.body.mapping.joints, named.body.mapping.joints)
+    _same(named, anonymous)
+    assert anonymous.warnings == ()
+
+
+@pytest.mark.parametrize("fixture", FIXTURES)
+@pytest.mark.parametrize("axis", [0, 2])
+def test_a_mirrored_capture_is_recognised_and_undone(fixture: str, axis: int):
+    # Reflected geometry with the names kept: the limbs called left lie on the right.
+    motion = _motion(fixture)
+    original = analyse(motion)
+    mirrored = analyse(transforms.reflect(motion, axis=axis))
+    assert mirrored.body.mapping.mirrored is True
+    assert "mirrored capture: stored un-mirrored" in mirrored.warnings
+    assert original.body.mapping.mirrored is False
+    _same(original, mirrored)
+
+
+def _with_extra_leaves(motion: Motion, count: int, seed: int = 3) -> Motion:
+    """``count`` extra leaf joints as real rigs carry them: twist bones inside limb bones,
+    short face/finger-like leaves, IK targets and props hanging from the root, all without
+    motion of their own."""
+    skeleton = motion.skeleton
+    rng = np.random.default_rng(seed)
+    lengths = np.linalg.norm(skeleton.offsets, axis=1)
+    scale = float(lengths.max())
+    movable = [j for j in range(skeleton.joint_count) if not skeleton.end_site[j]]
+    names, parents, offsets = list(skeleton.names), list(skeleton.parents), list(skeleton.offsets)
+    for i in range(count):
+        kind = i % 3
+        if kind == 0:  # a twist bone half-way along a bone
+            bones = [j for j in movable if j > 0 and lengths[j] > 0]
+            child = int(rng.choice(bones))
+            parent, offset = int(skeleton.parents[child]), 0.5 * skeleton.offsets[child]
+        elif kind == 1:  # a short leaf (face, finger nub, helper)
+            parent = int(rng.choice(movable))
+            offset = rng.normal(size=3) * 0.02 * scale
+        else:  # an IK target or prop under the root, somewhere about the body
+            parent, offset = 0, rng.normal(size=3) * scale
+        names.append(f"extra{i}")
+        parents.append(parent)
+        offsets.append(np.asarray(offset, dtype=float))
+    grown = Skeleton(
+        tuple(names),
+        np.array(parents),
+        np.array(offsets),
+        np.concatenate([skeleton.end_site, np.zeros(count, dtype=bool)]),
+    )
+    frames = motion.frame_count
+    rotations = np.concatenate(
+        [motion.local_rotations, np.broadcast_to(np.eye(3), (frames, count, 3, 3))], axis=1
+    )
+    translations = None
+    if motion.local_translations is not None:
+        extra = np.broadcast_to(np.array(offsets[-count:]), (frames, count, 3))
+        translations = np.concatenate([motion.local_translations, extra], axis=1)
+    return dataclasses.replace(
+        motion, skeleton=grown, local_rotations=rotations, local_translations=translations
+    )
+
+
+@pytest.mark.parametrize("fixture", FIXTURES)
+def test_fifty_extra_leaf_joints_change_nothing(fixture: str):
+    motion = _motion(fixture)
+    plain, busy = analyse(motion), analyse(_with_extra_leaves(motion, 50))
+    np.testing.assert_array_equal(busy.body.mapping.joints, plain.body.mapping.joints)
+    _same(plain, busy)
+
+
+@pytest.mark.parametrize("fixture", FIXTURES)
+def test_z_up_and_inches_change_nothing(fixture: str):
+    motion = _motion(fixture)
+    plain = analyse(motion)
+    # Y-up -> Z-up: the file as a Z-up exporter writes it, rest pose included.
+    z_up = transforms.change_basis(motion, transforms.rotation_about([1.0, 0.0, 0.0], 90.0))
+    inches = transforms.rescale(motion, 1.0 / 0.0254 / 100.0)  # centimetre-like -> inches
+    for changed in (analyse(z_up), analyse(inches)):
+        np.testing.assert_array_equal(changed.body.mapping.joints, plain.body.mapping.joints)
+        _same(plain, changed, atol=1e-5)
+
+
+def test_names_against_the_geometry_on_one_pair_lose_with_a_warning():
+    # The leg chains' names swapped (a converter's mix-up), the arms' kept: no mirror can
+    # explain it, so the geometry decides and says so.
+    motion = _motion(CMU_BVH_FIXTURE)
+    swap = {"Left": "Right", "Right": "Left", "LHip": "RHip", "RHip": "LHip"}
+    legs = ("HipJoint", "UpLeg", "Leg", "Foot", "ToeBase")
+
+    def swapped(name: str) -> str:
+        for word, other in swap.items():
+            if name.startswith(word) and name[len(word) :].split("_")[0] in legs:
+                return other + name[len(word) :]
+        return name
+
+    names = tuple(swapped(n) for n in motion.skeleton.names)
+    assert names != motion.skeleton.names
+    confused = analyse(
+        dataclasses.replace(
+            motion,
+            skeleton=Skeleton(
+                names, motion.skeleton.parents, motion.skeleton.offsets, motion.skeleton.end_site
+            ),
+        )
+    )
+    np.testing.assert_array_equal(confused.body.mapping.joints, analyse(motion).body.mapping.joints)
+    assert confused.body.mapping.mirrored is False
+    assert any("sides taken from the geometry" in w for w in confused.warnings)
