@@ -202,7 +202,7 @@ def _label_keys(
     keys = list(dict.fromkeys(label_key(label) for label in label_filter(labels)))
     if len(keys) < 2:
         return keys
-    sql = "SELECT count(*) FROM (SELECT 1 FROM clip_labels WHERE label_key = ? LIMIT ?)"
+    sql = "SELECT count(*) FROM (SELECT 1 FROM clip_labels WHERE label_key = ? LIMIT ?) AS hits"
     if isinstance(executor, sqlite3.Connection | _Placeholders):  # the raw search path
         counts = {k: executor.execute(sql, (k, _COUNT_CAP)).fetchone()[0] for k in keys}
     else:
@@ -1193,13 +1193,25 @@ class _PostgresSnapshot(_SqliteSnapshot):
         self._db = _Placeholders(connection)
 
     def names(self, clip_ids: Sequence[int]) -> dict[int, ClipName]:
+        ids = [int(i) for i in clip_ids]
         rows = self._db.execute(
-            "SELECT c.id, c.name, coalesce(array_agg(l.label ORDER BY l.position) "
+            "SELECT c.id, c.name, c.format, c.skeleton_family, "
+            "coalesce(array_agg(l.label ORDER BY l.position) "
             "FILTER (WHERE l.label IS NOT NULL), '{}') FROM clips c "
             "LEFT JOIN clip_labels l ON l.clip_id = c.id WHERE c.id = ANY(?) GROUP BY c.id",
-            ([int(i) for i in clip_ids],),
+            (ids,),
         )
-        return {int(i): ClipName(int(i), name, tuple(labels)) for i, name, labels in rows}
+        files: dict[int, list[str]] = {}
+        for clip_id, filename in self._db.execute(
+            "SELECT clip_id, filename FROM clip_files WHERE clip_id = ANY(?) "
+            "ORDER BY clip_id, position",
+            (ids,),
+        ):
+            files.setdefault(int(clip_id), []).append(filename)
+        return {
+            int(i): ClipName(int(i), name, tuple(labels), fmt, tuple(files.get(int(i), ())), family)
+            for i, name, fmt, family, labels in rows
+        }
 
 
 class _Placeholders:
