@@ -88,7 +88,7 @@ export async function renderClip(main, params, { navigate, notify }) {
   const spanBand = el("div", { class: "span-band", title: "Drag across to pick a span of the clip" }, spanBox);
   timeline.track.append(spanBand);
   const spanIds = { start: nextId("span-start"), end: nextId("span-end") };
-  const step = clip.frame_time > 0 ? String(clip.frame_time) : "any";
+  const step = "any"; // a frame-time step would make most typed times "invalid"
   const spanStart = el("input", { id: spanIds.start, type: "number", min: "0", step, required: true, inputmode: "decimal" });
   const spanEnd = el("input", { id: spanIds.end, type: "number", min: "0", step, required: true, inputmode: "decimal" });
   const spanForm = el(

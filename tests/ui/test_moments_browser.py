@@ -52,3 +52,46 @@ def test_moment_search_shows_timelines_and_plays_spans(page: Any, server: str) -
     expect(page).to_have_url(re.compile(r"mode=moments"))
     expect(page).to_have_url(re.compile(rf"clip={top['id']}.*start="))
     expect(page.locator("main .status")).to_contain_text("Moments like")
+
+
+def test_dragging_a_span_on_the_clip_page_searches_moments_like_it(
+    page: Any,  # noqa: F811
+    server: str,  # noqa: F811
+) -> None:
+    from playwright.sync_api import expect
+
+    with httpx.Client(base_url=server, timeout=60) as client:
+        take = client.post("/clips", files={"file": ("take.bvh", long_take())}).json()
+        walk = client.post("/clips", files={"file": ("walk.bvh", fixture_bytes(BANDAI_FIXTURE))})
+        assert walk.status_code in (200, 201)
+
+    page.goto(f"/#/clips/{take['id']}")
+    band = page.locator(".span-band")
+    expect(band).to_be_visible()
+    expect(page.locator(".clip-preview .clock")).to_contain_text(" / ")  # preview loaded
+    # Drag from the first third of the band back to its start: 0 s to about 1.3 s of the
+    # 4-s take (its first pass over the walk, which is found again in its third part).
+    box = band.bounding_box()
+    assert box is not None
+    y = box["y"] + box["height"] / 2
+    page.mouse.move(box["x"] + box["width"] / 3, y)
+    page.mouse.down()
+    page.mouse.move(box["x"] + box["width"] / 6, y, steps=4)
+    page.mouse.move(box["x"] - 5, y, steps=4)
+    page.mouse.up()
+    expect(page.locator(".span-box")).to_be_visible()
+    start = float(page.get_by_label("From (s)").input_value())
+    end = float(page.get_by_label("To (s)").input_value())
+    duration = take["duration"]
+    assert start == 0 and abs(end - duration / 3) < 0.15, (start, end)
+    page.get_by_role("button", name="Find moments like this span").click()
+    expect(page).to_have_url(re.compile(rf"clip={take['id']}.*mode=moments|mode=moments.*clip="))
+    expect(page.get_by_label("moments")).to_be_checked()
+    expect(page.locator("main .status")).to_contain_text("Moments like")
+    assert page.locator(".card.moment").count() >= 1
+    # Typed times work too; an empty span is refused on the page.
+    page.goto(f"/#/clips/{take['id']}")
+    page.get_by_label("From (s)").fill("2")
+    page.get_by_label("To (s)").fill("1")
+    page.get_by_role("button", name="Find moments like this span").click()
+    expect(page.locator(".clip-actions .status")).to_contain_text("end must come after")
