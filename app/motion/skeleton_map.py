@@ -15,22 +15,31 @@ facing, naming or extra joints (fingers, face, twist bones, props, IK targets, d
    costs are left/right chain-length differences and names that contradict a role (an arm
    chain whose joints are called leg names).
 2. **Chains.** Along each limb chain: the ankle is where the chain turns forward (the rest
-   of the chain drops little for its length); the hip and shoulder start the straight run
-   ending at the ankle or wrist; the knee and elbow split that run (a rest-pose bend decides
-   when there is one, otherwise the split nearest human proportions); the wrist is where
-   the fingers branch (else the joint before the hand's end). Names whole-matched by
+   of the chain drops little for its length; a last bone under half the one before is a
+   foot that points down); the hip and shoulder start the straight run ending at the ankle
+   or wrist (or the joint above it when the run leaves no room for a middle joint); the
+   knee and elbow split that run (a rest-pose bend decides when there is one, otherwise
+   the split nearest human proportions); the wrist is where the fingers branch (else the
+   joint before the hand's end, else the arm's last joint on a rig without hand bones);
+   two legs never share their hip. Names whole-matched by
    :mod:`app.motion.skeleton_names` choose among joints when they name one in the chain.
 3. **End effectors** (Miura et al.: "end effectors are hereafter regarded as joints"): the
-   canonical ``head`` point is the end of the single chain beyond the head joint (an End
-   Site of non-zero length, or a ``HeadTop``-like leaf) when there is one, else the head
-   joint; ``toe`` likewise beyond the toe joint (else the toe joint, else the farthest point
-   beyond the ankle); ``hand_tip`` is the farthest point beyond the wrist, thumbs skipped.
+   canonical ``head`` point is the first point of non-zero length on the single chain
+   beyond the head joint (an End Site, or a ``HeadTop``-like leaf bone: a BVH converted
+   from FBX appends an End Site after that bone, and both files then map the same point)
+   when there is one, else the head joint; ``toe`` likewise beyond the toe joint (else the
+   toe joint, else the farthest point beyond the ankle); ``hand_tip`` is the farthest point
+   beyond the wrist, thumbs skipped (the wrist itself on a rig without hand bones).
    :attr:`SkeletonMap.head_joint` keeps the head *joint* for body height.
 4. **Sides.** Left is ``up x forward`` (forward from the feet, else the knees' bend). Names
    saying left/right on both limb pairs decide which is which; when both pairs disagree with
    the geometry, the capture is mirrored (:attr:`SkeletonMap.mirrored`: the caller reflects
    the motion); when only one pair disagrees, geometry wins with a warning. Rigs without
    side names get sides from geometry alone.
+
+What the tree alone decides (the candidate limb ends, the choices it allows) and, when the
+rest pose shows a standing figure, the whole mapping are kept per skeleton: every clip of a
+rig after the first is mapped without redoing them.
 
 Whatever is not a whole humanoid (quadruped, hand, face, upper body only, all-zero offsets)
 is refused with :class:`~app.errors.SkeletonMappingError` saying what was found and what is
@@ -39,7 +48,10 @@ missing.
 
 from __future__ import annotations
 
+import hashlib
 import itertools
+import threading
+from collections import OrderedDict
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 
@@ -153,6 +165,9 @@ _UPPER_TO_FORE = 1.27
 _THIGH_TO_SHIN = 1.0
 # The foot turns away from the shin by at least this much at the ankle, degrees.
 _ANKLE_TURN_DEG = 25.0
+# A leg's last bone shorter than this fraction of the bone before is a foot, not a shin
+# (a shin is about as long as the thigh; ankle to ball is under half the shin).
+_FOOT_TO_SHIN = 0.5
 # Feet lie below the pelvis by at least this fraction of the leg chain's length.
 _LEG_DROP_RATIO = 0.5
 # cos of the smallest angle between the spine and the legs of a standing biped (120 deg).
@@ -271,20 +286,87 @@ def map_skeleton(skeleton: Skeleton, poses: Iterable[tuple[str, np.ndarray]] = (
     SkeletonMappingError
         The skeleton is not a whole humanoid; the message says what was found and missing.
     """
-    rest = rest_pose(skeleton)
+    known = _known(skeleton)
+    rest_result = known.rest_result
+    if isinstance(rest_result, SkeletonMap):
+        return rest_result  # the rest pose decided: the same for every clip of this skeleton
+    reasons: list[str] = [rest_result]
+    for label, pose in poses:
+        try:
+            return _map_pose(known, pose, label)
+        except _NotHumanoid as reason:
+            reasons.append(str(reason))
+    raise SkeletonMappingError(reasons[0])
+
+
+# A structurally valid choice: (head, hands, feet, chest, pelvis, leg and arm lengths along
+# the bones, cost terms from the names in the order they are added).
+_Choice = tuple[
+    int, tuple[int, int], tuple[int, int], int, int, list[float], list[float], tuple[float, ...]
+]
+
+
+@dataclass
+class _Known:
+    """What one skeleton's structure decides, whatever the pose: kept per skeleton."""
+
+    tree: _Tree
+    candidates: list[int]
+    # Head/hands/feet choices that pass the structural checks, in the order they are tried.
+    choices: list[_Choice]
+    # Why the other choices fail, and how far the best got, for the message when no choice
+    # passes the geometry.
+    reason: str
+    progress: int
+    rest_result: SkeletonMap | str = ""
+
+
+_KNOWN: OrderedDict[bytes, _Known] = OrderedDict()
+_KNOWN_SIZE = 64  # skeletons remembered (a library holds few distinct rigs at a time)
+_KNOWN_LOCK = threading.Lock()
+
+
+def _skeleton_key(skeleton: Skeleton) -> bytes:
+    digest = hashlib.blake2b(digest_size=20)
+    digest.update("\x00".join(skeleton.names).encode("utf-8", "surrogatepass"))
+    for array, kind in (
+        (skeleton.parents, np.int64),
+        (skeleton.offsets, np.float64),
+        (skeleton.end_site, np.bool_),
+    ):
+        digest.update(b"|")
+        digest.update(np.ascontiguousarray(array, dtype=kind).tobytes())
+    return digest.digest()
+
+
+def _known(skeleton: Skeleton) -> _Known:
+    """The structural facts and the rest-pose result of ``skeleton`` (memoised: every clip
+    of one rig shares them, so importing many clips maps the rig once)."""
+    key = _skeleton_key(skeleton)
+    with _KNOWN_LOCK:
+        known = _KNOWN.get(key)
+        if known is not None:
+            _KNOWN.move_to_end(key)
+            return known
     tree = _Tree(skeleton)
+    rest = rest_pose(skeleton)
     if float(np.linalg.norm(np.ptp(rest, axis=0))) <= 0.0 or not np.any(tree.lengths > 0):
         raise SkeletonMappingError(
             "every OFFSET is 0: the skeleton has no shape to map "
             f"({skeleton.joint_count} joints collapse to one point)"
         )
-    reasons: list[str] = []
-    for label, pose in itertools.chain([("rest pose", rest)], poses):
-        try:
-            return _map_pose(tree, pose, label)
-        except _NotHumanoid as reason:
-            reasons.append(str(reason))
-    raise SkeletonMappingError(reasons[0])
+    known = _structure(tree)
+    try:
+        known.rest_result = _map_pose(known, rest, "rest pose")
+    except _NotHumanoid as reason:
+        known.rest_result = str(reason)
+    if isinstance(known.rest_result, SkeletonMap):
+        known.rest_result.joints.setflags(write=False)  # shared by every caller
+    with _KNOWN_LOCK:
+        _KNOWN[key] = known
+        while len(_KNOWN) > _KNOWN_SIZE:
+            _KNOWN.popitem(last=False)
+    return known
 
 
 class _Tree:
@@ -324,22 +406,35 @@ class _Tree:
             self.reach[p] = max(self.reach[p], self.reach[j] + self.lengths[j])
         self.hints: list[NameHint] = [name_hint(n) for n in skeleton.names]
         self.sides: list[str | None] = [name_side(n) for n in skeleton.names]
+        # The hypotheses ask the same few pairs thousands of times.
+        self._lca: dict[tuple[int, int], int] = {}
+        self._ancestor: dict[tuple[int, int], bool] = {}
 
     def lca(self, a: int, b: int) -> int:
-        while a != b:
-            if self.depth[a] >= self.depth[b]:
-                a = int(self.parents[a])
-            else:
-                b = int(self.parents[b])
-        return a
+        key = (a, b)
+        found = self._lca.get(key)
+        if found is None:
+            while a != b:
+                if self.depth[a] >= self.depth[b]:
+                    a = int(self.parents[a])
+                else:
+                    b = int(self.parents[b])
+            found = self._lca[key] = a
+        return found
 
     def is_ancestor(self, top: int, joint: int) -> bool:
         """``top`` is ``joint`` or one of its ancestors."""
-        while joint >= 0 and self.depth[joint] >= self.depth[top]:
-            if joint == top:
-                return True
-            joint = int(self.parents[joint])
-        return False
+        key = (top, joint)
+        found = self._ancestor.get(key)
+        if found is None:
+            found = False
+            while joint >= 0 and self.depth[joint] >= self.depth[top]:
+                if joint == top:
+                    found = True
+                    break
+                joint = int(self.parents[joint])
+            self._ancestor[key] = found
+        return found
 
     def chain(self, top: int, bottom: int) -> list[int]:
         """Joints from ``top`` down to ``bottom`` inclusive (``top`` is an ancestor)."""
@@ -436,11 +531,10 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / n if n > 0 else v
 
 
-def _hypotheses(tree: _Tree, pose: np.ndarray, extent: float) -> tuple[list[_Body], str]:
-    """Every valid head/hands/feet choice among the candidate leaves, and the best reason a
-    rejected one gave (for the error message)."""
+def _structure(tree: _Tree) -> _Known:
+    """Every head/hands/feet choice among the candidate leaves that the tree allows, and the
+    best reason a rejected one gave (for the error message)."""
     candidates = _extremity_candidates(tree)
-    valid: list[_Body] = []
     found = ", ".join(tree.names[c] for c in candidates)
     if len(candidates) < 5:
         reason = (
@@ -452,29 +546,44 @@ def _hypotheses(tree: _Tree, pose: np.ndarray, extent: float) -> tuple[list[_Bod
             f"found {len(candidates)} limb ends ({found}) but missing a pelvis with two legs "
             "going down and a spine going up to a head between two arms"
         )
+    choices = []
     best_partial = -1
     for five in itertools.combinations(candidates, 5):
         for head in five:
             rest = [c for c in five if c != head]
             for feet in itertools.combinations(rest, 2):
                 hands = tuple(c for c in rest if c not in feet)
-                body, why, progress = _check(tree, pose, extent, head, hands, feet)  # type: ignore[arg-type]
-                if body is not None:
-                    valid.append(body)
+                choice, why, progress = _check_tree(tree, head, hands, feet)  # type: ignore[arg-type]
+                if choice is not None:
+                    choices.append(choice)
                 elif progress > best_partial:
                     best_partial, reason = progress, why
+    return _Known(tree, candidates, choices, reason, best_partial)
+
+
+def _hypotheses(known: _Known, pose: np.ndarray, extent: float) -> tuple[list[_Body], str]:
+    """Every valid head/hands/feet choice in ``pose``, and the best reason a rejected one
+    gave (for the error message)."""
+    valid: list[_Body] = []
+    reason, best_partial = known.reason, known.progress
+    for choice in known.choices:
+        body, why, progress = _check_pose(known.tree, pose, extent, *choice)
+        if body is not None:
+            valid.append(body)
+        elif progress > best_partial:
+            best_partial, reason = progress, why
     return valid, reason
 
 
-def _check(
-    tree: _Tree,
-    pose: np.ndarray,
-    extent: float,
-    head: int,
-    hands: tuple[int, int],
-    feet: tuple[int, int],
-) -> tuple[_Body | None, str, int]:
-    """A hypothesis if the choice is a humanoid, else (None, why, how far it got)."""
+def _check_tree(
+    tree: _Tree, head: int, hands: tuple[int, int], feet: tuple[int, int]
+) -> tuple[
+    _Choice | None,
+    str,
+    int,
+]:
+    """The structural half of a hypothesis (whatever the pose), else (None, why, how far
+    it got)."""
     chest = tree.lca(*hands)
     if chest in hands or not tree.is_ancestor(chest, head) or head == chest:
         return None, "no joint carries two arms and a head", 0
@@ -492,6 +601,39 @@ def _check(
         if min(own) < 2 or min(reach) < _LIMB_PARTNER * max(reach):
             return None, "no two limbs of a pair alike: missing legs or arms", 1
     pelvis = tree.lca(hips, chest)
+    leg_lengths = [float(tree.path[f] - tree.path[pelvis]) for f in feet]
+    arm_lengths = [float(tree.path[h] - tree.path[chest]) for h in hands]
+    cost: list[float] = []
+    roles: list[tuple[str, tuple[int, ...], int]] = [
+        ("arm", hands, chest),
+        ("leg", feet, pelvis),
+        ("head", (head,), chest),
+    ]
+    for role, ends, top in roles:
+        for end in ends:
+            words = tree.role_words(tree.chain(top, end)[1:])
+            if words and role not in words:
+                cost.append(3.0)
+            elif role in words:
+                cost.append(-0.5)
+    return (head, hands, feet, chest, pelvis, leg_lengths, arm_lengths, tuple(cost)), "", 4
+
+
+def _check_pose(
+    tree: _Tree,
+    pose: np.ndarray,
+    extent: float,
+    head: int,
+    hands: tuple[int, int],
+    feet: tuple[int, int],
+    chest: int,
+    pelvis: int,
+    leg_lengths: list[float],
+    arm_lengths: list[float],
+    name_cost: tuple[float, ...],
+) -> tuple[_Body | None, str, int]:
+    """The geometric half: a hypothesis if the choice is a humanoid in ``pose``, else (None,
+    why, how far it got)."""
     spine = pose[chest] - pose[pelvis]
     if np.linalg.norm(spine) < _COINCIDENT * extent:
         spine = pose[head] - pose[pelvis]
@@ -499,7 +641,6 @@ def _check(
     if not np.linalg.norm(up) > 0:
         return None, "the spine has no length", 1
     drops = [float((pose[pelvis] - pose[f]) @ up) for f in feet]
-    leg_lengths = [tree.path[f] - tree.path[pelvis] for f in feet]
     legs = [_unit(pose[f] - pose[pelvis]) for f in feet]
     leg_dir = _unit(legs[0] + legs[1])
     if min(leg_lengths) < _MIN_LEG * extent:
@@ -516,24 +657,13 @@ def _check(
         return None, "no two legs reach down from the pelvis: missing legs", 2
     if float((pose[head] - pose[chest]) @ up) <= 0:
         return None, "no head above the arms: missing head", 2
-    arm_lengths = [tree.path[h] - tree.path[chest] for h in hands]
     if min(arm_lengths) < _MIN_ARM * extent:
         return None, "no two arms branch off the spine: missing arms", 2
     cost = abs(leg_lengths[0] - leg_lengths[1]) / max(leg_lengths) + abs(
         arm_lengths[0] - arm_lengths[1]
     ) / max(arm_lengths)
-    roles: list[tuple[str, tuple[int, ...], int]] = [
-        ("arm", hands, chest),
-        ("leg", feet, pelvis),
-        ("head", (head,), chest),
-    ]
-    for role, ends, top in roles:
-        for end in ends:
-            words = tree.role_words(tree.chain(top, end)[1:])
-            if words and role not in words:
-                cost += 3.0
-            elif role in words:
-                cost -= 0.5
+    for term in name_cost:  # added one by one, as the names were read
+        cost += term
     # Prefer the highest head and the longest limbs among otherwise equal choices (a leaf at
     # the knee is a marker joint, not the foot).
     cost -= 0.1 * float((pose[head] - pose[pelvis]) @ up) / extent
@@ -541,11 +671,12 @@ def _check(
     return _Body(head, hands, feet, chest, pelvis, up, cost), "", 4
 
 
-def _map_pose(tree: _Tree, pose: np.ndarray, label: str) -> SkeletonMap:
+def _map_pose(known: _Known, pose: np.ndarray, label: str) -> SkeletonMap:
+    tree = known.tree
     extent = float(np.linalg.norm(np.ptp(pose[tree.body_joints], axis=0)))
     if not extent > 0:
         raise _NotHumanoid("every joint of the pose is at one point: no shape to map")
-    valid, reason = _hypotheses(tree, pose, extent)
+    valid, reason = _hypotheses(known, pose, extent)
     if not valid:
         raise _NotHumanoid(f"not a whole humanoid: {reason}")
     # The cheapest choice whose limbs have knees and elbows (an IK target hanging from the
@@ -601,28 +732,28 @@ class _Mapper:
         self.how[canonical] = how
 
     def effector(self, joint: int, *, along: np.ndarray | None) -> int | None:
-        """End of the single unbranched chain beyond ``joint`` (End Site or leaf), when it
-        lies at least :data:`_HEAD_END_MIN` away and, if ``along`` is given, in that
-        direction more than sideways."""
+        """The first point of the single unbranched chain beyond ``joint`` that lies at least
+        :data:`_HEAD_END_MIN` away (an End Site, a leaf bone such as ``HeadTop_End``, or the
+        next joint when converters append an End Site beyond that leaf: the same point in a
+        BVH and in the FBX it came from) and, if ``along`` is given, in that direction more
+        than sideways."""
         tree = self.tree
         j = joint
-        while True:
+        step = np.zeros(3)
+        distance = 0.0
+        while distance < _HEAD_END_MIN * self.extent:
             reaches = sorted(
                 ((tree.lengths[c] + tree.reach[c], c) for c in tree.children[j]), reverse=True
             )
             if not reaches or reaches[0][0] == 0:
-                break
+                return None
             # Side nubs (twist bones, helpers) shorter than half the main branch do not make
             # a branching; two comparable branches (face joints beside the skull) do.
             if len(reaches) > 1 and reaches[1][0] >= 0.5 * reaches[0][0]:
                 return None
             j = reaches[0][1]
-        if j == joint:
-            return None
-        step = self.pose[j] - self.pose[joint]
-        distance = float(np.linalg.norm(step))
-        if distance < _HEAD_END_MIN * self.extent:
-            return None
+            step = self.pose[j] - self.pose[joint]
+            distance = float(np.linalg.norm(step))
         if along is not None and float(step @ along) < _EFFECTOR_COS * distance:
             return None
         return j
@@ -637,6 +768,13 @@ class _Mapper:
         self.map_head()
         self.map_spine()
         legs = [self.map_leg(f) for f in body.feet]
+        # Each leg is its own chain from the hip down: a hip at or above the point where the
+        # two leg chains part is one limb forking (fingers of one hand), not two legs.
+        fork = tree.lca(*body.feet)
+        if any(leg["hip"] == fork or not tree.is_ancestor(fork, leg["hip"]) for leg in legs):
+            raise _NotHumanoid(
+                "the two legs share their hip: no two separate legs below the pelvis"
+            )
         arms = [self.map_arm(h) for h in body.hands]
         mirrored, axis = self.assign_sides(legs, arms)
         joints = np.array([self.found[name] for name in CANONICAL_JOINTS], dtype=np.int64)
@@ -774,6 +912,14 @@ class _Mapper:
             cost = abs(np.log(max(upper, 1e-12) / max(lower, 1e-12)) - np.log(ratio))
             if best is None or cost < best[0] - _PROPORTION_MARGIN:
                 best = (cost, start, split)
+        # A run too short to hold a middle joint: the limb bends in the rest pose (no T-pose)
+        # and its top is the nearest joint above the run.
+        for start in range(straight - 1, first - 1, -1):
+            if best is not None:
+                break
+            split = self.split(above, start, end, ratio)
+            if split is not None:
+                best = (0.0, start, split)
         start, split = (straight, None) if best is None else best[1:]
         if split is None:
             raise _NotHumanoid(
@@ -813,14 +959,25 @@ class _Mapper:
             if turn > best_turn:
                 turned, best_turn = i, turn
         ankle_found = turned is not None
+        ankle_rule = "geometry: where the foot turns forward"
         if turned is not None:
             ankle_i = turned
         else:
+            ankle_rule = "structure: the leg's last joint"
             ankle_i = len(chain) - 1
             while ankle_i > 1 and (
                 tree.skeleton.end_site[chain[ankle_i]] or tree.lengths[chain[ankle_i]] == 0
             ):
                 ankle_i -= 1
+            # A foot that drops more than it turns (a crude rig's ankle-to-ball bone): a last
+            # bone less than half the one before cannot be a shin, so it is the foot.
+            before = [i for i in range(1, ankle_i) if tree.lengths[chain[i]] > 0]
+            if (
+                before
+                and tree.lengths[chain[ankle_i]] < _FOOT_TO_SHIN * tree.lengths[chain[before[-1]]]
+            ):
+                ankle_i = before[-1]
+                ankle_rule = "geometry: above a foot bone that points down"
         # Names choose among the joints next to the geometric ankle (``foot`` is the ankle in
         # most rigs and the ball of the foot in some), or alone when the foot never turns.
         named_ankles = [i for i, j in enumerate(chain) if i > 0 and "ankle" in tree.hints[j].parts]
@@ -833,7 +990,7 @@ class _Mapper:
             ankle_how = "name"
         else:
             ankle = self.deepest_coincident(chain[ankle_i], chain)
-            ankle_how = "geometry: where the foot turns forward"
+            ankle_how = ankle_rule
         ankle_i = chain.index(ankle)
         limb = _Limb({"ankle": ankle}, {"ankle": ankle_how})
         self.upper_and_middle(limb, chain[: ankle_i + 1], ("hip", "knee"), _THIGH_TO_SHIN, "leg")
@@ -879,7 +1036,16 @@ class _Mapper:
                 wrist_how = "structure: the joint before the hand's end"
         limb = _Limb({"wrist": wrist}, {"wrist": wrist_how})
         above = chain[: chain.index(wrist) + 1]
-        self.upper_and_middle(limb, above, ("shoulder", "elbow"), _UPPER_TO_FORE, "arm")
+        try:
+            self.upper_and_middle(limb, above, ("shoulder", "elbow"), _UPPER_TO_FORE, "arm")
+        except _NotHumanoid:
+            if wrist_how != "structure: the joint before the hand's end" or wrist == chain[-1]:
+                raise
+            # No joints to spare for a hand: the leaf is the wrist itself (glTF and FBX
+            # joints are points without tails, and a rig without hand bones ends there).
+            wrist = chain[-1]
+            limb = _Limb({"wrist": wrist}, {"wrist": "structure: the arm's end, no hand"})
+            self.upper_and_middle(limb, chain, ("shoulder", "elbow"), _UPPER_TO_FORE, "arm")
         result, how = limb.joints, limb.how
         result["hand_tip"] = _farthest_descendant(tree, wrist, skip=_is_thumb)
         how["hand_tip"] = "derived: farthest point beyond the wrist"

@@ -182,11 +182,11 @@ export async function renderClip(main, params, { navigate, notify }) {
   const actionStatus = el("p", { class: "status", role: "status", "aria-live": "polite" });
   const keyArea = el("div", { class: "key-area" });
   const downloads = el("div", { class: "downloads" });
-  const addDownload = (text, part, hint) => {
+  const addDownload = (text, params, hint) => {
     const button = el("button", { type: "button", class: "secondary", title: hint }, text);
     button.addEventListener("click", async () => {
       try {
-        const name = await download(`/clips/${clip.id}/file`, part ? { part } : null);
+        const name = await download(`/clips/${clip.id}/file`, params);
         actionStatus.textContent = `Downloaded ${name}.`;
       } catch (error) {
         if (error.status !== 401 && error.status !== 403) actionStatus.textContent = `Download failed: ${error.detail || error.message}`;
@@ -198,16 +198,14 @@ export async function renderClip(main, params, { navigate, notify }) {
     downloads.append(el("p", { class: "muted" }, "Synthetic clip: no stored file to download."));
   } else if (clip.filenames.length === 1) {
     addDownload(`Download ${clip.filenames[0]}`, null, "The uploaded file, byte for byte");
+    if (clip.format !== "bvh") addDownload("Download as BVH", { format: "bvh" }, "The clip as a BVH file of its own skeleton");
   } else {
     addDownload("Download all (ZIP)", null, "Both uploaded files in one ZIP");
     for (const role of ["skeleton", "motion"]) {
       const name = clip.filenames[role === "skeleton" ? 0 : 1];
-      if (name) addDownload(`Download ${name}`, role, `The ${role} file, byte for byte`);
+      if (name) addDownload(`Download ${name}`, { part: role }, `The ${role} file, byte for byte`);
     }
-  }
-  for (const other of clip.downloads || []) {
-    // Other formats, when a later service offers them: [{label, url}].
-    if (other && other.url) downloads.append(el("a", { class: "button secondary", href: other.url }, other.label || other.url));
+    addDownload("Download as BVH", { format: "bvh" }, "The clip as a BVH file of its own skeleton");
   }
 
   const form = editForm(clip);
@@ -304,24 +302,37 @@ export async function renderClip(main, params, { navigate, notify }) {
   };
 }
 
-/** The joint mapping (canonical joint -> source joint), when the clip JSON has one. */
+/**
+ * How the skeleton was mapped, when the clip JSON has it (`?include=mapping`):
+ * `{joints: {canonical: {joint, how}}, end_sites: [...], pose, mirrored}`.
+ */
 function mappingSection(mapping) {
-  if (!mapping || typeof mapping !== "object") return null;
-  const rows = Array.isArray(mapping) ? mapping : Object.entries(mapping).map(([canonical, source]) => ({ canonical, source }));
+  if (!mapping || typeof mapping !== "object" || !mapping.joints) return null;
+  const rows = Object.entries(mapping.joints);
   if (!rows.length) return null;
-  const text = (value) => (value === null || value === undefined ? "—" : typeof value === "object" ? value.joint || value.source || JSON.stringify(value) : String(value));
+  const notes = [];
+  if (mapping.pose) notes.push(`Read from ${mapping.pose}.`);
+  if (mapping.mirrored) notes.push("The capture was mirrored and is stored un-mirrored.");
+  if (Array.isArray(mapping.end_sites) && mapping.end_sites.length) notes.push(`End effectors: ${mapping.end_sites.join(", ")}.`);
   return el(
     "section",
     { class: "clip-mapping", "aria-labelledby": "mapping-head" },
     el("h2", { id: "mapping-head" }, "How the skeleton's joints were mapped"),
+    notes.length ? el("p", { class: "hint" }, notes.join(" ")) : null,
     el(
       "table",
       {},
-      el("thead", {}, el("tr", {}, el("th", { scope: "col" }, "Canonical joint"), el("th", { scope: "col" }, "Joint in the file"))),
+      el(
+        "thead",
+        {},
+        el("tr", {}, el("th", { scope: "col" }, "Canonical joint"), el("th", { scope: "col" }, "Joint in the file"), el("th", { scope: "col" }, "Found by")),
+      ),
       el(
         "tbody",
         {},
-        rows.map((row) => el("tr", {}, el("th", { scope: "row" }, text(row.canonical)), el("td", {}, text(row.source)))),
+        rows.map(([canonical, found]) =>
+          el("tr", {}, el("th", { scope: "row" }, canonical), el("td", {}, (found && found.joint) || "—"), el("td", {}, (found && found.how) || "")),
+        ),
       ),
     ),
   );

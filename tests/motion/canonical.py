@@ -40,8 +40,22 @@ def check_canonical_body(body: Body, what: str) -> None:
         for s in ("l", "r")
     ]
     toes_known = [t[np.isfinite(t)] for t in toes]
-    if all(t.size for t in toes_known):
-        assert np.median(np.concatenate(toes_known)) > 0, (what, "left and right swapped")
+    if all(t.size for t in toes_known) and np.median(np.concatenate(toes_known)) <= 0:
+        # A crude rig's toe joint under the ankle pitches back as the foot rolls: then
+        # the knees, which bend forward, must do so in most frames.
+        knees = np.concatenate(
+            [
+                (
+                    (
+                        _joint(body, f"{s}_knee")
+                        - (_joint(body, f"{s}_hip") + _joint(body, f"{s}_ankle")) / 2
+                    )
+                    * forward
+                ).sum(axis=-1)
+                for s in ("l", "r")
+            ]
+        )
+        assert np.mean(knees > 0) >= 0.75, (what, "left and right swapped")
     # Proportions, relative to the body height.
     leg = np.linalg.norm(_joint(body, "l_hip") - _joint(body, "l_knee"), axis=-1).mean()
     leg += np.linalg.norm(_joint(body, "l_knee") - _joint(body, "l_ankle"), axis=-1).mean()

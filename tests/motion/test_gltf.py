@@ -8,6 +8,7 @@ import json
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from app.errors import LimitExceeded, ParseError
 from app.motion.body import build_body
@@ -15,6 +16,7 @@ from app.motion.formats import read_bvh
 from app.motion.formats.gltf import list_gltf_animations, read_gltf
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import ParseLimits
+from app.motion.skeleton_map import rest_pose
 from tests.conftest import FIXTURES_DIR
 from tests.motion.canonical import check_canonical_body
 from tests.motion.gltf_builder import build_glb, gltf_parts, pack_glb
@@ -130,3 +132,27 @@ def test_step_and_cubic_samplers():
     np.testing.assert_allclose(
         _sample_channel(keys, cubic, times, "CUBICSPLINE", 1, "x")[:, 0], [0, 1, 2]
     )
+
+
+def test_offsets_summed_are_the_rest_pose_the_file_shows(bvh_motion):
+    # Bones with their own orientations in the rest pose (joint orient, as most FBX and glTF
+    # rigs have): the motion's offsets are in BVH's convention, frames the world's at rest.
+    document, binary = gltf_parts(bvh_motion)
+    turn = Rotation.from_euler("xyz", [30, -50, 70], degrees=True)
+    for node in document["nodes"][1::3]:
+        node["rotation"] = [float(v) for v in turn.as_quat()]
+    rest = np.zeros((len(document["nodes"]), 3))
+    world = [Rotation.identity()] * len(document["nodes"])
+    for parent, node in enumerate(document["nodes"]):  # parents come before their children
+        for child in node.get("children", []):
+            rest[child] = rest[parent] + world[parent].apply(
+                document["nodes"][child]["translation"]
+            )
+            world[child] = world[parent] * Rotation.from_quat(
+                document["nodes"][child].get("rotation", [0, 0, 0, 1])
+            )
+    motion, _, _ = read_gltf(pack_glb(document, binary))
+    shown = {name: rest[i] for i, name in enumerate(bvh_motion.skeleton.names)}
+    summed = rest_pose(motion.skeleton)
+    for j, name in enumerate(motion.skeleton.names):
+        np.testing.assert_allclose(summed[j], shown[name] - rest[0], atol=1e-4, err_msg=name)

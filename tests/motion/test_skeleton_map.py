@@ -1,6 +1,7 @@
 """Mapping by structure on real rigs (tests/fixtures), and refusals of what is not a person."""
 
 import dataclasses
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -132,6 +133,57 @@ def test_end_effectors_are_listed_and_the_head_joint_kept_for_height():
     assert mapping.how["head"].startswith("end effector")
     described = mapping.describe(motion.skeleton.names)
     assert described["l_elbow"] == {"joint": "LeftForeArm", "how": "name"}
+
+
+def _end_site_beyond_leaf_bones(skeleton: Skeleton, leaves: tuple[str, ...]) -> Skeleton:
+    """``skeleton`` with the End Sites called ``leaves`` made leaf bones (as in FBX), and,
+    like a converter writing that FBX as BVH, a new End Site beyond each repeating it."""
+    names, parents = list(skeleton.names), list(skeleton.parents)
+    offsets, end_site = list(skeleton.offsets), list(skeleton.end_site)
+    for leaf in leaves:
+        j = names.index(leaf)
+        end_site[j] = False
+        names.append(leaf + "_end")
+        parents.append(j)
+        offsets.append(offsets[j])
+        end_site.append(True)
+    return Skeleton(tuple(names), np.array(parents), np.array(offsets), np.array(end_site))
+
+
+def test_head_and_toes_are_the_first_points_beyond_their_joints_end_site_or_leaf_bone():
+    # A Mixamo BVH ends HeadTop_End with an End Site repeating its bone; the FBX it came from
+    # ends at the HeadTop_End bone: both map the head to HeadTop_End, the same point.
+    skeleton = _cmu_bvh().skeleton
+    leaves = ("Head_end", "LeftToeBase_end", "RightToeBase_end")
+    plain = map_skeleton(skeleton)
+    extended = _end_site_beyond_leaf_bones(skeleton, leaves)
+    again = map_skeleton(extended)
+    np.testing.assert_array_equal(again.joints, plain.joints)
+    assert again.head_joint == plain.head_joint
+    assert extended.names[again.joints[CANONICAL_JOINTS.index("head")]] == "Head_end"
+
+
+def test_the_rest_pose_mapping_is_remembered_per_skeleton():
+    def unread() -> Iterator[tuple[str, np.ndarray]]:
+        raise AssertionError("frames read although the rest pose decided")
+        yield  # pragma: no cover
+
+    motion = _cmu_bvh()
+    first = _map(motion)
+    assert map_skeleton(motion.skeleton, unread()) is first
+    # An equal skeleton built anew (another clip of the rig) hits the same memo entry.
+    copy = Skeleton(
+        motion.skeleton.names,
+        motion.skeleton.parents.copy(),
+        motion.skeleton.offsets.copy(),
+        motion.skeleton.end_site.copy(),
+    )
+    assert map_skeleton(copy, unread()) is first
+    assert not first.joints.flags.writeable
+    # Rigs whose rest pose is not a standing figure still read each clip's own frames.
+    bandai = _bandai()
+    assert _map(bandai).pose.startswith("frame")
+    assert _map(bandai).pose.startswith("frame")
 
 
 def test_names_are_hints_read_whole():

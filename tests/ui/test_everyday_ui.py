@@ -138,7 +138,10 @@ def test_clip_page(browser: Any, tmp_path: Path) -> None:  # noqa: F811
         )
         expect(facts.locator('[data-fact="licence"]')).to_have_text("free for any use")
         expect(page.locator(".clip-warnings")).to_have_count(0)  # none given: no section
-        expect(page.locator(".clip-mapping")).to_have_count(0)
+        # How the joints were mapped (issue #10): one row per canonical joint, with how.
+        rows = page.locator(".clip-mapping tbody tr")
+        expect(rows).to_have_count(21)
+        expect(rows.first).to_have_text(re.compile(r"^pelvis\s*\S+\s*structure"))
 
         # The large preview plays; pause, scrub, and the readout follows the file's frames.
         page.wait_for_function(
@@ -161,6 +164,12 @@ def test_clip_page(browser: Any, tmp_path: Path) -> None:  # noqa: F811
             page.get_by_role("button", name=re.compile(r"^Download 02_0\d\.amc$")).click()
         assert got.value.suggested_filename.endswith(".amc")
         assert Path(got.value.path()).read_bytes() == clips[0]["motion"][1]
+        # ... or as a BVH of its own skeleton (issue #12), which any animation tool opens.
+        with page.expect_download() as got:
+            page.get_by_role("button", name="Download as BVH").click()
+        assert got.value.suggested_filename.endswith(".bvh")
+        exported = Path(got.value.path()).read_text()
+        assert exported.startswith("HIERARCHY") and f"Frames: {clip['frame_count']}" in exported
 
         # Rename and relabel (case-duplicates dropped), set the licence.
         page.get_by_label("Name", exact=True).fill("walk, turning (CMU 02)")
@@ -225,8 +234,8 @@ def test_clip_page_shows_warnings_and_mapping_when_the_api_gives_them(
     browser: Any,  # noqa: F811
     tmp_path: Path,
 ) -> None:
-    """Issue #10 adds `warnings` and `?include=mapping` to the clip JSON; the page shows
-    them when they are there (the service's real answer, with those fields added)."""
+    """Issue #10's `warnings` show when the clip JSON has them (the service's real answer,
+    with a warning added); the mapping is the service's own."""
     from playwright.sync_api import expect
 
     files = same_named_clips(tmp_path)[1]
@@ -234,10 +243,9 @@ def test_clip_page_shows_warnings_and_mapping_when_the_api_gives_them(
         clip = upload(base, files)
 
         def with_details(route: Any) -> None:
-            real = route.fetch(url=f"{base}/clips/{clip['id']}")
+            real = route.fetch(url=f"{base}/clips/{clip['id']}?include=mapping")
             body = real.json()
             body["warnings"] = ["3 lines after the last frame ignored"]
-            body["mapping"] = {"pelvis": "Hips", "l_knee": "LeftLeg"}
             route.fulfill(response=real, json=body)
 
         page.route(re.compile(rf"/clips/{clip['id']}\?include=mapping$"), with_details)
@@ -246,8 +254,8 @@ def test_clip_page_shows_warnings_and_mapping_when_the_api_gives_them(
             "3 lines after the last frame ignored"
         )
         mapping = page.locator(".clip-mapping")
-        expect(mapping.locator("tbody tr")).to_have_count(2)
-        expect(mapping.locator("tbody tr").first).to_have_text(re.compile(r"pelvis\s*Hips"))
+        expect(mapping.locator("tbody tr")).to_have_count(21)
+        expect(mapping.locator("tbody tr", has_text="head")).to_contain_text("end effector")
 
 
 # -- 2, 4: a file dropped anywhere; same-named clips told apart --------------------------------

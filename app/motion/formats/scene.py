@@ -4,8 +4,9 @@ Both scene formats describe a tree of nodes, each with a local translation, rota
 scale, of which some are the bones of a skeleton. The readers sample every node's local
 transform per frame; this module composes them into world transforms (``world = parent @
 local``), picks the skeleton's joints and re-expresses the world transforms in the
-:class:`Motion` model (a rotation per joint, rest offsets in the parent's frame, the root's
-translation).
+:class:`Motion` model (a rotation per joint, rest offsets, the root's translation) with BVH's
+convention: every joint's frame is the world's in the rest pose, so the offsets summed down
+the tree are the file's rest pose.
 
 Working from world transforms makes everything between the bones not matter: helper nodes,
 an ``Armature`` or a ``Reference`` null above the root (with its scale or axis change), and
@@ -361,8 +362,12 @@ def motion_from_graph(
     count = len(joints)
     root = joint_parents < 0
     up = np.where(root, 0, joint_parents)
-    rest_parent_t = np.swapaxes(rest_world[up], -1, -2)  # (J, 3, 3)
-    offsets = (rest_parent_t @ (rest_at - rest_at[up])[:, :, None])[:, :, 0]
+    # BVH's convention: every joint's frame is the world's in the rest pose, so the offsets
+    # summed down the tree are the rest pose as the file shows it (a standing figure where
+    # the file has one, whatever joint orientations its bones carry) and a joint's rotation
+    # is how far it turned from there.
+    world = world @ np.swapaxes(rest_world, -1, -2)[None]  # (F, J, 3, 3)
+    offsets = rest_at - rest_at[up]
     parent_t = np.swapaxes(world[:, up], -1, -2)  # (F, J, 3, 3)
     local_rotations = parent_t @ world
     local_rotations[:, root] = world[:, root]
