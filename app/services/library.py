@@ -331,9 +331,9 @@ class Library:
                 index.apply_changes(touched, ids, vectors, synced_to=position)
             except Exception:
                 log.exception("updating the %s index failed; rebuilding it", name)
-                position = horizon(session)
+                now = horizon(session)  # not ``position``: the other indexes keep the poll's
                 everything = repo.load_windows(session, key)
-                index.replace_all(*everything, synced_to=position, persist=False)
+                index.replace_all(*everything, synced_to=now, persist=False)
                 index.try_save()
 
     def refresh(self) -> None:
