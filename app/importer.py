@@ -718,13 +718,14 @@ def fill_synthetic(
 ) -> FillResult:
     """Add synthetic clips until the library holds ``count`` clips (benchmarks at scale).
 
-    Each synthetic clip copies the measurements of a real clip of the library picked at random
-    and gets its vectors plus Gaussian noise of ``noise`` standard deviations (per number, over
-    the real clips), so the vectors cluster like real ones. They are named ``synthetic-<n>``,
-    have the format and the label ``synthetic`` and no stored file; their content hash is the
-    sha256 of ``synthetic:<seed>:<n>``. Rows go in in batches of ``batch`` (one transaction
-    each) through the repository; the indexes are rebuilt from the database at the end (an
-    IVF index above ``MOCAP_INDEX_AUTO_THRESHOLD`` with ``auto``) and saved.
+    Each synthetic clip copies the measurements (and windows) of a real clip of the library
+    picked at random and gets its vectors plus Gaussian noise of ``noise`` standard deviations
+    (per number, over the real clips), so the vectors cluster like real ones. They are named
+    ``synthetic-<n>``, have the format and the label ``synthetic`` and no stored file; their
+    content hash is the sha256 of ``synthetic:<seed>:<n>``. Rows go in in batches of
+    ``batch`` (one transaction each) through the repository; the indexes (and window
+    indexes) are rebuilt from the database at the end (an IVF index above
+    ``MOCAP_INDEX_AUTO_THRESHOLD`` with ``auto``) and saved.
     """
     import hashlib
     from datetime import UTC, datetime
@@ -749,6 +750,10 @@ def fill_synthetic(
                 stored[info.name] = dict(zip(ids[real].tolist(), vectors[real], strict=True))
             common = sorted(set.intersection(*(set(v) for v in stored.values())))
             centres = repo.get_clips(session, common)
+            windows = {
+                key: repo.load_window_rows(session, key, common)
+                for key in library.window_keys.values()
+            }
         need = count - total
         if need <= 0:
             report(f"the library already holds {total} clips")
@@ -771,6 +776,11 @@ def fill_synthetic(
             for name, vectors in centre_vectors.items()
         }
         versions = {info.name: info.version for info in descriptors}
+        window_spread = {
+            key: np.maximum(np.concatenate([v[2] for v in rows.values()]).std(axis=0), 1e-3)
+            for key, rows in windows.items()
+            if rows
+        }
         report(
             f"adding {need} synthetic clips around {len(centre_vectors[descriptors[0].name])} "
             f"{'real clips' if common else 'random points'}"
@@ -811,6 +821,9 @@ def fill_synthetic(
                             for name in noisy
                         },
                         created_at=now,
+                        windows=_synthetic_windows(
+                            windows, window_spread, centre.id if centre else None, rng, noise
+                        ),
                     )
                 )
             with library.writes.begin() as session:
@@ -821,6 +834,9 @@ def fill_synthetic(
         for info in descriptors:
             report(f"building the {info.name} index")
             library.rebuild_index(info.name)
+        if library.window_keys:
+            report("building the window indexes")
+            library.rebuild_window_indexes()
         with library.reads() as session:
             total = repo.count_clips(session)
         return FillResult(need, total, time.perf_counter() - started, _kinds(library))
@@ -829,4 +845,36 @@ def fill_synthetic(
 
 
 def _kinds(library: Library) -> dict[str, str]:
-    return {name: index.kind for name, index in library.indexes.items()}
+    every = {**library.indexes, **library.window_indexes}
+    return {name: index.kind for name, index in every.items()}
+
+
+def _synthetic_windows(
+    windows: dict[Any, dict[int, tuple[Any, Any, Any]]],
+    spread: dict[Any, Any],
+    centre: int | None,
+    rng: Any,
+    noise: float,
+) -> tuple[Any, ...]:
+    """The windows of real clip ``centre``, their vectors plus noise (see fill_synthetic)."""
+    import numpy as np
+
+    from app.db import repository as repo
+
+    found = []
+    for key, by_clip in windows.items():
+        if centre is None or centre not in by_clip:
+            continue
+        starts, stops, vectors = by_clip[centre]
+        noisy = vectors + rng.normal(size=vectors.shape) * spread[key] * noise
+        found.append(
+            repo.NewWindows(
+                name=key.name,
+                version=key.version,
+                lengths=np.full(len(starts), key.length),
+                starts=starts,
+                stops=stops,
+                vectors=noisy.astype(np.float32),
+            )
+        )
+    return tuple(found)

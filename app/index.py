@@ -656,6 +656,21 @@ class DescriptorIndex:
             except RuntimeError:
                 raise KeyError(clip_id) from None
 
+    def reconstruct_many(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The stored vectors of those of ``ids`` ``(N,)`` that are held: kept ids ``(M,)``
+        and ``(M, D)`` float32 (one read lock for all)."""
+        kept, vectors = [], []
+        with self._lock.read():
+            for vector_id in np.asarray(ids, dtype=np.int64).tolist():
+                try:
+                    vectors.append(self._index.reconstruct(int(vector_id)))
+                except RuntimeError:
+                    continue
+                kept.append(vector_id)
+        if not vectors:
+            return np.empty(0, np.int64), np.empty((0, self.dimension), np.float32)
+        return np.array(kept, np.int64), np.asarray(np.stack(vectors), dtype=np.float32)
+
     def all_vectors(self) -> tuple[np.ndarray, np.ndarray]:
         """Every ``(ids (N,), vectors (N, D))`` held (used to change the index kind)."""
         with self._lock.read():

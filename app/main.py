@@ -14,7 +14,7 @@ from fastapi.middleware.cors import CORSMiddleware
 from fastapi_offline import FastAPIOffline
 from starlette.concurrency import run_in_threadpool
 
-from app.api import clips, meta, search
+from app.api import clips, meta, moments, search
 from app.api.auth import API_KEY_HEADER, log_access_policy, read_dependencies
 from app.api.errors import error_responses, install_error_handlers
 from app.api.limits import BodySizeLimit
@@ -30,7 +30,8 @@ Find similar motion-capture clips.
 Upload clips (one **BVH**, **FBX**, **glTF** (`.glb`/`.gltf`) or **VRM animation** (`.vrma`)
 file, or an **ASF** skeleton with an **AMC** motion); each is described under every
 descriptor (see `GET /descriptors`) and stored. `GET /search` returns the *k* clips nearest
-to a stored clip, `POST /search` those nearest to an uploaded file.
+to a stored clip, `POST /search` those nearest to an uploaded file; `GET` / `POST
+/search/moments` find *where* in the stored clips a span of motion happens.
 
 Every error answers `{"error": "<code>", "detail": "<message>"}`.
 """
@@ -86,6 +87,7 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
     read_errors = error_responses(401, 403) if reads else {}
     app.include_router(clips.router, dependencies=reads, responses=read_errors)
     app.include_router(search.router, dependencies=reads, responses=read_errors)
+    app.include_router(moments.router, dependencies=reads, responses=read_errors)
     app.include_router(meta.read_router, dependencies=reads, responses=read_errors)
     app.include_router(meta.router)
     mount_ui(app)  # the web UI at /, /static/*, and the routes it reads (skeletons, map)

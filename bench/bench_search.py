@@ -224,7 +224,15 @@ class Server:
             self.process.wait()
 
 
-def wrk(base: str, connections: int, seconds: int, max_id: int) -> dict[str, float]:
+def wrk(
+    base: str,
+    connections: int,
+    seconds: int,
+    max_id: int,
+    *,
+    path: str = "/search",
+    descriptor: str = "posture",
+) -> dict[str, float]:
     threads = 1 if connections == 1 else 2
     command = [
         "wrk",
@@ -237,7 +245,9 @@ def wrk(base: str, connections: int, seconds: int, max_id: int) -> dict[str, flo
         str(LUA),
         base,
     ]
-    env = environment(MOCAP_BENCH_MAX_ID=str(max_id), MOCAP_BENCH_DESCRIPTOR="posture")
+    env = environment(
+        MOCAP_BENCH_MAX_ID=str(max_id), MOCAP_BENCH_DESCRIPTOR=descriptor, MOCAP_BENCH_PATH=path
+    )
     done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=seconds + 60)
     match = re.search(r"^RESULT (.*)$", done.stdout, flags=re.MULTILINE)
     if match is None:

@@ -1,10 +1,13 @@
--- wrk script for GET /search?clip=<random id>&k=10 (bench/bench_search.py runs it).
--- Environment: MOCAP_BENCH_MAX_ID (ids 1..max are queried), MOCAP_BENCH_DESCRIPTOR.
+-- wrk script for GET /search?clip=<random id>&k=10 (bench/bench_search.py runs it) or
+-- another search path (bench/bench_moments.py: /search/moments).
+-- Environment: MOCAP_BENCH_MAX_ID (ids 1..max are queried), MOCAP_BENCH_DESCRIPTOR,
+-- MOCAP_BENCH_PATH (default /search).
 -- Every response is checked: status 200 and a JSON body with a results list of 10 hits
 -- (a "bad" count is printed at the end; the benchmark fails when it is not 0).
 
 local max_id = tonumber(os.getenv("MOCAP_BENCH_MAX_ID") or "1000000")
 local descriptor = os.getenv("MOCAP_BENCH_DESCRIPTOR") or "posture"
+local path = os.getenv("MOCAP_BENCH_PATH") or "/search"
 local threads = {}
 
 function setup(thread)
@@ -20,7 +23,7 @@ end
 
 function request()
    local clip = math.random(1, max_id)
-   return wrk.format("GET", "/search?clip=" .. clip .. "&k=10&descriptor=" .. descriptor)
+   return wrk.format("GET", path .. "?clip=" .. clip .. "&k=10&descriptor=" .. descriptor)
 end
 
 function response(status, headers, body)

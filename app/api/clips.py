@@ -134,14 +134,18 @@ def download_clip(
             ),
         ),
     ] = None,
+    start: Annotated[
+        float | None, Query(description="Cut from here: seconds from the first frame.")
+    ] = None,
+    end: Annotated[float | None, Query(description="Cut up to here (exclusive), seconds.")] = None,
 ) -> Response:
-    """The uploaded bytes, unchanged; or with `format=bvh` the clip converted to BVH."""
-    if file_format == "bvh":
-        if part is not None:
-            raise InvalidInput("part: not with format=bvh (a BVH export is one file)")
-        download = clip_service.clip_bvh(library, clip)
-    else:
-        download = clip_service.clip_download(library, clip, part)
+    """The uploaded bytes, unchanged; with `format=bvh` the clip converted to BVH. With
+    `start` and/or `end` the motion cut to that span: BVH in BVH (same hierarchy, only those
+    frames), ASF/AMC as the ASF and the cut AMC (frames renumbered from 1), and FBX/glTF —
+    which cannot be cut as they are — as the BVH export of the span (as with `format=bvh`)."""
+    download = clip_service.clip_download(
+        library, clip, part, start, end, as_bvh=file_format == "bvh"
+    )
     return Response(
         content=download.data,
         media_type=download.media_type,

@@ -17,6 +17,12 @@ clip_labels
 clip_descriptors
     The descriptor vectors (float32 bytes) with the descriptor version that produced them.
     The FAISS indexes are rebuilt from this table.
+clip_windows
+    Vectors of overlapping windows of a clip (moments search), one row per (descriptor,
+    window): its length in seconds and its frames ``[start_frame, end_frame)`` of the file as
+    uploaded (lead-in included). The window indexes are rebuilt from this table; a window's id
+    is ``clip id << 20 | ordinal`` (see ``repository.WINDOW_ID_BITS``), so an index finds a
+    clip's windows by their ids.
 clip_changes
     The change feed the indexes of every process follow: one row per clip inserted, updated
     or deleted (and per vector updated), written by database triggers (migration 0003), with
@@ -101,6 +107,9 @@ class Clip(Base):
     descriptors: Mapped[list[ClipDescriptor]] = relationship(
         back_populates="clip", cascade="all, delete-orphan", passive_deletes=True
     )
+    windows: Mapped[list[ClipWindow]] = relationship(
+        cascade="all, delete-orphan", passive_deletes=True
+    )
 
 
 class ClipFile(Base):
@@ -148,6 +157,38 @@ class ClipDescriptor(Base):
     vector: Mapped[bytes] = mapped_column(LargeBinary)  # (dimension,) little-endian float32
 
     clip: Mapped[Clip] = relationship(back_populates="descriptors")
+
+
+class ClipWindow(Base):
+    __tablename__ = "clip_windows"
+    __table_args__ = (
+        Index("ix_clip_windows_name_version_length", "name", "version", "length"),
+        # A clip's windows of one length in order (placing moments; cascade deletes).
+        Index(
+            "ix_clip_windows_clip_id_name_length",
+            "clip_id",
+            "name",
+            "version",
+            "length",
+            "start_frame",
+            "end_frame",
+        ),
+        # Where the windows a search found lie, without reading their rows (each row holds a
+        # vector: 120 random rows of a large table cost ~10 ms, the index a fraction of it).
+        Index("ix_clip_windows_span", "id", "clip_id", "start_frame", "end_frame", "length"),
+    )
+
+    # Set by the writer (not a sequence); INTEGER on SQLite: the rowid itself (64 bits).
+    id: Mapped[int] = mapped_column(
+        BigInteger().with_variant(Integer, "sqlite"), primary_key=True, autoincrement=False
+    )
+    clip_id: Mapped[int] = mapped_column(ForeignKey("clips.id", ondelete="CASCADE"))
+    name: Mapped[str] = mapped_column(String(64))
+    version: Mapped[int] = mapped_column(Integer)
+    length: Mapped[float] = mapped_column(Float)  # nominal window length, seconds
+    start_frame: Mapped[int] = mapped_column(Integer)
+    end_frame: Mapped[int] = mapped_column(Integer)  # exclusive
+    vector: Mapped[bytes] = mapped_column(LargeBinary)  # (D,) little-endian float32
 
 
 class ClipChange(Base):

@@ -24,7 +24,7 @@ import numpy as np
 from sqlalchemy import Connection, Engine, Select, delete, exists, func, insert, select
 from sqlalchemy.orm import Session, aliased, selectinload
 
-from app.db.models import Clip, ClipDescriptor, ClipFile, ClipLabel
+from app.db.models import Clip, ClipDescriptor, ClipFile, ClipLabel, ClipWindow
 from app.labels import label_filter, label_key
 
 VECTOR_DTYPE = np.dtype("<f4")
@@ -51,6 +51,19 @@ class StoredVector:
 
     version: int
     vector: np.ndarray
+
+
+@dataclass(frozen=True)
+class NewWindows:
+    """One descriptor's windows of a clip: ``lengths`` ``(W,)`` seconds, ``starts`` and
+    ``stops`` ``(W,)`` frames of the file ``[start, stop)``, ``vectors`` ``(W, D)`` float32."""
+
+    name: str
+    version: int
+    lengths: np.ndarray
+    starts: np.ndarray
+    stops: np.ndarray
+    vectors: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -109,6 +122,7 @@ class NewClip:
     animations: tuple[AnimationRecord, ...] | None = None
     warnings: tuple[str, ...] = ()
     joint_mapping: Mapping[str, object] | None = None
+    windows: tuple[NewWindows, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -216,6 +230,14 @@ def _labelled_ids(keys: Sequence[str]) -> Select[Any]:
             exists().where(other.clip_id == ClipLabel.clip_id, other.label_key == key)
         )
     return query
+
+
+def _labelled_sql(keys: Sequence[str]) -> str:
+    """:func:`_labelled_ids` as SQL text for the raw search path (one ``?`` per key)."""
+    return "SELECT l.clip_id FROM clip_labels l WHERE l.label_key = ?" + "".join(
+        " AND EXISTS (SELECT 1 FROM clip_labels o WHERE o.clip_id = l.clip_id AND o.label_key = ?)"
+        for _ in keys[1:]
+    )
 
 
 def _label_conditions(executor: Executor, labels: LabelFilter) -> list[Any]:
@@ -433,7 +455,15 @@ def insert_clips(session: Session, clips: Sequence[NewClip]) -> list[int]:
         for clip_id, new in zip(ids, clips, strict=True)
         for name, stored in new.vectors.items()
     ]
-    for table, rows in ((ClipFile, files), (ClipLabel, labels), (ClipDescriptor, vectors)):
+    windows = [
+        row for clip_id, new in zip(ids, clips, strict=True) for row in _window_rows(clip_id, new)
+    ]
+    for table, rows in (
+        (ClipFile, files),
+        (ClipLabel, labels),
+        (ClipDescriptor, vectors),
+        (ClipWindow, windows),
+    ):
         if rows:
             connection.execute(insert(table), rows)
     return ids
@@ -582,6 +612,21 @@ def count_vectors(session: Executor, name: str, version: int) -> int:
     )
 
 
+def _window_arrays(
+    rows: Sequence[Any], dimension: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Starts, stops and vectors of (start, stop, vector bytes) rows."""
+    starts = np.fromiter((r[0] for r in rows), dtype=np.int64, count=len(rows))
+    stops = np.fromiter((r[1] for r in rows), dtype=np.int64, count=len(rows))
+    return starts, stops, _vector_arrays([(0, r[2]) for r in rows], dimension)[1]
+
+
+def _place_arrays(rows: Sequence[Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ids, starts and stops ``(W,)`` int64 of (id, start, stop) rows."""
+    array = np.array(rows, dtype=np.int64).reshape(-1, 3)
+    return array[:, 0].copy(), array[:, 1].copy(), array[:, 2].copy()
+
+
 def count_outdated_vectors(session: Executor, name: str, version: int) -> int:
     """How many ``name`` vectors of a version older than ``version`` are stored (written by
     an earlier release; ``mocap-index reindex`` replaces them)."""
@@ -642,18 +687,18 @@ def load_vectors_of(
     session: Executor, name: str, version: int, dimension: int, clip_ids: Iterable[int]
 ) -> tuple[np.ndarray, np.ndarray]:
     """Like :func:`load_vectors`, for the given clips only (those that have such a vector)."""
-    ids = sorted({int(i) for i in clip_ids})
+    query = select(ClipDescriptor.clip_id, ClipDescriptor.vector).where(
+        _vector_filter(name, version, dimension)
+    )
+    return _vector_arrays(_select_in(session, query, ClipDescriptor.clip_id, clip_ids), dimension)
+
+
+def _select_in(session: Executor, query: Any, column: Any, ids: Iterable[int]) -> list[Any]:
+    """The rows of ``query`` whose ``column`` is among ``ids``, ordered by it (in chunks)."""
     rows: list[Any] = []
-    for chunk in _chunks(ids):
-        rows.extend(
-            session.execute(
-                select(ClipDescriptor.clip_id, ClipDescriptor.vector)
-                .where(_vector_filter(name, version, dimension))
-                .where(ClipDescriptor.clip_id.in_(chunk))
-                .order_by(ClipDescriptor.clip_id)
-            ).all()
-        )
-    return _vector_arrays(rows, dimension)
+    for chunk in _chunks(sorted({int(i) for i in ids})):
+        rows.extend(session.execute(query.where(column.in_(chunk)).order_by(column)).all())
+    return rows
 
 
 def put_vectors(session: Session, clip_id: int, vectors: Mapping[str, StoredVector]) -> None:
@@ -686,6 +731,212 @@ def clips_needing_vectors(session: Session, current: Mapping[str, int]) -> dict[
         if missing:
             needing[clip_id] = missing
     return needing
+
+
+# -- windows (moments search) ----------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class WindowKey:
+    """Which windows one window index holds: descriptor ``name`` of ``version`` (whose
+    vectors have ``dimension`` numbers: a version fixes it), windows of ``length`` seconds."""
+
+    name: str
+    version: int
+    dimension: int
+    length: float
+
+
+def _window_filter(key: WindowKey) -> Any:
+    return (
+        (ClipWindow.name == key.name)
+        & (ClipWindow.version == key.version)
+        & (ClipWindow.length == key.length)
+    )
+
+
+def count_windows(session: Executor, key: WindowKey) -> int:
+    return int(session.scalar(select(func.count()).where(_window_filter(key))) or 0)
+
+
+def window_ids(session: Executor, key: WindowKey) -> np.ndarray:
+    """``(N,)`` int64 sorted ids of the windows :func:`load_windows` returns."""
+    ids = session.scalars(select(ClipWindow.id).where(_window_filter(key)).order_by(ClipWindow.id))
+    return np.fromiter(ids, dtype=np.int64)
+
+
+def load_windows(session: Executor, key: WindowKey) -> tuple[np.ndarray, np.ndarray]:
+    """Window ids ``(N,)`` int64 and vectors ``(N, D)`` float32 of ``key``, in id order."""
+    query = select(ClipWindow.id, ClipWindow.vector).where(_window_filter(key))
+    rows = session.execute(query.order_by(ClipWindow.id)).all()
+    return _vector_arrays(rows, key.dimension)
+
+
+def load_windows_of(
+    session: Executor, key: WindowKey, ids: Iterable[int]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Like :func:`load_windows`, for the given window ids only."""
+    query = select(ClipWindow.id, ClipWindow.vector).where(_window_filter(key))
+    return _vector_arrays(_select_in(session, query, ClipWindow.id, ids), key.dimension)
+
+
+def load_windows_of_clips(
+    session: Executor, key: WindowKey, clip_ids: Iterable[int]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Like :func:`load_windows`, for the windows of the given clips only."""
+    query = select(ClipWindow.id, ClipWindow.vector).where(_window_filter(key))
+    rows = sorted(_select_in(session, query, ClipWindow.clip_id, clip_ids))
+    return _vector_arrays(rows, key.dimension)
+
+
+def window_ids_of_clips(session: Executor, key: WindowKey, clip_ids: Iterable[int]) -> np.ndarray:
+    """``(N,)`` int64 sorted ids of the ``key`` windows of the given clips."""
+    query = select(ClipWindow.id).where(_window_filter(key))
+    rows = _select_in(session, query, ClipWindow.clip_id, clip_ids)
+    return np.sort(np.fromiter((r[0] for r in rows), dtype=np.int64, count=len(rows)))
+
+
+def load_window_rows(
+    session: Executor, key: WindowKey, clip_ids: Iterable[int]
+) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The ``key`` windows of some clips: clip id -> starts ``(W,)``, stops ``(W,)``, vectors
+    ``(W, D)`` float32, in id order (benchmark fills)."""
+    query = select(
+        ClipWindow.clip_id, ClipWindow.start_frame, ClipWindow.end_frame, ClipWindow.vector
+    ).where(_window_filter(key))
+    rows: dict[int, list[Any]] = {}
+    for row in _select_in(session, query, ClipWindow.clip_id, clip_ids):
+        rows.setdefault(int(row[0]), []).append(row)
+    return {
+        clip_id: _window_arrays([r[1:] for r in group], key.dimension)
+        for clip_id, group in rows.items()
+    }
+
+
+# A clip's windows have the ids ``clip id << WINDOW_ID_BITS | ordinal`` (ordinal 0, 1, ...
+# over all its windows): a window index finds a clip's windows without the database (the
+# change feed names clips, and a deleted clip's rows are gone), and a clip's windows keep their
+# ids when recomputed. 2**20 windows cover a take of over 70 hours.
+WINDOW_ID_BITS = 20
+
+
+def _window_rows(clip_id: int, windows: NewClip | Sequence[NewWindows]) -> list[dict[str, Any]]:
+    groups = windows.windows if isinstance(windows, NewClip) else windows
+    rows = [
+        {
+            "clip_id": clip_id,
+            "name": group.name,
+            "version": group.version,
+            "length": length,
+            "start_frame": start,
+            "end_frame": stop,
+            "vector": encode_vector(vector),
+        }
+        for group in groups
+        for length, start, stop, vector in zip(
+            group.lengths.tolist(),
+            group.starts.tolist(),
+            group.stops.tolist(),
+            group.vectors,
+            strict=True,
+        )
+    ]
+    if len(rows) > 1 << WINDOW_ID_BITS:
+        raise ValueError(f"a clip has at most {1 << WINDOW_ID_BITS} windows, not {len(rows)}")
+    for ordinal, row in enumerate(rows):
+        row["id"] = clip_id << WINDOW_ID_BITS | ordinal
+    return rows
+
+
+def put_windows(session: Session, clip_id: int, windows: Sequence[NewWindows]) -> None:
+    """Replace every window of a clip by ``windows`` (reindex; pass the windows of every
+    windowed descriptor: the ids restart at ordinal 0). Inserting ordinal 0 puts the clip on
+    the change feed (trigger, migration 0004), so every process's window indexes follow."""
+    session.execute(delete(ClipWindow).where(ClipWindow.clip_id == clip_id))
+    rows = _window_rows(clip_id, windows)
+    if rows:
+        session.connection().execute(insert(ClipWindow), rows)
+
+
+def clips_needing_windows(session: Session, current: Mapping[str, int]) -> dict[int, list[str]]:
+    """Clips with a stored file lacking windows of the current version of a descriptor in
+    ``current`` (name -> version), with those names."""
+    versions: dict[tuple[int, str], set[int]] = {}
+    for clip_id, name, version in session.execute(
+        select(ClipWindow.clip_id, ClipWindow.name, ClipWindow.version).distinct()
+    ):
+        versions.setdefault((clip_id, name), set()).add(version)
+    with_files = set(session.scalars(select(ClipFile.clip_id).distinct()))
+    needing: dict[int, list[str]] = {}
+    for clip_id in all_clip_ids(session):
+        if clip_id not in with_files:
+            continue
+        missing = [n for n, v in current.items() if versions.get((clip_id, n)) != {v}]
+        if missing:
+            needing[clip_id] = missing
+    return needing
+
+
+@dataclass(frozen=True, slots=True)
+class WindowSpan:
+    """Where a stored window lies: its clip, frames ``[start, stop)`` of the file, length."""
+
+    id: int
+    clip_id: int
+    start: int
+    stop: int
+    length: float
+
+
+def window_spans_of(session: Executor, ids: Iterable[int]) -> dict[int, WindowSpan]:
+    """Where the windows ``ids`` lie (those that exist), by id."""
+    wanted = sorted({int(i) for i in ids})
+    found: dict[int, WindowSpan] = {}
+    for chunk in _chunks(wanted):
+        for row in session.execute(
+            select(
+                ClipWindow.id,
+                ClipWindow.clip_id,
+                ClipWindow.start_frame,
+                ClipWindow.end_frame,
+                ClipWindow.length,
+            ).where(ClipWindow.id.in_(chunk))
+        ):
+            found[int(row[0])] = WindowSpan(*row)
+    return found
+
+
+def window_ids_with_label(session: Executor, label: LabelFilter, key: WindowKey) -> np.ndarray:
+    """``(N,)`` int64 ids of the ``key`` windows of clips carrying every label of ``label``."""
+    keys = _label_keys(session, label)
+    if not keys:
+        return np.zeros(0, dtype=np.int64)
+    ids = session.scalars(
+        select(ClipWindow.id).where(
+            _window_filter(key), ClipWindow.clip_id.in_(_labelled_ids(keys))
+        )
+    )
+    return np.fromiter(ids, dtype=np.int64)
+
+
+def clip_windows(session: Executor, clip_id: int, name: str, version: int) -> list[WindowSpan]:
+    """Every window of one clip under descriptor ``name`` of ``version``."""
+    rows = session.execute(
+        select(
+            ClipWindow.id,
+            ClipWindow.clip_id,
+            ClipWindow.start_frame,
+            ClipWindow.end_frame,
+            ClipWindow.length,
+        )
+        .where(
+            ClipWindow.clip_id == clip_id,
+            ClipWindow.name == name,
+            ClipWindow.version == version,
+        )
+        .order_by(ClipWindow.id)
+    )
+    return [WindowSpan(*row) for row in rows]
 
 
 # -- maintenance --------------------------------------------------------------------------
@@ -757,6 +1008,24 @@ class SearchSnapshot(Protocol):
 
     def clip_ids_with_label(self, label: LabelFilter) -> np.ndarray:
         """Ids of the clips carrying every label of ``label`` (any case)."""
+        ...
+
+    def window_spans(self, ids: Sequence[int]) -> dict[int, WindowSpan]: ...
+
+    def window_ids_with_label(self, label: LabelFilter, key: WindowKey) -> np.ndarray: ...
+
+    def clip_windows(self, clip_id: int, name: str, version: int) -> list[WindowSpan]: ...
+
+    def frame_times(self, clip_ids: Sequence[int]) -> dict[int, tuple[str, float, int]]:
+        """``(format, frame_time, frame_count)`` of the clips that exist, by id."""
+        ...
+
+    def window_places(
+        self, clip_id: int, key: WindowKey, low: int, high: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The ``key`` windows of one clip ending at or after frame ``low`` and starting at or
+        before ``high``: ids, starts and stops ``(W,)``, by start (from an index alone: the
+        vectors are in the window index)."""
         ...
 
 
@@ -845,21 +1114,80 @@ class _SqliteSnapshot:
             for i, (name, fmt, family) in names.items()
         }
 
+    # SQLite may pick a worse index for the window reads; PostgreSQL has no INDEXED BY.
+    _index_hints = True
+
+    def _indexed_by(self, index: str) -> str:
+        return f"INDEXED BY {index} " if self._index_hints else ""
+
     def clip_ids_with_label(self, label: LabelFilter) -> np.ndarray:
         keys = _label_keys(self._db, label)
         if not keys:
             return np.zeros(0, dtype=np.int64)
-        query = "SELECT l.clip_id FROM clip_labels l WHERE l.label_key = ?" + "".join(
-            " AND EXISTS (SELECT 1 FROM clip_labels o WHERE o.clip_id = l.clip_id "
-            "AND o.label_key = ?)"
-            for _ in keys[1:]
-        )
-        rows = self._db.execute(query + " ORDER BY l.clip_id", keys)
+        rows = self._db.execute(_labelled_sql(keys) + " ORDER BY l.clip_id", keys)
         return np.fromiter((r[0] for r in rows), dtype=np.int64)
+
+    def window_spans(self, ids: Sequence[int]) -> dict[int, WindowSpan]:
+        found: dict[int, WindowSpan] = {}
+        wanted = [int(i) for i in ids]
+        for chunk in _chunks(wanted):
+            marks = ",".join("?" * len(chunk))
+            for row in self._db.execute(
+                # The covering index, not the rows (see models.ClipWindow).
+                "SELECT id, clip_id, start_frame, end_frame, length FROM clip_windows "
+                f"{self._indexed_by('ix_clip_windows_span')}WHERE id IN ({marks})",
+                chunk,
+            ):
+                found[int(row[0])] = WindowSpan(*row)
+        return found
+
+    def window_ids_with_label(self, label: LabelFilter, key: WindowKey) -> np.ndarray:
+        keys = _label_keys(self._db, label)
+        if not keys:
+            return np.zeros(0, dtype=np.int64)
+        rows = self._db.execute(
+            "SELECT w.id FROM clip_windows w WHERE w.name = ? AND w.version = ? "
+            f"AND w.length = ? AND w.clip_id IN ({_labelled_sql(keys)})",
+            (key.name, key.version, key.length, *keys),
+        )
+        return np.fromiter((r[0] for r in rows), dtype=np.int64)
+
+    def clip_windows(self, clip_id: int, name: str, version: int) -> list[WindowSpan]:
+        rows = self._db.execute(
+            "SELECT id, clip_id, start_frame, end_frame, length FROM clip_windows "
+            "WHERE clip_id = ? AND name = ? AND version = ? ORDER BY id",
+            (int(clip_id), name, version),
+        )
+        return [WindowSpan(*row) for row in rows]
+
+    def window_places(
+        self, clip_id: int, key: WindowKey, low: int, high: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        rows = self._db.execute(
+            "SELECT id, start_frame, end_frame FROM clip_windows "
+            f"{self._indexed_by('ix_clip_windows_clip_id_name_length')}WHERE clip_id = ? "
+            "AND name = ? AND version = ? AND length = ? AND end_frame >= ? AND start_frame <= ? "
+            "ORDER BY start_frame",
+            (int(clip_id), key.name, key.version, key.length, int(low), int(high)),
+        ).fetchall()
+        return _place_arrays(rows)
+
+    def frame_times(self, clip_ids: Sequence[int]) -> dict[int, tuple[str, float, int]]:
+        found: dict[int, tuple[str, float, int]] = {}
+        for chunk in _chunks([int(i) for i in clip_ids]):
+            marks = ",".join("?" * len(chunk))
+            for clip_id, fmt, frame_time, frames in self._db.execute(
+                f"SELECT id, format, frame_time, frame_count FROM clips WHERE id IN ({marks})",
+                chunk,
+            ):
+                found[int(clip_id)] = (fmt, float(frame_time), int(frames))
+        return found
 
 
 class _PostgresSnapshot(_SqliteSnapshot):
     """The same reads with PostgreSQL's placeholders, names and labels in one statement."""
+
+    _index_hints = False
 
     def __init__(self, connection: Any) -> None:
         self._db = _Placeholders(connection)
@@ -916,6 +1244,41 @@ class _CoreSnapshot:
 
     def clip_ids_with_label(self, label: LabelFilter) -> np.ndarray:
         return clip_ids_with_label(self._db, label)
+
+    def window_spans(self, ids: Sequence[int]) -> dict[int, WindowSpan]:
+        return window_spans_of(self._db, ids)
+
+    def window_ids_with_label(self, label: LabelFilter, key: WindowKey) -> np.ndarray:
+        return window_ids_with_label(self._db, label, key)
+
+    def clip_windows(self, clip_id: int, name: str, version: int) -> list[WindowSpan]:
+        return clip_windows(self._db, clip_id, name, version)
+
+    def window_places(
+        self, clip_id: int, key: WindowKey, low: int, high: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        rows = self._db.execute(
+            select(ClipWindow.id, ClipWindow.start_frame, ClipWindow.end_frame)
+            .where(
+                _window_filter(key),
+                ClipWindow.clip_id == clip_id,
+                ClipWindow.end_frame >= low,
+                ClipWindow.start_frame <= high,
+            )
+            .order_by(ClipWindow.start_frame)
+        ).all()
+        return _place_arrays(rows)
+
+    def frame_times(self, clip_ids: Sequence[int]) -> dict[int, tuple[str, float, int]]:
+        found: dict[int, tuple[str, float, int]] = {}
+        for chunk in _chunks(sorted({int(i) for i in clip_ids})):
+            for clip_id, fmt, frame_time, frames in self._db.execute(
+                select(Clip.id, Clip.format, Clip.frame_time, Clip.frame_count).where(
+                    Clip.id.in_(chunk)
+                )
+            ):
+                found[int(clip_id)] = (fmt, float(frame_time), int(frames))
+        return found
 
 
 class SearchReads:

@@ -13,12 +13,14 @@ from pathlib import PurePosixPath
 from sqlalchemy.exc import SQLAlchemyError
 
 from app.db import repository as repo
-from app.errors import InvalidInput, NoStoredFile, NotFound, StorageUnavailable
+from app.errors import InvalidInput, NoStoredFile, NotFound, ParseError, StorageUnavailable
 from app.labels import label_filter
+from app.motion.formats import decode_text
 from app.motion.formats.bvh_writer import write_bvh
-from app.services.describe import read_motion
-from app.services.library import Library
-from app.services.uploads import BVH, Upload
+from app.motion.formats.cut import cut_amc, cut_bvh
+from app.services.describe import read_motion, span_frames
+from app.services.library import Library, drop_clip_windows
+from app.services.uploads import ASF_AMC, BVH, Upload
 
 log = logging.getLogger(__name__)
 
@@ -141,6 +143,7 @@ def _tidy_after_delete(library: Library, clip_ids: list[int], shas: list[str]) -
                 name,
                 exc,
             )
+    drop_clip_windows(library, clip_ids)
     try:
         with library.reads() as session:
             still_used = repo.referenced_blobs(session, shas)
@@ -174,44 +177,93 @@ def clip_bvh(
     stem = PurePosixPath(upload.parts[-1].filename).stem or f"clip-{clip.id}"
     if clip.animation is not None and len(clip.animations or ()) > 1:
         stem = f"{stem} - {clip.animation}"
-    return Download(f"{stem}.bvh", "application/octet-stream", text.encode())
+    name = f"{stem}.bvh"
+    if frames is not None:
+        name = _cut_name(name, frames[0] * clip.frame_time, frames[1] * clip.frame_time)
+    return Download(name, "application/octet-stream", text.encode())
 
 
-def clip_download(library: Library, clip: repo.ClipRecord, part: str | None) -> Download:
-    """The original upload: the BVH file itself, or for ASF/AMC a ZIP of both files — or one
-    ``part`` (``"file"``, ``"skeleton"``, ``"motion"``) byte for byte."""
+def _cut_name(filename: str, start: float, end: float) -> str:
+    path = PurePosixPath(filename)
+    return f"{path.stem}_{start:.2f}-{end:.2f}s{path.suffix}"
+
+
+def _cut_part(
+    library: Library, clip: repo.ClipRecord, record: repo.FileRecord, frames: tuple[int, int]
+) -> tuple[str, bytes]:
+    """A stored part cut to ``frames`` ``[first, stop)`` (the skeleton unchanged)."""
+    data = library.blobs.read(record.sha256)
+    if record.role == "skeleton":
+        return record.filename, data
+    cut = cut_bvh if record.role == "file" else cut_amc
+    try:
+        text = cut(decode_text(data), *frames)
+    except (ParseError, ValueError) as error:
+        raise InvalidInput(f"clip {clip.id}'s {record.role} cannot be cut: {error}") from None
+    first, stop = frames
+    name = _cut_name(record.filename, first * clip.frame_time, stop * clip.frame_time)
+    return name, text.encode()
+
+
+def clip_download(
+    library: Library,
+    clip: repo.ClipRecord,
+    part: str | None,
+    start: float | None = None,
+    end: float | None = None,
+    *,
+    as_bvh: bool = False,
+) -> Download:
+    """The original upload: the file itself, or for ASF/AMC a ZIP of both files — or one
+    ``part`` (``"file"``, ``"skeleton"``, ``"motion"``) byte for byte; with ``as_bvh`` the clip
+    as a BVH file (:func:`clip_bvh`). With ``start`` and/or ``end`` (seconds from the first
+    frame) the motion is cut to that span: BVH and ASF/AMC in their own format (see
+    :mod:`app.motion.formats.cut`); FBX and glTF, which cannot be cut as they are, as the BVH
+    export of the span."""
     if not clip.files:  # synthetic benchmark clips have vectors but no upload
         raise NoStoredFile(clip.id, clip.format)
     roles = {f.role: f for f in clip.files}
-    if part is not None:
-        if part not in roles:
-            if len(roles) == 1:
-                (only,) = roles.values()
-                raise InvalidInput(
-                    f"part: clip {clip.id} is a single {clip.format.upper()} file "
-                    f"({only.filename}); leave out 'part' or use part={only.role}"
-                )
-            raise InvalidInput(f"part: clip {clip.id} has the parts {', '.join(roles)}")
-        record = roles[part]
+    if as_bvh and part is not None:
+        raise InvalidInput("part: not with format=bvh (a BVH export is one file)")
+    if part is not None and part not in roles:
+        if len(roles) == 1:
+            (only,) = roles.values()
+            raise InvalidInput(
+                f"part: clip {clip.id} is a single {clip.format.upper()} file "
+                f"({only.filename}); leave out 'part' or use part={only.role}"
+            )
+        raise InvalidInput(f"part: clip {clip.id} has the parts {', '.join(roles)}")
+    frames = None
+    if start is not None or end is not None:
+        frames = span_frames(clip.frame_count, clip.frame_time, 0, start, end)
+    if as_bvh or (frames is not None and clip.format not in (BVH, ASF_AMC)):
+        return clip_bvh(library, clip, frames)
+    if frames is not None:
+        wanted = [roles[part]] if part is not None else list(clip.files)
+        cut = [_cut_part(library, clip, record, frames) for record in wanted]
+        if len(cut) == 1:
+            return Download(cut[0][0], "application/octet-stream", cut[0][1])
+        return _zip(clip, cut, cut[-1][0])
+    if part is not None or clip.format == BVH or len(clip.files) == 1:
+        record = roles[part] if part is not None else clip.files[0]
         return Download(
             record.filename, "application/octet-stream", library.blobs.read(record.sha256)
         )
-    if clip.format == BVH or len(clip.files) == 1:
-        record = clip.files[0]
-        return Download(
-            record.filename, "application/octet-stream", library.blobs.read(record.sha256)
-        )
+    motion = roles.get("motion", clip.files[-1])
+    files = [(record.filename, library.blobs.read(record.sha256)) for record in clip.files]
+    return _zip(clip, files, motion.filename)
+
+
+def _zip(clip: repo.ClipRecord, files: list[tuple[str, bytes]], named_after: str) -> Download:
+    """A ZIP of ``files`` (name, bytes), called like ``named_after``."""
     buffer = io.BytesIO()
     stamp = clip.created_at.timetuple()[:6]
     with zipfile.ZipFile(buffer, "w", compression=zipfile.ZIP_DEFLATED) as archive:
-        for record in clip.files:
-            info = zipfile.ZipInfo(record.filename, date_time=stamp)
+        for filename, data in files:
+            info = zipfile.ZipInfo(filename, date_time=stamp)
             info.compress_type = zipfile.ZIP_DEFLATED
-            archive.writestr(info, library.blobs.read(record.sha256))
-    motion = roles.get("motion", clip.files[-1])
-    return Download(
-        f"{PurePosixPath(motion.filename).stem}.zip", "application/zip", buffer.getvalue()
-    )
+            archive.writestr(info, data)
+    return Download(f"{PurePosixPath(named_after).stem}.zip", "application/zip", buffer.getvalue())
 
 
 def remove_orphan_files(library: Library) -> int:

@@ -11,18 +11,26 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 from app.errors import DescribeTimeout, InvalidInput, LimitExceeded, ParseError, UnreadableFile
+from app.motion.body import Body, build_body
 from app.motion.descriptors import REGISTRY
 from app.motion.formats import read_asf_amc, read_bvh
 from app.motion.formats.scene import Animation
 from app.motion.model import Motion, ParseLimits
 from app.motion.pipeline import analyse
+from app.motion.windows import (
+    DEFAULT_LENGTHS,
+    describe_windows,
+    slice_body,
+    window_frames,
+    window_spans,
+)
 from app.services.parser_pool import SceneParser
 from app.services.uploads import ASF_AMC, BVH, Upload
 
@@ -41,9 +49,47 @@ class DescriptorInfo:
     description: str
 
 
+# Descriptors whose windows are stored and indexed for moments search, and the window
+# lengths (seconds). Each window costs a row and an index entry per descriptor: ``motion``
+# only keeps 100 hours of windows within the memory budget (bench/README.md).
+WINDOW_DESCRIPTORS: tuple[str, ...] = ("motion",)
+WINDOW_LENGTHS: tuple[float, ...] = DEFAULT_LENGTHS
+
+
+@dataclass(frozen=True)
+class Windows:
+    """A clip's windows: ``spans`` ``(W, 3)`` int64 ``[length index, start, stop)`` in frames
+    of the file as uploaded (lead-in included), ``lengths`` the seconds each length index
+    stands for, ``vectors[name]`` ``(W, D)`` float32."""
+
+    lengths: tuple[float, ...]
+    spans: np.ndarray
+    vectors: dict[str, np.ndarray]
+
+
+@dataclass(frozen=True)
+class SpanDescription:
+    """One span of a clip described under one descriptor (a moments query): frames
+    ``[start_frame, end_frame)`` of the file, ``vector`` ``(D,)`` float32."""
+
+    frame_count: int
+    frame_time: float
+    lead_in_frames: int
+    start_frame: int
+    end_frame: int
+    vector: np.ndarray
+    # The span's own windows of ``part_length`` seconds: ``part_offsets`` (J,) frames from
+    # ``start_frame``, ``parts`` (J, D) float32 (empty when not asked for or too short).
+    part_length: float = 0.0
+    part_offsets: np.ndarray = dataclasses.field(default_factory=lambda: np.empty(0, np.int64))
+    parts: np.ndarray = dataclasses.field(default_factory=lambda: np.empty((0, 0), np.float32))
+
+
 @dataclass(frozen=True)
 class Description:
-    """What the motion core measured on one clip; ``vectors[name]`` is ``(D,)`` float32."""
+    """What the motion core measured on one clip; ``vectors[name]`` is ``(D,)`` float32;
+    ``windows`` the windows of the descriptors in :data:`WINDOW_DESCRIPTORS` (``None`` when
+    not asked for)."""
 
     frame_count: int
     frame_time: float
@@ -52,6 +98,7 @@ class Description:
     skeleton_family: str
     lead_in_frames: int
     vectors: dict[str, np.ndarray]
+    windows: Windows | None = None
     animation: str | None = None  # FBX/glTF: the animation described
     animations: tuple[Animation, ...] = ()  # FBX/glTF: every animation of the file
     warnings: tuple[str, ...] = ()
@@ -245,8 +292,15 @@ class MotionDescriber:
         return self._descriptors
 
     def describe(
-        self, upload: Upload, limits: ParseLimits, *, only: Sequence[str] | None = None
+        self,
+        upload: Upload,
+        limits: ParseLimits,
+        *,
+        only: Sequence[str] | None = None,
+        windows: bool | None = None,
     ) -> Description:
+        """:meth:`Describer.describe`; with ``windows`` (default: when describing every
+        descriptor) also the windows of :data:`WINDOW_DESCRIPTORS`."""
         started = time.monotonic()
         read = self.read(upload, limits)
         self._check_time(started, "reading the file")
@@ -255,6 +309,10 @@ class MotionDescriber:
         except ParseError as error:  # e.g. SkeletonMappingError: joints the descriptors need
             raise _name_source(error, upload) from None
         self._check_time(started, "computing the descriptors")
+        described_windows = None
+        if windows if windows is not None else only is None:
+            described_windows = self._windows(analysis.body)
+            self._check_time(started, "describing the windows")
         return Description(
             frame_count=analysis.frame_count,
             frame_time=analysis.frame_time,
@@ -267,4 +325,111 @@ class MotionDescriber:
             animations=read.animations,
             warnings=analysis.warnings,
             joint_mapping=analysis.joint_mapping,
+            windows=described_windows,
         )
+
+    def _windows(self, body: Body) -> Windows:
+        spans = window_spans(body.frame_count, body.frame_time, WINDOW_LENGTHS)
+        names = [name for name in WINDOW_DESCRIPTORS if name in self._descriptors]
+        vectors = describe_windows(body, spans, names)
+        for name, array in vectors.items():
+            if not np.all(np.isfinite(array)):
+                raise InvalidInput(
+                    f"the clip cannot be described: a window's {name!r} vector is not finite "
+                    "(degenerate motion)"
+                )
+        file_spans = spans.copy()
+        file_spans[:, 1:] += body.lead_in_frames
+        return Windows(WINDOW_LENGTHS, file_spans, vectors)
+
+    def describe_span(
+        self,
+        upload: Upload,
+        limits: ParseLimits,
+        name: str,
+        start: float | None,
+        end: float | None,
+        *,
+        min_seconds: float = 0.0,
+        part_length: Callable[[float], float] | None = None,
+        part_step: float = 1 / 30,
+    ) -> SpanDescription:
+        """Describe the part ``[start, end)`` (seconds from the file's first frame; ``None``:
+        its start / end) of ``upload`` under descriptor ``name``. A span of the whole clip
+        gives the clip's vector. With ``part_length`` (span seconds -> window seconds) also
+        the span's own windows of that length, one every ``part_step`` seconds (and one
+        ending with the span)."""
+        started = time.monotonic()
+        motion = self.read(upload, limits).motion
+        self._check_time(started, "reading the file")
+        try:
+            body = build_body(motion)
+        except ParseError as error:
+            raise _name_source(error, upload) from None
+        first, stop = span_frames(
+            motion.frame_count, motion.frame_time, body.lead_in_frames, start, end, min_seconds
+        )
+        lead_in = body.lead_in_frames
+        part = slice_body(body, first - lead_in, stop - lead_in)
+        vector = check_vectors({name: REGISTRY[name].compute(part)}, self._descriptors)[name]
+        self._check_time(started, "computing the descriptor")
+        description = SpanDescription(
+            motion.frame_count, motion.frame_time, lead_in, first, stop, vector
+        )
+        if part_length is None:
+            return description
+        length = part_length(part.frame_count * motion.frame_time)
+        size = window_frames(length, motion.frame_time)
+        if size > part.frame_count:
+            return description
+        step = max(1, int(np.floor(part_step / motion.frame_time + 0.5)))
+        offsets = np.arange(0, part.frame_count - size + 1, step, dtype=np.int64)
+        if offsets[-1] + size < part.frame_count:
+            offsets = np.append(offsets, part.frame_count - size)
+        spans = np.stack([np.zeros_like(offsets), offsets, offsets + size], axis=1)
+        parts = describe_windows(part, spans, [name])[name]
+        self._check_time(started, "describing the span's windows")
+        if not np.all(np.isfinite(parts)):
+            return description
+        return dataclasses.replace(
+            description, part_length=length, part_offsets=offsets, parts=parts
+        )
+
+
+def span_frames(
+    frame_count: int,
+    frame_time: float,
+    lead_in_frames: int,
+    start: float | None,
+    end: float | None,
+    min_seconds: float = 0.0,
+) -> tuple[int, int]:
+    """Frames ``[first, stop)`` of the file for the span ``[start, end)`` in seconds from its
+    first frame (``None``: the clip's start / end). Lead-in frames are never described: a
+    span starting in them starts after them.
+
+    Raises :class:`InvalidInput` (422) for ``start >= end``, a span outside the clip, or one
+    shorter than ``min_seconds`` (half a frame of slack) that is not the whole clip.
+    """
+    duration = frame_count * frame_time
+    s = 0.0 if start is None else float(start)
+    e = duration if end is None else float(end)
+    if not (np.isfinite(s) and np.isfinite(e)):
+        raise InvalidInput("start, end: must be finite numbers of seconds")
+    if s >= e:
+        raise InvalidInput(f"start ({s:g} s) must be before end ({e:g} s)")
+    slack = frame_time / 2
+    if s < -slack or e > duration + slack:
+        raise InvalidInput(
+            f"the span [{s:g} s, {e:g} s) lies outside the clip, which lasts {duration:g} s "
+            f"({frame_count} frames at {1 / frame_time:g} fps)"
+        )
+    first = max(lead_in_frames, min(frame_count - 1, int(np.floor(s / frame_time + 0.5))))
+    stop = min(frame_count, max(first + 1, int(np.floor(e / frame_time + 0.5))))
+    whole = first == lead_in_frames and stop == frame_count
+    if not whole and (stop - first) * frame_time < min_seconds - slack:
+        raise InvalidInput(
+            f"the span [{s:g} s, {e:g} s) is shorter than the shortest window "
+            f"({min_seconds:g} s); choose a longer span"
+        )
+    return first, stop

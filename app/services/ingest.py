@@ -25,6 +25,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 from sqlalchemy.exc import IntegrityError, SQLAlchemyError
 
 from app.db import repository as repo
@@ -120,7 +121,27 @@ def new_clip(library: Library, item: Described) -> repo.NewClip:
             name: repo.StoredVector(library.descriptors[name].version, vector)
             for name, vector in description.vectors.items()
         },
+        windows=new_windows(library, description),
         animations=animation_records(upload),
+    )
+
+
+def new_windows(library: Library, description: Description) -> tuple[repo.NewWindows, ...]:
+    """The window rows of a described clip (none when it was described without windows)."""
+    windows = description.windows
+    if windows is None:
+        return ()
+    lengths = np.asarray(windows.lengths, dtype=np.float64)[windows.spans[:, 0]]
+    return tuple(
+        repo.NewWindows(
+            name=name,
+            version=library.descriptors[name].version,
+            lengths=lengths,
+            starts=windows.spans[:, 1],
+            stops=windows.spans[:, 2],
+            vectors=vectors,
+        )
+        for name, vectors in windows.vectors.items()
     )
 
 

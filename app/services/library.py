@@ -13,6 +13,10 @@ changed since it last looked. The writes of this process call it after their com
 call :meth:`Library.refresh`, which looks at most every ``MOCAP_INDEX_REFRESH_SECONDS``, so
 clips another process stores or deletes are found, or no longer found, without a restart. On
 PostgreSQL the feed also catches a clip whose transaction commits after one with a larger id.
+
+The window indexes of moments search (one per windowed descriptor and window length, ids =
+window ids of ``clip_windows``) are loaded, rebuilt and kept up to date the same way, from the
+same feed: a clip's windows come and go with it.
 """
 
 from __future__ import annotations
@@ -21,7 +25,7 @@ import logging
 import sqlite3
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -39,7 +43,13 @@ from app.errors import DescriptorOutdated, InvalidInput, StorageUnavailable
 from app.index import DescriptorIndex, IndexOptions, IndexSet
 from app.motion.descriptors import DEFAULT_DESCRIPTOR
 from app.services.blobs import BlobStore, open_blob_store
-from app.services.describe import Describer, DescriptorInfo, MotionDescriber
+from app.services.describe import (
+    WINDOW_DESCRIPTORS,
+    WINDOW_LENGTHS,
+    Describer,
+    DescriptorInfo,
+    MotionDescriber,
+)
 from app.services.parser_pool import ParserPool
 
 log = logging.getLogger(__name__)
@@ -93,6 +103,90 @@ class StoredVectors:
         )
 
 
+class StoredWindows:
+    """One window index's vectors in the database (see :class:`StoredVectors`); ids are
+    window ids, ``watermark`` the change feed position taken before them. The feed names
+    clips: a changed clip's windows are those ``index`` holds under its id plus those the
+    database holds (a clip's window ids are ``clip id << WINDOW_ID_BITS | ordinal``)."""
+
+    def __init__(
+        self, session: Session, key: repo.WindowKey, watermark: int, index: DescriptorIndex
+    ) -> None:
+        self._session = session
+        self._key = key
+        self._watermark = watermark
+        self._index = index
+
+    def watermark(self) -> int:
+        return self._watermark
+
+    def count(self) -> int:
+        return repo.count_windows(self._session, self._key)
+
+    def ids(self) -> np.ndarray:
+        return repo.window_ids(self._session, self._key)
+
+    def vectors(self) -> tuple[np.ndarray, np.ndarray]:
+        return repo.load_windows(self._session, self._key)
+
+    def changed(self, since: int) -> np.ndarray:
+        rows = read_since(self._session, since)[1]
+        clips = np.unique(np.fromiter((r.clip_id for r in rows), dtype=np.int64, count=len(rows)))
+        stored = repo.window_ids_of_clips(self._session, self._key, clips.tolist())
+        return touched_windows(self._index, clips, stored)
+
+    def vectors_of(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return repo.load_windows_of(self._session, self._key, ids.tolist())
+
+
+def windows_of_clips(index: DescriptorIndex, clip_ids: np.ndarray) -> np.ndarray:
+    """``(N,)`` int64 ids of the windows ``index`` holds of the clips ``clip_ids``."""
+    if not len(clip_ids) or not index.size:
+        return np.zeros(0, dtype=np.int64)
+    held = index.ids()
+    return held[np.isin(held >> repo.WINDOW_ID_BITS, np.asarray(clip_ids, dtype=np.int64))]
+
+
+def touched_windows(index: DescriptorIndex, clip_ids: np.ndarray, stored: np.ndarray) -> np.ndarray:
+    """The window ids to check when the clips ``clip_ids`` changed: those ``index`` holds of
+    them and ``stored`` ``(N,)``, those the database holds now."""
+    return np.union1d(windows_of_clips(index, clip_ids), stored)
+
+
+def drop_clip_windows(library: Library, clip_ids: Sequence[int]) -> None:
+    """Remove deleted clips' windows from this process's window indexes (the feed would, at
+    the next sync; searches meanwhile skip windows without a row)."""
+    clips = np.asarray(list(clip_ids), dtype=np.int64)
+    for name, index in library.window_indexes.items():
+        try:
+            index.remove(windows_of_clips(index, clips))
+        except OSError as exc:
+            log.warning(
+                "clips deleted, but the %s index could not be saved (%s); it is brought up "
+                "to date from the database at the next start",
+                name,
+                exc,
+            )
+
+
+def window_index_name(descriptor: str, length: float) -> str:
+    """File stem of the index of ``descriptor`` windows of ``length`` seconds."""
+    return f"windows-{descriptor}-{length:g}s"
+
+
+def window_keys(descriptors: Mapping[str, DescriptorInfo]) -> dict[str, repo.WindowKey]:
+    """Every window index: its name -> which windows it holds (the descriptors of
+    :data:`WINDOW_DESCRIPTORS` the describer has, at each of :data:`WINDOW_LENGTHS`)."""
+    return {
+        window_index_name(name, length): repo.WindowKey(
+            name, descriptors[name].version, descriptors[name].dimension, length
+        )
+        for name in WINDOW_DESCRIPTORS
+        if name in descriptors
+        for length in WINDOW_LENGTHS
+    }
+
+
 @dataclass
 class Library:
     """Everything the services work on.
@@ -109,6 +203,9 @@ class Library:
     blobs: BlobStore
     indexes: IndexSet
     describer: Describer
+    # Moments search: one index per window descriptor and length, keyed like window_keys.
+    window_indexes: IndexSet = field(default_factory=lambda: IndexSet({}))
+    window_keys: dict[str, repo.WindowKey] = field(default_factory=dict)
     # FBX/glTF readers' worker processes (started when first needed); None: those formats
     # cannot be read (a describer of the tests' own).
     parsers: ParserPool | None = None
@@ -183,6 +280,14 @@ class Library:
             ids, vectors = repo.load_vectors(session, info.name, info.version, info.dimension)
             self.indexes[name].replace_all(ids, vectors, synced_to=position)
 
+    def rebuild_window_indexes(self) -> None:
+        """Refill every window index from the database and save it."""
+        with self._sync_lock, self.reads() as session:
+            position = horizon(session)  # before the vectors: nothing older is missed
+            for name, key in self.window_keys.items():
+                ids, vectors = repo.load_windows(session, key)
+                self.window_indexes[name].replace_all(ids, vectors, synced_to=position)
+
     def sync_indexes(self, *, wait: bool = True) -> bool:
         """Apply to the indexes the clips added or deleted since they last looked (by this
         process or another one). With ``wait=False`` it returns False at once when another
@@ -209,10 +314,27 @@ class Library:
                         )
                         index.replace_all(*everything, synced_to=position, persist=False)
                         index.try_save()
+                self._sync_windows(session, changed, poll.position)
                 self._feed.advance(poll)
         finally:
             self._sync_lock.release()
         return True
+
+    def _sync_windows(self, session: Session, changed: np.ndarray, position: int) -> None:
+        """The window indexes follow the same feed: a changed clip's windows are replaced
+        by those the database holds now (none when it was deleted)."""
+        for name, key in self.window_keys.items():
+            index = self.window_indexes[name]
+            try:
+                ids, vectors = repo.load_windows_of_clips(session, key, changed.tolist())
+                touched = touched_windows(index, changed, ids)
+                index.apply_changes(touched, ids, vectors, synced_to=position)
+            except Exception:
+                log.exception("updating the %s index failed; rebuilding it", name)
+                now = horizon(session)  # not ``position``: the other indexes keep the poll's
+                everything = repo.load_windows(session, key)
+                index.replace_all(*everything, synced_to=now, persist=False)
+                index.try_save()
 
     def refresh(self) -> None:
         """Bring the indexes up to date with the database when the last check is older than
@@ -230,6 +352,7 @@ class Library:
         """Write the indexes that have unsaved changes (large ones are not saved after every
         change; a file that is behind is brought up to date from the database when loaded)."""
         self.indexes.save(only_changed=True)
+        self.window_indexes.save(only_changed=True)
 
     def vector_counts(self) -> tuple[int, dict[str, int]]:
         """The number of clips and, per descriptor, of current vectors (one snapshot)."""
@@ -256,7 +379,8 @@ class Library:
 
 def _open_indexes(
     settings: Settings, reads: sessionmaker[Session], descriptors: Mapping[str, DescriptorInfo]
-) -> IndexSet:
+) -> tuple[IndexSet, IndexSet]:
+    """The clip indexes and the window indexes, loaded (or rebuilt) from their files."""
     options = index_options(settings)
     indexes = {
         info.name: DescriptorIndex(
@@ -264,17 +388,26 @@ def _open_indexes(
         )
         for info in descriptors.values()
     }
+    keys = window_keys(descriptors)
+    windows = {
+        name: DescriptorIndex(name, key.dimension, key.version, settings.index_dir, options=options)
+        for name, key in keys.items()
+    }
     # Reading and checksumming the files (hundreds of MB at a million clips) releases the
     # GIL: all at once, in threads.
-    with ThreadPoolExecutor(max_workers=max(1, len(indexes))) as pool:
-        read = pool.map(DescriptorIndex.read_file, indexes.values())
-        files = dict(zip(indexes, read, strict=True))
+    every = [*indexes.values(), *windows.values()]
+    with ThreadPoolExecutor(max_workers=max(1, min(8, len(every)))) as pool:
+        files = dict(zip(every, pool.map(DescriptorIndex.read_file, every), strict=True))
     with reads() as session:  # one feed position for every index, taken before their vectors
         watermark = horizon(session)
         for info in descriptors.values():
             source = StoredVectors(session, info, watermark)
-            indexes[info.name].load_or_rebuild(source, files.pop(info.name))
-    return IndexSet(indexes)
+            index = indexes[info.name]
+            index.load_or_rebuild(source, files.pop(index))
+        for name, key in keys.items():
+            index = windows[name]
+            index.load_or_rebuild(StoredWindows(session, key, watermark, index), files.pop(index))
+    return IndexSet(indexes), IndexSet(windows)
 
 
 def open_library(settings: Settings, *, describer: Describer | None = None) -> Library:
@@ -293,7 +426,7 @@ def open_library(settings: Settings, *, describer: Describer | None = None) -> L
         raise StorageUnavailable(f"cannot open the database: {exc}") from exc
     reads = read_sessions(engine)
     try:
-        indexes = _open_indexes(settings, reads, describer.descriptors)
+        indexes, windows = _open_indexes(settings, reads, describer.descriptors)
         with reads() as session:
             clips = repo.count_clips(session)
     except BaseException:
@@ -317,6 +450,8 @@ def open_library(settings: Settings, *, describer: Describer | None = None) -> L
         blobs=open_blob_store(engine, settings.files_dir),
         indexes=indexes,
         describer=describer,
+        window_indexes=windows,
+        window_keys=window_keys(describer.descriptors),
         parsers=parsers,
     )
     for name, outdated in library.count_outdated().items():

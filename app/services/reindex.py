@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 
 from app.db import repository as repo
 from app.errors import InvalidInput, MocapError
+from app.services.describe import Description, MotionDescriber
+from app.services.ingest import new_windows
 from app.services.library import Library
 from app.services.uploads import Upload, UploadPart
 
@@ -32,6 +34,17 @@ def stored_upload(library: Library, clip: repo.ClipRecord) -> Upload:
     return Upload(parts, clip.name, clip.labels)
 
 
+def describe_stored(
+    library: Library, upload: Upload, names: list[str], windows: bool
+) -> Description:
+    """Describe a stored clip under ``names`` (and its windows when ``windows``)."""
+    describer = library.describer
+    limits = library.settings.parse_limits
+    if windows and isinstance(describer, MotionDescriber):
+        return describer.describe(upload, limits, only=names or None, windows=True)
+    return describer.describe(upload, limits, only=names)
+
+
 def reindex(
     library: Library,
     *,
@@ -44,11 +57,16 @@ def reindex(
     Run it while the service is stopped: a running service keeps its own indexes in memory.
     """
     current = {name: info.version for name, info in library.descriptors.items()}
+    windowed = {key.name: key.version for key in library.window_keys.values()}
     with library.reads() as session:
         if everything:
             needing = {i: list(current) for i in repo.all_clip_ids(session)}
+            windows_needed = set(needing)
         else:
             needing = repo.clips_needing_vectors(session, current)
+            windows_needed = set(repo.clips_needing_windows(session, windowed))
+            for clip_id in windows_needed:
+                needing.setdefault(clip_id, [])
     report = ReindexReport()
     for done, (clip_id, names) in enumerate(needing.items(), start=1):
         with library.reads() as session:
@@ -57,13 +75,12 @@ def reindex(
             continue
         if progress is not None:
             progress(done, len(needing), clip)
+        with_windows = clip_id in windows_needed and bool(clip.files)
         try:
             if not clip.files:
                 raise InvalidInput("a synthetic clip has no stored file to describe again")
             upload = stored_upload(library, clip)
-            description = library.describer.describe(
-                upload, library.settings.parse_limits, only=names
-            )
+            description = describe_stored(library, upload, names, with_windows)
         except InvalidInput as error:  # the clip cannot be described: its old vectors go
             report.failed[clip_id] = error.detail
             with library.write_lock, library.writes.begin() as session:
@@ -78,11 +95,14 @@ def reindex(
         }
         with library.write_lock, library.writes.begin() as session:
             repo.put_vectors(session, clip_id, vectors)
+            if with_windows:
+                repo.put_windows(session, clip_id, new_windows(library, description))
             repo.update_clip(session, clip_id, analysis=description.fields)
         report.recomputed += 1
     with library.write_lock:
         for name in library.descriptors:
             library.rebuild_index(name)
-    report.index_sizes = library.indexes.sizes()
+    library.rebuild_window_indexes()
+    report.index_sizes = {**library.indexes.sizes(), **library.window_indexes.sizes()}
     library.count_outdated()  # searches need not wait for the next recount
     return report

@@ -80,6 +80,72 @@ export async function renderClip(main, params, { navigate, notify }) {
     previewNote.textContent = notes.length ? `Preview: ${notes.join("; ")}.` : "";
   });
 
+  // -- a span of the clip: drag on the band under the timeline (or type the times) ----------------
+  // Times in the form are seconds of the file as uploaded (lead-in included), like the API's;
+  // the preview leaves the lead-in out, so its time is shifted by it.
+  const leadIn = clip.lead_in_frames * clip.frame_time;
+  const spanBox = el("div", { class: "span-box", hidden: true });
+  const spanBand = el("div", { class: "span-band", title: "Drag across to pick a span of the clip" }, spanBox);
+  timeline.track.append(spanBand);
+  const spanIds = { start: nextId("span-start"), end: nextId("span-end") };
+  const step = "any"; // a frame-time step would make most typed times "invalid"
+  const spanStart = el("input", { id: spanIds.start, type: "number", min: "0", step, required: true, inputmode: "decimal" });
+  const spanEnd = el("input", { id: spanIds.end, type: "number", min: "0", step, required: true, inputmode: "decimal" });
+  const spanForm = el(
+    "form",
+    { class: "span-form", "aria-label": "Find moments like a span of this clip" },
+    el("p", { class: "hint" }, "Drag across the band under the timeline to pick a span, or type it, then find where in the library the same motion happens."),
+    el("div", { class: "field" }, el("label", { for: spanIds.start }, "From (s)"), spanStart),
+    el("div", { class: "field" }, el("label", { for: spanIds.end }, "To (s)"), spanEnd),
+    el("div", { class: "field" }, el("button", { type: "submit" }, "Find moments like this span")),
+  );
+  const showSpan = (from, to) => {
+    const left = timeline.xAt(Math.max(0, from - leadIn));
+    const right = timeline.xAt(Math.max(0, to - leadIn));
+    spanBox.hidden = !(to > from);
+    spanBox.style.left = `${left}px`;
+    spanBox.style.width = `${Math.max(2, right - left)}px`;
+  };
+  const round = (t) => Math.round(t * 100) / 100;
+  let dragFrom = null;
+  spanBand.addEventListener("pointerdown", (event) => {
+    if (!timeline.duration) return;
+    dragFrom = timeline.timeAt(event.clientX);
+    spanBand.setPointerCapture(event.pointerId);
+    event.preventDefault();
+  });
+  spanBand.addEventListener("pointermove", (event) => {
+    if (dragFrom === null) return;
+    const at = timeline.timeAt(event.clientX);
+    const [a, b] = [Math.min(dragFrom, at), Math.max(dragFrom, at)];
+    spanStart.value = String(round(a + leadIn));
+    spanEnd.value = String(round(b + leadIn));
+    showSpan(a + leadIn, b + leadIn);
+  });
+  const endDrag = () => {
+    if (dragFrom === null) return;
+    dragFrom = null;
+    // The figure plays the span picked, so it can be checked before searching.
+    const from = Number(spanStart.value) - leadIn;
+    if (Number.isFinite(from)) player.seek(Math.max(0, from));
+  };
+  spanBand.addEventListener("pointerup", endDrag);
+  spanBand.addEventListener("pointercancel", endDrag);
+  for (const input of [spanStart, spanEnd]) {
+    input.addEventListener("input", () => showSpan(Number(spanStart.value), Number(spanEnd.value)));
+  }
+  spanForm.addEventListener("submit", (event) => {
+    event.preventDefault();
+    const start = Number(spanStart.value);
+    const end = Number(spanEnd.value);
+    if (!(end > start)) {
+      actionStatus.textContent = "Pick a span: its end must come after its start.";
+      spanEnd.focus();
+      return;
+    }
+    navigate("search", { clip: clip.id, mode: "moments", start: String(start), end: String(end) });
+  });
+
   // -- facts -----------------------------------------------------------------------------------
   const fps = clip.frame_time > 0 ? 1 / clip.frame_time : NaN;
   const facts = [
@@ -209,7 +275,7 @@ export async function renderClip(main, params, { navigate, notify }) {
     el(
       "div",
       { class: "clip-layout" },
-      el("section", { class: "clip-preview", "aria-label": "Preview" }, canvas, timeline.node, previewNote),
+      el("section", { class: "clip-preview", "aria-label": "Preview" }, canvas, timeline.node, previewNote, clip.filenames.length ? spanForm : null),
       el("section", { class: "clip-facts", "aria-labelledby": "facts-head" }, el("h2", { id: "facts-head" }, "About this clip"), factList),
     ),
     warnings,

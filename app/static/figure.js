@@ -177,14 +177,26 @@ export class Figure {
     );
   }
 
+  /** Play only [start, end) seconds of the skeleton's timeline (a moment), looping. */
+  setSpan(start, end) {
+    this.span = end > start ? [start, end] : null;
+    this.lastKey = "";
+  }
+
   get duration() {
     const s = this.skeleton;
+    if (this.span) return this.span[1] - this.span[0];
     return s && s.frame_count > 0 ? s.frame_count / s.fps : 0;
   }
 
   frameAt(time) {
     const s = this.skeleton;
     if (!s || s.frame_count === 0) return 0;
+    if (this.span) {
+      const [start, end] = this.span;
+      const at = start + (Math.max(0, time) % (end - start));
+      return Math.min(s.frame_count - 1, Math.floor(at * s.fps + 1e-6));
+    }
     return Math.floor(time * s.fps + 1e-6) % s.frame_count;
   }
 

@@ -1,5 +1,7 @@
 // Search: a stored clip (or a dropped file) as the query, its k nearest clips under a
 // descriptor, all animated side by side on one clock; click a result to search from it.
+// In "moments" mode the results are spans of clips (GET/POST /search/moments): each plays
+// only its span, with a thin timeline showing where in its clip it lies.
 
 import { clipForm, descriptors, getJson, labels as fetchLabels, postForm } from "./api.js";
 import { formatBadge } from "./clip.js";
@@ -26,6 +28,9 @@ export async function renderSearch(main, params, { navigate }) {
     descriptor: params.get("descriptor") || "",
     k: Math.min(MAX_K, Math.max(1, askedK)),
     label: params.get("label") || "",
+    mode: params.get("mode") === "moments" ? "moments" : "clips",
+    start: params.get("start") ?? "",
+    end: params.get("end") ?? "",
   };
   let capped = askedK > MAX_K; // say so rather than silently showing fewer
 
@@ -38,7 +43,20 @@ export async function renderSearch(main, params, { navigate }) {
     k: nextId("k"),
     kHelp: nextId("k-help"),
     label: nextId("label"),
+    mode: nextId("mode"),
   };
+  const modeButtons = ["clips", "moments"].map((value) =>
+    el("input", { type: "radio", name: ids.mode, value, id: `${ids.mode}-${value}`, checked: state.mode === value }),
+  );
+  const modeSwitch = el(
+    "fieldset",
+    { class: "field mode-switch" },
+    el("legend", {}, "Find"),
+    ...modeButtons.flatMap((input) => [
+      input,
+      el("label", { for: input.id }, input.value === "clips" ? "whole clips" : "moments"),
+    ]),
+  );
   const queryInput = el("input", {
     id: ids.query,
     type: "search",
@@ -65,6 +83,7 @@ export async function renderSearch(main, params, { navigate }) {
   const form = el(
     "form",
     { class: "filters search-form", role: "search", "aria-label": "Search clips" },
+    modeSwitch,
     el("div", { class: "field wide" }, el("label", { for: ids.query }, "Query clip"), queryInput, options),
     el("div", { class: "field" }, el("label", { for: ids.file }, "…or search with a file"), fileInput),
     el("div", { class: "field" }, el("label", { for: ids.descriptor }, "Descriptor"), descriptorSelect),
@@ -118,7 +137,14 @@ export async function renderSearch(main, params, { navigate }) {
   const figures = [];
   const syncLoop = () => timeline.setLength(Math.max(0, ...figures.map((f) => f.duration)));
 
-  function figureCard({ clipId, name, labels, detail, role, rank, format, filenames = [], family = "" }) {
+  function searchParams() {
+    // The URL keeps the k asked for: the page shows at most MAX_K, and says so.
+    const k = Math.max(1, Number.parseInt(kInput.value, 10) || DEFAULT_K);
+    const params = { descriptor: state.descriptor, k, label: state.label };
+    return state.mode === "moments" ? { ...params, mode: "moments" } : params;
+  }
+
+  function figureCard({ clipId, name, labels, detail, role, rank, format, filenames = [], family = "", span = null }) {
     const headingId = nextId("result");
     const canvas = el("canvas", {
       class: "figure",
@@ -168,8 +194,8 @@ export async function renderSearch(main, params, { navigate }) {
     if (clipId !== null && role !== "query") {
       node.classList.add("clickable");
       node.addEventListener("click", (event) => {
-        if (event.target.closest("a")) return;
-        navigate("search", { clip: clipId, descriptor: state.descriptor, k: state.k, label: state.label });
+        if (event.target.closest("a, button")) return;
+        navigate("search", { clip: clipId, ...searchParams(), ...(span ? { start: span[0], end: span[1] } : {}) });
       });
     }
     return { node, figure };
@@ -211,7 +237,119 @@ export async function renderSearch(main, params, { navigate }) {
     Promise.all(loads).then(syncLoop);
   }
 
+  // -- moments ---------------------------------------------------------------------------------
+  const MOMENT_DESCRIPTOR = "motion";
+
+  function spanBar(start, end, duration) {
+    const whole = Math.max(duration, end, 1e-6);
+    const bar = el("span", { class: "timeline-span" });
+    bar.style.left = `${(100 * start) / whole}%`;
+    bar.style.width = `${Math.max(0.5, (100 * (end - start)) / whole)}%`;
+    return el(
+      "div",
+      { class: "moment-time" },
+      el("div", { class: "moment-timeline", role: "img", "aria-label": `${formatSeconds(start)} to ${formatSeconds(end)} of ${formatSeconds(duration)}` }, bar),
+      el("p", { class: "meta span-text" }, `${formatSeconds(start)} – ${formatSeconds(end)} of ${formatSeconds(duration)}`),
+    );
+  }
+
+  /** A figure playing [start, end) seconds of its file (lead-in frames are not in the preview). */
+  async function loadSpan(figure, clip, start, end) {
+    const leadIn = clip.lead_in_frames * clip.frame_time;
+    const from = Math.max(0, start - leadIn);
+    const to = Math.max(from + 0.05, end - leadIn);
+    const fps = Math.max(1, Math.min(PREVIEW.fps, Math.floor((PREVIEW.maxFrames - 1) / to)));
+    figure.setSpan(from, to);
+    await figure.load({ fps, maxFrames: PREVIEW.maxFrames });
+  }
+
+  function showMoments(body, queryClip, queryLoad) {
+    for (const f of figures.splice(0)) f.dispose();
+    clear(results);
+    const { start, end } = body.query;
+    const q = figureCard({
+      clipId: queryClip.id ?? null,
+      name: queryClip.name,
+      labels: queryClip.labels || [],
+      role: "query",
+      format: queryClip.format,
+      filenames: queryClip.filenames || [],
+      family: queryClip.skeleton_family || "",
+      detail: spanBar(start, end, queryClip.duration),
+    });
+    results.append(q.node);
+    const loads = [queryLoad(q.figure)];
+    body.results.forEach((moment, i) => {
+      const download = el(
+        "a",
+        {
+          class: "button download",
+          href: `/clips/${moment.id}/file?start=${moment.start}&end=${moment.end}`,
+          download: "",
+          "aria-label": `Download ${moment.name} from ${formatSeconds(moment.start)} to ${formatSeconds(moment.end)}`,
+        },
+        "Download",
+      );
+      const holder = el("div", { class: "moment-detail" });
+      const card = figureCard({
+        clipId: moment.id,
+        name: moment.name,
+        labels: moment.labels,
+        role: "result",
+        rank: i + 1,
+        format: moment.format,
+        filenames: moment.filenames || [],
+        family: moment.skeleton_family || "",
+        span: [moment.start, moment.end],
+        detail: el(
+          "div",
+          {},
+          holder,
+          el("p", { class: "meta distance" }, "distance ", el("strong", { class: "distance-value" }, formatNumber(moment.distance, 4))),
+          download,
+        ),
+      });
+      card.node.classList.add("moment");
+      results.append(card.node);
+      loads.push(
+        getJson(`/clips/${moment.id}`).then((clip) => {
+          holder.append(spanBar(moment.start, moment.end, clip.duration));
+          return loadSpan(card.figure, clip, moment.start, moment.end);
+        }),
+      );
+    });
+    player.seek(0);
+    controls.hidden = false;
+    timeline.setPlaying(true);
+    Promise.allSettled(loads).then(syncLoop);
+  }
+
+  async function searchMoments(clipId) {
+    status.textContent = "Searching moments…";
+    try {
+      const body = await getJson("/search/moments", {
+        clip: clipId,
+        k: state.k,
+        label: state.label,
+        start: state.start,
+        end: state.end,
+        descriptor: MOMENT_DESCRIPTOR,
+      });
+      const clip = body.query.clip;
+      queryInput.value = optionText(clip);
+      byOption.set(queryInput.value, clip.id);
+      showMoments(body, clip, (figure) => loadSpan(figure, clip, body.query.start, body.query.end));
+      status.textContent = body.results.length
+        ? `Moments like ${formatSeconds(body.query.start)} – ${formatSeconds(body.query.end)} of ${clip.name}, nearest first.`
+        : `No moment like this one${state.label ? ` under the label ${state.label}` : ""}.`;
+    } catch (error) {
+      clear(results);
+      status.textContent = `Search failed: ${error.detail || error.message}`;
+    }
+  }
+
   async function searchClip(clipId) {
+    if (state.mode === "moments") return searchMoments(clipId);
     status.textContent = "Searching…";
     try {
       const body = await getJson("/search", {
@@ -241,6 +379,21 @@ export async function renderSearch(main, params, { navigate }) {
     const item = items[0];
     status.textContent = `Searching with ${item.name}…`;
     const query = { descriptor: state.descriptor, k: state.k, label: state.label };
+    if (state.mode === "moments") {
+      try {
+        const { body } = await postForm("/search/moments", { ...query, descriptor: MOMENT_DESCRIPTOR }, clipForm(item));
+        const preview = postForm("/skeleton", { fps: PREVIEW.fps, max_frames: PREVIEW.maxFrames }, clipForm(item));
+        const uploaded = { id: null, name: item.name, labels: [], duration: body.query.end };
+        showMoments(body, uploaded, (figure) =>
+          preview.then(({ body: skeleton }) => figure.setSkeleton(skeleton), (error) => figure.setError(error)),
+        );
+        status.textContent = `Moments like the file ${item.name}, nearest first.`;
+      } catch (error) {
+        clear(results);
+        status.textContent = `Search with ${item.name} failed: ${error.detail || error.message}`;
+      }
+      return;
+    }
     try {
       const { body } = await postForm("/search", query, clipForm(item));
       const preview = postForm("/skeleton", { fps: PREVIEW.fps, max_frames: PREVIEW.maxFrames }, clipForm(item));
@@ -264,6 +417,12 @@ export async function renderSearch(main, params, { navigate }) {
     capped = asked > MAX_K;
     state.k = Math.min(MAX_K, Math.max(1, asked));
     state.label = labelSelect.value;
+    const mode = modeButtons.find((b) => b.checked);
+    if (mode && mode.value !== state.mode) {
+      state.mode = mode.value;
+      state.start = "";
+      state.end = "";
+    }
   }
 
   form.addEventListener("submit", async (event) => {
@@ -292,8 +451,8 @@ export async function renderSearch(main, params, { navigate }) {
       queryInput.focus();
       return;
     }
-    // The URL keeps the k asked for: the page shows at most MAX_K, and says so.
-    navigate("search", { clip: clipId, descriptor: state.descriptor, k: Math.max(1, Number.parseInt(kInput.value, 10) || DEFAULT_K), label: state.label });
+    const span = state.mode === "moments" && state.start !== "" ? { start: state.start, end: state.end } : {};
+    navigate("search", { clip: clipId, ...searchParams(), ...span });
   });
   fileInput.addEventListener("change", () => {
     if (fileInput.files.length) form.requestSubmit();

@@ -150,3 +150,32 @@ def test_export_refuses_a_part(live):
     response = live.get(f"/clips/{clip['id']}/file?format=bvh&part=file")
     assert response.status_code == 422
     assert live.get(f"/clips/{clip['id']}/file?format=obj").status_code == 422
+
+
+@pytest.mark.parametrize(
+    ("files", "params"),
+    [
+        ({"file": BVH}, {"format": "bvh"}),
+        ({"skeleton": ASF, "motion": AMC}, {"format": "bvh"}),
+        ({"file": FBX}, {"format": "bvh"}),
+        ({"file": FBX}, {}),  # FBX cannot be cut as it is: the span's BVH export
+        ({"file": GLB}, {}),
+    ],
+    ids=["bvh", "asf/amc", "fbx", "fbx-cut", "glb-cut"],
+)
+def test_a_span_of_any_clip_as_bvh(live, files, params):
+    clip = live.post("/clips", files=files).json()
+    whole = read_bvh(live.get(f"/clips/{clip['id']}/file?format=bvh").content)
+    frame_time = clip["frame_time"]
+    first, stop = clip["frame_count"] // 4, clip["frame_count"] * 3 // 4
+    start, end = first * frame_time, stop * frame_time
+    response = live.get(f"/clips/{clip['id']}/file", params={**params, "start": start, "end": end})
+    assert response.status_code == 200, response.text
+    assert f"{start:.2f}-{end:.2f}s.bvh" in response.headers["content-disposition"]
+    cut = read_bvh(response.content)
+    assert cut.frame_count == stop - first
+    np.testing.assert_allclose(
+        cut.local_rotations, whole.local_rotations[first:stop], atol=1e-6, rtol=0
+    )
+    outside = live.get(f"/clips/{clip['id']}/file", params={**params, "start": 0, "end": 999})
+    assert outside.status_code == 422 and "outside the clip" in outside.json()["detail"]

@@ -62,3 +62,27 @@ def test_fill_to_a_count_with_ivf_indexes(
         assert only_real == []
     finally:
         library.close()
+
+
+def test_synthetic_clips_copy_the_windows_of_real_ones(
+    settings: Settings, fixtures_dir: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    run_import(settings, [fixtures_dir], workers=1)
+    argv = ["fill-synthetic", "--count", "50", "--data-dir", str(settings.data_dir)]
+    assert main(argv) == 0
+    assert "windows-motion-1s flat" in capsys.readouterr().out
+    db = sqlite3.connect(settings.data_dir / "mocap-index.sqlite3")
+    try:
+        per_clip = db.execute(
+            "SELECT c.format, count(w.id) FROM clips c LEFT JOIN clip_windows w "
+            "ON w.clip_id = c.id GROUP BY c.id"
+        ).fetchall()
+        total = db.execute("SELECT count(*) FROM clip_windows").fetchone()[0]
+    finally:
+        db.close()
+    assert all(count >= 1 for _, count in per_clip) and len(per_clip) == 50
+    library = open_library(settings)
+    try:
+        assert sum(library.window_indexes.sizes().values()) == total
+    finally:
+        library.close()

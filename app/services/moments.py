@@ -1,0 +1,619 @@
+"""Moments search: where in the stored clips a span of motion happens.
+
+The query is a span ``[start, end)`` (seconds from the first frame of the file, lead-in
+included) of a stored clip or of an uploaded file, described under one descriptor exactly as
+a window is (:mod:`app.motion.windows`). It is compared with the stored windows of the window
+length(s) nearest the query's length — the largest at most and the smallest at least as long
+— through their FAISS indexes. Then:
+
+* **merge**: window hits of one clip that overlap or touch (one after another, in distance
+  order) become one moment, whose distance is its best window's;
+* **localise**: a moment lies where its best window lies, moved by the equiangular fit of the
+  distances of that window and its two neighbours of the same length (half a hop at most:
+  the distance grows about linearly with the shift), and is as long as the query (clipped to
+  its clip) — so a moment found from a 3-s query is a 3-s span, not a union of windows;
+* **rank**: ``3 k`` moments are placed, then ranked by how well their whole span fits (the
+  mean distance of the stored windows inside it to the query's parts at the same offsets):
+  one window's distance ranks a long query by a few seconds of it, and windows straddle
+  the boundaries between the motions of a take;
+* **limit**: at most ``k`` moments, at most ``per_clip`` of one clip, nearest first; a query
+  from a stored clip never returns a moment overlapping its own span.
+
+Windows of clips deleted by another process are skipped (no row), as clip searches do.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from app.db import repository as repo
+from app.errors import InvalidInput, NotFound
+from app.index import DescriptorIndex
+from app.labels import label_filter
+from app.services.clips import stored_upload
+from app.services.describe import (
+    WINDOW_LENGTHS,
+    MotionDescriber,
+    SpanDescription,
+    span_frames,
+)
+from app.services.library import Library, window_index_name
+from app.services.search import _unavailable, check_k
+from app.services.uploads import Upload
+
+MAX_PER_CLIP = 1000
+RANKED = 3  # moments placed per moment returned, ranked by how well their whole span fits
+MAX_ATTEMPTS = 4
+
+
+@dataclass(frozen=True, slots=True)
+class Moment:
+    """A found span ``[start, end)`` in seconds of the clip's file."""
+
+    clip: repo.ClipName
+    format: str
+    start: float
+    end: float
+    distance: float
+
+
+@dataclass(frozen=True, slots=True)
+class MomentQuery:
+    """The query's span in seconds of its file, and its clip when it is a stored one."""
+
+    clip: repo.ClipRecord | None
+    start: float
+    end: float
+
+
+@dataclass(frozen=True)
+class Parts:
+    """The query's own windows of one ``length`` (seconds): ``offsets`` ``(J,)`` seconds from
+    the query's start, ``vectors`` ``(J, D)`` float32. They place a moment to a frame or so:
+    a window stored in the found clip matches the query's part at the same place."""
+
+    length: float
+    offsets: np.ndarray
+    vectors: np.ndarray
+
+
+def part_length(seconds: float) -> float:
+    """The window length a query of ``seconds`` is split into to place its moments: the
+    longest whose stored windows (every half length) always fit one whole into a span of the
+    query's length, else the shortest."""
+    fitting = [length for length in WINDOW_LENGTHS if 1.5 * length <= seconds + 1e-9]
+    return fitting[-1] if fitting else min(WINDOW_LENGTHS)
+
+
+@dataclass
+class _Group:
+    """Window hits of one clip merged so far: ``cover`` the frames of their union."""
+
+    clip_id: int
+    best: repo.WindowSpan
+    distance: float
+    index: str
+    cover: tuple[int, int]
+
+
+def window_descriptors(library: Library) -> list[str]:
+    return sorted({key.name for key in library.window_keys.values()})
+
+
+def _check(library: Library, descriptor: str, k: int, per_clip: int) -> None:
+    library.descriptor(descriptor)
+    if descriptor not in window_descriptors(library):
+        known = ", ".join(window_descriptors(library)) or "none"
+        raise InvalidInput(
+            f"descriptor: moments are searched under the descriptors with windows ({known}), "
+            f"not {descriptor!r}"
+        )
+    check_k(library, k)
+    if not 1 <= per_clip <= MAX_PER_CLIP:
+        raise InvalidInput(f"per_clip: must be between 1 and {MAX_PER_CLIP}, got {per_clip}")
+
+
+def nearest_lengths(seconds: float, lengths: tuple[float, ...] = WINDOW_LENGTHS) -> list[float]:
+    """The window lengths a query of ``seconds`` is compared with: the longest at most as
+    long and the shortest at least as long (one when the query is shorter or longer than
+    every window, or as long as one)."""
+    ordered = sorted(lengths)
+    below = [length for length in ordered if length <= seconds + 1e-9]
+    above = [length for length in ordered if length >= seconds - 1e-9]
+    chosen = {below[-1] if below else ordered[0], above[0] if above else ordered[-1]}
+    return sorted(chosen)
+
+
+def _window_index(library: Library, descriptor: str, length: float) -> DescriptorIndex | None:
+    """The index of ``descriptor`` windows of ``length`` seconds, if there is one."""
+    name = window_index_name(descriptor, length)
+    return library.window_indexes.get(name) if name in library.window_keys else None
+
+
+def _index_names(library: Library, descriptor: str, seconds: float) -> list[str]:
+    wanted = nearest_lengths(seconds)
+    return [
+        name
+        for name, key in library.window_keys.items()
+        if key.name == descriptor and key.length in wanted
+    ]
+
+
+def _refined_centre(
+    library: Library, db: repo.SearchSnapshot, group: _Group, vector: np.ndarray
+) -> float:
+    """The frame (fractional) where the moment's centre lies: its best window's centre moved
+    by the equiangular fit of its neighbours' distances (see the module docstring)."""
+    best = group.best
+    centre = (best.start + best.stop) / 2
+    index = library.window_indexes[group.index]
+    neighbours = db.window_spans([best.id - 1, best.id + 1])
+    distances: dict[int, tuple[float, int]] = {}
+    for step in (-1, 1):
+        span = neighbours.get(best.id + step)
+        if span is None or span.clip_id != best.clip_id or span.length != best.length:
+            continue
+        shift = span.start - best.start
+        if shift == 0 or (shift > 0) != (step > 0):
+            continue
+        try:
+            other = index.reconstruct(span.id)
+        except KeyError:
+            continue
+        distances[step] = (float(np.linalg.norm(other - vector)), abs(shift))
+    if len(distances) < 2:
+        return centre
+    (left, hop_left), (right, hop_right) = distances[-1], distances[1]
+    rise = max(left, right) - group.distance
+    if rise <= 1e-12:
+        return centre
+    hop = min(hop_left, hop_right)
+    offset = (left - right) / (2 * rise) * hop
+    return centre + float(np.clip(offset, -hop / 2, hop / 2))
+
+
+def _aligned_start(
+    library: Library,
+    db: repo.SearchSnapshot,
+    group: _Group,
+    parts: Parts,
+    descriptor: str,
+    version: int,
+    frame_time: float,
+    query_seconds: float,
+    exclude: tuple[int, int, int] | None,
+) -> tuple[float, float] | None:
+    """Where (seconds) the moment of ``group`` starts — the stored window of its clip nearest
+    to one of the query's parts, minus that part's offset — and how well the whole span fits:
+    the mean distance of the stored windows inside the placed span to the query's parts at
+    the same offsets (``None``: no window to compare)."""
+    key = library.window_keys.get(window_index_name(descriptor, parts.length))
+    if key is None or parts.vectors.size == 0:
+        return None
+    reach = query_seconds / frame_time
+    low, high = group.cover[0] - reach, group.cover[1] + reach
+    ids, starts, stops = db.window_places(group.clip_id, key, int(low), int(high) + 1)
+    if exclude is not None and group.clip_id == exclude[0]:
+        keep = (stops <= exclude[1]) | (starts >= exclude[2])
+        ids, starts = ids[keep], starts[keep]
+    index = library.window_indexes[window_index_name(descriptor, parts.length)]
+    held, vectors = index.reconstruct_many(ids)
+    if not len(held):
+        return None
+    sorted_starts = starts[np.isin(ids, held)]
+    stored = vectors.astype(np.float64)
+    query = parts.vectors.astype(np.float64)
+    squared = (
+        (query**2).sum(axis=1)[:, None] + (stored**2).sum(axis=1)[None, :] - 2 * query @ stored.T
+    )
+    distances = np.sqrt(np.maximum(squared, 0.0))
+    start = _placed_start(distances, sorted_starts, parts, frame_time)
+    return start, _span_fit(distances, sorted_starts * frame_time - start, parts, query_seconds)
+
+
+def _placed_start(
+    distances: np.ndarray, sorted_starts: np.ndarray, parts: Parts, frame_time: float
+) -> float:
+    """See :func:`_aligned_start`: ``distances`` ``(J, M)`` parts x stored windows."""
+    j, m = np.unravel_index(int(np.argmin(distances)), distances.shape)
+    if 0 < j < len(parts.offsets) - 1:
+        # Parts on both sides fit worse: this part lies on the stored window itself.
+        return float(sorted_starts[m] * frame_time - parts.offsets[int(j)])
+    # The best place is beyond the parts' offsets (no stored window fits whole in the
+    # query's span): between two stored windows, where their distance branches cross.
+    crossing = branch_crossing(distances, sorted_starts * frame_time, parts.offsets, int(j), int(m))
+    if crossing is not None:
+        return crossing
+    shift, lowest = fitted_minima(distances, sorted_starts)
+    j, m = np.unravel_index(int(np.argmin(lowest)), lowest.shape)
+    return float(shift[j, m] * frame_time - parts.offsets[int(j)])
+
+
+def _span_fit(
+    distances: np.ndarray, offsets: np.ndarray, parts: Parts, query_seconds: float
+) -> float:
+    """Mean distance of the stored windows at ``offsets`` (seconds from the placed start)
+    inside the placed span to the query's parts nearest those offsets; the best distance
+    when no stored window lies inside."""
+    inside = (offsets >= -0.02) & (offsets <= query_seconds - parts.length + 0.02)
+    if not inside.any():
+        return float(distances.min())
+    columns = np.flatnonzero(inside)
+    rows = np.clip(np.searchsorted(parts.offsets, offsets[columns]), 0, len(parts.offsets) - 1)
+    below = np.clip(rows - 1, 0, len(parts.offsets) - 1)
+    nearer = np.abs(parts.offsets[below] - offsets[columns]) < np.abs(
+        parts.offsets[rows] - offsets[columns]
+    )
+    rows = np.where(nearer, below, rows)
+    return float(distances[rows, columns].mean())
+
+
+def branch_crossing(
+    distances: np.ndarray, starts: np.ndarray, offsets: np.ndarray, best_part: int, best: int
+) -> float | None:
+    """Where (seconds) the query starts when its best pair is an end part ``best_part`` and
+    stored window ``best``: every part against one stored window puts the query's start at
+    ``start - offset``; along those places the distance of a window is one branch of a V
+    (about linear). The best window's branch and the neighbouring window's on the other side
+    of the true place, each fitted with a line over the parts, cross there — each with its
+    own slope, which a fit from three windows cannot have. ``None`` when the branches do not
+    go down towards each other (or too few parts to fit a line).
+
+    ``distances`` ``(J, M)``, ``starts`` ``(M,)`` sorted seconds, ``offsets`` ``(J,)``
+    seconds (ascending).
+    """
+    count = len(offsets)
+    if count < 3:
+        return None
+    other = best + 1 if best_part == 0 else best - 1
+    if not 0 <= other < distances.shape[1]:
+        return None
+    here, there = starts[best] - offsets, starts[other] - offsets
+    slope_here, at_here = _line(here, distances[:, best])
+    slope_there, at_there = _line(there, distances[:, other])
+    rising = 1.0 if best_part == 0 else -1.0  # the true place is above (below) this branch
+    if not (slope_here * rising < 0 < slope_there * rising):
+        return None
+    place = (at_there - at_here) / (slope_here - slope_there)
+    edges = sorted((float(here[best_part]), float(there[count - 1 - best_part])))
+    return float(np.clip(place, edges[0], edges[1]))
+
+
+def _line(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """Least-squares slope and intercept of ``y`` over ``x`` (both ``(N,)``)."""
+    dx = x - x.mean()
+    slope = float((dx * (y - y.mean())).sum() / max(float((dx**2).sum()), 1e-18))
+    return slope, float(y.mean() - slope * x.mean())
+
+
+def fitted_minima(distances: np.ndarray, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where between the stored windows each query part fits best, and how well.
+
+    ``distances`` ``(J, M)`` from each query part to each stored window, whose ``starts``
+    ``(M,)`` (frames) are sorted. A window's distance grows about linearly with how far it
+    is shifted from the best place (means over shifted frames change linearly), so at a
+    window nearer than both its neighbours (an equal hop ``h`` away) the equiangular fit
+    gives the best place ``start + x`` with ``x = h (d_left - d_right) / (2 rise)`` and its
+    distance ``d - rise |x| / h`` (``rise = max(d_left, d_right) - d``). Elsewhere the
+    window's own start and distance stand.
+
+    Returns ``(J, M)`` fitted starts (frames) and fitted distances.
+    """
+    shift = np.broadcast_to(starts.astype(np.float64), distances.shape).copy()
+    lowest = distances.copy()
+    if distances.shape[1] < 3:
+        return shift, lowest
+    left, centre, right = distances[:, :-2], distances[:, 1:-1], distances[:, 2:]
+    hop_left = (starts[1:-1] - starts[:-2]).astype(np.float64)
+    hop_right = (starts[2:] - starts[1:-1]).astype(np.float64)
+    rise = np.maximum(left, right) - centre
+    ok = (rise > 1e-12) & (centre <= np.minimum(left, right)) & (hop_left == hop_right)
+    ok &= hop_left > 0
+    safe_rise = np.where(ok, rise, 1.0)
+    x = np.clip((left - right) / (2 * safe_rise), -0.5, 0.5) * hop_left
+    shift[:, 1:-1] += np.where(ok, x, 0.0)
+    lowest[:, 1:-1] = np.where(ok, centre - safe_rise * np.abs(x) / np.maximum(hop_left, 1), centre)
+    return shift, lowest
+
+
+def _search(
+    library: Library,
+    db: repo.SearchSnapshot,
+    descriptor: str,
+    vector: np.ndarray,
+    query_seconds: float,
+    k: int,
+    per_clip: int,
+    label: repo.LabelFilter,
+    exclude: tuple[int, int, int] | None,
+    parts: Parts | None = None,
+) -> list[Moment]:
+    """``exclude``: (clip id, first, stop) frames of the query's own span; ``parts``: the
+    query's own windows, to place the moments (else their best window's neighbours do)."""
+    names = _index_names(library, descriptor, query_seconds)
+    allowed = {
+        name: db.window_ids_with_label(label, library.window_keys[name])
+        if label_filter(label)
+        else None
+        for name in names
+    }
+    # More moments than asked for are placed, then ranked by how well their whole span fits.
+    candidates = k * (RANKED if parts is not None else 1)
+    fetch = min(
+        4 * candidates + 20, 4096
+    )  # windows per index; more when too few moments came of them
+    groups: dict[int, list[_Group]] = {}
+    for _ in range(MAX_ATTEMPTS):
+        found: list[tuple[float, int, str]] = []
+        exhausted = True
+        for name in names:
+            hits = library.window_indexes[name].search(vector, fetch, allowed=allowed[name])
+            exhausted &= len(hits) < fetch
+            found.extend(
+                (float(d), int(i), name) for i, d in zip(hits.ids, hits.distances, strict=True)
+            )
+        found.sort()
+        spans = db.window_spans([i for _, i, _ in found])
+        groups = {}
+        moments = 0
+        for distance, window_id, name in found:
+            span = spans.get(window_id)
+            if span is None:  # deleted meanwhile
+                continue
+            if _overlaps_query(exclude, span.clip_id, span.start, span.stop):
+                continue
+            of_clip = groups.setdefault(span.clip_id, [])
+            merged = False
+            for group in of_clip:
+                if span.start <= group.cover[1] and group.cover[0] <= span.stop:
+                    group.cover = (min(group.cover[0], span.start), max(group.cover[1], span.stop))
+                    merged = True
+                    break
+            if merged or len(of_clip) >= per_clip or moments >= candidates:
+                continue
+            of_clip.append(_Group(span.clip_id, span, distance, name, (span.start, span.stop)))
+            moments += 1
+        if moments >= candidates or exhausted:
+            break
+        fetch *= 4
+    chosen = sorted(
+        (group for of_clip in groups.values() for group in of_clip), key=lambda g: g.distance
+    )[:candidates]
+    clips = db.names([g.clip_id for g in chosen])
+    facts = db.frame_times([g.clip_id for g in chosen])
+    moments_out: list[Moment] = []
+    for group in chosen:
+        if group.clip_id not in clips or group.clip_id not in facts:
+            continue
+        fmt, frame_time, frame_count = facts[group.clip_id]
+        length = min(query_seconds / frame_time, float(frame_count))
+        start = None
+        distance = group.distance
+        if parts is not None:
+            version = library.window_keys[group.index].version
+            placed = _aligned_start(
+                library, db, group, parts, descriptor, version, frame_time, query_seconds, exclude
+            )
+            if placed is not None:
+                start, distance = placed
+        if start is None:
+            start = (_refined_centre(library, db, group, vector) - length / 2) * frame_time
+        first = min(max(0.0, start / frame_time), frame_count - length)
+        if exclude is not None and _overlaps_query(exclude, group.clip_id, first, first + length):
+            # Placed over the query's own span: next to it, on the side of the best window.
+            after = group.best.start >= exclude[1]
+            first = float(exclude[2]) if after else exclude[1] - length
+            if first < 0 or first + length > frame_count:
+                continue
+        stop = first + length
+        start_s, end_s = first * frame_time, stop * frame_time
+        moments_out.append(
+            Moment(clips[group.clip_id], fmt, _round(start_s), _round(end_s), distance)
+        )
+    moments_out.sort(key=lambda moment: moment.distance)
+    return moments_out[:k]
+
+
+def _overlaps_query(
+    exclude: tuple[int, int, int] | None, clip_id: int, first: float, stop: float
+) -> bool:
+    """Whether frames ``[first, stop)`` of clip ``clip_id`` overlap the query's own span."""
+    return (
+        exclude is not None and clip_id == exclude[0] and first < exclude[2] and exclude[1] < stop
+    )
+
+
+def _round(seconds: float) -> float:
+    return round(seconds, 6)
+
+
+def search_moments_by_clip(
+    library: Library,
+    clip_id: int,
+    descriptor: str,
+    *,
+    start: float | None,
+    end: float | None,
+    k: int,
+    per_clip: int,
+    label: repo.LabelFilter,
+) -> tuple[MomentQuery, list[Moment]]:
+    """Moments like the span ``[start, end)`` of stored clip ``clip_id`` (``GET
+    /search/moments``); none overlapping that span itself."""
+    _check(library, descriptor, k, per_clip)
+    info = library.descriptor(descriptor)
+    library.refresh()
+    with library.search_reads.snapshot() as db:
+        clip = db.clip(clip_id)
+        if clip is None:
+            raise NotFound(f"no clip with id {clip_id}")
+        first, stop = span_frames(
+            clip.frame_count, clip.frame_time, clip.lead_in_frames, start, end, WINDOW_LENGTHS[0]
+        )
+        stored = _StoredSpan(clip, descriptor, info.version, first, stop)
+        vector = _stored_span_vector(library, db, stored)
+        if vector is None:
+            vector = _described_span(library, clip, descriptor, first, stop).vector
+        seconds = (stop - first) * clip.frame_time
+        parts = _stored_parts(library, db, stored)
+        moments = _search(
+            library,
+            db,
+            descriptor,
+            vector,
+            seconds,
+            k,
+            per_clip,
+            label,
+            (clip.id, first, stop),
+            parts,
+        )
+    query = MomentQuery(
+        clip,
+        _round(start if start is not None else 0.0),
+        _round(end if end is not None else clip.duration),
+    )
+    return query, moments
+
+
+@dataclass(frozen=True)
+class _StoredSpan:
+    """Frames ``[first, stop)`` of a stored clip, queried under ``descriptor`` of ``version``."""
+
+    clip: repo.ClipRecord
+    descriptor: str
+    version: int
+    first: int
+    stop: int
+
+
+def _stored_span_vector(
+    library: Library, db: repo.SearchSnapshot, span: _StoredSpan
+) -> np.ndarray | None:
+    """The query vector without reading the file, when the span is the whole clip (the clip's
+    vector) or exactly a stored window; else ``None``."""
+    clip, descriptor, version, first, stop = (
+        span.clip,
+        span.descriptor,
+        span.version,
+        span.first,
+        span.stop,
+    )
+    if first == clip.lead_in_frames and stop == clip.frame_count:
+        try:
+            return library.indexes[descriptor].reconstruct(clip.id)
+        except KeyError:
+            stored = db.vector(clip.id, descriptor)
+            if stored is None or stored.version != version:
+                raise _unavailable(clip.id, descriptor, version) from None
+            return stored.vector
+    for window in db.clip_windows(clip.id, descriptor, version):
+        index = _window_index(library, descriptor, window.length)
+        if window.start == first and window.stop == stop and index is not None:
+            try:
+                return index.reconstruct(window.id)
+            except KeyError:
+                break
+    return None
+
+
+def _stored_parts(library: Library, db: repo.SearchSnapshot, span: _StoredSpan) -> Parts | None:
+    """The query's parts from the stored windows of its clip inside its span."""
+    clip, first, stop = span.clip, span.first, span.stop
+    length = part_length((stop - first) * clip.frame_time)
+    index = _window_index(library, span.descriptor, length)
+    if index is None:
+        return None
+    offsets, vectors = [], []
+    for window in db.clip_windows(clip.id, span.descriptor, span.version):
+        if window.length == length and first <= window.start and window.stop <= stop:
+            try:
+                vectors.append(index.reconstruct(window.id))
+            except KeyError:
+                continue
+            offsets.append((window.start - first) * clip.frame_time)
+    if not vectors:
+        return None
+    return Parts(length, np.array(offsets), np.stack(vectors))
+
+
+def _described_span(
+    library: Library, clip: repo.ClipRecord, descriptor: str, first: int, stop: int
+) -> SpanDescription:
+    """Read the clip's stored file and describe frames ``[first, stop)``."""
+    describer = library.describer
+    if not clip.files or not isinstance(describer, MotionDescriber):
+        raise InvalidInput(
+            f"clip {clip.id} has no stored file to describe a part of ({clip.format} clip); "
+            "search from the whole clip or one of its windows"
+        )
+    upload = stored_upload(library, clip)
+    return describer.describe_span(
+        upload,
+        library.settings.parse_limits,
+        descriptor,
+        first * clip.frame_time,
+        stop * clip.frame_time,
+    )
+
+
+def search_moments_by_upload(
+    library: Library,
+    upload: Upload,
+    descriptor: str,
+    *,
+    start: float | None,
+    end: float | None,
+    k: int,
+    per_clip: int,
+    label: repo.LabelFilter,
+) -> tuple[MomentQuery, list[Moment]]:
+    """Moments like the span ``[start, end)`` of an uploaded file, which is stored nowhere
+    (``POST /search/moments``)."""
+    _check(library, descriptor, k, per_clip)
+    describer = library.describer
+    if not isinstance(describer, MotionDescriber):
+        raise InvalidInput("moments search needs the motion describer")
+    span = describer.describe_span(
+        upload,
+        library.settings.parse_limits,
+        descriptor,
+        start,
+        end,
+        min_seconds=WINDOW_LENGTHS[0],
+        part_length=part_length,
+    )
+    library.refresh()
+    seconds = (span.end_frame - span.start_frame) * span.frame_time
+    parts = Parts(span.part_length, span.part_offsets * span.frame_time, span.parts)
+    with library.search_reads.snapshot() as db:
+        moments = _search(
+            library,
+            db,
+            descriptor,
+            span.vector,
+            seconds,
+            k,
+            per_clip,
+            label,
+            None,
+            parts,
+        )
+    duration = span.frame_count * span.frame_time
+    query = MomentQuery(
+        None,
+        _round(start if start is not None else 0.0),
+        _round(end if end is not None else duration),
+    )
+    return query, moments
+
+
+__all__ = [
+    "Moment",
+    "MomentQuery",
+    "nearest_lengths",
+    "search_moments_by_clip",
+    "search_moments_by_upload",
+]

@@ -1,0 +1,440 @@
+"""Moments search on real data: exact moments and localisation across styles (issue 13).
+
+Run from the repository root::
+
+    .venv/bin/python bench/bench_moments.py exact [--spans 500] [--seed 0]
+    .venv/bin/python bench/bench_moments.py styles [--seed 0]
+    .venv/bin/python bench/bench_moments.py scale [--hours 100] [--data-dir DIR]
+
+``exact``
+    Imports Bandai dataset 1 and the CMU ASF/AMC trials of ``../shared/data`` into a fresh
+    temporary library, then cuts ``--spans`` random spans of 1-4 s out of random clips (the
+    stored file cut with ``app.motion.formats.cut``, as ``GET /clips/{id}/file?start=&end=``
+    does), searches each by upload (``POST /search/moments`` in-process, ``k=1``) and counts
+    the spans whose top moment is in the source clip with IoU >= 0.8 (target: 99 %).
+``styles``
+    Builds one long take per Bandai style: that style's clips joined into one BVH in a
+    random order, each clip's root moved on the floor so it starts where the previous one
+    ended (no teleports), imported with the style as label. Every ds1 clip is then a query
+    by upload: the top moment in a take of *another* style (``per_clip=1``, the first result
+    of another style) must overlap a segment of the same action with IoU >= 0.5 (target:
+    70 % of the queries whose action appears in another style's take). Also printed: IoU >=
+    0.3 / 0.7, and the whole-clip baselines — the whole take as the moment, and the 1-NN
+    action accuracy of whole clips of other styles under the same descriptor.
+``scale``
+    Fills ``DIR`` (default ``$TMPDIR/mocap-bench-moments-100h``) with ``--hours`` of motion
+    windows: Bandai dataset 1 imported, then ``mocap-index fill-synthetic`` clips (each a
+    noisy copy of a real clip with its windows) up to that many hours. Times three server
+    starts, then ``wrk`` (``bench/search.lua``) on ``GET /search/moments?clip=<random>&k=10``
+    (the whole clip as the query) at 1 and 32 connections, with the server's peak VmRSS.
+    Targets: median <= 20 ms at 1 connection, >= 300 requests/s at 32, RSS <= 3 GB,
+    start-up <= 10 s. Needs ``wrk``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from common import machine, shared_data  # bench/common.py (scripts run from bench/)
+
+from app.config import Settings
+from app.db import repository as repo
+from app.errors import MocapError
+from app.importer import run_import
+from app.motion.formats import decode_text
+from app.motion.formats.cut import cut_amc, cut_bvh
+from app.services.ingest import ingest_many
+from app.services.library import Library, open_library
+from app.services.moments import search_moments_by_upload
+from app.services.search import search_by_upload
+from app.services.uploads import Upload
+
+DESCRIPTOR = "motion"
+
+
+def iou(a: tuple[float, float], b: tuple[float, float]) -> float:
+    inter = max(0.0, min(a[1], b[1]) - max(a[0], b[0]))
+    union = max(a[1], b[1]) - min(a[0], b[0])
+    return inter / union if union > 0 else 0.0
+
+
+def fresh_library(tmp: Path, sources: list[Path]) -> Library:
+    settings = Settings(data_dir=tmp / "data", log_level="warning")
+    started = time.perf_counter()
+    report = run_import(settings, sources)
+    print(
+        f"imported {len(report.imported)} clips ({len(report.failed)} failed) in "
+        f"{time.perf_counter() - started:.1f} s"
+    )
+    return open_library(settings)
+
+
+def cut_upload(library: Library, clip: repo.ClipRecord, first: int, stop: int) -> Upload:
+    """The stored clip cut to frames ``[first, stop)``, as an upload."""
+    roles = {f.role: f for f in clip.files}
+    if "file" in roles:
+        text = cut_bvh(decode_text(library.blobs.read(roles["file"].sha256)), first, stop)
+        return Upload.from_files(file=("cut.bvh", text.encode()))
+    asf = library.blobs.read(roles["skeleton"].sha256)
+    amc = cut_amc(decode_text(library.blobs.read(roles["motion"].sha256)), first, stop)
+    return Upload.from_files(skeleton=("cut.asf", asf), motion=("cut.amc", amc.encode()))
+
+
+def exact(args: argparse.Namespace) -> int:
+    data = shared_data()
+    sources = [data / "bandai-ds1", data / "cmu" / "asf-amc"]
+    rng = np.random.default_rng(args.seed)
+    with tempfile.TemporaryDirectory(prefix="mocap-bench-moments-") as tmp:
+        library = fresh_library(Path(tmp), sources)
+        try:
+            with library.reads() as session:
+                clips = list(repo.get_clips(session, repo.all_clip_ids(session)).values())
+            hits, ious, times, misses = 0, [], [], []
+            refused: list[tuple[object, ...]] = []
+            for trial in range(args.spans):
+                clip = clips[int(rng.integers(len(clips)))]
+                usable = (clip.frame_count - clip.lead_in_frames) * clip.frame_time
+                if usable < 1.0:
+                    continue
+                seconds = float(rng.uniform(1.0, min(4.0, usable)))
+                frames = round(seconds / clip.frame_time)
+                first = clip.lead_in_frames + int(
+                    rng.integers(0, clip.frame_count - clip.lead_in_frames - frames + 1)
+                )
+                truth = (first * clip.frame_time, (first + frames) * clip.frame_time)
+                upload = cut_upload(library, clip, first, first + frames)
+                started = time.perf_counter()
+                try:
+                    _, moments = search_moments_by_upload(
+                        library,
+                        upload,
+                        DESCRIPTOR,
+                        start=None,
+                        end=None,
+                        k=1,
+                        per_clip=1,
+                        label=None,
+                    )
+                except MocapError as error:  # e.g. the skeleton of the cut is not recognised
+                    refused.append((trial, clip.name, truth, error.code, error.detail))
+                    ious.append(0.0)
+                    continue
+                times.append(time.perf_counter() - started)
+                top = moments[0]
+                overlap = iou((top.start, top.end), truth) if top.clip.id == clip.id else 0.0
+                ious.append(overlap)
+                if overlap >= 0.8:
+                    hits += 1
+                else:
+                    misses.append((trial, clip.name, truth, top.clip.name, top.start, top.end))
+        finally:
+            library.close()
+    total = len(ious)
+    print(f"machine: {machine()}")
+    print(
+        f"exact moments: {hits}/{total} = {hits / total:.1%} spans of 1-4 s found in their "
+        f"source clip first with IoU >= 0.8 (target 99 %); median IoU "
+        f"{statistics.median(ious):.3f}; search by upload median "
+        f"{statistics.median(times) * 1000:.0f} ms (parse + describe + search)"
+    )
+    print(f"refused (counted as misses): {len(refused)}")
+    for refusal in refused[:20]:
+        print("  refused:", refusal)
+    for miss in misses[:20]:
+        print("  miss:", miss)
+    return 0 if hits >= 0.99 * total else 1
+
+
+def _bvh_parts(text: str) -> tuple[str, list[str], str]:
+    """Header up to MOTION, frame lines, ``Frame Time:`` line of a BVH text."""
+    lines = text.replace("\r\n", "\n").split("\n")
+    motion = next(i for i, line in enumerate(lines) if line.strip().upper() == "MOTION")
+    rest = [line for line in lines[motion + 1 :] if line.strip()]
+    return "\n".join(lines[: motion + 1]), rest[2:], rest[1].strip()
+
+
+def _channel_columns(header: str) -> list[tuple[str, str]]:
+    """(joint, channel) per frame column, from the hierarchy."""
+    columns, joint = [], ""
+    for line in header.split("\n"):
+        words = line.split()
+        if words and words[0] in ("ROOT", "JOINT"):
+            joint = words[1]
+        elif words and words[0] == "CHANNELS":
+            columns += [(joint, name) for name in words[2:]]
+    return columns
+
+
+def build_take(paths: list[Path]) -> tuple[str, list[tuple[str, int, int]]]:
+    """One BVH of ``paths`` in order, each clip's mover (the first joint whose horizontal
+    position channels change) shifted so it starts where the previous clip ended; returns
+    the text and each clip's (name, first frame, stop frame)."""
+    header, _, frame_time = _bvh_parts(paths[0].read_text())
+    columns = _channel_columns(header)
+    frames: list[np.ndarray] = []
+    segments = []
+    end: np.ndarray | None = None
+    for path in paths:
+        clip_header, lines, _ = _bvh_parts(path.read_text())
+        if _channel_columns(clip_header) != columns:
+            raise SystemExit(f"{path.name}: another hierarchy than {paths[0].name}")
+        values = np.loadtxt(lines, ndmin=2)
+        mover = next(
+            joint
+            for joint, _ in columns
+            if np.ptp(values[:, columns.index((joint, "Xposition"))]) > 1e-6
+        )
+        x, z = columns.index((mover, "Xposition")), columns.index((mover, "Zposition"))
+        if end is not None:
+            values[:, x] += end[0] - values[0, x]
+            values[:, z] += end[1] - values[0, z]
+        end = values[-1, [x, z]]
+        start = sum(len(f) for f in frames)
+        segments.append((path.stem, start, start + len(values)))
+        frames.append(values)
+    joined = np.concatenate(frames)
+    body = "\n".join(" ".join(f"{v:.6f}" for v in row) for row in joined)
+    return f"{header}\nFrames: {len(joined)}\n{frame_time}\n{body}\n", segments
+
+
+def _action(stem: str) -> tuple[str, str]:
+    """(action, style) of a Bandai file stem ``dataset-1_{action}_{style}_{id}``."""
+    _, action, style, _ = stem.split("_")
+    return action, style
+
+
+def styles(args: argparse.Namespace) -> int:
+    bandai = sorted((shared_data() / "bandai-ds1" / "data").glob("*.bvh"))
+    rng = np.random.default_rng(args.seed)
+    by_style: dict[str, list[Path]] = {}
+    for path in bandai:
+        by_style.setdefault(_action(path.stem)[1], []).append(path)
+    with tempfile.TemporaryDirectory(prefix="mocap-bench-styles-") as tmp:
+        settings = Settings(data_dir=Path(tmp) / "data", log_level="warning")
+        library = open_library(settings)
+        try:
+            uploads, segments = [], {}
+            started = time.perf_counter()
+            for style, paths in sorted(by_style.items()):
+                order = [paths[i] for i in rng.permutation(len(paths))]
+                text, parts = build_take(order)
+                name = f"take-{style}"
+                segments[name] = parts
+                uploads.append(
+                    Upload.from_files(file=(f"{name}.bvh", text.encode()), labels=[style, "take"])
+                )
+            results = ingest_many(library, uploads, batch_size=4)
+            take_of = {r.clip.id: r.clip for r in results}
+            print(
+                f"built and imported {len(take_of)} takes "
+                f"({sum(c.duration for c in take_of.values()) / 60:.1f} min) in "
+                f"{time.perf_counter() - started:.1f} s"
+            )
+            # The whole-clip baseline library: every ds1 clip stored alone (another library).
+            clips_settings = Settings(data_dir=Path(tmp) / "clips", log_level="warning")
+            run_import(clips_settings, [shared_data() / "bandai-ds1"])
+            clip_library = open_library(clips_settings)
+            scores: list[float] = []
+            centred: list[bool] = []  # the moment's centre lies in a segment of the action
+            whole_take: list[float] = []
+            nn_hits, counted, skipped, times = 0, 0, 0, []
+            for path in bandai:
+                action, style = _action(path.stem)
+                wanted = [
+                    (name, first, stop)
+                    for name, parts in segments.items()
+                    if name != f"take-{style}"
+                    for stem, first, stop in parts
+                    if _action(stem)[0] == action
+                ]
+                if not wanted:
+                    skipped += 1
+                    continue
+                counted += 1
+                upload = Upload.from_files(file=(path.name, path.read_bytes()))
+                t0 = time.perf_counter()
+                _, moments = search_moments_by_upload(
+                    library,
+                    upload,
+                    DESCRIPTOR,
+                    start=None,
+                    end=None,
+                    k=20,
+                    per_clip=1,
+                    label=None,
+                )
+                times.append(time.perf_counter() - t0)
+                top = next(m for m in moments if style not in m.clip.labels)
+                take = f"take-{top.clip.labels[0]}"
+                frame_time = next(c.frame_time for c in take_of.values() if c.id == top.clip.id)
+                best = max(
+                    (
+                        iou((top.start, top.end), (first * frame_time, stop * frame_time))
+                        for name, first, stop in wanted
+                        if name == take
+                    ),
+                    default=0.0,
+                )
+                scores.append(best)
+                centre = (top.start + top.end) / 2
+                centred.append(
+                    any(
+                        first * frame_time <= centre < stop * frame_time
+                        for name, first, stop in wanted
+                        if name == take
+                    )
+                )
+                duration = next(c.duration for c in take_of.values() if c.id == top.clip.id)
+                whole_take.append(
+                    max(
+                        (
+                            iou((0.0, duration), (first * frame_time, stop * frame_time))
+                            for name, first, stop in wanted
+                            if name == take
+                        ),
+                        default=0.0,
+                    )
+                )
+                _, hits = search_by_upload(clip_library, upload, DESCRIPTOR, 30, label=None)
+                other = next(h for h in hits if _action(h.clip.name)[1] != style)
+                nn_hits += _action(other.clip.name)[0] == action
+            clip_library.close()
+        finally:
+            library.close()
+    share = {t: sum(s >= t for s in scores) / counted for t in (0.3, 0.5, 0.7)}
+    print(f"machine: {machine()}")
+    print(
+        f"localisation across styles, {counted} queries ({skipped} left out: their action is "
+        f"in no take of another style), top moment in a take of another style:"
+    )
+    print(
+        f"  IoU >= 0.3: {share[0.3]:.1%}   IoU >= 0.5: {share[0.5]:.1%} (target 70 %)   "
+        f"IoU >= 0.7: {share[0.7]:.1%}"
+    )
+    print(
+        f"  the top moment's centre lies in a segment of the same action for "
+        f"{sum(centred) / counted:.1%} (the action is found; IoU then says how well it is cut)"
+    )
+    print(
+        f"  mean IoU {statistics.mean(scores):.3f}; search by upload median "
+        f"{statistics.median(times) * 1000:.0f} ms"
+    )
+    print(
+        f"  whole-clip baselines: the whole take as the moment, IoU >= 0.5 for "
+        f"{sum(s >= 0.5 for s in whole_take) / counted:.1%} (mean IoU "
+        f"{statistics.mean(whole_take):.3f}); 1-NN whole clip of another style has the same "
+        f"action for {nn_hits / counted:.1%}"
+    )
+    print(json.dumps({"iou>=0.3": share[0.3], "iou>=0.5": share[0.5], "iou>=0.7": share[0.7]}))
+    return 0 if share[0.5] >= 0.70 else 1
+
+
+def scale(args: argparse.Namespace) -> int:
+    import math
+    import sqlite3
+    import subprocess
+
+    from bench_search import CLI, Server, environment, wrk
+
+    data_dir: Path = args.data_dir
+    database = data_dir / "mocap-index.sqlite3"
+    print(f"machine: {machine()}")
+    started = time.perf_counter()
+    if not database.exists():
+        subprocess.run(
+            [
+                CLI,
+                "import",
+                "--no-progress",
+                "--data-dir",
+                str(data_dir),
+                str(shared_data() / "bandai-ds1"),
+            ],
+            check=True,
+            env=environment(),
+        )
+    db = sqlite3.connect(database)
+    clips, seconds = db.execute("SELECT count(*), sum(duration) FROM clips").fetchone()
+    db.close()
+    target = args.hours * 3600
+    if seconds < 0.999 * target:  # not again for rounding
+        count = clips + math.ceil((target - seconds) / (seconds / clips))
+        subprocess.run(
+            [CLI, "fill-synthetic", "--count", str(count), "--data-dir", str(data_dir)],
+            check=True,
+            env=environment(),
+        )
+        print(f"filled in {time.perf_counter() - started:.0f} s")
+    db = sqlite3.connect(database)
+    clips, seconds, top = db.execute(
+        "SELECT count(*), sum(duration), max(id) FROM clips"
+    ).fetchone()
+    windows = db.execute("SELECT count(*) FROM clip_windows").fetchone()[0]
+    db.close()
+    print(
+        f"library: {clips} clips, {seconds / 3600:.1f} h of motion, {windows} windows "
+        f"({data_dir}, {database.stat().st_size / 2**30:.2f} GiB database)"
+    )
+    log = data_dir.parent / "mocap-bench-moments-server.log"
+    startups = []
+    for _ in range(3):
+        server = Server(data_dir, log)
+        startups.append(server.startup)
+        server.stop()
+    print(f"start-up: median {statistics.median(startups):.2f} s of {startups} (target 10 s)")
+    server = Server(data_dir, log)
+    try:
+        wrk(server.base, 1, 5, top, path="/search/moments", descriptor=DESCRIPTOR)  # warm-up
+        one = wrk(server.base, 1, args.duration, top, path="/search/moments", descriptor=DESCRIPTOR)
+        many = wrk(
+            server.base, 32, args.duration, top, path="/search/moments", descriptor=DESCRIPTOR
+        )
+    finally:
+        server.stop()
+    for name, result in (("1 connection", one), ("32 connections", many)):
+        print(
+            f"{name}: {result['rps']:.0f} requests/s, median {result['p50_ms']:.1f} ms, p99 "
+            f"{result['p99_ms']:.1f} ms, {result['bad']:.0f} bad of {result['checked']:.0f}"
+        )
+    print(f"peak server RSS: {server.peak_rss / 2**30:.2f} GiB (target 3 GB)")
+    print(f"load average after: {__import__('os').getloadavg()[0]:.2f}")
+    ok = (
+        one["p50_ms"] <= 20
+        and many["rps"] >= 300
+        and server.peak_rss <= 3 * 10**9
+        and statistics.median(startups) <= 10
+        and one["bad"] == many["bad"] == 0
+    )
+    return 0 if ok else 1
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    commands = parser.add_subparsers(dest="command", required=True)
+    one = commands.add_parser("exact", help="random spans find their source span")
+    one.add_argument("--spans", type=int, default=500)
+    one.add_argument("--seed", type=int, default=0)
+    two = commands.add_parser("styles", help="localisation across Bandai styles")
+    two.add_argument("--seed", type=int, default=0)
+    three = commands.add_parser("scale", help="moment search with 100 hours of windows")
+    three.add_argument("--hours", type=float, default=100.0)
+    three.add_argument(
+        "--data-dir",
+        type=Path,
+        default=Path(tempfile.gettempdir()) / "mocap-bench-moments-100h" / "data",
+    )
+    three.add_argument("--duration", type=int, default=20, help="seconds per wrk run")
+    args = parser.parse_args()
+    run = {"exact": exact, "styles": styles, "scale": scale}[args.command]
+    return run(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
