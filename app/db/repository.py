@@ -888,20 +888,22 @@ class WindowSpan:
     length: float
 
 
+# The columns a WindowSpan is built from, in its field order.
+_WINDOW_SPAN_COLUMNS = (
+    ClipWindow.id,
+    ClipWindow.clip_id,
+    ClipWindow.start_frame,
+    ClipWindow.end_frame,
+    ClipWindow.length,
+)
+
+
 def window_spans_of(session: Executor, ids: Iterable[int]) -> dict[int, WindowSpan]:
     """Where the windows ``ids`` lie (those that exist), by id."""
     wanted = sorted({int(i) for i in ids})
     found: dict[int, WindowSpan] = {}
     for chunk in _chunks(wanted):
-        for row in session.execute(
-            select(
-                ClipWindow.id,
-                ClipWindow.clip_id,
-                ClipWindow.start_frame,
-                ClipWindow.end_frame,
-                ClipWindow.length,
-            ).where(ClipWindow.id.in_(chunk))
-        ):
+        for row in session.execute(select(*_WINDOW_SPAN_COLUMNS).where(ClipWindow.id.in_(chunk))):
             found[int(row[0])] = WindowSpan(*row)
     return found
 
@@ -922,13 +924,7 @@ def window_ids_with_label(session: Executor, label: LabelFilter, key: WindowKey)
 def clip_windows(session: Executor, clip_id: int, name: str, version: int) -> list[WindowSpan]:
     """Every window of one clip under descriptor ``name`` of ``version``."""
     rows = session.execute(
-        select(
-            ClipWindow.id,
-            ClipWindow.clip_id,
-            ClipWindow.start_frame,
-            ClipWindow.end_frame,
-            ClipWindow.length,
-        )
+        select(*_WINDOW_SPAN_COLUMNS)
         .where(
             ClipWindow.clip_id == clip_id,
             ClipWindow.name == name,

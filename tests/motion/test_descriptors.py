@@ -219,23 +219,12 @@ def test_every_clip_of_one_skeleton_has_the_same_body_axes():
         assert np.linalg.det(first) == pytest.approx(1.0)
 
 
-def _sliced_body(body, start: int, stop: int):
-    import dataclasses
-
-    return dataclasses.replace(
-        body,
-        positions=body.positions[start:stop],
-        rotations=body.rotations[start:stop],
-        pelvis_frames=body.pelvis_frames[start:stop],
-        _memo={},
-    )
-
-
 @pytest.mark.parametrize("name", list(REGISTRY))
 def test_a_span_is_described_as_the_clip_cut_to_it(name):
     """``compute_spans`` over any span equals the descriptor of the body cut to that span, and
     the whole span is the clip's vector (moment search relies on both)."""
     from app.motion.spans import whole_clip
+    from app.motion.windows import slice_body
 
     descriptor = REGISTRY[name]
     for _clip, motion in _fixture_motions():
@@ -247,7 +236,7 @@ def test_a_span_is_described_as_the_clip_cut_to_it(name):
         spans = spans[spans[:, 1] <= frames]
         described = descriptor.compute_spans(body, spans)
         for (start, stop), vector in zip(spans, described, strict=True):
-            alone = descriptor.compute(_sliced_body(body, int(start), int(stop)))
+            alone = descriptor.compute(slice_body(body, int(start), int(stop)))
             assert np.allclose(vector, alone, rtol=1e-7, atol=1e-9), (name, start, stop)
 
 

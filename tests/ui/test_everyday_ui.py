@@ -234,25 +234,18 @@ def test_clip_page_shows_warnings_and_mapping_when_the_api_gives_them(
     browser: Any,  # noqa: F811
     tmp_path: Path,
 ) -> None:
-    """Issue #10's `warnings` show when the clip JSON has them (the service's real answer,
-    with a warning added); the mapping is the service's own."""
+    """Issue #10's `warnings` and joint mapping, as the service gives them for a real file
+    that needed a repair: a BVH with two frame lines more than its `Frames:` declares."""
     from playwright.sync_api import expect
 
-    files = same_named_clips(tmp_path)[1]
+    name, data = same_named_clips(tmp_path)[1]["file"]
+    last = data.rstrip(b"\r\n").splitlines()[-1]
+    padded = data.rstrip(b"\r\n") + b"\n" + last + b"\n" + last + b"\n"
     with serve(tmp_path) as base, browsing(browser, base) as page:
-        clip = upload(base, files)
-
-        def with_details(route: Any) -> None:
-            real = route.fetch(url=f"{base}/clips/{clip['id']}?include=mapping")
-            body = real.json()
-            body["warnings"] = ["3 lines after the last frame ignored"]
-            route.fulfill(response=real, json=body)
-
-        page.route(re.compile(rf"/clips/{clip['id']}\?include=mapping$"), with_details)
+        clip = upload(base, {"file": (name, padded)})
+        assert clip["warnings"] and "ignored" in clip["warnings"][0]
         page.goto(f"/#/clips/{clip['id']}")
-        expect(page.locator(".clip-warnings")).to_contain_text(
-            "3 lines after the last frame ignored"
-        )
+        expect(page.locator(".clip-warnings")).to_contain_text(clip["warnings"][0])
         mapping = page.locator(".clip-mapping")
         expect(mapping.locator("tbody tr")).to_have_count(21)
         expect(mapping.locator("tbody tr", has_text="head")).to_contain_text("end effector")

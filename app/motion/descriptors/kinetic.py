@@ -178,8 +178,12 @@ def mean_energies(body: Body) -> tuple[np.ndarray, np.ndarray]:
 
 def kinetic_spans(body: Body, spans: np.ndarray) -> np.ndarray:
     """``(W, 50)`` log(mean energy + 1) per joint DOF, then root horizontal and vertical."""
-    joints, root = energy_samples(body).mean_energies(spans)
-    return np.log1p(np.concatenate([joints.reshape(len(spans), -1), root], axis=1))
+    return kinetic_from_energies(*energy_samples(body).mean_energies(spans))
+
+
+def kinetic_from_energies(joints: np.ndarray, root: np.ndarray) -> np.ndarray:
+    """``(W, 50)`` the kinetic vectors of ``(W, 16, 3)`` and ``(W, 2)`` mean energies."""
+    return np.log1p(np.concatenate([joints.reshape(len(joints), -1), root], axis=1))
 
 
 def three_man(body: Body) -> np.ndarray:

@@ -48,7 +48,11 @@ import numpy as np
 
 from app.motion.body import Body
 from app.motion.descriptors import Descriptor, whole_clip_vector
-from app.motion.descriptors.kinetic import KINETIC_JOINTS, energy_samples, kinetic_spans
+from app.motion.descriptors.kinetic import (
+    KINETIC_JOINTS,
+    energy_samples,
+    kinetic_from_energies,
+)
 from app.motion.skeleton_map import CANONICAL_INDEX
 from app.motion.spans import RunningMeans, std_from_moments
 
@@ -108,9 +112,9 @@ def limb_spans(body: Body, spans: np.ndarray) -> np.ndarray:
     return np.concatenate([mean, std_from_moments(mean, mean_square)], axis=1)
 
 
-def part_spans(body: Body, spans: np.ndarray) -> np.ndarray:
-    """``(W, 16)`` log share of each kinetic joint in the body's kinetic energy."""
-    joints, _ = energy_samples(body).mean_energies(spans)
+def parts_from_energies(joints: np.ndarray) -> np.ndarray:
+    """``(W, 16)`` log share of each kinetic joint in the body's kinetic energy, from the
+    ``(W, 16, 3)`` mean energies per joint DOF."""
     per_joint = joints.sum(axis=2)
     total = per_joint.sum(axis=1, keepdims=True)
     share = np.where(total > 0, per_joint / np.maximum(total, 1e-300), 1.0 / per_joint.shape[1])
@@ -216,10 +220,11 @@ def sideways_from_travel(travel: np.ndarray) -> np.ndarray:
 def motion_blocks(body: Body, spans: np.ndarray) -> dict[str, np.ndarray]:
     """Each block's raw ``(W, block dimension)`` values, before scales and weights."""
     travel = travel_spans(body, spans)
+    joints, root = energy_samples(body).mean_energies(spans)  # energy and parts share them
     return {
         "limbs": limb_spans(body, spans),
-        "energy": kinetic_spans(body, spans),
-        "parts": part_spans(body, spans),
+        "energy": kinetic_from_energies(joints, root),
+        "parts": parts_from_energies(joints),
         "travel": travel,
         "sideways": sideways_from_travel(travel),
     }

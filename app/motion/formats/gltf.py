@@ -2,8 +2,8 @@
 :class:`Motion`.
 
 Read with the standard library (GLB chunks, JSON) and numpy (buffers, accessors,
-sampling): pygltflib's dataclass decoding took 3-7 s on files with a few dozen animations
-(Sketchbook's boxman.glb, raylib's robot.glb), more than parsing everything else. Run in a
+sampling): pygltflib's dataclass decoding took 3-7 s on files with a few dozen animations,
+more than parsing everything else. Run in a
 parser worker (:mod:`app.services.parser_pool`) like the FBX reader: the files are untrusted
 binary input.
 
