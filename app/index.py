@@ -671,6 +671,21 @@ class DescriptorIndex:
             return np.empty(0, np.int64), np.empty((0, self.dimension), np.float32)
         return np.array(kept, np.int64), np.asarray(np.stack(vectors), dtype=np.float32)
 
+    def reconstruct_batch(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The stored vectors of ``ids`` ``(N,)``: which are held ``(N,)`` bool and their
+        ``(M, D)`` float32 vectors, in the order of ``ids`` (one call into FAISS when all are
+        held, the usual case; one by one otherwise)."""
+        ids = np.ascontiguousarray(ids, dtype=np.int64)
+        if not ids.size:
+            return np.zeros(0, bool), np.empty((0, self.dimension), np.float32)
+        with self._lock.read():
+            try:
+                return np.ones(ids.size, bool), self._index.reconstruct_batch(ids)
+            except RuntimeError:  # one is not held
+                pass
+        kept, vectors = self.reconstruct_many(ids)
+        return np.isin(ids, kept), vectors
+
     def all_vectors(self) -> tuple[np.ndarray, np.ndarray]:
         """Every ``(ids (N,), vectors (N, D))`` held (used to change the index kind)."""
         with self._lock.read():

@@ -47,8 +47,9 @@ def _version() -> str:
 def create_app(settings: Settings | None = None, *, describer: Describer | None = None) -> FastAPI:
     """The application for ``settings`` (default: from ``MOCAP_*`` variables).
 
-    The lifespan migrates the database, loads or rebuilds the indexes and keeps the opened
-    library in ``app.state.library``. ``describer`` replaces the motion core (tests).
+    The lifespan migrates the database, loads or rebuilds the indexes (and where each window
+    lies, for moments search) and keeps the opened library in ``app.state.library``.
+    ``describer`` replaces the motion core (tests).
     """
     settings = settings if settings is not None else Settings()
 
@@ -57,6 +58,7 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
         log_access_policy(settings)
         library = await run_in_threadpool(open_library, settings, describer=describer)
         await run_in_threadpool(remove_orphan_files, library)  # left by a crash mid-write
+        await run_in_threadpool(library.load_window_places)  # the moments search's map
         app.state.library = library
         try:
             yield

@@ -455,3 +455,23 @@ def test_index_behind_applies_deletes_from_the_feed(tmp_path: Path) -> None:
     reopened = DescriptorIndex("posture", D, 1, tmp_path)
     assert reopened.load_or_rebuild(source) is None  # caught up, not repaired
     assert reopened.size == 29 and source.full_reads == 0
+
+
+@pytest.mark.parametrize("kind", ["flat", "ivf"])
+def test_reconstruct_batch_returns_the_stored_vectors_and_says_which_are_held(
+    tmp_path: Path, kind: str
+) -> None:
+    ids, vectors = clustered(5000)
+    index = DescriptorIndex("posture", 12, 1, tmp_path, options=IndexOptions(kind=kind))
+    index.replace_all(ids, vectors, persist=False)
+    assert index.kind == kind
+    rows = np.array([4999, 3, 77, 3])
+    held, got = index.reconstruct_batch(ids[rows])
+    assert held.all()
+    np.testing.assert_array_equal(got, vectors[rows])
+    absent = int(ids.max()) + 1
+    held, got = index.reconstruct_batch(np.array([ids[5], absent, ids[9]]))
+    assert held.tolist() == [True, False, True]
+    np.testing.assert_array_equal(got, vectors[[5, 9]])
+    held, got = index.reconstruct_batch(np.zeros(0, np.int64))
+    assert held.size == 0 and got.shape == (0, 12)

@@ -162,7 +162,17 @@ class ClipDescriptor(Base):
 class ClipWindow(Base):
     __tablename__ = "clip_windows"
     __table_args__ = (
-        Index("ix_clip_windows_name_version_length", "name", "version", "length"),
+        # Where every window of one index lies, in id order, from the index alone (a process
+        # keeps that in memory for moments search: app.window_places).
+        Index(
+            "ix_clip_windows_places",
+            "name",
+            "version",
+            "length",
+            "id",
+            "start_frame",
+            "end_frame",
+        ),
         # A clip's windows of one length in order (placing moments; cascade deletes).
         Index(
             "ix_clip_windows_clip_id_name_length",
@@ -173,9 +183,6 @@ class ClipWindow(Base):
             "start_frame",
             "end_frame",
         ),
-        # Where the windows a search found lie, without reading their rows (each row holds a
-        # vector: 120 random rows of a large table cost ~10 ms, the index a fraction of it).
-        Index("ix_clip_windows_span", "id", "clip_id", "start_frame", "end_frame", "length"),
     )
 
     # Set by the writer (not a sequence); INTEGER on SQLite: the rowid itself (64 bits).

@@ -51,6 +51,7 @@ from app.services.describe import (
     MotionDescriber,
 )
 from app.services.parser_pool import ParserPool
+from app.window_places import Places, WindowPlaces
 
 log = logging.getLogger(__name__)
 
@@ -154,9 +155,11 @@ def touched_windows(index: DescriptorIndex, clip_ids: np.ndarray, stored: np.nda
 
 
 def drop_clip_windows(library: Library, clip_ids: Sequence[int]) -> None:
-    """Remove deleted clips' windows from this process's window indexes (the feed would, at
-    the next sync; searches meanwhile skip windows without a row)."""
+    """Remove deleted clips' windows from this process's window indexes and places (the feed
+    would, at the next sync; searches meanwhile skip windows without a row)."""
     clips = np.asarray(list(clip_ids), dtype=np.int64)
+    for places in library.window_places.values():
+        places.remove_clips(clips)
     for name, index in library.window_indexes.items():
         try:
             index.remove(windows_of_clips(index, clips))
@@ -206,6 +209,8 @@ class Library:
     # Moments search: one index per window descriptor and length, keyed like window_keys.
     window_indexes: IndexSet = field(default_factory=lambda: IndexSet({}))
     window_keys: dict[str, repo.WindowKey] = field(default_factory=dict)
+    # Where each window of those indexes lies (moments search; loaded when first needed).
+    window_places: dict[str, WindowPlaces] = field(default_factory=dict)
     # FBX/glTF readers' worker processes (started when first needed); None: those formats
     # cannot be read (a describer of the tests' own).
     parsers: ParserPool | None = None
@@ -220,6 +225,7 @@ class Library:
 
     def __post_init__(self) -> None:
         self.search_reads = repo.SearchReads(self.engine)
+        self.window_places = {name: WindowPlaces(repo.WINDOW_ID_BITS) for name in self.window_keys}
         # Every index is at least this far along the feed (they were loaded from one snapshot).
         self._feed = ChangeFeed(min((i.synced_to for i in self.indexes.values()), default=0))
 
@@ -287,6 +293,30 @@ class Library:
             for name, key in self.window_keys.items():
                 ids, vectors = repo.load_windows(session, key)
                 self.window_indexes[name].replace_all(ids, vectors, synced_to=position)
+                if self.window_places[name].loaded:
+                    self._load_places(session, name)
+
+    def places(self, name: str) -> WindowPlaces:
+        """Where the windows of window index ``name`` lie (loaded from the database when
+        first asked for; then kept up to date with the index)."""
+        places = self.window_places[name]
+        if not places.loaded:
+            with self._sync_lock, self.reads() as session:
+                if not places.loaded:
+                    self._load_places(session, name)
+        return places
+
+    def load_window_places(self) -> None:
+        """Load every window index's places now (the server, at start-up: its first moments
+        search is then as quick as the others)."""
+        for name in self.window_keys:
+            self.places(name)
+
+    def _load_places(self, session: Session, name: str) -> None:
+        # Any later feed position is fine: the clips changed since the indexes' position are
+        # replaced again from the database at the next sync (a clip's windows as a whole).
+        places = Places(*repo.load_window_places(session, self.window_keys[name]))
+        self.window_places[name].replace_all(places)
 
     def sync_indexes(self, *, wait: bool = True) -> bool:
         """Apply to the indexes the clips added or deleted since they last looked (by this
@@ -329,12 +359,18 @@ class Library:
                 ids, vectors = repo.load_windows_of_clips(session, key, changed.tolist())
                 touched = touched_windows(index, changed, ids)
                 index.apply_changes(touched, ids, vectors, synced_to=position)
+                places = self.window_places[name]
+                if places.loaded and changed.size:
+                    found = repo.window_places_of_clips(session, key, changed.tolist())
+                    places.apply_changes(changed, Places(*found))
             except Exception:
                 log.exception("updating the %s index failed; rebuilding it", name)
                 now = horizon(session)  # not ``position``: the other indexes keep the poll's
                 everything = repo.load_windows(session, key)
                 index.replace_all(*everything, synced_to=now, persist=False)
                 index.try_save()
+                if self.window_places[name].loaded:
+                    self._load_places(session, name)
 
     def refresh(self) -> None:
         """Bring the indexes up to date with the database when the last check is older than

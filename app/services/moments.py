@@ -19,7 +19,10 @@ length(s) nearest the query's length — the largest at most and the smallest at
 * **limit**: at most ``k`` moments, at most ``per_clip`` of one clip, nearest first; a query
   from a stored clip never returns a moment overlapping its own span.
 
-Windows of clips deleted by another process are skipped (no row), as clip searches do.
+Where each window lies comes from the library's in-memory window places
+(:mod:`app.window_places`), not the database: a search reads only the query clip and the
+found clips' names and frame rates. Windows of clips deleted by another process are skipped
+(no place, or no clip row), as clip searches do.
 """
 
 from __future__ import annotations
@@ -30,7 +33,6 @@ import numpy as np
 
 from app.db import repository as repo
 from app.errors import InvalidInput, NotFound
-from app.index import DescriptorIndex
 from app.labels import label_filter
 from app.services.clips import stored_upload
 from app.services.describe import (
@@ -89,10 +91,13 @@ def part_length(seconds: float) -> float:
 
 @dataclass
 class _Group:
-    """Window hits of one clip merged so far: ``cover`` the frames of their union."""
+    """Window hits of one clip merged so far: the best of them (its id and frames ``[start,
+    stop)``, in window index ``index``), and ``cover`` the frames of their union."""
 
     clip_id: int
-    best: repo.WindowSpan
+    best_id: int
+    best_start: int
+    best_stop: int
     distance: float
     index: str
     cover: tuple[int, int]
@@ -126,12 +131,6 @@ def nearest_lengths(seconds: float, lengths: tuple[float, ...] = WINDOW_LENGTHS)
     return sorted(chosen)
 
 
-def _window_index(library: Library, descriptor: str, length: float) -> DescriptorIndex | None:
-    """The index of ``descriptor`` windows of ``length`` seconds, if there is one."""
-    name = window_index_name(descriptor, length)
-    return library.window_indexes.get(name) if name in library.window_keys else None
-
-
 def _index_names(library: Library, descriptor: str, seconds: float) -> list[str]:
     wanted = nearest_lengths(seconds)
     return [
@@ -141,25 +140,24 @@ def _index_names(library: Library, descriptor: str, seconds: float) -> list[str]
     ]
 
 
-def _refined_centre(
-    library: Library, db: repo.SearchSnapshot, group: _Group, vector: np.ndarray
-) -> float:
+def _refined_centre(library: Library, group: _Group, vector: np.ndarray) -> float:
     """The frame (fractional) where the moment's centre lies: its best window's centre moved
     by the equiangular fit of its neighbours' distances (see the module docstring)."""
-    best = group.best
-    centre = (best.start + best.stop) / 2
+    centre = (group.best_start + group.best_stop) / 2
     index = library.window_indexes[group.index]
-    neighbours = db.window_spans([best.id - 1, best.id + 1])
+    neighbours = np.array([group.best_id - 1, group.best_id + 1], np.int64)
+    held, starts, _ = library.places(group.index).find(neighbours)
     distances: dict[int, tuple[float, int]] = {}
-    for step in (-1, 1):
-        span = neighbours.get(best.id + step)
-        if span is None or span.clip_id != best.clip_id or span.length != best.length:
+    for step, window_id, is_held, start in zip(
+        (-1, 1), neighbours.tolist(), held.tolist(), starts.tolist(), strict=True
+    ):
+        if not is_held or window_id >> repo.WINDOW_ID_BITS != group.clip_id:
             continue
-        shift = span.start - best.start
+        shift = start - group.best_start
         if shift == 0 or (shift > 0) != (step > 0):
             continue
         try:
-            other = index.reconstruct(span.id)
+            other = index.reconstruct(window_id)
         except KeyError:
             continue
         distances[step] = (float(np.linalg.norm(other - vector)), abs(shift))
@@ -174,80 +172,148 @@ def _refined_centre(
     return centre + float(np.clip(offset, -hop / 2, hop / 2))
 
 
-def _aligned_start(
+def _aligned_starts(
     library: Library,
-    db: repo.SearchSnapshot,
-    group: _Group,
+    groups: list[_Group],
+    frame_times: np.ndarray,
     parts: Parts,
     descriptor: str,
-    version: int,
-    frame_time: float,
     query_seconds: float,
     exclude: tuple[int, int, int] | None,
-) -> tuple[float, float] | None:
-    """Where (seconds) the moment of ``group`` starts — the stored window of its clip nearest
-    to one of the query's parts, minus that part's offset — and how well the whole span fits:
-    the mean distance of the stored windows inside the placed span to the query's parts at
-    the same offsets (``None``: no window to compare)."""
-    key = library.window_keys.get(window_index_name(descriptor, parts.length))
-    if key is None or parts.vectors.size == 0:
-        return None
-    reach = query_seconds / frame_time
-    low, high = group.cover[0] - reach, group.cover[1] + reach
-    ids, starts, stops = db.window_places(group.clip_id, key, int(low), int(high) + 1)
-    if exclude is not None and group.clip_id == exclude[0]:
-        keep = (stops <= exclude[1]) | (starts >= exclude[2])
-        ids, starts = ids[keep], starts[keep]
-    index = library.window_indexes[window_index_name(descriptor, parts.length)]
-    held, vectors = index.reconstruct_many(ids)
-    if not len(held):
-        return None
-    sorted_starts = starts[np.isin(ids, held)]
-    stored = vectors.astype(np.float64)
+) -> list[tuple[float, float] | None]:
+    """For each group, where (seconds) its moment starts — the stored window of its clip
+    nearest to one of the query's parts, minus that part's offset — and how well the whole
+    span fits: the mean distance of the stored windows inside the placed span to the query's
+    parts at the same offsets (``None``: no window to compare). ``frame_times`` ``(G,)``.
+
+    All groups at once: their clips' windows of the parts' length near the hits come from
+    the window places, their vectors from one batch read of the window index, and their
+    distances to the parts from one matrix product; only the fits are per group.
+    """
+    name = window_index_name(descriptor, parts.length)
+    if name not in library.window_keys or parts.vectors.size == 0 or not groups:
+        return [None] * len(groups)
+    rows, offsets = library.places(name).of_clips(np.array([g.clip_id for g in groups]))
+    group_of = np.repeat(np.arange(len(groups)), np.diff(offsets))
+    reach = query_seconds / frame_times
+    # The frames each group's windows may lie in: the hits' cover and a query's length
+    # either side (truncated like the integers they were read with).
+    low = np.trunc(np.array([g.cover[0] for g in groups]) - reach).astype(np.int64)
+    high = np.trunc(np.array([g.cover[1] for g in groups]) + reach).astype(np.int64) + 1
+    keep = (rows.stops >= low[group_of]) & (rows.starts <= high[group_of])
+    if exclude is not None:
+        own = (rows.ids >> repo.WINDOW_ID_BITS) == exclude[0]
+        keep &= ~own | (rows.stops <= exclude[1]) | (rows.starts >= exclude[2])
+    held, stored = library.window_indexes[name].reconstruct_batch(rows.ids[keep])
+    kept = np.flatnonzero(keep)[held]
+    starts, group_of = rows.starts[kept], group_of[kept]
+    stored64 = stored.astype(np.float64)
     query = parts.vectors.astype(np.float64)
     squared = (
-        (query**2).sum(axis=1)[:, None] + (stored**2).sum(axis=1)[None, :] - 2 * query @ stored.T
+        (query**2).sum(axis=1)[:, None]
+        + (stored64**2).sum(axis=1)[None, :]
+        - 2 * query @ stored64.T
     )
     distances = np.sqrt(np.maximum(squared, 0.0))
-    start = _placed_start(distances, sorted_starts, parts, frame_time)
-    return start, _span_fit(distances, sorted_starts * frame_time - start, parts, query_seconds)
+    bounds = np.searchsorted(group_of, np.arange(len(groups) + 1))
+    starts_s = _placed_starts(distances, starts, group_of, bounds, parts, frame_times)
+    fits = _span_fits(
+        distances,
+        starts * frame_times[group_of] - starts_s[group_of],
+        group_of,
+        len(groups),
+        parts,
+        query_seconds,
+    )
+    return [
+        None if bounds[g] == bounds[g + 1] else (float(starts_s[g]), float(fits[g]))
+        for g in range(len(groups))
+    ]
 
 
-def _placed_start(
-    distances: np.ndarray, sorted_starts: np.ndarray, parts: Parts, frame_time: float
+def _placed_starts(
+    distances: np.ndarray,
+    starts: np.ndarray,
+    group_of: np.ndarray,
+    bounds: np.ndarray,
+    parts: Parts,
+    frame_times: np.ndarray,
+) -> np.ndarray:
+    """Where (seconds) each group's moment starts (see :func:`_aligned_starts`; nan for a
+    group without windows). ``distances`` ``(J, M)`` parts x stored windows, ``starts``
+    ``(M,)`` frames and ``group_of`` ``(M,)`` of those windows (grouped, each group's in
+    start order: columns ``bounds[g]:bounds[g + 1]``)."""
+    groups = len(frame_times)
+    placed = np.full(groups, np.nan)
+    if not distances.size:
+        return placed
+    # Each group's nearest (part, window) pair, as np.argmin over its block would pick it
+    # (row-major: the lowest part, then the first window, among equal distances).
+    column_part = distances.argmin(axis=0)
+    column_best = distances[column_part, np.arange(distances.shape[1])]
+    order = np.lexsort((np.arange(len(group_of)), column_part, column_best, group_of))
+    present = bounds[1:] > bounds[:-1]
+    best = np.zeros(groups, np.int64)
+    best[present] = order[bounds[:-1][present]]
+    part = column_part[best]
+    inner = present & (part > 0) & (part < len(parts.offsets) - 1)
+    # Parts on both sides fit worse: this part lies on the stored window itself.
+    placed[inner] = starts[best[inner]] * frame_times[inner] - parts.offsets[part[inner]]
+    for g in np.flatnonzero(present & ~inner).tolist():
+        first, stop = int(bounds[g]), int(bounds[g + 1])
+        placed[g] = _placed_at_end(
+            distances[:, first:stop],
+            starts[first:stop],
+            parts,
+            float(frame_times[g]),
+            int(part[g]),
+            int(best[g]) - first,
+        )
+    return placed
+
+
+def _placed_at_end(
+    distances: np.ndarray,
+    sorted_starts: np.ndarray,
+    parts: Parts,
+    frame_time: float,
+    j: int,
+    m: int,
 ) -> float:
-    """See :func:`_aligned_start`: ``distances`` ``(J, M)`` parts x stored windows."""
-    j, m = np.unravel_index(int(np.argmin(distances)), distances.shape)
-    if 0 < j < len(parts.offsets) - 1:
-        # Parts on both sides fit worse: this part lies on the stored window itself.
-        return float(sorted_starts[m] * frame_time - parts.offsets[int(j)])
-    # The best place is beyond the parts' offsets (no stored window fits whole in the
-    # query's span): between two stored windows, where their distance branches cross.
-    crossing = branch_crossing(distances, sorted_starts * frame_time, parts.offsets, int(j), int(m))
+    """Where a moment starts when its nearest pair (part ``j``, window ``m``) is an end part:
+    the best place is beyond the parts' offsets (no stored window fits whole in the query's
+    span), between two stored windows, where their distance branches cross."""
+    crossing = branch_crossing(distances, sorted_starts * frame_time, parts.offsets, j, m)
     if crossing is not None:
         return crossing
     shift, lowest = fitted_minima(distances, sorted_starts)
-    j, m = np.unravel_index(int(np.argmin(lowest)), lowest.shape)
-    return float(shift[j, m] * frame_time - parts.offsets[int(j)])
+    part, window = np.unravel_index(int(np.argmin(lowest)), lowest.shape)
+    return float(shift[part, window] * frame_time - parts.offsets[int(part)])
 
 
-def _span_fit(
-    distances: np.ndarray, offsets: np.ndarray, parts: Parts, query_seconds: float
-) -> float:
-    """Mean distance of the stored windows at ``offsets`` (seconds from the placed start)
-    inside the placed span to the query's parts nearest those offsets; the best distance
-    when no stored window lies inside."""
+def _span_fits(
+    distances: np.ndarray,
+    offsets: np.ndarray,
+    group_of: np.ndarray,
+    groups: int,
+    parts: Parts,
+    query_seconds: float,
+) -> np.ndarray:
+    """Per group ``(G,)``: the mean distance of its stored windows at ``offsets`` ``(M,)``
+    (seconds from its placed start) inside the placed span to the query's parts nearest
+    those offsets; its best distance when no stored window lies inside."""
+    last = len(parts.offsets) - 1
     inside = (offsets >= -0.02) & (offsets <= query_seconds - parts.length + 0.02)
-    if not inside.any():
-        return float(distances.min())
-    columns = np.flatnonzero(inside)
-    rows = np.clip(np.searchsorted(parts.offsets, offsets[columns]), 0, len(parts.offsets) - 1)
-    below = np.clip(rows - 1, 0, len(parts.offsets) - 1)
-    nearer = np.abs(parts.offsets[below] - offsets[columns]) < np.abs(
-        parts.offsets[rows] - offsets[columns]
-    )
+    rows = np.clip(np.searchsorted(parts.offsets, offsets), 0, last)
+    below = np.clip(rows - 1, 0, last)
+    nearer = np.abs(parts.offsets[below] - offsets) < np.abs(parts.offsets[rows] - offsets)
     rows = np.where(nearer, below, rows)
-    return float(distances[rows, columns].mean())
+    values = distances[rows, np.arange(len(offsets))]
+    counts = np.bincount(group_of[inside], minlength=groups)
+    sums = np.bincount(group_of[inside], weights=values[inside], minlength=groups)
+    lowest = np.full(groups, np.inf)
+    np.minimum.at(lowest, group_of, distances.min(axis=0))
+    return np.where(counts > 0, sums / np.maximum(counts, 1), lowest)
 
 
 def branch_crossing(
@@ -333,77 +399,44 @@ def _search(
     """``exclude``: (clip id, first, stop) frames of the query's own span; ``parts``: the
     query's own windows, to place the moments (else their best window's neighbours do)."""
     names = _index_names(library, descriptor, query_seconds)
+    labelled = db.clip_ids_with_label(label) if label_filter(label) else None
     allowed = {
-        name: db.window_ids_with_label(label, library.window_keys[name])
-        if label_filter(label)
-        else None
+        name: None if labelled is None else library.places(name).ids_of_clips(labelled)
         for name in names
     }
     # More moments than asked for are placed, then ranked by how well their whole span fits.
     candidates = k * (RANKED if parts is not None else 1)
-    fetch = min(
-        4 * candidates + 20, 4096
-    )  # windows per index; more when too few moments came of them
-    groups: dict[int, list[_Group]] = {}
+    fetch = min(4 * candidates + 20, 4096)  # windows per index; more when too few moments
+    groups: list[_Group] = []
     for _ in range(MAX_ATTEMPTS):
-        found: list[tuple[float, int, str]] = []
-        exhausted = True
-        for name in names:
-            hits = library.window_indexes[name].search(vector, fetch, allowed=allowed[name])
-            exhausted &= len(hits) < fetch
-            found.extend(
-                (float(d), int(i), name) for i, d in zip(hits.ids, hits.distances, strict=True)
-            )
-        found.sort()
-        spans = db.window_spans([i for _, i, _ in found])
-        groups = {}
-        moments = 0
-        for distance, window_id, name in found:
-            span = spans.get(window_id)
-            if span is None:  # deleted meanwhile
-                continue
-            if _overlaps_query(exclude, span.clip_id, span.start, span.stop):
-                continue
-            of_clip = groups.setdefault(span.clip_id, [])
-            merged = False
-            for group in of_clip:
-                if span.start <= group.cover[1] and group.cover[0] <= span.stop:
-                    group.cover = (min(group.cover[0], span.start), max(group.cover[1], span.stop))
-                    merged = True
-                    break
-            if merged or len(of_clip) >= per_clip or moments >= candidates:
-                continue
-            of_clip.append(_Group(span.clip_id, span, distance, name, (span.start, span.stop)))
-            moments += 1
-        if moments >= candidates or exhausted:
+        hits, exhausted = _window_hits(library, names, vector, fetch, allowed)
+        groups = _merged(hits, exclude, per_clip, candidates)
+        if len(groups) >= candidates or exhausted:
             break
         fetch *= 4
-    chosen = sorted(
-        (group for of_clip in groups.values() for group in of_clip), key=lambda g: g.distance
-    )[:candidates]
+    chosen = sorted(groups, key=lambda g: g.distance)[:candidates]
     clips = db.names([g.clip_id for g in chosen])
     facts = db.frame_times([g.clip_id for g in chosen])
+    chosen = [g for g in chosen if g.clip_id in clips and g.clip_id in facts]  # not deleted
+    frame_times = np.array([facts[g.clip_id][1] for g in chosen], np.float64)
+    placed: list[tuple[float, float] | None] = [None] * len(chosen)
+    if parts is not None:
+        placed = _aligned_starts(
+            library, chosen, frame_times, parts, descriptor, query_seconds, exclude
+        )
     moments_out: list[Moment] = []
-    for group in chosen:
-        if group.clip_id not in clips or group.clip_id not in facts:
-            continue
+    for group, place in zip(chosen, placed, strict=True):
         fmt, frame_time, frame_count = facts[group.clip_id]
         length = min(query_seconds / frame_time, float(frame_count))
-        start = None
-        distance = group.distance
-        if parts is not None:
-            version = library.window_keys[group.index].version
-            placed = _aligned_start(
-                library, db, group, parts, descriptor, version, frame_time, query_seconds, exclude
-            )
-            if placed is not None:
-                start, distance = placed
-        if start is None:
-            start = (_refined_centre(library, db, group, vector) - length / 2) * frame_time
+        if place is not None:
+            start, distance = place
+        else:
+            distance = group.distance
+            start = (_refined_centre(library, group, vector) - length / 2) * frame_time
         first = min(max(0.0, start / frame_time), frame_count - length)
         if exclude is not None and _overlaps_query(exclude, group.clip_id, first, first + length):
             # Placed over the query's own span: next to it, on the side of the best window.
-            after = group.best.start >= exclude[1]
+            after = group.best_start >= exclude[1]
             first = float(exclude[2]) if after else exclude[1] - length
             if first < 0 or first + length > frame_count:
                 continue
@@ -414,6 +447,67 @@ def _search(
         )
     moments_out.sort(key=lambda moment: moment.distance)
     return moments_out[:k]
+
+
+# (distance, window id, index name, start, stop) of one window hit
+_Hit = tuple[float, int, str, int, int]
+
+
+def _window_hits(
+    library: Library,
+    names: list[str],
+    vector: np.ndarray,
+    fetch: int,
+    allowed: dict[str, np.ndarray | None],
+) -> tuple[list[_Hit], bool]:
+    """The ``fetch`` nearest windows of each index in ``names``, nearest first, with where
+    they lie (windows no longer held — their clip deleted meanwhile — are left out), and
+    whether every index gave fewer than asked for (no more to fetch)."""
+    hits: list[_Hit] = []
+    exhausted = True
+    for name in names:
+        found = library.window_indexes[name].search(vector, fetch, allowed=allowed[name])
+        exhausted &= len(found) < fetch
+        held, starts, stops = library.places(name).find(found.ids)
+        hits.extend(
+            (distance, window_id, name, start, stop)
+            for distance, window_id, start, stop in zip(
+                found.distances[held].tolist(),
+                found.ids[held].tolist(),
+                starts[held].tolist(),
+                stops[held].tolist(),
+                strict=True,
+            )
+        )
+    hits.sort()
+    return hits, exhausted
+
+
+def _merged(
+    hits: list[_Hit], exclude: tuple[int, int, int] | None, per_clip: int, candidates: int
+) -> list[_Group]:
+    """Merge the hits (nearest first) into moments: a hit overlapping or touching one of its
+    clip's moments widens it; else it starts a new one while its clip has fewer than
+    ``per_clip`` and there are fewer than ``candidates``."""
+    by_clip: dict[int, list[_Group]] = {}
+    groups: list[_Group] = []
+    for distance, window_id, name, start, stop in hits:
+        clip_id = window_id >> repo.WINDOW_ID_BITS
+        if _overlaps_query(exclude, clip_id, start, stop):
+            continue
+        of_clip = by_clip.setdefault(clip_id, [])
+        merged = False
+        for group in of_clip:
+            if start <= group.cover[1] and group.cover[0] <= stop:
+                group.cover = (min(group.cover[0], start), max(group.cover[1], stop))
+                merged = True
+                break
+        if merged or len(of_clip) >= per_clip or len(groups) >= candidates:
+            continue
+        group = _Group(clip_id, window_id, start, stop, distance, name, (start, stop))
+        of_clip.append(group)
+        groups.append(group)
+    return groups
 
 
 def _overlaps_query(
@@ -457,7 +551,7 @@ def search_moments_by_clip(
         if vector is None:
             vector = _described_span(library, clip, descriptor, first, stop).vector
         seconds = (stop - first) * clip.frame_time
-        parts = _stored_parts(library, db, stored)
+        parts = _stored_parts(library, stored)
         moments = _search(
             library,
             db,
@@ -509,34 +603,33 @@ def _stored_span_vector(
             if stored is None or stored.version != version:
                 raise _unavailable(clip.id, descriptor, version) from None
             return stored.vector
-    for window in db.clip_windows(clip.id, descriptor, version):
-        index = _window_index(library, descriptor, window.length)
-        if window.start == first and window.stop == stop and index is not None:
+    for name, key in library.window_keys.items():
+        if key.name != descriptor:
+            continue
+        windows, _ = library.places(name).of_clips(np.array([clip.id]))
+        exact = np.flatnonzero((windows.starts == first) & (windows.stops == stop))
+        if exact.size:
             try:
-                return index.reconstruct(window.id)
+                return library.window_indexes[name].reconstruct(int(windows.ids[exact[0]]))
             except KeyError:
-                break
+                return None
     return None
 
 
-def _stored_parts(library: Library, db: repo.SearchSnapshot, span: _StoredSpan) -> Parts | None:
+def _stored_parts(library: Library, span: _StoredSpan) -> Parts | None:
     """The query's parts from the stored windows of its clip inside its span."""
     clip, first, stop = span.clip, span.first, span.stop
     length = part_length((stop - first) * clip.frame_time)
-    index = _window_index(library, span.descriptor, length)
-    if index is None:
+    name = window_index_name(span.descriptor, length)
+    if name not in library.window_keys:
         return None
-    offsets, vectors = [], []
-    for window in db.clip_windows(clip.id, span.descriptor, span.version):
-        if window.length == length and first <= window.start and window.stop <= stop:
-            try:
-                vectors.append(index.reconstruct(window.id))
-            except KeyError:
-                continue
-            offsets.append((window.start - first) * clip.frame_time)
-    if not vectors:
+    windows, _ = library.places(name).of_clips(np.array([clip.id]))
+    inside = (first <= windows.starts) & (windows.stops <= stop)
+    held, vectors = library.window_indexes[name].reconstruct_batch(windows.ids[inside])
+    if not held.any():
         return None
-    return Parts(length, np.array(offsets), np.stack(vectors))
+    offsets = (windows.starts[inside][held] - first) * clip.frame_time
+    return Parts(length, offsets.astype(np.float64), vectors)
 
 
 def _described_span(

@@ -67,7 +67,20 @@ def window_rows(settings: Settings, clip_id: int | None = None) -> int:
 
 
 def window_index_sizes(client: TestClient) -> int:
+    """How many windows the server's window indexes hold — after checking that where it
+    believes each lies (the moments search's in-memory places) is what the database says."""
+    from app.db import repository as repo
+
     library = client.app.state.library  # type: ignore[attr-defined]
+    with library.reads() as session:
+        for name, key in library.window_keys.items():
+            ids, starts, stops = repo.load_window_places(session, key)
+            places = library.places(name)
+            held, held_starts, held_stops = places.find(ids)
+            assert held.all() and len(places) == len(ids), name
+            np.testing.assert_array_equal(held_starts, starts)
+            np.testing.assert_array_equal(held_stops, stops)
+            np.testing.assert_array_equal(np.sort(library.window_indexes[name].ids()), ids)
     return sum(library.window_indexes.sizes().values())
 
 
