@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -60,6 +61,11 @@ def command(name: str, help: str, *, configure: Configure | None = None) -> Call
 def _configure_serve(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--host", help="address to bind (default 127.0.0.1, MOCAP_HOST)")
     parser.add_argument("--port", type=int, help="port (default 8000, MOCAP_PORT)")
+    parser.add_argument(
+        "--workers",
+        type=int,
+        help="processes answering requests (default 1, MOCAP_WORKERS; one per core is fastest)",
+    )
 
 
 @command(
@@ -77,11 +83,42 @@ def _serve(args: argparse.Namespace, settings: Settings) -> int:
         settings.host, settings.host
     )
     base = f"http://{f'[{host}]' if ':' in host else host}:{settings.port}"
+    if args.workers is not None:
+        if not 1 <= args.workers <= 64:
+            print("mocap-index: --workers must be between 1 and 64", file=sys.stderr)
+            return 2
+        settings = settings.model_copy(update={"workers": args.workers})
     print(f"mocap-index: data in {settings.data_dir}", file=sys.stderr)
     print(f"mocap-index: web UI at {base}/", file=sys.stderr)
     print(f"mocap-index: API docs at {base}/docs", file=sys.stderr)
+    if settings.workers == 1:
+        uvicorn.run(
+            create_app(settings),
+            host=settings.host,
+            port=settings.port,
+            log_level=settings.log_level,
+        )
+        return 0
+    # Several processes on one port: each opens the library like a replica would. The
+    # database is migrated once, here, so they do not race to it; they read their settings
+    # from the environment they inherit, with this command's options written into it.
+    from app.db.migrate import upgrade
+    from app.db.session import create_db_engine
+
+    engine = create_db_engine(settings.sqlalchemy_url)
+    try:
+        upgrade(engine)
+    finally:
+        engine.dispose()
+    for name in COMMAND_LINE_SETTINGS:
+        value = getattr(settings, name)
+        if value is not None:
+            os.environ[f"MOCAP_{name.upper()}"] = str(value)
+    print(f"mocap-index: {settings.workers} worker processes", file=sys.stderr)
     uvicorn.run(
-        create_app(settings),
+        "app.main:app_from_environment",
+        factory=True,
+        workers=settings.workers,
         host=settings.host,
         port=settings.port,
         log_level=settings.log_level,
@@ -483,9 +520,13 @@ def version() -> str:
         return "unknown (not installed)"
 
 
+# Settings a command-line option may give (the rest come from MOCAP_* variables only).
+COMMAND_LINE_SETTINGS = ("data_dir", "database_url", "host", "port")
+
+
 def settings_from(args: argparse.Namespace) -> Settings:
     """Settings from the environment, overridden by the options given on the command line."""
-    fields = ("data_dir", "database_url", "host", "port")
+    fields = COMMAND_LINE_SETTINGS
     overrides = {f: getattr(args, f) for f in fields if getattr(args, f, None) is not None}
     return Settings(**overrides)
 

@@ -45,6 +45,17 @@ class Settings(BaseSettings):
     log_level: str = Field(
         default="info", description="Log level of the server (debug, info, warning, error)."
     )
+    workers: int = Field(
+        default=1,
+        ge=1,
+        le=64,
+        description=(
+            "Processes `mocap-index serve` answers requests with, on one port; one per CPU "
+            "core gives the most searches per second. Each holds the indexes in memory (the "
+            "server's memory times this) and follows the database like a replica (within "
+            "MOCAP_INDEX_REFRESH_SECONDS)."
+        ),
+    )
     max_upload_bytes: int = Field(
         default=50 * 1024 * 1024,
         gt=0,

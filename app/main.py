@@ -44,6 +44,12 @@ def _version() -> str:
         return "0+unknown"
 
 
+def app_from_environment() -> FastAPI:
+    """The application for the ``MOCAP_*`` variables (``mocap-index serve --workers N``: the
+    factory each worker process calls)."""
+    return create_app(Settings())
+
+
 def create_app(settings: Settings | None = None, *, describer: Describer | None = None) -> FastAPI:
     """The application for ``settings`` (default: from ``MOCAP_*`` variables).
 

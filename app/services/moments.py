@@ -247,48 +247,46 @@ def _placed_starts(
     placed = np.full(groups, np.nan)
     if not distances.size:
         return placed
-    # Each group's nearest (part, window) pair, as np.argmin over its block would pick it
-    # (row-major: the lowest part, then the first window, among equal distances).
-    column_part = distances.argmin(axis=0)
-    column_best = distances[column_part, np.arange(distances.shape[1])]
-    order = np.lexsort((np.arange(len(group_of)), column_part, column_best, group_of))
     present = bounds[1:] > bounds[:-1]
-    best = np.zeros(groups, np.int64)
-    best[present] = order[bounds[:-1][present]]
-    part = column_part[best]
+    part, best = _group_argmin(distances, group_of, bounds)
     inner = present & (part > 0) & (part < len(parts.offsets) - 1)
     # Parts on both sides fit worse: this part lies on the stored window itself.
     placed[inner] = starts[best[inner]] * frame_times[inner] - parts.offsets[part[inner]]
-    for g in np.flatnonzero(present & ~inner).tolist():
-        first, stop = int(bounds[g]), int(bounds[g + 1])
-        placed[g] = _placed_at_end(
-            distances[:, first:stop],
-            starts[first:stop],
-            parts,
-            float(frame_times[g]),
-            int(part[g]),
-            int(best[g]) - first,
-        )
+    # Else the best place is beyond the parts' offsets (no stored window fits whole in the
+    # query's span): between two stored windows, where their distance branches cross.
+    ends = np.flatnonzero(present & ~inner)
+    if not ends.size:
+        return placed
+    # The neighbour on the other side of the true place, if the group has it.
+    other = np.where(part[ends] == 0, best[ends] + 1, best[ends] - 1)
+    other = np.where((other >= bounds[ends]) & (other < bounds[ends + 1]), other, -1)
+    seconds = starts * frame_times[group_of]
+    placed[ends] = branch_crossings(
+        distances, seconds, parts.offsets, part[ends], best[ends], other
+    )
+    # Else: where a part fits best between the stored windows (equiangular fits).
+    rest = ends[np.isnan(placed[ends])]
+    if rest.size:
+        shift, lowest = fitted_minima(distances, starts, group_of)
+        part, best = _group_argmin(lowest, group_of, bounds)
+        placed[rest] = shift[part[rest], best[rest]] * frame_times[rest] - parts.offsets[part[rest]]
     return placed
 
 
-def _placed_at_end(
-    distances: np.ndarray,
-    sorted_starts: np.ndarray,
-    parts: Parts,
-    frame_time: float,
-    j: int,
-    m: int,
-) -> float:
-    """Where a moment starts when its nearest pair (part ``j``, window ``m``) is an end part:
-    the best place is beyond the parts' offsets (no stored window fits whole in the query's
-    span), between two stored windows, where their distance branches cross."""
-    crossing = branch_crossing(distances, sorted_starts * frame_time, parts.offsets, j, m)
-    if crossing is not None:
-        return crossing
-    shift, lowest = fitted_minima(distances, sorted_starts)
-    part, window = np.unravel_index(int(np.argmin(lowest)), lowest.shape)
-    return float(shift[part, window] * frame_time - parts.offsets[int(part)])
+def _group_argmin(
+    matrix: np.ndarray, group_of: np.ndarray, bounds: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each group's smallest entry of ``matrix`` ``(J, M)`` (its columns ``bounds[g]:
+    bounds[g + 1]``, ``group_of`` ``(M,)``), as np.argmin over its block picks it (row-major:
+    the lowest row, then the first column, among equal values): rows and columns ``(G,)``
+    (0 for a group without columns)."""
+    column_row = matrix.argmin(axis=0)
+    column_best = matrix[column_row, np.arange(matrix.shape[1])]
+    order = np.lexsort((np.arange(len(group_of)), column_row, column_best, group_of))
+    present = bounds[1:] > bounds[:-1]
+    columns = np.zeros(len(bounds) - 1, np.int64)
+    columns[present] = order[bounds[:-1][present]]
+    return column_row[columns], columns
 
 
 def _span_fits(
@@ -316,54 +314,67 @@ def _span_fits(
     return np.where(counts > 0, sums / np.maximum(counts, 1), lowest)
 
 
-def branch_crossing(
-    distances: np.ndarray, starts: np.ndarray, offsets: np.ndarray, best_part: int, best: int
-) -> float | None:
-    """Where (seconds) the query starts when its best pair is an end part ``best_part`` and
-    stored window ``best``: every part against one stored window puts the query's start at
-    ``start - offset``; along those places the distance of a window is one branch of a V
-    (about linear). The best window's branch and the neighbouring window's on the other side
-    of the true place, each fitted with a line over the parts, cross there — each with its
-    own slope, which a fit from three windows cannot have. ``None`` when the branches do not
-    go down towards each other (or too few parts to fit a line).
+def branch_crossings(
+    distances: np.ndarray,
+    starts: np.ndarray,
+    offsets: np.ndarray,
+    best_part: np.ndarray,
+    best: np.ndarray,
+    other: np.ndarray,
+) -> np.ndarray:
+    """Where (seconds) the query starts in each of ``G`` moments whose best pair is an end
+    part ``best_part`` ``(G,)`` (0 or the last) and stored window ``best`` ``(G,)``: every
+    part against one stored window puts the query's start at ``start - offset``; along those
+    places the distance of a window is one branch of a V (about linear). The best window's
+    branch and its neighbour's on the other side of the true place, ``other`` ``(G,)`` (-1:
+    none), each fitted with a line over the parts, cross there — each with its own slope,
+    which a fit from three windows cannot have. nan when the branches do not go down towards
+    each other (or too few parts to fit a line).
 
-    ``distances`` ``(J, M)``, ``starts`` ``(M,)`` sorted seconds, ``offsets`` ``(J,)``
-    seconds (ascending).
+    ``distances`` ``(J, M)`` parts x stored windows, ``starts`` ``(M,)`` seconds (each
+    moment's windows sorted), ``offsets`` ``(J,)`` seconds (ascending).
     """
     count = len(offsets)
-    if count < 3:
-        return None
-    other = best + 1 if best_part == 0 else best - 1
-    if not 0 <= other < distances.shape[1]:
-        return None
-    here, there = starts[best] - offsets, starts[other] - offsets
-    slope_here, at_here = _line(here, distances[:, best])
-    slope_there, at_there = _line(there, distances[:, other])
-    rising = 1.0 if best_part == 0 else -1.0  # the true place is above (below) this branch
-    if not (slope_here * rising < 0 < slope_there * rising):
-        return None
-    place = (at_there - at_here) / (slope_here - slope_there)
-    edges = sorted((float(here[best_part]), float(there[count - 1 - best_part])))
-    return float(np.clip(place, edges[0], edges[1]))
+    place = np.full(len(best), np.nan)
+    if count < 3 or not len(best):
+        return place
+    there = np.maximum(other, 0)
+    # A branch's places are start - offsets: the same spread for every window.
+    spread = offsets - offsets.mean()
+    scale = max(float((spread**2).sum()), 1e-18)
+
+    def line(column: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Least-squares slope and intercept of each column's distances over its places."""
+        y = distances[:, column]
+        slope = -(spread[:, None] * (y - y.mean(axis=0))).sum(axis=0) / scale
+        return slope, y.mean(axis=0) - slope * (starts[column] - offsets.mean())
+
+    slope_here, at_here = line(best)
+    slope_there, at_there = line(there)
+    rising = np.where(best_part == 0, 1.0, -1.0)  # the true place is above (below) this branch
+    crossing = (other >= 0) & (slope_here * rising < 0) & (slope_there * rising > 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        where = (at_there - at_here) / (slope_here - slope_there)
+    edge_here = starts[best] - offsets[best_part]
+    edge_there = starts[there] - offsets[count - 1 - best_part]
+    within = np.clip(where, np.minimum(edge_here, edge_there), np.maximum(edge_here, edge_there))
+    place[crossing] = within[crossing]
+    return place
 
 
-def _line(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
-    """Least-squares slope and intercept of ``y`` over ``x`` (both ``(N,)``)."""
-    dx = x - x.mean()
-    slope = float((dx * (y - y.mean())).sum() / max(float((dx**2).sum()), 1e-18))
-    return slope, float(y.mean() - slope * x.mean())
-
-
-def fitted_minima(distances: np.ndarray, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def fitted_minima(
+    distances: np.ndarray, starts: np.ndarray, group_of: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Where between the stored windows each query part fits best, and how well.
 
     ``distances`` ``(J, M)`` from each query part to each stored window, whose ``starts``
-    ``(M,)`` (frames) are sorted. A window's distance grows about linearly with how far it
-    is shifted from the best place (means over shifted frames change linearly), so at a
-    window nearer than both its neighbours (an equal hop ``h`` away) the equiangular fit
-    gives the best place ``start + x`` with ``x = h (d_left - d_right) / (2 rise)`` and its
-    distance ``d - rise |x| / h`` (``rise = max(d_left, d_right) - d``). Elsewhere the
-    window's own start and distance stand.
+    ``(M,)`` (frames) are sorted within each group of ``group_of`` ``(M,)`` (a group is one
+    moment's windows, its columns contiguous). A window's distance grows about linearly with
+    how far it is shifted from the best place (means over shifted frames change linearly),
+    so at a window nearer than both its neighbours of the same group (an equal hop ``h``
+    away) the equiangular fit gives the best place ``start + x`` with ``x = h (d_left -
+    d_right) / (2 rise)`` and its distance ``d - rise |x| / h`` (``rise = max(d_left,
+    d_right) - d``). Elsewhere the window's own start and distance stand.
 
     Returns ``(J, M)`` fitted starts (frames) and fitted distances.
     """
@@ -376,7 +387,7 @@ def fitted_minima(distances: np.ndarray, starts: np.ndarray) -> tuple[np.ndarray
     hop_right = (starts[2:] - starts[1:-1]).astype(np.float64)
     rise = np.maximum(left, right) - centre
     ok = (rise > 1e-12) & (centre <= np.minimum(left, right)) & (hop_left == hop_right)
-    ok &= hop_left > 0
+    ok &= (hop_left > 0) & (group_of[:-2] == group_of[1:-1]) & (group_of[2:] == group_of[1:-1])
     safe_rise = np.where(ok, rise, 1.0)
     x = np.clip((left - right) / (2 * safe_rise), -0.5, 0.5) * hop_left
     shift[:, 1:-1] += np.where(ok, x, 0.0)
@@ -415,16 +426,15 @@ def _search(
             break
         fetch *= 4
     chosen = sorted(groups, key=lambda g: g.distance)[:candidates]
-    clips = db.names([g.clip_id for g in chosen])
     facts = db.frame_times([g.clip_id for g in chosen])
-    chosen = [g for g in chosen if g.clip_id in clips and g.clip_id in facts]  # not deleted
+    chosen = [g for g in chosen if g.clip_id in facts]  # not deleted meanwhile
     frame_times = np.array([facts[g.clip_id][1] for g in chosen], np.float64)
     placed: list[tuple[float, float] | None] = [None] * len(chosen)
     if parts is not None:
         placed = _aligned_starts(
             library, chosen, frame_times, parts, descriptor, query_seconds, exclude
         )
-    moments_out: list[Moment] = []
+    found: list[tuple[float, int, str, float, float]] = []  # distance, clip, format, span
     for group, place in zip(chosen, placed, strict=True):
         fmt, frame_time, frame_count = facts[group.clip_id]
         length = min(query_seconds / frame_time, float(frame_count))
@@ -440,13 +450,16 @@ def _search(
             first = float(exclude[2]) if after else exclude[1] - length
             if first < 0 or first + length > frame_count:
                 continue
-        stop = first + length
-        start_s, end_s = first * frame_time, stop * frame_time
-        moments_out.append(
-            Moment(clips[group.clip_id], fmt, _round(start_s), _round(end_s), distance)
+        found.append(
+            (distance, group.clip_id, fmt, first * frame_time, (first + length) * frame_time)
         )
-    moments_out.sort(key=lambda moment: moment.distance)
-    return moments_out[:k]
+    found.sort(key=lambda moment: moment[0])
+    clips = db.names([clip_id for _, clip_id, *_ in found[:k]])  # only those shown
+    return [
+        Moment(clips[clip_id], fmt, _round(start), _round(end), distance)
+        for distance, clip_id, fmt, start, end in found[:k]
+        if clip_id in clips
+    ]
 
 
 # (distance, window id, index name, start, stop) of one window hit

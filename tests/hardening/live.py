@@ -64,6 +64,7 @@ class LiveServer:
 
     data_dir: Path
     env: dict[str, str] = field(default_factory=dict)
+    args: tuple[str, ...] = ()  # more options of ``serve`` (e.g. --workers 2)
     port: int = 0
     process: subprocess.Popen[bytes] | None = None
     log_path: Path | None = None
@@ -84,6 +85,7 @@ class LiveServer:
                 [
                     *(sys.executable, "-m", "app.cli", "serve", "--port", str(self.port)),
                     *("--host", "127.0.0.1", "--data-dir", str(self.data_dir)),
+                    *self.args,
                 ],
                 cwd=REPO_ROOT,
                 env=env,
