@@ -95,7 +95,9 @@ def exact(args: argparse.Namespace) -> int:
         library = fresh_library(Path(tmp), sources)
         try:
             with library.reads() as session:
-                clips = list(repo.get_clips(session, repo.all_clip_ids(session)).values())
+                stored = repo.get_clips(session, repo.all_clip_ids(session)).values()
+            # By name: the draw must not depend on the order the import stored them in.
+            clips = sorted(stored, key=lambda clip: clip.name)
             hits, ious, times, misses = 0, [], [], []
             refused: list[tuple[object, ...]] = []
             for trial in range(args.spans):

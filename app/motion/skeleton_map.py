@@ -31,11 +31,15 @@ facing, naming or extra joints (fingers, face, twist bones, props, IK targets, d
    toe joint, else the farthest point beyond the ankle); ``hand_tip`` is the farthest point
    beyond the wrist, thumbs skipped (the wrist itself on a rig without hand bones).
    :attr:`SkeletonMap.head_joint` keeps the head *joint* for body height.
-4. **Sides.** Left is ``up x forward`` (forward from the feet, else the knees' bend). Names
-   saying left/right on both limb pairs decide which is which; when both pairs disagree with
-   the geometry, the capture is mirrored (:attr:`SkeletonMap.mirrored`: the caller reflects
-   the motion); when only one pair disagrees, geometry wins with a warning. Rigs without
-   side names get sides from geometry alone.
+4. **Sides.** Left is where bent knees' hinge axes (thigh x shin) point, else ``up x
+   forward`` (forward from the feet, else the knees' bend). Names saying left/right on both
+   limb pairs decide which is which; when both pairs disagree with the geometry, the capture
+   is mirrored (:attr:`SkeletonMap.mirrored`: the caller reflects the motion); when only one
+   pair disagrees, geometry wins with a warning. Rigs without side names get sides from
+   geometry alone. When the mapping comes from frames (no standing rest pose), the sides are
+   read from the hips and shoulders only (knees and hands cross in a side step or a slash)
+   and several frames vote, so every clip of a rig — and every part of a clip, cut out and
+   searched with — gets the same sides.
 
 What the tree alone decides (the candidate limb ends, the choices it allows) and, when the
 rest pose shows a standing figure, the whole mapping are kept per skeleton: every clip of a
@@ -52,8 +56,9 @@ import hashlib
 import itertools
 import threading
 from collections import OrderedDict
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 
@@ -150,6 +155,7 @@ _TRIED_CHOICES = 12
 _CANDIDATES = 8
 # Fractions of the pose's extent (its bounding-box diagonal, about body height).
 _COINCIDENT = 1e-4  # joints closer than this share a position
+_BENT_KNEE = np.sin(np.radians(10))  # a knee bent this much shows its hinge axis
 _MIN_LEG = 0.15  # a leg chain is at least this long
 _MIN_ARM = 0.15  # an arm chain is at least this long
 _HEAD_END_MIN = 0.005  # an end effector is at least this far from its joint
@@ -291,12 +297,50 @@ def map_skeleton(skeleton: Skeleton, poses: Iterable[tuple[str, np.ndarray]] = (
     if isinstance(rest_result, SkeletonMap):
         return rest_result  # the rest pose decided: the same for every clip of this skeleton
     reasons: list[str] = [rest_result]
-    for label, pose in poses:
+    stream = _Lookahead(poses)
+    for index, (label, pose) in enumerate(stream):
         try:
-            return _map_pose(known, pose, label)
+            return _map_pose(
+                known, pose, label, others=partial(stream.after, index, _SIDE_VOTES - 1)
+            )
         except _NotHumanoid as reason:
             reasons.append(str(reason))
     raise SkeletonMappingError(reasons[0])
+
+
+# Poses whose geometry votes on left and right when the mapping comes from the frames: one
+# frame can mislead (legs crossing in a side step, feet pointing back at a toe-off), and the
+# same rig must get the same sides in every clip — and in every part of one.
+_SIDE_VOTES = 5
+
+
+class _Lookahead:
+    """The offered poses, read lazily once and kept: mapping tries them in turn; the side
+    vote looks at those after the one being mapped."""
+
+    def __init__(self, poses: Iterable[tuple[str, np.ndarray]]) -> None:
+        self._source = iter(poses)
+        self._read: list[tuple[str, np.ndarray]] = []
+
+    def _reach(self, count: int) -> None:
+        while len(self._read) < count:
+            try:
+                self._read.append(next(self._source))
+            except StopIteration:
+                return
+
+    def __iter__(self) -> Iterator[tuple[str, np.ndarray]]:
+        index = 0
+        while True:
+            self._reach(index + 1)
+            if index >= len(self._read):
+                return
+            yield self._read[index]
+            index += 1
+
+    def after(self, index: int, count: int) -> list[np.ndarray]:
+        self._reach(index + 1 + count)
+        return [pose for _, pose in self._read[index + 1 : index + 1 + count]]
 
 
 # A structurally valid choice: (head, hands, feet, chest, pelvis, leg and arm lengths along
@@ -671,7 +715,14 @@ def _check_pose(
     return _Body(head, hands, feet, chest, pelvis, up, cost), "", 4
 
 
-def _map_pose(known: _Known, pose: np.ndarray, label: str) -> SkeletonMap:
+def _map_pose(
+    known: _Known,
+    pose: np.ndarray,
+    label: str,
+    others: Callable[[], list[np.ndarray]] = list,
+) -> SkeletonMap:
+    """The mapping ``pose`` shows (``others``: more poses of the clip, which vote on the
+    sides with it)."""
     tree = known.tree
     extent = float(np.linalg.norm(np.ptp(pose[tree.body_joints], axis=0)))
     if not extent > 0:
@@ -684,7 +735,7 @@ def _map_pose(known: _Known, pose: np.ndarray, label: str) -> SkeletonMap:
     first: _NotHumanoid | None = None
     for body in sorted(valid, key=lambda b: b.cost)[:_TRIED_CHOICES]:
         try:
-            return _Mapper(tree, pose, extent, body, label).run()
+            return _Mapper(tree, pose, extent, body, label, others).run()
         except _NotHumanoid as problem:
             first = first or problem
     assert first is not None
@@ -694,8 +745,17 @@ def _map_pose(known: _Known, pose: np.ndarray, label: str) -> SkeletonMap:
 class _Mapper:
     """Places every canonical joint once head, hands and feet are known."""
 
-    def __init__(self, tree: _Tree, pose: np.ndarray, extent: float, body: _Body, label: str):
+    def __init__(
+        self,
+        tree: _Tree,
+        pose: np.ndarray,
+        extent: float,
+        body: _Body,
+        label: str,
+        others: Callable[[], list[np.ndarray]] = list,
+    ):
         self.tree = tree
+        self.others = others
         self.pose = pose
         self.extent = extent
         self.body = body
@@ -1053,9 +1113,24 @@ class _Mapper:
 
     # -- sides ---------------------------------------------------------------------------
 
-    def assign_sides(self, legs: list[_Limb], arms: list[_Limb]) -> tuple[bool, int]:
-        """Put the limbs on their sides; returns (mirrored, lateral world axis)."""
-        tree, pose, up = self.tree, self.pose, self.body.up
+    def left(self, pose: np.ndarray, up: np.ndarray, legs: list[_Limb]) -> np.ndarray:
+        """The subject's left in ``pose`` (zero when it shows none).
+
+        A bent knee's hinge axis, thigh x shin, points to the subject's left whichever way
+        the subject faces and whatever the feet do (the shin folds back); in a mirrored
+        capture it points to the mirror image's left, as ``up x forward`` does. Knees too
+        straight to show it leave ``up x forward``, forward from the feet, else the knees'
+        bend."""
+        hinge = np.zeros(3)
+        for leg in legs:
+            thigh = pose[leg["knee"]] - pose[leg["hip"]]
+            shin = pose[leg["ankle"]] - pose[leg["knee"]]
+            axis = np.cross(thigh, shin)
+            if np.linalg.norm(axis) > _BENT_KNEE * np.linalg.norm(thigh) * np.linalg.norm(shin):
+                hinge += axis / np.linalg.norm(axis)
+        hinge -= (hinge @ up) * up
+        if np.linalg.norm(hinge) > 0.5:  # at least one knee bent and the two agree
+            return _unit(hinge)
         forward = np.zeros(3)
         for leg in legs:
             step = pose[leg["toe"]] - pose[leg["ankle"]]
@@ -1065,9 +1140,24 @@ class _Mapper:
                 mid = 0.5 * (pose[leg["hip"]] + pose[leg["ankle"]])
                 step = pose[leg["knee"]] - mid
                 forward += step - (step @ up) * up
-        forward = _unit(forward)
-        left = _unit(np.cross(up, forward))
+        return _unit(np.cross(up, _unit(forward)))
+
+    def assign_sides(self, legs: list[_Limb], arms: list[_Limb]) -> tuple[bool, int]:
+        """Put the limbs on their sides; returns (mirrored, lateral world axis)."""
+        tree, pose, up = self.tree, self.pose, self.body.up
+        left = self.left(pose, up, legs)
         axis = int(np.argmax(np.abs(left))) if np.linalg.norm(left) else 0
+        # The clip's other poses vote with this one (not the rest pose: it is the same in
+        # every clip, and the caller asked for frames only when it showed no standing figure).
+        voters = [(pose, left)]
+        if not self.rest:
+            for other in self.others():
+                spine = other[self.body.chest] - other[self.body.pelvis]
+                if np.linalg.norm(spine) < _COINCIDENT * self.extent:
+                    spine = other[self.body.head] - other[self.body.pelvis]
+                other_up = _unit(spine)
+                if np.linalg.norm(other_up) > 0:
+                    voters.append((other, self.left(other, other_up, legs)))
 
         def name_of(limb: _Limb, top: int) -> str | None:
             votes = [
@@ -1087,13 +1177,17 @@ class _Mapper:
             pair: list[_Limb], keys: tuple[str, ...], top: int
         ) -> tuple[list[_Limb], bool | None, bool]:
             """(pair as [left, right] by geometry, names agree?, geometry known?)"""
-            lateral = (
-                sum(float((pose[pair[0][k]] - pose[pair[1][k]]) @ left) for k in keys)
-                if np.linalg.norm(left)
-                else 0.0
-            )
-            known = abs(lateral) > _COINCIDENT * self.extent
-            by_geometry = pair if lateral >= 0 else pair[::-1]
+            votes = 0
+            for voter, voter_left in voters:
+                lateral = (
+                    sum(float((voter[pair[0][k]] - voter[pair[1][k]]) @ voter_left) for k in keys)
+                    if np.linalg.norm(voter_left)
+                    else 0.0
+                )
+                if abs(lateral) > _COINCIDENT * self.extent:
+                    votes += 1 if lateral > 0 else -1
+            known = votes != 0  # a tie tells nothing
+            by_geometry = pair if votes >= 0 else pair[::-1]
             sides = [name_of(limb, top) for limb in by_geometry]
             if sides == ["l", "r"]:
                 return by_geometry, True, known
@@ -1101,12 +1195,14 @@ class _Mapper:
                 return by_geometry, False, known
             return by_geometry, None, known
 
-        legs_lr, legs_agree, legs_known = order(legs, ("hip", "knee"), self.body.pelvis)
-        arms_lr, arms_agree, arms_known = order(
-            arms, ("shoulder", "elbow", "wrist"), self.body.chest
-        )
+        # In a frame, knees, elbows and hands cross (side steps, a slash, folded arms); hips
+        # and shoulders, fixed to the trunk, do not.
+        leg_keys = ("hip", "knee") if self.rest else ("hip",)
+        arm_keys = ("shoulder", "elbow", "wrist") if self.rest else ("shoulder",)
+        legs_lr, legs_agree, legs_known = order(legs, leg_keys, self.body.pelvis)
+        arms_lr, arms_agree, arms_known = order(arms, arm_keys, self.body.chest)
         mirrored = False
-        if not (legs_known and arms_known) or np.linalg.norm(left) == 0:
+        if not (legs_known and arms_known):
             # No usable geometry: names alone (or the file's order) decide.
             if legs_agree is False:
                 legs_lr = legs_lr[::-1]

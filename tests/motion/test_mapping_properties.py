@@ -19,6 +19,7 @@ from tests.motion.conftest import (
     CMU_BVH_FIXTURE,
     fixture_bytes,
 )
+from tests.motion.shared import SHARED_DATA, requires_shared_data
 
 FIXTURES = (CMU_BVH_FIXTURE, BANDAI_FIXTURE)
 
@@ -157,3 +158,41 @@ def test_names_against_the_geometry_on_one_pair_lose_with_a_warning():
     np.testing.assert_array_equal(confused.body.mapping.joints, analyse(motion).body.mapping.joints)
     assert confused.body.mapping.mirrored is False
     assert any("sides taken from the geometry" in w for w in confused.warnings)
+
+
+def _mapping_of_frames(motion: Motion, first: int, stop: int) -> tuple[list[int], bool]:
+    mapping = analyse(motion.slice_frames(first, stop)).body.mapping
+    return mapping.joints.tolist(), mapping.mirrored
+
+
+def _cuts(frame_count: int, length: int) -> list[tuple[int, int]]:
+    return [(start, start + length) for start in range(0, frame_count - length + 1, length // 2)]
+
+
+def test_every_part_of_a_clip_gets_the_clip_s_mapping():
+    # The Bandai rig's rest pose is no standing figure: its mapping comes from frames. One
+    # frame of a walk can put the feet or knees anywhere; the sides must not follow it.
+    motion = _motion(BANDAI_FIXTURE)
+    whole = _mapping_of_frames(motion, 0, motion.frame_count)
+    assert not whole[1]
+    for first, stop in _cuts(motion.frame_count, 12):
+        assert _mapping_of_frames(motion, first, stop) == whole, (first, stop)
+
+
+@requires_shared_data
+def test_every_part_of_every_bandai_clip_gets_the_clip_s_mapping():
+    """1-s parts of every Bandai dataset-1 clip (the moments a user cuts and searches with)
+    map like their clip."""
+    changed = []
+    for path in sorted((SHARED_DATA / "bandai-ds1").rglob("*.bvh")):
+        motion = read_bvh(path.read_bytes())
+        whole = _mapping_of_frames(motion, 0, motion.frame_count)
+        size = round(1.0 / motion.frame_time)
+        for first, stop in _cuts(motion.frame_count, size)[::3]:
+            try:
+                part = _mapping_of_frames(motion, first, stop)
+            except Exception as error:  # a part may be refused; it must not be re-sided
+                part = (type(error).__name__, False)  # type: ignore[assignment]
+            if part != whole and part[0] != "SkeletonMappingError":
+                changed.append(f"{path.stem} [{first}, {stop})")
+    assert not changed, changed
