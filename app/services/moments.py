@@ -27,6 +27,7 @@ found clips' names and frame rates. Windows of clips deleted by another process 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -216,7 +217,15 @@ def _aligned_starts(
     )
     distances = np.sqrt(np.maximum(squared, 0.0))
     bounds = np.searchsorted(group_of, np.arange(len(groups) + 1))
-    starts_s = _placed_starts(distances, starts, group_of, bounds, parts, frame_times)
+
+    def pair_distances(rows: np.ndarray, columns: np.ndarray) -> np.ndarray:
+        """Distances of some (part, stored window) pairs, from the differences (the expanded
+        form above loses the last digits near zero)."""
+        return np.linalg.norm(query[rows] - stored64[columns], axis=1)
+
+    starts_s = _placed_starts(
+        distances, starts, group_of, bounds, parts, frame_times, pair_distances
+    )
     fits = _span_fits(
         distances,
         starts * frame_times[group_of] - starts_s[group_of],
@@ -238,20 +247,23 @@ def _placed_starts(
     bounds: np.ndarray,
     parts: Parts,
     frame_times: np.ndarray,
+    pair_distances: Callable[[np.ndarray, np.ndarray], np.ndarray],
 ) -> np.ndarray:
     """Where (seconds) each group's moment starts (see :func:`_aligned_starts`; nan for a
     group without windows). ``distances`` ``(J, M)`` parts x stored windows, ``starts``
     ``(M,)`` frames and ``group_of`` ``(M,)`` of those windows (grouped, each group's in
-    start order: columns ``bounds[g]:bounds[g + 1]``)."""
+    start order: columns ``bounds[g]:bounds[g + 1]``); ``pair_distances(rows, columns)``
+    the exact distances of some pairs."""
     groups = len(frame_times)
     placed = np.full(groups, np.nan)
     if not distances.size:
         return placed
     present = bounds[1:] > bounds[:-1]
     part, best = _group_argmin(distances, group_of, bounds)
+    paired = np.where(present, starts[best] * frame_times - parts.offsets[part], np.nan)
     inner = present & (part > 0) & (part < len(parts.offsets) - 1)
     # Parts on both sides fit worse: this part lies on the stored window itself.
-    placed[inner] = starts[best[inner]] * frame_times[inner] - parts.offsets[part[inner]]
+    placed[inner] = paired[inner]
     # Else the best place is beyond the parts' offsets (no stored window fits whole in the
     # query's span): between two stored windows, where their distance branches cross.
     ends = np.flatnonzero(present & ~inner)
@@ -261,9 +273,16 @@ def _placed_starts(
     other = np.where(part[ends] == 0, best[ends] + 1, best[ends] - 1)
     other = np.where((other >= bounds[ends]) & (other < bounds[ends + 1]), other, -1)
     seconds = starts * frame_times[group_of]
-    placed[ends] = branch_crossings(
+    crossing, slope = branch_crossings(
         distances, seconds, parts.offsets, part[ends], best[ends], other
     )
+    # Unless the end part lies on its stored window itself (a query starting where a window
+    # does): the best window's branch, falling at its slope, then reaches zero within half a
+    # frame of it.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        beyond = pair_distances(part[ends], best[ends]) / np.abs(slope)
+    on_window = beyond <= frame_times[ends] / 2  # False where there is no slope (nan)
+    placed[ends] = np.where(on_window, paired[ends], crossing)
     # Else: where a part fits best between the stored windows (equiangular fits).
     rest = ends[np.isnan(placed[ends])]
     if rest.size:
@@ -321,7 +340,7 @@ def branch_crossings(
     best_part: np.ndarray,
     best: np.ndarray,
     other: np.ndarray,
-) -> np.ndarray:
+) -> tuple[np.ndarray, np.ndarray]:
     """Where (seconds) the query starts in each of ``G`` moments whose best pair is an end
     part ``best_part`` ``(G,)`` (0 or the last) and stored window ``best`` ``(G,)``: every
     part against one stored window puts the query's start at ``start - offset``; along those
@@ -329,7 +348,8 @@ def branch_crossings(
     branch and its neighbour's on the other side of the true place, ``other`` ``(G,)`` (-1:
     none), each fitted with a line over the parts, cross there — each with its own slope,
     which a fit from three windows cannot have. nan when the branches do not go down towards
-    each other (or too few parts to fit a line).
+    each other (or too few parts to fit a line). Also returns the slope of the best window's
+    branch ``(G,)``, distance per second (nan likewise).
 
     ``distances`` ``(J, M)`` parts x stored windows, ``starts`` ``(M,)`` seconds (each
     moment's windows sorted), ``offsets`` ``(J,)`` seconds (ascending).
@@ -337,7 +357,7 @@ def branch_crossings(
     count = len(offsets)
     place = np.full(len(best), np.nan)
     if count < 3 or not len(best):
-        return place
+        return place, place.copy()
     there = np.maximum(other, 0)
     # A branch's places are start - offsets: the same spread for every window.
     spread = offsets - offsets.mean()
@@ -359,7 +379,7 @@ def branch_crossings(
     edge_there = starts[there] - offsets[count - 1 - best_part]
     within = np.clip(where, np.minimum(edge_here, edge_there), np.maximum(edge_here, edge_there))
     place[crossing] = within[crossing]
-    return place
+    return place, np.where(crossing, slope_here, np.nan)
 
 
 def fitted_minima(
@@ -415,17 +435,19 @@ def _search(
         name: None if labelled is None else library.places(name).ids_of_clips(labelled)
         for name in names
     }
-    # More moments than asked for are placed, then ranked by how well their whole span fits.
-    candidates = k * (RANKED if parts is not None else 1)
+    # More moments than asked for are placed, then ranked by how well their whole span fits
+    # (of one clip too: its best window may lie in a repetition of the motion, not the copy).
+    ranked = RANKED if parts is not None else 1
+    candidates = k * ranked
     fetch = min(4 * candidates + 20, 4096)  # windows per index; more when too few moments
     groups: list[_Group] = []
     for _ in range(MAX_ATTEMPTS):
         hits, exhausted = _window_hits(library, names, vector, fetch, allowed)
-        groups = _merged(hits, exclude, per_clip, candidates)
-        if len(groups) >= candidates or exhausted:
+        groups, counted = _merged(hits, exclude, per_clip, per_clip * ranked, candidates)
+        if counted >= candidates or exhausted:
             break
         fetch *= 4
-    chosen = sorted(groups, key=lambda g: g.distance)[:candidates]
+    chosen = sorted(groups, key=lambda g: g.distance)
     facts = db.frame_times([g.clip_id for g in chosen])
     chosen = [g for g in chosen if g.clip_id in facts]  # not deleted meanwhile
     frame_times = np.array([facts[g.clip_id][1] for g in chosen], np.float64)
@@ -454,10 +476,20 @@ def _search(
             (distance, group.clip_id, fmt, first * frame_time, (first + length) * frame_time)
         )
     found.sort(key=lambda moment: moment[0])
-    clips = db.names([clip_id for _, clip_id, *_ in found[:k]])  # only those shown
+    # Nearest first, at most per_clip of a clip, none overlapping a nearer one of its clip.
+    shown: list[tuple[float, int, str, float, float]] = []
+    of_clip: dict[int, list[tuple[float, float]]] = {}
+    for moment in found:
+        spans = of_clip.setdefault(moment[1], [])
+        if len(spans) < per_clip and all(moment[4] <= a or b <= moment[3] for a, b in spans):
+            spans.append((moment[3], moment[4]))
+            shown.append(moment)
+            if len(shown) == k:
+                break
+    clips = db.names([clip_id for _, clip_id, *_ in shown])  # only those shown
     return [
         Moment(clips[clip_id], fmt, _round(start), _round(end), distance)
-        for distance, clip_id, fmt, start, end in found[:k]
+        for distance, clip_id, fmt, start, end in shown
         if clip_id in clips
     ]
 
@@ -497,13 +529,20 @@ def _window_hits(
 
 
 def _merged(
-    hits: list[_Hit], exclude: tuple[int, int, int] | None, per_clip: int, candidates: int
-) -> list[_Group]:
+    hits: list[_Hit],
+    exclude: tuple[int, int, int] | None,
+    per_clip: int,
+    placed_per_clip: int,
+    candidates: int,
+) -> tuple[list[_Group], int]:
     """Merge the hits (nearest first) into moments: a hit overlapping or touching one of its
     clip's moments widens it; else it starts a new one while its clip has fewer than
-    ``per_clip`` and there are fewer than ``candidates``."""
+    ``per_clip`` and fewer than ``candidates`` count so far, or as one more to place of a
+    clip with fewer than ``placed_per_clip`` (at most ``candidates`` such). Returns the
+    moments and how many count (at most ``per_clip`` of a clip)."""
     by_clip: dict[int, list[_Group]] = {}
     groups: list[_Group] = []
+    counted = extra = 0
     for distance, window_id, name, start, stop in hits:
         clip_id = window_id >> repo.WINDOW_ID_BITS
         if _overlaps_query(exclude, clip_id, start, stop):
@@ -515,12 +554,18 @@ def _merged(
                 group.cover = (min(group.cover[0], start), max(group.cover[1], stop))
                 merged = True
                 break
-        if merged or len(of_clip) >= per_clip or len(groups) >= candidates:
+        if merged:
+            continue
+        if len(of_clip) < per_clip and counted < candidates:
+            counted += 1
+        elif per_clip <= len(of_clip) < placed_per_clip and extra < candidates:
+            extra += 1
+        else:
             continue
         group = _Group(clip_id, window_id, start, stop, distance, name, (start, stop))
         of_clip.append(group)
         groups.append(group)
-    return groups
+    return groups, counted
 
 
 def _overlaps_query(

@@ -178,6 +178,8 @@ def test_cut_bvh_download_has_the_frames_and_finds_its_source_span(
     assert body["query"] == {"clip": None, "start": 0.0, "end": pytest.approx(1.5, abs=1e-5)}
     top = body["results"][0]
     assert top["id"] == take and iou((top["start"], top["end"]), (1.0, 2.5)) >= 0.8
+    # It starts where a stored window does: its first part lies on that window, to a frame.
+    assert top["start"] == pytest.approx(1.0, abs=0.5 / 30)
     assert client.get("/clips").json()["total"] == before
     # Re-uploaded, it is a clip of its own with exactly those frames.
     stored = upload(client, response.content, "cut.bvh")
