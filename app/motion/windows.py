@@ -2,8 +2,9 @@
 
 A long take holds many motions; one vector per clip blurs them. Moments search describes
 every clip also as windows — for each length ``L`` in ``lengths`` (seconds), windows of
-``round(L / frame_time)`` frames, each starting half a window after the previous — so a
-query of a few seconds can be matched against the part of a take that looks like it.
+``round(L / frame_time)`` frames, each starting half a window after the previous (a quarter
+for the shortest length) — so a query of a few seconds can be matched against the part of a
+take that looks like it.
 
 * :func:`window_spans` says *where* the windows are (``[length index, start, stop)`` in body
   frames, i.e. after lead-in frames are dropped);
@@ -35,13 +36,26 @@ def window_frames(length: float, frame_time: float) -> int:
     return max(2, int(np.floor(length / frame_time + 0.5)))
 
 
+def hop_share(length: float, lengths: Sequence[float]) -> int:
+    """Windows of ``length`` start every ``1 / hop_share`` of a window: every half, and every
+    quarter for the shortest length. A moment is placed to a frame when a stored window lies
+    whole inside the query (then one of the query's own windows matches it exactly); between
+    windows it is estimated, a tenth of a second off or more. Queries as short as the
+    shortest window hold a whole one from 1.25 of its length on with a quarter hop (1.5 with
+    a half): two draws of 500 random 1-4 s cuts of real clips are placed at IoU >= 0.8 99.6 %
+    of the time each, instead of 98.6 and 99.0 % (bench/README.md). Longer queries are placed
+    with longer windows, which a half hop serves."""
+    return 4 if length == min(lengths) else 2
+
+
 def window_spans(
     frame_count: int, frame_time: float, lengths: Sequence[float] = DEFAULT_LENGTHS
 ) -> np.ndarray:
     """Where the windows of a clip of ``frame_count`` frames lie.
 
     For each length (index ``i`` into ``lengths``) windows of :func:`window_frames` frames
-    start every half window (rounded, at least one frame); when the last of them stops short
+    start every half window, every quarter window for the shortest length (rounded, at least
+    one frame); when the last of them stops short
     of the clip's end, one more window is aligned with the end, so the whole clip is covered
     at every length it is long enough for. A clip shorter than every length gets one window
     over all of it, with length index 0.
@@ -58,7 +72,7 @@ def window_spans(
         size = window_frames(length, frame_time)
         if size > frame_count:
             continue
-        hop = max(1, int(np.floor(size / 2 + 0.5)))
+        hop = max(1, int(np.floor(size / hop_share(length, lengths) + 0.5)))
         starts = np.arange(0, frame_count - size + 1, hop, dtype=np.int64)
         if starts[-1] + size < frame_count:
             starts = np.append(starts, frame_count - size)
@@ -103,4 +117,11 @@ def describe_windows(body: Body, spans: np.ndarray, names: Sequence[str]) -> dic
     }
 
 
-__all__ = ["DEFAULT_LENGTHS", "describe_windows", "slice_body", "window_frames", "window_spans"]
+__all__ = [
+    "DEFAULT_LENGTHS",
+    "describe_windows",
+    "hop_share",
+    "slice_body",
+    "window_frames",
+    "window_spans",
+]

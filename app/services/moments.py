@@ -35,6 +35,7 @@ import numpy as np
 from app.db import repository as repo
 from app.errors import InvalidInput, NotFound
 from app.labels import label_filter
+from app.motion.windows import hop_share
 from app.services.clips import stored_upload
 from app.services.describe import (
     WINDOW_LENGTHS,
@@ -84,9 +85,13 @@ class Parts:
 
 def part_length(seconds: float) -> float:
     """The window length a query of ``seconds`` is split into to place its moments: the
-    longest whose stored windows (every half length) always fit one whole into a span of the
-    query's length, else the shortest."""
-    fitting = [length for length in WINDOW_LENGTHS if 1.5 * length <= seconds + 1e-9]
+    longest whose stored windows (one every half or quarter length, :func:`hop_share`)
+    always fit one whole into a span of the query's length, else the shortest."""
+    fitting = [
+        length
+        for length in WINDOW_LENGTHS
+        if (1 + 1 / hop_share(length, WINDOW_LENGTHS)) * length <= seconds + 1e-9
+    ]
     return fitting[-1] if fitting else min(WINDOW_LENGTHS)
 
 
@@ -223,8 +228,12 @@ def _aligned_starts(
         form above loses the last digits near zero)."""
         return np.linalg.norm(query[rows] - stored64[columns], axis=1)
 
+    def window_gaps(these: np.ndarray, those: np.ndarray) -> np.ndarray:
+        """Distances between some stored windows."""
+        return np.linalg.norm(stored64[these] - stored64[those], axis=1)
+
     starts_s = _placed_starts(
-        distances, starts, group_of, bounds, parts, frame_times, pair_distances
+        distances, starts, group_of, bounds, parts, frame_times, pair_distances, window_gaps
     )
     fits = _span_fits(
         distances,
@@ -248,12 +257,14 @@ def _placed_starts(
     parts: Parts,
     frame_times: np.ndarray,
     pair_distances: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    window_gaps: Callable[[np.ndarray, np.ndarray], np.ndarray],
 ) -> np.ndarray:
     """Where (seconds) each group's moment starts (see :func:`_aligned_starts`; nan for a
     group without windows). ``distances`` ``(J, M)`` parts x stored windows, ``starts``
     ``(M,)`` frames and ``group_of`` ``(M,)`` of those windows (grouped, each group's in
     start order: columns ``bounds[g]:bounds[g + 1]``); ``pair_distances(rows, columns)``
-    the exact distances of some pairs."""
+    the exact distances of some pairs, ``window_gaps(columns, columns)`` those between some
+    stored windows."""
     groups = len(frame_times)
     placed = np.full(groups, np.nan)
     if not distances.size:
@@ -273,15 +284,19 @@ def _placed_starts(
     other = np.where(part[ends] == 0, best[ends] + 1, best[ends] - 1)
     other = np.where((other >= bounds[ends]) & (other < bounds[ends + 1]), other, -1)
     seconds = starts * frame_times[group_of]
-    crossing, slope = branch_crossings(
-        distances, seconds, parts.offsets, part[ends], best[ends], other
-    )
+    crossing = branch_crossings(distances, seconds, parts.offsets, part[ends], best[ends], other)
     # Unless the end part lies on its stored window itself (a query starting where a window
-    # does): the best window's branch, falling at its slope, then reaches zero within half a
-    # frame of it.
+    # does): it is then nearer to it than half a frame's share of the way to the next
+    # stored window (of the same group: the one beyond the end, else the one before).
+    step = np.where(part[ends] == 0, 1, -1)
+    neighbour = np.where(other >= 0, other, best[ends] - step)
+    has = (neighbour >= bounds[ends]) & (neighbour < bounds[ends + 1])
+    neighbour = np.where(has, neighbour, best[ends])
+    hop = np.abs(seconds[neighbour] - seconds[best[ends]])
     with np.errstate(divide="ignore", invalid="ignore"):
-        beyond = pair_distances(part[ends], best[ends]) / np.abs(slope)
-    on_window = beyond <= frame_times[ends] / 2  # False where there is no slope (nan)
+        share = (frame_times[ends] / 2) / hop
+    near = pair_distances(part[ends], best[ends]) <= window_gaps(best[ends], neighbour) * share
+    on_window = has & (hop > 0) & near
     placed[ends] = np.where(on_window, paired[ends], crossing)
     # Else: where a part fits best between the stored windows (equiangular fits).
     rest = ends[np.isnan(placed[ends])]
@@ -340,7 +355,7 @@ def branch_crossings(
     best_part: np.ndarray,
     best: np.ndarray,
     other: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> np.ndarray:
     """Where (seconds) the query starts in each of ``G`` moments whose best pair is an end
     part ``best_part`` ``(G,)`` (0 or the last) and stored window ``best`` ``(G,)``: every
     part against one stored window puts the query's start at ``start - offset``; along those
@@ -348,8 +363,7 @@ def branch_crossings(
     branch and its neighbour's on the other side of the true place, ``other`` ``(G,)`` (-1:
     none), each fitted with a line over the parts, cross there — each with its own slope,
     which a fit from three windows cannot have. nan when the branches do not go down towards
-    each other (or too few parts to fit a line). Also returns the slope of the best window's
-    branch ``(G,)``, distance per second (nan likewise).
+    each other (or too few parts to fit a line).
 
     ``distances`` ``(J, M)`` parts x stored windows, ``starts`` ``(M,)`` seconds (each
     moment's windows sorted), ``offsets`` ``(J,)`` seconds (ascending).
@@ -357,7 +371,7 @@ def branch_crossings(
     count = len(offsets)
     place = np.full(len(best), np.nan)
     if count < 3 or not len(best):
-        return place, place.copy()
+        return place
     there = np.maximum(other, 0)
     # A branch's places are start - offsets: the same spread for every window.
     spread = offsets - offsets.mean()
@@ -379,7 +393,7 @@ def branch_crossings(
     edge_there = starts[there] - offsets[count - 1 - best_part]
     within = np.clip(where, np.minimum(edge_here, edge_there), np.maximum(edge_here, edge_there))
     place[crossing] = within[crossing]
-    return place, np.where(crossing, slope_here, np.nan)
+    return place
 
 
 def fitted_minima(

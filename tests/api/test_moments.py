@@ -95,9 +95,10 @@ def test_upload_stores_windows_and_indexes_them(
     take_client: tuple[TestClient, int, int], settings: Settings
 ) -> None:
     client, take, walk = take_client
-    # 120 frames at 30 fps: 1-s windows every 15 frames (7), 2-s every 30 (3), one 4-s.
-    assert window_rows(settings, take) == 7 + 3 + 1
-    assert window_rows(settings, walk) == 2  # 40 frames: [0, 30) and the end-aligned [10, 40)
+    # 120 frames at 30 fps: 1-s windows every 8 frames and one ending with the clip (13),
+    # 2-s every 30 (3), one 4-s.
+    assert window_rows(settings, take) == 13 + 3 + 1
+    assert window_rows(settings, walk) == 3  # 40 frames: [0, 30), [8, 38), the end's [10, 40)
     assert window_index_sizes(client) == window_rows(settings)
 
 
@@ -246,7 +247,7 @@ def test_window_indexes_are_rebuilt_or_caught_up_at_start(
     (index_dir / "windows-motion-1s.faiss").write_bytes(b"damaged")
     (index_dir / "windows-motion-2s.json").unlink()
     with TestClient(create_app(settings)) as client:
-        assert window_index_sizes(client) == window_rows(settings) == 11
+        assert window_index_sizes(client) == window_rows(settings) == 17
         again = client.get("/search/moments", params={"clip": take, "start": 0, "end": 1.3})
         assert again.json() == expected.json()
         # Another process stores a clip: this one finds its windows without a restart.
@@ -273,8 +274,8 @@ def test_reindex_rebuilds_the_windows(settings: Settings) -> None:
         assert sum(library.window_indexes.sizes().values()) == 0  # repaired to the database
         report = reindex(library)
         assert report.recomputed == 1 and not report.failed
-        assert window_rows(settings, take) == 11
-        assert sum(library.window_indexes.sizes().values()) == 11
+        assert window_rows(settings, take) == 17
+        assert sum(library.window_indexes.sizes().values()) == 17
     finally:
         library.close()
 
@@ -289,7 +290,7 @@ def test_window_indexes_follow_another_process_through_the_feed(settings: Settin
     with TestClient(create_app(settings)) as client:
         take = upload(client, long_take(), "take.bvh")["id"]
         walk = upload(client, fixture_bytes(BANDAI_FIXTURE), "walk.bvh")["id"]
-        assert window_index_sizes(client) == 13
+        assert window_index_sizes(client) == 20
         library = open_library(settings)  # another process
         try:
             key = next(k for k in library.window_keys.values() if k.length == 1.0)
@@ -318,7 +319,7 @@ def test_window_indexes_follow_another_process_through_the_feed(settings: Settin
         results = client.get("/search/moments", params={"clip": walk}).json()["results"]
         assert all(r["id"] != take for r in results)
         library = client.app.state.library  # type: ignore[attr-defined]
-        assert window_index_sizes(client) == window_rows(settings) == 2
+        assert window_index_sizes(client) == window_rows(settings) == 3
         index = library.window_indexes["windows-motion-1s"]
         held = index.reconstruct_many(index.ids())[1]
         np.testing.assert_allclose(np.sort(held, axis=0), np.sort(vectors + 1.0, axis=0))
