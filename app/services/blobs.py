@@ -19,11 +19,12 @@ file name a user uploads is kept in the database as text and never becomes a pat
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import hashlib
 import os
 import re
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, Protocol
@@ -51,6 +52,11 @@ class BlobStore(Protocol):
 
     def put(self, data: bytes) -> tuple[str, bool]:
         """Store ``data`` durably; returns its sha256 and whether it was not stored before."""
+        ...
+
+    def put_many(self, files: Sequence[tuple[bytes, str]]) -> list[tuple[str, bool]]:
+        """Store ``(data, sha256 of data)`` pairs durably, all or none (what :meth:`put` does
+        for one); returns, in order, each sha256 and whether it was not stored before."""
         ...
 
     def read(self, sha256: str) -> bytes:
@@ -81,7 +87,9 @@ class FileBlobStore:
 
     def put(self, data: bytes) -> tuple[str, bool]:
         """Store ``data``; returns its sha256 and whether a new file was written."""
-        sha = hashlib.sha256(data).hexdigest()
+        return self._put_one(data, hashlib.sha256(data).hexdigest())
+
+    def _put_one(self, data: bytes, sha: str) -> tuple[str, bool]:
         path = self.path(sha)
         if path.is_file():
             return sha, False
@@ -100,6 +108,59 @@ class FileBlobStore:
             with contextlib.suppress(OSError):
                 tmp.unlink(missing_ok=True)
         return sha, True
+
+    def put_many(self, files: Sequence[tuple[bytes, str]]) -> list[tuple[str, bool]]:
+        """:meth:`put` for many files with two flushes of the file system instead of one fsync
+        per file (where ``syncfs`` exists): the new files are written under temporary names,
+        made durable, renamed, and the renames made durable. On failure none of the new files
+        is left behind (:class:`StorageUnavailable`)."""
+        results: list[tuple[str, bool]] = []
+        pending: dict[str, tuple[Path, Path]] = {}  # sha256 -> (temporary, final path)
+        for _, sha in files:
+            path = self.path(sha)
+            new = sha not in pending and not path.is_file()
+            if new:
+                tmp = path.with_name(f".{sha}.{os.getpid()}.{threading.get_ident()}.tmp")
+                pending[sha] = (tmp, path)
+            results.append((sha, new))
+        if not pending:
+            return results
+        if len(pending) == 1 or _syncfs is None:
+            # One file (an upload): fsync it (a flush of the whole file system costs more).
+            done: list[tuple[str, bool]] = []
+            try:
+                for data, sha in files:
+                    done.append(self._put_one(data, sha))
+            except BaseException:
+                for sha, new in done:
+                    if new:
+                        self.delete(sha)
+                raise
+            return done
+        renamed: list[Path] = []
+        try:
+            written = set()
+            for data, sha in files:
+                if sha in pending and sha not in written:
+                    tmp, path = pending[sha]
+                    path.parent.mkdir(parents=True, exist_ok=True)
+                    with open(tmp, "wb") as fh:
+                        fh.write(data)
+                    written.add(sha)
+            _sync_file_system(self.root)  # the bytes on disk before a name points at them
+            for tmp, path in pending.values():
+                os.replace(tmp, path)
+                renamed.append(path)
+            _sync_file_system(self.root)  # the names on disk before a row names them
+        except OSError as exc:
+            for tmp, _ in pending.values():
+                with contextlib.suppress(OSError):
+                    tmp.unlink(missing_ok=True)
+            for path in renamed:
+                with contextlib.suppress(OSError):
+                    path.unlink(missing_ok=True)
+            raise StorageUnavailable(f"cannot store the uploaded file: {exc.strerror}") from exc
+        return results
 
     def read(self, sha256: str) -> bytes:
         try:
@@ -186,6 +247,18 @@ class DatabaseBlobStore:
             raise StorageUnavailable(f"cannot store the uploaded file: {exc}") from exc
         return sha, new
 
+    def put_many(self, files: Sequence[tuple[bytes, str]]) -> list[tuple[str, bool]]:
+        results: list[tuple[str, bool]] = []
+        try:
+            for data, _ in files:
+                results.append(self.put(data))
+        except BaseException:
+            for sha, new in results:
+                if new:
+                    self.delete(sha)
+            raise
+        return results
+
     def read(self, sha256: str) -> bytes:
         try:
             with self._engine.connect() as connection:
@@ -214,6 +287,30 @@ class DatabaseBlobStore:
             delete(Blob).where(Blob.created_at < cutoff, ~_referenced(Blob.sha256))
         )
         return int(result.rowcount or 0)  # type: ignore[attr-defined]
+
+
+def _load_syncfs() -> Callable[[int], int] | None:
+    """Linux's ``syncfs(fd)``: flush one file system (every file written, every rename) in one
+    call; ``None`` where the C library lacks it (then each file is fsynced)."""
+    try:
+        syncfs: Callable[[int], int] = ctypes.CDLL(None, use_errno=True).syncfs
+    except (OSError, AttributeError):
+        return None
+    return syncfs
+
+
+_syncfs = _load_syncfs()
+
+
+def _sync_file_system(directory: Path) -> None:
+    assert _syncfs is not None
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        if _syncfs(fd) != 0:
+            error = ctypes.get_errno()
+            raise OSError(error, os.strerror(error))
+    finally:
+        os.close(fd)
 
 
 def _referenced(sha256: Any) -> Exists:
