@@ -866,3 +866,25 @@ def test_bandai_bone_lengths_stay_constant(motion_data: Path, name: str) -> None
     motion = read_bvh((motion_data / "bandai-ds1" / "data" / name).read_bytes())
     assert_consistent(motion)
     _assert_rigid_bones(motion)
+
+
+def test_a_hierarchy_read_before_is_reused_and_frames_are_still_read() -> None:
+    from app.motion.formats import bvh
+
+    first = read_bvh(TINY)
+    again = read_bvh(edit(TINY, L_FRAME_2, "2 92 4 0 0 0 0 0 45"))
+    assert again.skeleton.names == first.skeleton.names
+    np.testing.assert_array_equal(again.skeleton.offsets, first.skeleton.offsets)
+    np.testing.assert_array_equal(again.root_translation[1], [2, 92, 4])
+    assert not np.allclose(again.local_rotations[1], first.local_rotations[1])
+    key = (TINY[: TINY.index("Frames:")], bvh.DEFAULT_LIMITS)
+    assert key in bvh._HIERARCHIES._read  # remembered: the second file did not read it again
+    # One character changed: read in full, with its own error and line number.
+    broken = edit(TINY, L_CHEST_OFFSET, "    OFFSET 0 10")
+    for _ in range(2):
+        with pytest.raises(ParseError, match="OFFSET") as error:
+            read_bvh(broken)
+        assert error.value.line == L_CHEST_OFFSET
+    # Other limits: read again under them.
+    with pytest.raises(LimitExceeded):
+        read_bvh(TINY, limits=ParseLimits(max_joints=2))

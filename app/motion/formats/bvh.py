@@ -33,6 +33,7 @@ from __future__ import annotations
 import io
 import math
 import re
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -233,7 +234,7 @@ def parse_bvh(text: str, *, limits: ParseLimits = DEFAULT_LIMITS) -> Motion:
     """
     text = normalise_newlines(text)
     lines = _Lines(text)
-    joints = _read_hierarchy(lines, limits)
+    joints = _HIERARCHIES.read(lines, limits)
     frame_count, frames_line, frame_time = _read_motion_header(lines)
 
     channel_count = sum(len(j.channels or ()) for j in joints)
@@ -247,6 +248,47 @@ def parse_bvh(text: str, *, limits: ParseLimits = DEFAULT_LIMITS) -> Motion:
     if warnings:
         motion.notes["warnings"] = warnings
     return motion
+
+
+# The line that ends the hierarchy (the parser's rule: a line whose only token is MOTION).
+_MOTION_LINE_RE = re.compile(r"^[ \t\r\f\v]*motion[ \t\r\f\v]*$\n?", re.IGNORECASE | re.MULTILINE)
+
+
+class _HierarchyMemo:
+    """Hierarchies already read in this process, by their exact text (up to and including
+    the ``MOTION`` line) and the limits they were read under: the clips of one studio share a
+    rig, so an import reads each rig once. A file whose text before its first ``MOTION`` line
+    differs by one character is read in full; only hierarchies that were read without error
+    are kept. The joints are shared between the clips: nothing changes them after reading."""
+
+    MAX_ENTRIES = 32
+    MAX_TEXT = 256 * 1024  # characters; larger hierarchies are read every time
+
+    def __init__(self) -> None:
+        self._read: dict[tuple[str, ParseLimits], tuple[list[_Joint], int]] = {}
+        self._lock = threading.Lock()
+
+    def read(self, lines: _Lines, limits: ParseLimits) -> list[_Joint]:
+        """:func:`_read_hierarchy` of ``lines`` (from their start), remembered."""
+        found = _MOTION_LINE_RE.search(lines.text, 0, self.MAX_TEXT)
+        key = None if found is None else (lines.text[: found.end()], limits)
+        if key is not None:
+            with self._lock:
+                known = self._read.get(key)
+            if known is not None:
+                joints, line_count = known
+                lines.pos, lines.line = found.end(), line_count  # type: ignore[union-attr]
+                return joints
+        joints = _read_hierarchy(lines, limits)
+        if key is not None and lines.pos == found.end():  # type: ignore[union-attr]
+            with self._lock:
+                if len(self._read) >= self.MAX_ENTRIES:
+                    self._read.pop(next(iter(self._read)))
+                self._read[key] = (joints, lines.line)
+        return joints
+
+
+_HIERARCHIES = _HierarchyMemo()
 
 
 def _read_hierarchy(lines: _Lines, limits: ParseLimits) -> list[_Joint]:
