@@ -888,3 +888,39 @@ def test_a_hierarchy_read_before_is_reused_and_frames_are_still_read() -> None:
     # Other limits: read again under them.
     with pytest.raises(LimitExceeded):
         read_bvh(TINY, limits=ParseLimits(max_joints=2))
+
+
+@pytest.mark.parametrize("name", [BANDAI_FIXTURE, CMU_BVH_FIXTURE])
+def test_both_frame_readers_give_the_same_bits(name: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    from app.motion.formats import bvh
+
+    text = fixture_text(name)
+    fast = read_bvh(text)
+    monkeypatch.setattr(bvh, "_read_spaced_numbers", lambda *args: None)  # numpy's reader
+    slow = read_bvh(text)
+    assert fast.local_rotations.tobytes() == slow.local_rotations.tobytes()
+    assert fast.root_translation.tobytes() == slow.root_translation.tobytes()
+
+
+NUMBER_TOKENS = st.one_of(
+    st.floats(allow_nan=False, allow_infinity=False, width=64).map(repr),
+    st.floats(allow_nan=False, allow_infinity=False, width=32).map(lambda x: f"{x:.6g}"),
+    st.from_regex(r"[+-]?[0-9]{0,4}\.?[0-9]{0,4}([eE][+-]?[0-9]{0,3})?", fullmatch=True),
+    st.sampled_from(["nan", "inf", "-0", "1e", ".", "+", "1.2.3", '"1"', "0x10", "1_0", ""]),
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.lists(NUMBER_TOKENS, min_size=3, max_size=3), min_size=1, max_size=4))
+def test_polars_reads_numbers_as_numpy_does(rows: list[list[str]]) -> None:
+    """Whatever polars reads, numpy reads the same (same bits); the rest goes to numpy."""
+    import io
+
+    from app.motion.formats.bvh import _read_spaced_numbers
+
+    block = "\n".join(" ".join(row) + " " for row in rows).rstrip()
+    got = _read_spaced_numbers(block, len(rows), 3)
+    if got is None:
+        return
+    expected = np.loadtxt(io.StringIO(block), dtype=np.float64, comments=None, ndmin=2)
+    assert got.tobytes() == expected.tobytes()
