@@ -910,17 +910,28 @@ NUMBER_TOKENS = st.one_of(
 )
 
 
-@settings(max_examples=300, deadline=None)
-@given(st.lists(st.lists(NUMBER_TOKENS, min_size=3, max_size=3), min_size=1, max_size=4))
-def test_polars_reads_numbers_as_numpy_does(rows: list[list[str]]) -> None:
-    """Whatever polars reads, numpy reads the same (same bits); the rest goes to numpy."""
+@settings(max_examples=400, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.lists(NUMBER_TOKENS, min_size=2, max_size=4),
+            st.sampled_from([" ", "  ", "\t"]),  # between the numbers
+            st.sampled_from(["", " ", "  "]),  # at the line's end
+        ),
+        min_size=1,
+        max_size=4,
+    )
+)
+def test_polars_reads_numbers_as_numpy_does(lines: list[tuple[list[str], str, str]]) -> None:
+    """Whatever polars reads as finite numbers, numpy reads the same (same bits); the rest
+    goes to numpy (None) or to the caller's line-by-line pass (not finite)."""
     import io
 
     from app.motion.formats.bvh import _read_spaced_numbers
 
-    block = "\n".join(" ".join(row) + " " for row in rows).rstrip()
-    got = _read_spaced_numbers(block, len(rows), 3)
-    if got is None:
+    block = "\n".join(gap.join(tokens) + end for tokens, gap, end in lines).rstrip()
+    got = _read_spaced_numbers(block, len(lines), 3)
+    if got is None or not np.isfinite(got).all():
         return
     expected = np.loadtxt(io.StringIO(block), dtype=np.float64, comments=None, ndmin=2)
     assert got.tobytes() == expected.tobytes()

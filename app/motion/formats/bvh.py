@@ -606,12 +606,13 @@ MAX_NUMBER_CHARACTERS = 32
 
 def _read_spaced_numbers(block: str, rows: int, columns: int) -> np.ndarray | None:
     """``(rows, columns)`` numbers of ``block`` by polars' CSV reader, or ``None`` when the
-    block is not ``rows`` lines of ``columns`` ASCII fields separated by single spaces (a
-    space before a line end is fine) or polars is missing: the caller then uses numpy's.
+    block is not ``rows`` lines of ``columns`` ASCII fields separated by single spaces (one
+    space at a line's end is fine) or polars is missing: the caller then uses numpy's.
 
     polars parses numbers as numpy does (tested, also the tokens both refuse); quoting is
-    off, so no token means more to it than to numpy. ``nan``/``inf`` come back as they are
-    (the caller checks). It is imported at the first call (~0.15 s once per process).
+    off, so no token means more to it than to numpy. ``nan``/``inf`` come back as they are,
+    and so do short lines, as ``nan`` (the caller checks). Imported at the first call
+    (~0.15 s once per process).
     """
     if len(block) > rows * columns * MAX_NUMBER_CHARACTERS or not block.isascii():
         return None  # numbers this long are not the common layout (nor a hostile line's)
@@ -619,14 +620,20 @@ def _read_spaced_numbers(block: str, rows: int, columns: int) -> np.ndarray | No
         import polars
     except ImportError:
         return None
-    raw = block.encode("ascii").replace(b" \n", b"\n")
+    # polars takes the number of fields from the first line; a space at its end is one more,
+    # empty, field (the others may end with one or not).
+    first_end = block.find("\n")
+    first_end = len(block) if first_end < 0 else first_end
+    if first_end == 0:
+        return None  # nothing, or a blank first line
+    trailing = block[first_end - 1] == " "
     try:
         frame = polars.read_csv(
-            raw,
+            block.encode("ascii"),
             separator=" ",
             has_header=False,
             quote_char=None,
-            schema=_polars_schema(columns),
+            schema=_polars_schema(columns + trailing),
             n_rows=rows + 1,
         )
     except Exception:
@@ -635,9 +642,12 @@ def _read_spaced_numbers(block: str, rows: int, columns: int) -> np.ndarray | No
         if isinstance(error, KeyboardInterrupt | SystemExit | GeneratorExit):
             raise
         return None
-    if frame.shape != (rows, columns) or any(frame.null_count().row(0)):
+    if frame.shape != (rows, columns + trailing):
         return None
-    return np.ascontiguousarray(frame.to_numpy(), dtype=np.float64)
+    values = frame.to_numpy()  # null (an empty or missing field) -> nan
+    if trailing and not np.isnan(values[:, columns]).all():
+        return None
+    return np.ascontiguousarray(values[:, :columns], dtype=np.float64)
 
 
 @functools.lru_cache(maxsize=64)
