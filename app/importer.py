@@ -519,8 +519,10 @@ def _open_library(settings: Settings) -> Library:
     from app.services.library import open_library
 
     library = open_library(settings)
-    for index in library.indexes.values():
-        index.autosave = False  # saved once, when the run ends (Library.close)
+    # Saved once, when the run ends (Library.close): small indexes would otherwise be
+    # written (and hashed, and fsynced) every second of the run, the window indexes too.
+    for index in [*library.indexes.values(), *library.window_indexes.values()]:
+        index.autosave = False
     return library
 
 
