@@ -19,12 +19,12 @@ file name a user uploads is kept in the database as text and never becomes a pat
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import hashlib
 import os
 import re
 import threading
 from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, Protocol
@@ -110,50 +110,42 @@ class FileBlobStore:
         return sha, True
 
     def put_many(self, files: Sequence[tuple[bytes, str]]) -> list[tuple[str, bool]]:
-        """:meth:`put` for many files with two flushes of the file system instead of one fsync
-        per file (where ``syncfs`` exists): the new files are written under temporary names,
-        made durable, renamed, and the renames made durable. On failure none of the new files
-        is left behind (:class:`StorageUnavailable`)."""
+        """:meth:`put` for many ``(data, sha256 of data)`` files, all or none: the new files
+        are written under temporary names, then fsynced together (a few threads: the file
+        system commits concurrent fsyncs together), renamed, and their directories fsynced
+        once each, so both the bytes and the names are on disk before a row names them. Only
+        this call's files are waited for (``syncfs`` would also wait for whatever else the
+        machine wrote: 0.2 s instead of 40 ms for 64 files beside 400 MB of other writes)."""
         results: list[tuple[str, bool]] = []
-        pending: dict[str, tuple[Path, Path]] = {}  # sha256 -> (temporary, final path)
-        for _, sha in files:
+        pending: dict[str, tuple[bytes, Path, Path]] = {}  # sha256 -> (data, temporary, path)
+        for data, sha in files:
             path = self.path(sha)
             new = sha not in pending and not path.is_file()
             if new:
                 tmp = path.with_name(f".{sha}.{os.getpid()}.{threading.get_ident()}.tmp")
-                pending[sha] = (tmp, path)
+                pending[sha] = (data, tmp, path)
             results.append((sha, new))
         if not pending:
             return results
-        if len(pending) == 1 or _syncfs is None:
-            # One file (an upload): fsync it (a flush of the whole file system costs more).
-            done: list[tuple[str, bool]] = []
-            try:
-                for data, sha in files:
-                    done.append(self._put_one(data, sha))
-            except BaseException:
-                for sha, new in done:
-                    if new:
-                        self.delete(sha)
-                raise
-            return done
+        opened: list[int] = []
         renamed: list[Path] = []
         try:
-            written = set()
-            for data, sha in files:
-                if sha in pending and sha not in written:
-                    tmp, path = pending[sha]
-                    path.parent.mkdir(parents=True, exist_ok=True)
-                    with open(tmp, "wb") as fh:
-                        fh.write(data)
-                    written.add(sha)
-            _sync_file_system(self.root)  # the bytes on disk before a name points at them
-            for tmp, path in pending.values():
-                os.replace(tmp, path)
+            for data, tmp, path in pending.values():
+                path.parent.mkdir(parents=True, exist_ok=True)
+                opened.append(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644))
+                _write_all(opened[-1], data)
+            _each(os.fsync, opened)  # the bytes on disk before a name points at them
+            while opened:
+                os.close(opened.pop())
+            for _, tmp, path in pending.values():
+                os.replace(tmp, path)  # readers never see a half-written file
                 renamed.append(path)
-            _sync_file_system(self.root)  # the names on disk before a row names them
+            _each(_fsync_directory, sorted({path.parent for path in renamed}))
         except OSError as exc:
-            for tmp, _ in pending.values():
+            for fd in opened:
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+            for _, tmp, _ in pending.values():
                 with contextlib.suppress(OSError):
                     tmp.unlink(missing_ok=True)
             for path in renamed:
@@ -289,26 +281,40 @@ class DatabaseBlobStore:
         return int(result.rowcount or 0)  # type: ignore[attr-defined]
 
 
-def _load_syncfs() -> Callable[[int], int] | None:
-    """Linux's ``syncfs(fd)``: flush one file system (every file written, every rename) in one
-    call; ``None`` where the C library lacks it (then each file is fsynced)."""
-    try:
-        syncfs: Callable[[int], int] = ctypes.CDLL(None, use_errno=True).syncfs
-    except (OSError, AttributeError):
-        return None
-    return syncfs
+SYNC_THREADS = 8  # fsyncs in flight at once (they wait on the disk, not the CPU)
+_sync_pool: ThreadPoolExecutor | None = None
+_sync_pool_lock = threading.Lock()
 
 
-_syncfs = _load_syncfs()
+def _each(action: Callable[[Any], None], items: Sequence[Any]) -> None:
+    """``action(item)`` for every item, a few at a time on a shared pool of threads (one
+    alone in this thread); raises the first error once all are done."""
+    global _sync_pool
+    if len(items) <= 1:
+        for item in items:
+            action(item)
+        return
+    with _sync_pool_lock:
+        if _sync_pool is None:
+            _sync_pool = ThreadPoolExecutor(SYNC_THREADS, thread_name_prefix="mocap-fsync")
+        pool = _sync_pool
+    futures = [pool.submit(action, item) for item in items]
+    errors = [future.exception() for future in futures]
+    for error in errors:
+        if error is not None:
+            raise error
 
 
-def _sync_file_system(directory: Path) -> None:
-    assert _syncfs is not None
+def _write_all(fd: int, data: bytes) -> None:
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view) :]
+
+
+def _fsync_directory(directory: Path) -> None:
     fd = os.open(directory, os.O_RDONLY)
     try:
-        if _syncfs(fd) != 0:
-            error = ctypes.get_errno()
-            raise OSError(error, os.strerror(error))
+        os.fsync(fd)
     finally:
         os.close(fd)
 
