@@ -93,7 +93,7 @@ def main() -> int:
         (body_module, "forward_kinematics", "body: forward kinematics"),
         (pipeline, "build_body", "body (all)"),
         (MotionDescriber, "_windows", "windows"),
-        (FileBlobStore, "put_many", "store: files (write, 2 syncfs)"),
+        (FileBlobStore, "put_many", "store: files (write, fsync, rename)"),
         (repo, "insert_clips", "store: rows (one transaction)"),
         (Library, "sync_indexes", "store: index sync (reads rows back)"),
         (repo, "get_clips", "store: clip records for the results"),
