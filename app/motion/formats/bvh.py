@@ -268,7 +268,7 @@ class _HierarchyMemo:
     are kept. The joints are shared between the clips: nothing changes them after reading."""
 
     MAX_ENTRIES = 32
-    MAX_TEXT = 256 * 1024  # characters; larger hierarchies are read every time
+    MAX_TEXT = 128 * 1024  # characters (the largest here: 36 K); larger ones are read each time
 
     def __init__(self) -> None:
         self._read: dict[tuple[str, ParseLimits], tuple[list[_Joint], int]] = {}
