@@ -201,16 +201,25 @@ def _file_digest(path: Path) -> str:
 
 def content_hash_of_bytes(motion: bytes, skeleton: bytes | None = None) -> str:
     """:func:`content_hash` of file contents already in memory (e.g. an upload)."""
+    return content_hash_of_digests(
+        hashlib.sha256(motion).hexdigest(),
+        None if skeleton is None else hashlib.sha256(skeleton).hexdigest(),
+    )
+
+
+def content_hash_of_digests(motion: str, skeleton: str | None = None) -> str:
+    """:func:`content_hash` from the files' sha256 hex digests (hashed once, used thrice:
+    content hash, stored file name, file-changed check)."""
     if skeleton is None:
-        return hashlib.sha256(motion).hexdigest()
-    pair = hashlib.sha256(skeleton).hexdigest() + hashlib.sha256(motion).hexdigest()
-    return hashlib.sha256(pair.encode("ascii")).hexdigest()
+        return motion
+    return hashlib.sha256((skeleton + motion).encode("ascii")).hexdigest()
 
 
-def content_hash_of_animation(data: bytes, animation: str) -> str:
+def content_hash_of_animation(data: bytes, animation: str, *, digest: str | None = None) -> str:
     """The content hash of one animation of an FBX/glTF file: each animation is its own clip,
-    and the same file uploaded or imported again hashes the same."""
-    digest = hashlib.sha256(data).hexdigest()
+    and the same file uploaded or imported again hashes the same. ``digest``: the file's
+    sha256 hex digest when already known."""
+    digest = digest or hashlib.sha256(data).hexdigest()
     return hashlib.sha256(f"{digest}\n{animation}".encode()).hexdigest()
 
 

@@ -279,6 +279,9 @@ def _worker_main(
     """A worker's loop: describe the clips of each task until told to stop or orphaned."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is for the main process to handle
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    # One thread in polars' frame reader (app.motion.formats.bvh): the workers are the
+    # parallelism; its own threads cost CPU here (2.9 -> 2.4 ms per Bandai clip).
+    os.environ.setdefault("POLARS_MAX_THREADS", "1")
     with suppress(OSError):
         # Below the main process, whose work (opening the library, storing) is what the
         # workers wait for; and kinder to whatever else the machine runs.
@@ -307,9 +310,10 @@ def _worker_main(
 
 def _context() -> Any:
     """Fork while this process has no other thread (fastest: the motion core is already
-    imported); a fork server otherwise (forking a process with threads is unsafe)."""
+    imported); a fork server otherwise (forking a process with threads is unsafe). polars,
+    once imported (a BVH was read here before), has native threads of its own."""
     methods = multiprocessing.get_all_start_methods()
-    if "fork" in methods and threading.active_count() == 1:
+    if "fork" in methods and threading.active_count() == 1 and "polars" not in sys.modules:
         return multiprocessing.get_context("fork")
     if "forkserver" in methods:
         context = multiprocessing.get_context("forkserver")
@@ -515,8 +519,10 @@ def _open_library(settings: Settings) -> Library:
     from app.services.library import open_library
 
     library = open_library(settings)
-    for index in library.indexes.values():
-        index.autosave = False  # saved once, when the run ends (Library.close)
+    # Saved once, when the run ends (Library.close): small indexes would otherwise be
+    # written (and hashed, and fsynced) every second of the run, the window indexes too.
+    for index in [*library.indexes.values(), *library.window_indexes.values()]:
+        index.autosave = False
     return library
 
 

@@ -394,6 +394,7 @@ class DescriptorIndex:
         self.directory = directory
         self.options = options if options is not None else IndexOptions()
         self._index = index if index is not None else _empty_flat(dimension)
+        self._max_id: int | None = None  # see _id_bound
         self._synced_to = 0
         self._unsaved = 0
         self.autosave = True  # False: changes are saved only by an explicit save()
@@ -438,9 +439,20 @@ class DescriptorIndex:
     def ids(self) -> np.ndarray:
         """``(N,)`` int64 ids in the index (flat: insertion order; IVF: by cell)."""
         with self._lock.read():
-            if self.kind == IVF:
-                return _ivf_ids(self._index)
-            return faiss.vector_to_array(self._index.id_map).astype(np.int64)
+            return self._ids()
+
+    def _ids(self) -> np.ndarray:
+        if self.kind == IVF:
+            return _ivf_ids(self._index)
+        return faiss.vector_to_array(self._index.id_map).astype(np.int64)
+
+    def _id_bound(self) -> int:
+        """No id above this is in the index (kept up to date while adding, computed again
+        after the index was swapped; removals leave it high). Under the write lock."""
+        if self._max_id is None:
+            ids = self._ids()
+            self._max_id = int(ids.max()) if ids.size else -1
+        return self._max_id
 
     def _autosave(self, persist: bool | None) -> None:
         if persist:
@@ -514,6 +526,8 @@ class DescriptorIndex:
             if ids_.size:
                 self._index.add_with_ids(array, ids_)
                 self._unsaved += int(ids_.size)
+                if self._max_id is not None:
+                    self._max_id = max(self._max_id, int(ids_.max()))
             if synced_to is not None:
                 self._synced_to = max(self._synced_to, int(synced_to))
         if ids_.size:
@@ -556,9 +570,12 @@ class DescriptorIndex:
         with self._lock.write():
             remove: set[int] = set()
             add: list[int] = []
+            # New ids (an import's) are above every id held: no lookup, which FAISS answers
+            # for an absent id by raising (~10 us each, ~20 window ids per clip).
+            bound = self._id_bound()
             for clip_id in changed_.tolist():
                 try:
-                    held = self._index.reconstruct(clip_id)
+                    held = self._index.reconstruct(clip_id) if clip_id <= bound else None
                 except RuntimeError:  # not in the index
                     held = None
                 row = current.get(clip_id)
@@ -572,6 +589,7 @@ class DescriptorIndex:
             if add:
                 rows = np.asarray(add, dtype=np.int64)
                 self._index.add_with_ids(np.ascontiguousarray(array[rows]), ids_[rows])
+                self._max_id = max(bound, int(ids_[rows].max()))
             self._unsaved += len(add) + len(remove)
             if synced_to is not None:
                 self._synced_to = max(self._synced_to, int(synced_to))
@@ -732,6 +750,7 @@ class DescriptorIndex:
         fresh = build_index(ids_, array, kind, self.options, threads=threads)
         with self._lock.write():
             self._index = fresh
+            self._max_id = None
             self._unsaved = int(ids_.size) + 1
             if synced_to is not None:
                 self._synced_to = int(synced_to)
@@ -831,6 +850,7 @@ class DescriptorIndex:
         index, meta = found
         with self._lock.write():
             self._index = index
+            self._max_id = None
             self._synced_to = 0
             self._unsaved = 0
         position = meta.get("feed_position")

@@ -57,8 +57,12 @@ def test_import_pairs_skeletons_stores_everything_and_is_idempotent(
         ("cmu_mb_02_01_first41", "bvh"),
     ]
     assert rows(settings, "SELECT count(*) FROM clip_files") == [(4,)]  # asf + amc + 2 bvh
+    windows = rows(settings, "SELECT count(*) FROM clip_windows")[0][0]
     library = open_library(settings)
     try:
+        # Every index was saved when the run ended (none during it): loaded as saved.
+        assert all(index.unsaved_changes == 0 for index in library.window_indexes.values())
+        assert sum(library.window_indexes.sizes().values()) == windows > 0
         assert set(library.indexes.sizes().values()) == {3}
         assert library.clip_count() == 3
         query, hits = search_by_clip_id(library, 1, "posture", 5, label=None)
@@ -205,3 +209,15 @@ def test_every_animation_of_a_scene_file_is_a_clip_and_a_rerun_skips_them(
     assert len({c.content_hash for c in clips.values()}) == 2
     again = run_import(settings, [folder], workers=1)
     assert not again.imported and len(again.duplicates) == 2
+
+
+def test_the_import_saves_no_index_before_the_run_ends(settings: Settings) -> None:
+    from app.importer import _open_library
+
+    library = _open_library(settings)
+    try:
+        every = [*library.indexes.values(), *library.window_indexes.values()]
+        assert len(every) > len(library.indexes)  # window indexes included
+        assert not any(index.autosave for index in every)
+    finally:
+        library.close()

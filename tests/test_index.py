@@ -442,6 +442,14 @@ def test_apply_changes_adds_removes_and_replaces_idempotently(index: DescriptorI
     # applying the same changes again (a feed row read twice) changes nothing
     assert index.apply_changes(changed, changed[1:], wanted, synced_to=7) == (0, 0)
     assert index.size == 9
+    # after a swap (the highest id held is worked out again) and a removal of the top id
+    index.replace_all(now_ids, now_vectors, persist=False)
+    index.remove([int(now_ids[-1])])
+    top = np.array([now_ids[-1], now_ids[0]])
+    changed_again = now_vectors[[-1, 0]] + 2.0
+    assert index.apply_changes(top, top, changed_again) == (2, 1)
+    np.testing.assert_array_equal(index.reconstruct(int(now_ids[0])), changed_again[1])
+    assert index.apply_changes(top, top, changed_again) == (0, 0)
 
 
 def test_index_behind_applies_deletes_from_the_feed(tmp_path: Path) -> None:

@@ -10,6 +10,8 @@ and batches are ``(N, D)`` float32 C-contiguous with ``(N,)`` int64 clip ids.
 from __future__ import annotations
 
 import contextlib
+import functools
+import itertools
 import json
 import queue
 import sqlite3
@@ -393,6 +395,34 @@ def insert_clip(session: Session, new: NewClip) -> int:
     return insert_clips(session, [new])[0]
 
 
+# Every column, in the models' order: the order of the tuples inserted by _insert_values.
+VECTOR_COLUMNS = tuple(ClipDescriptor.__table__.columns.keys())  # clip_id, name, ... vector
+WINDOW_COLUMNS = tuple(ClipWindow.__table__.columns.keys())  # id, clip_id, ..., end_frame, vector
+
+
+@functools.lru_cache(maxsize=16)
+def _insert_statement(table: Any, columns: tuple[str, ...], dialect: Any) -> str:
+    compiled = insert(table).compile(dialect=dialect, column_keys=list(columns))
+    if dialect.positional and tuple(compiled.positiontup or ()) != columns:
+        raise AssertionError(f"unexpected parameter order {compiled.positiontup}")
+    return str(compiled)
+
+
+def _insert_values(
+    connection: Connection, table: Any, columns: tuple[str, ...], values: list[tuple[Any, ...]]
+) -> None:
+    """INSERT ``values`` (tuples in ``columns`` order, values the driver takes as they are)
+    in one executemany through the driver."""
+    if not values:
+        return
+    dialect = connection.dialect
+    statement = _insert_statement(table, columns, dialect)
+    params: Any = (
+        values if dialect.positional else [dict(zip(columns, v, strict=True)) for v in values]
+    )
+    connection.exec_driver_sql(statement, params)
+
+
 def insert_clips(session: Session, clips: Sequence[NewClip]) -> list[int]:
     """Add clips with their files, labels and vectors in a few multi-row statements (one per
     table); returns the new ids in the order of ``clips``."""
@@ -444,28 +474,37 @@ def insert_clips(session: Session, clips: Sequence[NewClip]) -> list[int]:
         for clip_id, new in zip(ids, clips, strict=True)
         for i, label in enumerate(new.labels)
     ]
-    vectors = [
-        {
-            "clip_id": clip_id,
-            "name": name,
-            "version": stored.version,
-            "dimension": int(stored.vector.shape[0]),
-            "vector": encode_vector(stored.vector),
-        }
-        for clip_id, new in zip(ids, clips, strict=True)
-        for name, stored in new.vectors.items()
-    ]
-    windows = [
-        row for clip_id, new in zip(ids, clips, strict=True) for row in _window_rows(clip_id, new)
-    ]
-    for table, rows in (
-        (ClipFile, files),
-        (ClipLabel, labels),
-        (ClipDescriptor, vectors),
-        (ClipWindow, windows),
-    ):
+    for table, rows in ((ClipFile, files), (ClipLabel, labels)):
         if rows:
             connection.execute(insert(table), rows)
+    # The many rows (a vector per descriptor, ~20 windows per clip) go to the driver as
+    # plain tuples: SQLAlchemy's per-row parameter processing cost more than SQLite's insert.
+    _insert_values(
+        connection,
+        ClipDescriptor,
+        VECTOR_COLUMNS,
+        [
+            (
+                clip_id,
+                name,
+                stored.version,
+                int(stored.vector.shape[0]),
+                encode_vector(stored.vector),
+            )
+            for clip_id, new in zip(ids, clips, strict=True)
+            for name, stored in new.vectors.items()
+        ],
+    )
+    _insert_values(
+        connection,
+        ClipWindow,
+        WINDOW_COLUMNS,
+        [
+            row
+            for clip_id, new in zip(ids, clips, strict=True)
+            for row in _window_rows(clip_id, new)
+        ],
+    )
     return ids
 
 
@@ -856,32 +895,25 @@ def load_window_rows(
 WINDOW_ID_BITS = 20
 
 
-def _window_rows(clip_id: int, windows: NewClip | Sequence[NewWindows]) -> list[dict[str, Any]]:
+def _window_rows(clip_id: int, windows: NewClip | Sequence[NewWindows]) -> list[tuple[Any, ...]]:
+    """The ``clip_windows`` rows of a clip's windows, tuples in :data:`WINDOW_COLUMNS` order
+    (ids: the clip id, then the window's ordinal)."""
     groups = windows.windows if isinstance(windows, NewClip) else windows
-    rows = [
-        {
-            "clip_id": clip_id,
-            "name": group.name,
-            "version": group.version,
-            "length": length,
-            "start_frame": start,
-            "end_frame": stop,
-            "vector": encode_vector(vector),
-        }
+    count = sum(len(group.starts) for group in groups)
+    if count > 1 << WINDOW_ID_BITS:
+        raise ValueError(f"a clip has at most {1 << WINDOW_ID_BITS} windows, not {count}")
+    ordinals = itertools.count(clip_id << WINDOW_ID_BITS)
+    return [
+        (next(ordinals), clip_id, group.name, group.version, length, start, stop, vector.tobytes())
         for group in groups
         for length, start, stop, vector in zip(
             group.lengths.tolist(),
             group.starts.tolist(),
             group.stops.tolist(),
-            group.vectors,
+            np.ascontiguousarray(group.vectors, dtype=VECTOR_DTYPE),
             strict=True,
         )
     ]
-    if len(rows) > 1 << WINDOW_ID_BITS:
-        raise ValueError(f"a clip has at most {1 << WINDOW_ID_BITS} windows, not {len(rows)}")
-    for ordinal, row in enumerate(rows):
-        row["id"] = clip_id << WINDOW_ID_BITS | ordinal
-    return rows
 
 
 def put_windows(session: Session, clip_id: int, windows: Sequence[NewWindows]) -> None:
@@ -889,9 +921,7 @@ def put_windows(session: Session, clip_id: int, windows: Sequence[NewWindows]) -
     windowed descriptor: the ids restart at ordinal 0). Inserting ordinal 0 puts the clip on
     the change feed (trigger, migration 0004), so every process's window indexes follow."""
     session.execute(delete(ClipWindow).where(ClipWindow.clip_id == clip_id))
-    rows = _window_rows(clip_id, windows)
-    if rows:
-        session.connection().execute(insert(ClipWindow), rows)
+    _insert_values(session.connection(), ClipWindow, WINDOW_COLUMNS, _window_rows(clip_id, windows))
 
 
 def clips_needing_windows(session: Session, current: Mapping[str, int]) -> dict[int, list[str]]:

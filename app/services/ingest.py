@@ -21,7 +21,6 @@ from __future__ import annotations
 import dataclasses
 import logging
 from collections.abc import Callable, Iterable, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
@@ -38,7 +37,6 @@ from app.services.uploads import Upload, UploadPart
 log = logging.getLogger(__name__)
 
 MAX_COMMIT_ATTEMPTS = 3
-FILE_WRITERS = 8
 
 
 @dataclass(frozen=True)
@@ -162,29 +160,11 @@ def _forget_files(library: Library, written: Iterable[str]) -> None:
 
 
 def _put_files(library: Library, parts: Sequence[UploadPart], written: list[str]) -> None:
-    """Store the files of ``parts`` (each distinct content once), appending to ``written`` the
-    sha256 of those that were new. Many files are written by a few threads: writing, hashing
-    and fsync release the GIL, and the file system commits concurrent fsyncs together."""
+    """Store the files of ``parts`` (each distinct content once, hashed once), appending to
+    ``written`` the sha256 of those that were new; all or none are stored."""
     unique = list({part.sha256: part for part in parts}.values())
-    if len(unique) <= 1:
-        for part in unique:
-            sha, new = library.blobs.put(part.data)
-            if new:
-                written.append(sha)
-        return
-    error: BaseException | None = None
-    with ThreadPoolExecutor(max_workers=min(FILE_WRITERS, len(unique))) as pool:
-        futures = [pool.submit(library.blobs.put, part.data) for part in unique]
-        for future in futures:  # wait for every write, so ``written`` lists all new files
-            try:
-                sha, new = future.result()
-            except BaseException as exc:
-                error = error or exc
-                continue
-            if new:
-                written.append(sha)
-    if error is not None:
-        raise error
+    stored = library.blobs.put_many([(part.data, part.sha256) for part in unique])
+    written.extend(sha for sha, new in stored if new)
 
 
 def store_many(library: Library, items: Sequence[Described]) -> list[IngestResult]:

@@ -9,7 +9,7 @@ normalises labels, and computes the content hash that identifies the clip:
 * FBX / glTF: ``sha256`` of the file's hex digest and the animation's name, so each
   animation of a file is its own clip (known once the file is read, see ``animation``).
 
-The rule has one definition, :func:`app.discovery.content_hash_of_bytes`, which the bulk
+The rule has one definition, :func:`app.discovery.content_hash_of_digests`, which the bulk
 import uses too: a clip uploaded over HTTP and the same files imported from disk are one clip.
 """
 
@@ -22,7 +22,7 @@ from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import PurePosixPath, PureWindowsPath
 
-from app.discovery import content_hash_of_animation, content_hash_of_bytes
+from app.discovery import content_hash_of_animation, content_hash_of_digests
 from app.errors import InvalidInput, UnsupportedMediaType
 from app.labels import normalise_labels
 from app.motion.formats.scene import Animation
@@ -208,10 +208,11 @@ class Upload:
         if self.format in SCENE_FORMATS:
             if self.animation is None:
                 raise ValueError("the content hash of an FBX/glTF upload needs its animation")
-            return content_hash_of_animation(self.parts[0].data, self.animation)
+            part = self.parts[0]
+            return content_hash_of_animation(part.data, self.animation, digest=part.sha256)
         if self.format == BVH:
-            return content_hash_of_bytes(self.parts[0].data)
-        return content_hash_of_bytes(self.part("motion").data, self.part("skeleton").data)
+            return content_hash_of_digests(self.parts[0].sha256)
+        return content_hash_of_digests(self.part("motion").sha256, self.part("skeleton").sha256)
 
     @property
     def clip_name(self) -> str:

@@ -866,3 +866,72 @@ def test_bandai_bone_lengths_stay_constant(motion_data: Path, name: str) -> None
     motion = read_bvh((motion_data / "bandai-ds1" / "data" / name).read_bytes())
     assert_consistent(motion)
     _assert_rigid_bones(motion)
+
+
+def test_a_hierarchy_read_before_is_reused_and_frames_are_still_read() -> None:
+    from app.motion.formats import bvh
+
+    first = read_bvh(TINY)
+    again = read_bvh(edit(TINY, L_FRAME_2, "2 92 4 0 0 0 0 0 45"))
+    assert again.skeleton.names == first.skeleton.names
+    np.testing.assert_array_equal(again.skeleton.offsets, first.skeleton.offsets)
+    np.testing.assert_array_equal(again.root_translation[1], [2, 92, 4])
+    assert not np.allclose(again.local_rotations[1], first.local_rotations[1])
+    key = (TINY[: TINY.index("Frames:")], bvh.DEFAULT_LIMITS)
+    assert key in bvh._HIERARCHIES._read  # remembered: the second file did not read it again
+    # One character changed: read in full, with its own error and line number.
+    broken = edit(TINY, L_CHEST_OFFSET, "    OFFSET 0 10")
+    for _ in range(2):
+        with pytest.raises(ParseError, match="OFFSET") as error:
+            read_bvh(broken)
+        assert error.value.line == L_CHEST_OFFSET
+    # Other limits: read again under them.
+    with pytest.raises(LimitExceeded):
+        read_bvh(TINY, limits=ParseLimits(max_joints=2))
+
+
+@pytest.mark.parametrize("name", [BANDAI_FIXTURE, CMU_BVH_FIXTURE])
+def test_both_frame_readers_give_the_same_bits(name: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    from app.motion.formats import bvh
+
+    text = fixture_text(name)
+    fast = read_bvh(text)
+    monkeypatch.setattr(bvh, "_read_spaced_numbers", lambda *args: None)  # numpy's reader
+    slow = read_bvh(text)
+    assert fast.local_rotations.tobytes() == slow.local_rotations.tobytes()
+    assert fast.root_translation.tobytes() == slow.root_translation.tobytes()
+
+
+NUMBER_TOKENS = st.one_of(
+    st.floats(allow_nan=False, allow_infinity=False, width=64).map(repr),
+    st.floats(allow_nan=False, allow_infinity=False, width=32).map(lambda x: f"{x:.6g}"),
+    st.from_regex(r"[+-]?[0-9]{0,4}\.?[0-9]{0,4}([eE][+-]?[0-9]{0,3})?", fullmatch=True),
+    st.sampled_from(["nan", "inf", "-0", "1e", ".", "+", "1.2.3", '"1"', "0x10", "1_0", ""]),
+)
+
+
+@settings(max_examples=400, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.lists(NUMBER_TOKENS, min_size=2, max_size=4),
+            st.sampled_from([" ", "  ", "\t"]),  # between the numbers
+            st.sampled_from(["", " ", "  "]),  # at the line's end
+        ),
+        min_size=1,
+        max_size=4,
+    )
+)
+def test_polars_reads_numbers_as_numpy_does(lines: list[tuple[list[str], str, str]]) -> None:
+    """Whatever polars reads as finite numbers, numpy reads the same (same bits); the rest
+    goes to numpy (None) or to the caller's line-by-line pass (not finite)."""
+    import io
+
+    from app.motion.formats.bvh import _read_spaced_numbers
+
+    block = "\n".join(gap.join(tokens) + end for tokens, gap, end in lines).rstrip()
+    got = _read_spaced_numbers(block, len(lines), 3)
+    if got is None or not np.isfinite(got).all():
+        return
+    expected = np.loadtxt(io.StringIO(block), dtype=np.float64, comments=None, ndmin=2)
+    assert got.tobytes() == expected.tobytes()

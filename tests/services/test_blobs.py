@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import errno
+import hashlib
+import os
 import time
 from collections.abc import Iterator
 from datetime import UTC, datetime
@@ -14,6 +17,7 @@ from app.db import repository as repo
 from app.db.migrate import upgrade
 from app.db.session import create_db_engine, write_sessions
 from app.errors import StorageUnavailable
+from app.services import blobs
 from app.services.blobs import BlobStore, DatabaseBlobStore, FileBlobStore, open_blob_store
 
 
@@ -72,3 +76,28 @@ def test_unreferenced_files_go_after_the_grace(engine_on: Engine, store: BlobSto
     with write_sessions(engine_on).begin() as session:
         assert store.remove_unreferenced(session, older_than=time.time() + 1) == 1
     assert store.exists(used) and not store.exists(orphan)
+
+
+def test_put_many_stores_all_or_none(store: BlobStore, monkeypatch: pytest.MonkeyPatch) -> None:
+    files = [
+        (f"clip {i}".encode(), hashlib.sha256(f"clip {i}".encode()).hexdigest()) for i in range(4)
+    ]
+    kept, _ = store.put(files[0][0])
+    stored = store.put_many([*files, files[1]])  # one stored before, one given twice
+    assert stored == [(kept, False), *((sha, True) for _, sha in files[1:]), (files[1][1], False)]
+    assert all(store.read(sha) == data for data, sha in files)
+    for _, sha in files[1:]:
+        store.delete(sha)
+    if isinstance(store, FileBlobStore):
+        real_replace = os.replace
+
+        def full_disk(source: str, target: str) -> None:
+            if len(list(store.stored())) == 2:  # the one kept and one new file: then it fails
+                raise OSError(errno.ENOSPC, "No space left on device")
+            real_replace(source, target)
+
+        monkeypatch.setattr(blobs.os, "replace", full_disk)
+        with pytest.raises(StorageUnavailable, match="No space left"):
+            store.put_many(files)
+        assert [sha for sha, _ in store.stored()] == [kept]
+        assert list(store.temporary_files()) == []

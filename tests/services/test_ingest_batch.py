@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import errno
+import os
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -10,6 +12,7 @@ import pytest
 
 from app.config import Settings
 from app.errors import StorageUnavailable
+from app.services import blobs
 from app.services import clips as clip_service
 from app.services.ingest import describe, store_many
 from app.services.library import Library, open_library
@@ -50,16 +53,16 @@ def test_a_batch_is_stored_in_order_and_searchable_at_once(library: Library) -> 
 def test_a_failed_file_write_leaves_no_file_and_no_row(
     library: Library, fresh: Settings, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    real_put = library.blobs.put
+    real_replace = os.replace
     calls = {"n": 0}
 
-    def flaky_put(data: bytes) -> tuple[str, bool]:
+    def flaky_replace(source: str | Path, target: str | Path) -> None:
         calls["n"] += 1
-        if calls["n"] == 3:
-            raise StorageUnavailable("disk full")
-        return real_put(data)
+        if calls["n"] == 3:  # two files are in place already
+            raise OSError(errno.ENOSPC, "No space left on device")
+        real_replace(source, target)
 
-    monkeypatch.setattr(library.blobs, "put", flaky_put)
+    monkeypatch.setattr(blobs.os, "replace", flaky_replace)
     uploads = [bvh([i, 1, 0], f"f{i}") for i in range(6)]
     with pytest.raises(StorageUnavailable):
         store_many(library, [describe(library, u) for u in uploads])
