@@ -25,6 +25,7 @@ canonical joints only, and works out from the skeleton itself:
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
@@ -238,12 +239,22 @@ def _plausible_span(implausible: np.ndarray) -> tuple[int, int]:
 
 
 def _frame_poses(motion: Motion) -> Iterator[tuple[str, np.ndarray]]:
-    """``(J, 3)`` world positions at a few frames, computed one at a time as the mapper asks,
-    for rigs whose rest pose is not a standing figure (joint orientation in rotations)."""
+    """``(J, 3)`` world positions at a few frames across the clip, for rigs whose rest pose
+    is not a standing figure (joint orientation in rotations). Computed when the mapper
+    first asks, all in one pass: it maps from one and lets several vote on the sides."""
     count = motion.frame_count
-    for f in sorted({round(i * (count - 1) / (_POSE_FRAMES - 1)) for i in range(_POSE_FRAMES)}):
-        _, positions = forward_kinematics(motion.slice_frames(f, f + 1))
-        yield f"frame {f}", positions[0]
+    frames = sorted({round(i * (count - 1) / (_POSE_FRAMES - 1)) for i in range(_POSE_FRAMES)})
+    picked = dataclasses.replace(
+        motion,
+        root_translation=motion.root_translation[frames],
+        local_rotations=motion.local_rotations[frames],
+        local_translations=None
+        if motion.local_translations is None
+        else motion.local_translations[frames],
+    )
+    _, positions = forward_kinematics(picked)
+    for f, pose in zip(frames, positions, strict=True):
+        yield f"frame {f}", pose
 
 
 def body_height(motion: Motion, canonical: np.ndarray, *, head_joint: int = -1) -> float:
