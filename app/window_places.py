@@ -13,11 +13,14 @@ their rows replace what was held) and rebuilt when the index is. Window ids are
 ``clip id << WINDOW_ID_BITS | ordinal`` and a clip's ordinals follow its windows' starts within
 one length, so id order groups a clip's windows and orders them by start.
 
-Readers never lock: a change builds new arrays and swaps them in one assignment.
+Readers never lock: a change builds new arrays and swaps them in one assignment. Changes
+take a lock of their own (a delete drops its clip's windows while a sync may be adding
+others: neither may lose the other's).
 """
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -59,6 +62,7 @@ class WindowPlaces:
     def __init__(self, id_bits: int) -> None:
         self._id_bits = id_bits
         self._places = Places.empty()
+        self._changing = threading.Lock()
         self.loaded = False
 
     def __len__(self) -> int:
@@ -66,14 +70,18 @@ class WindowPlaces:
 
     def replace_all(self, places: Places) -> None:
         """Hold exactly ``places`` (as the database has them)."""
-        self._places = places
-        self.loaded = True
+        with self._changing:
+            self._places = places
+            self.loaded = True
 
     def apply_changes(self, clip_ids: np.ndarray, places: Places) -> None:
         """The clips ``clip_ids`` ``(C,)`` changed: their windows are now ``places`` (those
         the database holds of them; none for a deleted clip)."""
+        with self._changing:
+            self._apply(np.unique(np.asarray(clip_ids, np.int64)), places)
+
+    def _apply(self, clips: np.ndarray, places: Places) -> None:
         held = self._places
-        clips = np.unique(np.asarray(clip_ids, np.int64))
         if not clips.size and not len(places):
             return
         keep = ~np.isin(held.ids >> self._id_bits, clips)

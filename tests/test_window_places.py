@@ -83,3 +83,27 @@ def test_empty_places_answer_nothing() -> None:
     assert len(found) == 0 and offsets.tolist() == [0, 0, 0]
     places.apply_changes(np.zeros(0, np.int64), Places.empty())
     assert len(places) == 0
+
+
+def test_changes_from_two_threads_lose_nothing() -> None:
+    """A delete (the request's thread) and a sync (another thread) change the places at
+    once: each change must see the other's."""
+    import threading
+
+    rng = np.random.default_rng(7)
+    places = WindowPlaces(BITS)
+    places.replace_all(Places.empty())
+    per_thread = {name: list(range(start, start + 200)) for name, start in (("a", 1), ("b", 1001))}
+    rows = {clip: windows_of(clip, 3, rng) for clips in per_thread.values() for clip in clips}
+
+    def add(clips: list[int]) -> None:
+        for clip in clips:
+            places.apply_changes(np.array([clip]), places_of(rows[clip]))
+
+    threads = [threading.Thread(target=add, args=(clips,)) for clips in per_thread.values()]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    model = {i: span for windows in rows.values() for i, span in windows.items()}
+    check(places, model, [1, 200, 1001, 1200])
