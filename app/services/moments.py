@@ -8,16 +8,21 @@ length(s) nearest the query's length — the largest at most and the smallest at
 
 * **merge**: window hits of one clip that overlap or touch (one after another, in distance
   order) become one moment, whose distance is its best window's;
-* **localise**: a moment lies where its best window lies, moved by the equiangular fit of the
-  distances of that window and its two neighbours of the same length (half a hop at most:
-  the distance grows about linearly with the shift), and is as long as the query (clipped to
-  its clip) — so a moment found from a 3-s query is a 3-s span, not a union of windows;
-* **rank**: ``3 k`` moments are placed, then ranked by how well their whole span fits (the
-  mean distance of the stored windows inside it to the query's parts at the same offsets):
-  one window's distance ranks a long query by a few seconds of it, and windows straddle
-  the boundaries between the motions of a take;
-* **limit**: at most ``k`` moments, at most ``per_clip`` of one clip, nearest first; a query
-  from a stored clip never returns a moment overlapping its own span.
+* **localise**: the query's own windows (its *parts*, one every frame or so) are matched with
+  the clip's stored windows near the hits: where a stored window lies whole inside the query
+  (or exactly at its end) a part equals it and the moment lands on its frames; else the
+  distance branches of the two stored windows around the true place are extrapolated to
+  where they meet. Without parts (a stored span too short for any), the best window's place
+  moved by the equiangular fit of its neighbours' distances. A moment is as long as the
+  query (clipped to its clip) — a 3-s query finds a 3-s span, not a union of windows;
+* **rank**: ``3 k`` moments are placed (and up to ``3 per_clip`` regions of one clip: its
+  best window may lie in a repetition of the motion), then ranked by how well their whole
+  span fits (the mean distance of the stored windows inside it to the query's parts at the
+  same offsets): one window's distance ranks a long query by a few seconds of it, and
+  windows straddle the boundaries between the motions of a take;
+* **limit**: at most ``k`` moments, at most ``per_clip`` of one clip and none overlapping a
+  nearer one of its clip, nearest first; a query from a stored clip never returns a moment
+  overlapping its own span.
 
 Where each window lies comes from the library's in-memory window places
 (:mod:`app.window_places`), not the database: a search reads only the query clip and the
