@@ -395,6 +395,7 @@ class DescriptorIndex:
         self.options = options if options is not None else IndexOptions()
         self._index = index if index is not None else _empty_flat(dimension)
         self._max_id: int | None = None  # see _id_bound
+        self._sorted: np.ndarray | None = None  # see sorted_ids
         self._synced_to = 0
         self._unsaved = 0
         self.autosave = True  # False: changes are saved only by an explicit save()
@@ -445,6 +446,38 @@ class DescriptorIndex:
         if self.kind == IVF:
             return _ivf_ids(self._index)
         return faiss.vector_to_array(self._index.id_map).astype(np.int64)
+
+    def sorted_ids(self) -> np.ndarray:
+        """``(N,)`` int64 ids in the index, ascending. Read from FAISS once (~60 ms for an IVF
+        index of 1.2 M windows), then kept up to date as ids come and go (a few ms per change
+        at that size): finding a clip's windows is then a binary search. Do not modify it."""
+        with self._lock.read():
+            held = self._sorted
+        if held is not None:
+            return held
+        with self._lock.write():
+            if self._sorted is None:
+                self._sorted = np.sort(self._ids())
+            return self._sorted
+
+    def _note_added(self, ids: np.ndarray) -> None:
+        """Keep :meth:`sorted_ids` up to date (under the write lock)."""
+        held = self._sorted
+        if held is None or not ids.size:
+            return
+        new = np.sort(ids)
+        if not held.size or new[0] > held[-1]:
+            self._sorted = np.concatenate([held, new])
+        else:
+            self._sorted = np.union1d(held, new)
+
+    def _note_removed(self, ids: np.ndarray) -> None:
+        """Keep :meth:`sorted_ids` up to date (under the write lock)."""
+        held = self._sorted
+        if held is None or not ids.size or not held.size:
+            return
+        at = np.minimum(np.searchsorted(held, ids), held.size - 1)
+        self._sorted = np.delete(held, np.unique(at[held[at] == ids]))
 
     def _id_bound(self) -> int:
         """No id above this is in the index (kept up to date while adding, computed again
@@ -525,6 +558,7 @@ class DescriptorIndex:
         with self._lock.write():
             if ids_.size:
                 self._index.add_with_ids(array, ids_)
+                self._note_added(ids_)
                 self._unsaved += int(ids_.size)
                 if self._max_id is not None:
                     self._max_id = max(self._max_id, int(ids_.max()))
@@ -540,6 +574,7 @@ class DescriptorIndex:
             return 0
         with self._lock.write():
             removed = int(self._index.remove_ids(_selector(self._index, ids_)))
+            self._note_removed(ids_)
             self._unsaved += removed
         if removed:
             self._autosave(persist)
@@ -586,9 +621,11 @@ class DescriptorIndex:
             if remove:
                 gone = _as_ids(sorted(remove))  # kept alive while FAISS reads it
                 self._index.remove_ids(_selector(self._index, gone))
+                self._note_removed(gone)
             if add:
                 rows = np.asarray(add, dtype=np.int64)
                 self._index.add_with_ids(np.ascontiguousarray(array[rows]), ids_[rows])
+                self._note_added(ids_[rows])
                 self._max_id = max(bound, int(ids_[rows].max()))
             self._unsaved += len(add) + len(remove)
             if synced_to is not None:
@@ -751,6 +788,7 @@ class DescriptorIndex:
         with self._lock.write():
             self._index = fresh
             self._max_id = None
+            self._sorted = None
             self._unsaved = int(ids_.size) + 1
             if synced_to is not None:
                 self._synced_to = int(synced_to)
@@ -851,6 +889,7 @@ class DescriptorIndex:
         with self._lock.write():
             self._index = index
             self._max_id = None
+            self._sorted = None
             self._synced_to = 0
             self._unsaved = 0
         position = meta.get("feed_position")

@@ -483,3 +483,33 @@ def test_reconstruct_batch_returns_the_stored_vectors_and_says_which_are_held(
     np.testing.assert_array_equal(got, vectors[[5, 9]])
     held, got = index.reconstruct_batch(np.zeros(0, np.int64))
     assert held.size == 0 and got.shape == (0, 12)
+
+
+@pytest.mark.parametrize("kind", ["flat", "ivf"])
+def test_sorted_ids_follow_every_change(tmp_path: Path, kind: str) -> None:
+    """sorted_ids is read from FAISS once, then kept up to date by add, remove,
+    apply_changes and replace_all: always the ids FAISS holds, ascending."""
+    rng = np.random.default_rng(3)
+    ids, vectors = clustered(6000)
+    index = DescriptorIndex("posture", 12, 1, tmp_path, options=IndexOptions(kind=kind))
+    index.replace_all(ids[:4000], vectors[:4000], persist=False)
+    assert index.kind == kind
+
+    def agrees() -> None:
+        np.testing.assert_array_equal(index.sorted_ids(), np.sort(index.ids()))
+
+    agrees()
+    index.add(ids[4000:4500], vectors[4000:4500], persist=False)  # above every id held
+    agrees()
+    low = rng.choice(ids[:4000], 50, replace=False)
+    index.remove(np.concatenate([low, [10**9]]), persist=False)  # one absent
+    agrees()
+    index.add(low[:20], vectors[np.searchsorted(ids, low[:20])], persist=False)  # among them
+    agrees()
+    changed = np.concatenate([ids[4400:4600], low[20:30]])
+    keep = changed[::2]
+    rows = np.searchsorted(ids, keep)
+    index.apply_changes(changed, keep, vectors[rows] + 1.0, persist=False)
+    agrees()
+    index.replace_all(ids[:100], vectors[:100], persist=False)
+    agrees()

@@ -107,3 +107,21 @@ def test_changes_from_two_threads_lose_nothing() -> None:
         thread.join()
     model = {i: span for windows in rows.values() for i, span in windows.items()}
     check(places, model, [1, 200, 1001, 1200])
+
+
+def test_windows_of_clips_are_found_by_binary_search_in_the_index(tmp_path) -> None:
+    """library.windows_of_clips: the window ids an index holds of some clips, as scanning
+    every id held would find them."""
+    from app.index import DescriptorIndex, IndexOptions
+    from app.services.library import windows_of_clips
+
+    rng = np.random.default_rng(5)
+    rows = {clip: windows_of(clip, int(rng.integers(1, 9)), rng) for clip in range(1, 60)}
+    ids = np.array(sorted(i for windows in rows.values() for i in windows), np.int64)
+    index = DescriptorIndex("w", 4, 1, tmp_path, options=IndexOptions(kind="flat"))
+    index.replace_all(ids, rng.random((ids.size, 4)).astype(np.float32), persist=False)
+    index.remove(ids[::7], persist=False)
+    for clips in ([3], [1, 59, 30], [0, 61], list(range(1, 60))):
+        held = index.ids()
+        expected = np.sort(held[np.isin(held >> BITS, clips)])
+        np.testing.assert_array_equal(np.sort(windows_of_clips(index, np.array(clips))), expected)
