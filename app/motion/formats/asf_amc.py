@@ -539,17 +539,17 @@ def _read_regular_amc(
     """Fast path for files that repeat one bone order every frame; ``None`` if not regular."""
     if _FRAME_NUMBER_RE.fullmatch(body[0].strip()) is None:
         return None
-    template: list[str] = []
+    bone_order: list[str] = []
     for line in body[1:]:
         tokens = line.split(None, 1)
-        if not tokens or len(template) > len(layout):
+        if not tokens or len(bone_order) > len(layout):
             return None
         if _FRAME_NUMBER_RE.fullmatch(line.strip()) is not None:
             break
-        template.append(tokens[0])
-    if sorted(template) != sorted(layout):
+        bone_order.append(tokens[0])
+    if sorted(bone_order) != sorted(layout):
         return None
-    period = 1 + len(template)
+    period = 1 + len(bone_order)
     frame_count, remainder = divmod(len(body), period)
     if remainder:
         return None
@@ -568,7 +568,7 @@ def _read_regular_amc(
     if not small.all() or (frame_count > 1 and not (np.diff(numbers) == 1).all()):
         return None
     values = np.empty((frame_count, column_count))
-    for slot, name in enumerate(template, start=1):
+    for slot, name in enumerate(bone_order, start=1):
         first, count = layout[name]
         # one row per frame: the bone name (checked) then its values
         row_type = np.dtype([("name", f"U{len(name) + 1}"), ("values", np.float64, (count,))])
