@@ -53,6 +53,20 @@ class Places:
         return int(self.ids.size)
 
 
+def rows_of_clips(
+    sorted_ids: np.ndarray, clip_ids: np.ndarray, id_bits: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where the windows of some clips lie in ``sorted_ids`` ``(N,)`` (window ids ascending,
+    ``clip id << id_bits | ordinal``): rows ``(M,)``, one clip after another, and ``(C + 1,)``
+    offsets (clip ``c``'s rows are ``offsets[c]:offsets[c + 1]``). A binary search a clip."""
+    clips = np.asarray(clip_ids, np.int64)
+    first = np.searchsorted(sorted_ids, clips << id_bits)
+    counts = np.searchsorted(sorted_ids, (clips + 1) << id_bits) - first
+    offsets = np.zeros(clips.size + 1, np.int64)
+    np.cumsum(counts, out=offsets[1:])
+    return np.repeat(first - offsets[:-1], counts) + np.arange(offsets[-1]), offsets
+
+
 class WindowPlaces:
     """The places of one window index's windows (see the module docstring).
 
@@ -114,13 +128,7 @@ class WindowPlaces:
         (= start) order, and ``(C + 1,)`` offsets: clip ``c``'s windows are rows
         ``offsets[c]:offsets[c + 1]``."""
         held = self._places
-        clips = np.asarray(clip_ids, np.int64)
-        first = np.searchsorted(held.ids, clips << self._id_bits)
-        stop = np.searchsorted(held.ids, (clips + 1) << self._id_bits)
-        counts = stop - first
-        offsets = np.zeros(clips.size + 1, np.int64)
-        np.cumsum(counts, out=offsets[1:])
-        rows = np.repeat(first - offsets[:-1], counts) + np.arange(offsets[-1])
+        rows, offsets = rows_of_clips(held.ids, clip_ids, self._id_bits)
         return Places(held.ids[rows], held.starts[rows], held.stops[rows]), offsets
 
     def ids_of_clips(self, clip_ids: np.ndarray) -> np.ndarray:
@@ -128,4 +136,4 @@ class WindowPlaces:
         return self.of_clips(np.unique(np.asarray(clip_ids, np.int64)))[0].ids
 
 
-__all__ = ["Places", "WindowPlaces"]
+__all__ = ["Places", "WindowPlaces", "rows_of_clips"]

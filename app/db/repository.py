@@ -847,10 +847,10 @@ def load_window_places(
             f"WHERE name = {mark} AND version = {mark} AND length = {mark} ORDER BY id",
             (key.name, key.version, key.length),
         )
-        array = np.array(cursor.fetchall(), dtype=np.int64).reshape(-1, 3)
+        rows = cursor.fetchall()
     finally:
         cursor.close()
-    return array[:, 0].copy(), array[:, 1].copy(), array[:, 2].copy()
+    return _place_arrays(rows)
 
 
 def window_places_of_clips(

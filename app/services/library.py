@@ -51,7 +51,7 @@ from app.services.describe import (
     MotionDescriber,
 )
 from app.services.parser_pool import ParserPool
-from app.window_places import Places, WindowPlaces
+from app.window_places import Places, WindowPlaces, rows_of_clips
 
 log = logging.getLogger(__name__)
 
@@ -148,9 +148,7 @@ def windows_of_clips(index: DescriptorIndex, clip_ids: np.ndarray) -> np.ndarray
         return np.zeros(0, dtype=np.int64)
     held = index.sorted_ids()
     clips = np.unique(np.asarray(clip_ids, dtype=np.int64))
-    first = np.searchsorted(held, clips << repo.WINDOW_ID_BITS)
-    stop = np.searchsorted(held, (clips + 1) << repo.WINDOW_ID_BITS)
-    return np.concatenate([held[a:b] for a, b in zip(first.tolist(), stop.tolist(), strict=True)])
+    return held[rows_of_clips(held, clips, repo.WINDOW_ID_BITS)[0]]
 
 
 def touched_windows(index: DescriptorIndex, clip_ids: np.ndarray, stored: np.ndarray) -> np.ndarray:
