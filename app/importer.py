@@ -10,7 +10,10 @@ Pipeline
     only the measurements and vectors. The main process meanwhile opens the library (imports,
     migration, indexes) in a thread, then stores the described clips in batches through
     :func:`app.services.ingest.store_many` — the code ``POST /clips`` uses: files, then one
-    transaction per batch, then one index update per batch.
+    transaction per batch, then one index update per batch. Batches are stored one at a time
+    on that same thread while the main loop goes on feeding the workers and reading their
+    outcomes (a worker waits once its outcomes fill the pipe: 17.2 -> 15.5 s for 3,000 clips
+    when the loop stored them itself).
 
 Idempotent and resumable
     A clip is identified by its content hash (:func:`app.discovery.content_hash`, the rule
@@ -70,7 +73,7 @@ from app.services.uploads import Upload
 
 if TYPE_CHECKING:
     from app.config import Settings
-    from app.services.ingest import Described
+    from app.services.ingest import Described, IngestResult
     from app.services.library import Library
 
 DEFAULT_BATCH_SIZE = 64
@@ -372,11 +375,13 @@ class WorkerPool:
         worker.tasks[self._next_task] = clips
         worker.conn.send((self._next_task, clips))
 
-    def collect(self, timeout: float) -> tuple[list[tuple[int, Outcome]], list[list[TaskClip]]]:
-        """Outcomes that arrived within ``timeout``, and the tasks of workers that died
-        (those workers are replaced)."""
+    def collect(
+        self, timeout: float, also: Sequence[Connection] = ()
+    ) -> tuple[list[tuple[int, Outcome]], list[list[TaskClip]]]:
+        """Outcomes that arrived within ``timeout`` (or until one of ``also`` is readable),
+        and the tasks of workers that died (those workers are replaced)."""
         ready = wait(
-            [w.conn for w in self.workers] + [w.process.sentinel for w in self.workers],
+            [w.conn for w in self.workers] + [w.process.sentinel for w in self.workers] + [*also],
             timeout,
         )
         outcomes: list[tuple[int, Outcome]] = []
@@ -496,7 +501,7 @@ def run_import(
     )
     opener = ThreadPoolExecutor(max_workers=1, thread_name_prefix="mocap-import-open")
     library_future: Future[Library] = opener.submit(_open_library, settings)
-    run = _Run(report, pool, library_future, items, batch_size, progress)
+    run = _Run(report, pool, library_future, opener, items, batch_size, progress)
     try:
         with _graceful_sigterm():
             run.loop()
@@ -504,7 +509,10 @@ def run_import(
         report.interrupted = True
     finally:
         pool.close()
+        with suppress(KeyboardInterrupt):
+            run.finish_store(wait_for_it=True)  # a batch being stored is committed: say so
         opener.shutdown(wait=True)
+        run.close()
         if library_future.done() and library_future.exception() is None:
             library = library_future.result()
             try:
@@ -534,6 +542,7 @@ class _Run:
         report: ImportReport,
         pool: WorkerPool,
         library: Future[Library],
+        library_thread: ThreadPoolExecutor,
         items: deque[_Item],
         batch_size: int,
         progress: Progress | None,
@@ -547,8 +556,17 @@ class _Run:
         self.progress = progress or (lambda _report: None)
         self.ready: list[tuple[_Item, Description | None]] = []
         self.ready_since = 0.0
+        # Batches are stored on the thread that opened the library, one at a time; its
+        # pipe wakes this loop when one is done.
+        self.storer = library_thread
+        self.storing: tuple[list[tuple[_Item, Described]], Future[list[IngestResult]]] | None = None
+        self.stored_signal, self._stored_writer = multiprocessing.Pipe(duplex=False)
         workers = len(pool.workers)
         self.task_clips = max(1, min(MAX_TASK_CLIPS, len(items) // (workers * 8) or 1))
+
+    def close(self) -> None:
+        self.stored_signal.close()
+        self._stored_writer.close()
 
     # -- helpers ------------------------------------------------------------------------
 
@@ -610,7 +628,7 @@ class _Run:
     # -- the loop -----------------------------------------------------------------------
 
     def loop(self) -> None:
-        while self.pending or self.pool.busy() or self.ready:
+        while self.pending or self.pool.busy() or self.ready or self.storing is not None:
             library = self.library
             for worker in self.pool.free_slots():
                 while len(worker.tasks) < TASKS_PER_WORKER and self.pending:
@@ -618,19 +636,24 @@ class _Run:
                     if task:
                         self.pool.submit(worker, task)
             if self.pool.busy():
-                outcomes, lost = self.pool.collect(POLL_SECONDS if library else 0.05)
+                outcomes, lost = self.pool.collect(
+                    POLL_SECONDS if library else 0.05, also=[self.stored_signal]
+                )
                 for number, outcome in outcomes:
                     self.receive(number, outcome)
                 for task in lost:
                     self.requeue(task)
+            elif self.storing is not None:
+                wait([self.stored_signal], POLL_SECONDS)
             elif self.ready and library is None:
                 self.library_future.exception()  # nothing else to do: wait for the library
+            self.finish_store()
             library = self.library
-            if library is not None and self.ready:
+            if library is not None and self.ready and self.storing is None:
                 idle = not self.pending and not self.pool.busy()
                 waited = time.monotonic() - self.ready_since >= FLUSH_AFTER_SECONDS
                 if idle or waited or len(self.ready) >= self.batch_size:
-                    self.store(library)
+                    self.start_store(library)
 
     def receive(self, number: int, outcome: Outcome) -> None:
         item = self.by_number.get(number)
@@ -661,7 +684,10 @@ class _Run:
         if len(task) > 1:
             self.task_clips = 1  # isolate the culprit
 
-    def store(self, library: Library) -> None:
+    def start_store(self, library: Library) -> None:
+        """Store the ready clips on the library's thread. Meanwhile this loop keeps feeding
+        the workers and reading their outcomes: a worker whose outcomes fill its pipe waits
+        until they are read, so storing here would leave the cores idle."""
         from app.services.ingest import Described, described_upload, store_many
 
         batch, self.ready = self.ready, []
@@ -678,8 +704,22 @@ class _Run:
             if description is not None:
                 upload = described_upload(upload, description)
             described.append((item, Described(upload, description)))
+        future = self.storer.submit(store_many, library, [d for _, d in described])
+        future.add_done_callback(lambda _: self._stored_writer.send_bytes(b"."))
+        self.storing = (described, future)
+
+    def finish_store(self, wait_for_it: bool = False) -> None:
+        """Report the batch being stored once it is (``wait_for_it``: wait for that)."""
+        if self.storing is None:
+            return
+        described, future = self.storing
+        if not (wait_for_it or future.done()):
+            return
+        self.storing = None
+        while self.stored_signal.poll():
+            self.stored_signal.recv_bytes()
         try:
-            results = store_many(library, [d for _, d in described])
+            results = future.result()
         except MocapError as error:
             for item, _ in described:
                 self.fail(item, f"not stored: {error.detail}")

@@ -221,3 +221,44 @@ def test_the_import_saves_no_index_before_the_run_ends(settings: Settings) -> No
         assert not any(index.autosave for index in every)
     finally:
         library.close()
+
+
+def test_the_workers_outcomes_are_read_while_a_batch_is_stored(
+    tmp_path: Path, settings: Settings, fixtures_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A worker waits once its outcomes fill the pipe, so an import that stopped reading
+    them while it stored a batch left the cores idle: the first batch's store is held here
+    until every clip has been described and read."""
+    from app import importer
+    from app.services import ingest
+    from tests.cli.test_import_process import unique_copies
+
+    total = 200
+    unique_copies(fixtures_dir / BVH_FIXTURES[0], tmp_path / "clips", total)
+    received: list[int] = []
+    receive = importer._Run.receive
+
+    def counting_receive(run: importer._Run, number: int, outcome: importer.Outcome) -> None:
+        received.append(number)
+        receive(run, number, outcome)
+
+    first_store: list[tuple[int, int]] = []  # (read before it, read while it waited)
+    store_many = ingest.store_many
+
+    def held_store_many(library: object, items: list) -> list:
+        if not first_store:
+            before = len(received)
+            deadline = time.monotonic() + 20
+            while len(received) < total and time.monotonic() < deadline:
+                time.sleep(0.02)
+            first_store.append((before, len(received) - before))
+        return store_many(library, items)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(importer._Run, "receive", counting_receive)
+    monkeypatch.setattr(ingest, "store_many", held_store_many)
+    report = run_import(settings, [tmp_path / "clips"], workers=1, batch_size=16)
+    assert len(report.imported) == total and not report.failed
+    [(before, during)] = first_store
+    assert before < total  # the first batch was stored before the last clip was described
+    assert before + during == total
+    assert rows(settings, "SELECT count(*) FROM clips") == [(total,)]
