@@ -112,6 +112,18 @@ class Settings(BaseSettings):
             "nothing. Checked between stages, each bounded by the frame/joint/value limits."
         ),
     )
+    moments: bool = Field(
+        default=True,
+        description=(
+            "Moments search (`/search/moments`): every clip stored is also described as "
+            "overlapping windows of 1, 2, 4 and 8 s, kept in the database and in memory by "
+            "every server process (about 1 GB of each per 100 hours of motion, and about a "
+            "minute more import CPU). false: no windows are described or loaded and moments "
+            "search answers 409 `moments_off`; whole-clip search is unchanged. Windows stored "
+            "before are kept; after turning it back on, `mocap-index reindex` describes the "
+            "clips stored without."
+        ),
+    )
     max_frame_values: int = Field(
         default=20_000_000,
         gt=0,

@@ -132,6 +132,12 @@ class DescriptorOutdated(DescriptorUnavailable):
     code = "descriptor_outdated"
 
 
+class MomentsOff(MocapError):
+    """Moments search was asked of a library that keeps no windows (MOCAP_MOMENTS=false)."""
+
+    code = "moments_off"
+
+
 class DescribeTimeout(MocapError):
     """Describing an uploaded clip took longer than the configured request time limit."""
 

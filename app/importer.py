@@ -278,6 +278,7 @@ def _worker_main(
     limits: ParseLimits,
     max_values: int | None,
     parser_limits: tuple[float | None, int | None] = (None, None),
+    windows: bool = True,
 ) -> None:
     """A worker's loop: describe the clips of each task until told to stop or orphaned."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is for the main process to handle
@@ -291,7 +292,7 @@ def _worker_main(
         os.nice(WORKER_NICENESS)
     time_limit, memory_mb = parser_limits
     parsers = InlineParser(time_limit=time_limit, memory_mb=memory_mb)
-    describer = MotionDescriber(max_values=max_values, parsers=parsers)
+    describer = MotionDescriber(max_values=max_values, parsers=parsers, windows=windows)
     while True:
         try:
             if not conn.poll(1.0):
@@ -341,10 +342,12 @@ class WorkerPool:
         limits: ParseLimits,
         max_values: int | None,
         parser_limits: tuple[float | None, int | None] = (None, None),
+        windows: bool = True,
     ) -> None:
         self._limits = limits
         self._max_values = max_values
         self._parser_limits = parser_limits
+        self._windows = windows
         self._context = _context()
         self.workers: list[_Worker] = []
         for _ in range(size):
@@ -356,7 +359,14 @@ class WorkerPool:
         ours, theirs = context.Pipe()
         process = context.Process(
             target=_worker_main,
-            args=(theirs, os.getpid(), self._limits, self._max_values, self._parser_limits),
+            args=(
+                theirs,
+                os.getpid(),
+                self._limits,
+                self._max_values,
+                self._parser_limits,
+                self._windows,
+            ),
             name="mocap-import-worker",
             daemon=True,
         )
@@ -498,6 +508,7 @@ def run_import(
         settings.parse_limits,
         settings.max_frame_values,
         (settings.parser_timeout_seconds, settings.parser_memory_mb),
+        windows=settings.moments,
     )
     opener = ThreadPoolExecutor(max_workers=1, thread_name_prefix="mocap-import-open")
     library_future: Future[Library] = opener.submit(_open_library, settings)

@@ -262,3 +262,25 @@ def test_the_workers_outcomes_are_read_while_a_batch_is_stored(
     assert before < total  # the first batch was stored before the last clip was described
     assert before + during == total
     assert rows(settings, "SELECT count(*) FROM clips") == [(total,)]
+
+
+def test_with_moments_off_the_import_describes_and_stores_no_windows(
+    folder: Path, settings: Settings
+) -> None:
+    off = settings.model_copy(update={"moments": False})
+    report = run_import(off, [folder], workers=1)
+    assert len(report.imported) == 3 and not report.failed
+    assert rows(off, "SELECT count(*) FROM clip_windows") == [(0,)]
+    assert rows(off, "SELECT count(*) FROM clip_descriptors") == [(9,)]  # 3 clips x 3
+    assert not list(off.index_dir.glob("windows-*"))
+    pool = WorkerPool(1, off.parse_limits, None, windows=False)
+    try:
+        pool.submit(pool.workers[0], [(0, "bvh", (str(folder / BVH_FIXTURES[0]),))])
+        outcomes: list = []
+        deadline = time.monotonic() + 30
+        while not outcomes and time.monotonic() < deadline:
+            outcomes, _ = pool.collect(0.2)
+        [(_, (status, descriptions, _))] = outcomes
+        assert status == "ok" and descriptions[0].windows is None  # not even described
+    finally:
+        pool.close()

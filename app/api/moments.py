@@ -182,7 +182,7 @@ async def search_moments_by_clip(
     "/moments",
     summary="Moments like a span of an uploaded file",
     response_model=MomentSearchResponse,
-    responses=error_responses(400, 413, 415, 422, 503),
+    responses=error_responses(400, 409, 413, 415, 422, 503),
 )
 def search_moments_by_upload(
     library: LibraryDep,

@@ -244,6 +244,7 @@ class MotionDescriber:
         time_limit: float | None = None,
         max_values: int | None = None,
         parsers: SceneParser | None = None,
+        windows: bool = True,
     ) -> None:
         self._descriptors = {
             d.name: DescriptorInfo(d.name, d.dimension, d.version, d.description)
@@ -252,17 +253,20 @@ class MotionDescriber:
         self.time_limit = time_limit
         self.max_values = max_values
         self.parsers = parsers
+        # The descriptors described as windows too (none when moments search is off).
+        self.window_descriptors = WINDOW_DESCRIPTORS if windows else ()
 
     @classmethod
     def from_settings(
         cls, settings: Settings, *, parsers: SceneParser | None = None
     ) -> MotionDescriber:
-        """The describer the service uses: MOCAP_DESCRIBE_TIMEOUT_SECONDS and
-        MOCAP_MAX_FRAME_VALUES applied; FBX/glTF read by ``parsers``."""
+        """The describer the service uses: MOCAP_DESCRIBE_TIMEOUT_SECONDS,
+        MOCAP_MAX_FRAME_VALUES and MOCAP_MOMENTS applied; FBX/glTF read by ``parsers``."""
         return cls(
             time_limit=settings.describe_timeout_seconds,
             max_values=settings.max_frame_values,
             parsers=parsers,
+            windows=settings.moments,
         )
 
     def read(self, upload: Upload, limits: ParseLimits) -> ReadMotion:
@@ -300,7 +304,7 @@ class MotionDescriber:
         windows: bool | None = None,
     ) -> Description:
         """:meth:`Describer.describe`; with ``windows`` (default: when describing every
-        descriptor) also the windows of :data:`WINDOW_DESCRIPTORS`."""
+        descriptor) also the windows of :attr:`window_descriptors`."""
         started = time.monotonic()
         read = self.read(upload, limits)
         self._check_time(started, "reading the file")
@@ -310,7 +314,9 @@ class MotionDescriber:
             raise _name_source(error, upload) from None
         self._check_time(started, "computing the descriptors")
         described_windows = None
-        if windows if windows is not None else only is None:
+        if windows is None:
+            windows = only is None and bool(self.window_descriptors)
+        if windows:
             described_windows = self._windows(analysis.body)
             self._check_time(started, "describing the windows")
         return Description(
@@ -330,7 +336,7 @@ class MotionDescriber:
 
     def _windows(self, body: Body) -> Windows:
         spans = window_spans(body.frame_count, body.frame_time, WINDOW_LENGTHS)
-        names = [name for name in WINDOW_DESCRIPTORS if name in self._descriptors]
+        names = [name for name in self.window_descriptors if name in self._descriptors]
         vectors = describe_windows(body, spans, names)
         for name, array in vectors.items():
             if not np.all(np.isfinite(array)):

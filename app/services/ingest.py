@@ -125,9 +125,10 @@ def new_clip(library: Library, item: Described) -> repo.NewClip:
 
 
 def new_windows(library: Library, description: Description) -> tuple[repo.NewWindows, ...]:
-    """The window rows of a described clip (none when it was described without windows)."""
+    """The window rows of a described clip (none when it was described without windows or
+    the library keeps none)."""
     windows = description.windows
-    if windows is None:
+    if windows is None or not library.window_keys:
         return ()
     lengths = np.asarray(windows.lengths, dtype=np.float64)[windows.spans[:, 0]]
     return tuple(

@@ -180,9 +180,14 @@ def window_index_name(descriptor: str, length: float) -> str:
     return f"windows-{descriptor}-{length:g}s"
 
 
-def window_keys(descriptors: Mapping[str, DescriptorInfo]) -> dict[str, repo.WindowKey]:
+def window_keys(
+    settings: Settings, descriptors: Mapping[str, DescriptorInfo]
+) -> dict[str, repo.WindowKey]:
     """Every window index: its name -> which windows it holds (the descriptors of
-    :data:`WINDOW_DESCRIPTORS` the describer has, at each of :data:`WINDOW_LENGTHS`)."""
+    :data:`WINDOW_DESCRIPTORS` the describer has, at each of :data:`WINDOW_LENGTHS`; none
+    when MOCAP_MOMENTS is off)."""
+    if not settings.moments:
+        return {}
     return {
         window_index_name(name, length): repo.WindowKey(
             name, descriptors[name].version, descriptors[name].dimension, length
@@ -429,7 +434,7 @@ def _open_indexes(
         )
         for info in descriptors.values()
     }
-    keys = window_keys(descriptors)
+    keys = window_keys(settings, descriptors)
     windows = {
         name: DescriptorIndex(name, key.dimension, key.version, settings.index_dir, options=options)
         for name, key in keys.items()
@@ -492,7 +497,7 @@ def open_library(settings: Settings, *, describer: Describer | None = None) -> L
         indexes=indexes,
         describer=describer,
         window_indexes=windows,
-        window_keys=window_keys(describer.descriptors),
+        window_keys=window_keys(settings, describer.descriptors),
         parsers=parsers,
     )
     for name, outdated in library.count_outdated().items():

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.db import repository as repo
-from app.errors import InvalidInput, NotFound
+from app.errors import InvalidInput, MomentsOff, NotFound
 from app.labels import label_filter
 from app.motion.windows import hop_share
 from app.services.clips import stored_upload
@@ -119,6 +119,12 @@ def window_descriptors(library: Library) -> list[str]:
 
 
 def _check(library: Library, descriptor: str, k: int, per_clip: int) -> None:
+    if not library.window_keys:
+        raise MomentsOff(
+            "moments search is off in this library (MOCAP_MOMENTS=false): no windows are "
+            "kept. Set MOCAP_MOMENTS=true, restart, and run `mocap-index reindex` to describe "
+            "the clips stored without windows"
+        )
     library.descriptor(descriptor)
     if descriptor not in window_descriptors(library):
         known = ", ".join(window_descriptors(library)) or "none"

@@ -326,3 +326,38 @@ def test_window_indexes_follow_another_process_through_the_feed(settings: Settin
         index = library.window_indexes["windows-motion-1s"]
         held = index.reconstruct_many(index.ids())[1]
         np.testing.assert_allclose(np.sort(held, axis=0), np.sort(vectors + 1.0, axis=0))
+
+
+def test_moments_off_keeps_no_windows_and_says_so(settings: Settings) -> None:
+    """MOCAP_MOMENTS=false (a library too large to keep windows in memory): uploads store
+    no windows, moments search answers 409 naming the setting, whole-clip search works;
+    turned back on, `reindex` describes the clips stored without windows."""
+    off = settings.model_copy(update={"moments": False})
+    with TestClient(create_app(off)) as client:
+        take = upload(client, long_take(), "take.bvh")["id"]
+        walk = upload(client, fixture_bytes(BANDAI_FIXTURE), "walk.bvh")["id"]
+        assert window_rows(settings) == 0
+        assert client.app.state.library.window_indexes.sizes() == {}  # type: ignore[attr-defined]
+        by_clip = client.get("/search/moments", params={"clip": take, "k": 3})
+        by_upload = client.post(
+            "/search/moments", files={"file": ("walk.bvh", fixture_bytes(BANDAI_FIXTURE))}
+        )
+        for response in (by_clip, by_upload):
+            assert response.status_code == 409, response.text
+            body = response.json()
+            assert body["error"] == "moments_off" and "MOCAP_MOMENTS" in body["detail"]
+        whole = client.get("/search", params={"clip": take, "k": 3})
+        assert whole.status_code == 200 and [r["id"] for r in whole.json()["results"]] == [walk]
+    assert not list(off.index_dir.glob("windows-*"))
+
+    library = open_library(settings)  # moments on again
+    try:
+        report = reindex(library)
+        assert report.recomputed == 2 and not report.failed
+        assert window_rows(settings, take) == 17 and window_rows(settings, walk) == 3
+    finally:
+        library.close()
+    with TestClient(create_app(settings)) as client:
+        found = client.get("/search/moments", params={"clip": take, "start": 0, "end": 1.3})
+        assert found.status_code == 200, found.text
+        assert found.json()["results"]
