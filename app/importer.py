@@ -12,8 +12,8 @@ Pipeline
     :func:`app.services.ingest.store_many` — the code ``POST /clips`` uses: files, then one
     transaction per batch, then one index update per batch. Batches are stored one at a time
     on that same thread while the main loop goes on feeding the workers and reading their
-    outcomes (a worker waits once its outcomes fill the pipe: 17.2 -> 15.5 s for 3,000 clips
-    when the loop stored them itself).
+    outcomes (a worker waits once its outcomes fill the pipe; bench/README.md has the
+    figures).
 
 Idempotent and resumable
     A clip is identified by its content hash (:func:`app.discovery.content_hash`, the rule
