@@ -608,7 +608,7 @@ class _Run:
         while self.pending and len(chosen) < self.task_clips:
             chosen.append(self.pending.popleft())
         if library is not None and chosen:
-            from app.db import repository as repo
+            from app.db import clips as clip_db
 
             readable = [item for item in chosen if self.upload_of(item) is not None]
             # An FBX/glTF file's clips are known once it is read: always described.
@@ -618,7 +618,7 @@ class _Run:
                 if item.upload and item.upload.knows_content_hash
             ]
             with library.reads() as session:
-                stored = repo.clip_ids_by_hash(session, hashes)
+                stored = clip_db.clip_ids_by_hash(session, hashes)
             chosen = []
             for item in readable:
                 assert item.upload is not None
@@ -789,7 +789,11 @@ def fill_synthetic(
 
     import numpy as np
 
-    from app.db import repository as repo
+    from app.db import clips as clip_db
+    from app.db import label_filters as label_db
+    from app.db import vectors as vector_db
+    from app.db import windows as window_db
+    from app.db.session import checkpoint
     from app.services.library import open_library
 
     started = time.perf_counter()
@@ -797,18 +801,20 @@ def fill_synthetic(
     try:
         descriptors = list(library.descriptors.values())
         with library.reads() as session:
-            total = repo.count_clips(session)
-            top = repo.max_clip_id(session)
-            synthetic = set(repo.clip_ids_with_label(session, SYNTHETIC).tolist())
+            total = clip_db.count_clips(session)
+            top = clip_db.max_clip_id(session)
+            synthetic = set(label_db.clip_ids_with_label(session, SYNTHETIC).tolist())
             stored = {}
             for info in descriptors:
-                ids, vectors = repo.load_vectors(session, info.name, info.version, info.dimension)
+                ids, vectors = vector_db.load_vectors(
+                    session, info.name, info.version, info.dimension
+                )
                 real = np.array([i not in synthetic for i in ids.tolist()], dtype=bool)
                 stored[info.name] = dict(zip(ids[real].tolist(), vectors[real], strict=True))
             common = sorted(set.intersection(*(set(v) for v in stored.values())))
-            centres = repo.get_clips(session, common)
+            centres = clip_db.get_clips(session, common)
             windows = {
-                key: repo.load_window_rows(session, key, common)
+                key: window_db.load_window_rows(session, key, common)
                 for key in library.window_keys.values()
             }
         need = count - total
@@ -859,7 +865,7 @@ def fill_synthetic(
                 number = top + done + row + 1
                 centre = records[int(pick[row])] if records else None
                 rows.append(
-                    repo.NewClip(
+                    clip_db.NewClip(
                         name=f"{SYNTHETIC}-{number:07d}",
                         format=SYNTHETIC,
                         content_hash=hashlib.sha256(
@@ -874,7 +880,7 @@ def fill_synthetic(
                         labels=(SYNTHETIC,),
                         files=(),
                         vectors={
-                            name: repo.StoredVector(versions[name], noisy[name][row])
+                            name: vector_db.StoredVector(versions[name], noisy[name][row])
                             for name in noisy
                         },
                         created_at=now,
@@ -884,10 +890,10 @@ def fill_synthetic(
                     )
                 )
             with library.writes.begin() as session:
-                repo.insert_clips(session, rows)
+                clip_db.insert_clips(session, rows)
             done += n
             report(f"  {done}/{need} clips ({time.perf_counter() - started:.0f} s)")
-        repo.checkpoint(library.engine)
+        checkpoint(library.engine)
         for info in descriptors:
             report(f"building the {info.name} index")
             library.rebuild_index(info.name)
@@ -895,7 +901,7 @@ def fill_synthetic(
             report("building the window indexes")
             library.rebuild_window_indexes()
         with library.reads() as session:
-            total = repo.count_clips(session)
+            total = clip_db.count_clips(session)
         return FillResult(need, total, time.perf_counter() - started, _kinds(library))
     finally:
         library.close()
@@ -916,7 +922,7 @@ def _synthetic_windows(
     """The windows of real clip ``centre``, their vectors plus noise (see fill_synthetic)."""
     import numpy as np
 
-    from app.db import repository as repo
+    from app.db import windows as window_db
 
     found = []
     for key, by_clip in windows.items():
@@ -925,7 +931,7 @@ def _synthetic_windows(
         starts, stops, vectors = by_clip[centre]
         noisy = vectors + rng.normal(size=vectors.shape) * spread[key] * noise
         found.append(
-            repo.NewWindows(
+            window_db.NewWindows(
                 name=key.name,
                 version=key.version,
                 lengths=np.full(len(starts), key.length),

@@ -33,7 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from common import machine, shared_data  # bench/common.py (scripts run from bench/)
 
 from app.config import Settings
-from app.db import repository as repo
+from app.db import clips as clip_db
 from app.motion import body as body_module
 from app.motion import pipeline
 from app.motion.descriptors import REGISTRY
@@ -94,10 +94,10 @@ def main() -> int:
         (pipeline, "build_body", "body (all)"),
         (MotionDescriber, "_windows", "windows"),
         (FileBlobStore, "put_many", "store: files (write, fsync, rename)"),
-        (repo, "insert_clips", "store: rows (one transaction)"),
+        (clip_db, "insert_clips", "store: rows (one transaction)"),
         (Library, "sync_indexes", "store: index sync (reads rows back)"),
-        (repo, "get_clips", "store: clip records for the results"),
-        (repo, "clip_ids_by_hash", "store: content-hash lookups"),
+        (clip_db, "get_clips", "store: clip records for the results"),
+        (clip_db, "clip_ids_by_hash", "store: content-hash lookups"),
     ):
         timed(owner, name, stage)
     for name in REGISTRY:

@@ -10,7 +10,7 @@ no files, no vectors), every clip labelled ``Synthetic`` (mixed case, as stored)
 
 * ``GET /search``'s filter: the ids carrying ``synthetic`` / ``walk,happy`` (the search
   snapshot's raw SQL, :meth:`SearchSnapshot.clip_ids_with_label`);
-* ``GET /clips?label=...``'s page and count (:func:`repository.list_clips`).
+* ``GET /clips?label=...``'s page and count (:func:`app.db.clips.list_clips`).
 
 Target: a filter on a rare label in well under a millisecond's worth of rows scanned — the
 (label_key, clip_id) index, never a table scan (checked with EXPLAIN QUERY PLAN).
@@ -33,7 +33,8 @@ sys.path.insert(0, str(ROOT))
 
 from sqlalchemy.orm import Session  # noqa: E402
 
-from app.db import repository as repo  # noqa: E402
+from app.db import clips as clip_db  # noqa: E402
+from app.db import search_reads as search_db  # noqa: E402
 from app.db.migrate import upgrade  # noqa: E402
 from app.db.session import create_db_engine  # noqa: E402
 
@@ -86,7 +87,7 @@ def main() -> None:
         start = time.perf_counter()
         fill(path, args.count)
         print(f"{args.count:,} clips filled in {time.perf_counter() - start:.1f} s")
-        reads = repo.SearchReads(engine)
+        reads = search_db.SearchReads(engine)
         try:
             for label in ("HAPPY", "walk,Happy", "synthetic"):
                 with reads.snapshot() as db:
@@ -110,7 +111,7 @@ def main() -> None:
             with Session(engine) as session:
                 for label in ("happy", "WALK,happy"):
                     ms, (page, total) = timed(  # type: ignore[misc]
-                        lambda label=label: repo.list_clips(
+                        lambda label=label: clip_db.list_clips(
                             session, label=label, limit=50, offset=0
                         )
                     )

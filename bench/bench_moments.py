@@ -47,7 +47,7 @@ import numpy as np
 from common import machine, shared_data  # bench/common.py (scripts run from bench/)
 
 from app.config import Settings
-from app.db import repository as repo
+from app.db import clips as clip_db
 from app.errors import MocapError
 from app.importer import run_import
 from app.motion.formats import decode_text
@@ -78,7 +78,7 @@ def fresh_library(tmp: Path, sources: list[Path]) -> Library:
     return open_library(settings)
 
 
-def cut_upload(library: Library, clip: repo.ClipRecord, first: int, stop: int) -> Upload:
+def cut_upload(library: Library, clip: clip_db.ClipRecord, first: int, stop: int) -> Upload:
     """The stored clip cut to frames ``[first, stop)``, as an upload."""
     roles = {f.role: f for f in clip.files}
     if "file" in roles:
@@ -97,7 +97,7 @@ def exact(args: argparse.Namespace) -> int:
         library = fresh_library(Path(tmp), sources)
         try:
             with library.reads() as session:
-                stored = repo.get_clips(session, repo.all_clip_ids(session)).values()
+                stored = clip_db.get_clips(session, clip_db.all_clip_ids(session)).values()
             # By name: the draw must not depend on the order the import stored them in.
             clips = sorted(stored, key=lambda clip: clip.name)
             hits, ious, times, misses = 0, [], [], []

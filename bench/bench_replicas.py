@@ -113,7 +113,7 @@ def bulk_fill(url: str, count: int, seed: int = 7) -> None:
 
 def time_rebuild(url: str, count: int, work: Path) -> None:
     from app.config import Settings
-    from app.db import repository as repo
+    from app.db import vectors as vector_db
     from app.services.library import open_library
 
     started = time.perf_counter()
@@ -125,7 +125,7 @@ def time_rebuild(url: str, count: int, work: Path) -> None:
         started = time.perf_counter()
         with library.reads() as session:
             for info in library.descriptors.values():
-                repo.load_vectors(session, info.name, info.version, info.dimension)
+                vector_db.load_vectors(session, info.name, info.version, info.dimension)
         print(f"reading every vector from PostgreSQL: {time.perf_counter() - started:.1f} s")
     finally:
         library.close()

@@ -13,7 +13,7 @@ import pytest
 
 from app.cli import main
 from app.config import Settings
-from app.db import repository as repo
+from app.db import clips as clip_db
 from app.importer import LabelRules, WorkerPool, run_import
 from app.services.library import open_library
 from app.services.search import search_by_clip_id
@@ -201,7 +201,7 @@ def test_every_animation_of_a_scene_file_is_a_clip_and_a_rerun_skips_them(
     library = open_library(settings)
     try:
         with library.reads() as session:
-            clips = repo.get_clips(session, [c.clip_id for c in first.imported])
+            clips = clip_db.get_clips(session, [c.clip_id for c in first.imported])
     finally:
         library.close()
     assert sorted(c.name for c in clips.values()) == ["walk · start", "walk · walk"]

@@ -12,7 +12,7 @@ from typing import Annotated
 from fastapi import Depends, File, Form, Query, Request, UploadFile
 
 from app.config import Settings
-from app.db.repository import ClipRecord
+from app.db.clips import ClipRecord
 from app.errors import UnsupportedMediaType
 from app.services import clips as clip_service
 from app.services.library import Library

@@ -11,7 +11,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from app.api.deps import KQuery, LabelQuery, LibraryDep, UploadDep
 from app.api.errors import error_responses
 from app.api.schemas import ClipOut
-from app.db import repository as repo
+from app.db import label_filters as label_db
 from app.services import moments as moment_service
 from app.services.library import Library
 
@@ -133,7 +133,7 @@ def _by_clip(
     end: float | None,
     k: int,
     descriptor: str,
-    label: repo.LabelFilter,
+    label: label_db.LabelFilter,
     per_clip: int,
 ) -> bytes:
     query, moments = moment_service.search_moments_by_clip(

@@ -7,7 +7,8 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from app.db.repository import AnimationRecord, ClipRecord, NewClip, StoredVector
+from app.db.clips import AnimationRecord, ClipRecord, NewClip
+from app.db.vectors import StoredVector
 from app.services.describe import DescriptorInfo
 from app.services.search import Hit
 

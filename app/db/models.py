@@ -21,7 +21,7 @@ clip_windows
     Vectors of overlapping windows of a clip (moments search), one row per (descriptor,
     window): its length in seconds and its frames ``[start_frame, end_frame)`` of the file as
     uploaded (lead-in included). The window indexes are rebuilt from this table; a window's id
-    is ``clip id << 20 | ordinal`` (see ``repository.WINDOW_ID_BITS``), so an index finds a
+    is ``clip id << 20 | ordinal`` (see ``app.db.windows.WINDOW_ID_BITS``), so an index finds a
     clip's windows by their ids.
 clip_changes
     The change feed the indexes of every process follow: one row per clip inserted, updated
@@ -163,7 +163,7 @@ class ClipWindow(Base):
     __tablename__ = "clip_windows"
     __table_args__ = (
         # Where every window of one index lies, in id order, from the index alone (a process
-        # keeps that in memory for moments search: app.window_places).
+        # keeps that in memory for moments search: app.index.places).
         Index(
             "ix_clip_windows_places",
             "name",

@@ -34,8 +34,9 @@ from sqlalchemy.dialects.postgresql import insert as pg_insert
 from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session
 
-from app.db import repository as repo
+from app.db import clips as clip_db
 from app.db.models import Blob, ClipFile
+from app.db.rows import IN_CHUNK
 from app.errors import StorageUnavailable
 
 _SHA256 = re.compile(r"[0-9a-f]{64}")
@@ -211,8 +212,8 @@ class FileBlobStore:
         listed = list(self.stored())
         shas = [sha for sha, _ in listed]
         referenced: set[str] = set()
-        for start in range(0, len(shas), repo.IN_CHUNK):
-            referenced |= repo.referenced_blobs(session, shas[start : start + repo.IN_CHUNK])
+        for start in range(0, len(shas), IN_CHUNK):
+            referenced |= clip_db.referenced_blobs(session, shas[start : start + IN_CHUNK])
         return self.sweep(listed, referenced, older_than=older_than)
 
 

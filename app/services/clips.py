@@ -12,7 +12,9 @@ from pathlib import PurePosixPath
 
 from sqlalchemy.exc import SQLAlchemyError
 
-from app.db import repository as repo
+from app.db import clips as clip_db
+from app.db import label_filters as label_db
+from app.db import vectors as vector_db
 from app.errors import InvalidInput, NoStoredFile, NotFound, ParseError, StorageUnavailable
 from app.labels import label_filter
 from app.motion.formats import decode_text
@@ -37,28 +39,28 @@ class Download:
 MAX_ID = 2**63 - 1
 
 
-def get_clip(library: Library, clip_id: int) -> repo.ClipRecord:
+def get_clip(library: Library, clip_id: int) -> clip_db.ClipRecord:
     if not 0 < clip_id <= MAX_ID:
         raise NotFound(f"no clip with id {clip_id}")
     with library.reads() as session:
-        clip = repo.get_clip(session, clip_id)
+        clip = clip_db.get_clip(session, clip_id)
     if clip is None:
         raise NotFound(f"no clip with id {clip_id}")
     return clip
 
 
 def list_clips(
-    library: Library, *, label: repo.LabelFilter, limit: int, offset: int
-) -> tuple[list[repo.ClipRecord], int]:
+    library: Library, *, label: label_db.LabelFilter, limit: int, offset: int
+) -> tuple[list[clip_db.ClipRecord], int]:
     """One page of clips in id order and the total carrying every label of ``label``."""
     with library.reads() as session:
-        return repo.list_clips(session, label=label, limit=limit, offset=offset)
+        return clip_db.list_clips(session, label=label, limit=limit, offset=offset)
 
 
-def clip_vectors(library: Library, clip_id: int) -> dict[str, repo.StoredVector]:
+def clip_vectors(library: Library, clip_id: int) -> dict[str, vector_db.StoredVector]:
     """Every stored descriptor vector of the clip, by name."""
     with library.reads() as session:
-        return repo.get_vectors(session, clip_id)
+        return vector_db.get_vectors(session, clip_id)
 
 
 def update_clip(
@@ -68,19 +70,19 @@ def update_clip(
     name: str | None,
     labels: tuple[str, ...] | None,
     notes: Mapping[str, str | None] | None = None,
-) -> repo.ClipRecord:
+) -> clip_db.ClipRecord:
     """Rename and/or relabel a clip (``None`` leaves a field as it is); ``notes`` sets
     ``source`` and/or ``licence`` (a ``None`` value clears one)."""
     try:
         with library.writes.begin() as session:
             notes = notes or {}
-            found = repo.update_clip(
+            found = clip_db.update_clip(
                 session,
                 clip_id,
                 name=name,
                 labels=labels,
-                source=notes.get("source", repo.UNSET),
-                licence=notes.get("licence", repo.UNSET),
+                source=notes.get("source", clip_db.UNSET),
+                licence=notes.get("licence", clip_db.UNSET),
             )
     except SQLAlchemyError as exc:
         raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
@@ -95,7 +97,7 @@ def delete_clip(library: Library, clip_id: int) -> None:
     with library.write_lock:
         try:
             with library.writes.begin() as session:
-                shas = repo.delete_clip(session, clip_id)
+                shas = clip_db.delete_clip(session, clip_id)
         except SQLAlchemyError as exc:
             raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
         if shas is None:
@@ -103,15 +105,15 @@ def delete_clip(library: Library, clip_id: int) -> None:
         _tidy_after_delete(library, [clip_id], shas)
 
 
-def clips_with_labels(library: Library, labels: repo.LabelFilter) -> list[int]:
+def clips_with_labels(library: Library, labels: label_db.LabelFilter) -> list[int]:
     """Ids of the clips carrying every label of ``labels`` (see :func:`delete_clips_with`)."""
     if not label_filter(labels):
         raise InvalidInput("label: name the label(s) of the clips to delete")
     with library.reads() as session:
-        return repo.clip_ids_with_labels(session, labels)
+        return label_db.clip_ids_with_labels(session, labels)
 
 
-def delete_clips_with(library: Library, labels: repo.LabelFilter) -> int:
+def delete_clips_with(library: Library, labels: label_db.LabelFilter) -> int:
     """Delete every clip carrying all of ``labels`` (at least one label; compared
     case-insensitively) in one transaction, as :func:`delete_clip` does one; returns how many."""
     if not label_filter(labels):
@@ -119,8 +121,8 @@ def delete_clips_with(library: Library, labels: repo.LabelFilter) -> int:
     with library.write_lock:
         try:
             with library.writes.begin() as session:
-                ids = repo.clip_ids_with_labels(session, labels)
-                shas = repo.delete_clips(session, ids)
+                ids = label_db.clip_ids_with_labels(session, labels)
+                shas = clip_db.delete_clips(session, ids)
         except SQLAlchemyError as exc:
             raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
         if ids:
@@ -146,7 +148,7 @@ def _tidy_after_delete(library: Library, clip_ids: list[int], shas: list[str]) -
     drop_clip_windows(library, clip_ids)
     try:
         with library.reads() as session:
-            still_used = repo.referenced_blobs(session, shas)
+            still_used = clip_db.referenced_blobs(session, shas)
         for sha in set(shas) - still_used:
             library.blobs.delete(sha)
     except (SQLAlchemyError, OSError) as exc:
@@ -158,7 +160,7 @@ def _tidy_after_delete(library: Library, clip_ids: list[int], shas: list[str]) -
         )
 
 
-def stored_upload(library: Library, clip: repo.ClipRecord) -> Upload:
+def stored_upload(library: Library, clip: clip_db.ClipRecord) -> Upload:
     """A stored clip's files as the upload they came in (FBX/glTF: its own animation)."""
     if not clip.files:  # synthetic benchmark clips have vectors but no upload
         raise NotFound(f"clip {clip.id} has no stored file ({clip.format} clip)")
@@ -167,7 +169,7 @@ def stored_upload(library: Library, clip: repo.ClipRecord) -> Upload:
 
 
 def clip_bvh(
-    library: Library, clip: repo.ClipRecord, frames: tuple[int, int] | None = None
+    library: Library, clip: clip_db.ClipRecord, frames: tuple[int, int] | None = None
 ) -> Download:
     """Any clip as a BVH file of its own skeleton (read again from its stored files; FBX and
     glTF in a parser worker), optionally frames ``start:stop`` of it."""
@@ -189,7 +191,7 @@ def _cut_name(filename: str, start: float, end: float) -> str:
 
 
 def _cut_part(
-    library: Library, clip: repo.ClipRecord, record: repo.FileRecord, frames: tuple[int, int]
+    library: Library, clip: clip_db.ClipRecord, record: clip_db.FileRecord, frames: tuple[int, int]
 ) -> tuple[str, bytes]:
     """A stored part cut to ``frames`` ``[first, stop)`` (the skeleton unchanged)."""
     data = library.blobs.read(record.sha256)
@@ -207,7 +209,7 @@ def _cut_part(
 
 def clip_download(
     library: Library,
-    clip: repo.ClipRecord,
+    clip: clip_db.ClipRecord,
     part: str | None,
     start: float | None = None,
     end: float | None = None,
@@ -254,7 +256,7 @@ def clip_download(
     return _zip(clip, files, motion.filename)
 
 
-def _zip(clip: repo.ClipRecord, files: list[tuple[str, bytes]], named_after: str) -> Download:
+def _zip(clip: clip_db.ClipRecord, files: list[tuple[str, bytes]], named_after: str) -> Download:
     """A ZIP of ``files`` (name, bytes), called like ``named_after``."""
     buffer = io.BytesIO()
     stamp = clip.created_at.timetuple()[:6]

@@ -27,7 +27,9 @@ from typing import Any
 import numpy as np
 from sqlalchemy.exc import IntegrityError, SQLAlchemyError
 
-from app.db import repository as repo
+from app.db import clips as clip_db
+from app.db import vectors as vector_db
+from app.db import windows as window_db
 from app.errors import MocapError, StorageUnavailable
 from app.labels import merge_labels
 from app.services.describe import Description
@@ -52,22 +54,22 @@ class Described:
 
 @dataclass(frozen=True)
 class IngestResult:
-    clip: repo.ClipRecord
+    clip: clip_db.ClipRecord
     created: bool  # False: the same content was already stored, ``clip`` is that clip
     changed: bool = False  # a duplicate whose labels, name, source or licence were applied
 
 
-def get_stored(library: Library, clip_id: int) -> repo.ClipRecord:
+def get_stored(library: Library, clip_id: int) -> clip_db.ClipRecord:
     with library.reads() as session:
-        clip = repo.get_clip(session, clip_id)
+        clip = clip_db.get_clip(session, clip_id)
     if clip is None:  # deleted by another request meanwhile
         raise StorageUnavailable("the clip was deleted while it was being changed; try again")
     return clip
 
 
-def find_existing(library: Library, upload: Upload) -> repo.ClipRecord | None:
+def find_existing(library: Library, upload: Upload) -> clip_db.ClipRecord | None:
     with library.reads() as session:
-        return repo.get_clip_by_hash(session, upload.content_hash)
+        return clip_db.get_clip_by_hash(session, upload.content_hash)
 
 
 def describe(library: Library, upload: Upload, *, only: Sequence[str] | None = None) -> Described:
@@ -84,22 +86,22 @@ def described_upload(upload: Upload, description: Description) -> Upload:
     return upload.with_animations(description.animations, description.animation)
 
 
-def animation_records(upload: Upload) -> tuple[repo.AnimationRecord, ...] | None:
+def animation_records(upload: Upload) -> tuple[clip_db.AnimationRecord, ...] | None:
     """The file's animations as stored with the clip (None for BVH and ASF/AMC)."""
     if upload.animation is None:
         return None
     return tuple(
-        repo.AnimationRecord(a.name, a.frame_count, a.duration, a.name == upload.animation)
+        clip_db.AnimationRecord(a.name, a.frame_count, a.duration, a.name == upload.animation)
         for a in upload.animations
     )
 
 
-def new_clip(library: Library, item: Described) -> repo.NewClip:
+def new_clip(library: Library, item: Described) -> clip_db.NewClip:
     """The row to insert for a described upload."""
     upload, description = item.upload, item.description
     if description is None:
         raise ValueError("the upload was not described")
-    return repo.NewClip(
+    return clip_db.NewClip(
         name=upload.clip_name,
         format=upload.format,
         content_hash=upload.content_hash,
@@ -114,9 +116,9 @@ def new_clip(library: Library, item: Described) -> repo.NewClip:
         labels=upload.labels,
         source=upload.source,
         licence=upload.licence,
-        files=tuple(repo.FileRecord(p.role, p.filename, p.sha256, p.size) for p in upload.parts),
+        files=tuple(clip_db.FileRecord(p.role, p.filename, p.sha256, p.size) for p in upload.parts),
         vectors={
-            name: repo.StoredVector(library.descriptors[name].version, vector)
+            name: vector_db.StoredVector(library.descriptors[name].version, vector)
             for name, vector in description.vectors.items()
         },
         windows=new_windows(library, description),
@@ -124,7 +126,7 @@ def new_clip(library: Library, item: Described) -> repo.NewClip:
     )
 
 
-def new_windows(library: Library, description: Description) -> tuple[repo.NewWindows, ...]:
+def new_windows(library: Library, description: Description) -> tuple[window_db.NewWindows, ...]:
     """The window rows of a described clip (none when it was described without windows or
     the library keeps none)."""
     windows = description.windows
@@ -132,7 +134,7 @@ def new_windows(library: Library, description: Description) -> tuple[repo.NewWin
         return ()
     lengths = np.asarray(windows.lengths, dtype=np.float64)[windows.spans[:, 0]]
     return tuple(
-        repo.NewWindows(
+        window_db.NewWindows(
             name=name,
             version=library.descriptors[name].version,
             lengths=lengths,
@@ -151,7 +153,7 @@ def _forget_files(library: Library, written: Iterable[str]) -> None:
         return
     try:
         with library.reads() as session:
-            used = repo.referenced_blobs(session, written)
+            used = clip_db.referenced_blobs(session, written)
     except SQLAlchemyError:
         # The database is down: only another process could have referred to these new files
         # meanwhile, far less likely than this failure, so they go.
@@ -181,7 +183,7 @@ def store_many(library: Library, items: Sequence[Described]) -> list[IngestResul
     with library.write_lock:
         for attempt in range(1, MAX_COMMIT_ATTEMPTS + 1):
             with library.reads() as session:
-                existing = repo.clip_ids_by_hash(session, hashes)
+                existing = clip_db.clip_ids_by_hash(session, hashes)
             fresh: dict[str, Described] = {}
             for item in items:
                 if item.upload.content_hash not in existing:
@@ -196,7 +198,7 @@ def store_many(library: Library, items: Sequence[Described]) -> list[IngestResul
                 _put_files(library, [p for i in fresh.values() for p in i.upload.parts], written)
                 rows = [new_clip(library, item) for item in fresh.values()]
                 with library.writes.begin() as session:
-                    repo.insert_clips(session, rows)
+                    clip_db.insert_clips(session, rows)
             except IntegrityError:
                 # Another process stored some of this content meanwhile: look again.
                 _forget_files(library, written)
@@ -215,7 +217,7 @@ def store_many(library: Library, items: Sequence[Described]) -> list[IngestResul
             library.sync_indexes()
             break
         with library.reads() as session:
-            by_hash = repo.clip_ids_by_hash(session, hashes)
+            by_hash = clip_db.clip_ids_by_hash(session, hashes)
         changed = apply_to_stored(
             library,
             [
@@ -225,7 +227,7 @@ def store_many(library: Library, items: Sequence[Described]) -> list[IngestResul
             ],
         )
         with library.reads() as session:
-            clips = repo.get_clips(session, by_hash.values())
+            clips = clip_db.get_clips(session, by_hash.values())
     results = []
     reported: set[str] = set()
     for content_hash in hashes:
@@ -246,7 +248,7 @@ def apply_to_stored(library: Library, duplicates: Sequence[tuple[int, Upload]]) 
     changed: set[int] = set()
     try:
         with library.writes.begin() as session:
-            stored = repo.get_clips(session, [clip_id for clip_id, _ in wanted])
+            stored = clip_db.get_clips(session, [clip_id for clip_id, _ in wanted])
             for clip_id, upload in wanted:
                 clip = stored.get(clip_id)
                 if clip is None:
@@ -260,7 +262,7 @@ def apply_to_stored(library: Library, duplicates: Sequence[tuple[int, Upload]]) 
                     if value is not None and value != getattr(clip, key):
                         updates[key] = value
                 if updates:
-                    repo.update_clip(session, clip_id, **updates)
+                    clip_db.update_clip(session, clip_id, **updates)
                     stored[clip_id] = dataclasses.replace(clip, **updates)
                     changed.add(clip_id)
     except SQLAlchemyError as exc:

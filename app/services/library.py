@@ -35,12 +35,18 @@ from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.config import Settings
-from app.db import repository as repo
-from app.db.changes import ChangeFeed, horizon, read_since
+from app.db import clips as clip_db
+from app.db import search_reads as search_db
+from app.db import vectors as vector_db
+from app.db import windows as window_db
+from app.db.changes import ChangeFeed, horizon
 from app.db.migrate import upgrade
 from app.db.session import create_db_engine, read_sessions, write_sessions
 from app.errors import DescriptorOutdated, InvalidInput, StorageUnavailable
-from app.index import DescriptorIndex, IndexOptions, IndexSet
+from app.index.descriptor_index import DescriptorIndex, IndexSet
+from app.index.kinds import IndexOptions
+from app.index.places import Places, WindowPlaces
+from app.index.sources import StoredVectors, StoredWindows, touched_windows, windows_of_clips
 from app.motion.descriptors import DEFAULT_DESCRIPTOR
 from app.services.blobs import BlobStore, open_blob_store
 from app.services.describe import (
@@ -51,7 +57,6 @@ from app.services.describe import (
     MotionDescriber,
 )
 from app.services.parser_pool import ParserPool
-from app.window_places import Places, WindowPlaces, rows_of_clips
 
 log = logging.getLogger(__name__)
 
@@ -67,94 +72,6 @@ def index_options(settings: Settings) -> IndexOptions:
         nlist=settings.ivf_nlist,
         nprobe=settings.ivf_nprobe,
     )
-
-
-class StoredVectors:
-    """One descriptor's vectors in the database, read in ``session``, with the change feed
-    position ``watermark`` taken before them: what :meth:`DescriptorIndex.load_or_rebuild`
-    checks an index against."""
-
-    def __init__(self, session: Session, info: DescriptorInfo, watermark: int) -> None:
-        self._session = session
-        self._info = info
-        self._watermark = watermark
-
-    def watermark(self) -> int:
-        return self._watermark
-
-    def count(self) -> int:
-        return repo.count_vectors(self._session, self._info.name, self._info.version)
-
-    def ids(self) -> np.ndarray:
-        info = self._info
-        return repo.vector_ids(self._session, info.name, info.version, info.dimension)
-
-    def vectors(self) -> tuple[np.ndarray, np.ndarray]:
-        info = self._info
-        return repo.load_vectors(self._session, info.name, info.version, info.dimension)
-
-    def changed(self, since: int) -> np.ndarray:
-        rows = read_since(self._session, since)[1]
-        return np.unique(np.fromiter((r.clip_id for r in rows), dtype=np.int64, count=len(rows)))
-
-    def vectors_of(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        info = self._info
-        return repo.load_vectors_of(
-            self._session, info.name, info.version, info.dimension, ids.tolist()
-        )
-
-
-class StoredWindows:
-    """One window index's vectors in the database (see :class:`StoredVectors`); ids are
-    window ids, ``watermark`` the change feed position taken before them. The feed names
-    clips: a changed clip's windows are those ``index`` holds under its id plus those the
-    database holds (a clip's window ids are ``clip id << WINDOW_ID_BITS | ordinal``)."""
-
-    def __init__(
-        self, session: Session, key: repo.WindowKey, watermark: int, index: DescriptorIndex
-    ) -> None:
-        self._session = session
-        self._key = key
-        self._watermark = watermark
-        self._index = index
-
-    def watermark(self) -> int:
-        return self._watermark
-
-    def count(self) -> int:
-        return repo.count_windows(self._session, self._key)
-
-    def ids(self) -> np.ndarray:
-        return repo.window_ids(self._session, self._key)
-
-    def vectors(self) -> tuple[np.ndarray, np.ndarray]:
-        return repo.load_windows(self._session, self._key)
-
-    def changed(self, since: int) -> np.ndarray:
-        rows = read_since(self._session, since)[1]
-        clips = np.unique(np.fromiter((r.clip_id for r in rows), dtype=np.int64, count=len(rows)))
-        stored = repo.window_ids_of_clips(self._session, self._key, clips.tolist())
-        return touched_windows(self._index, clips, stored)
-
-    def vectors_of(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return repo.load_windows_of(self._session, self._key, ids.tolist())
-
-
-def windows_of_clips(index: DescriptorIndex, clip_ids: np.ndarray) -> np.ndarray:
-    """``(N,)`` int64 ids of the windows ``index`` holds of the clips ``clip_ids`` (a binary
-    search each in the index's sorted ids: a clip's ids are ``clip id << WINDOW_ID_BITS |
-    ordinal``)."""
-    if not len(clip_ids) or not index.size:
-        return np.zeros(0, dtype=np.int64)
-    held = index.sorted_ids()
-    clips = np.unique(np.asarray(clip_ids, dtype=np.int64))
-    return held[rows_of_clips(held, clips, repo.WINDOW_ID_BITS)[0]]
-
-
-def touched_windows(index: DescriptorIndex, clip_ids: np.ndarray, stored: np.ndarray) -> np.ndarray:
-    """The window ids to check when the clips ``clip_ids`` changed: those ``index`` holds of
-    them and ``stored`` ``(N,)``, those the database holds now."""
-    return np.union1d(windows_of_clips(index, clip_ids), stored)
 
 
 def drop_clip_windows(library: Library, clip_ids: Sequence[int]) -> None:
@@ -182,14 +99,14 @@ def window_index_name(descriptor: str, length: float) -> str:
 
 def window_keys(
     settings: Settings, descriptors: Mapping[str, DescriptorInfo]
-) -> dict[str, repo.WindowKey]:
+) -> dict[str, window_db.WindowKey]:
     """Every window index: its name -> which windows it holds (the descriptors of
     :data:`WINDOW_DESCRIPTORS` the describer has, at each of :data:`WINDOW_LENGTHS`; none
     when MOCAP_MOMENTS is off)."""
     if not settings.moments:
         return {}
     return {
-        window_index_name(name, length): repo.WindowKey(
+        window_index_name(name, length): window_db.WindowKey(
             name, descriptors[name].version, descriptors[name].dimension, length
         )
         for name in WINDOW_DESCRIPTORS
@@ -216,14 +133,14 @@ class Library:
     describer: Describer
     # Moments search: one index per window descriptor and length, keyed like window_keys.
     window_indexes: IndexSet = field(default_factory=lambda: IndexSet({}))
-    window_keys: dict[str, repo.WindowKey] = field(default_factory=dict)
+    window_keys: dict[str, window_db.WindowKey] = field(default_factory=dict)
     # Where each window of those indexes lies (moments search; loaded when first needed).
     window_places: dict[str, WindowPlaces] = field(default_factory=dict)
     # FBX/glTF readers' worker processes (started when first needed); None: those formats
     # cannot be read (a describer of the tests' own).
     parsers: ParserPool | None = None
     write_lock: threading.Lock = field(default_factory=threading.Lock)
-    search_reads: repo.SearchReads = field(init=False, repr=False)
+    search_reads: search_db.SearchReads = field(init=False, repr=False)
     _sync_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
     _checked_at: float = field(default=0.0, repr=False)
     # Descriptor -> stored vectors of an older version, and when that was last counted.
@@ -232,8 +149,10 @@ class Library:
     _feed: ChangeFeed = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        self.search_reads = repo.SearchReads(self.engine)
-        self.window_places = {name: WindowPlaces(repo.WINDOW_ID_BITS) for name in self.window_keys}
+        self.search_reads = search_db.SearchReads(self.engine)
+        self.window_places = {
+            name: WindowPlaces(window_db.WINDOW_ID_BITS) for name in self.window_keys
+        }
         # Every index is at least this far along the feed (they were loaded from one snapshot).
         self._feed = ChangeFeed(min((i.synced_to for i in self.indexes.values()), default=0))
 
@@ -253,7 +172,7 @@ class Library:
         """Descriptor -> how many stored vectors are of an older version (counted now)."""
         with self.reads() as session:
             counts = {
-                name: repo.count_outdated_vectors(session, name, info.version)
+                name: vector_db.count_outdated_vectors(session, name, info.version)
                 for name, info in self.descriptors.items()
             }
         self._outdated, self._outdated_at = counts, time.monotonic()
@@ -291,7 +210,7 @@ class Library:
         info = self.descriptors[name]
         with self._sync_lock, self.reads() as session:
             position = horizon(session)  # before the vectors: nothing older is missed
-            ids, vectors = repo.load_vectors(session, info.name, info.version, info.dimension)
+            ids, vectors = vector_db.load_vectors(session, info.name, info.version, info.dimension)
             self.indexes[name].replace_all(ids, vectors, synced_to=position)
 
     def rebuild_window_indexes(self) -> None:
@@ -299,7 +218,7 @@ class Library:
         with self._sync_lock, self.reads() as session:
             position = horizon(session)  # before the vectors: nothing older is missed
             for name, key in self.window_keys.items():
-                ids, vectors = repo.load_windows(session, key)
+                ids, vectors = window_db.load_windows(session, key)
                 self.window_indexes[name].replace_all(ids, vectors, synced_to=position)
                 if self.window_places[name].loaded:
                     self._load_places(session, name)
@@ -325,7 +244,7 @@ class Library:
     def _load_places(self, session: Session, name: str) -> None:
         # Any later feed position is fine: the clips changed since the indexes' position are
         # replaced again from the database at the next sync (a clip's windows as a whole).
-        places = Places(*repo.load_window_places(session, self.window_keys[name]))
+        places = Places(*window_db.load_window_places(session, self.window_keys[name]))
         self.window_places[name].replace_all(places)
 
     def sync_indexes(self, *, wait: bool = True) -> bool:
@@ -340,7 +259,7 @@ class Library:
                 changed = poll.clip_ids
                 for name, info in self.descriptors.items():
                     index = self.indexes[name]
-                    ids, vectors = repo.load_vectors_of(
+                    ids, vectors = vector_db.load_vectors_of(
                         session, info.name, info.version, info.dimension, changed.tolist()
                     )
                     try:
@@ -349,7 +268,7 @@ class Library:
                         # The rows are committed; the index is only a cache of them.
                         log.exception("updating the %s index failed; rebuilding it", name)
                         position = horizon(session)
-                        everything = repo.load_vectors(
+                        everything = vector_db.load_vectors(
                             session, info.name, info.version, info.dimension
                         )
                         index.replace_all(*everything, synced_to=position, persist=False)
@@ -366,17 +285,17 @@ class Library:
         for name, key in self.window_keys.items():
             index = self.window_indexes[name]
             try:
-                ids, vectors = repo.load_windows_of_clips(session, key, changed.tolist())
+                ids, vectors = window_db.load_windows_of_clips(session, key, changed.tolist())
                 touched = touched_windows(index, changed, ids)
                 index.apply_changes(touched, ids, vectors, synced_to=position)
                 places = self.window_places[name]
                 if places.loaded and changed.size:
-                    found = repo.window_places_of_clips(session, key, changed.tolist())
+                    found = window_db.window_places_of_clips(session, key, changed.tolist())
                     places.apply_changes(changed, Places(*found))
             except Exception:
                 log.exception("updating the %s index failed; rebuilding it", name)
                 now = horizon(session)  # not ``position``: the other indexes keep the poll's
-                everything = repo.load_windows(session, key)
+                everything = window_db.load_windows(session, key)
                 index.replace_all(*everything, synced_to=now, persist=False)
                 index.try_save()
                 if self.window_places[name].loaded:
@@ -403,15 +322,15 @@ class Library:
     def vector_counts(self) -> tuple[int, dict[str, int]]:
         """The number of clips and, per descriptor, of current vectors (one snapshot)."""
         with self.reads() as session:
-            clips = repo.count_clips(session)
+            clips = clip_db.count_clips(session)
             return clips, {
-                name: repo.count_vectors(session, name, info.version)
+                name: vector_db.count_vectors(session, name, info.version)
                 for name, info in self.descriptors.items()
             }
 
     def clip_count(self) -> int:
         with self.reads() as session:
-            return repo.count_clips(session)
+            return clip_db.count_clips(session)
 
     def close(self) -> None:
         try:
@@ -474,7 +393,7 @@ def open_library(settings: Settings, *, describer: Describer | None = None) -> L
     try:
         indexes, windows = _open_indexes(settings, reads, describer.descriptors)
         with reads() as session:
-            clips = repo.count_clips(session)
+            clips = clip_db.count_clips(session)
     except BaseException:
         engine.dispose()
         parsers.close()

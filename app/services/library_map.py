@@ -40,7 +40,10 @@ from typing import Any, Generic, TypeVar
 
 import numpy as np
 
-from app.db import repository as repo
+from app.db import browsing as browse_db
+from app.db import clips as clip_db
+from app.db import label_filters as label_db
+from app.db import vectors as vector_db
 from app.errors import InvalidInput, NoStoredFile, ParseError
 from app.motion.body import Body, build_body
 from app.motion.descriptors import kinetic
@@ -199,7 +202,7 @@ def resample(
     return positions[low] * (1.0 - weight) + positions[high] * weight, truncated
 
 
-def read_stored_motion(library: Library, clip: repo.ClipRecord) -> Motion:
+def read_stored_motion(library: Library, clip: clip_db.ClipRecord) -> Motion:
     """Parse a stored clip's file(s) again (ParseError if they no longer parse;
     NoStoredFile for a clip without files)."""
     if not clip.files:
@@ -258,7 +261,7 @@ def check_skeleton_params(fps: int, max_frames: int) -> None:
 
 
 def clip_skeleton(
-    library: Library, cache: SkeletonCache, clip: repo.ClipRecord, fps: int, max_frames: int
+    library: Library, cache: SkeletonCache, clip: clip_db.ClipRecord, fps: int, max_frames: int
 ) -> Skeleton:
     """The encoded skeleton response of a stored clip (cached)."""
     check_skeleton_params(fps, max_frames)
@@ -433,13 +436,13 @@ def library_map(library: Library, descriptor: str, cache: MapCache | None = None
     kinetic_info = library.descriptors.get(THREE_MAN_DESCRIPTOR)
     three_man_available = kinetic_info is not None and kinetic_info.dimension == KINETIC_DIMENSION
     with library.reads() as session:
-        summaries = repo.clip_summaries(session)
-        ids, vectors = repo.load_vectors(session, info.name, info.version, info.dimension)
+        summaries = browse_db.clip_summaries(session)
+        ids, vectors = vector_db.load_vectors(session, info.name, info.version, info.dimension)
         if three_man_available and kinetic_info is not None:
             if kinetic_info.name == info.name:
                 kinetic_ids, kinetic_vectors = ids, vectors
             else:
-                kinetic_ids, kinetic_vectors = repo.load_vectors(
+                kinetic_ids, kinetic_vectors = vector_db.load_vectors(
                     session, kinetic_info.name, kinetic_info.version, kinetic_info.dimension
                 )
         else:
@@ -508,19 +511,19 @@ def library_map(library: Library, descriptor: str, cache: MapCache | None = None
 
 
 def find_clips(
-    library: Library, *, q: str | None, label: repo.LabelFilter, limit: int, offset: int
-) -> tuple[list[repo.ClipRecord], int]:
+    library: Library, *, q: str | None, label: label_db.LabelFilter, limit: int, offset: int
+) -> tuple[list[clip_db.ClipRecord], int]:
     """One page (id order) of the clips whose name contains ``q`` (case-insensitive) and
     that carry every label of ``label``; and how many match in total."""
     with library.reads() as session:
-        page_ids, total = repo.find_clip_ids(
+        page_ids, total = browse_db.find_clip_ids(
             session, name_contains=q, label=label, limit=limit, offset=offset
         )
-        found = repo.get_clips(session, page_ids)
+        found = clip_db.get_clips(session, page_ids)
     return [found[i] for i in page_ids if i in found], total
 
 
 def label_counts(library: Library) -> list[tuple[str, int]]:
     """Every label in use with its number of clips, most used first."""
     with library.reads() as session:
-        return repo.label_counts(session)
+        return browse_db.label_counts(session)

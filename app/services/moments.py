@@ -25,7 +25,7 @@ length(s) nearest the query's length — the largest at most and the smallest at
   overlapping its own span.
 
 Where each window lies comes from the library's in-memory window places
-(:mod:`app.window_places`), not the database: a search reads only the query clip and the
+(:mod:`app.index.places`), not the database: a search reads only the query clip and the
 found clips' names and frame rates. Windows of clips deleted by another process are skipped
 (no place, or no clip row), as clip searches do.
 """
@@ -37,7 +37,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.db import repository as repo
+from app.db import clips as clip_db
+from app.db import label_filters as label_db
+from app.db import search_reads as search_db
+from app.db import windows as window_db
 from app.errors import InvalidInput, MomentsOff, NotFound
 from app.labels import label_filter
 from app.motion.windows import hop_share
@@ -61,7 +64,7 @@ MAX_ATTEMPTS = 4
 class Moment:
     """A found span ``[start, end)`` in seconds of the clip's file."""
 
-    clip: repo.ClipName
+    clip: search_db.ClipName
     format: str
     start: float
     end: float
@@ -72,7 +75,7 @@ class Moment:
 class MomentQuery:
     """The query's span in seconds of its file, and its clip when it is a stored one."""
 
-    clip: repo.ClipRecord | None
+    clip: clip_db.ClipRecord | None
     start: float
     end: float
 
@@ -168,7 +171,7 @@ def _refined_centre(library: Library, group: _Group, vector: np.ndarray) -> floa
     for step, window_id, is_held, start in zip(
         (-1, 1), neighbours.tolist(), held.tolist(), starts.tolist(), strict=True
     ):
-        if not is_held or window_id >> repo.WINDOW_ID_BITS != group.clip_id:
+        if not is_held or window_id >> window_db.WINDOW_ID_BITS != group.clip_id:
             continue
         shift = start - group.best_start
         if shift == 0 or (shift > 0) != (step > 0):
@@ -219,7 +222,7 @@ def _aligned_starts(
     high = np.trunc(np.array([g.cover[1] for g in groups]) + reach).astype(np.int64) + 1
     keep = (rows.stops >= low[group_of]) & (rows.starts <= high[group_of])
     if exclude is not None:
-        own = (rows.ids >> repo.WINDOW_ID_BITS) == exclude[0]
+        own = (rows.ids >> window_db.WINDOW_ID_BITS) == exclude[0]
         keep &= ~own | (rows.stops <= exclude[1]) | (rows.starts >= exclude[2])
     held, stored = library.window_indexes[name].reconstruct_batch(rows.ids[keep])
     kept = np.flatnonzero(keep)[held]
@@ -442,13 +445,13 @@ def fitted_minima(
 
 def _search(
     library: Library,
-    db: repo.SearchSnapshot,
+    db: search_db.SearchSnapshot,
     descriptor: str,
     vector: np.ndarray,
     query_seconds: float,
     k: int,
     per_clip: int,
-    label: repo.LabelFilter,
+    label: label_db.LabelFilter,
     exclude: tuple[int, int, int] | None,
     parts: Parts | None = None,
 ) -> list[Moment]:
@@ -569,7 +572,7 @@ def _merged(
     groups: list[_Group] = []
     counted = extra = 0
     for distance, window_id, name, start, stop in hits:
-        clip_id = window_id >> repo.WINDOW_ID_BITS
+        clip_id = window_id >> window_db.WINDOW_ID_BITS
         if _overlaps_query(exclude, clip_id, start, stop):
             continue
         of_clip = by_clip.setdefault(clip_id, [])
@@ -615,7 +618,7 @@ def search_moments_by_clip(
     end: float | None,
     k: int,
     per_clip: int,
-    label: repo.LabelFilter,
+    label: label_db.LabelFilter,
 ) -> tuple[MomentQuery, list[Moment]]:
     """Moments like the span ``[start, end)`` of stored clip ``clip_id`` (``GET
     /search/moments``); none overlapping that span itself."""
@@ -659,7 +662,7 @@ def search_moments_by_clip(
 class _StoredSpan:
     """Frames ``[first, stop)`` of a stored clip, queried under ``descriptor`` of ``version``."""
 
-    clip: repo.ClipRecord
+    clip: clip_db.ClipRecord
     descriptor: str
     version: int
     first: int
@@ -667,7 +670,7 @@ class _StoredSpan:
 
 
 def _stored_span_vector(
-    library: Library, db: repo.SearchSnapshot, span: _StoredSpan
+    library: Library, db: search_db.SearchSnapshot, span: _StoredSpan
 ) -> np.ndarray | None:
     """The query vector without reading the file, when the span is the whole clip (the clip's
     vector) or exactly a stored window; else ``None``."""
@@ -716,7 +719,7 @@ def _stored_parts(library: Library, span: _StoredSpan) -> Parts | None:
 
 
 def _described_span(
-    library: Library, clip: repo.ClipRecord, descriptor: str, first: int, stop: int
+    library: Library, clip: clip_db.ClipRecord, descriptor: str, first: int, stop: int
 ) -> SpanDescription:
     """Read the clip's stored file and describe frames ``[first, stop)``."""
     describer = library.describer
@@ -744,7 +747,7 @@ def search_moments_by_upload(
     end: float | None,
     k: int,
     per_clip: int,
-    label: repo.LabelFilter,
+    label: label_db.LabelFilter,
 ) -> tuple[MomentQuery, list[Moment]]:
     """Moments like the span ``[start, end)`` of an uploaded file, which is stored nowhere
     (``POST /search/moments``)."""

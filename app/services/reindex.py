@@ -13,7 +13,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from app.db import repository as repo
+from app.db import clips as clip_db
+from app.db import vectors as vector_db
+from app.db import windows as window_db
 from app.errors import InvalidInput, MocapError
 from app.services.describe import Description, MotionDescriber
 from app.services.ingest import new_windows
@@ -28,7 +30,7 @@ class ReindexReport:
     index_sizes: dict[str, int] = field(default_factory=dict)
 
 
-def stored_upload(library: Library, clip: repo.ClipRecord) -> Upload:
+def stored_upload(library: Library, clip: clip_db.ClipRecord) -> Upload:
     """The clip's original upload, read back from the stored files."""
     parts = tuple(UploadPart(f.role, f.filename, library.blobs.read(f.sha256)) for f in clip.files)
     return Upload(parts, clip.name, clip.labels)
@@ -49,7 +51,7 @@ def reindex(
     library: Library,
     *,
     everything: bool = False,
-    progress: Callable[[int, int, repo.ClipRecord], None] | None = None,
+    progress: Callable[[int, int, clip_db.ClipRecord], None] | None = None,
 ) -> ReindexReport:
     """Recompute the vectors that are missing or of an old version (every vector with
     ``everything``), then rebuild and save each descriptor's index from the database.
@@ -60,17 +62,17 @@ def reindex(
     windowed = {key.name: key.version for key in library.window_keys.values()}
     with library.reads() as session:
         if everything:
-            needing = {i: list(current) for i in repo.all_clip_ids(session)}
+            needing = {i: list(current) for i in clip_db.all_clip_ids(session)}
             windows_needed = set(needing)
         else:
-            needing = repo.clips_needing_vectors(session, current)
-            windows_needed = set(repo.clips_needing_windows(session, windowed))
+            needing = vector_db.clips_needing_vectors(session, current)
+            windows_needed = set(window_db.clips_needing_windows(session, windowed))
             for clip_id in windows_needed:
                 needing.setdefault(clip_id, [])
     report = ReindexReport()
     for done, (clip_id, names) in enumerate(needing.items(), start=1):
         with library.reads() as session:
-            clip = repo.get_clip(session, clip_id)
+            clip = clip_db.get_clip(session, clip_id)
         if clip is None:  # deleted meanwhile
             continue
         if progress is not None:
@@ -84,20 +86,20 @@ def reindex(
         except InvalidInput as error:  # the clip cannot be described: its old vectors go
             report.failed[clip_id] = error.detail
             with library.write_lock, library.writes.begin() as session:
-                repo.delete_vectors(session, clip_id, names)
+                vector_db.delete_vectors(session, clip_id, names)
             continue
         except MocapError as error:  # storage trouble: keep everything, run again later
             report.failed[clip_id] = error.detail
             continue
         vectors = {
-            name: repo.StoredVector(current[name], vector)
+            name: vector_db.StoredVector(current[name], vector)
             for name, vector in description.vectors.items()
         }
         with library.write_lock, library.writes.begin() as session:
-            repo.put_vectors(session, clip_id, vectors)
+            vector_db.put_vectors(session, clip_id, vectors)
             if with_windows:
-                repo.put_windows(session, clip_id, new_windows(library, description))
-            repo.update_clip(session, clip_id, analysis=description.fields)
+                window_db.put_windows(session, clip_id, new_windows(library, description))
+            clip_db.update_clip(session, clip_id, analysis=description.fields)
         report.recomputed += 1
     with library.write_lock:
         for name in library.descriptors:

@@ -13,7 +13,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.db import repository as repo
+from app.db import clips as clip_db
+from app.db import label_filters as label_db
+from app.db import search_reads as search_db
 from app.errors import DescriptorUnavailable, InvalidInput, NotFound
 from app.labels import label_filter
 from app.services.ingest import describe, new_clip
@@ -25,7 +27,7 @@ MAX_ATTEMPTS = 3
 
 @dataclass(frozen=True, slots=True)
 class Hit:
-    clip: repo.ClipName  # id, name and labels (a ClipRecord has them too)
+    clip: search_db.ClipName  # id, name and labels (a ClipRecord has them too)
     distance: float
 
 
@@ -33,7 +35,7 @@ QUICK_SCAN = 1_000_000  # numbers compared per query below which a search is "qu
 QUICK_K = 100
 
 
-def is_quick(library: Library, descriptor: str, k: int, label: repo.LabelFilter) -> bool:
+def is_quick(library: Library, descriptor: str, k: int, label: label_db.LabelFilter) -> bool:
     """Whether a search by clip takes well under a millisecond (an unfiltered search that
     compares at most :data:`QUICK_SCAN` numbers and fetches at most :data:`QUICK_K` rows), so
     a caller may run it without handing it to a thread. Unknown descriptors count as quick
@@ -54,14 +56,14 @@ def check_k(library: Library, k: int) -> None:
 
 def _nearest(
     library: Library,
-    db: repo.SearchSnapshot,
+    db: search_db.SearchSnapshot,
     descriptor: str,
     vector: np.ndarray,
     k: int,
     *,
-    label: repo.LabelFilter,
+    label: label_db.LabelFilter,
     exclude: int | None,
-) -> tuple[list[Hit], repo.ClipName | None]:
+) -> tuple[list[Hit], search_db.ClipName | None]:
     """The hits, and the name and labels of ``exclude`` (the query clip; fetched with the
     hits' to save a query)."""
     index = library.indexes[descriptor]
@@ -91,7 +93,7 @@ def search_vector(
     vector: np.ndarray,
     k: int,
     *,
-    label: repo.LabelFilter = None,
+    label: label_db.LabelFilter = None,
     exclude: int | None = None,
 ) -> list[Hit]:
     """The ``k`` stored clips nearest to ``vector`` ``(D,)`` under ``descriptor``."""
@@ -111,15 +113,20 @@ def _unavailable(clip_id: int, descriptor: str, version: int) -> DescriptorUnava
 
 
 def search_by_clip(
-    library: Library, clip: repo.ClipRecord, descriptor: str, k: int, *, label: repo.LabelFilter
+    library: Library,
+    clip: clip_db.ClipRecord,
+    descriptor: str,
+    k: int,
+    *,
+    label: label_db.LabelFilter,
 ) -> list[Hit]:
     """Neighbours of a stored clip (never the clip itself)."""
     return search_by_clip_id(library, clip.id, descriptor, k, label=label)[1]
 
 
 def search_by_clip_id(
-    library: Library, clip_id: int, descriptor: str, k: int, *, label: repo.LabelFilter
-) -> tuple[repo.ClipRecord, list[Hit]]:
+    library: Library, clip_id: int, descriptor: str, k: int, *, label: label_db.LabelFilter
+) -> tuple[clip_db.ClipRecord, list[Hit]]:
     """The stored clip ``clip_id`` and its neighbours (never the clip itself), read from one
     database snapshot: ``GET /search``. :class:`NotFound` when there is no such clip."""
     info = library.descriptor(descriptor)
@@ -149,8 +156,8 @@ def search_by_clip_id(
 
 
 def search_by_upload(
-    library: Library, upload: Upload, descriptor: str, k: int, *, label: repo.LabelFilter
-) -> tuple[repo.NewClip, list[Hit]]:
+    library: Library, upload: Upload, descriptor: str, k: int, *, label: label_db.LabelFilter
+) -> tuple[clip_db.NewClip, list[Hit]]:
     """Describe an upload without storing it and find its neighbours (nothing excluded).
 
     Returns what would be stored about the upload (no id) and the hits.

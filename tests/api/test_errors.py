@@ -191,7 +191,7 @@ def test_database_and_unexpected_errors_keep_the_shape(
 ) -> None:
     from sqlalchemy.exc import OperationalError
 
-    from app.db import repository as repo
+    from app.db import clips as clip_db
 
     def locked(*args: object) -> int:
         raise OperationalError("SELECT", {}, Exception("database is locked"))
@@ -201,7 +201,7 @@ def test_database_and_unexpected_errors_keep_the_shape(
 
     app = create_app(settings, describer=FakeDescriber())
     with TestClient(app, raise_server_exceptions=False) as client:
-        monkeypatch.setattr(repo, "count_clips", locked)
+        monkeypatch.setattr(clip_db, "count_clips", locked)
         assert_error(client.get("/health"), 503, "storage_unavailable")
-        monkeypatch.setattr(repo, "list_clips", bug)
+        monkeypatch.setattr(clip_db, "list_clips", bug)
         assert_error(client.get("/clips"), 500, "internal_error")

@@ -12,7 +12,8 @@ from sqlalchemy import Engine
 from sqlalchemy.orm import Session
 
 from app.config import Settings
-from app.db import repository as repo
+from app.db import clips as clip_db
+from app.db import vectors as vector_db
 from app.services.ingest import ingest
 from app.services.library import open_library
 from app.services.uploads import Upload
@@ -180,9 +181,9 @@ def test_missing_part_messages(fake_client: TestClient) -> None:
 
 def synthetic_clip(engine: Engine) -> int:
     with Session(engine) as session, session.begin():
-        return repo.insert_clip(
+        return clip_db.insert_clip(
             session,
-            repo.NewClip(
+            clip_db.NewClip(
                 name="synthetic-1",
                 format="synthetic",
                 content_hash="f" * 64,
@@ -194,7 +195,7 @@ def synthetic_clip(engine: Engine) -> int:
                 lead_in_frames=0,
                 labels=("synthetic",),
                 files=(),
-                vectors={"posture": repo.StoredVector(1, np.zeros(3, np.float32))},
+                vectors={"posture": vector_db.StoredVector(1, np.zeros(3, np.float32))},
             ),
         )
 

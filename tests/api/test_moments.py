@@ -69,12 +69,12 @@ def window_rows(settings: Settings, clip_id: int | None = None) -> int:
 def window_index_sizes(client: TestClient) -> int:
     """How many windows the server's window indexes hold — after checking that where it
     believes each lies (the moments search's in-memory places) is what the database says."""
-    from app.db import repository as repo
+    from app.db import windows as window_db
 
     library = client.app.state.library  # type: ignore[attr-defined]
     with library.reads() as session:
         for name, key in library.window_keys.items():
-            ids, starts, stops = repo.load_window_places(session, key)
+            ids, starts, stops = window_db.load_window_places(session, key)
             places = library.places(name)
             held, held_starts, held_stops = places.find(ids)
             assert held.all() and len(places) == len(ids), name
@@ -286,7 +286,7 @@ def test_reindex_rebuilds_the_windows(settings: Settings) -> None:
 def test_window_indexes_follow_another_process_through_the_feed(settings: Settings) -> None:
     """Deletes and rewritten windows reach a running server's window indexes through the
     change feed (a delete cascades to the windows; a rewrite puts the clip on the feed)."""
-    from app.db import repository as repo
+    from app.db import windows as window_db
     from app.services.clips import delete_clip
 
     settings = settings.model_copy(update={"index_refresh_seconds": 0.0})  # check every search
@@ -299,13 +299,13 @@ def test_window_indexes_follow_another_process_through_the_feed(settings: Settin
             key = next(k for k in library.window_keys.values() if k.length == 1.0)
             before = sql(settings, "SELECT count(*) FROM clip_changes")
             with library.writes.begin() as session:  # the walk's 1-s windows rewritten
-                walk_windows = repo.load_window_rows(session, key, [walk])[walk]
+                walk_windows = window_db.load_window_rows(session, key, [walk])[walk]
                 starts, stops, vectors = walk_windows
-                repo.put_windows(
+                window_db.put_windows(
                     session,
                     walk,
                     [
-                        repo.NewWindows(
+                        window_db.NewWindows(
                             "motion",
                             key.version,
                             np.full(len(starts), 1.0),

@@ -16,7 +16,7 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from app.config import Settings
-from app.db import repository as repo
+from app.db import clips as clip_db
 from app.db.changes import ChangeFeed
 from app.db.models import Clip
 from app.services.ingest import describe, new_clip
@@ -26,7 +26,7 @@ from app.services.uploads import Upload
 from tests.services.fakes import FakeDescriber, fake_motion
 
 
-def row(library: Library, n: int) -> repo.NewClip:
+def row(library: Library, n: int) -> clip_db.NewClip:
     upload = Upload.from_files(file=(f"c{n}.bvh", fake_motion([float(n), 0, 0])), labels=["c"])
     return new_clip(library, describe(library, upload))
 
@@ -67,8 +67,8 @@ def test_lower_id_committing_last_is_not_missed(
     request.addfinalizer(reader.close)
     first, second = Session(reader.engine), Session(reader.engine)
     try:
-        (low,) = repo.insert_clips(first, [row(reader, 1)])  # transaction 1: id 1, open
-        (high,) = repo.insert_clips(second, [row(reader, 2)])  # transaction 2: id 2
+        (low,) = clip_db.insert_clips(first, [row(reader, 1)])  # transaction 1: id 1, open
+        (high,) = clip_db.insert_clips(second, [row(reader, 2)])  # transaction 2: id 2
         assert low < high
         second.commit()
         reader.sync_indexes()
@@ -94,12 +94,12 @@ def test_rolled_back_and_running_transactions(postgres_url: str, tmp_path: Path)
     try:
         feed = ChangeFeed(library.indexes["posture"].synced_to)
         with Session(library.engine) as aborted:
-            repo.insert_clips(aborted, [row(library, 1)])
+            clip_db.insert_clips(aborted, [row(library, 1)])
             aborted.rollback()
         long = Session(library.engine)
-        (pending,) = repo.insert_clips(long, [row(library, 2)])  # holds the horizon back
+        (pending,) = clip_db.insert_clips(long, [row(library, 2)])  # holds the horizon back
         with library.writes.begin() as session:
-            (done,) = repo.insert_clips(session, [row(library, 3)])
+            (done,) = clip_db.insert_clips(session, [row(library, 3)])
         with library.reads() as session:
             poll = feed.poll(session)
         assert poll.clip_ids.tolist() == [done]
@@ -120,7 +120,7 @@ def test_rolled_back_and_running_transactions(postgres_url: str, tmp_path: Path)
 
 def test_another_process_sees_adds_and_deletes(reader: Library, writer: Library) -> None:
     with writer.writes.begin() as session:
-        ids = repo.insert_clips(session, [row(writer, n) for n in range(5)])
+        ids = clip_db.insert_clips(session, [row(writer, n) for n in range(5)])
     reader.sync_indexes()
     assert indexed(reader) == set(ids)
     from app.services.clips import delete_clip
@@ -135,7 +135,7 @@ def test_a_replica_started_later_catches_up_from_its_saved_index(
     settings_on: Settings, writer: Library, tmp_path: Path
 ) -> None:
     with writer.writes.begin() as session:
-        ids = repo.insert_clips(session, [row(writer, n) for n in range(6)])
+        ids = clip_db.insert_clips(session, [row(writer, n) for n in range(6)])
     # its own data directory (index files), the same database
     other = settings_on.model_copy(
         update={"data_dir": tmp_path / "replica", "database_url": settings_on.sqlalchemy_url}
@@ -150,7 +150,7 @@ def test_a_replica_started_later_catches_up_from_its_saved_index(
     for clip_id in ids[:2]:
         delete_clip(writer, clip_id)
     with writer.writes.begin() as session:
-        more = repo.insert_clips(session, [row(writer, n) for n in range(10, 12)])
+        more = clip_db.insert_clips(session, [row(writer, n) for n in range(10, 12)])
     replica = open_library(other, describer=FakeDescriber())
     try:
         assert indexed(replica) == set(ids[2:]) | set(more)

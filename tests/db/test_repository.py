@@ -8,13 +8,17 @@ from sqlalchemy import Engine
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from app.db import repository as repo
+from app.db import browsing as browse_db
+from app.db import clips as clip_db
+from app.db import label_filters as label_db
+from app.db import search_reads as search_db
+from app.db import vectors as vector_db
 from app.db.session import read_sessions, write_sessions
 
 
-def new_clip(content_hash: str, *, labels: tuple[str, ...] = (), seed: int = 0) -> repo.NewClip:
+def new_clip(content_hash: str, *, labels: tuple[str, ...] = (), seed: int = 0) -> clip_db.NewClip:
     rng = np.random.default_rng(seed)
-    return repo.NewClip(
+    return clip_db.NewClip(
         name=f"clip-{content_hash}",
         format="bvh",
         content_hash=content_hash,
@@ -25,10 +29,10 @@ def new_clip(content_hash: str, *, labels: tuple[str, ...] = (), seed: int = 0) 
         skeleton_family="test",
         lead_in_frames=0,
         labels=labels,
-        files=(repo.FileRecord("file", f"{content_hash}.bvh", "ab" * 32, 10),),
+        files=(clip_db.FileRecord("file", f"{content_hash}.bvh", "ab" * 32, 10),),
         vectors={
-            "posture": repo.StoredVector(1, rng.normal(size=12).astype(np.float32)),
-            "kinetic": repo.StoredVector(2, rng.normal(size=5).astype(np.float32)),
+            "posture": vector_db.StoredVector(1, rng.normal(size=12).astype(np.float32)),
+            "kinetic": vector_db.StoredVector(2, rng.normal(size=5).astype(np.float32)),
         },
     )
 
@@ -42,96 +46,96 @@ def session(engine: Engine) -> Session:
 def test_insert_get_and_vectors_round_trip(engine: Engine) -> None:
     new = new_clip("h1", labels=("walk", "happy"))
     with write_sessions(engine).begin() as session:
-        clip_id = repo.insert_clip(session, new)
+        clip_id = clip_db.insert_clip(session, new)
     with read_sessions(engine)() as session:
-        clip = repo.get_clip(session, clip_id)
+        clip = clip_db.get_clip(session, clip_id)
         assert clip is not None
         assert clip.labels == ("walk", "happy")
         assert clip.filenames == ["h1.bvh"]
         assert clip.created_at.tzinfo is not None
-        vectors = repo.get_vectors(session, clip_id)
+        vectors = vector_db.get_vectors(session, clip_id)
         assert set(vectors) == {"posture", "kinetic"}
         np.testing.assert_array_equal(vectors["posture"].vector, new.vectors["posture"].vector)
         assert vectors["kinetic"].version == 2
-        ids, array = repo.load_vectors(session, "posture", 1, 12)
+        ids, array = vector_db.load_vectors(session, "posture", 1, 12)
         assert ids.tolist() == [clip_id] and array.shape == (1, 12)
         assert array.dtype == np.float32 and array.flags.c_contiguous
         # another version or dimension is not loaded into an index of this one
-        assert repo.load_vectors(session, "posture", 2, 12)[0].size == 0
-        assert repo.load_vectors(session, "posture", 1, 13)[0].size == 0
+        assert vector_db.load_vectors(session, "posture", 2, 12)[0].size == 0
+        assert vector_db.load_vectors(session, "posture", 1, 13)[0].size == 0
 
 
 def test_content_hash_is_unique(engine: Engine) -> None:
     with write_sessions(engine).begin() as session:
-        repo.insert_clip(session, new_clip("same"))
+        clip_db.insert_clip(session, new_clip("same"))
     with pytest.raises(IntegrityError), write_sessions(engine).begin() as session:
-        repo.insert_clip(session, new_clip("same"))
+        clip_db.insert_clip(session, new_clip("same"))
     with read_sessions(engine)() as session:
-        assert repo.count_clips(session) == 1
+        assert clip_db.count_clips(session) == 1
 
 
 def test_list_paginates_and_filters_by_label(engine: Engine) -> None:
     with write_sessions(engine).begin() as session:
         ids = [
-            repo.insert_clip(session, new_clip(f"h{i}", labels=("even",) if i % 2 == 0 else ()))
+            clip_db.insert_clip(session, new_clip(f"h{i}", labels=("even",) if i % 2 == 0 else ()))
             for i in range(7)
         ]
     with read_sessions(engine)() as session:
-        page, total = repo.list_clips(session, label=None, limit=3, offset=3)
+        page, total = clip_db.list_clips(session, label=None, limit=3, offset=3)
         assert total == 7 and [c.id for c in page] == ids[3:6]
-        page, total = repo.list_clips(session, label="even", limit=10, offset=0)
+        page, total = clip_db.list_clips(session, label="even", limit=10, offset=0)
         assert total == 4 and [c.id for c in page] == ids[0::2]
-        assert sorted(repo.clip_ids_with_label(session, "even").tolist()) == ids[0::2]
-        assert repo.clip_ids_by_hash(session, ["h1", "nope"]) == {"h1": ids[1]}
+        assert sorted(label_db.clip_ids_with_label(session, "even").tolist()) == ids[0::2]
+        assert clip_db.clip_ids_by_hash(session, ["h1", "nope"]) == {"h1": ids[1]}
 
 
 def test_update_replaces_labels(engine: Engine) -> None:
     with write_sessions(engine).begin() as session:
-        clip_id = repo.insert_clip(session, new_clip("h", labels=("a", "b")))
+        clip_id = clip_db.insert_clip(session, new_clip("h", labels=("a", "b")))
     with write_sessions(engine).begin() as session:
-        assert repo.update_clip(session, clip_id, name="renamed", labels=["b", "c"])
-        assert not repo.update_clip(session, clip_id + 1, name="x")
+        assert clip_db.update_clip(session, clip_id, name="renamed", labels=["b", "c"])
+        assert not clip_db.update_clip(session, clip_id + 1, name="x")
     with read_sessions(engine)() as session:
-        clip = repo.get_clip(session, clip_id)
+        clip = clip_db.get_clip(session, clip_id)
         assert clip is not None and clip.name == "renamed" and clip.labels == ("b", "c")
 
 
 def test_delete_cascades_and_ids_are_not_reused(engine: Engine) -> None:
     with write_sessions(engine).begin() as session:
-        first = repo.insert_clip(session, new_clip("h1", labels=("x",)))
-        second = repo.insert_clip(session, new_clip("h2", labels=("x",)))
+        first = clip_db.insert_clip(session, new_clip("h1", labels=("x",)))
+        second = clip_db.insert_clip(session, new_clip("h2", labels=("x",)))
     with write_sessions(engine).begin() as session:
-        assert repo.delete_clip(session, second) == ["ab" * 32]
-        assert repo.delete_clip(session, second) is None
-        assert repo.referenced_blobs(session, ["ab" * 32, "cd" * 32]) == {"ab" * 32}
+        assert clip_db.delete_clip(session, second) == ["ab" * 32]
+        assert clip_db.delete_clip(session, second) is None
+        assert clip_db.referenced_blobs(session, ["ab" * 32, "cd" * 32]) == {"ab" * 32}
     with write_sessions(engine).begin() as session:
-        third = repo.insert_clip(session, new_clip("h3"))
+        third = clip_db.insert_clip(session, new_clip("h3"))
     assert third > second  # SQLite AUTOINCREMENT: a deleted clip's id never comes back
     with read_sessions(engine)() as session:
-        assert repo.get_vectors(session, second) == {}
-        assert repo.clip_ids_with_label(session, "x").tolist() == [first]
-        assert repo.vector_ids(session, "posture", 1, 12).tolist() == [first, third]
+        assert vector_db.get_vectors(session, second) == {}
+        assert label_db.clip_ids_with_label(session, "x").tolist() == [first]
+        assert vector_db.vector_ids(session, "posture", 1, 12).tolist() == [first, third]
 
 
 def test_clips_needing_vectors_and_put_vectors(engine: Engine) -> None:
     with write_sessions(engine).begin() as session:
-        clip_id = repo.insert_clip(session, new_clip("h"))
+        clip_id = clip_db.insert_clip(session, new_clip("h"))
     current = {"posture": 1, "kinetic": 3, "motion": 1}
     with read_sessions(engine)() as session:
-        assert repo.clips_needing_vectors(session, current) == {clip_id: ["kinetic", "motion"]}
+        assert vector_db.clips_needing_vectors(session, current) == {clip_id: ["kinetic", "motion"]}
     with write_sessions(engine).begin() as session:
-        repo.put_vectors(
+        vector_db.put_vectors(
             session,
             clip_id,
             {
-                "kinetic": repo.StoredVector(3, np.ones(6, np.float32)),
-                "motion": repo.StoredVector(1, np.zeros(4, np.float32)),
+                "kinetic": vector_db.StoredVector(3, np.ones(6, np.float32)),
+                "motion": vector_db.StoredVector(1, np.zeros(4, np.float32)),
             },
         )
     with read_sessions(engine)() as session:
-        assert repo.clips_needing_vectors(session, current) == {}
-        assert repo.get_vector(session, clip_id, "kinetic") is not None
-        stored = repo.get_vector(session, clip_id, "kinetic")
+        assert vector_db.clips_needing_vectors(session, current) == {}
+        assert vector_db.get_vector(session, clip_id, "kinetic") is not None
+        stored = vector_db.get_vector(session, clip_id, "kinetic")
         assert stored is not None and stored.vector.shape == (6,)
 
 
@@ -140,29 +144,31 @@ def test_label_filters_every_read_path(engine: Engine) -> None:
     SQLite search snapshot and the browsing query; the bulk delete goes by the same rule."""
     sets = [("Walk", "happy"), ("walk",), ("HAPPY", "run"), ("walk", "Happy", "x"), ()]
     with write_sessions(engine).begin() as session:
-        ids = repo.insert_clips(session, [new_clip(f"h{i}", labels=s) for i, s in enumerate(sets)])
+        ids = clip_db.insert_clips(
+            session, [new_clip(f"h{i}", labels=s) for i, s in enumerate(sets)]
+        )
     want = {
         "walk,happy": [ids[0], ids[3]],
         "HAPPY": [ids[0], ids[2], ids[3]],
         "x,walk,HAPPY": [ids[3]],
         "walk,nothing": [],
     }
-    reads = repo.SearchReads(engine)
+    reads = search_db.SearchReads(engine)
     try:
         with read_sessions(engine)() as session, reads.snapshot() as snapshot:
             for label, expected in want.items():
-                assert repo.clip_ids_with_label(session, label).tolist() == expected, label
-                assert repo.clip_ids_with_label(session, label.split(",")).tolist() == expected
+                assert label_db.clip_ids_with_label(session, label).tolist() == expected, label
+                assert label_db.clip_ids_with_label(session, label.split(",")).tolist() == expected
                 assert snapshot.clip_ids_with_label(label).tolist() == expected, label
-                assert repo.clip_ids_with_labels(session, label) == expected
-                found, total = repo.find_clip_ids(
+                assert label_db.clip_ids_with_labels(session, label) == expected
+                found, total = browse_db.find_clip_ids(
                     session, name_contains=None, label=label, limit=10, offset=0
                 )
                 assert (found, total) == (expected, len(expected))
-            assert repo.clip_ids_with_labels(session, "") == ids  # no filter: every clip
+            assert label_db.clip_ids_with_labels(session, "") == ids  # no filter: every clip
     finally:
         reads.close()
     with write_sessions(engine).begin() as session:
-        repo.delete_clips(session, repo.clip_ids_with_labels(session, "WALK"))
+        clip_db.delete_clips(session, label_db.clip_ids_with_labels(session, "WALK"))
     with read_sessions(engine)() as session:
-        assert repo.clip_ids_with_labels(session, None) == [ids[2], ids[4]]
+        assert label_db.clip_ids_with_labels(session, None) == [ids[2], ids[4]]

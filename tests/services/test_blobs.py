@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 from sqlalchemy import Engine
 
-from app.db import repository as repo
+from app.db import clips as clip_db
 from app.db.migrate import upgrade
 from app.db.session import create_db_engine, write_sessions
 from app.errors import StorageUnavailable
@@ -39,14 +39,14 @@ def store(engine_on: Engine, tmp_path: Path) -> BlobStore:
 
 
 def clip_using(engine: Engine, sha: str) -> None:
-    new = repo.NewClip(
+    new = clip_db.NewClip(
         name="c", format="bvh", content_hash="c" * 64, frame_count=1, frame_time=0.1,
         duration=0.1, joint_count=1, skeleton_family="x", lead_in_frames=0, labels=(),
-        files=(repo.FileRecord("file", "c.bvh", sha, 1),), vectors={},
+        files=(clip_db.FileRecord("file", "c.bvh", sha, 1),), vectors={},
         created_at=datetime.now(UTC),
     )  # fmt: skip
     with write_sessions(engine).begin() as session:
-        repo.insert_clips(session, [new])
+        clip_db.insert_clips(session, [new])
 
 
 def test_the_backend_decides_the_store(engine_on: Engine, store: BlobStore) -> None:

@@ -11,7 +11,7 @@ import pytest
 from sqlalchemy.exc import OperationalError
 
 from app.config import Settings
-from app.db import repository as repo
+from app.db import clips as clip_db
 from app.errors import (
     DescriptorOutdated,
     MocapError,
@@ -93,7 +93,7 @@ def test_failed_commit_removes_the_stored_file(
     def broken_insert(*args: object, **kwargs: object) -> list[int]:
         raise OperationalError("INSERT", {}, Exception("disk I/O error"))
 
-    monkeypatch.setattr(repo, "insert_clips", broken_insert)
+    monkeypatch.setattr(clip_db, "insert_clips", broken_insert)
     with pytest.raises(StorageUnavailable):
         ingest(library, bvh([1, 2, 3]))
     assert stored_files(settings) == []
@@ -108,14 +108,14 @@ def test_race_with_another_process_returns_its_clip(
     # content hash refuses our row, and we return theirs without deleting the shared file.
     upload = bvh([1, 2, 3])
     theirs = ingest(library, upload).clip
-    real_lookup = repo.clip_ids_by_hash
+    real_lookup = clip_db.clip_ids_by_hash
     calls = {"n": 0}
 
     def stale_lookup(session: object, hashes: object) -> dict[str, int]:
         calls["n"] += 1
         return {} if calls["n"] == 1 else real_lookup(session, hashes)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(repo, "clip_ids_by_hash", stale_lookup)
+    monkeypatch.setattr(clip_db, "clip_ids_by_hash", stale_lookup)
     described = ingest_service.describe(library, upload)
     [result] = ingest_service.store_many(library, [described])
     assert not result.created and result.clip.id == theirs.id

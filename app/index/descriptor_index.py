@@ -9,8 +9,8 @@ Two kinds of index, chosen per descriptor by :class:`IndexOptions` (``MOCAP_INDE
     ``IndexIVFFlat`` (ids kept natively): the vectors are split into ``nlist`` k-means cells
     and a query scans the ``nprobe`` nearest cells only. Distances are exact; the neighbour
     set is approximate (recall@10 against exact search is measured by ``bench/bench_search.py``
-    and ``tests/test_index.py``). A search restricted to some ids (a label filter) probes every
-    cell, so it stays exact.
+    and ``tests/index/test_descriptor_index.py``). A search restricted to some ids (a label
+    filter) probes every cell, so it stays exact.
 
 ``auto`` (the default) keeps ``flat`` below ``auto_threshold`` vectors and builds ``ivf`` when
 an index is (re)built at or above it; a loaded ``ivf`` index stays ``ivf`` down to half the
@@ -41,72 +41,39 @@ int64 ids.
 
 from __future__ import annotations
 
-import fcntl
 import hashlib
 import json
 import logging
-import math
 import os
 import threading
 import time
 from collections.abc import Iterator, Mapping
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
+import faiss
 import numpy as np
 
-# FAISS reads OMP_NUM_THREADS once, when its OpenMP runtime loads, and a single query is not
-# faster on more threads (STYLE.md): default to one before the import — this module is the only
-# place faiss is imported, so every entry point (serve, uvicorn --factory, tests) gets it — but
-# keep a value the operator set.
-os.environ.setdefault("OMP_NUM_THREADS", "1")
-import faiss
+from app.index.kinds import (
+    FLAT,
+    IVF,
+    IndexOptions,
+    as_ids,
+    as_vectors,
+    build_index,
+    empty_flat,
+    has_id_map,
+    ivf_ids,
+    kind_of,
+    selector,
+    with_id_map,
+)
+from app.index.locks import ReadWriteLock, directory_lock
 
 log = logging.getLogger(__name__)
 
-FLAT = "flat"
-IVF = "ivf"
-AUTO = "auto"
-INDEX_TYPES = (AUTO, FLAT, IVF)
-
-MIN_POINTS_PER_CELL = 39  # FAISS warns below this many training points per k-means cell
-TRAIN_POINTS_PER_CELL = 64  # training sample size per cell (FAISS would take up to 256)
-LOCK_FILE = ".lock"
 HASH_CHUNK = 1 << 22
-
-
-@dataclass(frozen=True)
-class IndexOptions:
-    """Which index to build (see the module docstring) and how to search it."""
-
-    kind: str = AUTO
-    auto_threshold: int = 100_000
-    nlist: int = 0  # 0: 4 * sqrt(N)
-    nprobe: int = 0  # 0: calibrated when the index is built (see calibrate_nprobe)
-    recall_target: float = 0.995
-    autosave_below: int = 20_000  # indexes this small are saved soon after a change
-    save_delay: float = 1.0  # ... this many seconds after it (0: at once), changes batched
-
-    def __post_init__(self) -> None:
-        if self.kind not in INDEX_TYPES:
-            known = ", ".join(INDEX_TYPES)
-            raise ValueError(f"index type must be one of {known}, not {self.kind!r}")
-
-    def nlist_for(self, count: int) -> int:
-        """Cells of an IVF index over ``count`` vectors (0: too few vectors for IVF)."""
-        wanted = self.nlist or round(4 * math.sqrt(max(count, 1)))
-        return int(min(wanted, count // MIN_POINTS_PER_CELL))
-
-    def kind_for(self, count: int, current: str | None = None) -> str:
-        """The kind an index of ``count`` vectors should be, given the ``current`` kind."""
-        if self.kind == FLAT:
-            return FLAT
-        if self.kind == IVF:
-            return IVF if self.nlist_for(count) >= 1 else FLAT
-        threshold = self.auto_threshold // 2 if current == IVF else self.auto_threshold
-        return IVF if count >= threshold and self.nlist_for(count) >= 1 else FLAT
 
 
 class VectorSource(Protocol):
@@ -139,61 +106,6 @@ class VectorSource(Protocol):
         ...
 
 
-class ReadWriteLock:
-    """Many readers or one writer. Waiting writers block new readers, so a steady stream of
-    searches cannot starve an upload."""
-
-    def __init__(self) -> None:
-        self._cond = threading.Condition()
-        self._readers = 0
-        self._writer = False
-        self._writers_waiting = 0
-
-    @contextmanager
-    def read(self) -> Iterator[None]:
-        with self._cond:
-            while self._writer or self._writers_waiting:
-                self._cond.wait()
-            self._readers += 1
-        try:
-            yield
-        finally:
-            with self._cond:
-                self._readers -= 1
-                if self._readers == 0:
-                    self._cond.notify_all()
-
-    @contextmanager
-    def write(self) -> Iterator[None]:
-        with self._cond:
-            self._writers_waiting += 1
-            try:
-                while self._writer or self._readers:
-                    self._cond.wait()
-            finally:
-                self._writers_waiting -= 1
-            self._writer = True
-        try:
-            yield
-        finally:
-            with self._cond:
-                self._writer = False
-                self._cond.notify_all()
-
-
-@contextmanager
-def directory_lock(directory: Path, *, exclusive: bool) -> Iterator[None]:
-    """``fcntl.flock`` on ``<directory>/.lock``: exclusive to write index files, shared to
-    read them. Works across processes and across threads of one process."""
-    directory.mkdir(parents=True, exist_ok=True)
-    fd = os.open(directory / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
-        yield
-    finally:
-        os.close(fd)  # releases the lock
-
-
 @dataclass(frozen=True)
 class Neighbours:
     """Search results, nearest first: ``ids`` ``(n,)`` int64, ``distances`` ``(n,)`` float64
@@ -204,156 +116,6 @@ class Neighbours:
 
     def __len__(self) -> int:
         return int(self.ids.shape[0])
-
-
-def _as_ids(ids: np.ndarray | list[int]) -> np.ndarray:
-    return np.ascontiguousarray(ids, dtype=np.int64).reshape(-1)
-
-
-def _as_vectors(vectors: np.ndarray, dimension: int) -> np.ndarray:
-    array = np.ascontiguousarray(vectors, dtype=np.float32)
-    if array.ndim == 1:
-        array = array.reshape(1, -1)
-    if array.ndim != 2 or array.shape[1] != dimension:
-        raise ValueError(f"expected vectors of shape (N, {dimension}), got {vectors.shape}")
-    if not np.all(np.isfinite(array)):
-        raise ValueError("vectors must be finite")
-    return array
-
-
-def _empty_flat(dimension: int) -> Any:
-    return faiss.IndexIDMap2(faiss.IndexFlatL2(dimension))
-
-
-def kind_of(index: Any) -> str | None:
-    """``"flat"`` or ``"ivf"`` for the index objects this module builds, else ``None``."""
-    if isinstance(index, faiss.IndexIDMap2) and isinstance(
-        faiss.downcast_index(index.index), faiss.IndexFlatL2
-    ):
-        return FLAT
-    if isinstance(index, faiss.IndexIVFFlat) and index.metric_type == faiss.METRIC_L2:
-        return IVF
-    return None
-
-
-def build_index(
-    ids: np.ndarray,
-    vectors: np.ndarray,
-    kind: str,
-    options: IndexOptions,
-    *,
-    threads: int | None = None,
-    seed: int = 1234,
-) -> Any:
-    """A new index of ``kind`` holding ``vectors`` ``(N, D)`` under ``ids`` ``(N,)``.
-
-    IVF cells are trained with k-means on a random sample of ``64 * nlist`` vectors;
-    ``threads`` lets the (one-off) training and adding use several cores.
-    """
-    dimension = int(vectors.shape[1])
-    if kind == FLAT:
-        flat = _empty_flat(dimension)
-        if ids.size:
-            flat.add_with_ids(vectors, ids)
-        return flat
-    nlist = options.nlist_for(int(ids.size))
-    if nlist < 1:
-        raise ValueError(f"too few vectors ({ids.size}) for an IVF index")
-    quantizer: Any = faiss.IndexFlatL2(dimension)
-    index: Any = faiss.IndexIVFFlat(quantizer, dimension, nlist, faiss.METRIC_L2)
-    index.own_fields = True
-    quantizer.this.disown()
-    index.cp.seed = seed
-    rng = np.random.default_rng(seed)
-    sample_size = min(int(ids.size), TRAIN_POINTS_PER_CELL * nlist)
-    sample = vectors
-    if sample_size < ids.size:
-        sample = vectors[np.sort(rng.choice(ids.size, sample_size, replace=False))]
-    before = faiss.omp_get_max_threads()
-    faiss.omp_set_num_threads(threads or os.cpu_count() or 1)
-    try:
-        index.train(np.ascontiguousarray(sample))
-        _with_id_map(index)
-        for start in range(0, int(ids.size), 262_144):
-            stop = start + 262_144
-            index.add_with_ids(vectors[start:stop], ids[start:stop])
-    finally:
-        faiss.omp_set_num_threads(before)
-    index.nprobe = options.nprobe or calibrate_nprobe(
-        index, ids, vectors, target=options.recall_target, seed=seed, threads=threads
-    )
-    return index
-
-
-def calibrate_nprobe(
-    index: Any,
-    ids: np.ndarray,
-    vectors: np.ndarray,
-    *,
-    target: float,
-    samples: int = 256,
-    seed: int = 1234,
-    threads: int | None = None,
-) -> int:
-    """The smallest ``nprobe`` (a power of two, at most ``nlist``) whose recall@10 against
-    exact search reaches ``target`` for ``samples`` stored vectors used as queries, each
-    excluding itself as a search by clip does. Exact neighbours come from ``faiss.knn``
-    over ``vectors`` (no copy)."""
-    rng = np.random.default_rng(seed)
-    rows = np.sort(rng.choice(ids.size, min(samples, int(ids.size)), replace=False))
-    queries = np.ascontiguousarray(vectors[rows])
-    before = faiss.omp_get_max_threads()
-    faiss.omp_set_num_threads(threads or os.cpu_count() or 1)
-    try:
-        _, nearest = faiss.knn(queries, vectors, 11)
-        truth = [
-            set(ids[[r for r in row if r != own][:10]].tolist())
-            for own, row in zip(rows, nearest, strict=True)
-        ]
-        nprobe = 1
-        while True:
-            params = faiss.SearchParametersIVF()
-            params.nprobe = nprobe
-            _, found = index.search(queries, 11, params=params)
-            hits = sum(
-                len(want & {int(i) for i in row if i != ids[own]})
-                for own, want, row in zip(rows, truth, found, strict=True)
-            )
-            total = sum(len(want) for want in truth)
-            if nprobe >= index.nlist or hits >= target * total:
-                return int(min(nprobe, index.nlist))
-            nprobe *= 2
-    finally:
-        faiss.omp_set_num_threads(before)
-
-
-def _has_id_map(index: Any) -> bool:
-    return bool(index.direct_map.type == faiss.DirectMap.Hashtable)  # type: ignore[attr-defined]
-
-
-def _with_id_map(index: Any) -> None:
-    """Give an IVF index a hash table from id to position (about 40 bytes per vector), so
-    :meth:`DescriptorIndex.reconstruct` finds a clip's vector at once."""
-    hashtable = faiss.DirectMap.Hashtable  # type: ignore[attr-defined]
-    if index.direct_map.type != hashtable:
-        index.set_direct_map_type(hashtable)
-
-
-def _selector(index: Any, ids: np.ndarray) -> Any:
-    """An id selector for ``remove_ids`` (an IVF index with an id map takes only arrays)."""
-    if kind_of(index) == IVF:
-        return faiss.IDSelectorArray(ids.size, faiss.swig_ptr(ids))
-    return faiss.IDSelectorBatch(ids)
-
-
-def _ivf_ids(index: Any) -> np.ndarray:
-    invlists = index.invlists
-    parts = []
-    for cell in range(index.nlist):
-        size = invlists.list_size(cell)
-        if size:
-            parts.append(faiss.rev_swig_ptr(invlists.get_ids(cell), size).copy())
-    return np.concatenate(parts).astype(np.int64) if parts else np.empty(0, np.int64)
 
 
 def _file_sha256(path: Path) -> str:
@@ -393,7 +155,7 @@ class DescriptorIndex:
         self.version = version
         self.directory = directory
         self.options = options if options is not None else IndexOptions()
-        self._index = index if index is not None else _empty_flat(dimension)
+        self._index = index if index is not None else empty_flat(dimension)
         self._max_id: int | None = None  # see _id_bound
         self._sorted: np.ndarray | None = None  # see sorted_ids
         self._synced_to = 0
@@ -444,7 +206,7 @@ class DescriptorIndex:
 
     def _ids(self) -> np.ndarray:
         if self.kind == IVF:
-            return _ivf_ids(self._index)
+            return ivf_ids(self._index)
         return faiss.vector_to_array(self._index.id_map).astype(np.int64)
 
     def sorted_ids(self) -> np.ndarray:
@@ -549,8 +311,8 @@ class DescriptorIndex:
         ``synced_to`` records the database clip id the index now reflects. ``persist``: save
         now (True), not now (False), or when the index is small (None).
         """
-        ids_ = _as_ids(ids)
-        array = _as_vectors(vectors, self.dimension)
+        ids_ = as_ids(ids)
+        array = as_vectors(vectors, self.dimension)
         if array.shape[0] != ids_.shape[0]:
             raise ValueError("ids and vectors differ in length")
         if ids_.size == 0 and synced_to is None:
@@ -569,11 +331,11 @@ class DescriptorIndex:
 
     def remove(self, ids: np.ndarray | list[int], *, persist: bool | None = None) -> int:
         """Remove ``ids`` (absent ones are ignored); returns how many were removed."""
-        ids_ = _as_ids(ids)
+        ids_ = as_ids(ids)
         if ids_.size == 0:
             return 0
         with self._lock.write():
-            removed = int(self._index.remove_ids(_selector(self._index, ids_)))
+            removed = int(self._index.remove_ids(selector(self._index, ids_)))
             self._note_removed(ids_)
             self._unsaved += removed
         if removed:
@@ -594,10 +356,10 @@ class DescriptorIndex:
         have one): a clip gone from the database leaves the index, a new one enters, one whose
         vector differs is replaced. Applying the same changes twice changes nothing. Returns
         how many vectors were added and removed."""
-        changed_ = np.unique(_as_ids(changed))
-        ids_ = _as_ids(ids)
+        changed_ = np.unique(as_ids(changed))
+        ids_ = as_ids(ids)
         array = (
-            _as_vectors(vectors, self.dimension)
+            as_vectors(vectors, self.dimension)
             if ids_.size
             else np.empty((0, self.dimension), np.float32)
         )
@@ -619,8 +381,8 @@ class DescriptorIndex:
                 if row is not None and (held is None or clip_id in remove):
                     add.append(row)
             if remove:
-                gone = _as_ids(sorted(remove))  # kept alive while FAISS reads it
-                self._index.remove_ids(_selector(self._index, gone))
+                gone = as_ids(sorted(remove))  # kept alive while FAISS reads it
+                self._index.remove_ids(selector(self._index, gone))
                 self._note_removed(gone)
             if add:
                 rows = np.asarray(add, dtype=np.int64)
@@ -649,13 +411,13 @@ class DescriptorIndex:
         (the query clip itself) — we ask for one more neighbour and remove it, so it never
         costs a result.
         """
-        q = _as_vectors(query, self.dimension)
+        q = as_vectors(query, self.dimension)
         if q.shape[0] != 1:
             raise ValueError("search takes one query vector")
         selector = None
         available = self.size
         if allowed is not None:
-            allowed = np.unique(_as_ids(allowed))
+            allowed = np.unique(as_ids(allowed))
             if exclude is not None:
                 allowed = allowed[allowed != exclude]
                 exclude = None
@@ -694,7 +456,7 @@ class DescriptorIndex:
 
     def search_many(self, queries: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
         """``(Q, k)`` squared distances and ids for ``queries`` ``(Q, D)`` (benchmarks)."""
-        q = _as_vectors(queries, self.dimension)
+        q = as_vectors(queries, self.dimension)
         with self._lock.read():
             params: Any = None
             if self.kind == IVF:
@@ -777,9 +539,9 @@ class DescriptorIndex:
     ) -> None:
         """Swap in a new index holding exactly ``vectors`` ``(N, D)`` under ``ids`` ``(N,)``,
         of ``kind`` (default: what :class:`IndexOptions` asks for ``N`` vectors)."""
-        ids_ = _as_ids(ids)
+        ids_ = as_ids(ids)
         array = (
-            _as_vectors(vectors, self.dimension)
+            as_vectors(vectors, self.dimension)
             if ids_.size
             else np.empty((0, self.dimension), np.float32)
         )
@@ -864,8 +626,8 @@ class DescriptorIndex:
                 return f"unreadable index: {exc}"
         if kind_of(index) is None or index.d != self.dimension:
             return "index of another kind or dimension"
-        if kind_of(index) == IVF and not _has_id_map(index):
-            _with_id_map(index)  # a file written before the id map was kept: save it again
+        if kind_of(index) == IVF and not has_id_map(index):
+            with_id_map(index)  # a file written before the id map was kept: save it again
             meta["resave"] = True
         if int(index.ntotal) != meta.get("count"):
             return "index count disagrees with its metadata"

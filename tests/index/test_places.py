@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.window_places import Places, WindowPlaces
+from app.index.places import Places, WindowPlaces
 
 BITS = 20
 
@@ -112,8 +112,9 @@ def test_changes_from_two_threads_lose_nothing() -> None:
 def test_windows_of_clips_are_found_by_binary_search_in_the_index(tmp_path) -> None:
     """library.windows_of_clips: the window ids an index holds of some clips, as scanning
     every id held would find them."""
-    from app.index import DescriptorIndex, IndexOptions
-    from app.services.library import windows_of_clips
+    from app.index.descriptor_index import DescriptorIndex
+    from app.index.kinds import IndexOptions
+    from app.index.sources import windows_of_clips
 
     rng = np.random.default_rng(5)
     rows = {clip: windows_of(clip, int(rng.integers(1, 9)), rng) for clip in range(1, 60)}

@@ -10,7 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.index import FLAT, IVF, DescriptorIndex, IndexOptions, IndexSet, ReadWriteLock
+from app.index.descriptor_index import DescriptorIndex, IndexSet
+from app.index.kinds import FLAT, IVF, IndexOptions
+from app.index.locks import ReadWriteLock
 
 D = 8
 
