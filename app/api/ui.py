@@ -10,7 +10,8 @@
 * ``GET /library/clips`` — the clip list filtered by name and label; ``GET /library/labels``
   the labels in use.
 
-The computations live in :mod:`app.services.library_map`.
+The computations live in :mod:`app.services.previews` (stick figures) and
+:mod:`app.services.library_map` (the map, the filtered list).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from app.api.deps import ClipDep, DescriptorDep, LabelQuery, LibraryDep, Setting
 from app.api.errors import error_responses
 from app.api.schemas import ClipOut, ClipPage
 from app.services import library_map as ui_service
+from app.services import previews
 
 STATIC_DIR = Path(__file__).resolve().parent.parent / "static"
 INDEX_HTML = STATIC_DIR / "index.html"
@@ -110,17 +112,17 @@ def _map_cache(request: Request) -> ui_service.MapCache:
     return cache
 
 
-def _skeleton_cache(request: Request) -> ui_service.SkeletonCache:
+def _skeleton_cache(request: Request) -> previews.SkeletonCache:
     cache = getattr(request.app.state, "skeleton_cache", None)
     if cache is None:
-        cache = request.app.state.skeleton_cache = ui_service.SkeletonCache()
+        cache = request.app.state.skeleton_cache = previews.SkeletonCache()
     return cache
 
 
 FpsQuery = Annotated[
     int,
     Query(
-        description=f"Frames per second, {ui_service.MIN_FPS} to {ui_service.MAX_FPS}.",
+        description=f"Frames per second, {previews.MIN_FPS} to {previews.MAX_FPS}.",
         examples=[30],
     ),
 ]
@@ -128,7 +130,7 @@ MaxFramesQuery = Annotated[
     int,
     Query(
         description="Most frames to return, 1 to "
-        f"{ui_service.MAX_SKELETON_FRAMES}; a longer clip is cut (`truncated`)."
+        f"{previews.MAX_SKELETON_FRAMES}; a longer clip is cut (`truncated`)."
     ),
 ]
 
@@ -147,13 +149,13 @@ def clip_skeleton(
     clip: ClipDep,
     library: LibraryDep,
     request: Request,
-    fps: FpsQuery = ui_service.DEFAULT_FPS,
-    max_frames: MaxFramesQuery = ui_service.MAX_SKELETON_FRAMES,
+    fps: FpsQuery = previews.DEFAULT_FPS,
+    max_frames: MaxFramesQuery = previews.MAX_SKELETON_FRAMES,
 ) -> Response:
     """The clip's canonical joints (`joints`), per frame resampled to `fps`, in body heights
     with y up, and the bones between them: what the UI draws. Rest-pose lead-in frames are
     left out as for the descriptors; at most `max_frames` frames (default and cap 600)."""
-    skeleton = ui_service.clip_skeleton(library, _skeleton_cache(request), clip, fps, max_frames)
+    skeleton = previews.clip_skeleton(library, _skeleton_cache(request), clip, fps, max_frames)
     headers = {"ETag": skeleton.etag, "Cache-Control": "private, max-age=3600"}
     if request.headers.get("if-none-match") == skeleton.etag:
         return Response(status_code=304, headers=headers)
@@ -174,14 +176,14 @@ def upload_skeleton(
     upload: UploadDep,
     settings: SettingsDep,
     library: LibraryDep,
-    fps: FpsQuery = ui_service.DEFAULT_FPS,
-    max_frames: MaxFramesQuery = ui_service.MAX_SKELETON_FRAMES,
+    fps: FpsQuery = previews.DEFAULT_FPS,
+    max_frames: MaxFramesQuery = previews.MAX_SKELETON_FRAMES,
 ) -> Response:
     """As `GET /clips/{id}/skeleton` for a file sent like `POST /clips` (nothing stored):
     the UI previews a file dropped as a search query with it."""
     # The same memory bound as describing an upload (MOCAP_MAX_FRAME_VALUES).
     limits = dataclasses.replace(settings.parse_limits, max_values=settings.max_frame_values)
-    body = ui_service.upload_skeleton(upload, limits, fps, max_frames, library.parsers)
+    body = previews.upload_skeleton(upload, limits, fps, max_frames, library.parsers)
     return Response(content=body, media_type="application/json")
 
 
@@ -248,7 +250,7 @@ def mount_ui(app: FastAPI) -> None:
     if getattr(state, "ui_mounted", False):
         return
     state.ui_mounted = True
-    state.skeleton_cache = ui_service.SkeletonCache()
+    state.skeleton_cache = previews.SkeletonCache()
     state.map_cache = ui_service.new_map_cache()
     app.add_api_route("/", index_page, methods=["GET"], include_in_schema=False)
     app.router.routes.insert(0, app.router.routes.pop())

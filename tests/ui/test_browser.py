@@ -28,7 +28,7 @@ import pytest
 
 from app.motion.body import build_body
 from app.motion.formats import read_bvh
-from app.services.library_map import display_positions
+from app.services.previews import display_positions
 from tests.conftest import REPO_ROOT, shared_data_dir
 
 pytestmark = pytest.mark.slow

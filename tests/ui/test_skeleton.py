@@ -12,7 +12,8 @@ from fastapi.testclient import TestClient
 from app.motion.body import build_body
 from app.motion.formats import read_asf_amc, read_bvh
 from app.motion.skeleton_map import CANONICAL_BONES, CANONICAL_INDEX, CANONICAL_JOINTS
-from app.services import library_map
+from app.services import previews
+from app.services.lru import LRUCache
 from tests.ui.conftest import upload_asf_amc, upload_bvh
 
 CMU_BVH = "cmu_mb_02_01_first41.bvh"  # 120 fps, 41 frames, the first an added T-pose
@@ -69,7 +70,7 @@ def test_skeleton_is_the_motion_cores_joints_in_a_display_frame(
     # ...and it walks forward.
     assert frames[-1, pelvis, 2] > frames[0, pelvis, 2]
     # Exactly the service's own transform, rounded to 4 decimals.
-    np.testing.assert_array_equal(frames, np.round(library_map.display_positions(core), 4))
+    np.testing.assert_array_equal(frames, np.round(previews.display_positions(core), 4))
 
 
 def test_frames_are_resampled_to_the_requested_rate(
@@ -101,7 +102,7 @@ def test_long_clips_are_truncated_and_say_so(ui_client: TestClient, fixtures_dir
     assert cut["source_frame_count"] == 40
     assert cut["source_duration"] == pytest.approx(39 / 30)
     np.testing.assert_array_equal(frames_of(cut), frames_of(whole)[:25])
-    assert library_map.MAX_SKELETON_FRAMES == 600
+    assert previews.MAX_SKELETON_FRAMES == 600
 
 
 def test_asf_amc_clip_has_a_skeleton_like_its_bvh_twin(
@@ -119,7 +120,7 @@ def test_asf_amc_clip_has_a_skeleton_like_its_bvh_twin(
     assert np.median(np.abs(a - b)) < 0.03
     asf = (fixtures_dir / CMU_ASF).read_bytes()
     core = build_body(read_asf_amc(asf, (fixtures_dir / CMU_AMC).read_bytes()))
-    np.testing.assert_array_equal(a, np.round(library_map.display_positions(core), 4))
+    np.testing.assert_array_equal(a, np.round(previews.display_positions(core), 4))
 
 
 @pytest.mark.parametrize(
@@ -157,13 +158,13 @@ def test_skeletons_are_cached_and_carry_an_etag(
 ) -> None:
     clip_id = upload_bvh(ui_client, fixtures_dir / BANDAI)
     reads: list[int] = []
-    real = library_map.read_stored_motion
+    real = previews.read_stored_motion
 
     def counting(*args: Any) -> Any:
         reads.append(1)
         return real(*args)
 
-    monkeypatch.setattr(library_map, "read_stored_motion", counting)
+    monkeypatch.setattr(previews, "read_stored_motion", counting)
     first = ui_client.get(f"/clips/{clip_id}/skeleton")
     again = ui_client.get(f"/clips/{clip_id}/skeleton")
     other_rate = ui_client.get(f"/clips/{clip_id}/skeleton", params={"fps": 15})
@@ -176,7 +177,7 @@ def test_skeletons_are_cached_and_carry_an_etag(
 
 
 def test_lru_cache_keeps_the_most_recent() -> None:
-    cache: library_map.LRUCache[int, str] = library_map.LRUCache(2)
+    cache: LRUCache[int, str] = LRUCache(2)
     cache.put(1, "a")
     cache.put(2, "b")
     assert cache.get(1) == "a"  # 1 is now the most recent
@@ -226,12 +227,12 @@ def test_skeleton_of_a_whole_cmu_clip(ui_client: TestClient, shared_data: Path) 
     assert body["frame_count"] == int(np.floor((core.frame_count - 1) / 4)) + 1
     # The file's frame time is 0.008333 s, not 1/120: output frames drift off the source's
     # over the clip (by 1% of a frame at frame 250) and are interpolated between two.
-    np.testing.assert_allclose(frames_of(body), library_map.display_positions(core)[::4], atol=1e-3)
+    np.testing.assert_allclose(frames_of(body), previews.display_positions(core)[::4], atol=1e-3)
 
 
 def test_display_up_is_the_nearest_axis() -> None:
-    np.testing.assert_array_equal(library_map.display_up(np.array([0.45, 0.78, 0.43])), [0, 1, 0])
-    np.testing.assert_array_equal(library_map.display_up(np.array([0.1, -0.2, -0.9])), [0, 0, -1])
+    np.testing.assert_array_equal(previews.display_up(np.array([0.45, 0.78, 0.43])), [0, 1, 0])
+    np.testing.assert_array_equal(previews.display_up(np.array([0.1, -0.2, -0.9])), [0, 0, -1])
 
 
 @pytest.mark.slow
