@@ -35,6 +35,7 @@ from app.services import previews
 
 STATIC_DIR = Path(__file__).resolve().parent.parent / "static"
 INDEX_HTML = STATIC_DIR / "index.html"
+PREVIEWS_DIR = "previews"  # stored previews, under the data directory (a cache)
 
 # The page loads only its own files: no inline script, no other origin.
 CONTENT_SECURITY_POLICY = (
@@ -45,26 +46,58 @@ CONTENT_SECURITY_POLICY = (
 router = APIRouter(tags=["ui"])
 
 
+class SkeletonExtent(BaseModel):
+    height: float = Field(
+        description="The tallest frame of the span: its highest joint minus its lowest."
+    )
+    reach: float = Field(
+        description="The farthest any joint gets from the pelvis over the floor in the span."
+    )
+
+
 class SkeletonOut(BaseModel):
     """Canonical joint positions per frame, for drawing a stick figure."""
 
     clip_id: int | None = Field(description="The clip (null for an uploaded file).")
-    fps: int = Field(description="Frames per second of `frames`.")
-    frame_count: int = Field(description="Frames in `frames`.")
-    truncated: bool = Field(
-        description="True when the clip is longer than the frames returned (cut at the end)."
+    fps: float = Field(description="Frames per second of `frames`.")
+    start: float = Field(
+        description="Seconds of the file (lead-in frames included, as `start` asks) of the "
+        "first frame returned."
     )
-    duration: float = Field(description="Seconds covered by `frames`.")
+    frame_count: int = Field(description="Frames returned.")
+    truncated: bool = Field(
+        description="True when the span (default: the whole clip) is longer than the frames "
+        "returned (cut at the end)."
+    )
+    duration: float = Field(description="Seconds covered by the frames returned.")
     source_frame_count: int = Field(description="Frames of the clip after lead-in frames.")
     source_duration: float = Field(description="Seconds covered by the whole clip.")
+    source_fps: float = Field(description="The file's own frame rate.")
     lead_in_frames: int = Field(description="Rest-pose frames at the start left out.")
     units: str = Field(description='Always "body heights".')
     joints: list[str] = Field(description="Canonical joint names, the order of each frame.")
     bones: list[list[int]] = Field(description="[parent index, child index] pairs.")
-    frames: list[list[list[float]]] = Field(
-        description="[frame][joint] = [x, y, z]: body heights, y up, x the subject's left and "
-        "z its forward at the first frame, origin on the floor under the first frame's pelvis."
+    extent: SkeletonExtent = Field(
+        description="Room the figure needs around its pelvis over the span (every frame of "
+        "it, not only those returned): for framing it."
     )
+    encoding: str = Field(description="`json` (`frames`) or `compact` (`root`, `offsets`).")
+    frames: list[list[list[float]]] | None = Field(
+        None,
+        description="`json`: [frame][joint] = [x, y, z]: body heights, y up, x the subject's "
+        "left and z its forward at the first frame, origin on the floor under the first "
+        "frame's pelvis (4 decimals).",
+    )
+    root: str | None = Field(
+        None,
+        description="`compact`: base64 of little-endian float32 [frame][x, y, z], the pelvis.",
+    )
+    offsets: str | None = Field(
+        None,
+        description="`compact`: base64 of little-endian int16 [frame][joint][x, y, z], each "
+        "joint minus the pelvis in `offset_unit` body heights.",
+    )
+    offset_unit: float | None = Field(None, description="`compact`: 0.0001 body heights.")
 
 
 class MapClip(BaseModel):
@@ -113,16 +146,15 @@ def _map_cache(request: Request) -> ui_service.MapCache:
 
 
 def _skeleton_cache(request: Request) -> previews.SkeletonCache:
-    cache = getattr(request.app.state, "skeleton_cache", None)
-    if cache is None:
-        cache = request.app.state.skeleton_cache = previews.SkeletonCache()
+    cache: previews.SkeletonCache = request.app.state.skeleton_cache
     return cache
 
 
 FpsQuery = Annotated[
-    int,
+    float,
     Query(
-        description=f"Frames per second, {previews.MIN_FPS} to {previews.MAX_FPS}.",
+        description=f"Frames per second, {previews.MIN_FPS:g} to {previews.MAX_FPS:g} (need not "
+        "be whole: 0.2 gives an overview of a long take).",
         examples=[30],
     ),
 ]
@@ -130,9 +162,21 @@ MaxFramesQuery = Annotated[
     int,
     Query(
         description="Most frames to return, 1 to "
-        f"{previews.MAX_SKELETON_FRAMES}; a longer clip is cut (`truncated`)."
+        f"{previews.MAX_SKELETON_FRAMES}; a longer span is cut (`truncated`)."
     ),
 ]
+EncodingQuery = Annotated[
+    str,
+    Query(
+        description="`json`: `frames` as nested lists; `compact`: `root` (float32) and "
+        "`offsets` (int16) in base64, a third of the size (see `root`, `offsets`)."
+    ),
+]
+SpanStart = Annotated[
+    float | None,
+    Query(description="From here, seconds of the file (lead-in frames included)."),
+]
+SpanEnd = Annotated[float | None, Query(description="Up to here, seconds of the file.")]
 
 
 @router.get(
@@ -151,11 +195,25 @@ def clip_skeleton(
     request: Request,
     fps: FpsQuery = previews.DEFAULT_FPS,
     max_frames: MaxFramesQuery = previews.MAX_SKELETON_FRAMES,
+    start: SpanStart = None,
+    end: SpanEnd = None,
+    encoding: EncodingQuery = "json",
 ) -> Response:
     """The clip's canonical joints (`joints`), per frame resampled to `fps`, in body heights
     with y up, and the bones between them: what the UI draws. Rest-pose lead-in frames are
-    left out as for the descriptors; at most `max_frames` frames (default and cap 600)."""
-    skeleton = previews.clip_skeleton(library, _skeleton_cache(request), clip, fps, max_frames)
+    left out as for the descriptors; at most `max_frames` frames (default and cap 600) from
+    `start` to `end` (default: the whole clip), so any part of a take of any length can be
+    fetched (a low `fps` for an overview, windows of it in detail)."""
+    skeleton = previews.clip_skeleton(
+        library,
+        _skeleton_cache(request),
+        clip,
+        fps,
+        max_frames,
+        start=start,
+        end=end,
+        encoding=encoding,
+    )
     headers = {"ETag": skeleton.etag, "Cache-Control": "private, max-age=3600"}
     if request.headers.get("if-none-match") == skeleton.etag:
         return Response(status_code=304, headers=headers)
@@ -178,12 +236,15 @@ def upload_skeleton(
     library: LibraryDep,
     fps: FpsQuery = previews.DEFAULT_FPS,
     max_frames: MaxFramesQuery = previews.MAX_SKELETON_FRAMES,
+    encoding: EncodingQuery = "json",
 ) -> Response:
     """As `GET /clips/{id}/skeleton` for a file sent like `POST /clips` (nothing stored):
     the UI previews a file dropped as a search query with it."""
     # The same memory bound as describing an upload (MOCAP_MAX_FRAME_VALUES).
     limits = dataclasses.replace(settings.parse_limits, max_values=settings.max_frame_values)
-    body = previews.upload_skeleton(upload, limits, fps, max_frames, library.parsers)
+    body = previews.upload_skeleton(
+        upload, limits, fps, max_frames, library.parsers, encoding=encoding
+    )
     return Response(content=body, media_type="application/json")
 
 
@@ -250,7 +311,7 @@ def mount_ui(app: FastAPI) -> None:
     if getattr(state, "ui_mounted", False):
         return
     state.ui_mounted = True
-    state.skeleton_cache = previews.SkeletonCache()
+    state.skeleton_cache = previews.SkeletonCache(state.settings.data_dir / PREVIEWS_DIR)
     state.map_cache = ui_service.new_map_cache()
     app.add_api_route("/", index_page, methods=["GET"], include_in_schema=False)
     app.router.routes.insert(0, app.router.routes.pop())
