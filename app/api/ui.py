@@ -5,6 +5,7 @@
 
 * ``GET /clips/{id}/skeleton`` — canonical joint positions per frame and the bone list, for
   drawing stick figures (``POST /skeleton`` does the same for an uploaded, unstored file);
+* ``POST /inspect`` — the animations of an uploaded file (to choose one before storing it);
 * ``GET /map`` — every clip placed in 2-D (FMDistance's 3-MAN features and a PCA of a
   descriptor), with an outlier flag;
 * ``GET /library/clips`` — the clip list filtered by name and label; ``GET /library/labels``
@@ -32,6 +33,7 @@ from app.api.errors import error_responses
 from app.api.schemas import ClipOut, ClipPage
 from app.services import library_map as ui_service
 from app.services import previews
+from app.services.describe import read_motion
 
 STATIC_DIR = Path(__file__).resolve().parent.parent / "static"
 INDEX_HTML = STATIC_DIR / "index.html"
@@ -98,6 +100,29 @@ class SkeletonOut(BaseModel):
         "joint minus the pelvis in `offset_unit` body heights.",
     )
     offset_unit: float | None = Field(None, description="`compact`: 0.0001 body heights.")
+
+
+class InspectedAnimation(BaseModel):
+    name: str = Field(description="As the file names it (`animation N` when it does not).")
+    frame_count: int
+    duration: float = Field(description="Seconds.")
+    selected: bool = Field(
+        description="The one read: named in `animation`, else the longest (what `POST /clips` "
+        "stores without `animation`)."
+    )
+
+
+class InspectOut(BaseModel):
+    """What an uploaded file holds, before it is stored or searched with."""
+
+    format: str
+    filenames: list[str]
+    frame_count: int = Field(description="Frames of the animation read.")
+    duration: float = Field(description="Seconds of the animation read.")
+    animations: list[InspectedAnimation] = Field(
+        description="FBX/glTF: every animation of the file (each can be its own clip); empty "
+        "for BVH and ASF/AMC, which hold one motion."
+    )
 
 
 class MapClip(BaseModel):
@@ -246,6 +271,36 @@ def upload_skeleton(
         upload, limits, fps, max_frames, library.parsers, encoding=encoding
     )
     return Response(content=body, media_type="application/json")
+
+
+@router.post(
+    "/inspect",
+    summary="The animations an uploaded file holds",
+    responses=error_responses(400, 413, 415, 422),
+)
+def inspect_upload(upload: UploadDep, settings: SettingsDep, library: LibraryDep) -> InspectOut:
+    """Read a file sent like `POST /clips` (nothing stored) and list its animations with their
+    lengths, so one can be chosen (the `animation` field of `POST /clips`, `POST /search`, `POST
+    /skeleton`) before a multi-animation FBX or glTF file is stored or searched with. FBX and
+    glTF are read in a parser worker, as for every upload. An `animation` the file does not have
+    is 422 `unknown_animation`, listing those it has."""
+    limits = dataclasses.replace(settings.parse_limits, max_values=settings.max_frame_values)
+    read = read_motion(upload, limits, library.parsers)
+    return InspectOut(
+        format=upload.format,
+        filenames=[part.filename for part in upload.parts],
+        frame_count=read.motion.frame_count,
+        duration=round(read.motion.duration, 6),
+        animations=[
+            InspectedAnimation(
+                name=a.name,
+                frame_count=a.frame_count,
+                duration=round(a.duration, 6),
+                selected=a.name == read.animation,
+            )
+            for a in read.animations
+        ],
+    )
 
 
 @router.get(

@@ -66,7 +66,7 @@ log = logging.getLogger(__name__)
 
 MAX_SKELETON_FRAMES = 600
 """Most frames one skeleton response carries; longer spans are truncated (``truncated``)."""
-MIN_FPS, MAX_FPS, DEFAULT_FPS = 0.01, 120.0, 30.0
+MIN_FPS, MAX_FPS, DEFAULT_FPS = 0.01, 1000.0, 30.0
 STORE_FPS = 30.0
 """Rate of the stored previews; requests up to it are answered from them."""
 DECIMALS = 4
