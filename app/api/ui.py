@@ -28,6 +28,7 @@ from pydantic import BaseModel, Field
 
 from app.api.auth import read_dependencies
 from app.api.clips import check_page
+from app.api.compression import MINIMUM_BYTES
 from app.api.deps import ClipDep, DescriptorDep, LabelQuery, LibraryDep, SettingsDep, UploadDep
 from app.api.errors import error_responses
 from app.api.schemas import ClipOut, ClipPage
@@ -242,6 +243,10 @@ def clip_skeleton(
     headers = {"ETag": skeleton.etag, "Cache-Control": "private, max-age=3600"}
     if request.headers.get("if-none-match") == skeleton.etag:
         return Response(status_code=304, headers=headers)
+    if "gzip" in request.headers.get("accept-encoding", "") and len(skeleton.body) > MINIMUM_BYTES:
+        # Compressed once and kept (the compression middleware leaves an encoded body alone).
+        headers.update({"Content-Encoding": "gzip", "Vary": "Accept-Encoding"})
+        return Response(content=skeleton.gzipped, media_type="application/json", headers=headers)
     return Response(content=skeleton.body, media_type="application/json", headers=headers)
 
 

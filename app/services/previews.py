@@ -37,6 +37,7 @@ Encodings (``encoding``)
 from __future__ import annotations
 
 import base64
+import gzip
 import hashlib
 import io
 import json
@@ -45,6 +46,7 @@ import os
 import threading
 import zipfile
 from dataclasses import dataclass, replace
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -69,11 +71,13 @@ MAX_SKELETON_FRAMES = 600
 MIN_FPS, MAX_FPS, DEFAULT_FPS = 0.01, 1000.0, 30.0
 STORE_FPS = 30.0
 """Rate of the stored previews; requests up to it are answered from them."""
+_RATE_SLACK = 1.001  # files write 1/30 s as 0.0333333: their 30.0003 fps counts as 30
 DECIMALS = 4
 """``json`` coordinates are rounded to this many decimals of a body height (0.1 mm at 1.7 m)."""
 OFFSET_UNIT = 1e-4
 """Body heights per step of the ``compact`` encoding's int16 joint offsets."""
 ENCODINGS = ("json", "compact")
+GZIP_LEVEL = 6
 SKELETON_FORMAT_VERSION = 2
 """Changes whenever the numbers a skeleton response carries change (in ETags and stored
 preview names)."""
@@ -101,12 +105,18 @@ class DisplayMotion:
         return max(0, self.positions.shape[0] - 1) * self.frame_time
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Skeleton:
-    """One skeleton response, already encoded (``body`` is JSON bytes)."""
+    """One skeleton response, already encoded (``body`` is JSON bytes) and, once asked for,
+    gzipped: a search page fetches fifty at once, and compressing each again every time cost
+    more than everything else the request does."""
 
     body: bytes
     etag: str
+
+    @cached_property
+    def gzipped(self) -> bytes:
+        return gzip.compress(self.body, compresslevel=GZIP_LEVEL, mtime=0)
 
 
 class PreviewStore:
@@ -178,7 +188,7 @@ class SkeletonCache:
             1024, max_weight=128e6, weigh=_nbytes
         )
         self.responses: LRUCache[tuple[Any, ...], Skeleton] = LRUCache(
-            512, max_weight=64e6, weigh=lambda s: len(s.body)
+            512, max_weight=64e6, weigh=lambda s: 2 * len(s.body)
         )
         self.store = PreviewStore(store_root) if store_root is not None else None
 
@@ -313,11 +323,11 @@ def display_motion(motion: Motion) -> DisplayMotion:
 def at_store_rate(display: DisplayMotion) -> DisplayMotion:
     """``display`` at :data:`STORE_FPS` (or its own rate when slower), float32: what a stored
     preview holds."""
-    frame_time = max(display.frame_time, 1.0 / STORE_FPS)
-    if frame_time == display.frame_time:
-        positions = display.positions
+    if display.frame_time * STORE_FPS * _RATE_SLACK >= 1.0:  # its own rate
+        frame_time, positions = display.frame_time, display.positions
     else:
-        positions, _ = resample(display.positions, display.frame_time, 1 / frame_time, 2**62)
+        frame_time = 1.0 / STORE_FPS
+        positions, _ = resample(display.positions, display.frame_time, STORE_FPS, 2**62)
     return replace(
         display, positions=np.ascontiguousarray(positions, np.float32), frame_time=frame_time
     )
@@ -447,7 +457,7 @@ def clip_skeleton(
     key = (clip.id, clip.content_hash, fps, max_frames, span, encoding)
 
     def compute() -> Skeleton:
-        if fps <= STORE_FPS:
+        if fps <= STORE_FPS * _RATE_SLACK:
             display = stored_preview(library, cache, clip)
         else:
             display = _full_rate(library, cache, clip)

@@ -18,6 +18,8 @@ export const CAMERA = Object.freeze({
   floor: 0.1, // fraction of the canvas height below the floor line, when the body allows
   margin: 0.07, // body heights kept free around the figure (the head's disc, the lines)
   smoothing: 0.35, // seconds: the spread of the vertical follow's smoothing
+  steady: 0.5, // seconds each side over which the follow ignores a step's bob
+  hold: 1.5, // seconds: what the body does within this fits the view without moving it
 });
 
 const GRID_STEP = 0.25; // body heights between floor lines
@@ -123,17 +125,28 @@ function projectPoint(p, cx, cz, view, camera) {
   return [view.width / 2 + across * view.scale, view.height - (up - view.bottom) * view.scale];
 }
 
-/** Lowest and highest screen-up value of a frame's joints (body heights). */
-function upRange(joints, centre, camera) {
-  const [cx, , cz] = joints[centre];
+/** Lowest and highest screen-up value of a frame's joints and its farthest across (body
+ * heights), from `positions` (frames × joints × 3) at frame `f`. */
+function upRangeAt(positions, count, f, centre, camera) {
+  const cosYaw = Math.cos(camera.yaw);
+  const sinYaw = Math.sin(camera.yaw);
+  const cosPitch = Math.cos(camera.pitch);
+  const sinPitch = Math.sin(camera.pitch);
+  const base = f * count * 3;
+  const cx = positions[base + centre * 3];
+  const cz = positions[base + centre * 3 + 2];
   let lo = Infinity;
   let hi = -Infinity;
   let across = 0;
-  for (const p of joints) {
-    const [a, u] = viewOf(p, cx, cz, camera);
-    lo = Math.min(lo, u);
-    hi = Math.max(hi, u);
-    across = Math.max(across, Math.abs(a));
+  for (let j = 0; j < count; j += 1) {
+    const i = base + j * 3;
+    const dx = positions[i] - cx;
+    const dz = positions[i + 2] - cz;
+    const depth = -dx * sinYaw + dz * cosYaw;
+    const up = positions[i + 1] * cosPitch - depth * sinPitch;
+    lo = Math.min(lo, up);
+    hi = Math.max(hi, up);
+    across = Math.max(across, Math.abs(dx * cosYaw + dz * sinYaw));
   }
   return [lo, hi, across];
 }
@@ -153,7 +166,7 @@ export function frameMotion(track, width, height, { first = 0, last = track.fram
   let tallest = 0;
   let reach = 0;
   for (let k = 0; k < count; k += 1) {
-    const [lo, hi, across] = upRange(track.frame(first + k), centre, camera);
+    const [lo, hi, across] = upRangeAt(track.positions, track.jointCount, first + k, centre, camera);
     lows[k] = lo;
     highs[k] = hi;
     tallest = Math.max(tallest, hi - lo);
@@ -166,44 +179,88 @@ export function frameMotion(track, width, height, { first = 0, last = track.fram
     tallest = Math.max(tallest, e.height * Math.cos(camera.pitch) + 2 * e.reach * Math.sin(camera.pitch));
     reach = Math.max(reach, e.reach);
   }
+  // The view is tall enough for all the body does within `hold` seconds (a jump, a squat, a
+  // quick step up): the camera then never has to move fast, only follow slow changes (a
+  // climb) — a figure a little smaller rather than a view that lurches.
+  const holdRadius = Math.max(1, Math.round((camera.hold / 2) * track.fps));
+  const tops = runningExtreme(highs, holdRadius, Math.max);
+  const floors = runningExtreme(lows, holdRadius, Math.min);
+  for (let k = 0; k < count; k += 1) tallest = Math.max(tallest, tops[k] - floors[k]);
   const m = camera.margin;
   const needed = Math.max(camera.viewHeight, tallest + 2 * m);
   const sideRoom = Math.max(1, width / 2 - SIDE_MARGIN_PX);
   const scale = Math.min(height / needed, sideRoom / (reach + m));
   const visible = height / scale; // body heights from the bottom to the top edge
   const preferred = -camera.floor * visible;
-  const low = new Float64Array(count); // the bottom edge may go no higher than this...
-  const high = new Float64Array(count); // ...and no lower than this (for the top)
-  const path = new Float64Array(count);
+  // The bottom edge must stay between low[k] (the head in) and high[k] (the feet in).
+  const low = new Float64Array(count);
+  const high = new Float64Array(count);
   for (let k = 0; k < count; k += 1) {
     high[k] = lows[k] - m;
     low[k] = highs[k] + m - visible;
     if (low[k] > high[k]) low[k] = high[k] = (low[k] + high[k]) / 2;
-    path[k] = Math.min(high[k], Math.max(low[k], preferred));
+  }
+  // Aim within the bounds' extremes over a second around each frame: the bounds bob with
+  // every step (the head rises and falls), and a view held to them would bob too.
+  const window = Math.max(1, Math.round(camera.steady * track.fps));
+  const steadyLow = runningExtreme(low, window, Math.max);
+  const steadyHigh = runningExtreme(high, window, Math.min);
+  const path = new Float64Array(count);
+  for (let k = 0; k < count; k += 1) {
+    const [a, b] = steadyLow[k] <= steadyHigh[k] ? [steadyLow[k], steadyHigh[k]] : [low[k], high[k]];
+    // The floor where it always is when the body allows; else the body in the middle (a
+    // climber high above the floor is followed as a camera operator would).
+    path[k] = preferred >= a && preferred <= b ? preferred : (a + b) / 2;
   }
   const sigma = Math.max(0.5, camera.smoothing * track.fps);
-  for (let pass = 0; pass < 4; pass += 1) {
+  for (let pass = 0; pass < 3; pass += 1) {
     const smooth = gaussianSmooth(path, sigma);
     for (let k = 0; k < count; k += 1) path[k] = Math.min(high[k], Math.max(low[k], smooth[k]));
+  }
+  // Bend out what kinks the bounds left: steps that lower the path's curvature (its fourth
+  // difference, as an elastic rod rests on what holds it), held to the bounds each time. Where
+  // a pose stops the view, the view then turns gently around it rather than at a corner.
+  const at = (i) => path[Math.min(count - 1, Math.max(0, i))];
+  for (let pass = 0; pass < 300; pass += 1) {
+    for (let k = 0; k < count; k += 1) {
+      const bend = at(k - 2) - 4 * at(k - 1) + 6 * path[k] - 4 * at(k + 1) + at(k + 2);
+      path[k] = Math.min(high[k], Math.max(low[k], path[k] - bend / 16));
+    }
   }
   return { scale, visible, first, bottoms: path, width, height };
 }
 
-function gaussianSmooth(values, sigma) {
+/** The max (or min: `pick`) of `values` over `radius` samples each side of each one. */
+function runningExtreme(values, radius, pick) {
   const n = values.length;
-  const radius = Math.min(n, Math.ceil(3 * sigma));
-  const weights = [];
-  for (let d = -radius; d <= radius; d += 1) weights.push(Math.exp((-d * d) / (2 * sigma * sigma)));
   const out = new Float64Array(n);
   for (let i = 0; i < n; i += 1) {
-    let sum = 0;
-    let total = 0;
-    for (let d = -radius; d <= radius; d += 1) {
-      const j = Math.min(n - 1, Math.max(0, i + d)); // edges held
-      sum += weights[d + radius] * values[j];
-      total += weights[d + radius];
-    }
-    out[i] = sum / total;
+    let best = values[i];
+    for (let j = Math.max(0, i - radius); j <= Math.min(n - 1, i + radius); j += 1) best = pick(best, values[j]);
+    out[i] = best;
+  }
+  return out;
+}
+
+/** Values smoothed by a Gaussian of `sigma` samples (three box filters in a row: each pass
+ * costs the same whatever sigma; the ends are held). */
+function gaussianSmooth(values, sigma) {
+  const width = Math.max(1, Math.round(Math.sqrt((12 * sigma * sigma) / 3 + 1)));
+  let out = Float64Array.from(values);
+  for (let pass = 0; pass < 3; pass += 1) out = boxSmooth(out, Math.floor(width / 2));
+  return out;
+}
+
+function boxSmooth(values, radius) {
+  const n = values.length;
+  const out = new Float64Array(n);
+  if (!n) return out;
+  const at = (i) => values[Math.min(n - 1, Math.max(0, i))];
+  let sum = 0;
+  for (let d = -radius; d <= radius; d += 1) sum += at(d);
+  for (let i = 0; i < n; i += 1) {
+    out[i] = sum / (2 * radius + 1);
+    sum += at(i + radius + 1) - at(i - radius);
   }
   return out;
 }
@@ -472,7 +529,7 @@ export class Figure {
     const framing = this.framingFor(width, height);
     // The framing's bottom edge at this time, held to this very frame's bounds (a detail
     // frame between two frames of an overview may need a little more room).
-    const [lo, hi] = upRange(joints, this.pelvis, CAMERA);
+    const [lo, hi] = upRangeAt(shown.track.positions, shown.track.jointCount, shown.index, this.pelvis, CAMERA);
     const m = CAMERA.margin;
     let bottom = bottomAt(framing, this.track, shown.time);
     bottom = Math.min(lo - m, Math.max(hi + m - framing.visible, bottom));

@@ -15,8 +15,9 @@ import { el, nextId } from "./util.js";
 const READOUT_MS = 100;
 
 /** Seconds with two decimals ("2.9999970000000005" -> "3.00 s"; 83.5 -> "1:23.50"). */
-export function formatTime(seconds) {
-  if (!Number.isFinite(seconds)) return "–";
+export function formatTime(value) {
+  if (!Number.isFinite(value)) return "–";
+  const seconds = Math.round(value * 100) / 100; // 59.99994 is 1:00.00, not 60.00 s
   if (seconds < 60) return `${seconds.toFixed(2)} s`;
   const hours = Math.floor(seconds / 3600);
   const minutes = Math.floor((seconds - hours * 3600) / 60);
