@@ -43,7 +43,7 @@ const PROJECTIONS = {
   },
 };
 const MARGIN = { left: 56, right: 16, top: 16, bottom: 44 };
-const RADIUS = 3.2;
+const RADIUS = 4;
 const mapCache = new Map(); // descriptor -> Promise<map>
 
 function loadMap(descriptor, { fresh = false } = {}) {
