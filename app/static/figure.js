@@ -438,7 +438,7 @@ export class Figure {
     this.canvas.dataset.frameCount = String(track.frameCount);
     this.framing = null;
     this.lastKey = "";
-    this.draw();
+    if (this.visible) this.draw(); // off screen: framed and drawn when it scrolls into view
   }
 
   /** Kept for callers written for the raw response: the decoded track's response. */
