@@ -106,7 +106,8 @@ export async function renderClip(main, params, { navigate, notify }) {
   document.title = `${clip.name} · mocap-index`;
 
   // -- preview: the whole take, at a resolution that fits what is shown ----------------------------
-  const player = new Player({ playing: true });
+  // The clock starts once the take's length is known (it would run off the end before).
+  const player = new Player({ playing: false });
   const timeline = new Timeline(player, { label: `Playback of ${clip.name}`, zoomable: true });
   const canvas = el("canvas", {
     class: "figure large",
@@ -139,7 +140,8 @@ export async function renderClip(main, params, { navigate, notify }) {
       firstFrame: clip.lead_in_frames,
     });
     previewNote.textContent = clip.lead_in_frames ? `Preview: the first ${plural(clip.lead_in_frames, "rest-pose frame")} left out.` : "";
-    showSpan(Number(spanStart.value), Number(spanEnd.value));
+    showSpan();
+    if (!player.range) timeline.setPlaying(true);
   });
 
   // -- a span of the clip: drag on the band under the timeline, type it, or press [ and ] -------

@@ -215,15 +215,9 @@ export class Timeline {
     this.setPlaying(false);
   }
 
-  /** The frame of the file shown at the playhead (counted from the first frame after the
-   * lead-in), with the rate used to step. */
-  frameStep() {
-    return this.fps || 30;
-  }
-
-  /** Step `frames` frames (pausing). */
+  /** Step `frames` frames of the file (30 a second when its rate is not known), pausing. */
   step(frames) {
-    const fps = this.frameStep();
+    const fps = this.fps || 30;
     const current = Math.floor(this.player.time * fps + 1e-6);
     const last = Math.max(0, Math.ceil(this.duration * fps - 1e-6) - 1);
     const next = Math.min(last, Math.max(0, current + frames));

@@ -64,9 +64,14 @@ def upload(base: str, files: dict[str, tuple[str, bytes]], **data: Any) -> dict[
 
 
 @contextmanager
-def browsing(browser: Any, base: str) -> Iterator[Any]:  # noqa: F811
+def browsing(
+    browser: Any,  # noqa: F811
+    base: str,
+    viewport: dict[str, int] | None = None,
+) -> Iterator[Any]:
+    """A page on ``base`` (1280 × 900 unless ``viewport``); fails on any script error."""
     context = browser.new_context(
-        viewport={"width": 1280, "height": 900}, base_url=base, accept_downloads=True
+        viewport=viewport or {"width": 1280, "height": 900}, base_url=base, accept_downloads=True
     )
     context.set_default_timeout(TIMEOUT_MS)
     page = context.new_page()

@@ -10,7 +10,6 @@ Everything here is built from tests/fixtures: it runs without ../shared.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -21,14 +20,8 @@ from app.motion.formats import read_bvh
 from tests.conftest import FIXTURES_DIR
 from tests.motion.gltf_builder import two_animation_glb
 from tests.ui.takes import bandai_take, climb
-from tests.ui.test_browser import (  # noqa: F401 - fixtures
-    TIMEOUT_MS,
-    browser,
-    screenshot,
-    serve,
-    watch_problems,
-)
-from tests.ui.test_everyday_ui import drop_files
+from tests.ui.test_browser import browser, screenshot, serve  # noqa: F401 - fixtures
+from tests.ui.test_everyday_ui import browsing, drop_files
 
 pytestmark = pytest.mark.slow
 
@@ -75,19 +68,6 @@ def library(browser: Any, tmp_path_factory: pytest.TempPathFactory) -> Iterator[
             "climb": upload(base, {"file": ("climb.bvh", climb())}, labels="climb"),
         }
         yield {"base": base, **clips}
-
-
-@contextmanager
-def browsing(browser: Any, base: str, viewport: dict[str, int]) -> Iterator[Any]:  # noqa: F811
-    context = browser.new_context(viewport=viewport, base_url=base)
-    context.set_default_timeout(TIMEOUT_MS)
-    page = context.new_page()
-    problems = watch_problems(page)
-    try:
-        yield page
-    finally:
-        context.close()
-    assert not problems, problems
 
 
 def no_sideways_scroll(page: Any, what: str) -> None:

@@ -18,32 +18,21 @@ import pytest
 
 from tests.conftest import shared_data_dir
 from tests.ui.takes import bandai_take, climb, jump
-from tests.ui.test_browser import (  # noqa: F401 - fixtures
-    TIMEOUT_MS,
-    browser,
-    screenshot,
-    serve,
-    watch_problems,
-)
+from tests.ui.test_browser import browser, page, screenshot, serve  # noqa: F401 - fixtures
 
 pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
-def base(browser: Any, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:  # noqa: F811
+def server(browser: Any, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:  # noqa: F811
+    """This module's server (test_browser's `page` opens pages on it)."""
     with serve(tmp_path_factory.mktemp("previews")) as url:
         yield url
 
 
 @pytest.fixture
-def page(browser: Any, base: str) -> Iterator[Any]:  # noqa: F811
-    context = browser.new_context(viewport={"width": 1280, "height": 900}, base_url=base)
-    context.set_default_timeout(TIMEOUT_MS)
-    page = context.new_page()
-    problems = watch_problems(page)
-    yield page
-    context.close()
-    assert not problems, problems
+def base(server: str) -> str:
+    return server
 
 
 def upload(base: str, name: str, data: bytes) -> dict[str, Any]:
@@ -60,12 +49,12 @@ def head_heights(base: str, clip_id: int) -> np.ndarray:
     return np.asarray(frames[:, body["joints"].index("head"), 1])
 
 
-def figure_index(page: Any, role: str, clip_id: int) -> int:
+def figure_index(page: Any, role: str, clip_id: int) -> int:  # noqa: F811
     figures = page.evaluate("() => window.__mocap.figures()")
     return next(i for i, f in enumerate(figures) if f["role"] == role and f["clipId"] == clip_id)
 
 
-def wait_loaded(page: Any, role: str, clip_id: int) -> None:
+def wait_loaded(page: Any, role: str, clip_id: int) -> None:  # noqa: F811
     page.wait_for_function(
         "([role, id]) => window.__mocap.figures().some(f => f.role === role && f.clipId === id "
         "&& f.frameCount > 0 && f.points)",
@@ -73,7 +62,7 @@ def wait_loaded(page: Any, role: str, clip_id: int) -> None:
     )
 
 
-def check_every_frame_inside(page: Any, role: str, clip_id: int) -> list[dict[str, Any]]:
+def check_every_frame_inside(page: Any, role: str, clip_id: int) -> list[dict[str, Any]]:  # noqa: F811
     """Every frame the figure plays, drawn: the figure's box (joints, the head's disc, the
     lines) lies inside its canvas. Returns the frames."""
     index = figure_index(page, role, clip_id)
@@ -95,7 +84,7 @@ def bottoms(frames: list[dict[str, Any]]) -> np.ndarray:
 # -- 1: the camera follows height -----------------------------------------------------------
 
 
-def test_a_climb_stays_in_frame_on_every_page(page: Any, base: str) -> None:
+def test_a_climb_stays_in_frame_on_every_page(page: Any, base: str) -> None:  # noqa: F811
     clip = upload(base, "climb.bvh", climb())
     heads = head_heights(base, clip["id"])
     # A real climb: the head goes far above where a fixed camera showed it (1.26 body
@@ -125,7 +114,7 @@ def test_a_climb_stays_in_frame_on_every_page(page: Any, base: str) -> None:
     screenshot(page, "climb-clip-page")
 
 
-def test_a_walk_keeps_its_floor_and_a_jump_is_followed(page: Any, base: str) -> None:
+def test_a_walk_keeps_its_floor_and_a_jump_is_followed(page: Any, base: str) -> None:  # noqa: F811
     walk = upload(base, "walk-take.bvh", bandai_take(4.0))
     hop = upload(base, "jump.bvh", jump())
     assert head_heights(base, hop["id"]).max() > 1.6  # above the old fixed camera's top
@@ -150,7 +139,7 @@ def test_a_walk_keeps_its_floor_and_a_jump_is_followed(page: Any, base: str) -> 
 
 
 @pytest.mark.parametrize("role", ["library", "clip"])
-def test_cmu_playground_climb_in_frame(page: Any, base: str, role: str) -> None:
+def test_cmu_playground_climb_in_frame(page: Any, base: str, role: str) -> None:  # noqa: F811
     path = shared_data_dir() / "cmu" / "bvh-mb" / "01" / "01_02.bvh"
     if not path.is_file():
         pytest.skip(f"{path} not found (../shared/data/cmu)")
@@ -164,7 +153,7 @@ def test_cmu_playground_climb_in_frame(page: Any, base: str, role: str) -> None:
 # -- 2 and 3: a 60-s take, any span of it; the keys ----------------------------------------------
 
 
-def rail_x(page: Any, seconds: float) -> float:
+def rail_x(page: Any, seconds: float) -> float:  # noqa: F811
     """Where the page's timeline puts `seconds` (CSS px from the viewport's left)."""
     box = page.locator(".timeline-rail").bounding_box()
     view = page.evaluate(
@@ -183,7 +172,7 @@ def seconds_of(text: str) -> float:
     return float(text)
 
 
-def test_a_span_after_40_s_of_a_60_s_take(page: Any, base: str) -> None:
+def test_a_span_after_40_s_of_a_60_s_take(page: Any, base: str) -> None:  # noqa: F811
     from playwright.sync_api import expect
 
     take = upload(base, "minute.bvh", bandai_take(60.0))
@@ -259,7 +248,7 @@ def test_a_span_after_40_s_of_a_60_s_take(page: Any, base: str) -> None:
     expect(page.locator("main .status")).to_contain_text("Moments like")
 
 
-def test_clip_page_keys(page: Any, base: str) -> None:
+def test_clip_page_keys(page: Any, base: str) -> None:  # noqa: F811
     from playwright.sync_api import expect
 
     take = upload(base, "keys.bvh", bandai_take(6.0))

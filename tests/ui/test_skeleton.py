@@ -170,10 +170,8 @@ def test_unknown_clip_is_404_and_non_number_is_422(
     assert response.status_code == 422 and response.json()["error"] == "invalid_input"
 
 
-def test_skeletons_are_cached_and_carry_an_etag(
-    ui_client: TestClient, fixtures_dir: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    clip_id = upload_bvh(ui_client, fixtures_dir / BANDAI)
+def count_reads(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """A list that grows by one each time a stored clip's file is parsed for a preview."""
     reads: list[int] = []
     real = previews.read_stored_motion
 
@@ -182,6 +180,14 @@ def test_skeletons_are_cached_and_carry_an_etag(
         return real(*args)
 
     monkeypatch.setattr(previews, "read_stored_motion", counting)
+    return reads
+
+
+def test_skeletons_are_cached_and_carry_an_etag(
+    ui_client: TestClient, fixtures_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    clip_id = upload_bvh(ui_client, fixtures_dir / BANDAI)
+    reads = count_reads(monkeypatch)
     first = ui_client.get(f"/clips/{clip_id}/skeleton")
     again = ui_client.get(f"/clips/{clip_id}/skeleton")
     other_rate = ui_client.get(f"/clips/{clip_id}/skeleton", params={"fps": 15})
@@ -202,14 +208,7 @@ def test_stored_previews_outlive_the_process(
     first = ui_client.get(f"/clips/{clip_id}/skeleton", params={"fps": 15}).content
     stored = list((settings.data_dir / "previews").rglob("*.npz"))
     assert len(stored) == 1
-    reads: list[int] = []
-    real = previews.read_stored_motion
-
-    def counting(*args: Any) -> Any:
-        reads.append(1)
-        return real(*args)
-
-    monkeypatch.setattr(previews, "read_stored_motion", counting)
+    reads = count_reads(monkeypatch)
     with TestClient(ui_app(settings)) as fresh:
         assert fresh.get(f"/clips/{clip_id}/skeleton", params={"fps": 15}).content == first
         assert reads == []
