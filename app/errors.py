@@ -64,6 +64,13 @@ class SkeletonMappingError(ParseError):
     code = "unmappable_skeleton"
 
 
+class UnknownAnimation(ParseError):
+    """An FBX/glTF animation asked for by a name the file does not have (the detail lists
+    the file's animations)."""
+
+    code = "unknown_animation"
+
+
 class UnreadableFile(InvalidInput):
     """A file whose reader crashed, hung or ran out of memory (in its worker process)."""
 

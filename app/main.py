@@ -16,6 +16,7 @@ from starlette.concurrency import run_in_threadpool
 
 from app.api import clips, meta, moments, search
 from app.api.auth import API_KEY_HEADER, log_access_policy, read_dependencies
+from app.api.compression import add_compression
 from app.api.errors import error_responses, install_error_handlers
 from app.api.limits import BodySizeLimit
 from app.api.ui import mount_ui
@@ -82,6 +83,7 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
     app.state.settings = settings
     install_error_handlers(app)
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
+    add_compression(app)  # gzip for larger JSON answers
     if settings.cors_origins:  # CORS is off unless origins are configured
         app.add_middleware(
             CORSMiddleware,

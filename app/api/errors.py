@@ -193,6 +193,11 @@ ERROR_EXAMPLES: dict[int, dict[str, tuple[str, str]]] = {
             "Unreadable motion file",
             "file 'walk.bvh', line 12: CHANNELS: 'x' is not a number",
         ),
+        "unknown_animation": (
+            "No animation of that name in the FBX/glTF file",
+            "file 'robot.glb': animation: the file has no animation 'Run'; it has 'Dance', "
+            "'Idle', 'Walk'",
+        ),
         "limit_exceeded": (
             "Over the frame or joint limit",
             "file 'long.bvh', line 9: 200000 frames, more than the limit of 100000",

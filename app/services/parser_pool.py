@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from typing import TYPE_CHECKING, Any, Protocol
 
-from app.errors import LimitExceeded, ParseError, UnreadableFile
+from app.errors import LimitExceeded, ParseError, UnknownAnimation, UnreadableFile
 from app.motion.formats.scene import Animation
 from app.motion.model import Motion, ParseLimits
 
@@ -176,6 +176,8 @@ def _worker_main(conn: Connection, memory_mb: int | None) -> None:
         exit_after = False
         try:
             answer: tuple[Any, ...] = ("ok", parse_scene(kind, data, animation, limits, kept))
+        except UnknownAnimation as error:
+            answer = ("unknown_animation", error.reason, None)
         except ParseError as error:
             answer = ("parse_error", error.reason, error.line)
         except LimitExceeded as error:
@@ -388,6 +390,8 @@ class ParserPool:
         if status == "ok":
             parsed: ParsedScene = answer[1]
             return parsed
+        if status == "unknown_animation":
+            raise UnknownAnimation(answer[1])
         if status == "parse_error":
             raise ParseError(answer[1], line=answer[2])
         if status == "limit":

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.errors import LimitExceeded, ParseError
+from app.errors import LimitExceeded, ParseError, UnknownAnimation
 from app.motion.model import Motion, ParseLimits, Skeleton
 
 
@@ -49,7 +49,7 @@ def pick_animation(animations: list[Animation], name: str | None) -> int:
         if animation.name == name:
             return i
     listed = ", ".join(repr(a.name) for a in animations[:50])
-    raise ParseError(f"animation: the file has no animation {name!r}; it has {listed}")
+    raise UnknownAnimation(f"animation: the file has no animation {name!r}; it has {listed}")
 
 
 # A child whose offset in its parent's frame moves by more than this fraction of the body's
