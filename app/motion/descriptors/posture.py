@@ -13,6 +13,13 @@ normalisation gives six numbers ``f(n) = (σxx, σyy, σzz, σxy, σyz, σzx)`` 
 clip's vector is their mean over frames followed by their population standard deviation
 (eq. 3): 12 numbers in units of (body heights)². Compared with the Euclidean distance.
 Mirroring a motion left-to-right flips the sign of σxy and σzx only.
+
+The paper: "where N is the number of frames and f̄ and s̄ are the mean and standard deviation
+of f(n)'s". A still stretch, or a clip of one frame, is no special case: its frames share one
+pose, so f̄ is that pose's covariance and s̄ is exactly 0 (rounding that would make the
+variance a hair negative is clamped to 0, see :func:`~app.motion.spans.std_from_moments`).
+Height is > 0 for every body (:func:`~app.motion.body.build_body` refuses a skeleton of zero
+height), so every number is finite.
 """
 
 from __future__ import annotations
@@ -31,6 +38,8 @@ POSTURE_JOINTS: tuple[str, ...] = (
     "head",
 )
 _POSTURE_INDEX = np.array([CANONICAL_INDEX[name] for name in POSTURE_JOINTS])
+# Which of (σxx, σyy, σzz, σxy, σyz, σzx, their six squares) cannot be negative.
+_POSTURE_NONNEGATIVE = np.array([True] * 3 + [False] * 3 + [True] * 6)
 
 
 def posture_features(local_positions: np.ndarray) -> np.ndarray:
@@ -59,7 +68,9 @@ def posture_spans(body: Body, spans: np.ndarray) -> np.ndarray:
     ``spans`` is ``(W, 2)`` frame ranges ``[start, stop)`` of ``body``.
     """
     features = posture_features(body.local_positions()[:, _POSTURE_INDEX])
-    means = RunningMeans(np.concatenate([features, features**2], axis=1))
+    means = RunningMeans(
+        np.concatenate([features, features**2], axis=1), nonnegative=_POSTURE_NONNEGATIVE
+    )
     moments = means.mean(spans[:, 0], spans[:, 1])
     mean, mean_square = moments[:, :6], moments[:, 6:]
     return np.concatenate([mean, std_from_moments(mean, mean_square)], axis=1)
