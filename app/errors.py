@@ -55,13 +55,22 @@ class ParseError(InvalidInput):
         """Return a copy that names the file it came from (keeps the line number)."""
         if self.source:
             return self
-        return ParseError(self.reason, line=self.line, source=source)
+        return type(self)(self.reason, line=self.line, source=source)
 
 
 class SkeletonMappingError(ParseError):
     """The skeleton lacks joints every descriptor needs (names the missing canonical joints)."""
 
     code = "unmappable_skeleton"
+
+
+class NoAnimation(ParseError):
+    """A rig with no animation: a skeleton (and maybe a mesh) that is read fine but holds no
+    motion to describe (BVH ``Frames: 0`` or no MOTION section, an FBX/glTF without an
+    animation or with only a zero-length one). Not a damaged file: it is usable as a target
+    rig, just not as a clip."""
+
+    code = "no_animation"
 
 
 class UnreadableFile(InvalidInput):

@@ -25,6 +25,7 @@ from app.errors import (
     InvalidInput,
     MocapError,
     MomentsOff,
+    NoAnimation,
     NotFound,
     PayloadTooLarge,
     StorageUnavailable,
@@ -37,6 +38,7 @@ log = logging.getLogger(__name__)
 # THE table: domain exception class -> HTTP status. Subclasses inherit their base's status
 # (ParseError, SkeletonMappingError and LimitExceeded are InvalidInput: 422).
 STATUS_BY_ERROR: dict[type[MocapError], int] = {
+    NoAnimation: 422,  # a rig without motion: readable, but not a clip
     InvalidInput: 422,
     NotFound: 404,
     PayloadTooLarge: 413,
@@ -192,6 +194,12 @@ ERROR_EXAMPLES: dict[int, dict[str, tuple[str, str]]] = {
         "parse_error": (
             "Unreadable motion file",
             "file 'walk.bvh', line 12: CHANNELS: 'x' is not a number",
+        ),
+        "no_animation": (
+            "A rig with no animation",
+            "file 'tpose.fbx': the file is a rig with no animation: a skeleton of 68 joints and "
+            "only a zero-length animation ('Take 001', one instant), so there is no motion to "
+            "describe",
         ),
         "limit_exceeded": (
             "Over the frame or joint limit",

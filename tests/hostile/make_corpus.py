@@ -156,11 +156,11 @@ def small_cases() -> list[Case]:
         ),
         Case(
             "no_motion",
-            "a hierarchy and no MOTION block",
+            "a hierarchy and no MOTION block: a rig",
             _bvh("nomotion.bvh", hierarchy),
             422,
-            P,
-            "MOTION",
+            "no_animation",
+            "no MOTION section",
         ),
         Case(
             "truncated_motion",
@@ -214,7 +214,14 @@ def small_cases() -> list[Case]:
             P,
             "not a finite number",
         ),
-        Case("frames_zero", "Frames: 0", _bvh("f0.bvh", frames("0")), 422, P, "without motion"),
+        Case(
+            "frames_zero",
+            "Frames: 0: a rig",
+            _bvh("f0.bvh", frames("0")),
+            422,
+            "no_animation",
+            "rig with no animation",
+        ),
         Case("frames_negative", "Frames: -3", _bvh("fm3.bvh", frames("-3")), 422, P, "at least 1"),
         Case("frames_more", "Frames: 7 of 5", _bvh("f7.bvh", frames("7")), 422, P, "says 7"),
         # Accepted since #10: Frames: is a claim; lines beyond it are ignored with a warning.
@@ -527,11 +534,11 @@ def scene_cases() -> list[Case]:
         ),
         Case(
             "glb_no_animation",
-            "a skin but no animation",
+            "a skin but no animation: a rig",
             {"file": ("s.glb", pack_glb(dict(document, animations=[]), binary))},
             422,
-            P,
-            "no animation",
+            "no_animation",
+            "rig with no animation",
         ),
         Case(
             "glb_huge_accessor",

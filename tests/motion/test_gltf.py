@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from app.errors import LimitExceeded, ParseError
+from app.errors import LimitExceeded, NoAnimation, ParseError
 from app.motion.body import build_body
 from app.motion.formats import read_bvh
 from app.motion.formats.gltf import list_gltf_animations, read_gltf
@@ -88,8 +88,23 @@ def test_non_finite_numbers_no_skeleton_and_no_animation_are_told_apart(bvh_moti
     with pytest.raises(ParseError, match="no skeleton"):
         read_gltf(pack_glb(no_skin, binary))
     still = dict(document, animations=[])
-    with pytest.raises(ParseError, match="no animation"):
+    with pytest.raises(NoAnimation, match="rig with no animation"):
         read_gltf(pack_glb(still, binary))
+
+
+def test_a_rig_is_refused_as_a_rig_not_as_a_damaged_file(bvh_motion):
+    """No animation, a zero-length one (a bind pose written as a take), or one that moves no
+    node (morph-target weights only): the skeleton is fine, there is just no motion."""
+    one_instant = build_glb(bvh_motion.slice_frames(0, 1), name="bind pose")
+    with pytest.raises(NoAnimation, match=r"zero-length animation \('bind pose'"):
+        read_gltf(one_instant)
+    document, binary = gltf_parts(bvh_motion, name="faces")
+    for channel in document["animations"][0]["channels"]:
+        channel["target"]["path"] = "weights"
+    with pytest.raises(NoAnimation, match=r"moves no node") as raised:
+        read_gltf(pack_glb(document, binary))
+    assert raised.value.code == "no_animation"
+    assert f"a skeleton of {bvh_motion.skeleton.joint_count} joints" in raised.value.detail
 
 
 @pytest.mark.parametrize(

@@ -34,6 +34,7 @@ from app.motion.formats.scene import (
     check_frame_budget,
     motion_from_graph,
     pick_animation,
+    rig_without_animation,
     unique_names,
 )
 from app.motion.model import Motion, ParseLimits
@@ -121,9 +122,11 @@ def read_fbx(
 
     Raises
     ------
+    NoAnimation
+        A rig: a skeleton without animation, with only a zero-length one, or with one that
+        moves no node.
     ParseError
-        Not FBX, damaged, no skeleton, a skeleton without animation, non-finite numbers,
-        an unknown ``animation``.
+        Not FBX, damaged, no skeleton, non-finite numbers, an unknown ``animation``.
     LimitExceeded
         Over ``limits`` (nodes, depth, joints, frames x nodes).
     """
@@ -164,19 +167,19 @@ def read_fbx(
     )
     if not is_bone.any():
         raise ParseError("the file has no skeleton (no bones or skin clusters)")
-    if not loaded.animations:
-        raise ParseError(
-            f"the file has a skeleton ({int(is_bone.sum())} bones) but no animation: nothing moves"
-        )
-    chosen = pick_animation(loaded.animations, animation)
+    chosen = pick_animation(loaded.animations, animation, joints=int(is_bone.sum()))
     info = loaded.animations[chosen]
     check_frame_budget(limits, info.frame_count, len(nodes))
     rest_t, rest_r, rest_s = _static(nodes)
     begin = loaded.spans[chosen][0]
     times = begin + np.arange(info.frame_count) / loaded.fps
-    translation, rotation, scale = _baked(
+    translation, rotation, scale, animated = _baked(
         scene, loaded.anims[chosen], nodes, node_ids, times, loaded.fps, rest_t, rest_r, rest_s
     )
+    if not animated:
+        raise rig_without_animation(
+            int(is_bone.sum()), f"an animation ({info.name!r}) that moves no node"
+        )
     graph = NodeGraph(
         names=[node.name for node in nodes],
         parents=parents,
@@ -221,9 +224,10 @@ def _baked(
     rest_t: np.ndarray,
     rest_r: np.ndarray,
     rest_s: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
     """Per-frame local transforms ``(F, N, 3)``, ``(F, N, 4)``, ``(F, N, 3)``: nodes the
-    stack animates from ufbx's bake (keys at every frame), the others at rest."""
+    stack animates from ufbx's bake (keys at every frame), the others at rest; and whether
+    the stack animates any node at all."""
     import ufbx
 
     frames = len(times)
@@ -234,6 +238,7 @@ def _baked(
         bake = ufbx.bake_anim(scene, anim, resample_rate=fps, minimum_sample_rate=fps)
     except ufbx.UfbxError as error:
         raise ParseError(f"cannot sample the animation: {_ufbx_message(error)}") from None
+    animated = False
     for baked in list(bake.nodes):
         index = node_ids.get(baked.typed_id)
         if index is None:
@@ -246,11 +251,12 @@ def _baked(
             table = _key_table(keys, width)
             if table is None:
                 continue
+            animated = True
             if width == 4:
                 out[:, index] = _sample_quaternions(table, times)
             else:
                 out[:, index] = _sample(table, times)
-    return translation, rotation, scale
+    return translation, rotation, scale, animated
 
 
 def _key_table(keys: Any, width: int) -> np.ndarray | None:

@@ -37,6 +37,7 @@ from app.motion.formats.scene import (
     check_frame_budget,
     motion_from_graph,
     pick_animation,
+    rig_without_animation,
     unique_names,
 )
 from app.motion.model import Motion, ParseLimits
@@ -328,7 +329,8 @@ def read_gltf(
 ) -> tuple[Motion, list[Animation], str]:
     """Read one animation of a glTF 2.0 / GLB / VRMA file (see the module docstring).
 
-    Returns ``(motion, animations, chosen)`` like :func:`~app.motion.formats.fbx.read_fbx`.
+    Returns ``(motion, animations, chosen)`` and raises like
+    :func:`~app.motion.formats.fbx.read_fbx` (:class:`~app.errors.NoAnimation` for a rig).
     """
     loaded = _Document(data, limits)
     document = loaded.document
@@ -353,11 +355,7 @@ def read_gltf(
             is_bone[node] = True
     if not is_bone.any():
         raise ParseError("the file has no skeleton (no skin joints or VRM humanoid bones)")
-    if not loaded.animations:
-        raise ParseError(
-            f"the file has a skeleton ({int(is_bone.sum())} joints) but no animation: nothing moves"
-        )
-    chosen = pick_animation(loaded.animations, animation)
+    chosen = pick_animation(loaded.animations, animation, joints=int(is_bone.sum()))
     info = loaded.animations[chosen]
     check_frame_budget(limits, info.frame_count, count)
     rest = [_node_transform(node) for node in nodes]
@@ -373,6 +371,7 @@ def read_gltf(
     }
     gltf_animation = document.animations[chosen]
     samplers = gltf_animation.samplers or []
+    animated = False
     for channel in gltf_animation.channels or []:
         target = channel.target
         path = getattr(target, "path", None)
@@ -386,6 +385,11 @@ def read_gltf(
         values = _accessor(document, loaded.buffers, sampler.output)
         tracks[path][:, node] = _sample_channel(
             keys, values, times, sampler.interpolation or "LINEAR", _PATHS[path], path
+        )
+        animated = True
+    if not animated:  # e.g. morph-target weights only: the skeleton never moves
+        raise rig_without_animation(
+            int(is_bone.sum()), f"an animation ({info.name!r}) that moves no node"
         )
     names = [node.name or f"node{i}" for i, node in enumerate(nodes)]
     for node, bone in human.items():

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.errors import LimitExceeded, ParseError
+from app.errors import LimitExceeded, NoAnimation, ParseError
 from app.motion.model import Motion, ParseLimits, Skeleton
 
 
@@ -38,18 +38,36 @@ class Animation:
     duration: float
 
 
-def pick_animation(animations: list[Animation], name: str | None) -> int:
-    """Index of the animation called ``name``, else of the longest (first of equals)."""
+def rig_without_animation(joints: int, why: str) -> NoAnimation:
+    """The error for a file whose skeleton of ``joints`` joints has no motion (``why``)."""
+    return NoAnimation(
+        f"the file is a rig with no animation: a skeleton of {joints} joints and {why}, so "
+        "there is no motion to describe"
+    )
+
+
+def pick_animation(animations: list[Animation], name: str | None, *, joints: int = 0) -> int:
+    """Index of the animation called ``name``, else of the longest (first of equals).
+
+    A file without animations, or whose chosen animation is zero-length (one instant: a
+    pose, the way exporters write a bind pose as a take), is a rig with no animation
+    (:class:`NoAnimation`; ``joints`` is the skeleton's size, for the message)."""
     if not animations:
-        raise ParseError("the file has no animation")
+        raise rig_without_animation(joints, "no animation")
     if name is None:
         longest = max(a.frame_count for a in animations)
-        return next(i for i, a in enumerate(animations) if a.frame_count == longest)
-    for i, animation in enumerate(animations):
-        if animation.name == name:
-            return i
-    listed = ", ".join(repr(a.name) for a in animations[:50])
-    raise ParseError(f"animation: the file has no animation {name!r}; it has {listed}")
+        chosen = next(i for i, a in enumerate(animations) if a.frame_count == longest)
+    else:
+        found = [i for i, animation in enumerate(animations) if animation.name == name]
+        if not found:
+            listed = ", ".join(repr(a.name) for a in animations[:50])
+            raise ParseError(f"animation: the file has no animation {name!r}; it has {listed}")
+        chosen = found[0]
+    if animations[chosen].frame_count <= 1:
+        raise rig_without_animation(
+            joints, f"only a zero-length animation ({animations[chosen].name!r}, one instant)"
+        )
+    return chosen
 
 
 # A child whose offset in its parent's frame moves by more than this fraction of the body's
