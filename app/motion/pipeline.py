@@ -76,8 +76,9 @@ def check_describable(body: Body, joint_names: tuple[str, ...] | None = None) ->
     if body.frame_count == 0:
         raise ParseError("no frame is left to describe")
     pelvis = body.positions[:, CANONICAL_INDEX["pelvis"]]
-    reach = np.linalg.norm(body.positions - pelvis[:, None], axis=2) / body.height  # (F, C)
-    jump = np.linalg.norm(np.diff(pelvis, axis=0), axis=1) / body.height  # (F-1,)
+    with np.errstate(over="ignore", invalid="ignore"):  # 1e308 - -1e308: inf, and so refused
+        reach = np.linalg.norm(body.positions - pelvis[:, None], axis=2) / body.height  # (F, C)
+        jump = np.linalg.norm(np.diff(pelvis, axis=0), axis=1) / body.height  # (F-1,)
     # ``not <=`` also catches a NaN that slipped through
     far = np.flatnonzero(~(reach <= MAX_BODY_REACH).all(axis=1))
     jumps = np.flatnonzero(~(jump <= MAX_BODY_REACH))
@@ -92,13 +93,17 @@ def check_describable(body: Body, joint_names: tuple[str, ...] | None = None) ->
             source = int(body.mapping.joints[c])
             if 0 <= source < len(joint_names):
                 joint = joint_names[source]
-        what = f"puts joint {joint!r} {reach[first, c]:.3g} body heights from the pelvis"
+        what = f"puts joint {joint!r} {_amount(reach[first, c])} body heights from the pelvis"
     else:
-        what = f"moves the pelvis {jump[first - 1]:.3g} body heights in one frame"
+        what = f"moves the pelvis {_amount(jump[first - 1])} body heights in one frame"
     raise ParseError(
         f"frame {frame} {what}: not a pose but a sentinel or overflowed number in the file; "
         "cut or repair that frame"
     )
+
+
+def _amount(value: float) -> str:
+    return f"{value:.3g}" if np.isfinite(value) else "more than 1e308"
 
 
 def describable_body(motion: Motion) -> Body:

@@ -199,6 +199,31 @@ def small_cases() -> list[Case]:
             "not finite",
         ),
         Case(
+            "sentinel_1e308",
+            "1e308 (finite) for the root's position in one frame: no pose, and past float32 "
+            "in the descriptors; refused alike by upload and both searches",
+            _bvh("sentinel.bvh", _edit_frame_value(bvh, "1e308", frame=2, column=0)),
+            422,
+            P,
+            "not a pose",
+        ),
+        Case(
+            "sentinel_1e30_last_frame_but_one",
+            "1e30 for the root's height in the frame before the last",
+            _bvh("sentinel30.bvh", _edit_frame_value(bvh, "-1e30", frame=3, column=1)),
+            422,
+            P,
+            "not a pose",
+        ),
+        Case(
+            "frame_time_tiny",
+            "Frame Time: 1e-300 (every step a speed past float32)",
+            _bvh("ttiny.bvh", frame_time("1e-300")),
+            422,
+            P,
+            "absurd",
+        ),
+        Case(
             "not_a_number",
             "a word among the numbers",
             _bvh("word.bvh", _edit_frame_value(bvh, "twelve")),
@@ -713,6 +738,34 @@ def big_cases() -> list[Case]:
             422,
             L,
             "100001 frames",
+        ),
+        Case(
+            "number_200k_digits_frame",
+            "one frame value of 200,000 digits then a letter (a regex backtracked on it for "
+            "22 minutes with the GIL held)",
+            _bvh("digits.bvh", _edit_frame_value(bvh, "1" * 200_000 + "x")),
+            422,
+            P,
+            "longer than 100 characters",
+        ),
+        Case(
+            "number_30k_digits_offset",
+            "an OFFSET of 30,000 digits then a letter",
+            _bvh(
+                "offset.bvh",
+                bvh.replace("OFFSET 2.59720 -7.13576", "OFFSET " + "1" * 30_000 + "x -7.13576", 1),
+            ),
+            422,
+            P,
+            "longer than 100 characters",
+        ),
+        Case(
+            "number_200k_digits_amc",
+            "an AMC value of 200,000 digits then a letter",
+            _pair(asf, amc.replace("lowerback 7.86573", "lowerback " + "1" * 200_000 + "x", 1)),
+            422,
+            P,
+            "longer than 100 characters",
         ),
         Case(
             "amc_10mb_line",

@@ -152,8 +152,8 @@ class EnergySamples:
             joints = (omega**2).reshape(len(omega), -1)
             root = np.stack([horizontal**2, vertical**2], axis=1)
         # Squares: never negative, and exactly 0 over a still stretch (app/motion/spans.py).
-        self.joints = RunningMeans(joints, nonnegative=True)
-        self.root = RunningMeans(root, nonnegative=True)
+        self.joints = RunningMeans(joints)
+        self.root = RunningMeans(root)
 
     def sample_range(self, spans: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(W,)`` first and ``(W,)`` one-past-last sample of each frame span."""

@@ -121,10 +121,9 @@ def limb_spans(body: Body, spans: np.ndarray) -> np.ndarray:
     """``(W, 60)`` mean then std over each span's frames of the limb unit directions."""
     directions = limb_directions(body).reshape(body.frame_count, -1)
     half = directions.shape[1]
-    squares = np.arange(2 * half) >= half
-    moments = RunningMeans(
-        np.concatenate([directions, directions**2], axis=1), nonnegative=squares
-    ).mean(spans[:, 0], spans[:, 1])
+    moments = RunningMeans(np.concatenate([directions, directions**2], axis=1)).mean(
+        spans[:, 0], spans[:, 1]
+    )
     mean, mean_square = moments[:, :half], moments[:, half:]
     return np.concatenate([mean, std_from_moments(mean, mean_square)], axis=1)
 
@@ -152,10 +151,6 @@ def heading_frames(body: Body) -> tuple[np.ndarray, np.ndarray]:
     forward /= np.maximum(np.linalg.norm(forward, axis=1, keepdims=True), 1e-12)
     left = np.cross(up, forward)
     return forward, left
-
-
-# Travel samples: forward, lateral velocity, turn rate, speed, forward², lateral², vertical².
-_TRAVEL_NONNEGATIVE = np.array([False, False, False, True, True, True, True])
 
 
 class TravelSamples:
@@ -193,8 +188,7 @@ class TravelSamples:
                 ],
                 axis=1,
             )
-        # Speed and squares cannot be negative: exact zeros over a still stretch.
-        self.samples = RunningMeans(samples, nonnegative=_TRAVEL_NONNEGATIVE)
+        self.samples = RunningMeans(samples)
 
     def travel(self, spans: np.ndarray) -> np.ndarray:
         """``(W, 8)`` the travel block of each span (see module docstring)."""

@@ -38,8 +38,6 @@ POSTURE_JOINTS: tuple[str, ...] = (
     "head",
 )
 _POSTURE_INDEX = np.array([CANONICAL_INDEX[name] for name in POSTURE_JOINTS])
-# Which of (σxx, σyy, σzz, σxy, σyz, σzx, their six squares) cannot be negative.
-_POSTURE_NONNEGATIVE = np.array([True] * 3 + [False] * 3 + [True] * 6)
 
 
 def posture_features(local_positions: np.ndarray) -> np.ndarray:
@@ -68,9 +66,7 @@ def posture_spans(body: Body, spans: np.ndarray) -> np.ndarray:
     ``spans`` is ``(W, 2)`` frame ranges ``[start, stop)`` of ``body``.
     """
     features = posture_features(body.local_positions()[:, _POSTURE_INDEX])
-    means = RunningMeans(
-        np.concatenate([features, features**2], axis=1), nonnegative=_POSTURE_NONNEGATIVE
-    )
+    means = RunningMeans(np.concatenate([features, features**2], axis=1))
     moments = means.mean(spans[:, 0], spans[:, 1])
     mean, mean_square = moments[:, :6], moments[:, 6:]
     return np.concatenate([mean, std_from_moments(mean, mean_square)], axis=1)
