@@ -32,9 +32,10 @@ from app.motion.formats.scene import (
     Animation,
     NodeGraph,
     check_frame_budget,
+    kept_parents,
     motion_from_graph,
     pick_animation,
-    rig_without_animation,
+    skeleton_nodes,
     unique_names,
 )
 from app.motion.model import Motion, ParseLimits
@@ -123,8 +124,7 @@ def read_fbx(
     Raises
     ------
     NoAnimation
-        A rig: a skeleton without animation, with only a zero-length one, or with one that
-        moves no node.
+        A rig: a skeleton without animation, or whose animation is zero-length.
     ParseError
         Not FBX, damaged, no skeleton, non-finite numbers, an unknown ``animation``.
     LimitExceeded
@@ -169,22 +169,24 @@ def read_fbx(
         raise ParseError("the file has no skeleton (no bones or skin clusters)")
     chosen = pick_animation(loaded.animations, animation, joints=int(is_bone.sum()))
     info = loaded.animations[chosen]
-    check_frame_budget(limits, info.frame_count, len(nodes))
-    rest_t, rest_r, rest_s = _static(nodes)
+    # Only the skeleton's nodes are sampled and counted (meshes, props, other trees are not).
+    kept = skeleton_nodes(parents, is_bone, joinable)
+    if not len(kept):
+        raise ParseError("the file has no skeleton (no bones or skin clusters)")
+    check_frame_budget(limits, info.frame_count, len(kept))
+    kept_nodes = [nodes[i] for i in kept]
+    rest_t, rest_r, rest_s = _static(kept_nodes)
     begin = loaded.spans[chosen][0]
     times = begin + np.arange(info.frame_count) / loaded.fps
-    translation, rotation, scale, animated = _baked(
-        scene, loaded.anims[chosen], nodes, node_ids, times, loaded.fps, rest_t, rest_r, rest_s
+    kept_ids = {node.typed_id: i for i, node in enumerate(kept_nodes)}
+    translation, rotation, scale = _baked(
+        scene, loaded.anims[chosen], kept_ids, times, loaded.fps, rest_t, rest_r, rest_s
     )
-    if not animated:
-        raise rig_without_animation(
-            int(is_bone.sum()), f"an animation ({info.name!r}) that moves no node"
-        )
     graph = NodeGraph(
-        names=[node.name for node in nodes],
-        parents=parents,
-        is_bone=is_bone,
-        joinable=joinable,
+        names=[node.name for node in kept_nodes],
+        parents=kept_parents(parents, kept),
+        is_bone=is_bone[kept],
+        joinable=joinable[kept],
         rest_translation=rest_t,
         rest_rotation=rest_r,
         rest_scale=rest_s,
@@ -217,17 +219,17 @@ def _static(nodes: list[Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def _baked(
     scene: Any,
     anim: Any,
-    nodes: list[Any],
     node_ids: dict[int, int],
     times: np.ndarray,
     fps: float,
     rest_t: np.ndarray,
     rest_r: np.ndarray,
     rest_s: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
-    """Per-frame local transforms ``(F, N, 3)``, ``(F, N, 4)``, ``(F, N, 3)``: nodes the
-    stack animates from ufbx's bake (keys at every frame), the others at rest; and whether
-    the stack animates any node at all."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-frame local transforms ``(F, N, 3)``, ``(F, N, 4)``, ``(F, N, 3)`` of the ``N``
+    nodes of ``node_ids`` (``typed_id`` -> index): those the stack animates from ufbx's bake
+    (keys at every frame), the others at rest (a take that animates none of them is a pose
+    held for its length: a still clip, as a BVH of repeated frames is)."""
     import ufbx
 
     frames = len(times)
@@ -238,7 +240,6 @@ def _baked(
         bake = ufbx.bake_anim(scene, anim, resample_rate=fps, minimum_sample_rate=fps)
     except ufbx.UfbxError as error:
         raise ParseError(f"cannot sample the animation: {_ufbx_message(error)}") from None
-    animated = False
     for baked in list(bake.nodes):
         index = node_ids.get(baked.typed_id)
         if index is None:
@@ -251,12 +252,11 @@ def _baked(
             table = _key_table(keys, width)
             if table is None:
                 continue
-            animated = True
             if width == 4:
                 out[:, index] = _sample_quaternions(table, times)
             else:
                 out[:, index] = _sample(table, times)
-    return translation, rotation, scale, animated
+    return translation, rotation, scale
 
 
 def _key_table(keys: Any, width: int) -> np.ndarray | None:

@@ -35,9 +35,10 @@ from app.motion.formats.scene import (
     Animation,
     NodeGraph,
     check_frame_budget,
+    kept_parents,
     motion_from_graph,
     pick_animation,
-    rig_without_animation,
+    skeleton_nodes,
     unique_names,
 )
 from app.motion.model import Motion, ParseLimits
@@ -357,49 +358,51 @@ def read_gltf(
         raise ParseError("the file has no skeleton (no skin joints or VRM humanoid bones)")
     chosen = pick_animation(loaded.animations, animation, joints=int(is_bone.sum()))
     info = loaded.animations[chosen]
-    check_frame_budget(limits, info.frame_count, count)
-    rest = [_node_transform(node) for node in nodes]
-    rest_t = np.array([r[0] for r in rest])
-    rest_r = np.array([r[1] for r in rest])
-    rest_s = np.array([r[2] for r in rest])
+    joinable = np.ones(count, dtype=bool)
+    # Only the skeleton's nodes are sampled and counted (meshes, props, other trees are not).
+    kept = skeleton_nodes(parents, is_bone, joinable)
+    check_frame_budget(limits, info.frame_count, len(kept))
+    position = np.full(count, -1, dtype=np.int64)  # node -> index among the kept ones
+    position[kept] = np.arange(len(kept))
+    rest = [_node_transform(nodes[i]) for i in kept]
+    rest_t = np.array([r[0] for r in rest]).reshape(-1, 3)
+    rest_r = np.array([r[1] for r in rest]).reshape(-1, 4)
+    rest_s = np.array([r[2] for r in rest]).reshape(-1, 3)
     begin = loaded.spans[chosen][0]
     times = begin + np.arange(info.frame_count) / loaded.rates[chosen]
     tracks = {
-        "translation": np.broadcast_to(rest_t, (len(times), count, 3)).copy(),
-        "rotation": np.broadcast_to(rest_r, (len(times), count, 4)).copy(),
-        "scale": np.broadcast_to(rest_s, (len(times), count, 3)).copy(),
+        "translation": np.broadcast_to(rest_t, (len(times), len(kept), 3)).copy(),
+        "rotation": np.broadcast_to(rest_r, (len(times), len(kept), 4)).copy(),
+        "scale": np.broadcast_to(rest_s, (len(times), len(kept), 3)).copy(),
     }
     gltf_animation = document.animations[chosen]
     samplers = gltf_animation.samplers or []
-    animated = False
     for channel in gltf_animation.channels or []:
         target = channel.target
         path = getattr(target, "path", None)
         node = getattr(target, "node", None)
         if path not in _PATHS or not isinstance(node, int) or not 0 <= node < count:
             continue  # morph weights, pointer extensions, or no node: not the skeleton's
+        if position[node] < 0:
+            continue  # a mesh, a prop, a node of another tree: never part of the skeleton
         if not isinstance(channel.sampler, int) or not 0 <= channel.sampler < len(samplers):
             raise ParseError(f"a channel names sampler {channel.sampler!r}, which does not exist")
         sampler = samplers[channel.sampler]
         keys = loaded.times(sampler.input)
         values = _accessor(document, loaded.buffers, sampler.output)
-        tracks[path][:, node] = _sample_channel(
+        tracks[path][:, position[node]] = _sample_channel(
             keys, values, times, sampler.interpolation or "LINEAR", _PATHS[path], path
         )
-        animated = True
-    if not animated:  # e.g. morph-target weights only: the skeleton never moves
-        raise rig_without_animation(
-            int(is_bone.sum()), f"an animation ({info.name!r}) that moves no node"
-        )
+
     names = [node.name or f"node{i}" for i, node in enumerate(nodes)]
     for node, bone in human.items():
         if 0 <= node < count:
             names[node] = bone
     graph = NodeGraph(
-        names=names,
-        parents=parents,
-        is_bone=is_bone,
-        joinable=np.ones(count, dtype=bool),
+        names=[names[i] for i in kept],
+        parents=kept_parents(parents, kept),
+        is_bone=is_bone[kept],
+        joinable=joinable[kept],
         rest_translation=rest_t,
         rest_rotation=rest_r,
         rest_scale=rest_s,
