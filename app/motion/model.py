@@ -62,7 +62,13 @@ class ParseLimits:
     def frame_budget_problem(self, frame_count: int, columns: int, joint_count: int) -> str | None:
         """Why ``frame_count`` frames of ``columns`` numbers for ``joint_count`` joints are too
         many, or None. Checked before allocating: the values read and the rotation matrices
-        produced (nine numbers per joint and frame) both count."""
+        produced (nine numbers per joint and frame) both count, whichever is more.
+
+        The count is what the clip's frames become in memory, so it bounds one upload's
+        memory whatever its size in bytes: describing a clip peaks at about 22 bytes per
+        counted value (the motion's rotations, forward kinematics of every joint, the body
+        and its descriptors; measured in bench/README.md), plus the upload's bytes twice
+        (the file and its text)."""
         if self.max_frames is not None and frame_count > self.max_frames:
             return f"{frame_count} frames is more than the limit of {self.max_frames}"
         produced = frame_count * max(columns, 9 * joint_count)

@@ -973,14 +973,16 @@ def _positions_are_deltas(values: np.ndarray, rest: np.ndarray) -> bool:
 def _unique_names(joints: list[_Joint]) -> tuple[str, ...]:
     """Joint names with generated End Site names made unique against every other name."""
     taken = {j.name for j in joints if not j.end_site}
+    tried: dict[str, int] = {}  # base name -> last suffix tried: the search never starts over
     names: list[str] = []
     for joint in joints:
         name = joint.name
         if joint.end_site:
-            suffix = 1
+            suffix = tried.get(joint.name, 1)
             while name in taken:
                 suffix += 1
                 name = f"{joint.name}{suffix}"
+            tried[joint.name] = suffix
             taken.add(name)
         names.append(name)
     return tuple(names)

@@ -312,8 +312,14 @@ class _Document:
         rate = DEFAULT_FPS
         if every.size > 1:
             steps = np.diff(every)
-            step = float(np.median(steps))
-            if step > 0 and np.all(np.abs(steps - step) <= 1e-3 * step + 1e-6):
+            # the mean spacing of evenly spaced keys: exact where one rounded step is not
+            step = (end - begin) / (every.size - 1)
+            # Key times are float32: ten minutes in, they are only good to 6e-5 s, so the
+            # spacing is judged within a few of their units in the last place as well.
+            slack = (
+                1e-3 * step + 1e-6 + 4 * float(np.spacing(np.float32(max(abs(begin), abs(end)))))
+            )
+            if step > 0 and np.all(np.abs(steps - step) <= slack):
                 key_rate = 1.0 / step
                 if key_rate <= MAX_KEY_FPS:
                     rate = key_rate * max(1, int(np.ceil(MIN_FPS / key_rate - 1e-3)))

@@ -455,11 +455,11 @@ def check_frame_budget(limits: ParseLimits, frames: int, nodes: int) -> None:
     """LimitExceeded when ``frames`` frames of the skeleton's ``nodes`` kept nodes (its joints
     and their ancestors, :func:`skeleton_nodes`: what is sampled and kept) are too many.
 
-    Counted as for BVH: nine numbers per node and frame, the rotations the clip becomes
-    (plus three of per-frame offsets, which a BVH with position channels has too). The
-    sampling itself runs in a parser worker, bounded by that worker's own memory limit."""
+    Counted as a BVH's joints are: nine numbers per node and frame, the rotations the clip
+    becomes in the server. The sampling itself runs in a parser worker, bounded by that
+    worker's own memory limit (MOCAP_PARSER_MEMORY_MB)."""
     if frames < 1:
         raise ParseError("the animation has no frames")
-    problem = limits.frame_budget_problem(frames, 12 * nodes, nodes)
+    problem = limits.frame_budget_problem(frames, 0, nodes)
     if problem is not None:
         raise LimitExceeded(problem)
