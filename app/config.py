@@ -137,7 +137,7 @@ class Settings(BaseSettings):
             "joints), joints counting end sites (BVH, ASF/AMC) or the skeleton's nodes only "
             "(FBX/glTF: meshes and props are not read); checked before anything is "
             "allocated (422 above). It bounds the memory one upload can take whatever its "
-            "size in bytes: about 22 bytes per value at the peak of a describe, so 1.4 GB at "
+            "size in bytes: about 21 bytes per value at the peak of a describe, so 1.4 GB at "
             "the default, plus twice the upload's bytes. The default takes a ten-minute take "
             "at 120 fps (72,000 frames) of a rig of up to 98 joints, fingers included."
         ),

@@ -65,7 +65,7 @@ class ParseLimits:
         produced (nine numbers per joint and frame) both count, whichever is more.
 
         The count is what the clip's frames become in memory, so it bounds one upload's
-        memory whatever its size in bytes: describing a clip peaks at about 22 bytes per
+        memory whatever its size in bytes: describing a clip peaks at about 21 bytes per
         counted value (the motion's rotations, forward kinematics of every joint, the body
         and its descriptors; measured in bench/README.md), plus the upload's bytes twice
         (the file and its text)."""

@@ -76,14 +76,18 @@ def check_describable(body: Body, joint_names: tuple[str, ...] | None = None) ->
     if body.frame_count == 0:
         raise ParseError("no frame is left to describe")
     pelvis = body.positions[:, CANONICAL_INDEX["pelvis"]]
+    bound = (MAX_BODY_REACH * body.height) ** 2
     with np.errstate(over="ignore", invalid="ignore"):  # 1e308 - -1e308: inf, and so refused
-        reach = np.linalg.norm(body.positions - pelvis[:, None], axis=2) / body.height  # (F, C)
-        jump = np.linalg.norm(np.diff(pelvis, axis=0), axis=1) / body.height  # (F-1,)
-    # ``not <=`` also catches a NaN that slipped through
-    far = np.flatnonzero(~(reach <= MAX_BODY_REACH).all(axis=1))
-    jumps = np.flatnonzero(~(jump <= MAX_BODY_REACH))
+        offsets = body.positions - pelvis[:, None]
+        steps = np.diff(pelvis, axis=0)
+        # squared distances (no square roots on the common path); ``not <=`` catches a NaN
+        far = np.flatnonzero(~(np.einsum("fca,fca->fc", offsets, offsets) <= bound).all(axis=1))
+        jumps = np.flatnonzero(~(np.einsum("fa,fa->f", steps, steps) <= bound))
     if not len(far) and not len(jumps):
         return
+    with np.errstate(over="ignore", invalid="ignore"):
+        reach = np.linalg.norm(offsets, axis=2) / body.height  # (F, C)
+        jump = np.linalg.norm(steps, axis=1) / body.height  # (F-1,)
     first = min([*far[:1].tolist(), *(jumps[:1] + 1).tolist()])
     frame = first + body.lead_in_frames + 1
     if len(far) and far[0] == first:
