@@ -27,6 +27,7 @@ from tests.motion.conftest import (
     fixture_text,
     world_positions,
 )
+from tests.motion.work import Clock, RecordingPattern
 
 # Line numbers matter: the rejection tests below edit these texts by line.
 TINY_ASF = """\
@@ -644,25 +645,13 @@ def test_hostile_long_lines_are_refused() -> None:
         read_asf_amc(TINY_ASF, "1\n" + "x" * 10_000_000)
 
 
-class _RecordingPattern:
-    """Stands in for the number pattern and records the length of every token it is given."""
-
-    def __init__(self, pattern: re.Pattern[str]) -> None:
-        self.pattern = pattern
-        self.lengths: list[int] = []
-
-    def fullmatch(self, text: str, *args: int) -> re.Match[str] | None:
-        self.lengths.append(len(text))
-        return self.pattern.fullmatch(text, *args)
-
-
 @pytest.mark.parametrize("where", ["AMC value", "ASF length"])
 def test_a_long_invalid_number_costs_the_same_whatever_its_length(
     monkeypatch: pytest.MonkeyPatch, where: str
 ) -> None:
     """A long run of digits then a letter, in an AMC value or an ASF number: refused by its
     length before the number pattern reads it (the pattern once backtracked quadratically)."""
-    recorder = _RecordingPattern(bvh_module.NUMBER_RE)
+    recorder = RecordingPattern(bvh_module.NUMBER_RE)
     monkeypatch.setattr(bvh_module, "NUMBER_RE", recorder)
     work = []
     for digits in (20_000, 200_000):
@@ -683,12 +672,7 @@ def test_a_long_invalid_number_costs_the_same_whatever_its_length(
 def test_the_line_pass_looks_at_the_clock(monkeypatch: pytest.MonkeyPatch) -> None:
     """An irregular AMC (bones in another order each frame) is read line by line, looking at
     the clock every few thousand lines: a deadline stops it inside the walk."""
-    looks = [0]
-
-    def clock() -> float:
-        looks[0] += 1
-        return float(looks[0])
-
+    clock = Clock()
     monkeypatch.setattr(model_module.time, "monotonic", clock)
     frames = 30_000
     amc = "\n".join(
@@ -696,11 +680,11 @@ def test_the_line_pass_looks_at_the_clock(monkeypatch: pytest.MonkeyPatch) -> No
         for f in range(1, frames + 1)
     )
     assert read_asf_amc(chain_asf(1), amc, limits=ParseLimits(deadline=1e12)).frame_count == frames
-    assert looks[0] >= 3 * frames // bvh_module.LINES_PER_CLOCK_CHECK
-    looks[0] = 0
+    assert clock.looks >= 3 * frames // bvh_module.LINES_PER_CLOCK_CHECK
+    clock.looks = 0
     with pytest.raises(DescribeTimeout):
         read_asf_amc(chain_asf(1), amc, limits=ParseLimits(deadline=5.0))
-    assert looks[0] == 6  # stopped at the first look past the deadline
+    assert clock.looks == 6  # stopped at the first look past the deadline
 
 
 # ------------------------------------------------------------------------------ fuzzing

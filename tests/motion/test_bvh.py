@@ -29,6 +29,7 @@ from tests.motion.conftest import (
     world_positions,
 )
 from tests.motion.shared import data_folder
+from tests.motion.work import Clock, RecordingPattern
 
 # Line numbers matter: the rejection tests below edit this text by line.
 TINY = """\
@@ -683,18 +684,6 @@ def test_value_limit_covers_the_rotation_matrices_produced() -> None:
 # runs too long by its deadline. The timings live in bench/bench_hostile_parse.py.
 
 
-class _RecordingPattern:
-    """Stands in for the number pattern and records the length of every token it is given."""
-
-    def __init__(self, pattern: re.Pattern[str]) -> None:
-        self.pattern = pattern
-        self.lengths: list[int] = []
-
-    def fullmatch(self, text: str, *args: int) -> re.Match[str] | None:
-        self.lengths.append(len(text))
-        return self.pattern.fullmatch(text, *args)
-
-
 def _refused(data: str, match: str) -> ParseError:
     with pytest.raises(ParseError, match=match) as raised:
         read_bvh(data)
@@ -737,8 +726,9 @@ def test_a_long_invalid_number_costs_the_same_whatever_its_length(
     minutes at 200,000). A token is refused by its length before any pattern reads it: the
     pattern's work is the same at 20,000 and 200,000 digits, and never more than
     MAX_NUMBER_TOKEN characters a token."""
-    recorder = _RecordingPattern(bvh_module.NUMBER_RE)
+    recorder = RecordingPattern(bvh_module.NUMBER_RE)
     monkeypatch.setattr(bvh_module, "NUMBER_RE", recorder)
+    read_bvh(TINY)  # its hierarchy is remembered from here on, as for the first size
     work = []
     # a hierarchy line is refused past 65,536 characters: 200,000 digits would not reach it
     for digits in (10_000, 30_000) if place == "OFFSET" else (20_000, 200_000):
@@ -777,23 +767,12 @@ def test_a_read_past_its_deadline_stops_with_describe_timeout() -> None:
         read_bvh(TINY, limits=ParseLimits(deadline=time.monotonic() - 1.0))
 
 
-class _Clock:
-    """A fake ``time.monotonic``: each look moves it on by one."""
-
-    def __init__(self) -> None:
-        self.looks = 0
-
-    def __call__(self) -> float:
-        self.looks += 1
-        return float(self.looks)
-
-
 def test_the_reader_looks_at_the_clock_while_it_walks_a_long_frame_block(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """The line pass over 300,000 lines looks at the clock every LINES_PER_CLOCK_CHECK lines,
     so a deadline stops it inside the walk: the describe timeout reaches into the parse."""
-    clock = _Clock()
+    clock = Clock()
     monkeypatch.setattr(model_module.time, "monotonic", clock)
     text = TINY + "1 91 2 0 0 0 0 0 90\n" * 300_000
     motion = read_bvh(text, limits=ParseLimits(deadline=1e12))
