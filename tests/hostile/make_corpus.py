@@ -551,8 +551,8 @@ def scene_cases() -> list[Case]:
         ),
         Case(
             "glb_no_skeleton",
-            "an animation but no skin",
-            {"file": ("n.glb", pack_glb(dict(document, skins=[]), binary))},
+            "neither a skin nor an animation that moves a node",
+            {"file": ("n.glb", pack_glb(dict(document, skins=[], animations=[]), binary))},
             422,
             P,
             "no skeleton",

@@ -84,9 +84,9 @@ def test_non_finite_numbers_no_skeleton_and_no_animation_are_told_apart(bvh_moti
     values[len(values) // 2] = np.nan
     with pytest.raises(ParseError, match="non-finite"):
         read_gltf(pack_glb(document, values.tobytes()))
-    no_skin = dict(document, skins=[])
+    nothing = dict(document, skins=[], animations=[])
     with pytest.raises(ParseError, match="no skeleton"):
-        read_gltf(pack_glb(no_skin, binary))
+        read_gltf(pack_glb(nothing, binary))
     still = dict(document, animations=[])
     with pytest.raises(NoAnimation, match="rig with no animation"):
         read_gltf(pack_glb(still, binary))
@@ -173,3 +173,14 @@ def test_offsets_summed_are_the_rest_pose_the_file_shows(bvh_motion):
     summed = rest_pose(motion.skeleton)
     for j, name in enumerate(motion.skeleton.names):
         np.testing.assert_allclose(summed[j], shown[name] - rest[0], atol=1e-4, err_msg=name)
+
+
+def test_an_animation_only_file_without_a_skin_is_read_by_its_animated_nodes(bvh_motion):
+    """Clips exported without their character (no skin, no mesh): the nodes the animation
+    moves and what hangs from them are the skeleton, and the motion is the skinned file's."""
+    document, binary = gltf_parts(bvh_motion, name="walk")
+    skinned = read_gltf(pack_glb(document, binary))[0]
+    bare = read_gltf(pack_glb(dict(document, skins=[]), binary))[0]
+    assert bare.skeleton.names == skinned.skeleton.names
+    np.testing.assert_array_equal(bare.local_rotations, skinned.local_rotations)
+    np.testing.assert_array_equal(bare.root_translation, skinned.root_translation)

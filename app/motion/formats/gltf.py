@@ -12,7 +12,9 @@ binary input.
   from the file system or the network; upload a ``.glb``.
 * Skeleton: the joints of every skin, or for a ``.vrma`` the nodes of its
   ``VRMC_vrm_animation`` ``humanBones`` map (named after the human bone, e.g. ``leftUpperArm``),
-  plus the nodes between them (:mod:`app.motion.formats.scene`).
+  plus the nodes between them (:mod:`app.motion.formats.scene`). A file with neither (an
+  animation-only file: clips exported without their character) takes the nodes its
+  animations move and everything below them.
 * Motion: channels sampled with their interpolation (``LINEAR`` — quaternions slerped —,
   ``STEP``, ``CUBICSPLINE``) at the keyframe rate when the keys are evenly spaced (raised to
   a whole multiple of it of at least 24 fps, so every key is still a frame), else 30 fps.
@@ -39,6 +41,7 @@ from app.motion.formats.scene import (
     motion_from_graph,
     pick_animation,
     skeleton_nodes,
+    topological,
     unique_names,
 )
 from app.motion.model import Motion, ParseLimits
@@ -265,6 +268,26 @@ def _human_bones(document: Any) -> dict[int, str]:
     return out
 
 
+def _animated_hierarchy(document: Any, parents: np.ndarray) -> np.ndarray:
+    """``(N,)`` bool: the nodes some animation moves (translation, rotation or scale) and
+    every node below them."""
+    moved = np.zeros(len(parents), dtype=bool)
+    for animation in document.animations or []:
+        for channel in animation.channels or []:
+            target = channel.target
+            node = getattr(target, "node", None)
+            path = getattr(target, "path", None)
+            if path in _PATHS and isinstance(node, int) and 0 <= node < len(parents):
+                moved[node] = True
+    if not moved.any():
+        return moved
+    below = moved.copy()
+    for node in topological(parents):  # parents before children (a cycle: ParseError)
+        if parents[node] >= 0 and below[parents[node]]:
+            below[node] = True
+    return below
+
+
 class _Document:
     def __init__(self, data: bytes, limits: ParseLimits) -> None:
         self.document, blob = _load(data)
@@ -361,7 +384,14 @@ def read_gltf(
         if 0 <= node < count:
             is_bone[node] = True
     if not is_bone.any():
-        raise ParseError("the file has no skeleton (no skin joints or VRM humanoid bones)")
+        # An animation-only file (a retargeting library's clips, FBX2glTF of an FBX without
+        # a mesh): no skin, but the nodes its animations move, and what hangs from them,
+        # are the skeleton.
+        is_bone = _animated_hierarchy(document, parents)
+    if not is_bone.any():
+        raise ParseError(
+            "the file has no skeleton (no skin joints, VRM humanoid bones or animated nodes)"
+        )
     chosen = pick_animation(loaded.animations, animation, joints=int(is_bone.sum()))
     info = loaded.animations[chosen]
     joinable = np.ones(count, dtype=bool)

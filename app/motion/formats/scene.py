@@ -131,7 +131,7 @@ def quaternion_matrices(quaternions: np.ndarray) -> np.ndarray:
     return out
 
 
-def _topological(parents: np.ndarray) -> list[int]:
+def topological(parents: np.ndarray) -> list[int]:
     """Node indices with every parent before its children (a cycle raises ParseError)."""
     count = len(parents)
     children: list[list[int]] = [[] for _ in range(count)]
@@ -176,7 +176,7 @@ def compose_world(
     position = np.empty_like(translation, dtype=np.float64)
     # Level by level from the top: every node of a level in one batched product.
     depth = np.zeros(len(parents), dtype=np.int64)
-    for node in _topological(parents):
+    for node in topological(parents):
         if parents[node] >= 0:
             depth[node] = depth[parents[node]] + 1
     for level in range(int(depth.max(initial=0)) + 1):
