@@ -55,7 +55,7 @@ class ParseError(InvalidInput):
         """Return a copy that names the file it came from (keeps the line number)."""
         if self.source:
             return self
-        return ParseError(self.reason, line=self.line, source=source)
+        return type(self)(self.reason, line=self.line, source=source)
 
 
 class SkeletonMappingError(ParseError):
@@ -69,6 +69,15 @@ class UnknownAnimation(ParseError):
     the file's animations)."""
 
     code = "unknown_animation"
+
+
+class NoAnimation(ParseError):
+    """A rig with no animation: a skeleton (and maybe a mesh) that is read fine but holds no
+    motion to describe (BVH ``Frames: 0`` or no MOTION section, an FBX/glTF without an
+    animation or with only a zero-length one). Not a damaged file: it is usable as a target
+    rig, just not as a clip."""
+
+    code = "no_animation"
 
 
 class UnreadableFile(InvalidInput):

@@ -25,6 +25,7 @@ from app.errors import (
     InvalidInput,
     MocapError,
     MomentsOff,
+    NoAnimation,
     NotFound,
     PayloadTooLarge,
     StorageUnavailable,
@@ -37,6 +38,7 @@ log = logging.getLogger(__name__)
 # THE table: domain exception class -> HTTP status. Subclasses inherit their base's status
 # (ParseError, SkeletonMappingError and LimitExceeded are InvalidInput: 422).
 STATUS_BY_ERROR: dict[type[MocapError], int] = {
+    NoAnimation: 422,  # a rig without motion: readable, but not a clip
     InvalidInput: 422,
     NotFound: 404,
     PayloadTooLarge: 413,
@@ -197,6 +199,12 @@ ERROR_EXAMPLES: dict[int, dict[str, tuple[str, str]]] = {
             "No animation of that name in the FBX/glTF file",
             "file 'robot.glb': animation: the file has no animation 'Run'; it has 'Dance', "
             "'Idle', 'Walk'",
+        ),
+        "no_animation": (
+            "A rig with no animation",
+            "file 'tpose.fbx': the file is a rig with no animation: a skeleton of 68 joints and "
+            "only a zero-length animation ('Take 001', one instant), so there is no motion to "
+            "describe",
         ),
         "limit_exceeded": (
             "Over the frame or joint limit",

@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from typing import TYPE_CHECKING, Any, Protocol
 
-from app.errors import LimitExceeded, ParseError, UnknownAnimation, UnreadableFile
+from app.errors import LimitExceeded, NoAnimation, ParseError, UnknownAnimation, UnreadableFile
 from app.motion.formats.scene import Animation
 from app.motion.model import Motion, ParseLimits
 
@@ -179,7 +179,7 @@ def _worker_main(conn: Connection, memory_mb: int | None) -> None:
         except UnknownAnimation as error:
             answer = ("unknown_animation", error.reason, None)
         except ParseError as error:
-            answer = ("parse_error", error.reason, error.line)
+            answer = ("parse_error", error.reason, error.line, error.code)
         except LimitExceeded as error:
             answer = ("limit", error.detail)
         except MemoryError:
@@ -393,6 +393,8 @@ class ParserPool:
         if status == "unknown_animation":
             raise UnknownAnimation(answer[1])
         if status == "parse_error":
+            if answer[3] == NoAnimation.code:  # a rig: readable, with no motion
+                raise NoAnimation(answer[1], line=answer[2])
             raise ParseError(answer[1], line=answer[2])
         if status == "limit":
             raise LimitExceeded(answer[1])

@@ -9,13 +9,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.errors import LimitExceeded, ParseError
+from app.errors import LimitExceeded, NoAnimation, ParseError
 from app.motion.body import build_body
 from app.motion.formats.fbx import list_fbx_animations, read_fbx
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import ParseLimits
 from tests.conftest import FIXTURES_DIR
 from tests.motion.canonical import check_canonical_body
+from tests.motion.shared import data_folder
 
 FBX = FIXTURES_DIR / "ufbx_maya_human_ik_7400_binary.fbx"
 
@@ -91,3 +92,18 @@ def test_limits_and_unknown_animation(data):
 def test_garbage_is_a_parse_error(junk):
     with pytest.raises(ParseError):
         read_fbx(junk)
+
+
+@pytest.mark.parametrize(
+    ("folder", "name", "why"),
+    [
+        ("fbx-gltf", "genea/GenevaModel_v2_Tpose_Final.fbx", "no animation"),
+        ("wild-more", "unreal-ue4/M-Isonni_SK_Mannequin.FBX", "zero-length animation"),
+    ],
+)
+def test_real_rigs_without_animation_are_refused_as_rigs(folder, name, why):
+    """A skinned character with no animation stack, and one whose only take lasts no time
+    (a bind pose written as a take): readable rigs, refused as such, not as damage."""
+    with pytest.raises(NoAnimation, match=why) as raised:
+        read_fbx((data_folder(folder) / name).read_bytes())
+    assert raised.value.code == "no_animation" and "rig with no animation" in raised.value.detail

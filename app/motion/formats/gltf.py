@@ -12,7 +12,9 @@ binary input.
   from the file system or the network; upload a ``.glb``.
 * Skeleton: the joints of every skin, or for a ``.vrma`` the nodes of its
   ``VRMC_vrm_animation`` ``humanBones`` map (named after the human bone, e.g. ``leftUpperArm``),
-  plus the nodes between them (:mod:`app.motion.formats.scene`).
+  plus the nodes between them (:mod:`app.motion.formats.scene`). A file with neither (an
+  animation-only file: clips exported without their character) takes the nodes its
+  animations move and everything below them.
 * Motion: channels sampled with their interpolation (``LINEAR`` — quaternions slerped —,
   ``STEP``, ``CUBICSPLINE``) at the keyframe rate when the keys are evenly spaced (raised to
   a whole multiple of it of at least 24 fps, so every key is still a frame), else 30 fps.
@@ -35,8 +37,11 @@ from app.motion.formats.scene import (
     Animation,
     NodeGraph,
     check_frame_budget,
+    kept_parents,
     motion_from_graph,
     pick_animation,
+    skeleton_nodes,
+    topological,
     unique_names,
 )
 from app.motion.model import Motion, ParseLimits
@@ -263,6 +268,26 @@ def _human_bones(document: Any) -> dict[int, str]:
     return out
 
 
+def _animated_hierarchy(document: Any, parents: np.ndarray) -> np.ndarray:
+    """``(N,)`` bool: the nodes some animation moves (translation, rotation or scale) and
+    every node below them."""
+    moved = np.zeros(len(parents), dtype=bool)
+    for animation in document.animations or []:
+        for channel in animation.channels or []:
+            target = channel.target
+            node = getattr(target, "node", None)
+            path = getattr(target, "path", None)
+            if path in _PATHS and isinstance(node, int) and 0 <= node < len(parents):
+                moved[node] = True
+    if not moved.any():
+        return moved
+    below = moved.copy()
+    for node in topological(parents):  # parents before children (a cycle: ParseError)
+        if parents[node] >= 0 and below[parents[node]]:
+            below[node] = True
+    return below
+
+
 class _Document:
     def __init__(self, data: bytes, limits: ParseLimits) -> None:
         self.document, blob = _load(data)
@@ -310,8 +335,14 @@ class _Document:
         rate = DEFAULT_FPS
         if every.size > 1:
             steps = np.diff(every)
-            step = float(np.median(steps))
-            if step > 0 and np.all(np.abs(steps - step) <= 1e-3 * step + 1e-6):
+            # the mean spacing of evenly spaced keys: exact where one rounded step is not
+            step = (end - begin) / (every.size - 1)
+            # Key times are float32: ten minutes in, they are only good to 6e-5 s, so the
+            # spacing is judged within a few of their units in the last place as well.
+            slack = (
+                1e-3 * step + 1e-6 + 4 * float(np.spacing(np.float32(max(abs(begin), abs(end)))))
+            )
+            if step > 0 and np.all(np.abs(steps - step) <= slack):
                 key_rate = 1.0 / step
                 if key_rate <= MAX_KEY_FPS:
                     rate = key_rate * max(1, int(np.ceil(MIN_FPS / key_rate - 1e-3)))
@@ -328,7 +359,8 @@ def read_gltf(
 ) -> tuple[Motion, list[Animation], str]:
     """Read one animation of a glTF 2.0 / GLB / VRMA file (see the module docstring).
 
-    Returns ``(motion, animations, chosen)`` like :func:`~app.motion.formats.fbx.read_fbx`.
+    Returns ``(motion, animations, chosen)`` and raises like
+    :func:`~app.motion.formats.fbx.read_fbx` (:class:`~app.errors.NoAnimation` for a rig).
     """
     loaded = _Document(data, limits)
     document = loaded.document
@@ -352,24 +384,32 @@ def read_gltf(
         if 0 <= node < count:
             is_bone[node] = True
     if not is_bone.any():
-        raise ParseError("the file has no skeleton (no skin joints or VRM humanoid bones)")
-    if not loaded.animations:
+        # An animation-only file (a retargeting library's clips, FBX2glTF of an FBX without
+        # a mesh): no skin, but the nodes its animations move, and what hangs from them,
+        # are the skeleton.
+        is_bone = _animated_hierarchy(document, parents)
+    if not is_bone.any():
         raise ParseError(
-            f"the file has a skeleton ({int(is_bone.sum())} joints) but no animation: nothing moves"
+            "the file has no skeleton (no skin joints, VRM humanoid bones or animated nodes)"
         )
-    chosen = pick_animation(loaded.animations, animation)
+    chosen = pick_animation(loaded.animations, animation, joints=int(is_bone.sum()))
     info = loaded.animations[chosen]
-    check_frame_budget(limits, info.frame_count, count)
-    rest = [_node_transform(node) for node in nodes]
-    rest_t = np.array([r[0] for r in rest])
-    rest_r = np.array([r[1] for r in rest])
-    rest_s = np.array([r[2] for r in rest])
+    joinable = np.ones(count, dtype=bool)
+    # Only the skeleton's nodes are sampled and counted (meshes, props, other trees are not).
+    kept = skeleton_nodes(parents, is_bone, joinable)
+    check_frame_budget(limits, info.frame_count, len(kept))
+    position = np.full(count, -1, dtype=np.int64)  # node -> index among the kept ones
+    position[kept] = np.arange(len(kept))
+    rest = [_node_transform(nodes[i]) for i in kept]
+    rest_t = np.array([r[0] for r in rest]).reshape(-1, 3)
+    rest_r = np.array([r[1] for r in rest]).reshape(-1, 4)
+    rest_s = np.array([r[2] for r in rest]).reshape(-1, 3)
     begin = loaded.spans[chosen][0]
     times = begin + np.arange(info.frame_count) / loaded.rates[chosen]
     tracks = {
-        "translation": np.broadcast_to(rest_t, (len(times), count, 3)).copy(),
-        "rotation": np.broadcast_to(rest_r, (len(times), count, 4)).copy(),
-        "scale": np.broadcast_to(rest_s, (len(times), count, 3)).copy(),
+        "translation": np.broadcast_to(rest_t, (len(times), len(kept), 3)).copy(),
+        "rotation": np.broadcast_to(rest_r, (len(times), len(kept), 4)).copy(),
+        "scale": np.broadcast_to(rest_s, (len(times), len(kept), 3)).copy(),
     }
     gltf_animation = document.animations[chosen]
     samplers = gltf_animation.samplers or []
@@ -379,23 +419,26 @@ def read_gltf(
         node = getattr(target, "node", None)
         if path not in _PATHS or not isinstance(node, int) or not 0 <= node < count:
             continue  # morph weights, pointer extensions, or no node: not the skeleton's
+        if position[node] < 0:
+            continue  # a mesh, a prop, a node of another tree: never part of the skeleton
         if not isinstance(channel.sampler, int) or not 0 <= channel.sampler < len(samplers):
             raise ParseError(f"a channel names sampler {channel.sampler!r}, which does not exist")
         sampler = samplers[channel.sampler]
         keys = loaded.times(sampler.input)
         values = _accessor(document, loaded.buffers, sampler.output)
-        tracks[path][:, node] = _sample_channel(
+        tracks[path][:, position[node]] = _sample_channel(
             keys, values, times, sampler.interpolation or "LINEAR", _PATHS[path], path
         )
+
     names = [node.name or f"node{i}" for i, node in enumerate(nodes)]
     for node, bone in human.items():
         if 0 <= node < count:
             names[node] = bone
     graph = NodeGraph(
-        names=names,
-        parents=parents,
-        is_bone=is_bone,
-        joinable=np.ones(count, dtype=bool),
+        names=[names[i] for i in kept],
+        parents=kept_parents(parents, kept),
+        is_bone=is_bone[kept],
+        joinable=joinable[kept],
         rest_translation=rest_t,
         rest_rotation=rest_r,
         rest_scale=rest_s,
