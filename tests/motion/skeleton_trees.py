@@ -6,6 +6,9 @@ structure matter for the mapping tests. Real files are exercised in the data tes
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import dataclass
+
 import numpy as np
 
 from app.motion.model import Skeleton
@@ -325,3 +328,133 @@ torso_1 0 0 0
       leg_R_3 -0.078 -0.593 -0.005
         leg_R_5 -0.08 -0.658 0.027
 """
+
+
+# Segment lengths as fractions of standing height (Drillis & Contini 1966), for the
+# synthetic humanoids below.
+_THIGH, _SHIN, _ANKLE_HEIGHT, _FOOT = 0.245, 0.246, 0.039, 0.152
+_UPPER_ARM, _FOREARM, _HAND = 0.186, 0.146, 0.108
+_SIDE_NAMES = {
+    "unity": {
+        "hip": "UpperLeg", "knee": "LowerLeg", "ankle": "Foot", "toe": "Toes",
+        "clavicle": "Shoulder", "shoulder": "UpperArm", "elbow": "LowerArm", "wrist": "Hand",
+    },
+    "blender": {
+        "hip": "thigh", "knee": "shin", "ankle": "foot", "toe": "toe",
+        "clavicle": "shoulder", "shoulder": "upper_arm", "elbow": "forearm", "wrist": "hand",
+    },
+    "anon": {},
+}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Humanoid:
+    """The shape of a synthetic humanoid rig (rest pose, Y up, metres).
+
+    ``hand``: ``"fingers"`` (three fingers and a thumb branching at the wrist), ``"bone"``
+    (one hand bone, no fingers) or ``"none"`` (the arm ends at the wrist). ``arm_angle``:
+    degrees below the horizontal (0 is a T-pose, 45 an A-pose). ``names``: a key of
+    :data:`_SIDE_NAMES`; ``"anon"`` names every joint ``j<number>``.
+    """
+
+    clavicle: bool = True
+    spines: int = 3
+    neck: bool = True
+    head_end: bool = True
+    hand: str = "fingers"
+    finger_ends: bool = True
+    toes: bool = True
+    arm_angle: float = 0.0
+    hips_coincide: bool = False
+    twist_bones: bool = False
+    face_bones: int = 0
+    names: str = "unity"
+    height: float = 1.7
+
+
+def synthetic_humanoid(shape: Humanoid) -> tuple[Skeleton, dict[str, str]]:
+    """A rig of ``shape`` and the truth: canonical joint -> the joint's name (``head`` is the
+    head joint; the mapper may take an end effector above it)."""
+    h = shape.height
+    joints: list[tuple[str, str | None, np.ndarray]] = []
+
+    def add(name: str, parent: str | None, point: Sequence[float]) -> str:
+        joints.append((name, parent, np.asarray(point, dtype=float)))
+        return name
+
+    pelvis_height = (_THIGH + _SHIN + _ANKLE_HEIGHT + 0.04) * h
+    truth = {"pelvis": add("Hips", None, [0.0, pelvis_height, 0.0])}
+    shoulder_height = pelvis_height + 0.30 * h
+    parent = "Hips"
+    for i in range(shape.spines):
+        rise = (i + 1) * (shoulder_height - pelvis_height) / shape.spines
+        parent = add(f"Spine{i or ''}", parent, [0.0, pelvis_height + rise, 0.0])
+    truth["chest"] = chest = parent
+    if shape.neck:
+        parent = truth["neck"] = add("Neck", chest, [0.0, shoulder_height + 0.04 * h, 0.0])
+    truth["head"] = head = add("Head", parent, [0.0, shoulder_height + 0.09 * h, 0.0])
+    if shape.head_end:
+        add("HeadTop_End", head, [0.0, h, 0.0])
+    for k in range(shape.face_bones):  # eyes, brows, lips: short leaves in front of the head
+        angle = 2 * np.pi * k / max(shape.face_bones, 1)
+        spot = [0.04 * h * np.cos(angle), shoulder_height + 0.1 * h + 0.03 * h * np.sin(angle)]
+        add(f"Face{k}", head, [spot[0], spot[1], 0.06 * h])
+    slope = np.radians(shape.arm_angle)
+    words = _SIDE_NAMES[shape.names]
+    for side, sign in (("l", 1.0), ("r", -1.0)):
+
+        def name(part: str, side: str = side) -> str:
+            word = words.get(part, part)
+            if shape.names == "blender":
+                return f"{word}.{side.upper()}"
+            return f"{'Left' if side == 'l' else 'Right'}{word}"
+
+        along = np.array([sign * np.cos(slope), -np.sin(slope), 0.0])
+        top = chest
+        if shape.clavicle:
+            top = add(
+                name("clavicle"), chest, [sign * 0.02 * h, shoulder_height - 0.02 * h, 0.02 * h]
+            )
+        shoulder = np.array([sign * 0.1 * h, shoulder_height - 0.01 * h, 0.0])
+        elbow, wrist = (
+            shoulder + along * _UPPER_ARM * h,
+            shoulder + along * (_UPPER_ARM + _FOREARM) * h,
+        )
+        upper = truth[f"{side}_shoulder"] = add(name("shoulder"), top, shoulder)
+        if shape.twist_bones:
+            add(name("shoulder") + "Twist", upper, (shoulder + elbow) / 2)
+        truth[f"{side}_elbow"] = add(name("elbow"), upper, elbow)
+        hand = truth[f"{side}_wrist"] = add(name("wrist"), truth[f"{side}_elbow"], wrist)
+        if shape.hand == "bone":
+            add(name("wrist") + "_end", hand, wrist + along * _HAND * h)
+        elif shape.hand == "fingers":
+            for finger, across in enumerate((-0.02, 0.0, 0.02)):
+                base = wrist + along * 0.05 * h + np.array([0.0, 0.0, across * h])
+                first = add(name(f"finger{finger}1"), hand, base)
+                second = add(name(f"finger{finger}2"), first, base + along * 0.03 * h)
+                if shape.finger_ends:
+                    add(name(f"finger{finger}3"), second, base + along * 0.055 * h)
+            thumb = add(name("thumb1"), hand, wrist + along * 0.02 * h + [0.0, 0.0, 0.03 * h])
+            add(name("thumb2"), thumb, wrist + along * 0.04 * h + [0.0, 0.0, 0.05 * h])
+        x = sign * 0.09 * h
+        hip = [0.0, pelvis_height, 0.0] if shape.hips_coincide else [x, pelvis_height - 0.04 * h, 0]
+        truth[f"{side}_hip"] = add(name("hip"), "Hips", hip)
+        knee = [x, (_SHIN + _ANKLE_HEIGHT) * h, 0.0]
+        truth[f"{side}_knee"] = add(name("knee"), truth[f"{side}_hip"], knee)
+        foot = truth[f"{side}_ankle"] = add(
+            name("ankle"), truth[f"{side}_knee"], [x, _ANKLE_HEIGHT * h, 0]
+        )
+        if shape.toes:
+            toe = add(name("toe"), foot, [x, 0.01 * h, 0.7 * _FOOT * h])
+            add(name("toe") + "_End", toe, [x, 0.01 * h, _FOOT * h])
+    index = {name: i for i, (name, _, _) in enumerate(joints)}
+    parents = np.array([index[p] if p is not None else -1 for _, p, _ in joints])
+    points = np.array([point for _, _, point in joints])
+    offsets = points - points[np.maximum(parents, 0)]
+    offsets[0] = 0.0
+    names = tuple(name for name, _, _ in joints)
+    if shape.names == "anon":
+        rename = {name: f"j{i}" for i, name in enumerate(names)}
+        names = tuple(rename[n] for n in names)
+        truth = {c: rename[n] for c, n in truth.items()}
+    return Skeleton(names, parents, offsets, np.zeros(len(names), dtype=bool)), truth

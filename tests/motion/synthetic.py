@@ -69,3 +69,35 @@ def walker_motion(frames: int = 240, fps: float = 120.0, speed: float = 120.0) -
     local[:, end] = np.eye(3)
     root = np.stack([np.zeros(frames), 90 + 2 * np.sin(2 * phase), speed * t], axis=1)
     return Motion(skeleton, 1.0 / fps, root, local)
+
+
+def walking(skeleton: Skeleton, truth: dict[str, str], frames: int = 60) -> Motion:
+    """``skeleton`` (a rig standing in its rest pose, Y up, facing +z, whose joint frames are
+    the world's in the rest pose) walking forward at 1 Hz: thighs and arms swing, knees and
+    elbows bend forward. ``truth`` names the canonical joints (see
+    :func:`tests.motion.skeleton_trees.synthetic_humanoid`)."""
+    fps = 30.0
+    phase = 2 * np.pi * np.arange(frames) / fps
+    rotvecs = np.zeros((frames, skeleton.joint_count, 3))
+    for side, sign in (("l", 1.0), ("r", -1.0)):
+        rotvecs[:, skeleton.index(truth[f"{side}_hip"]), 0] = -0.4 * sign * np.sin(phase)
+        rotvecs[:, skeleton.index(truth[f"{side}_knee"]), 0] = 0.5 + 0.4 * np.sin(phase + 1.0)
+        rotvecs[:, skeleton.index(truth[f"{side}_shoulder"]), 0] = 0.3 * sign * np.sin(phase)
+        # The forearm turns forward about the vertical: -y for the left arm (along +x).
+        bend = 0.4 + 0.2 * np.sin(phase)
+        rotvecs[:, skeleton.index(truth[f"{side}_elbow"]), 1] = -sign * bend
+    local = Rotation.from_rotvec(rotvecs.reshape(-1, 3)).as_matrix()
+    local = local.reshape(frames, skeleton.joint_count, 3, 3)
+    height = float(np.ptp([p for p in _rest(skeleton)[:, 1]]))
+    root = np.stack(
+        [np.zeros(frames), np.full(frames, 0.57 * height), 0.8 * height * phase / (2 * np.pi)],
+        axis=1,
+    )
+    return Motion(skeleton, 1.0 / fps, root, local)
+
+
+def _rest(skeleton: Skeleton) -> np.ndarray:
+    out = np.zeros((skeleton.joint_count, 3))
+    for j in range(1, skeleton.joint_count):
+        out[j] = out[skeleton.parents[j]] + skeleton.offsets[j]
+    return out
