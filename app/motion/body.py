@@ -35,7 +35,13 @@ import numpy as np
 from app.errors import ParseError
 from app.motion.kinematics import bone_lengths, forward_kinematics
 from app.motion.model import Motion
-from app.motion.skeleton_map import CANONICAL_INDEX, CANONICAL_JOINTS, SkeletonMap, map_skeleton
+from app.motion.skeleton_map import (
+    CANONICAL_INDEX,
+    CANONICAL_JOINTS,
+    COINCIDENT,
+    SkeletonMap,
+    map_skeleton,
+)
 from app.motion.transforms import reflect
 
 T = TypeVar("T")
@@ -343,12 +349,19 @@ def rest_pelvis_basis(motion: Motion, canonical: np.ndarray) -> np.ndarray:
         for j in range(1, skeleton.joint_count):
             rest[j] = rest[skeleton.parents[j]] + offsets[j]
         at = {name: rest[canonical[CANONICAL_INDEX[name]]] for name in ("pelvis", "neck")}
-        lateral = (
-            rest[canonical[CANONICAL_INDEX["l_hip"]]] - rest[canonical[CANONICAL_INDEX["r_hip"]]]
-        )
-        lateral_norm = float(np.linalg.norm(lateral))
-        if lateral_norm < 1e-9:
-            problem = "the left and right hips coincide; cannot tell left from right"
+        size = float(np.ptp(rest[canonical], axis=0).max())
+        # Some rigs put both hip joints at the pelvis and separate the legs only at the next
+        # joint down: the legs then show the sides where they part.
+        for part in ("hip", "knee", "ankle"):
+            lateral = (
+                rest[canonical[CANONICAL_INDEX[f"l_{part}"]]]
+                - rest[canonical[CANONICAL_INDEX[f"r_{part}"]]]
+            )
+            lateral_norm = float(np.linalg.norm(lateral))
+            if lateral_norm > COINCIDENT * size:
+                break
+        else:
+            problem = "the left and right legs coincide; cannot tell left from right"
             continue
         x = lateral / lateral_norm
         up = at["neck"] - at["pelvis"]

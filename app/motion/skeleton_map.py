@@ -6,8 +6,12 @@ head, with two arms branching off the upper spine. That shape is visible in a st
 figure, as in rigs that bake joint orientation into rotations) whatever the up axis, units,
 facing, naming or extra joints (fingers, face, twist bones, props, IK targets, dummies).
 
-1. **Extremities.** Leaves far apart along bones are found greedily (the farthest leaf from
-   the ones already chosen, up to :data:`_CANDIDATES`); every choice of five of them as head,
+0. **Points, not joints.** Leaves that add no point (zero-length End Sites, which a BVH
+   writer appends to every leaf joint of an FBX or glTF rig) are not seen at all.
+1. **Extremities.** Leaves at least two bones below the root (thigh and shin, upper arm and
+   forearm: a hip may sit at the pelvis itself) and far apart along bones are found
+   greedily (the farthest leaf from the ones already chosen, up to :data:`_CANDIDATES`);
+   every choice of five of them as head,
    two hands and two feet is checked: the arms' branch point (chest) must carry the head
    and not the feet, the feet must lie well below the pelvis (the branch point of legs and
    spine) along the pelvis->chest direction, and the legs must point opposite the spine
@@ -17,11 +21,13 @@ facing, naming or extra joints (fingers, face, twist bones, props, IK targets, d
 2. **Chains.** Along each limb chain: the ankle is where the chain turns forward (the rest
    of the chain drops little for its length; a last bone under half the one before is a
    foot that points down); the hip and shoulder start the straight run ending at the ankle
-   or wrist (or the joint above it when the run leaves no room for a middle joint); the
-   knee and elbow split that run (a rest-pose bend decides when there is one, otherwise
-   the split nearest human proportions); the wrist is where the fingers branch (else the
-   joint before the hand's end, else the arm's last joint on a rig without hand bones);
-   two legs never share their hip. Names whole-matched by
+   or wrist (or the joint above it when the run leaves no room for a middle joint, or the
+   joint at the trunk's own place when hips sit at the pelvis); the knee and elbow split
+   that run (a rest-pose bend decides when there is one, otherwise the split nearest human
+   proportions); the wrist is named, or else, among where the fingers branch, the joint
+   before the hand's end and the arm's last joint (a rig without hand bones), the one whose
+   upper arm, forearm and hand come nearest human proportions; two legs never share their
+   hip. Names whole-matched by
    :mod:`app.motion.skeleton_names` choose among joints when they name one in the chain.
 3. **End effectors** (Miura et al.: "end effectors are hereafter regarded as joints"): the
    canonical ``head`` point is the first point of non-zero length on the single chain
@@ -39,7 +45,8 @@ facing, naming or extra joints (fingers, face, twist bones, props, IK targets, d
    geometry alone. When the mapping comes from frames (no standing rest pose), the sides are
    read from the hips and shoulders only (knees and hands cross in a side step or a slash)
    and several frames vote, so every clip of a rig — and every part of a clip, cut out and
-   searched with — gets the same sides.
+   searched with — gets the same sides. A standing rest pose that shows no side (straight
+   knees, no feet) lets the clip's frames vote likewise (:attr:`SkeletonMap.sides_open`).
 
 What the tree alone decides (the candidate limb ends, the choices it allows) and, when the
 rest pose shows a standing figure, the whole mapping are kept per skeleton: every clip of a
@@ -144,7 +151,7 @@ MIRROR_INDEX: np.ndarray = np.array(
 )
 
 # Bones of non-zero length between the root and a limb's end, at least.
-_MIN_LIMB_BONES = 3
+_MIN_LIMB_BONES = 2
 # The shorter limb of a pair is at least this fraction of the longer one's bone path.
 _LIMB_PARTNER = 0.6
 # An end effector continues its joint's direction (up for the head, forward for the toes)
@@ -155,7 +162,7 @@ _TRIED_CHOICES = 12
 # Leaves considered as extremities (head, hands, feet and up to three props/IK targets).
 _CANDIDATES = 8
 # Fractions of the pose's extent (its bounding-box diagonal, about body height).
-_COINCIDENT = 1e-4  # joints closer than this share a position
+COINCIDENT = 1e-4  # joints closer than this share a position
 _BENT_KNEE = np.sin(np.radians(10))  # a knee bent this much shows its hinge axis
 _MIN_LEG = 0.15  # a leg chain is at least this long
 _MIN_ARM = 0.15  # an arm chain is at least this long
@@ -170,6 +177,8 @@ _PROPORTION_MARGIN = 0.3
 # Upper arm : forearm and thigh : shin (Drillis & Contini's segment table).
 _UPPER_TO_FORE = 1.27
 _THIGH_TO_SHIN = 1.0
+# Hand (wrist to fingertip) : forearm, same table (0.108 and 0.146 of height).
+_HAND_TO_FORE = 0.74
 # The foot turns away from the shin by at least this much at the ankle, degrees.
 _ANKLE_TURN_DEG = 25.0
 # A leg's last bone shorter than this fraction of the bone before is a foot, not a shin
@@ -221,6 +230,9 @@ class SkeletonMap:
         World axis (0, 1, 2) nearest the body's lateral direction, to reflect across.
     pose:
         Which pose the geometry was read from: ``"rest pose"`` or ``"frame N"``.
+    sides_open:
+        The rest pose shows no side (straight knees, no feet): the clip's frames chose left
+        and right, so the mapping is made again for every clip of the rig.
     warnings:
         Short sentences for the user about what the mapping had to decide.
     """
@@ -234,6 +246,7 @@ class SkeletonMap:
     mirrored: bool = False
     mirror_axis: int = 0
     pose: str = "rest pose"
+    sides_open: bool = False
     warnings: tuple[str, ...] = ()
 
     def describe(self, names: Sequence[str]) -> dict[str, dict[str, str]]:
@@ -295,10 +308,13 @@ def map_skeleton(skeleton: Skeleton, poses: Iterable[tuple[str, np.ndarray]] = (
     """
     known = _known(skeleton)
     rest_result = known.rest_result
-    if isinstance(rest_result, SkeletonMap):
-        return rest_result  # the rest pose decided: the same for every clip of this skeleton
-    reasons: list[str] = [rest_result]
     stream = _Lookahead(poses)
+    if isinstance(rest_result, SkeletonMap):
+        if not rest_result.sides_open:
+            return rest_result  # the rest pose decided: the same for every clip of the rig
+        # The rest pose placed every joint but showed no side: the clip's frames vote.
+        return _map_pose(known, known.rest, "rest pose", others=partial(stream.after, -1, _POSES))
+    reasons: list[str] = [rest_result]
     for index, (label, pose) in enumerate(stream):
         try:
             return _map_pose(
@@ -313,6 +329,9 @@ def map_skeleton(skeleton: Skeleton, poses: Iterable[tuple[str, np.ndarray]] = (
 # frame can mislead (legs crossing in a side step, feet pointing back at a toe-off), and the
 # same rig must get the same sides in every clip — and in every part of one.
 _SIDE_VOTES = 5
+# Frames that vote on the sides of a rig whose rest pose shows none: all that are offered
+# (the caller offers a dozen across the clip).
+_POSES = 64
 
 
 class _Lookahead:
@@ -363,6 +382,7 @@ class _Known:
     # passes the geometry.
     reason: str
     progress: int
+    rest: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     rest_result: SkeletonMap | str = ""
 
 
@@ -401,6 +421,7 @@ def _known(skeleton: Skeleton) -> _Known:
             f"({skeleton.joint_count} joints collapse to one point)"
         )
     known = _structure(tree)
+    known.rest = rest
     try:
         known.rest_result = _map_pose(known, rest, "rest pose")
     except _NotHumanoid as reason:
@@ -707,7 +728,7 @@ def _check_pose(
     """The geometric half: a hypothesis if the choice is a humanoid in ``pose``, else (None,
     why, how far it got)."""
     spine = pose[chest] - pose[pelvis]
-    if _length(spine) < _COINCIDENT * extent:
+    if _length(spine) < COINCIDENT * extent:
         spine = pose[head] - pose[pelvis]
     up = _unit(spine)
     if not _length(up) > 0:
@@ -793,11 +814,13 @@ class _Mapper:
         self.how: dict[str, str] = {}
         self.derived: list[str] = []
         self.warnings: list[str] = []
+        # The rest pose showed no side: the clip's frames chose (so it is not kept per rig).
+        self.sides_open = False
 
     # -- small helpers -------------------------------------------------------------------
 
     def same_place(self, a: int, b: int) -> bool:
-        return _length(self.pose[a] - self.pose[b]) <= _COINCIDENT * self.extent
+        return _length(self.pose[a] - self.pose[b]) <= COINCIDENT * self.extent
 
     def deepest_coincident(self, joint: int, chain: list[int]) -> int:
         """The last joint of ``chain`` at ``joint``'s position from ``joint`` on (dummies)."""
@@ -881,6 +904,7 @@ class _Mapper:
             mirrored=mirrored,
             mirror_axis=axis,
             pose=self.label,
+            sides_open=self.sides_open,
             warnings=tuple(self.warnings),
         )
 
@@ -1008,6 +1032,12 @@ class _Mapper:
             split = self.split(above, start, end, ratio)
             if split is not None:
                 best = (0.0, start, split)
+        if best is None and first > 1:
+            # Nothing below the trunk's place fits: the top joint sits there itself (hip
+            # joints at the pelvis, the legs parting only at the knees).
+            split = self.split(above, first - 1, end, ratio)
+            if split is not None:
+                best = (0.0, first - 1, split)
         start, split = (straight, None) if best is None else best[1:]
         if split is None:
             raise _NotHumanoid(
@@ -1018,6 +1048,19 @@ class _Mapper:
         limb.joints[parts[1]] = self.deepest_coincident(above[split], above)
         limb.how[parts[0]] = f"geometry: top of the straight {what}"
         limb.how[parts[1]] = f"geometry: middle of the {what}"
+
+    def arm_proportions(self, limb: _Limb) -> float:
+        """How far the arm's upper arm : forearm : hand lengths (along the bones) are from a
+        person's: ``|log|`` of each ratio's error; a hand with no bones costs as much as one
+        twice too long or too short."""
+        path = self.tree.path
+        upper = path[limb["elbow"]] - path[limb["shoulder"]]
+        fore = path[limb["wrist"]] - path[limb["elbow"]]
+        hand = self.tree.reach[limb["wrist"]]
+        cost = abs(math.log(max(upper, 1e-12) / max(fore, 1e-12) / _UPPER_TO_FORE))
+        if hand > 0:
+            return cost + abs(math.log(hand / max(fore, 1e-12) / _HAND_TO_FORE))
+        return cost + math.log(2.0)
 
     def map_leg(self, foot: int) -> _Limb:
         tree, pose, up = self.tree, self.pose, self.body.up
@@ -1107,33 +1150,46 @@ class _Mapper:
         chain = tree.chain(self.body.chest, hand)
         named_wrist = self.named(chain[1:], "wrist")
         if named_wrist is not None:
-            wrist, wrist_how = named_wrist, "name"
+            wrists = [(named_wrist, "name")]
         else:
-            branching = [
-                j
-                for j in chain[1:-1]
+            # Where the fingers branch (the last branching joint first: a twist bone beside
+            # the upper arm branches too), the joint before the hand's end, the arm's end (a
+            # rig without hand bones, glTF and FBX joints being points without tails): the
+            # one whose arm comes nearest human proportions.
+            wrists = [
+                (j, "structure: where the fingers branch")
+                for j in chain[-2:0:-1]
                 if sum(1 for c in tree.children[j] if tree.lengths[c] > 0 or tree.children[c]) >= 2
             ]
-            if branching:
-                wrist, wrist_how = branching[-1], "structure: where the fingers branch"
-            else:
-                last = len(chain) - 1
-                while last > 1 and tree.lengths[chain[last]] == 0:
-                    last -= 1
-                wrist = chain[last - 1] if last > 1 else chain[last]
-                wrist_how = "structure: the joint before the hand's end"
-        limb = _Limb({"wrist": wrist}, {"wrist": wrist_how})
-        above = chain[: chain.index(wrist) + 1]
-        try:
-            self.upper_and_middle(limb, above, ("shoulder", "elbow"), _UPPER_TO_FORE, "arm")
-        except _NotHumanoid:
-            if wrist_how != "structure: the joint before the hand's end" or wrist == chain[-1]:
-                raise
-            # No joints to spare for a hand: the leaf is the wrist itself (glTF and FBX
-            # joints are points without tails, and a rig without hand bones ends there).
-            wrist = chain[-1]
-            limb = _Limb({"wrist": wrist}, {"wrist": "structure: the arm's end, no hand"})
-            self.upper_and_middle(limb, chain, ("shoulder", "elbow"), _UPPER_TO_FORE, "arm")
+            last = len(chain) - 1
+            while last > 1 and tree.lengths[chain[last]] == 0:
+                last -= 1
+            if last > 1:
+                wrists.append((chain[last - 1], "structure: the joint before the hand's end"))
+            wrists.append((chain[last], "structure: the arm's end, no hand"))
+        best: tuple[float, _Limb] | None = None
+        problem: _NotHumanoid | None = None
+        for wrist, wrist_how in dict(wrists).items():
+            limb = _Limb({"wrist": wrist}, {"wrist": wrist_how})
+            try:
+                self.upper_and_middle(
+                    limb,
+                    chain[: chain.index(wrist) + 1],
+                    ("shoulder", "elbow"),
+                    _UPPER_TO_FORE,
+                    "arm",
+                )
+            except _NotHumanoid as why:
+                problem = problem or why
+                continue
+            cost = self.arm_proportions(limb)
+            if best is None or cost < best[0]:
+                best = (cost, limb)
+        if best is None:
+            assert problem is not None
+            raise problem
+        limb = best[1]
+        wrist = limb["wrist"]
         result, how = limb.joints, limb.how
         result["hand_tip"] = _farthest_descendant(tree, wrist, skip=_is_thumb)
         how["hand_tip"] = "derived: farthest point beyond the wrist"
@@ -1174,18 +1230,29 @@ class _Mapper:
         """Put the limbs on their sides; returns (mirrored, lateral world axis)."""
         tree, pose, up = self.tree, self.pose, self.body.up
         left = self.left(pose, up, legs)
-        axis = int(np.argmax(np.abs(left))) if _length(left) else 0
-        # The clip's other poses vote with this one (not the rest pose: it is the same in
-        # every clip, and the caller asked for frames only when it showed no standing figure).
-        voters = [(pose, left)]
-        if not self.rest:
+        # In a frame, knees, elbows and hands cross (side steps, a slash, folded arms); hips
+        # (or, where both hips sit at the pelvis, the knees below them) and shoulders, fixed
+        # to the trunk, do not.
+        hips = ("hip",) if not self.same_place(legs[0]["hip"], legs[1]["hip"]) else ("knee",)
+        keys = (
+            (("hip", "knee"), ("shoulder", "elbow", "wrist"))
+            if self.rest
+            else (hips, ("shoulder",))
+        )
+        voters = [(pose, left, keys)]
+        # The clip's other poses vote with this one: always when the mapping comes from a frame
+        # (one frame can mislead); from the rest pose, only when it shows no side at all
+        # (straight knees, no feet: the motion's bent knees do).
+        if not self.rest or not _length(left):
+            self.sides_open = self.rest
             for other in self.others():
                 spine = other[self.body.chest] - other[self.body.pelvis]
-                if _length(spine) < _COINCIDENT * self.extent:
+                if _length(spine) < COINCIDENT * self.extent:
                     spine = other[self.body.head] - other[self.body.pelvis]
                 other_up = _unit(spine)
                 if _length(other_up) > 0:
-                    voters.append((other, self.left(other, other_up, legs)))
+                    voters.append((other, self.left(other, other_up, legs), (hips, ("shoulder",))))
+        axis = next((int(np.argmax(np.abs(v[1]))) for v in voters if _length(v[1])), 0)
 
         def name_of(limb: _Limb, top: int) -> str | None:
             votes = [
@@ -1201,18 +1268,19 @@ class _Mapper:
                 else None
             )
 
-        def order(
-            pair: list[_Limb], keys: tuple[str, ...], top: int
-        ) -> tuple[list[_Limb], bool | None, bool]:
+        def order(pair: list[_Limb], limb: int, top: int) -> tuple[list[_Limb], bool | None, bool]:
             """(pair as [left, right] by geometry, names agree?, geometry known?)"""
             votes = 0
-            for voter, voter_left in voters:
+            for voter, voter_left, voter_keys in voters:
                 lateral = (
-                    sum(float((voter[pair[0][k]] - voter[pair[1][k]]) @ voter_left) for k in keys)
+                    sum(
+                        float((voter[pair[0][k]] - voter[pair[1][k]]) @ voter_left)
+                        for k in voter_keys[limb]
+                    )
                     if _length(voter_left)
                     else 0.0
                 )
-                if abs(lateral) > _COINCIDENT * self.extent:
+                if abs(lateral) > COINCIDENT * self.extent:
                     votes += 1 if lateral > 0 else -1
             known = votes != 0  # a tie tells nothing
             by_geometry = pair if votes >= 0 else pair[::-1]
@@ -1223,12 +1291,8 @@ class _Mapper:
                 return by_geometry, False, known
             return by_geometry, None, known
 
-        # In a frame, knees, elbows and hands cross (side steps, a slash, folded arms); hips
-        # and shoulders, fixed to the trunk, do not.
-        leg_keys = ("hip", "knee") if self.rest else ("hip",)
-        arm_keys = ("shoulder", "elbow", "wrist") if self.rest else ("shoulder",)
-        legs_lr, legs_agree, legs_known = order(legs, leg_keys, self.body.pelvis)
-        arms_lr, arms_agree, arms_known = order(arms, arm_keys, self.body.chest)
+        legs_lr, legs_agree, legs_known = order(legs, 0, self.body.pelvis)
+        arms_lr, arms_agree, arms_known = order(arms, 1, self.body.chest)
         mirrored = False
         if not (legs_known and arms_known):
             # No usable geometry: names alone (or the file's order) decide.

@@ -1,13 +1,16 @@
 """Mapping by structure on real rigs (tests/fixtures), and refusals of what is not a person."""
 
 import dataclasses
+import random
 from collections.abc import Iterator
+from itertools import product
 
 import numpy as np
 import pytest
 
 from app.errors import SkeletonMappingError
-from app.motion.body import _frame_poses
+from app.motion import transforms
+from app.motion.body import _frame_poses, build_body
 from app.motion.formats import read_asf_amc, read_bvh
 from app.motion.model import Motion, Skeleton
 from app.motion.skeleton_map import (
@@ -19,6 +22,7 @@ from app.motion.skeleton_map import (
     rest_pose,
 )
 from app.motion.skeleton_names import name_hint, name_side, normalise_name
+from tests.motion.canonical import check_canonical_body
 from tests.motion.conftest import (
     BANDAI_FIXTURE,
     CMU_AMC_FIXTURE,
@@ -26,6 +30,8 @@ from tests.motion.conftest import (
     CMU_BVH_FIXTURE,
     fixture_bytes,
 )
+from tests.motion.skeleton_trees import Humanoid, synthetic_humanoid
+from tests.motion.synthetic import walking
 
 
 def _cmu_bvh() -> Motion:
@@ -321,3 +327,58 @@ def test_bones_and_mirror_tables_are_consistent():
     for i, name in enumerate(CANONICAL_JOINTS):
         other = CANONICAL_JOINTS[MIRROR_INDEX[i]]
         assert other == name or {name[:2], other[:2]} == {"l_", "r_"}
+
+
+def _shapes(count: int, seed: int = 20) -> list[Humanoid]:
+    """``count`` humanoid shapes drawn from every combination of the options game, capture
+    and video-pose rigs show (no clavicle, one to four spine joints, no neck, hand bones or
+    none, no toes, A-pose, hips at the pelvis, twist and face bones, no names)."""
+    options = {
+        "clavicle": (True, False),
+        "spines": (1, 2, 4),
+        "neck": (True, False),
+        "head_end": (True, False),
+        "hand": ("fingers", "bone", "none"),
+        "toes": (True, False),
+        "arm_angle": (0.0, 45.0),
+        "hips_coincide": (False, True),
+        "twist_bones": (False, True),
+        "face_bones": (0, 30),
+        "names": ("unity", "blender", "anon"),
+    }
+    every = [dict(zip(options, values, strict=True)) for values in product(*options.values())]
+    return [Humanoid(**shape) for shape in random.Random(seed).sample(every, count)]
+
+
+def _shape_id(shape: Humanoid) -> str:
+    fields = dataclasses.asdict(shape)
+    return "-".join(f"{k}={v}" for k, v in fields.items() if v != getattr(Humanoid, k))
+
+
+@pytest.mark.parametrize("shape", _shapes(60), ids=_shape_id)
+def test_humanoids_of_every_shape_map_right_and_look_like_people(shape: Humanoid):
+    skeleton, truth = synthetic_humanoid(shape)
+    body = build_body(walking(skeleton, truth))
+    got = {c: skeleton.names[j] for c, j in zip(CANONICAL_JOINTS, body.mapping.joints, strict=True)}
+    assert {c: got[c] for c in truth if c != "head"} == {c: truth[c] for c in truth if c != "head"}
+    assert body.mapping.mirrored is False
+    check_canonical_body(body, str(shape), upright=True)
+
+
+def test_a_rest_pose_without_sides_takes_them_from_the_motion():
+    # Straight legs, no feet and no names: nothing in the rest pose tells left from right.
+    # The motion's bent knees do, in the clip as it is and in its mirror image.
+    skeleton, truth = synthetic_humanoid(Humanoid(names="anon", toes=False, clavicle=False))
+    motion = walking(skeleton, truth)
+    assert map_skeleton(skeleton).warnings == (
+        "left and right could not be told apart; sides are a guess",
+    )
+    for clip in (motion, transforms.reflect(motion, axis=0)):
+        body = build_body(clip)
+        assert body.mapping.sides_open and body.warnings == ()
+        check_canonical_body(body, "anonymous rig", upright=True)
+    # With names, the same mirrored clip is a mirrored capture.
+    named, truth = synthetic_humanoid(Humanoid(toes=False, clavicle=False))
+    body = build_body(transforms.reflect(walking(named, truth), axis=0))
+    assert body.mapping.mirrored is True
+    check_canonical_body(body, "mirrored capture", upright=True)
