@@ -159,8 +159,12 @@ _LIMB_PARTNER = 0.6
 _EFFECTOR_COS = 0.7
 # Head/hands/feet choices walked, cheapest first, before giving up on a pose.
 _TRIED_CHOICES = 12
-# Leaves considered as extremities (head, hands, feet and up to three props/IK targets).
+# Leaves considered as extremities (head, hands, feet and up to three props/IK targets),
+# and, when none of their choices is a humanoid, up to seven.
 _CANDIDATES = 8
+_MORE_CANDIDATES = 12
+# ...read in the rest pose and this many frames (their choices are many more to check).
+_MORE_FRAMES = 3
 # Fractions of the pose's extent (its bounding-box diagonal, about body height).
 COINCIDENT = 1e-4  # joints closer than this share a position
 _BENT_KNEE = np.sin(np.radians(10))  # a knee bent this much shows its hinge axis
@@ -188,6 +192,14 @@ _FOOT_TO_SHIN = 0.5
 _LEG_DROP_RATIO = 0.5
 # cos of the smallest angle between the spine and the legs of a standing biped (120 deg).
 _LEGS_OPPOSITE_SPINE = -0.5
+# The share of a limb (top, middle and end joints, in straight lines) in the way from the
+# trunk joint it hangs from to its end. A person's hip sits half a hip width (~0.1 of the
+# height) from the pelvis, against a leg of ~0.49: 0.83; the shortest-legged cartoon of the
+# dev data (Mixamo's Mousey) 0.69; a leg shorter than its hip's distance from the pelvis
+# (under 0.5) is not one. An arm hangs a clavicle and some spine from the arms' branch
+# point: 0.55 to 0.83 in the dev data; under a third, the arm is shorter than half that way.
+_LEG_SHARE = 0.5
+_ARM_SHARE = 1 / 3
 
 FAMILY_NAMES = (
     "cmu-asf",
@@ -306,23 +318,41 @@ def map_skeleton(skeleton: Skeleton, poses: Iterable[tuple[str, np.ndarray]] = (
     SkeletonMappingError
         The skeleton is not a whole humanoid; the message says what was found and missing.
     """
-    known = _known(skeleton)
-    rest_result = known.rest_result
     stream = _Lookahead(poses)
+    known = _known(skeleton, _CANDIDATES)
+    try:
+        return _map_known(known, stream)
+    except _NotHumanoid as reason:
+        if len(known.candidates) < _CANDIDATES:
+            raise SkeletonMappingError(str(reason)) from None
+        # Many long leaves (IK targets, props, hair, long fingers) may have kept a hand or a
+        # foot out of the candidates: look at more before refusing.
+        try:
+            return _map_known(_known(skeleton, _MORE_CANDIDATES), stream, _MORE_FRAMES)
+        except _NotHumanoid:
+            raise SkeletonMappingError(str(reason)) from None
+
+
+def _map_known(known: _Known, stream: _Lookahead, frames: int | None = None) -> SkeletonMap:
+    """The mapping of ``known``'s rig in its rest pose, else in the first of the offered
+    poses (the first ``frames`` of them) that shows a humanoid; else the rest pose's reason
+    (_NotHumanoid)."""
+    rest_result = known.rest_result
     if isinstance(rest_result, SkeletonMap):
         if not rest_result.sides_open:
             return rest_result  # the rest pose decided: the same for every clip of the rig
         # The rest pose placed every joint but showed no side: the clip's frames vote.
         return _map_pose(known, known.rest, "rest pose", others=partial(stream.after, -1, _POSES))
-    reasons: list[str] = [rest_result]
     for index, (label, pose) in enumerate(stream):
+        if frames is not None and index >= frames:
+            break
         try:
             return _map_pose(
                 known, pose, label, others=partial(stream.after, index, _SIDE_VOTES - 1)
             )
-        except _NotHumanoid as reason:
-            reasons.append(str(reason))
-    raise SkeletonMappingError(reasons[0])
+        except _NotHumanoid:
+            continue
+    raise _NotHumanoid(rest_result)
 
 
 # Poses whose geometry votes on left and right when the mapping comes from the frames: one
@@ -404,10 +434,11 @@ def _skeleton_key(skeleton: Skeleton) -> bytes:
     return digest.digest()
 
 
-def _known(skeleton: Skeleton) -> _Known:
-    """The structural facts and the rest-pose result of ``skeleton`` (memoised: every clip
-    of one rig shares them, so importing many clips maps the rig once)."""
-    key = _skeleton_key(skeleton)
+def _known(skeleton: Skeleton, candidates: int) -> _Known:
+    """The structural facts and the rest-pose result of ``skeleton`` with up to
+    ``candidates`` limb ends (memoised: every clip of one rig shares them, so importing many
+    clips maps the rig once)."""
+    key = _skeleton_key(skeleton) + candidates.to_bytes(2, "little")
     with _KNOWN_LOCK:
         known = _KNOWN.get(key)
         if known is not None:
@@ -420,7 +451,7 @@ def _known(skeleton: Skeleton) -> _Known:
             "every OFFSET is 0: the skeleton has no shape to map "
             f"({skeleton.joint_count} joints collapse to one point)"
         )
-    known = _structure(tree)
+    known = _structure(tree, candidates)
     known.rest = rest
     try:
         known.rest_result = _map_pose(known, rest, "rest pose")
@@ -476,7 +507,9 @@ class _Tree:
         shallow = set(self.leaves) - set(self.limb_leaves) | set(np.flatnonzero(self.void))
         if len(self.children[0]) == 1:
             shallow.add(0)
-        self.body_joints = np.array([j for j in range(count) if j not in shallow])
+        # (Every joint of a rig too small to have a body proper: a bone or two.)
+        body = [j for j in range(count) if j not in shallow] or list(range(count))
+        self.body_joints = np.array(body, dtype=np.int64)
         self.reach = np.zeros(count)  # longest bone path from a joint down to a descendant
         for j in range(count - 1, 0, -1):
             p = int(self.parents[j])
@@ -583,17 +616,17 @@ class _Body:
     cost: float
 
 
-def _extremity_candidates(tree: _Tree) -> list[int]:
-    """Up to :data:`_CANDIDATES` leaves, each the farthest (along bones) from those before.
+def _extremity_candidates(tree: _Tree, count: int = 8) -> list[int]:
+    """Up to ``count`` leaves, each the farthest (along bones) from those before.
 
     Only leaves at least :data:`_MIN_LIMB_BONES` bones of non-zero length below the root
-    count: a limb has hip, knee and ankle; an IK target or prop hanging from the root does
-    not.
+    count: a limb has at least a thigh and a shin (its hip may sit at the pelvis itself); an
+    IK target or prop hanging from the root by one bone does not.
     """
     leaves = np.array(tree.limb_leaves or tree.leaves)
     chosen = [int(leaves[int(np.argmax(tree.path[leaves]))])]
     nearest = tree.geodesic(chosen[0])
-    while len(chosen) < min(_CANDIDATES, len(leaves)):
+    while len(chosen) < min(count, len(leaves)):
         gaps = nearest[leaves]
         best = int(np.argmax(gaps))
         if gaps[best] <= 0:
@@ -624,10 +657,10 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
 
 
-def _structure(tree: _Tree) -> _Known:
-    """Every head/hands/feet choice among the candidate leaves that the tree allows, and the
-    best reason a rejected one gave (for the error message)."""
-    candidates = _extremity_candidates(tree)
+def _structure(tree: _Tree, count: int) -> _Known:
+    """Every head/hands/feet choice among up to ``count`` candidate leaves that the tree
+    allows, and the best reason a rejected one gave (for the error message)."""
+    candidates = _extremity_candidates(tree, count)
     found = ", ".join(tree.names[c] for c in candidates)
     if len(candidates) < 5:
         reason = (
@@ -639,60 +672,95 @@ def _structure(tree: _Tree) -> _Known:
             f"found {len(candidates)} limb ends ({found}) but missing a pelvis with two legs "
             "going down and a spine going up to a head between two arms"
         )
-    choices = []
+    # Enumerated by hands first, so that a pair whose branch point carries no head, or the
+    # feet below it, cuts every choice with them at once; kept in the order of the plain
+    # enumeration (five candidates, a head among them, two feet among the rest), which
+    # breaks ties between equally cheap choices.
+    order = {c: i for i, c in enumerate(candidates)}
+    keyed: list[tuple[tuple[int, ...], _Choice]] = []
+    alike_failed = False
+    for hands in itertools.combinations(candidates, 2):
+        chest = tree.lca(*hands)
+        if chest in hands:
+            continue
+        others = [c for c in candidates if c not in hands]
+        heads = [h for h in others if h != chest and tree.is_ancestor(chest, h)]
+        lower = [c for c in others if not tree.is_ancestor(chest, c)]
+        if not heads:
+            continue
+        for feet in itertools.combinations(lower, 2):
+            hips = tree.lca(*feet)
+            if hips in feet:
+                continue
+            if not _pairs_alike(tree, chest, hands, hips, feet):
+                alike_failed = True
+                continue
+            for head in heads:
+                five = sorted((head, *hands, *feet), key=order.__getitem__)
+                rest = [c for c in five if c != head]
+                key = (
+                    *(order[c] for c in five),
+                    five.index(head),
+                    rest.index(feet[0]),
+                    rest.index(feet[1]),
+                )
+                keyed.append((key, _choice(tree, head, hands, feet, chest, hips)))
+    choices = [choice for _, choice in sorted(keyed, key=lambda item: item[0])]
     best_partial = -1
+    if alike_failed:
+        best_partial, reason = 1, _NOT_ALIKE
+    else:
+        first = _first_misfit(tree, candidates)
+        if first is not None:
+            best_partial, reason = 0, first
+    return _Known(tree, candidates, choices, reason, best_partial)
+
+
+_NOT_ALIKE = "no two limbs of a pair alike: missing legs or arms"
+
+
+def _first_misfit(tree: _Tree, candidates: list[int]) -> str | None:
+    """Why the first choice (in the plain enumeration) that the tree refuses is refused."""
     for five in itertools.combinations(candidates, 5):
         for head in five:
             rest = [c for c in five if c != head]
             for feet in itertools.combinations(rest, 2):
                 hands = tuple(c for c in rest if c not in feet)
-                choice, why, progress = _check_tree(tree, head, hands, feet)  # type: ignore[arg-type]
-                if choice is not None:
-                    choices.append(choice)
-                elif progress > best_partial:
-                    best_partial, reason = progress, why
-    return _Known(tree, candidates, choices, reason, best_partial)
+                chest = tree.lca(*hands)
+                if chest in hands or not tree.is_ancestor(chest, head) or head == chest:
+                    return "no joint carries two arms and a head"
+                if any(tree.is_ancestor(chest, f) for f in feet):
+                    return "the legs hang from the arms' branch point"
+                hips = tree.lca(*feet)
+                if hips in feet:
+                    return "one leg hangs from the other"
+                if not _pairs_alike(tree, chest, hands, hips, feet):  # type: ignore[arg-type]
+                    return _NOT_ALIKE
+    return None
 
 
-def _hypotheses(known: _Known, pose: np.ndarray, extent: float) -> tuple[list[_Body], str]:
-    """Every valid head/hands/feet choice in ``pose``, and the best reason a rejected one
-    gave (for the error message)."""
-    valid: list[_Body] = []
-    reason, best_partial = known.reason, known.progress
-    for choice in known.choices:
-        body, why, progress = _check_pose(known.tree, pose, extent, *choice)
-        if body is not None:
-            valid.append(body)
-        elif progress > best_partial:
-            best_partial, reason = progress, why
-    return valid, reason
-
-
-def _check_tree(
-    tree: _Tree, head: int, hands: tuple[int, int], feet: tuple[int, int]
-) -> tuple[
-    _Choice | None,
-    str,
-    int,
-]:
-    """The structural half of a hypothesis (whatever the pose), else (None, why, how far
-    it got)."""
-    chest = tree.lca(*hands)
-    if chest in hands or not tree.is_ancestor(chest, head) or head == chest:
-        return None, "no joint carries two arms and a head", 0
-    if any(tree.is_ancestor(chest, f) for f in feet):
-        return None, "the legs hang from the arms' branch point", 0
-    hips = tree.lca(*feet)
-    if hips in feet:
-        return None, "one leg hangs from the other", 0
-    # A limb has at least two bones of its own (thigh and shin, upper arm and forearm) and
-    # its partner is about as long: not a twist bone beside the other leg's knee.
-    pairs: list[tuple[int, tuple[int, ...]]] = [(hips, feet), (chest, hands)]
-    for top, limb_ends in pairs:
-        own = [tree.bones[e] - tree.bones[top] for e in limb_ends]
-        reach = [tree.path[e] - tree.path[top] for e in limb_ends]
+def _pairs_alike(
+    tree: _Tree, chest: int, hands: tuple[int, int], hips: int, feet: tuple[int, int]
+) -> bool:
+    """A limb has at least two bones of its own (thigh and shin, upper arm and forearm) and
+    its partner is about as long: not a twist bone beside the other leg's knee."""
+    for top, ends in ((hips, feet), (chest, hands)):
+        own = [tree.bones[e] - tree.bones[top] for e in ends]
+        reach = [tree.path[e] - tree.path[top] for e in ends]
         if min(own) < 2 or min(reach) < _LIMB_PARTNER * max(reach):
-            return None, "no two limbs of a pair alike: missing legs or arms", 1
+            return False
+    return True
+
+
+def _choice(
+    tree: _Tree,
+    head: int,
+    hands: tuple[int, int],
+    feet: tuple[int, int],
+    chest: int,
+    hips: int,
+) -> _Choice:
+    """A structurally valid choice with its lengths and name costs (see :data:`_Choice`)."""
     pelvis = tree.lca(hips, chest)
     leg_lengths = [float(tree.path[f] - tree.path[pelvis]) for f in feet]
     arm_lengths = [float(tree.path[h] - tree.path[chest]) for h in hands]
@@ -709,7 +777,21 @@ def _check_tree(
                 cost.append(3.0)
             elif role in words:
                 cost.append(-0.5)
-    return (head, hands, feet, chest, pelvis, leg_lengths, arm_lengths, tuple(cost)), "", 4
+    return (head, hands, feet, chest, pelvis, leg_lengths, arm_lengths, tuple(cost))
+
+
+def _hypotheses(known: _Known, pose: np.ndarray, extent: float) -> tuple[list[_Body], str]:
+    """Every valid head/hands/feet choice in ``pose``, and the best reason a rejected one
+    gave (for the error message)."""
+    valid: list[_Body] = []
+    reason, best_partial = known.reason, known.progress
+    for choice in known.choices:
+        body, why, progress = _check_pose(known.tree, pose, extent, *choice)
+        if body is not None:
+            valid.append(body)
+        elif progress > best_partial:
+            best_partial, reason = progress, why
+    return valid, reason
 
 
 def _check_pose(
@@ -887,6 +969,12 @@ class _Mapper:
                 "the two legs share their hip: no two separate legs below the pelvis"
             )
         arms = [self.map_arm(h) for h in body.hands]
+        for limbs, parts, trunk, share in (
+            (legs, ("hip", "knee", "ankle"), body.pelvis, _LEG_SHARE),
+            (arms, ("shoulder", "elbow", "wrist"), body.chest, _ARM_SHARE),
+        ):
+            for limb in limbs:
+                self.check_share(limb, parts, trunk, share)
         mirrored, axis = self.assign_sides(legs, arms)
         joints = np.array([self.found[name] for name in CANONICAL_JOINTS], dtype=np.int64)
         end_sites = tuple(
@@ -907,6 +995,25 @@ class _Mapper:
             sides_open=self.sides_open,
             warnings=tuple(self.warnings),
         )
+
+    def check_share(
+        self, limb: _Limb, parts: tuple[str, str, str], trunk: int, share: float
+    ) -> None:
+        """A limb (top -> middle -> end, straight lines in the pose) makes at least ``share``
+        of the way from the trunk joint it hangs from to its end: a chain whose top hangs
+        far from the trunk for its length (a creature's fingers, the feathers on its head)
+        is not a person's leg or arm."""
+        at = [self.pose[limb[part]] for part in parts]
+        length = _length(at[1] - at[0]) + _length(at[2] - at[1])
+        hang = _length(at[0] - self.pose[trunk])
+        if length < share * (length + hang):
+            what = "leg" if parts[0] == "hip" else "arm"
+            raise _NotHumanoid(
+                f"the {what} {self.tree.names[limb[parts[0]]]!r} .. "
+                f"{self.tree.names[limb[parts[2]]]!r} hangs {hang / max(length, 1e-12):.1f} "
+                f"of its length away from the {'pelvis' if what == 'leg' else 'chest'}: "
+                f"not a {what} of a person"
+            )
 
     def map_head(self) -> None:
         tree, body = self.tree, self.body

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -101,3 +103,25 @@ def _rest(skeleton: Skeleton) -> np.ndarray:
     for j in range(1, skeleton.joint_count):
         out[j] = out[skeleton.parents[j]] + skeleton.offsets[j]
     return out
+
+
+def grown(motion: Motion, parents: list[int], offsets: list[np.ndarray]) -> Motion:
+    """``motion`` with joints added under ``parents`` at rest ``offsets``, never moving."""
+    skeleton, count = motion.skeleton, len(parents)
+    grown = Skeleton(
+        (*skeleton.names, *(f"extra{i}" for i in range(count))),
+        np.concatenate([skeleton.parents, parents]),
+        np.concatenate([skeleton.offsets, offsets]),
+        np.concatenate([skeleton.end_site, np.zeros(count, dtype=bool)]),
+    )
+    frames = motion.frame_count
+    rotations = np.concatenate(
+        [motion.local_rotations, np.broadcast_to(np.eye(3), (frames, count, 3, 3))], axis=1
+    )
+    translations = None
+    if motion.local_translations is not None:
+        extra = np.broadcast_to(np.array(offsets), (frames, count, 3))
+        translations = np.concatenate([motion.local_translations, extra], axis=1)
+    return dataclasses.replace(
+        motion, skeleton=grown, local_rotations=rotations, local_translations=translations
+    )

@@ -23,7 +23,13 @@ from tests.motion.conftest import (
     fixture_bytes,
 )
 from tests.motion.shared import SHARED_DATA, requires_shared_data
-from tests.motion.skeleton_trees import SHORT_GAME_RIG, skeleton_from_points
+from tests.motion.skeleton_trees import (
+    SHORT_GAME_RIG,
+    Humanoid,
+    skeleton_from_points,
+    synthetic_humanoid,
+)
+from tests.motion.synthetic import grown, walking
 
 FIXTURES = (CMU_BVH_FIXTURE, BANDAI_FIXTURE)
 
@@ -114,6 +120,71 @@ def _with_extra_leaves(motion: Motion, count: int, seed: int = 3) -> Motion:
     return dataclasses.replace(
         motion, skeleton=grown, local_rotations=rotations, local_translations=translations
     )
+
+
+def _with_small_bones(motion: Motion, count: int, seed: int = 5) -> Motion:
+    """``count`` small extra bones where real rigs carry them (a Bitmoji-like face, Blender
+    finger end bones): chains of one to three bones on the head, the hands and the feet, each
+    chain shorter than the part it hangs from reaches already (so the head top, fingertips
+    and toes stay where they are)."""
+    mapping = analyse(motion).body.mapping
+    assert mapping is not None
+    skeleton = motion.skeleton
+    reach = _reach(skeleton)
+    rng = np.random.default_rng(seed)
+    parts = [
+        int(mapping.joints[CANONICAL_INDEX[f"{side}_{part}"]])
+        for side in ("l", "r")
+        for part in ("wrist", "ankle")
+    ]
+    # A hand without bones gains none (fingers would be a hand, a new hand tip).
+    hangs = [mapping.head_joint] * 6 + [j for j in parts if reach[j] > 0]
+    parents: list[int] = []
+    offsets: list[np.ndarray] = []
+    while len(parents) < count:
+        top = hangs[len(parents) % len(hangs)]
+        bones = int(rng.integers(1, 4))
+        size = 0.3 * max(reach[top], 1e-9) / bones  # the whole chain within 30 % of it
+        parent = top
+        for _ in range(min(bones, count - len(parents))):
+            step = rng.normal(size=3)
+            parents.append(parent)
+            offsets.append(step / np.linalg.norm(step) * size * rng.uniform(0.3, 1.0))
+            parent = skeleton.joint_count + len(parents) - 1
+    return grown(motion, parents, offsets)
+
+
+def _reach(skeleton: Skeleton) -> np.ndarray:
+    """``(J,)`` longest bone path from each joint down to a descendant."""
+    lengths = np.linalg.norm(skeleton.offsets, axis=1)
+    reach = np.zeros(skeleton.joint_count)
+    for j in range(skeleton.joint_count - 1, 0, -1):
+        p = int(skeleton.parents[j])
+        reach[p] = max(reach[p], reach[j] + lengths[j])
+    return reach
+
+
+def _anonymous_walker() -> Motion:
+    skeleton, truth = synthetic_humanoid(Humanoid(names="anon", hand="bone"))
+    return walking(skeleton, truth)
+
+
+@pytest.mark.parametrize(
+    "load",
+    [
+        lambda: _motion(CMU_BVH_FIXTURE),
+        lambda: _motion(BANDAI_FIXTURE),
+        lambda: _renamed(_motion(CMU_BVH_FIXTURE)),
+        _anonymous_walker,
+    ],
+    ids=["cmu", "bandai", "cmu-no-names", "synthetic-no-names"],
+)
+def test_a_rig_with_150_extra_small_leaf_bones_maps_like_the_plain_rig(load):
+    motion = load()
+    plain, busy = analyse(motion), analyse(_with_small_bones(motion, 150))
+    np.testing.assert_array_equal(busy.body.mapping.joints, plain.body.mapping.joints)
+    assert busy.warnings == plain.warnings
+    _same(plain, busy)
 
 
 @pytest.mark.parametrize("fixture", FIXTURES)

@@ -1,5 +1,6 @@
 """Mapping by structure on real rigs (tests/fixtures), and refusals of what is not a person."""
 
+import contextlib
 import dataclasses
 import random
 from collections.abc import Iterator
@@ -7,8 +8,9 @@ from itertools import product
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
-from app.errors import SkeletonMappingError
+from app.errors import ParseError, SkeletonMappingError
 from app.motion import transforms
 from app.motion.body import _frame_poses, build_body
 from app.motion.formats import read_asf_amc, read_bvh
@@ -30,8 +32,8 @@ from tests.motion.conftest import (
     CMU_BVH_FIXTURE,
     fixture_bytes,
 )
-from tests.motion.skeleton_trees import Humanoid, synthetic_humanoid
-from tests.motion.synthetic import walking
+from tests.motion.skeleton_trees import Humanoid, skeleton_from_points, synthetic_humanoid
+from tests.motion.synthetic import grown, walking
 
 
 def _cmu_bvh() -> Motion:
@@ -382,3 +384,135 @@ def test_a_rest_pose_without_sides_takes_them_from_the_motion():
     body = build_body(transforms.reflect(walking(named, truth), axis=0))
     assert body.mapping.mirrored is True
     check_canonical_body(body, "mirrored capture", upright=True)
+
+
+def test_a_rig_of_one_or_two_bones_is_refused_not_a_server_error():
+    # An abstract rig (a bone or two, any axis) has no body proper: a clean 422.
+    for offsets in ([[0, 0, 0], [0, 0, 1.0]], [[0, 0, 0], [0, 1.0, 0], [1.0, 0, 0]]):
+        count = len(offsets)
+        skeleton = Skeleton(
+            tuple(f"b{i}" for i in range(count)),
+            np.arange(-1, count - 1),
+            np.array(offsets, dtype=float),
+            np.zeros(count, dtype=bool),
+        )
+        motion = Motion(
+            skeleton, 1 / 30, np.zeros((3, 3)), np.broadcast_to(np.eye(3), (3, count, 3, 3)).copy()
+        )
+        with pytest.raises(SkeletonMappingError, match="not a whole humanoid"):
+            build_body(motion)
+
+
+def test_any_tree_of_joints_maps_or_is_refused_never_anything_else():
+    # Random trees (1-40 joints; offsets random, along one axis, half zero, huge, tiny or
+    # flat; random rotations, still or not): a mapping or a SkeletonMappingError / ParseError.
+    rng = np.random.default_rng(11)
+    for trial in range(120):
+        count = int(rng.integers(1, 40))
+        parents = np.array([-1] + [int(rng.integers(0, j)) for j in range(1, count)])
+        offsets = rng.normal(size=(count, 3))
+        if trial % 4 == 1:
+            offsets = np.outer(rng.normal(size=count), rng.normal(size=3))
+        elif trial % 4 == 2:
+            offsets *= rng.random((count, 1)) < 0.5
+        elif trial % 4 == 3:
+            offsets *= 10.0 ** rng.integers(-8, 8)
+        offsets[0] = 0.0
+        skeleton = Skeleton(
+            tuple(f"j{i}" for i in range(count)), parents, offsets, np.zeros(count, dtype=bool)
+        )
+        frames = int(rng.integers(1, 12))
+        turns = rng.normal(size=(frames * count, 3)) * rng.choice([0.0, 0.3, 3.0])
+        local = Rotation.from_rotvec(turns).as_matrix().reshape(frames, count, 3, 3)
+        motion = Motion(skeleton, 1 / 30, rng.normal(size=(frames, 3)), local)
+        with contextlib.suppress(ParseError):  # SkeletonMappingError is one
+            build_body(motion)
+
+
+FACE_RIG = """
+root 0 0 0
+  neck 0 0.05 -0.02
+    head 0 0.12 0
+      jaw 0 0.10 0.03
+        chin 0 0.04 0.09
+          chin_end 0 0.02 0.11
+        tongue_1 0 0.08 0.05
+          tongue_2 0 0.082 0.07
+            tongue_3 0 0.083 0.085
+      eye_L 0.032 0.16 0.08
+        eye_L_end 0.032 0.16 0.1
+      eye_R -0.032 0.16 0.08
+        eye_R_end -0.032 0.16 0.1
+      brow_inner_L 0.015 0.185 0.095
+        brow_mid_L 0.035 0.19 0.09
+          brow_outer_L 0.055 0.185 0.075
+      brow_inner_R -0.015 0.185 0.095
+        brow_mid_R -0.035 0.19 0.09
+          brow_outer_R -0.055 0.185 0.075
+      cheek_L 0.05 0.13 0.08
+        cheek_L_end 0.06 0.12 0.07
+      cheek_R -0.05 0.13 0.08
+        cheek_R_end -0.06 0.12 0.07
+      ear_L 0.075 0.15 0
+        ear_L_end 0.08 0.17 -0.01
+      ear_R -0.075 0.15 0
+        ear_R_end -0.08 0.17 -0.01
+"""
+
+
+def test_a_face_rig_is_not_a_person():
+    skeleton = skeleton_from_points(FACE_RIG)
+    rng = np.random.default_rng(4)
+    turns = rng.normal(size=(30 * skeleton.joint_count, 3)) * 0.3
+    local = Rotation.from_rotvec(turns).as_matrix().reshape(30, skeleton.joint_count, 3, 3)
+    with pytest.raises(SkeletonMappingError, match="not a whole humanoid"):
+        build_body(Motion(skeleton, 1 / 30, np.zeros((30, 3)), local))
+
+
+# A creature standing on its front legs, whose tiny "feet" (three-joint claws) hang at the
+# end of long legs and whose head carries two feather chains: the humanoid the shapes allow
+# takes the claws for legs and the feathers for arms.
+CREATURE = """
+chest 0 1 0
+  leg_L 0.15 0.9 0.1
+    shin_L 0.2 0.4 0.15
+      claw_L 0.2 0.05 0.2
+        claw_L_1 0.2 0.02 0.25
+          claw_L_2 0.2 0 0.3
+  leg_R -0.15 0.9 0.1
+    shin_R -0.2 0.4 0.15
+      claw_R -0.2 0.05 0.2
+        claw_R_1 -0.2 0.02 0.25
+          claw_R_2 -0.2 0 0.3
+  neck 0 1.3 0.2
+    skull 0 1.6 0.25
+      crest_L 0.1 1.8 0.2
+        crest_L_1 0.12 1.85 0.2
+          crest_L_2 0.14 1.88 0.2
+      crest_R -0.1 1.8 0.2
+        crest_R_1 -0.12 1.85 0.2
+          crest_R_2 -0.14 1.88 0.2
+      snout 0 1.9 0.3
+"""
+
+
+def test_limbs_hanging_far_from_the_trunk_for_their_length_are_no_person_s():
+    message = _refused(skeleton_from_points(CREATURE))
+    assert "not a" in message
+
+
+def test_many_long_props_do_not_hide_the_limbs():
+    # Seven body-long chains (IK targets, weapons, cloth) hanging from the root outnumber the
+    # first candidates for limb ends; more are looked at before the rig is refused.
+    skeleton, truth = synthetic_humanoid(Humanoid(names="anon"))
+    rng = np.random.default_rng(2)
+    parents: list[int] = []
+    offsets: list[np.ndarray] = []
+    for _ in range(7):
+        way = rng.normal(size=3)
+        parents += [0, skeleton.joint_count + len(parents)]
+        offsets += [way / np.linalg.norm(way) * 0.9, way / np.linalg.norm(way) * 0.6]
+    busy = grown(walking(skeleton, truth), parents, offsets)
+    mapping = build_body(busy).mapping
+    got = {c: busy.skeleton.names[j] for c, j in zip(CANONICAL_JOINTS, mapping.joints, strict=True)}
+    assert {c: got[c] for c in truth if c != "head"} == {c: truth[c] for c in truth if c != "head"}
