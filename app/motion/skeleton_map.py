@@ -185,9 +185,8 @@ _THIGH_TO_SHIN = 1.0
 _HAND_TO_FORE = 0.74
 # The foot turns away from the shin by at least this much at the ankle, degrees.
 _ANKLE_TURN_DEG = 25.0
-# A leg's last bone shorter than this fraction of the bone before is a foot, not a shin
-# (a shin is about as long as the thigh; ankle to ball is under half the shin).
-_FOOT_TO_SHIN = 0.5
+# Foot (ankle to toe tip) : shin, same table (0.152 and 0.246 of height).
+_FOOT_TO_SHIN = 0.62
 # Feet lie below the pelvis by at least this fraction of the leg chain's length.
 _LEG_DROP_RATIO = 0.5
 # cos of the smallest angle between the spine and the legs of a standing biped (120 deg).
@@ -1156,17 +1155,21 @@ class _Mapper:
         limb.how[parts[0]] = f"geometry: top of the straight {what}"
         limb.how[parts[1]] = f"geometry: middle of the {what}"
 
-    def arm_proportions(self, limb: _Limb) -> float:
-        """How far the arm's upper arm : forearm : hand lengths (along the bones) are from a
-        person's: ``|log|`` of each ratio's error; a hand with no bones costs as much as one
-        twice too long or too short."""
+    def limb_proportions(
+        self, limb: _Limb, parts: tuple[str, str, str], upper_to_lower: float, end_to_lower: float
+    ) -> float:
+        """How far a limb's upper : lower : end part lengths (along the bones; the end part
+        is the longest path beyond the limb's end: hand, foot) are from a person's, as the
+        sum of ``|log|`` of each ratio's error; an end part with no bones costs as much as
+        one twice too long or too short."""
         path = self.tree.path
-        upper = path[limb["elbow"]] - path[limb["shoulder"]]
-        fore = path[limb["wrist"]] - path[limb["elbow"]]
-        hand = self.tree.reach[limb["wrist"]]
-        cost = abs(math.log(max(upper, 1e-12) / max(fore, 1e-12) / _UPPER_TO_FORE))
-        if hand > 0:
-            return cost + abs(math.log(hand / max(fore, 1e-12) / _HAND_TO_FORE))
+        top, middle, end = (limb[part] for part in parts)
+        upper = path[middle] - path[top]
+        lower = max(path[end] - path[middle], 1e-12)
+        beyond = self.tree.reach[end]
+        cost = abs(math.log(max(upper, 1e-12) / lower / upper_to_lower))
+        if beyond > 0:
+            return cost + abs(math.log(beyond / lower / end_to_lower))
         return cost + math.log(2.0)
 
     def map_leg(self, foot: int) -> _Limb:
@@ -1196,42 +1199,65 @@ class _Mapper:
             turn = float(np.arccos(np.clip(incoming @ outgoing, -1.0, 1.0)))
             if turn > best_turn:
                 turned, best_turn = i, turn
-        ankle_found = turned is not None
-        ankle_rule = "geometry: where the foot turns forward"
-        if turned is not None:
-            ankle_i = turned
-        else:
-            ankle_rule = "structure: the leg's last joint"
-            ankle_i = len(chain) - 1
-            while ankle_i > 1 and (
-                tree.skeleton.end_site[chain[ankle_i]] or tree.lengths[chain[ankle_i]] == 0
-            ):
-                ankle_i -= 1
-            # A foot that drops more than it turns (a crude rig's ankle-to-ball bone): a last
-            # bone less than half the one before cannot be a shin, so it is the foot.
-            before = [i for i in range(1, ankle_i) if tree.lengths[chain[i]] > 0]
-            if (
-                before
-                and tree.lengths[chain[ankle_i]] < _FOOT_TO_SHIN * tree.lengths[chain[before[-1]]]
-            ):
-                ankle_i = before[-1]
-                ankle_rule = "geometry: above a foot bone that points down"
         # Names choose among the joints next to the geometric ankle (``foot`` is the ankle in
         # most rigs and the ball of the foot in some), or alone when the foot never turns.
         named_ankles = [i for i, j in enumerate(chain) if i > 0 and "ankle" in tree.hints[j].parts]
-        near = [i for i in named_ankles if abs(i - ankle_i) <= 1]
-        if ankle_found and near:
-            ankle = chain[min(near, key=lambda i: (abs(i - ankle_i), i))]
-            ankle_how = "name"
-        elif not ankle_found and named_ankles:
-            ankle = chain[min(named_ankles, key=lambda i: (tree.hints[chain[i]].parts["ankle"], i))]
-            ankle_how = "name"
+        near = [i for i in named_ankles if turned is not None and abs(i - turned) <= 1]
+        if turned is not None and near:
+            ankles = [(chain[min(near, key=lambda i: (abs(i - turned), i))], "name")]
+        elif turned is None and named_ankles:
+            named = min(named_ankles, key=lambda i: (tree.hints[chain[i]].parts["ankle"], i))
+            ankles = [(chain[named], "name")]
+        elif turned is not None:
+            ankles = [
+                (
+                    self.deepest_coincident(chain[turned], chain),
+                    "geometry: where the foot turns forward",
+                )
+            ]
         else:
-            ankle = self.deepest_coincident(chain[ankle_i], chain)
-            ankle_how = ankle_rule
+            # The foot never turns in this pose (it points down, or there is none): the leg's
+            # last joints, the one whose thigh, shin and foot come nearest human proportions.
+            last = len(chain) - 1
+            while last > 1 and (
+                tree.skeleton.end_site[chain[last]] or tree.lengths[chain[last]] == 0
+            ):
+                last -= 1
+            ankles = [
+                (
+                    self.deepest_coincident(chain[i], chain),
+                    "structure: the leg's last joint"
+                    if i == last
+                    else "geometry: above the foot's bones",
+                )
+                for i in range(last, max(last - 3, 0), -1)
+            ]
+        best: tuple[float, _Limb] | None = None
+        problem: _NotHumanoid | None = None
+        for ankle, ankle_how in dict(ankles).items():
+            candidate = _Limb({"ankle": ankle}, {"ankle": ankle_how})
+            try:
+                self.upper_and_middle(
+                    candidate,
+                    chain[: chain.index(ankle) + 1],
+                    ("hip", "knee"),
+                    _THIGH_TO_SHIN,
+                    "leg",
+                )
+            except _NotHumanoid as why:
+                problem = problem or why
+                continue
+            cost = self.limb_proportions(
+                candidate, ("hip", "knee", "ankle"), _THIGH_TO_SHIN, _FOOT_TO_SHIN
+            )
+            if best is None or cost < best[0]:
+                best = (cost, candidate)
+        if best is None:
+            assert problem is not None
+            raise problem
+        limb = best[1]
+        ankle = limb["ankle"]
         ankle_i = chain.index(ankle)
-        limb = _Limb({"ankle": ankle}, {"ankle": ankle_how})
-        self.upper_and_middle(limb, chain[: ankle_i + 1], ("hip", "knee"), _THIGH_TO_SHIN, "leg")
         result, how = limb.joints, limb.how
 
         below = chain[ankle_i + 1 :]
@@ -1289,7 +1315,9 @@ class _Mapper:
             except _NotHumanoid as why:
                 problem = problem or why
                 continue
-            cost = self.arm_proportions(limb)
+            cost = self.limb_proportions(
+                limb, ("shoulder", "elbow", "wrist"), _UPPER_TO_FORE, _HAND_TO_FORE
+            )
             if best is None or cost < best[0]:
                 best = (cost, limb)
         if best is None:
@@ -1331,6 +1359,8 @@ class _Mapper:
                 mid = 0.5 * (pose[leg["hip"]] + pose[leg["ankle"]])
                 step = pose[leg["knee"]] - mid
                 forward += step - (step @ up) * up
+        if _length(forward) <= COINCIDENT * self.extent:
+            return np.zeros(3)  # straight knees, no feet: only rounding errors point anywhere
         return _unit(_cross(up, _unit(forward)))
 
     def assign_sides(self, legs: list[_Limb], arms: list[_Limb]) -> tuple[bool, int]:

@@ -125,3 +125,41 @@ def grown(motion: Motion, parents: list[int], offsets: list[np.ndarray]) -> Moti
     return dataclasses.replace(
         motion, skeleton=grown, local_rotations=rotations, local_translations=translations
     )
+
+
+def joint_oriented(motion: Motion) -> Motion:
+    """``motion`` as a rig with joint orientation writes it (Maya's "orient joints", many
+    pose-estimation exporters): every joint's frame turned so its first child lies along its
+    x axis, the offsets given in those frames and the rotations turned to match. Forward
+    kinematics gives the same positions; the rest pose of the offsets is no standing figure
+    (each child along its parent's x)."""
+    skeleton = motion.skeleton
+    count = skeleton.joint_count
+    rest = _rest(skeleton)
+    turn = np.broadcast_to(np.eye(3), (count, 3, 3)).copy()  # joint frame in the rest pose
+    for j in range(count):
+        children = [c for c in range(count) if skeleton.parents[c] == j]
+        bone = rest[children[0]] - rest[j] if children else np.zeros(3)
+        if np.linalg.norm(bone) > 0:
+            x = bone / np.linalg.norm(bone)
+            helper = np.array([0.0, 0.0, 1.0]) if abs(x[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+            y = np.cross(helper, x)
+            y /= np.linalg.norm(y)
+            turn[j] = np.stack([x, y, np.cross(x, y)], axis=1)
+        elif j > 0:
+            turn[j] = turn[skeleton.parents[j]]
+    parents = np.maximum(skeleton.parents, 0)
+    offsets = np.einsum("jba,jb->ja", turn[parents], rest - rest[parents])
+    offsets[0] = 0.0
+    world = np.zeros_like(motion.local_rotations)
+    for j in range(count):
+        above = world[:, skeleton.parents[j]] if j else np.eye(3)
+        world[:, j] = above @ motion.local_rotations[:, j]
+    oriented_world = world @ turn[None]
+    local = oriented_world.copy()
+    local[:, 1:] = np.swapaxes(oriented_world[:, parents[1:]], -1, -2) @ oriented_world[:, 1:]
+    return dataclasses.replace(
+        motion,
+        skeleton=Skeleton(skeleton.names, skeleton.parents, offsets, skeleton.end_site),
+        local_rotations=local,
+    )
