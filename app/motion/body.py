@@ -156,7 +156,7 @@ def build_body(motion: Motion) -> Body:
     if not np.all(np.isfinite(canon_pos)) or not np.all(np.isfinite(canon_rot)):
         raise ParseError("forward kinematics produced non-finite joint positions")
 
-    height = body_height(motion, mapping.joints, head_joint=mapping.head_joint)
+    height = body_height(motion, mapping.joints, head_joint=mapping.head_joint, held=mapping.held)
     if not height > 0:
         raise ParseError(
             "the skeleton has zero height (all bones between ankle and head are empty)"
@@ -271,14 +271,24 @@ def _frame_poses(motion: Motion) -> Iterator[tuple[str, np.ndarray]]:
         yield f"frame {f}", pose
 
 
-def body_height(motion: Motion, canonical: np.ndarray, *, head_joint: int = -1) -> float:
+def body_height(
+    motion: Motion,
+    canonical: np.ndarray,
+    *,
+    head_joint: int = -1,
+    held: tuple[tuple[int, int, float], ...] = (),
+) -> float:
     """Leg plus trunk bone-path length in file units (see module docstring).
 
     The trunk ends at the head *joint* (``head_joint`` when given): an end effector beyond
     it (the top of the head) does not count, so the height means the same with or without.
+    ``held``: ``(joint, limb end, distance)`` for joints that IK holds at a limb's end
+    (:attr:`~app.motion.skeleton_map.SkeletonMap.held`): their bone is that distance.
     """
-    lengths = bone_lengths(motion)
-    parents = motion.skeleton.parents
+    lengths = bone_lengths(motion).copy()
+    parents = motion.skeleton.parents.copy()
+    for joint, end, distance in held:
+        parents[joint], lengths[joint] = end, distance
 
     def path_length(top: str, bottom: str) -> float:
         j, stop, total = (

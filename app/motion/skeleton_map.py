@@ -24,10 +24,15 @@ facing, naming or extra joints (fingers, face, twist bones, props, IK targets, d
    or wrist (or the joint above it when the run leaves no room for a middle joint, or the
    joint at the trunk's own place when hips sit at the pelvis); the knee and elbow split
    that run (a rest-pose bend decides when there is one, otherwise the split nearest human
-   proportions); the wrist is named, or else, among where the fingers branch, the joint
-   before the hand's end and the arm's last joint (a rig without hand bones), the one whose
-   upper arm, forearm and hand come nearest human proportions; two legs never share their
-   hip. Names whole-matched by
+   proportions); the wrist is named, or else, among where the fingers branch (a joint with
+   several, or sibling palm joints at one place), the joint before the hand's end and the
+   arm's last joint (a rig without hand bones), the one whose upper arm, forearm and hand
+   come nearest human proportions; the ankle likewise when the foot does not turn forward;
+   two legs never share their hip, and each limb makes most of the way from the trunk to
+   its end (a creature's claws hanging at the end of its legs are no person's legs).
+   A game rig whose feet are IK bones under the root (legs ending at the knees) is mapped,
+   when nothing else maps, with each foot hung from the knee it stays at one distance from
+   while the knee bends (:attr:`SkeletonMap.held`). Names whole-matched by
    :mod:`app.motion.skeleton_names` choose among joints when they name one in the chain.
 3. **End effectors** (Miura et al.: "end effectors are hereafter regarded as joints"): the
    canonical ``head`` point is the first point of non-zero length on the single chain
@@ -59,6 +64,7 @@ missing.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import itertools
 import math
@@ -244,6 +250,10 @@ class SkeletonMap:
     sides_open:
         The rest pose shows no side (straight knees, no feet): the clip's frames chose left
         and right, so the mapping is made again for every clip of the rig.
+    held:
+        ``(joint, limb end, distance)`` for mapped joints that do not hang from the limb
+        they end (a foot bone under the root that IK keeps at the end of the shin): in the
+        mapping they hang from that limb end, at that rest-pose distance.
     warnings:
         Short sentences for the user about what the mapping had to decide.
     """
@@ -258,6 +268,7 @@ class SkeletonMap:
     mirror_axis: int = 0
     pose: str = "rest pose"
     sides_open: bool = False
+    held: tuple[tuple[int, int, float], ...] = ()
     warnings: tuple[str, ...] = ()
 
     def describe(self, names: Sequence[str]) -> dict[str, dict[str, str]]:
@@ -318,18 +329,126 @@ def map_skeleton(skeleton: Skeleton, poses: Iterable[tuple[str, np.ndarray]] = (
         The skeleton is not a whole humanoid; the message says what was found and missing.
     """
     stream = _Lookahead(poses)
+    try:
+        return _map_tree(skeleton, stream)
+    except _NotHumanoid as reason:
+        problem = SkeletonMappingError(str(reason))
+    # Limb ends that IK holds without hanging from them (a game rig's foot bone under the
+    # root, kept at the end of the shin): the frames show them, and the rig is mapped with
+    # each hung from the limb it moves with.
+    known = _known(skeleton, _CANDIDATES)
+    held = _held_ends(known.tree, stream.after(-1, _POSES))
+    if not held:
+        raise problem
+    order, virtual = _rehung(skeleton, known.rest, held)
+    moved = _Lookahead((label, pose[order]) for label, pose in stream)
+    try:
+        mapping = _map_tree(virtual, moved)
+    except _NotHumanoid:
+        raise problem from None
+    joints = order[mapping.joints]
+    ends = ", ".join(
+        f"{skeleton.names[joint]!r} with {skeleton.names[leaf]!r}"
+        for joint, leaf in held.items()
+        if joint in joints
+    )
+    if not ends:
+        return dataclasses.replace(
+            mapping, joints=joints, head_joint=int(order[mapping.head_joint])
+        )
+    return dataclasses.replace(
+        mapping,
+        joints=joints,
+        head_joint=int(order[mapping.head_joint]),
+        held=tuple(
+            (joint, leaf, float(np.linalg.norm(known.rest[joint] - known.rest[leaf])))
+            for joint, leaf in held.items()
+            if joint in joints
+        ),
+        warnings=(*mapping.warnings, f"limb ends held by IK, not by their limbs: {ends}"),
+    )
+
+
+def _map_tree(skeleton: Skeleton, stream: _Lookahead) -> SkeletonMap:
+    """The mapping of ``skeleton`` as its tree stands (see :func:`map_skeleton`); else the
+    rest pose's reason (_NotHumanoid)."""
     known = _known(skeleton, _CANDIDATES)
     try:
         return _map_known(known, stream)
-    except _NotHumanoid as reason:
+    except _NotHumanoid:
         if len(known.candidates) < _CANDIDATES:
-            raise SkeletonMappingError(str(reason)) from None
+            raise
         # Many long leaves (IK targets, props, hair, long fingers) may have kept a hand or a
         # foot out of the candidates: look at more before refusing.
         try:
             return _map_known(_known(skeleton, _MORE_CANDIDATES), stream, _MORE_FRAMES)
         except _NotHumanoid:
-            raise SkeletonMappingError(str(reason)) from None
+            pass
+        raise
+
+
+# A joint whose distance from a limb's last joint stays within this fraction of itself over
+# the frames (IK reaching its target: Quaternius robots stay within 5e-4)...
+_HELD_SPREAD = 0.01
+# ...while its distance from the limb's joint above changes by at least this fraction (the
+# limb bends: a still or rigid clip shows nothing), ten times what the held one does.
+_HELD_MOVES = 0.01
+_HELD_CONTRAST = 10.0
+
+
+def _held_ends(tree: _Tree, poses: list[np.ndarray]) -> dict[int, int]:
+    """Joints that hang from a limb's line above it (the root, the pelvis) but move with the
+    limb's last joint as if they hung from it: joint -> that last joint. Read from ``poses``
+    (``(J, 3)`` frames); a still clip shows none."""
+    if len(poses) < 3:
+        return {}
+    at = np.stack(poses)
+    found: dict[int, tuple[float, int]] = {}
+    for leaf in tree.limb_leaves:
+        line = set(tree.chain(0, leaf))
+        above = int(tree.parents[leaf])
+        for joint in range(1, len(tree.names)):
+            if joint in line or tree.void[joint] or int(tree.parents[joint]) not in line:
+                continue
+            gap = np.linalg.norm(at[:, joint] - at[:, leaf], axis=1)
+            mean = float(gap.mean())
+            if not mean > 0 or float(np.ptp(gap)) > _HELD_SPREAD * mean:
+                continue
+            spread = float(np.ptp(gap)) / mean
+            reach = np.linalg.norm(at[:, joint] - at[:, above], axis=1)
+            bend = float(np.ptp(reach)) / max(float(reach.mean()), 1e-300)
+            if bend < max(_HELD_MOVES, _HELD_CONTRAST * spread):
+                continue
+            if joint not in found or spread < found[joint][0]:
+                found[joint] = (spread, leaf)
+    return {joint: leaf for joint, (_, leaf) in found.items()}
+
+
+def _rehung(
+    skeleton: Skeleton, rest: np.ndarray, held: dict[int, int]
+) -> tuple[np.ndarray, Skeleton]:
+    """``skeleton`` with each held joint hung from its limb's last joint, its joints in a new
+    order (parents first), and ``order``: the original index of each new joint."""
+    parents = skeleton.parents.copy()
+    for joint, leaf in held.items():
+        parents[joint] = leaf
+    children: list[list[int]] = [[] for _ in range(skeleton.joint_count)]
+    for j in range(1, skeleton.joint_count):
+        children[int(parents[j])].append(j)
+    order_list: list[int] = []
+    stack = [0]
+    while stack:
+        j = stack.pop()
+        order_list.append(j)
+        stack.extend(reversed(children[j]))
+    order = np.array(order_list, dtype=np.int64)
+    position = np.empty_like(order)
+    position[order] = np.arange(len(order))
+    new_parents = np.array([-1] + [int(position[parents[j]]) for j in order[1:]])
+    offsets = rest[order] - rest[order[np.maximum(new_parents, 0)]]
+    offsets[0] = 0.0
+    names = tuple(skeleton.names[j] for j in order)
+    return order, Skeleton(names, new_parents, offsets, skeleton.end_site[order])
 
 
 def _map_known(known: _Known, stream: _Lookahead, frames: int | None = None) -> SkeletonMap:
@@ -1293,6 +1412,16 @@ class _Mapper:
                 (j, "structure: where the fingers branch")
                 for j in chain[-2:0:-1]
                 if sum(1 for c in tree.children[j] if tree.lengths[c] > 0 or tree.children[c]) >= 2
+            ]
+            # Fingers may also start from sibling joints at one place (a palm bone per finger).
+            wrists += [
+                (j, "structure: where the fingers start together")
+                for j in chain[-2:1:-1]
+                if tree.children[j]
+                and any(
+                    s != j and tree.children[s] and self.same_place(s, j)
+                    for s in tree.children[int(tree.parents[j])]
+                )
             ]
             last = len(chain) - 1
             while last > 1 and tree.lengths[chain[last]] == 0:

@@ -42,9 +42,6 @@ NOT_WHOLE_HUMANOIDS = {
     # Each arm is one bone from the lower body to the hand, each leg a zero-length hip and
     # one bone to the foot: no elbows, no knees.
     "quaternius-cc0/raylib_greenman.glb": "not a whole humanoid",
-    # The legs end at the knee (LowerLeg.L/R are leaves); the feet are IK bones hanging from
-    # the armature's root, not below the knees.
-    "quaternius-cc0/raylib_robot.glb": "legs",
     # Two-joint limbs ending at elbow and knee (no wrists, no ankles), all four hanging from
     # one joint (body_IK).
     "sketchbook/boxman.glb": "not a whole humanoid",

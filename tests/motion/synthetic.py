@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion, Skeleton
 from tests.motion.skeleton_trees import MOTIONBUILDER, skeleton_from_tree
 
@@ -162,4 +164,29 @@ def joint_oriented(motion: Motion) -> Motion:
         motion,
         skeleton=Skeleton(skeleton.names, skeleton.parents, offsets, skeleton.end_site),
         local_rotations=local,
+    )
+
+
+def hung_from_root(motion: Motion, names: Sequence[str]) -> Motion:
+    """``motion`` with the joints ``names`` (and what hangs from them) moved to hang from the
+    root, keeping every world position and rotation: a game rig whose foot bones are IK
+    bones under the root, held at the end of the shins by the animation."""
+    skeleton = motion.skeleton
+    world, at = forward_kinematics(motion)
+    moved = [skeleton.index(name) for name in names]
+    parents = skeleton.parents.copy()
+    parents[moved] = 0
+    rest = _rest(skeleton)
+    offsets = rest - rest[np.maximum(parents, 0)]
+    offsets[0] = 0.0
+    local = motion.local_rotations.copy()
+    per_frame = np.broadcast_to(offsets, (motion.frame_count, *offsets.shape)).copy()
+    for j in moved:
+        local[:, j] = np.swapaxes(world[:, 0], -1, -2) @ world[:, j]
+        per_frame[:, j] = np.einsum("fba,fb->fa", world[:, 0], at[:, j] - at[:, 0])
+    return dataclasses.replace(
+        motion,
+        skeleton=Skeleton(skeleton.names, parents, offsets, skeleton.end_site),
+        local_rotations=local,
+        local_translations=per_frame,
     )

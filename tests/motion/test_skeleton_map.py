@@ -33,7 +33,7 @@ from tests.motion.conftest import (
     fixture_bytes,
 )
 from tests.motion.skeleton_trees import Humanoid, skeleton_from_points, synthetic_humanoid
-from tests.motion.synthetic import grown, joint_oriented, walking
+from tests.motion.synthetic import grown, hung_from_root, joint_oriented, walking
 
 
 def _cmu_bvh() -> Motion:
@@ -543,3 +543,21 @@ def test_many_long_props_do_not_hide_the_limbs():
     mapping = build_body(busy).mapping
     got = {c: busy.skeleton.names[j] for c, j in zip(CANONICAL_JOINTS, mapping.joints, strict=True)}
     assert {c: got[c] for c in truth if c != "head"} == {c: truth[c] for c in truth if c != "head"}
+
+
+@pytest.mark.parametrize("names", ["blender", "anon"])
+def test_feet_held_by_ik_at_the_end_of_the_shins_are_the_ankles(names: str):
+    # The foot bones hang from the root (Quaternius-style game rigs); the animation keeps
+    # them at the end of the shins. The motion shows it: each stays at one distance from its
+    # knee while the knee bends.
+    skeleton, truth = synthetic_humanoid(Humanoid(names=names))
+    motion = hung_from_root(walking(skeleton, truth), [truth["l_ankle"], truth["r_ankle"]])
+    body = build_body(motion)
+    got = {c: skeleton.names[j] for c, j in zip(CANONICAL_JOINTS, body.mapping.joints, strict=True)}
+    limbs = [c for c in truth if c not in ("head", "neck")]
+    assert {c: got[c] for c in limbs} == {c: truth[c] for c in limbs}
+    assert any("held by IK" in w for w in body.warnings)
+    check_canonical_body(body, "ik feet", upright=True)
+    # A still clip of the same rig shows nothing: the legs end at the knees.
+    with pytest.raises(SkeletonMappingError):
+        build_body(motion.slice_frames(0, 1))
