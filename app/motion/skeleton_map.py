@@ -461,15 +461,21 @@ def _map_known(known: _Known, stream: _Lookahead, frames: int | None = None) -> 
             return rest_result  # the rest pose decided: the same for every clip of the rig
         # The rest pose placed every joint but showed no side: the clip's frames vote.
         return _map_pose(known, known.rest, "rest pose", others=partial(stream.after, -1, _POSES))
+    if not known.choices:
+        raise _NotHumanoid(rest_result)  # the tree alone refuses: no pose can help
+    read = 0
     for index, (label, pose) in enumerate(stream):
         if frames is not None and index >= frames:
             break
+        read += 1
         try:
             return _map_pose(
                 known, pose, label, others=partial(stream.after, index, _SIDE_VOTES - 1)
             )
         except _NotHumanoid:
             continue
+    if read:
+        raise _NotHumanoid(f"{rest_result} (in the rest pose, and in none of {read} frames)")
     raise _NotHumanoid(rest_result)
 
 
@@ -942,7 +948,7 @@ def _check_pose(
         names = ", ".join(tree.names[j] for j in (*feet, *hands))
         return (
             None,
-            "the spine is horizontal in the rest pose with the limbs hanging down "
+            "the spine is horizontal with the limbs hanging down "
             f"({names}): a four-legged animal, not a humanoid",
             3,
         )
