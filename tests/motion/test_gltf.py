@@ -84,12 +84,21 @@ def test_non_finite_numbers_no_skeleton_and_no_animation_are_told_apart(bvh_moti
     values[len(values) // 2] = np.nan
     with pytest.raises(ParseError, match="non-finite"):
         read_gltf(pack_glb(document, values.tobytes()))
-    no_skin = dict(document, skins=[])
+    nothing = dict(document, skins=[], animations=[])
     with pytest.raises(ParseError, match="no skeleton"):
-        read_gltf(pack_glb(no_skin, binary))
+        read_gltf(pack_glb(nothing, binary))
     still = dict(document, animations=[])
     with pytest.raises(ParseError, match="no animation"):
         read_gltf(pack_glb(still, binary))
+
+
+def test_an_animation_without_its_mesh_or_skin_is_the_nodes_it_moves(bvh_motion):
+    # Blender and FBX2glTF export a clip alone: nodes and channels, no skin.
+    document, binary = gltf_parts(bvh_motion)
+    skinned = read_gltf(pack_glb(document, binary))[0]
+    alone = read_gltf(pack_glb(dict(document, skins=[]), binary))[0]
+    assert alone.skeleton.names == skinned.skeleton.names
+    np.testing.assert_allclose(alone.local_rotations, skinned.local_rotations)
 
 
 @pytest.mark.parametrize(

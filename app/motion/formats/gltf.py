@@ -12,7 +12,9 @@ binary input.
   from the file system or the network; upload a ``.glb``.
 * Skeleton: the joints of every skin, or for a ``.vrma`` the nodes of its
   ``VRMC_vrm_animation`` ``humanBones`` map (named after the human bone, e.g. ``leftUpperArm``),
-  plus the nodes between them (:mod:`app.motion.formats.scene`).
+  or, in a file with neither (an animation exported without its mesh), the nodes its channels
+  turn or move and the plain nodes below them; plus the nodes between them
+  (:mod:`app.motion.formats.scene`).
 * Motion: channels sampled with their interpolation (``LINEAR`` — quaternions slerped —,
   ``STEP``, ``CUBICSPLINE``) at the keyframe rate when the keys are evenly spaced (raised to
   a whole multiple of it of at least 24 fps, so every key is still a frame), else 30 fps.
@@ -52,6 +54,7 @@ _COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 
 _DTYPES = {5120: "i1", 5121: "u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}
 _NORMALISE = {5120: 127.0, 5121: 255.0, 5122: 32767.0, 5123: 65535.0}
 _PATHS = {"translation": 3, "rotation": 4, "scale": 3}
+_NOT_JOINT = ("mesh", "camera", "skin")  # node fields that make a node something else
 UPLOAD_GLB = "upload a .glb (binary glTF) with everything embedded instead"
 
 
@@ -352,6 +355,8 @@ def read_gltf(
         if 0 <= node < count:
             is_bone[node] = True
     if not is_bone.any():
+        is_bone = _animated_nodes(document, parents)
+    if not is_bone.any():
         raise ParseError("the file has no skeleton (no skin joints or VRM humanoid bones)")
     if not loaded.animations:
         raise ParseError(
@@ -412,6 +417,31 @@ def read_gltf(
         notes={"animation": info.name},
     )
     return motion, loaded.animations, info.name
+
+
+def _animated_nodes(document: Any, parents: np.ndarray) -> np.ndarray:
+    """``(N,)`` bool: for a file without skin (an animation exported without its mesh, by
+    Blender or FBX2glTF), the nodes its channels turn or move, and the plain nodes (no mesh,
+    camera or skin) below them, such as a head's end bone."""
+    nodes = document.nodes or []
+    animated = np.zeros(len(nodes), dtype=bool)
+    for animation in document.animations or []:
+        for channel in animation.channels or []:
+            node = getattr(channel.target, "node", None)
+            path = getattr(channel.target, "path", None)
+            if path in ("translation", "rotation") and isinstance(node, int) and node >= 0:
+                animated[node] = node < len(nodes)
+    chosen = animated.copy()
+    for i, node in enumerate(nodes):
+        if chosen[i] or any(getattr(node, key, None) is not None for key in _NOT_JOINT):
+            continue
+        j, steps = int(parents[i]), 0
+        while j >= 0 and steps <= len(nodes):  # (a cycle is refused later, by the caller)
+            if animated[j]:
+                chosen[i] = True
+                break
+            j, steps = int(parents[j]), steps + 1
+    return chosen
 
 
 def _sample_channel(
