@@ -727,6 +727,21 @@ class _Limb:
         return self.joints[part]
 
 
+@dataclass(frozen=True)
+class _LimbKind:
+    """A leg or an arm: its three joints, and a person's upper : lower and (what lies beyond
+    its end) : lower length ratios."""
+
+    what: str
+    parts: tuple[str, str, str]
+    upper: float
+    beyond: float
+
+
+_LEG = _LimbKind("leg", ("hip", "knee", "ankle"), _THIGH_TO_SHIN, _FOOT_TO_SHIN)
+_ARM = _LimbKind("arm", ("shoulder", "elbow", "wrist"), _UPPER_TO_FORE, _HAND_TO_FORE)
+
+
 @dataclass
 class _Body:
     """One hypothesis: which leaves are head, hands and feet, and what follows from it."""
@@ -1280,21 +1295,42 @@ class _Mapper:
         limb.how[parts[0]] = f"geometry: top of the straight {what}"
         limb.how[parts[1]] = f"geometry: middle of the {what}"
 
-    def limb_proportions(
-        self, limb: _Limb, parts: tuple[str, str, str], upper_to_lower: float, end_to_lower: float
-    ) -> float:
+    def best_limb(self, chain: list[int], ends: list[tuple[int, str]], kind: _LimbKind) -> _Limb:
+        """The limb along ``chain`` (trunk joint first) ending at the one of ``ends`` (joint,
+        how it was found) that leaves room for its top and middle joints and comes nearest
+        a person's proportions (the first on ties); else the first end's _NotHumanoid."""
+        best: tuple[float, _Limb] | None = None
+        problem: _NotHumanoid | None = None
+        for end, end_how in dict(ends).items():
+            limb = _Limb({kind.parts[2]: end}, {kind.parts[2]: end_how})
+            try:
+                self.upper_and_middle(
+                    limb, chain[: chain.index(end) + 1], kind.parts[:2], kind.upper, kind.what
+                )
+            except _NotHumanoid as why:
+                problem = problem or why
+                continue
+            cost = self.limb_proportions(limb, kind)
+            if best is None or cost < best[0]:
+                best = (cost, limb)
+        if best is None:
+            assert problem is not None
+            raise problem
+        return best[1]
+
+    def limb_proportions(self, limb: _Limb, kind: _LimbKind) -> float:
         """How far a limb's upper : lower : end part lengths (along the bones; the end part
         is the longest path beyond the limb's end: hand, foot) are from a person's, as the
         sum of ``|log|`` of each ratio's error; an end part with no bones costs as much as
         one twice too long or too short."""
         path = self.tree.path
-        top, middle, end = (limb[part] for part in parts)
+        top, middle, end = (limb[part] for part in kind.parts)
         upper = path[middle] - path[top]
         lower = max(path[end] - path[middle], 1e-12)
         beyond = self.tree.reach[end]
-        cost = abs(math.log(max(upper, 1e-12) / lower / upper_to_lower))
+        cost = abs(math.log(max(upper, 1e-12) / lower / kind.upper))
         if beyond > 0:
-            return cost + abs(math.log(beyond / lower / end_to_lower))
+            return cost + abs(math.log(beyond / lower / kind.beyond))
         return cost + math.log(2.0)
 
     def map_leg(self, foot: int) -> _Limb:
@@ -1357,30 +1393,7 @@ class _Mapper:
                 )
                 for i in range(last, max(last - 3, 0), -1)
             ]
-        best: tuple[float, _Limb] | None = None
-        problem: _NotHumanoid | None = None
-        for ankle, ankle_how in dict(ankles).items():
-            candidate = _Limb({"ankle": ankle}, {"ankle": ankle_how})
-            try:
-                self.upper_and_middle(
-                    candidate,
-                    chain[: chain.index(ankle) + 1],
-                    ("hip", "knee"),
-                    _THIGH_TO_SHIN,
-                    "leg",
-                )
-            except _NotHumanoid as why:
-                problem = problem or why
-                continue
-            cost = self.limb_proportions(
-                candidate, ("hip", "knee", "ankle"), _THIGH_TO_SHIN, _FOOT_TO_SHIN
-            )
-            if best is None or cost < best[0]:
-                best = (cost, candidate)
-        if best is None:
-            assert problem is not None
-            raise problem
-        limb = best[1]
+        limb = self.best_limb(chain, ankles, _LEG)
         ankle = limb["ankle"]
         ankle_i = chain.index(ankle)
         result, how = limb.joints, limb.how
@@ -1435,30 +1448,7 @@ class _Mapper:
             if last > 1:
                 wrists.append((chain[last - 1], "structure: the joint before the hand's end"))
             wrists.append((chain[last], "structure: the arm's end, no hand"))
-        best: tuple[float, _Limb] | None = None
-        problem: _NotHumanoid | None = None
-        for wrist, wrist_how in dict(wrists).items():
-            limb = _Limb({"wrist": wrist}, {"wrist": wrist_how})
-            try:
-                self.upper_and_middle(
-                    limb,
-                    chain[: chain.index(wrist) + 1],
-                    ("shoulder", "elbow"),
-                    _UPPER_TO_FORE,
-                    "arm",
-                )
-            except _NotHumanoid as why:
-                problem = problem or why
-                continue
-            cost = self.limb_proportions(
-                limb, ("shoulder", "elbow", "wrist"), _UPPER_TO_FORE, _HAND_TO_FORE
-            )
-            if best is None or cost < best[0]:
-                best = (cost, limb)
-        if best is None:
-            assert problem is not None
-            raise problem
-        limb = best[1]
+        limb = self.best_limb(chain, wrists, _ARM)
         wrist = limb["wrist"]
         result, how = limb.joints, limb.how
         result["hand_tip"] = _farthest_descendant(tree, wrist, skip=_is_thumb)

@@ -20,9 +20,8 @@ from fastapi.testclient import TestClient
 from app.config import Settings
 from app.main import create_app
 from app.motion.body import build_body
-from app.motion.model import ParseLimits
 from app.services.parser_pool import ParserPool
-from tests.api.roundtrip import check_bvh_export_round_trip
+from tests.api.devset import SCENE_FORMATS, check_bvh_export_round_trip, read_motion, upload_every
 from tests.conftest import shared_data_dir
 from tests.motion.canonical import check_canonical_body
 
@@ -31,7 +30,6 @@ pytestmark = [
     pytest.mark.slow,
     pytest.mark.skipif(not FOLDER.is_dir(), reason=f"{FOLDER} not found (set MOCAP_SHARED_DATA)"),
 ]
-SCENE_FORMATS = {".fbx": "fbx", ".glb": "gltf", ".gltf": "gltf", ".vrma": "gltf"}
 
 # Human figures whose rigs are not a whole humanoid skeleton by the rules of #10 (a limb is
 # hip/shoulder, knee/elbow, ankle/wrist): refused with a 422 that names the limb at fault.
@@ -81,12 +79,7 @@ def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TestClient]:
 @pytest.fixture(scope="module")
 def uploaded(live: TestClient) -> dict[str, tuple[int, dict]]:
     """Every file uploaded once: relative path -> (status, body)."""
-    answers = {}
-    for path in sorted(KINDS):
-        data = (FOLDER / path).read_bytes()
-        response = live.post("/clips", files={"file": (Path(path).name, data)})
-        answers[path] = (response.status_code, response.json())
-    return answers
+    return upload_every(live, FOLDER, KINDS)
 
 
 @pytest.fixture(scope="module")
@@ -136,28 +129,13 @@ def test_human_files_are_people(uploaded, pool, path):
     suffix = Path(path).suffix.lower()
     assert body["format"] == SCENE_FORMATS.get(suffix, "bvh")
     if suffix in SCENE_FORMATS:
-        parsed = pool.parse(
-            SCENE_FORMATS[suffix],
-            (FOLDER / path).read_bytes(),
-            animation=None,
-            limits=ParseLimits(),
-        )
-        motion = parsed.motion
         assert any(a["selected"] for a in body["animations"])
-    else:
-        from app.motion.formats import read_bvh
-
-        motion = read_bvh((FOLDER / path).read_bytes())
+    motion = read_motion(pool, FOLDER / path)
     check_canonical_body(build_body(motion), path)
 
 
 @pytest.mark.parametrize(
-    "path",
-    [
-        p
-        for p, k in KINDS.items()
-        if k == "human" and p not in NOT_WHOLE_HUMANOIDS and Path(p).suffix.lower() != ".bvh"
-    ],
+    "path", [p for p, k in KINDS.items() if k == "human" and p not in NOT_WHOLE_HUMANOIDS]
 )
 def test_a_bvh_export_re_uploaded_is_the_same_clip(live, uploaded, path):
     status, body = uploaded[path]

@@ -19,10 +19,8 @@ from fastapi.testclient import TestClient
 from app.config import Settings
 from app.main import create_app
 from app.motion.body import build_body
-from app.motion.formats import read_bvh
-from app.motion.model import ParseLimits
 from app.services.parser_pool import ParserPool
-from tests.api.roundtrip import check_bvh_export_round_trip
+from tests.api.devset import check_bvh_export_round_trip, read_motion, upload_every
 from tests.conftest import shared_data_dir
 from tests.motion.canonical import check_canonical_body
 
@@ -33,7 +31,6 @@ pytestmark = [
         not (FOLDER / "README.md").is_file(), reason=f"{FOLDER} not found (set MOCAP_SHARED_DATA)"
     ),
 ]
-SCENE_FORMATS = {".fbx": "fbx", ".glb": "gltf", ".gltf": "gltf", ".vrma": "gltf"}
 KINDS = ("human", "nonhuman", "partial-body", "malformed", "rig-only")
 
 # Files not yet answered as the README says, and why (xfail, not strict: they pass once the
@@ -93,13 +90,7 @@ def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TestClient]:
 @pytest.fixture(scope="module")
 def uploaded(live: TestClient) -> dict[str, tuple[int, dict]]:
     """Every file uploaded once: relative path -> (status, body)."""
-    answers = {}
-    for path in sorted(TABLE):
-        response = live.post(
-            "/clips", files={"file": (Path(path).name, (FOLDER / path).read_bytes())}
-        )
-        answers[path] = (response.status_code, response.json())
-    return answers
+    return upload_every(live, FOLDER, TABLE)
 
 
 @pytest.fixture(scope="module")
@@ -137,19 +128,11 @@ def test_a_rig_without_motion_says_so_or_is_a_still(uploaded, path):
     assert "no animation" in body["detail"] or "without motion" in body["detail"], body
 
 
-def _motion(path: str, pool: ParserPool):
-    data = (FOLDER / path).read_bytes()
-    suffix = Path(path).suffix.lower()
-    if suffix not in SCENE_FORMATS:
-        return read_bvh(data)
-    return pool.parse(SCENE_FORMATS[suffix], data, animation=None, limits=ParseLimits()).motion
-
-
 @pytest.mark.parametrize("path", _files("human"))
 def test_a_person_is_stored_and_looks_like_one(uploaded, pool, path):
     status, body = uploaded[path]
     assert status == 201, (path, body)
-    check_canonical_body(build_body(_motion(path, pool)), path)
+    check_canonical_body(build_body(read_motion(pool, FOLDER / path)), path)
 
 
 @pytest.mark.parametrize("path", _files("human"))

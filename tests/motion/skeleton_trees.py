@@ -14,28 +14,34 @@ import numpy as np
 from app.motion.model import Skeleton
 
 
-def skeleton_from_tree(text: str) -> Skeleton:
-    """Build a Skeleton from an indented tree; a trailing ``*`` marks an end site."""
-    names: list[str] = []
-    parents: list[int] = []
-    end_site: list[bool] = []
-    stack: list[tuple[int, int]] = []  # (indent, joint index)
+def _indented(text: str) -> list[tuple[str, int, list[str]]]:
+    """(name, parent index or -1, the rest of the line's words) per line of an indented
+    tree."""
+    rows: list[tuple[str, int, list[str]]] = []
+    stack: list[tuple[int, int]] = []  # (indent, row index)
     for raw in text.strip("\n").splitlines():
         if not raw.strip():
             continue
         indent = len(raw) - len(raw.lstrip())
-        name = raw.strip()
-        is_end = name.endswith("*")
-        name = name.rstrip("*")
         while stack and stack[-1][0] >= indent:
             stack.pop()
-        parents.append(stack[-1][1] if stack else -1)
-        names.append(name)
-        end_site.append(is_end)
-        stack.append((indent, len(names) - 1))
-    offsets = np.tile([0.0, 1.0, 0.0], (len(names), 1))
+        name, *words = raw.split()
+        rows.append((name, stack[-1][1] if stack else -1, words))
+        stack.append((indent, len(rows) - 1))
+    return rows
+
+
+def skeleton_from_tree(text: str) -> Skeleton:
+    """Build a Skeleton from an indented tree; a trailing ``*`` marks an end site."""
+    rows = _indented(text)
+    offsets = np.tile([0.0, 1.0, 0.0], (len(rows), 1))
     offsets[0] = 0.0
-    return Skeleton(tuple(names), np.array(parents), offsets, np.array(end_site))
+    return Skeleton(
+        tuple(name.rstrip("*") for name, _, _ in rows),
+        np.array([parent for _, parent, _ in rows]),
+        offsets,
+        np.array([name.endswith("*") for name, _, _ in rows]),
+    )
 
 
 MOTIONBUILDER = """
@@ -282,26 +288,17 @@ def skeleton_from_points(text: str) -> Skeleton:
     """Build a Skeleton from an indented tree of ``name x y z`` lines, each the joint's rest
     position in the world (the offsets are the differences); a ``*`` after the name marks an
     end site."""
-    names: list[str] = []
-    parents: list[int] = []
-    points: list[np.ndarray] = []
-    end_site: list[bool] = []
-    stack: list[tuple[int, int]] = []  # (indent, joint index)
-    for raw in text.strip("\n").splitlines():
-        if not raw.strip():
-            continue
-        indent = len(raw) - len(raw.lstrip())
-        name, *xyz = raw.split()
-        while stack and stack[-1][0] >= indent:
-            stack.pop()
-        parents.append(stack[-1][1] if stack else -1)
-        names.append(name.rstrip("*"))
-        end_site.append(name.endswith("*"))
-        points.append(np.array([float(v) for v in xyz]))
-        stack.append((indent, len(names) - 1))
-    at = np.array(points)
-    offsets = np.array([at[j] - at[p] if p >= 0 else np.zeros(3) for j, p in enumerate(parents)])
-    return Skeleton(tuple(names), np.array(parents), offsets, np.array(end_site))
+    rows = _indented(text)
+    parents = np.array([parent for _, parent, _ in rows])
+    at = np.array([[float(v) for v in words] for _, _, words in rows])
+    offsets = at - at[np.maximum(parents, 0)]
+    offsets[0] = 0.0
+    return Skeleton(
+        tuple(name.rstrip("*") for name, _, _ in rows),
+        parents,
+        offsets,
+        np.array([name.endswith("*") for name, _, _ in rows]),
+    )
 
 
 # A short game rig in the shape of Khronos's CesiumMan sample (Y up, metres): three spine

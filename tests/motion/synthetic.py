@@ -10,6 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion, Skeleton
+from app.motion.skeleton_map import rest_pose
 from tests.motion.skeleton_trees import MOTIONBUILDER, skeleton_from_tree
 
 # Rest offsets of a MotionBuilder-style figure (units: cm), standing in a T-pose, facing +z.
@@ -92,19 +93,12 @@ def walking(skeleton: Skeleton, truth: dict[str, str], frames: int = 60) -> Moti
         rotvecs[:, skeleton.index(truth[f"{side}_elbow"]), 1] = -sign * bend
     local = Rotation.from_rotvec(rotvecs.reshape(-1, 3)).as_matrix()
     local = local.reshape(frames, skeleton.joint_count, 3, 3)
-    height = float(np.ptp([p for p in _rest(skeleton)[:, 1]]))
+    height = float(np.ptp([p for p in rest_pose(skeleton)[:, 1]]))
     root = np.stack(
         [np.zeros(frames), np.full(frames, 0.57 * height), 0.8 * height * phase / (2 * np.pi)],
         axis=1,
     )
     return Motion(skeleton, 1.0 / fps, root, local)
-
-
-def _rest(skeleton: Skeleton) -> np.ndarray:
-    out = np.zeros((skeleton.joint_count, 3))
-    for j in range(1, skeleton.joint_count):
-        out[j] = out[skeleton.parents[j]] + skeleton.offsets[j]
-    return out
 
 
 def grown(motion: Motion, parents: list[int], offsets: list[np.ndarray]) -> Motion:
@@ -137,7 +131,7 @@ def joint_oriented(motion: Motion) -> Motion:
     (each child along its parent's x)."""
     skeleton = motion.skeleton
     count = skeleton.joint_count
-    rest = _rest(skeleton)
+    rest = rest_pose(skeleton)
     turn = np.broadcast_to(np.eye(3), (count, 3, 3)).copy()  # joint frame in the rest pose
     for j in range(count):
         children = [c for c in range(count) if skeleton.parents[c] == j]
@@ -176,7 +170,7 @@ def hung_from_root(motion: Motion, names: Sequence[str]) -> Motion:
     moved = [skeleton.index(name) for name in names]
     parents = skeleton.parents.copy()
     parents[moved] = 0
-    rest = _rest(skeleton)
+    rest = rest_pose(skeleton)
     offsets = rest - rest[np.maximum(parents, 0)]
     offsets[0] = 0.0
     local = motion.local_rotations.copy()

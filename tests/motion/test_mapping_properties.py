@@ -88,7 +88,8 @@ def _with_extra_leaves(motion: Motion, count: int, seed: int = 3) -> Motion:
     lengths = np.linalg.norm(skeleton.offsets, axis=1)
     scale = float(lengths.max())
     movable = [j for j in range(skeleton.joint_count) if not skeleton.end_site[j]]
-    names, parents, offsets = list(skeleton.names), list(skeleton.parents), list(skeleton.offsets)
+    parents: list[int] = []
+    offsets: list[np.ndarray] = []
     for i in range(count):
         kind = i % 3
         if kind == 0:  # a twist bone half-way along a bone
@@ -100,26 +101,9 @@ def _with_extra_leaves(motion: Motion, count: int, seed: int = 3) -> Motion:
             offset = rng.normal(size=3) * 0.02 * scale
         else:  # an IK target or prop under the root, somewhere about the body
             parent, offset = 0, rng.normal(size=3) * scale
-        names.append(f"extra{i}")
         parents.append(parent)
         offsets.append(np.asarray(offset, dtype=float))
-    grown = Skeleton(
-        tuple(names),
-        np.array(parents),
-        np.array(offsets),
-        np.concatenate([skeleton.end_site, np.zeros(count, dtype=bool)]),
-    )
-    frames = motion.frame_count
-    rotations = np.concatenate(
-        [motion.local_rotations, np.broadcast_to(np.eye(3), (frames, count, 3, 3))], axis=1
-    )
-    translations = None
-    if motion.local_translations is not None:
-        extra = np.broadcast_to(np.array(offsets[-count:]), (frames, count, 3))
-        translations = np.concatenate([motion.local_translations, extra], axis=1)
-    return dataclasses.replace(
-        motion, skeleton=grown, local_rotations=rotations, local_translations=translations
-    )
+    return grown(motion, parents, offsets)
 
 
 def _with_small_bones(motion: Motion, count: int, seed: int = 5) -> Motion:

@@ -1,12 +1,41 @@
-"""A stored clip's BVH export, uploaded again, must be the same clip to the service."""
+"""Helpers of the dev-folder tables (tests/api/test_*_devset.py): upload every file, read
+one as the service does, and check a stored clip's BVH export is the same clip again."""
 
 from __future__ import annotations
 
 import re
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
 from fastapi.testclient import TestClient
+
+from app.motion.formats import read_bvh
+from app.motion.model import Motion, ParseLimits
+from app.services.parser_pool import ParserPool
+
+SCENE_FORMATS = {".fbx": "fbx", ".glb": "gltf", ".gltf": "gltf", ".vrma": "gltf"}
+
+
+def upload_every(
+    client: TestClient, folder: Path, paths: Iterable[str]
+) -> dict[str, tuple[int, dict]]:
+    """``POST /clips`` of each file once: relative path -> (status, JSON body)."""
+    answers = {}
+    for path in sorted(paths):
+        data = (folder / path).read_bytes()
+        response = client.post("/clips", files={"file": (Path(path).name, data)})
+        answers[path] = (response.status_code, response.json())
+    return answers
+
+
+def read_motion(pool: ParserPool, file: Path) -> Motion:
+    """The clip the service stores from ``file`` (FBX/glTF through a parser worker)."""
+    data = file.read_bytes()
+    kind = SCENE_FORMATS.get(file.suffix.lower())
+    if kind is None:
+        return read_bvh(data)
+    return pool.parse(kind, data, animation=None, limits=ParseLimits()).motion
 
 
 def _bvh_name(name: str) -> str:
