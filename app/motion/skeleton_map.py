@@ -18,22 +18,22 @@ facing, naming or extra joints (fingers, face, twist bones, props, IK targets, d
    (a horizontal spine over four limbs is a quadruped). The cheapest valid choice wins;
    costs are left/right chain-length differences and names that contradict a role (an arm
    chain whose joints are called leg names).
-2. **Chains.** Along each limb chain: the ankle is where the chain turns forward (the rest
-   of the chain drops little for its length; a last bone under half the one before is a
-   foot that points down); the hip and shoulder start the straight run ending at the ankle
-   or wrist (or the joint above it when the run leaves no room for a middle joint, or the
-   joint at the trunk's own place when hips sit at the pelvis); the knee and elbow split
-   that run (a rest-pose bend decides when there is one, otherwise the split nearest human
-   proportions); the wrist is named, or else, among where the fingers branch (a joint with
-   several, or sibling palm joints at one place), the joint before the hand's end and the
-   arm's last joint (a rig without hand bones), the one whose upper arm, forearm and hand
-   come nearest human proportions; the ankle likewise when the foot does not turn forward;
-   two legs never share their hip, and each limb makes most of the way from the trunk to
-   its end (a creature's claws hanging at the end of its legs are no person's legs).
-   A game rig whose feet are IK bones under the root (legs ending at the knees) is mapped,
-   when nothing else maps, with each foot hung from the knee it stays at one distance from
-   while the knee bends (:attr:`SkeletonMap.held`). Names whole-matched by
-   :mod:`app.motion.skeleton_names` choose among joints when they name one in the chain.
+2. **Chains.** Along each limb chain: the ankle is where the chain turns forward (the
+   rest of the chain drops little for its length), else named, else the one of the leg's
+   last joints nearest human proportions (a foot that points down); the hip and shoulder
+   start the straight run ending at the ankle or wrist (or the joint above it when the run
+   leaves no room for a middle joint, or the joint at the trunk's own place when hips sit at
+   the pelvis); the knee and elbow split that run (a rest-pose bend decides when there is
+   one, otherwise the split nearest human proportions); the wrist is named, or else, among
+   where the fingers branch (a joint with several, or sibling palm joints at one place), the
+   joint before the hand's end and the arm's last joint (a rig without hand bones), the one
+   whose upper arm, forearm and hand come nearest human proportions; the ankle likewise when
+   the foot does not turn forward; two legs never share their hip, and each limb makes most
+   of the way from the trunk to its end (a creature's claws hanging at the end of its legs
+   are no person's legs). A game rig whose feet are IK bones under the root (legs ending at
+   the knees) is mapped, when nothing else maps, with each foot hung from the knee it stays
+   at one distance from while the knee bends (:attr:`SkeletonMap.held`). Names whole-matched
+   by :mod:`app.motion.skeleton_names` choose among joints when they name one in the chain.
 3. **End effectors** (Miura et al.: "end effectors are hereafter regarded as joints"): the
    canonical ``head`` point is the first point of non-zero length on the single chain
    beyond the head joint (an End Site, or a ``HeadTop``-like leaf bone: a BVH converted
@@ -340,7 +340,10 @@ def map_skeleton(skeleton: Skeleton, poses: Iterable[tuple[str, np.ndarray]] = (
     held = _held_ends(known.tree, stream.after(-1, _POSES))
     if not held:
         raise problem
-    order, virtual = _rehung(skeleton, known.rest, held)
+    rehung = _rehung(skeleton, known.rest, held)
+    if rehung is None:
+        raise problem
+    order, virtual = rehung
     moved = _Lookahead((label, pose[order]) for label, pose in stream)
     try:
         mapping = _map_tree(virtual, moved)
@@ -426,9 +429,10 @@ def _held_ends(tree: _Tree, poses: list[np.ndarray]) -> dict[int, int]:
 
 def _rehung(
     skeleton: Skeleton, rest: np.ndarray, held: dict[int, int]
-) -> tuple[np.ndarray, Skeleton]:
+) -> tuple[np.ndarray, Skeleton] | None:
     """``skeleton`` with each held joint hung from its limb's last joint, its joints in a new
-    order (parents first), and ``order``: the original index of each new joint."""
+    order (parents first), and ``order``: the original index of each new joint (None when
+    the held joints would hang from one another in a loop)."""
     parents = skeleton.parents.copy()
     for joint, leaf in held.items():
         parents[joint] = leaf
@@ -441,6 +445,8 @@ def _rehung(
         j = stack.pop()
         order_list.append(j)
         stack.extend(reversed(children[j]))
+    if len(order_list) != skeleton.joint_count:
+        return None
     order = np.array(order_list, dtype=np.int64)
     position = np.empty_like(order)
     position[order] = np.arange(len(order))
