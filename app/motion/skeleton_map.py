@@ -26,14 +26,15 @@ facing, naming or extra joints (fingers, face, twist bones, props, IK targets, d
    the pelvis); the knee and elbow split that run (a rest-pose bend decides when there is
    one, otherwise the split nearest human proportions); the wrist is named, or else, among
    where the fingers branch (a joint with several, or sibling palm joints at one place), the
-   joint before the hand's end and the arm's last joint (a rig without hand bones), the one
-   whose upper arm, forearm and hand come nearest human proportions; the ankle likewise when
-   the foot does not turn forward; two legs never share their hip, and each limb makes most
-   of the way from the trunk to its end (a creature's claws hanging at the end of its legs
-   are no person's legs). A game rig whose feet are IK bones under the root (legs ending at
-   the knees) is mapped, when nothing else maps, with each foot hung from the knee it stays
-   at one distance from while the knee bends (:attr:`SkeletonMap.held`). Names whole-matched
-   by :mod:`app.motion.skeleton_names` choose among joints when they name one in the chain.
+   two joints before the hand's end and the arm's last joint (a rig without hand bones), the
+   one whose upper arm, forearm and hand come nearest human proportions; the ankle likewise
+   when the foot does not turn forward; two legs never share their hip, and each limb makes
+   most of the way from the trunk to its end (a creature's claws hanging at the end of its
+   legs are no person's legs). A game rig whose feet are IK bones under the root (legs
+   ending at the knees) is mapped, when nothing else maps, with each foot hung from the knee
+   it stays at one distance from while the knee bends (:attr:`SkeletonMap.held`). Names
+   whole-matched by :mod:`app.motion.skeleton_names` choose among joints when they name one
+   in the chain.
 3. **End effectors** (Miura et al.: "end effectors are hereafter regarded as joints"): the
    canonical ``head`` point is the first point of non-zero length on the single chain
    beyond the head joint (an End Site, or a ``HeadTop``-like leaf bone: a BVH converted
@@ -1451,8 +1452,11 @@ class _Mapper:
             last = len(chain) - 1
             while last > 1 and tree.lengths[chain[last]] == 0:
                 last -= 1
-            if last > 1:
-                wrists.append((chain[last - 1], "structure: the joint before the hand's end"))
+            # (Two before it: a hand bone closed by an End Site, as SMPL exports write it.)
+            wrists += [
+                (chain[i], "structure: the joint before the hand's end")
+                for i in range(last - 1, max(last - 3, 1), -1)
+            ]
             wrists.append((chain[last], "structure: the arm's end, no hand"))
         limb = self.best_limb(chain, wrists, _ARM)
         wrist = limb["wrist"]

@@ -455,3 +455,33 @@ def synthetic_humanoid(shape: Humanoid) -> tuple[Skeleton, dict[str, str]]:
         names = tuple(rename[n] for n in names)
         truth = {c: rename[n] for c, n in truth.items()}
     return Skeleton(names, parents, offsets, np.zeros(len(names), dtype=bool)), truth
+
+
+# SMPL's joints in its template rest pose (neutral body, metres, Y up), in SMPL's own tree:
+# collar -> shoulder -> elbow -> wrist -> hand, pelvis -> hip -> knee -> ankle -> foot.
+SMPL = """
+Pelvis -0.0018 -0.2233 0.0282
+  L_Hip 0.0695 -0.3142 0.0239
+    L_Knee 0.1040 -0.6758 0.0169
+      L_Ankle 0.0870 -1.0708 -0.0213
+        L_Foot 0.1197 -1.1353 0.0996
+  R_Hip -0.0677 -0.3147 0.0214
+    R_Knee -0.1056 -0.6793 0.0147
+      R_Ankle -0.0873 -1.0721 -0.0186
+        R_Foot -0.1185 -1.1367 0.1049
+  Spine1 -0.0025 -0.1089 0.0013
+    Spine2 0.0054 0.0247 0.0295
+      Spine3 0.0011 0.0724 0.0312
+        Neck -0.0017 0.2922 -0.0140
+          Head 0.0051 0.3612 0.0494
+        L_Collar 0.0774 0.2000 0.0027
+          L_Shoulder 0.1990 0.2342 -0.0149
+            L_Elbow 0.4501 0.2207 -0.0307
+              L_Wrist 0.7004 0.2301 -0.0362
+                L_Hand 0.7837 0.2212 -0.0536
+        R_Collar -0.0742 0.1989 0.0001
+          R_Shoulder -0.1918 0.2326 -0.0149
+            R_Elbow -0.4502 0.2204 -0.0291
+              R_Wrist -0.6991 0.2319 -0.0376
+                R_Hand -0.7850 0.2213 -0.0559
+"""

@@ -32,7 +32,7 @@ from tests.motion.conftest import (
     CMU_BVH_FIXTURE,
     fixture_bytes,
 )
-from tests.motion.skeleton_trees import Humanoid, skeleton_from_points, synthetic_humanoid
+from tests.motion.skeleton_trees import SMPL, Humanoid, skeleton_from_points, synthetic_humanoid
 from tests.motion.synthetic import grown, hung_from_root, joint_oriented, walking
 
 
@@ -561,3 +561,42 @@ def test_feet_held_by_ik_at_the_end_of_the_shins_are_the_ankles(names: str):
     # A still clip of the same rig shows nothing: the legs end at the knees.
     with pytest.raises(SkeletonMappingError):
         build_body(motion.slice_frames(0, 1))
+
+
+def _with_end_sites(skeleton: Skeleton, length: float) -> Skeleton:
+    """``skeleton`` with an End Site ``length`` long beyond every leaf, along its bone."""
+    leaves = [j for j in range(skeleton.joint_count) if j not in set(skeleton.parents.tolist())]
+    ends = [skeleton.offsets[j] / np.linalg.norm(skeleton.offsets[j]) * length for j in leaves]
+    return Skeleton(
+        (*skeleton.names, *(f"{skeleton.names[j]}_end" for j in leaves)),
+        np.concatenate([skeleton.parents, leaves]),
+        np.concatenate([skeleton.offsets, ends]),
+        np.concatenate([skeleton.end_site, np.ones(len(leaves), dtype=bool)]),
+    )
+
+
+@pytest.mark.parametrize("named", [True, False], ids=["smpl-names", "no-names"])
+@pytest.mark.parametrize("end_sites", [False, True], ids=["leaves", "end-sites"])
+def test_smpl_chains_map_collar_shoulder_elbow_wrist_hand(named: bool, end_sites: bool):
+    # collar -> shoulder -> elbow -> wrist -> hand and hip -> knee -> ankle -> foot, with or
+    # without names, with or without End Sites beyond the hands and feet (as SMPL-to-BVH
+    # exporters write them).
+    skeleton = skeleton_from_points(SMPL)
+    if end_sites:
+        skeleton = _with_end_sites(skeleton, 0.05)
+    if not named:
+        skeleton = dataclasses.replace(
+            skeleton, names=tuple(f"J{i}" for i in range(skeleton.joint_count))
+        )
+    mapping = map_skeleton(skeleton)
+    truth = skeleton_from_points(SMPL).names
+    got = {c: truth[j] for c, j in zip(CANONICAL_JOINTS, mapping.joints, strict=True) if j < 24}
+    for side in "LR":
+        s = side.lower()
+        assert got[f"{s}_shoulder"] == f"{side}_Shoulder"
+        assert got[f"{s}_elbow"] == f"{side}_Elbow"
+        assert got[f"{s}_wrist"] == f"{side}_Wrist"
+        assert got[f"{s}_hip"] == f"{side}_Hip"
+        assert got[f"{s}_knee"] == f"{side}_Knee"
+        assert got[f"{s}_ankle"] == f"{side}_Ankle"
+    assert mapping.mirrored is False
