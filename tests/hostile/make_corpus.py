@@ -20,6 +20,7 @@ import re
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 HERE = Path(__file__).resolve().parent
 TESTS = HERE.parent
@@ -551,8 +552,8 @@ def scene_cases() -> list[Case]:
         ),
         Case(
             "glb_no_skeleton",
-            "neither a skin nor an animation that moves a node",
-            {"file": ("n.glb", pack_glb(dict(document, skins=[], animations=[]), binary))},
+            "no skin, and an animation of morph weights only (no node turns or moves)",
+            {"file": ("n.glb", pack_glb(_weights_only(dict(document, skins=[])), binary))},
             422,
             P,
             "no skeleton",
@@ -792,6 +793,17 @@ def big_cases() -> list[Case]:
             "more joints",
         ),
     ]
+
+
+def _weights_only(document: dict[str, Any]) -> dict[str, Any]:
+    """``document`` with every animation channel retargeted to morph weights: a skinless
+    file whose channels turn or move no node has no skeleton (an animation without its mesh
+    is the nodes it moves)."""
+    animations = [
+        dict(a, channels=[dict(c, target=dict(c["target"], path="weights")) for c in a["channels"]])
+        for a in document["animations"]
+    ]
+    return dict(document, animations=animations)
 
 
 def write_corpus() -> None:

@@ -109,6 +109,15 @@ def test_a_rig_is_refused_as_a_rig_not_as_a_damaged_file(bvh_motion):
     assert np.ptp(still.local_rotations, axis=0).max() == 0
 
 
+def test_an_animation_without_its_mesh_or_skin_is_the_nodes_it_moves(bvh_motion):
+    # Blender and FBX2glTF export a clip alone: nodes and channels, no skin.
+    document, binary = gltf_parts(bvh_motion)
+    skinned = read_gltf(pack_glb(document, binary))[0]
+    alone = read_gltf(pack_glb(dict(document, skins=[]), binary))[0]
+    assert alone.skeleton.names == skinned.skeleton.names
+    np.testing.assert_allclose(alone.local_rotations, skinned.local_rotations)
+
+
 @pytest.mark.parametrize(
     "data",
     [b"glTF\x02\x00\x00\x00\xff\xff\xff\x7f", b"glTF" + bytes(30), b"{", b"\xff\xfe{}", b"[]"],

@@ -12,9 +12,9 @@ binary input.
   from the file system or the network; upload a ``.glb``.
 * Skeleton: the joints of every skin, or for a ``.vrma`` the nodes of its
   ``VRMC_vrm_animation`` ``humanBones`` map (named after the human bone, e.g. ``leftUpperArm``),
-  plus the nodes between them (:mod:`app.motion.formats.scene`). A file with neither (an
-  animation-only file: clips exported without their character) takes the nodes its
-  animations move and everything below them.
+  or, in a file with neither (an animation exported without its mesh), the nodes its channels
+  turn or move and the plain nodes below them; plus the nodes between them
+  (:mod:`app.motion.formats.scene`).
 * Motion: channels sampled with their interpolation (``LINEAR`` — quaternions slerped —,
   ``STEP``, ``CUBICSPLINE``) at the keyframe rate when the keys are evenly spaced (raised to
   a whole multiple of it of at least 24 fps, so every key is still a frame), else 30 fps.
@@ -41,7 +41,6 @@ from app.motion.formats.scene import (
     motion_from_graph,
     pick_animation,
     skeleton_nodes,
-    topological,
     unique_names,
 )
 from app.motion.model import Motion, ParseLimits
@@ -57,6 +56,8 @@ _COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 
 _DTYPES = {5120: "i1", 5121: "u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}
 _NORMALISE = {5120: 127.0, 5121: 255.0, 5122: 32767.0, 5123: 65535.0}
 _PATHS = {"translation": 3, "rotation": 4, "scale": 3}
+_NOT_JOINT = ("mesh", "camera", "skin")  # node fields that make a node something else
+_NOT_JOINT = ("mesh", "camera", "skin")  # node fields that make a node something else
 UPLOAD_GLB = "upload a .glb (binary glTF) with everything embedded instead"
 
 
@@ -268,24 +269,29 @@ def _human_bones(document: Any) -> dict[int, str]:
     return out
 
 
-def _animated_hierarchy(document: Any, parents: np.ndarray) -> np.ndarray:
-    """``(N,)`` bool: the nodes some animation moves (translation, rotation or scale) and
-    every node below them."""
-    moved = np.zeros(len(parents), dtype=bool)
+def _animated_nodes(document: Any, parents: np.ndarray) -> np.ndarray:
+    """``(N,)`` bool: for a file without skin (an animation exported without its mesh, by
+    Blender or FBX2glTF), the nodes its channels turn or move, and the plain nodes (no mesh,
+    camera or skin) below them, such as a head's end bone."""
+    nodes = document.nodes or []
+    animated = np.zeros(len(nodes), dtype=bool)
     for animation in document.animations or []:
         for channel in animation.channels or []:
-            target = channel.target
-            node = getattr(target, "node", None)
-            path = getattr(target, "path", None)
-            if path in _PATHS and isinstance(node, int) and 0 <= node < len(parents):
-                moved[node] = True
-    if not moved.any():
-        return moved
-    below = moved.copy()
-    for node in topological(parents):  # parents before children (a cycle: ParseError)
-        if parents[node] >= 0 and below[parents[node]]:
-            below[node] = True
-    return below
+            node = getattr(channel.target, "node", None)
+            path = getattr(channel.target, "path", None)
+            if path in ("translation", "rotation") and isinstance(node, int) and node >= 0:
+                animated[node] = node < len(nodes)
+    chosen = animated.copy()
+    for i, node in enumerate(nodes):
+        if chosen[i] or any(getattr(node, key, None) is not None for key in _NOT_JOINT):
+            continue
+        j, steps = int(parents[i]), 0
+        while j >= 0 and steps <= len(nodes):  # (a cycle is refused later, by the caller)
+            if animated[j]:
+                chosen[i] = True
+                break
+            j, steps = int(parents[j]), steps + 1
+    return chosen
 
 
 class _Document:
@@ -384,10 +390,7 @@ def read_gltf(
         if 0 <= node < count:
             is_bone[node] = True
     if not is_bone.any():
-        # An animation-only file (a retargeting library's clips, FBX2glTF of an FBX without
-        # a mesh): no skin, but the nodes its animations move, and what hangs from them,
-        # are the skeleton.
-        is_bone = _animated_hierarchy(document, parents)
+        is_bone = _animated_nodes(document, parents)
     if not is_bone.any():
         raise ParseError(
             "the file has no skeleton (no skin joints, VRM humanoid bones or animated nodes)"
