@@ -41,14 +41,6 @@ KNOWN_GAPS = {
     # the mapper to read the body from.
     "mixamo-glb/nemutas_dynamic_pose.glb": "no pose of the file shows a standing figure",
     "mixamo-glb/nemutas_flair.glb": "no pose of the file shows a standing figure",
-    # Issue 20 item 1 (another branch, app/motion/descriptors): a still stretch makes the
-    # 'motion' window vector non-finite and the upload is refused; the mapping is right.
-    "bvh-misc/HansonZhang-cuhksz_test.bvh": "issue 20 item 1: 'motion' vector not finite",
-    # Issue 20 item 8 (another branch, app/motion/formats): a mesh without bones is refused
-    # as 'no skeleton' rather than 'no animation'.
-    "mixamo-fbx/Redsumo101_Crowd.fbx": "issue 20 item 8: a mesh without bones",
-    "mixamo-fbx/Redsumo101_Lady1.fbx": "issue 20 item 8: a mesh without bones",
-    "unreal-ue4/M-Isonni_Mannequin.FBX": "issue 20 item 8: a mesh without bones",
 }
 
 

@@ -34,7 +34,9 @@ from app.motion.formats.scene import (
     check_frame_budget,
     kept_parents,
     motion_from_graph,
+    no_skeleton,
     pick_animation,
+    scene_notes,
     skeleton_nodes,
     unique_names,
 )
@@ -166,13 +168,13 @@ def read_fbx(
         dtype=bool,
     )
     if not is_bone.any():
-        raise ParseError("the file has no skeleton (no bones or skin clusters)")
+        raise no_skeleton(loaded.animations, "no bones or skin clusters")
     chosen = pick_animation(loaded.animations, animation, joints=int(is_bone.sum()))
     info = loaded.animations[chosen]
     # Only the skeleton's nodes are sampled and counted (meshes, props, other trees are not).
     kept = skeleton_nodes(parents, is_bone, joinable)
     if not len(kept):
-        raise ParseError("the file has no skeleton (no bones or skin clusters)")
+        raise no_skeleton(loaded.animations, "no bones or skin clusters")
     check_frame_budget(limits, info.frame_count, len(kept))
     kept_nodes = [nodes[i] for i in kept]
     rest_t, rest_r, rest_s = _static(kept_nodes)
@@ -200,7 +202,7 @@ def read_fbx(
         source_format="fbx",
         length_unit="metres",
         limits=limits,
-        notes={"animation": info.name},
+        notes=scene_notes(info),
     )
     return motion, loaded.animations, info.name
 

@@ -39,7 +39,9 @@ from app.motion.formats.scene import (
     check_frame_budget,
     kept_parents,
     motion_from_graph,
+    no_skeleton,
     pick_animation,
+    scene_notes,
     skeleton_nodes,
     unique_names,
 )
@@ -392,9 +394,7 @@ def read_gltf(
     if not is_bone.any():
         is_bone = _animated_nodes(document, parents)
     if not is_bone.any():
-        raise ParseError(
-            "the file has no skeleton (no skin joints, VRM humanoid bones or animated nodes)"
-        )
+        raise no_skeleton(loaded.animations, "no skin joints, VRM humanoid bones or animated nodes")
     chosen = pick_animation(loaded.animations, animation, joints=int(is_bone.sum()))
     info = loaded.animations[chosen]
     joinable = np.ones(count, dtype=bool)
@@ -455,7 +455,7 @@ def read_gltf(
         source_format="gltf",
         length_unit="metres (glTF)",
         limits=limits,
-        notes={"animation": info.name},
+        notes=scene_notes(info),
     )
     return motion, loaded.animations, info.name
 

@@ -25,7 +25,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.errors import LimitExceeded, NoAnimation, ParseError, UnknownAnimation
+from app.errors import (
+    LimitExceeded,
+    NoAnimation,
+    ParseError,
+    SkeletonMappingError,
+    UnknownAnimation,
+)
 from app.motion.model import Motion, ParseLimits, Skeleton
 
 
@@ -46,12 +52,26 @@ def rig_without_animation(joints: int, why: str) -> NoAnimation:
     )
 
 
+def no_skeleton(animations: list[Animation], what: str) -> ParseError:
+    """The error for a file with no skeleton (``what`` says what was looked for). When nothing
+    in it moves either (no animation, or only single instants) it is a static model — a prop,
+    a mesh without bones — which is not a person to map (:class:`SkeletonMappingError`), and
+    the message says there is no animation as well; it is not a rig (no bones to drive)."""
+    if all(a.frame_count <= 1 for a in animations):
+        return SkeletonMappingError(
+            f"not a whole humanoid: the file has no skeleton ({what}) and no animation: a "
+            "static model, nothing moves"
+        )
+    return ParseError(f"the file has no skeleton ({what})")
+
+
 def pick_animation(animations: list[Animation], name: str | None, *, joints: int = 0) -> int:
     """Index of the animation called ``name``, else of the longest (first of equals).
 
-    A file without animations, or whose chosen animation is zero-length (one instant: a
-    pose, the way exporters write a bind pose as a take), is a rig with no animation
-    (:class:`NoAnimation`; ``joints`` is the skeleton's size, for the message)."""
+    A file without animations is a rig with no animation (:class:`NoAnimation`; ``joints``
+    is the skeleton's size, for the message). A zero-length animation (one instant: a pose
+    written as a take) is read as a one-frame still: the file says that pose is its motion,
+    and :func:`scene_notes` says so in the clip's warnings."""
     if not animations:
         raise rig_without_animation(joints, "no animation")
     if name is None:
@@ -65,11 +85,18 @@ def pick_animation(animations: list[Animation], name: str | None, *, joints: int
                 f"animation: the file has no animation {name!r}; it has {listed}"
             )
         chosen = found[0]
-    if animations[chosen].frame_count <= 1:
-        raise rig_without_animation(
-            joints, f"only a zero-length animation ({animations[chosen].name!r}, one instant)"
-        )
     return chosen
+
+
+def scene_notes(animation: Animation) -> dict[str, object]:
+    """The notes of a motion read from ``animation``: its name, and a warning when it is a
+    single instant (stored as a one-frame still rather than refused as a rig)."""
+    notes: dict[str, object] = {"animation": animation.name}
+    if animation.frame_count <= 1:
+        notes["warnings"] = [
+            f"the animation {animation.name!r} is a single instant: stored as a one-frame still"
+        ]
+    return notes
 
 
 # A child whose offset in its parent's frame moves by more than this fraction of the body's
