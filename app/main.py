@@ -17,6 +17,7 @@ from starlette.concurrency import run_in_threadpool
 from app.api import clips, meta, moments, search
 from app.api.auth import API_KEY_HEADER, log_access_policy, read_dependencies
 from app.api.errors import error_responses, install_error_handlers
+from app.api.guard import RequestGuard, document_access
 from app.api.limits import BodySizeLimit
 from app.api.ui import mount_ui
 from app.config import Settings
@@ -82,6 +83,9 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
     app.state.settings = settings
     install_error_handlers(app)
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
+    # Outside the size limit (and inside CORS, so refusals carry its headers): Host, Origin,
+    # API key and per-client limits are checked on the request's head, before its body.
+    app.add_middleware(RequestGuard, settings=settings, schema=lambda: app.openapi())
     if settings.cors_origins:  # CORS is off unless origins are configured
         app.add_middleware(
             CORSMiddleware,
@@ -99,4 +103,5 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
     app.include_router(meta.read_router, dependencies=reads, responses=read_errors)
     app.include_router(meta.router)
     mount_ui(app)  # the web UI at /, /static/*, and the routes it reads (skeletons, map)
+    document_access(app, settings)
     return app

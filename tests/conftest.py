@@ -19,6 +19,7 @@ from tests import postgres
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 FIXTURES_DIR = Path(__file__).resolve().parent / "fixtures"
+TEST_CLIENT_HOST = "testserver"
 
 
 def shared_data_dir() -> Path:
@@ -27,11 +28,22 @@ def shared_data_dir() -> Path:
     return Path(override) if override else REPO_ROOT.parent / "shared" / "data"
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _test_client_host() -> Iterator[None]:
+    # Starlette's TestClient addresses every request to http://testserver: the one name the
+    # tests add to the Host allow-list (Django's test runner does the same), for the whole
+    # session so module-scoped apps get it too. Servers started in a subprocess
+    # (tests/hardening/live.py) get no MOCAP_* variable: the real defaults.
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("MOCAP_ALLOWED_HOSTS", TEST_CLIENT_HOST)
+        yield
+
+
 @pytest.fixture(autouse=True)
 def _no_mocap_environment(monkeypatch: pytest.MonkeyPatch) -> None:
     # A developer's MOCAP_* variables must not leak into the settings tests build.
     for name in list(os.environ):
-        if name.startswith("MOCAP_") and name != "MOCAP_SHARED_DATA":
+        if name.startswith("MOCAP_") and name not in ("MOCAP_SHARED_DATA", "MOCAP_ALLOWED_HOSTS"):
             monkeypatch.delenv(name)
 
 
