@@ -30,6 +30,7 @@ from app.api.deps import ClipDep, DescriptorDep, LabelQuery, LibraryDep, Setting
 from app.api.errors import error_responses
 from app.api.schemas import ClipOut, ClipPage
 from app.services import library_map as ui_service
+from app.text import checked_text
 
 STATIC_DIR = Path(__file__).resolve().parent.parent / "static"
 INDEX_HTML = STATIC_DIR / "index.html"
@@ -216,7 +217,11 @@ def find_clips(
     """As `GET /clips`, with a name filter: clips in id order, a page at a time."""
     check_page(settings, limit, offset)
     items, total = ui_service.find_clips(
-        library, q=(q or "").strip() or None, label=label, limit=limit, offset=offset
+        library,
+        q=checked_text("q", q or "").strip() or None,
+        label=label,
+        limit=limit,
+        offset=offset,
     )
     return ClipPage(total=total, limit=limit, offset=offset, items=[ClipOut.of(c) for c in items])
 
