@@ -8,6 +8,7 @@ import os
 from collections.abc import Iterator
 from pathlib import Path
 
+import hypothesis
 import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine
@@ -16,6 +17,11 @@ from app.config import Settings
 from app.db.migrate import upgrade
 from app.db.session import create_db_engine
 from tests import postgres
+
+# No hypothesis deadline by default: how long an example takes on a loaded, shared machine is
+# no verdict on the code (speed is measured under bench/).
+hypothesis.settings.register_profile("mocap", deadline=None)
+hypothesis.settings.load_profile("mocap")
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 FIXTURES_DIR = Path(__file__).resolve().parent / "fixtures"
@@ -77,13 +83,29 @@ def fixtures_dir() -> Path:
     return FIXTURES_DIR
 
 
+class SharedData:
+    """Folders and files of the real datasets, each asked for by name, so a test skips when
+    the one it needs is missing (naming it), not only when ``../shared/data`` is."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+
+    def __call__(self, *parts: str) -> Path:
+        """``shared_data("bandai-ds1", "data")``: that path, or a skip naming it."""
+        path = self.root.joinpath(*parts)
+        if not path.exists():
+            pytest.skip(
+                f"real motion data not found: {path} (../shared/data beside the repository, "
+                "or set MOCAP_SHARED_DATA)"
+            )
+        return path
+
+
 @pytest.fixture(scope="session")
-def shared_data() -> Path:
-    """The real datasets (``../shared/data``); tests using it skip when it is absent."""
-    path = shared_data_dir()
-    if not path.is_dir():
-        pytest.skip(f"real motion data not found at {path} (set MOCAP_SHARED_DATA to its location)")
-    return path
+def shared_data() -> SharedData:
+    """The real datasets (``../shared/data``): ``shared_data("cmu", "asf-amc")`` gives a
+    folder of them, or skips the test when that folder is absent."""
+    return SharedData(shared_data_dir())
 
 
 @pytest.fixture(scope="session")
