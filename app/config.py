@@ -106,7 +106,7 @@ class Settings(BaseSettings):
         ),
     )
     max_heavy_requests_per_client: int = Field(
-        default=2,
+        default=4,
         ge=1,
         description=(
             "Heavy requests (those MOCAP_REQUIRE_KEY_FOR_HEAVY names) one client address may "

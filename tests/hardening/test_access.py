@@ -478,10 +478,10 @@ def test_a_keyed_json_body_is_capped_before_it_is_parsed(keyed_server: LiveServe
 # -- heavy requests per client, and keys for heavy routes ------------------------------------
 
 
-def held_heavy_request(server: LiveServer) -> socket.socket:
-    """A POST /search whose body never comes: it stays in progress until the socket closes."""
+def held_heavy_request(server: LiveServer, path: str = "/search") -> socket.socket:
+    """A POST whose body never comes: it stays in progress until the socket closes."""
     sock = socket.create_connection(("127.0.0.1", server.port), timeout=10)
-    sock.sendall(head(server, "POST /search HTTP/1.1", MULTIPART, 100_000) + FIRST_PART)
+    sock.sendall(head(server, f"POST {path} HTTP/1.1", MULTIPART, 100_000) + FIRST_PART)
     return sock
 
 
@@ -508,6 +508,28 @@ def test_anonymous_heavy_requests_are_limited_per_client(keyed_server: LiveServe
         while client.post("/search", files=unique_upload(1)).status_code == 429:
             assert time.monotonic() < deadline, "slots not given back after the clients left"
             time.sleep(0.1)
+
+
+def test_uploads_to_an_open_server_are_limited_per_client(tmp_path: Path) -> None:
+    """Without any key configured every client is anonymous: its uploads count too."""
+    env = {"MOCAP_MAX_HEAVY_REQUESTS_PER_CLIENT": "2"}
+    with (
+        LiveServer(tmp_path / "data", env) as server,
+        httpx.Client(base_url=server.url, timeout=30) as client,
+    ):
+        held = [held_heavy_request(server, "/clips") for _ in range(2)]
+        try:
+            time.sleep(0.3)
+            assert_error(client.post("/clips", files=unique_upload(1)), 429, "too_many_requests")
+            assert client.get("/clips").status_code == 200
+        finally:
+            for sock in held:
+                sock.close()
+        deadline = time.monotonic() + 10
+        while (answer := client.post("/clips", files=unique_upload(1))).status_code == 429:
+            assert time.monotonic() < deadline, "slots not given back after the clients left"
+            time.sleep(0.1)
+        assert answer.status_code == 201, answer.text
 
 
 HEAVY_REQUESTS = [
