@@ -101,8 +101,8 @@ class Settings(BaseSettings):
         description=(
             "Also require the API key for every route that parses an upload or does heavy "
             "work: POST /search, GET and POST /search/moments, POST /skeleton, GET /map, "
-            "GET /clips/{id}/file with `format`, `start` or `end`, and any other route that "
-            "takes a request body. Needs MOCAP_API_KEY."
+            "GET /clips/{id}/file with `format`, `start` or `end`, and any other POST, PUT, "
+            "PATCH or DELETE that does not change the library. Needs MOCAP_API_KEY."
         ),
     )
     max_heavy_requests_per_client: int = Field(

@@ -54,9 +54,9 @@ from app.errors import CrossSiteRequest, HostNotAllowed, MocapError, TooManyRequ
 MAX_JSON_BODY_BYTES = 1024 * 1024
 
 SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS", "TRACE"})
-# Routes that do heavy work without a request body: they describe stored files (moments by a
-# stored clip), convert them (a download with ``format``/``start``/``end``), or compute
-# over the whole library (the map).
+# Reading routes that do heavy work: they describe stored files (moments by a stored clip),
+# convert them (a download with ``format``/``start``/``end``), or compute over the whole
+# library (the map).
 HEAVY_ROUTES = frozenset({("GET", "/map"), ("GET", "/search/moments")})
 HEAVY_WITH_QUERY = {("GET", "/clips/{clip_id}/file"): frozenset({"format", "start", "end"})}
 OPEN_PATHS = frozenset({"/health"})
@@ -102,16 +102,17 @@ def _roles(operation: dict[str, Any]) -> set[str]:
 def operation_access(method: str, path: str, operation: dict[str, Any]) -> RouteAccess:
     """The access of one operation of the OpenAPI schema, from what it is.
 
-    Heavy: it parses an upload (a multipart body), takes any other body without being a
-    write (a JSON document to act on), or is listed in :data:`HEAVY_ROUTES`. Level: a write
-    declares the ``write`` role (:data:`app.api.auth.WriteAccess`); ``/health`` is open; a
-    heavy operation is HEAVY; the rest READ. (Routes outside the schema — the docs, the page,
-    static files — are open.)"""
+    Heavy: it parses an upload (a multipart body), is a POST, PUT, PATCH or DELETE that is
+    not a write (a search by file, a preview, an export: nothing else is sent that way), or is
+    listed in :data:`HEAVY_ROUTES`. Level: a write declares the ``write`` role
+    (:data:`app.api.auth.WriteAccess`); ``/health`` is open; a heavy operation is HEAVY; the
+    rest READ. (Routes outside the schema — the docs, the page, static files — are open.)"""
     body = operation.get("requestBody")
     upload = body is not None and "multipart/form-data" in body.get("content", {})
     json_body = body is not None and not upload
     write = WRITE_ROLE in _roles(operation)
-    heavy = upload or (json_body and not write) or (method, path) in HEAVY_ROUTES
+    unsafe = method not in SAFE_METHODS
+    heavy = upload or (unsafe and not write) or (method, path) in HEAVY_ROUTES
     heavy_with = HEAVY_WITH_QUERY.get((method, path), frozenset())
     if write:
         level = Access.WRITE

@@ -687,3 +687,42 @@ def test_the_live_server_refuses_other_names_and_sites(keyed_server: LiveServer)
             headers={"X-API-Key": KEY, "Origin": keyed_server.url},
         )
         assert same.status_code == 201, same.text
+
+
+def test_every_operation_has_the_level_its_rule_gives(settings: Settings) -> None:
+    """The guard reads each operation's level from the app's own schema: writes declare the
+    write role, uploads and other unsafe operations are heavy, a few reading routes too."""
+    from fastapi import APIRouter
+
+    from app.api.guard import Access, operation_access
+
+    app = create_app(settings, describer=FakeDescriber())
+    future = APIRouter()
+    future.add_api_route("/exports", lambda clip: {}, methods=["POST"])  # no body, no key
+    app.include_router(future)
+    levels: dict[str, set[tuple[str, str]]] = {}
+    for path, item in app.openapi()["paths"].items():
+        for method, operation in item.items():
+            access = operation_access(method.upper(), path, operation)
+            name = access.level.name + ("+heavy" if access.heavy or access.heavy_with else "")
+            levels.setdefault(name, set()).add((method.upper(), path))
+    assert levels["WRITE+heavy"] == {("POST", "/clips")}
+    assert levels["WRITE"] == {
+        ("PATCH", "/clips/{clip_id}"),
+        ("DELETE", "/clips/{clip_id}"),
+        ("DELETE", "/clips"),
+    }
+    assert levels["HEAVY+heavy"] == {
+        ("POST", "/search"),
+        ("POST", "/search/moments"),
+        ("POST", "/skeleton"),
+        ("GET", "/map"),
+        ("GET", "/search/moments"),
+        ("POST", "/exports"),
+    }
+    assert levels["READ+heavy"] == {("GET", "/clips/{clip_id}/file")}  # with format/start/end
+    assert levels["OPEN"] == {("GET", "/health")}
+    assert ("GET", "/search") in levels["READ"] and ("GET", "/clips/{clip_id}/skeleton") in levels[
+        "READ"
+    ]
+    assert Access.OPEN < Access.READ < Access.HEAVY < Access.WRITE
