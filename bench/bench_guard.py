@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import os
+import shutil
 import statistics
 import sys
 import tempfile
@@ -92,8 +93,14 @@ def main() -> int:
     parser.add_argument("--rounds", type=int, default=5)
     args = parser.parse_args()
     print(f"machine: {machine()}")
-    data_dir = Path(tempfile.mkdtemp(prefix="bench-guard-")) / "data"
-    settings = Settings(data_dir=data_dir)
+    work = Path(tempfile.mkdtemp(prefix="bench-guard-"))
+    try:
+        return measure(args, Settings(data_dir=work / "data"))
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def measure(args: argparse.Namespace, settings: Settings) -> int:
     with TestClient(create_app(settings), base_url="http://127.0.0.1") as client:
         for n in range(3):
             assert client.post("/clips", files=unique_upload(n)).status_code == 201

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import statistics
 import sys
 import tempfile
@@ -95,6 +96,7 @@ def main() -> int:
         a.stop()
         b.stop()
         cluster.stop()
+        shutil.rmtree(work, ignore_errors=True)
     print(f"refresh {args.refresh} s, {args.clips} clips, load average {os.getloadavg()[0]:.2f}")
     print(f"stored through A, found through B : {summary(stored, promise)}")
     print(f"deleted through A, gone through B : {summary(deleted, promise)}")
