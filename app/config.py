@@ -98,6 +98,35 @@ class Settings(BaseSettings):
             "/health and the docs stay open. Needs MOCAP_API_KEY."
         ),
     )
+    require_key_for_heavy: bool = Field(
+        default=False,
+        description=(
+            "Also require the API key for every route that parses an upload or does heavy "
+            "work: POST /search, GET and POST /search/moments, POST /skeleton, GET /map, "
+            "GET /clips/{id}/file with `format`, `start` or `end`, and any other POST, PUT, "
+            "PATCH or DELETE that does not change the library. Needs MOCAP_API_KEY."
+        ),
+    )
+    max_heavy_requests_per_client: int = Field(
+        default=4,
+        ge=1,
+        description=(
+            "Heavy requests (those MOCAP_REQUIRE_KEY_FOR_HEAVY names) one client address may "
+            "have in progress at once without a valid API key; more answer 429 with "
+            "Retry-After. Behind a proxy the address is the proxy's unless it is trusted to "
+            "pass the client's (uvicorn's FORWARDED_ALLOW_IPS)."
+        ),
+    )
+    allowed_hosts: Annotated[list[str], NoDecode] = Field(
+        default_factory=list,
+        description=(
+            "Names requests may be addressed to (the Host header) besides localhost, IP "
+            "addresses and MOCAP_HOST, comma-separated; `*` for any name. Other names answer "
+            "400 `host_not_allowed`: a web page whose name an attacker points at this "
+            "server (DNS rebinding) cannot talk to it. Behind a proxy, list the names users "
+            "type, and have the proxy pass the Host header on."
+        ),
+    )
     cors_origins: Annotated[list[str], NoDecode] = Field(
         default_factory=list,
         description=(
@@ -194,9 +223,16 @@ class Settings(BaseSettings):
             raise ValueError("MOCAP_REQUIRE_KEY_FOR_READS needs MOCAP_API_KEY to be set")
         return value
 
-    @field_validator("cors_origins", mode="before")
+    @field_validator("require_key_for_heavy")
     @classmethod
-    def _split_origins(cls, value: object) -> object:
+    def _heavy_needs_a_key(cls, value: bool, info: ValidationInfo) -> bool:
+        if value and info.data.get("api_key") is None:
+            raise ValueError("MOCAP_REQUIRE_KEY_FOR_HEAVY needs MOCAP_API_KEY to be set")
+        return value
+
+    @field_validator("cors_origins", "allowed_hosts", mode="before")
+    @classmethod
+    def _split_list(cls, value: object) -> object:
         if isinstance(value, str):
             text = value.strip()
             if text.startswith("["):

@@ -127,6 +127,28 @@ class Forbidden(MocapError):
     code = "forbidden"
 
 
+class CrossSiteRequest(Forbidden):
+    """A browser sent a request that changes something or does heavy work from a page of
+    another site (its ``Origin`` or ``Sec-Fetch-Site`` says so)."""
+
+    code = "cross_site_request"
+
+
+class HostNotAllowed(MocapError):
+    """The request is addressed (``Host``) to a name this server does not answer to: the
+    mark of a DNS-rebinding page."""
+
+    code = "host_not_allowed"
+
+
+class TooManyRequests(MocapError):
+    """One client has as many heavy requests in progress as it may; ``retry_after`` seconds
+    is a fair wait before trying again."""
+
+    code = "too_many_requests"
+    retry_after = 1
+
+
 class StorageUnavailable(MocapError):
     """The data directory or database cannot be written (disk full, read-only, locked)."""
 

@@ -28,6 +28,7 @@ from functools import lru_cache
 from pathlib import Path
 
 from app.errors import InvalidInput
+from app.text import checked_text
 
 MAX_LABEL_LENGTH = 100
 MAX_LABELS = 100
@@ -38,7 +39,7 @@ def label_key(label: str) -> str:
     return label.strip().casefold()
 
 
-def _split(values: str | Iterable[str] | None) -> dict[str, str]:
+def _split(values: str | Iterable[str] | None, field: str) -> dict[str, str]:
     """key -> first spelling, for each trimmed, non-empty comma-separated value."""
     if values is None:
         return {}
@@ -46,7 +47,7 @@ def _split(values: str | Iterable[str] | None) -> dict[str, str]:
         values = [values]
     found: dict[str, str] = {}
     for value in values:
-        for label in value.split(","):
+        for label in checked_text(field, value).split(","):
             label = label.strip()
             if label:
                 found.setdefault(label_key(label), label)
@@ -62,7 +63,7 @@ def normalise_labels(values: str | Iterable[str] | None) -> tuple[str, ...]:
     InvalidInput
         A label over :data:`MAX_LABEL_LENGTH` characters, or over :data:`MAX_LABELS` labels.
     """
-    labels = tuple(_split(values).values())
+    labels = tuple(_split(values, "labels").values())
     for label in labels:
         if len(label) > MAX_LABEL_LENGTH:
             raise InvalidInput(f"labels: {label[:20]!r}... is over {MAX_LABEL_LENGTH} characters")
@@ -75,13 +76,13 @@ def label_filter(values: str | Iterable[str] | None) -> tuple[str, ...]:
     """The labels a ``label`` filter asks for, each clip must carry all of them (compared by
     :func:`label_key`); ``()`` means no filter. ``"walk,happy"``, ``["walk", "happy"]`` and
     ``["walk,", " Happy"]`` all ask for the same two labels; ``""`` and ``[""]`` for none."""
-    return tuple(_split(values).values())
+    return tuple(_split(values, "label").values())
 
 
 def merge_labels(stored: Iterable[str], added: Iterable[str]) -> tuple[str, ...]:
     """``stored`` followed by those of ``added`` it does not already carry (in any case)."""
-    merged = _split(list(stored))
-    for key, label in _split(list(added)).items():
+    merged = _split(list(stored), "labels")
+    for key, label in _split(list(added), "labels").items():
         merged.setdefault(key, label)
     return tuple(merged.values())
 

@@ -18,6 +18,7 @@ from app.api import clips, meta, moments, search
 from app.api.auth import API_KEY_HEADER, log_access_policy, read_dependencies
 from app.api.compression import add_compression
 from app.api.errors import error_responses, install_error_handlers
+from app.api.guard import RequestGuard, document_access
 from app.api.limits import BodySizeLimit
 from app.api.ui import mount_ui
 from app.config import Settings
@@ -84,6 +85,10 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
     install_error_handlers(app)
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
     add_compression(app)  # gzip for larger JSON answers
+
+    # Outside the size limit (and inside CORS, so refusals carry its headers): Host, Origin,
+    # API key and per-client limits are checked on the request's head, before its body.
+    app.add_middleware(RequestGuard, settings=settings, schema=lambda: app.openapi())
     if settings.cors_origins:  # CORS is off unless origins are configured
         app.add_middleware(
             CORSMiddleware,
@@ -101,4 +106,5 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
     app.include_router(meta.read_router, dependencies=reads, responses=read_errors)
     app.include_router(meta.router)
     mount_ui(app)  # the web UI at /, /static/*, and the routes it reads (skeletons, map)
+    document_access(app, settings)
     return app

@@ -112,6 +112,12 @@ def read_upload(
 UploadDep = Annotated[Upload, Depends(read_upload)]
 
 
+# Ids are 64-bit database keys: a larger one is a bad parameter (422), never a driver error.
+ClipIdQuery = Annotated[
+    int,
+    Query(description="Id of the query clip.", examples=[7], ge=1, le=clip_service.MAX_ID),
+]
+
 DescriptorQuery = Annotated[
     str | None,
     Query(

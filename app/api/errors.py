@@ -22,6 +22,7 @@ from app.errors import (
     DescribeTimeout,
     DescriptorUnavailable,
     Forbidden,
+    HostNotAllowed,
     InvalidInput,
     MocapError,
     MomentsOff,
@@ -29,6 +30,7 @@ from app.errors import (
     NotFound,
     PayloadTooLarge,
     StorageUnavailable,
+    TooManyRequests,
     Unauthorized,
     UnsupportedMediaType,
 )
@@ -45,6 +47,8 @@ STATUS_BY_ERROR: dict[type[MocapError], int] = {
     UnsupportedMediaType: 415,
     Unauthorized: 401,
     Forbidden: 403,
+    HostNotAllowed: 400,
+    TooManyRequests: 429,
     DescriptorUnavailable: 409,
     MomentsOff: 409,
     StorageUnavailable: 503,
@@ -107,11 +111,20 @@ def describe_validation_error(exc: RequestValidationError) -> str:
     return "; ".join(f"{_location(tuple(e.get('loc', ())))}: {e.get('msg')}" for e in exc.errors())
 
 
+def response_for(error: MocapError) -> JSONResponse:
+    """The error response of a domain error: its status from the table, the one shape, and
+    ``WWW-Authenticate`` (401) or ``Retry-After`` (an error that says when to retry)."""
+    status = status_for(error)
+    headers = {"WWW-Authenticate": "Bearer"} if status == 401 else {}
+    retry_after = getattr(error, "retry_after", None)
+    if retry_after is not None:
+        headers["Retry-After"] = str(retry_after)
+    return error_json(status, error.code, error.detail, headers or None)
+
+
 async def _on_domain_error(_request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, MocapError)
-    status = status_for(exc)
-    headers = {"WWW-Authenticate": "Bearer"} if status == 401 else None
-    return error_json(status, exc.code, exc.detail, headers)
+    return response_for(exc)
 
 
 async def _on_validation_error(_request: Request, exc: Exception) -> JSONResponse:
@@ -161,9 +174,26 @@ def install_error_handlers(app: FastAPI) -> None:
 # -- OpenAPI documentation of the error responses ------------------------------------------
 
 ERROR_EXAMPLES: dict[int, dict[str, tuple[str, str]]] = {
-    400: {"bad_request": ("Malformed request", "There was an error parsing the body")},
+    400: {
+        "bad_request": ("Malformed request", "There was an error parsing the body"),
+        "host_not_allowed": (
+            "Request addressed to a name the server does not answer to",
+            "this server does not answer to the name 'evil.example' (Host header); add it to "
+            "MOCAP_ALLOWED_HOSTS if users reach the service by that name",
+        ),
+    },
     401: {"unauthorized": ("Missing or wrong API key", "missing API key")},
-    403: {"forbidden": ("Key without the right", "this API key may not change clips")},
+    403: {
+        "forbidden": (
+            "Wrong API key",
+            "the API key in 'X-API-Key' is not valid for changing the library",
+        ),
+        "cross_site_request": (
+            "Sent by a page of another site",
+            "a page of another site (https://evil.example) may not send this request; list "
+            "its origin in MOCAP_CORS_ORIGINS to allow it",
+        ),
+    },
     404: {
         "not_found": ("Unknown clip", "no clip with id 42"),
         "no_stored_file": (
@@ -214,6 +244,14 @@ ERROR_EXAMPLES: dict[int, dict[str, tuple[str, str]]] = {
             "Bad parameter or missing part",
             "query.k: Input should be a valid integer",
         ),
+    },
+    429: {
+        "too_many_requests": (
+            "Too many heavy requests from one client",
+            "2 heavy requests from this address are in progress, the most one client may have "
+            "without an API key (MOCAP_MAX_HEAVY_REQUESTS_PER_CLIENT); try again when one has "
+            "finished",
+        )
     },
     503: {
         "storage_unavailable": (

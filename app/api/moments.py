@@ -8,7 +8,7 @@ import anyio
 from fastapi import APIRouter, Query, Request, Response
 from pydantic import BaseModel, ConfigDict, Field
 
-from app.api.deps import KQuery, LabelQuery, LibraryDep, UploadDep
+from app.api.deps import ClipIdQuery, KQuery, LabelQuery, LibraryDep, UploadDep
 from app.api.errors import error_responses
 from app.api.schemas import ClipOut
 from app.db import label_filters as label_db
@@ -150,7 +150,7 @@ def _by_clip(
 )
 async def search_moments_by_clip(
     request: Request,
-    clip: Annotated[int, Query(description="Id of the query clip.", examples=[7])],
+    clip: ClipIdQuery,
     start: StartQuery = None,
     end: EndQuery = None,
     k: KQuery = 10,

@@ -8,6 +8,7 @@ import anyio
 from fastapi import APIRouter, Query, Request, Response
 
 from app.api.deps import (
+    ClipIdQuery,
     DescriptorDep,
     DescriptorQuery,
     KQuery,
@@ -38,7 +39,7 @@ router = APIRouter(prefix="/search", tags=["search"])
 )
 async def search_by_clip(
     request: Request,
-    clip: Annotated[int, Query(description="Id of the query clip.", examples=[7])],
+    clip: ClipIdQuery,
     k: KQuery = 10,
     descriptor: DescriptorQuery = None,
     label: LabelQuery = None,

@@ -35,6 +35,7 @@ from app.api.schemas import ClipOut, ClipPage
 from app.services import library_map as ui_service
 from app.services import previews
 from app.services.describe import read_motion
+from app.text import checked_text
 
 STATIC_DIR = Path(__file__).resolve().parent.parent / "static"
 INDEX_HTML = STATIC_DIR / "index.html"
@@ -339,7 +340,11 @@ def find_clips(
     """As `GET /clips`, with a name filter: clips in id order, a page at a time."""
     check_page(settings, limit, offset)
     items, total = ui_service.find_clips(
-        library, q=(q or "").strip() or None, label=label, limit=limit, offset=offset
+        library,
+        q=checked_text("q", q or "").strip() or None,
+        label=label,
+        limit=limit,
+        offset=offset,
     )
     return ClipPage(total=total, limit=limit, offset=offset, items=[ClipOut.of(c) for c in items])
 

@@ -3,7 +3,7 @@
 // In "moments" mode the results are spans of clips (GET/POST /search/moments): each plays
 // only its span, with a thin timeline showing where in its clip it lies.
 
-import { clipForm, descriptors, fileAnimations, getJson, labels as fetchLabels, mayHoldAnimations, postForm } from "./api.js";
+import { clipForm, descriptors, download as downloadFile, fileAnimations, getJson, labels as fetchLabels, mayHoldAnimations, postForm } from "./api.js";
 import { formatBadge } from "./clip.js";
 import { Figure, Player } from "./figure.js";
 import { Timeline } from "./timeline.js";
@@ -348,6 +348,17 @@ export async function renderSearch(main, params, { navigate }) {
         },
         "Download",
       );
+      // The link alone could not send the API key (a cut is heavy work, which may need it):
+      // fetch the file with the key, as the clip page's buttons do.
+      download.addEventListener("click", async (event) => {
+        event.preventDefault();
+        try {
+          const name = await downloadFile(`/clips/${moment.id}/file`, { start: moment.start, end: moment.end });
+          status.textContent = `Downloaded ${name}.`;
+        } catch (error) {
+          if (error.status !== 401 && error.status !== 403) status.textContent = `Download failed: ${error.detail || error.message}`;
+        }
+      });
       const holder = el("div", { class: "moment-detail" });
       const card = figureCard({
         clipId: moment.id,

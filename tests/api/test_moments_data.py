@@ -7,11 +7,12 @@ from __future__ import annotations
 
 import io
 import zipfile
-from pathlib import Path
 
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
+
+from tests.conftest import SharedData
 
 SPANS = 40
 MIN_SHARE = 0.95  # the target, 99 % of 500 spans, is measured by the bench script
@@ -24,15 +25,15 @@ def iou(a: tuple[float, float], b: tuple[float, float]) -> float:
 
 @pytest.mark.slow
 def test_random_spans_find_their_source_span(
-    client: TestClient, shared_data: Path, capsys: pytest.CaptureFixture[str]
+    client: TestClient, shared_data: SharedData, capsys: pytest.CaptureFixture[str]
 ) -> None:
     rng = np.random.default_rng(13)
-    bandai = sorted((shared_data / "bandai-ds1" / "data").glob("*.bvh"))
+    bandai = sorted(shared_data("bandai-ds1", "data").glob("*.bvh"))
+    cmu = shared_data("cmu", "asf-amc", "02")
     clips = []
     for path in [bandai[i] for i in sorted(rng.choice(len(bandai), 30, replace=False))]:
         response = client.post("/clips", files={"file": (path.name, path.read_bytes())})
         clips.append(response.json())
-    cmu = shared_data / "cmu" / "asf-amc" / "02"
     for amc in sorted(cmu.glob("*.amc"))[:4]:
         files = {
             "skeleton": ("02.asf", (cmu / "02.asf").read_bytes()),

@@ -128,6 +128,40 @@ class LiveServer:
         self.stop()
 
 
+def raw_request(
+    server: LiveServer, head: bytes, body_chunks: list[bytes], timeout: float = 10.0
+) -> bytes:
+    """Send a request by hand; returns what the server answered within ``timeout`` seconds
+    (``b""``: nothing). The body may be cut short: the server must answer from the head."""
+    with socket.create_connection(("127.0.0.1", server.port), timeout=timeout) as sock:
+        sock.sendall(head)
+        for chunk in body_chunks:
+            try:
+                sock.sendall(chunk)
+            except OSError:  # the server answered and closed: the rest is refused
+                break
+        answer = b""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                data = sock.recv(65536)
+            except TimeoutError:
+                break
+            if not data:
+                break
+            answer += data
+            head_end = answer.find(b"\r\n\r\n")
+            if head_end >= 0:
+                length = 0
+                for line in answer[:head_end].split(b"\r\n")[1:]:
+                    name, _, value = line.partition(b":")
+                    if name.strip().lower() == b"content-length":
+                        length = int(value)
+                if len(answer) >= head_end + 4 + length:
+                    break
+        return answer
+
+
 def percentiles(values: list[float]) -> dict[str, float]:
     """p50/p95/p99/max of ``values`` (seconds) in milliseconds."""
     if not values:

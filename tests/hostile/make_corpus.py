@@ -8,6 +8,11 @@ nesting 10,000 deep, a memory bomb...) come from :func:`big_cases` at test time,
 a temporary directory, so the repository stays small.
 
 The generator is deterministic: running it again rewrites the same bytes.
+
+Beside it, ``found.json`` and ``found/`` keep every failure the upload fuzz suite
+(``tests/hardening/test_upload_fuzz.py``) ever found, as it was found: :func:`record_found`
+adds one, nothing rewrites them, and both that suite and this one replay them
+(:func:`load_cases` reads either table).
 """
 
 from __future__ import annotations
@@ -26,6 +31,8 @@ HERE = Path(__file__).resolve().parent
 TESTS = HERE.parent
 CORPUS = HERE / "corpus"
 EXPECTED = HERE / "expected.json"
+FOUND = HERE / "found.json"
+FOUND_DIR = HERE / "found"
 FIXTURES = TESTS / "fixtures"
 
 BVH_FIXTURE = FIXTURES / "cmu_mb_02_01_first41.bvh"
@@ -45,9 +52,10 @@ class Case:
     name: str
     why: str
     parts: dict[str, tuple[str, bytes]] = field(repr=False)
-    status: int
+    status: int  # 0: no fixed answer, only the fuzz suite's rules (a fuzzer's find)
     error: str
     detail: str  # a fragment the message must contain
+    xfail: str = ""  # a known bug still open: why (the test is marked xfail, strict)
 
 
 def base_bvh(frames: int = 5) -> str:
@@ -804,6 +812,50 @@ def _weights_only(document: dict[str, Any]) -> dict[str, Any]:
         for a in document["animations"]
     ]
     return dict(document, animations=animations)
+
+
+def load_cases(table: Path) -> list[Case]:
+    """The cases of ``table`` (``expected.json`` or ``found.json``), files read from beside it."""
+    if not table.exists():
+        return []
+    cases = []
+    for name, entry in json.loads(table.read_text()).items():
+        parts = {
+            role: (part["filename"], (table.parent / part["path"]).read_bytes())
+            for role, part in entry["parts"].items()
+        }
+        cases.append(
+            Case(
+                name,
+                entry["why"],
+                parts,
+                entry.get("status", 0),
+                entry.get("error", ""),
+                entry.get("detail", ""),
+                entry.get("xfail", ""),
+            )
+        )
+    return cases
+
+
+def record_found(case: Case, found: str) -> None:
+    """Keep a failure the fuzz suite found: its files in ``found/`` and an entry in
+    ``found.json`` saying what went wrong (commit both; mark a parser bug someone else is
+    fixing with ``"xfail": "<why>"``)."""
+    FOUND_DIR.mkdir(exist_ok=True)
+    table = json.loads(FOUND.read_text()) if FOUND.exists() else {}
+    parts = {}
+    for role, (filename, data) in case.parts.items():
+        stored = f"{case.name}.{role}{Path(filename).suffix or '.bin'}"
+        (FOUND_DIR / stored).write_bytes(data)
+        parts[role] = {"path": f"found/{stored}", "filename": filename}
+    entry: dict[str, object] = {"why": case.why, "found": found, "parts": parts}
+    if case.status:
+        entry.update(status=case.status, error=case.error, detail=case.detail)
+    if case.xfail:
+        entry["xfail"] = case.xfail
+    table[case.name] = entry
+    FOUND.write_text(json.dumps(table, indent=2, ensure_ascii=False) + "\n")
 
 
 def write_corpus() -> None:

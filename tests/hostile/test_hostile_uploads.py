@@ -28,21 +28,7 @@ TIME_LIMIT = 5.0  # seconds for any one hostile upload, on a busy 2-core CI mach
 MEMORY_LIMIT_MB = 1024  # growth of this process' peak RSS over all the big cases
 
 
-def load_expected() -> list[Case]:
-    table = json.loads((HERE / "expected.json").read_text())
-    cases = []
-    for name, entry in table.items():
-        parts = {
-            role: (part["filename"], (HERE / part["path"]).read_bytes())
-            for role, part in entry["parts"].items()
-        }
-        cases.append(
-            Case(name, entry["why"], parts, entry["status"], entry["error"], entry["detail"])
-        )
-    return cases
-
-
-SMALL = load_expected()
+SMALL = make_corpus.load_cases(make_corpus.EXPECTED)
 BIG = make_corpus.big_cases()
 # Routes that read an uploaded query file: each gives the verdict the upload gets.
 SEARCHES = ("/search", "/search/moments")

@@ -18,6 +18,7 @@ from app.motion.skeleton_map import CANONICAL_BONES, CANONICAL_INDEX, CANONICAL_
 from app.services import previews
 from app.services.lru import LRUCache
 from tests.api.test_moments import long_take
+from tests.conftest import SharedData
 from tests.ui.conftest import ui_app, upload_asf_amc, upload_bvh
 
 CMU_BVH = "cmu_mb_02_01_first41.bvh"  # 120 fps, 41 frames, the first an added T-pose
@@ -332,10 +333,8 @@ def test_skeleton_of_a_broken_upload_names_the_file(ui_client: TestClient) -> No
 
 
 @pytest.mark.slow
-def test_skeleton_of_a_whole_cmu_clip(ui_client: TestClient, shared_data: Path) -> None:
-    path = shared_data / "cmu" / "bvh-mb" / "02" / "02_01.bvh"
-    if not path.is_file():
-        pytest.skip(f"{path} not found")
+def test_skeleton_of_a_whole_cmu_clip(ui_client: TestClient, shared_data: SharedData) -> None:
+    path = shared_data("cmu", "bvh-mb", "02", "02_01.bvh")
     clip_id = upload_bvh(ui_client, path)
     body = ui_client.get(f"/clips/{clip_id}/skeleton").json()
     core = build_body(read_bvh(path.read_bytes()))
@@ -356,13 +355,11 @@ def test_display_up_is_the_nearest_axis() -> None:
     "name", ["dataset-1_walk-left_sad_001.bvh", "dataset-1_dash_normal_001.bvh"]
 )
 def test_leaning_clips_stay_on_the_floor(
-    ui_client: TestClient, shared_data: Path, name: str
+    ui_client: TestClient, shared_data: SharedData, name: str
 ) -> None:
     # The body leans over 30 degrees on average in these clips: the motion core's world_up
     # is tilted there, and a figure drawn on it would rise as it travels.
-    path = shared_data / "bandai-ds1" / "data" / name
-    if not path.is_file():
-        pytest.skip(f"{path} not found")
+    path = shared_data("bandai-ds1", "data", name)
     clip_id = upload_bvh(ui_client, path)
     frames = frames_of(ui_client.get(f"/clips/{clip_id}/skeleton").json())
     pelvis = frames[:, CANONICAL_INDEX["pelvis"]]
