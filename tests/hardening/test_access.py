@@ -716,6 +716,7 @@ def test_every_operation_has_the_level_its_rule_gives(settings: Settings) -> Non
         ("POST", "/search"),
         ("POST", "/search/moments"),
         ("POST", "/skeleton"),
+        ("POST", "/inspect"),
         ("GET", "/map"),
         ("GET", "/search/moments"),
         ("POST", "/exports"),
