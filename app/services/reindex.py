@@ -15,10 +15,11 @@ from dataclasses import dataclass, field
 
 from app.db import repository as repo
 from app.errors import InvalidInput, MocapError
+from app.services.clips import stored_upload
 from app.services.describe import Description, MotionDescriber
 from app.services.ingest import new_windows
 from app.services.library import Library
-from app.services.uploads import Upload, UploadPart
+from app.services.uploads import Upload
 
 
 @dataclass
@@ -26,12 +27,6 @@ class ReindexReport:
     recomputed: int = 0
     failed: dict[int, str] = field(default_factory=dict)  # clip id -> why
     index_sizes: dict[str, int] = field(default_factory=dict)
-
-
-def stored_upload(library: Library, clip: repo.ClipRecord) -> Upload:
-    """The clip's original upload, read back from the stored files."""
-    parts = tuple(UploadPart(f.role, f.filename, library.blobs.read(f.sha256)) for f in clip.files)
-    return Upload(parts, clip.name, clip.labels)
 
 
 def describe_stored(
