@@ -158,6 +158,17 @@ class Settings(BaseSettings):
             "may take; past it the upload answers 422 `unreadable_file`."
         ),
     )
+    sqlite_synchronous: str = Field(
+        default="FULL",
+        pattern="^(?i:full|normal)$",
+        description=(
+            "SQLite commit durability. FULL: every commit is on disk before the service "
+            "answers, so an acknowledged upload, change or delete survives a power cut. "
+            "NORMAL: commits reach the disk at WAL checkpoints (faster imports, see "
+            "bench/README.md), and the last ones can roll back on a power loss or OS crash "
+            "(never on a crash of the service alone)."
+        ),
+    )
     orphan_file_grace_seconds: float = Field(
         default=600.0,
         ge=0,

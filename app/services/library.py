@@ -465,7 +465,7 @@ def open_library(settings: Settings, *, describer: Describer | None = None) -> L
         raise RuntimeError("the describer offers no descriptor")
     try:
         settings.data_dir.mkdir(parents=True, exist_ok=True)
-        engine = create_db_engine(settings.sqlalchemy_url)
+        engine = create_db_engine(settings.sqlalchemy_url, synchronous=settings.sqlite_synchronous)
         upgrade(engine)
     except (OSError, SQLAlchemyError) as exc:
         parsers.close()
