@@ -145,10 +145,9 @@ def _tidy_after_delete(library: Library, clip_ids: list[int], shas: list[str]) -
             )
     drop_clip_windows(library, clip_ids)
     try:
-        with library.reads() as session:
-            still_used = repo.referenced_blobs(session, shas)
-        for sha in set(shas) - still_used:
-            library.blobs.delete(sha)
+        # In a write transaction: another process may be committing a clip against one.
+        with library.writes.begin() as session:
+            library.blobs.release(session, shas)
     except (SQLAlchemyError, OSError) as exc:
         log.warning(
             "%s deleted, but its files could not be removed (%s); they go at a later "

@@ -145,26 +145,31 @@ def new_windows(library: Library, description: Description) -> tuple[repo.NewWin
 
 
 def _forget_files(library: Library, written: Iterable[str]) -> None:
-    """Remove files this call wrote (they did not exist before) that no committed clip uses."""
+    """Remove files this call wrote (they did not exist before) that no committed clip uses,
+    in a write transaction (:meth:`BlobStore.release`: another process may be committing a
+    clip against one of them)."""
     written = set(written)
     if not written:
         return
     try:
-        with library.reads() as session:
-            used = repo.referenced_blobs(session, written)
+        with library.writes.begin() as session:
+            library.blobs.release(session, written)
     except SQLAlchemyError:
         # The database is down: only another process could have referred to these new files
         # meanwhile, far less likely than this failure, so they go.
-        used = set()
-    for sha in written - used:
-        library.blobs.delete(sha)
+        for sha in written:
+            library.blobs.delete(sha)
+
+
+def _unique_files(parts: Sequence[UploadPart]) -> list[tuple[bytes, str]]:
+    """``(data, sha256)`` of each distinct content among ``parts`` (hashed once)."""
+    return [(part.data, part.sha256) for part in {part.sha256: part for part in parts}.values()]
 
 
 def _put_files(library: Library, parts: Sequence[UploadPart], written: list[str]) -> None:
-    """Store the files of ``parts`` (each distinct content once, hashed once), appending to
-    ``written`` the sha256 of those that were new; all or none are stored."""
-    unique = list({part.sha256: part for part in parts}.values())
-    stored = library.blobs.put_many([(part.data, part.sha256) for part in unique])
+    """Store the files of ``parts``, appending to ``written`` the sha256 of those that were
+    new; all or none are stored."""
+    stored = library.blobs.put_many(_unique_files(parts))
     written.extend(sha for sha, new in stored if new)
 
 
@@ -193,9 +198,12 @@ def store_many(library: Library, items: Sequence[Described]) -> list[IngestResul
                     fresh[content_hash] = describe(library, item.upload)
             written: list[str] = []
             try:
-                _put_files(library, [p for i in fresh.values() for p in i.upload.parts], written)
+                parts = [p for i in fresh.values() for p in i.upload.parts]
+                _put_files(library, parts, written)
                 rows = [new_clip(library, item) for item in fresh.values()]
                 with library.writes.begin() as session:
+                    # Another process may have removed a file found stored: write it again.
+                    written.extend(library.blobs.claim(session, _unique_files(parts)))
                     repo.insert_clips(session, rows)
             except IntegrityError:
                 # Another process stored some of this content meanwhile: look again.
