@@ -28,8 +28,8 @@ import numpy as np
 from sqlalchemy.exc import IntegrityError, SQLAlchemyError
 
 from app.db import repository as repo
-from app.errors import MocapError, StorageUnavailable
-from app.labels import merge_labels
+from app.errors import InvalidInput, MocapError, StorageUnavailable
+from app.labels import MAX_LABELS, merge_labels
 from app.services.describe import Description
 from app.services.library import Library
 from app.services.uploads import Upload, UploadPart
@@ -231,6 +231,7 @@ def store_many(library: Library, items: Sequence[Described]) -> list[IngestResul
                 for item in items
                 if item.upload.content_hash not in created and item.upload.content_hash in by_hash
             ],
+            refuse_over_cap=len(items) == 1,  # one upload gets its 422; a batch goes on
         )
         with library.reads() as session:
             clips = repo.get_clips(session, by_hash.values())
@@ -244,10 +245,17 @@ def store_many(library: Library, items: Sequence[Described]) -> list[IngestResul
     return results
 
 
-def apply_to_stored(library: Library, duplicates: Sequence[tuple[int, Upload]]) -> set[int]:
+def apply_to_stored(
+    library: Library, duplicates: Sequence[tuple[int, Upload]], *, refuse_over_cap: bool = True
+) -> set[int]:
     """Apply to already-stored clips what repeated uploads of their content bring: labels are
     added (those the clip lacks, in any case), a given name, source or licence replaces the
-    stored one. One transaction; returns the ids of the clips that changed."""
+    stored one. One transaction; returns the ids of the clips that changed.
+
+    Labels that would take a clip past :data:`~app.labels.MAX_LABELS` are refused
+    (:class:`InvalidInput`, nothing applied), or with ``refuse_over_cap=False`` (a batch of
+    an import, which one clip must not fail) left out, the stored ones kept, with a warning.
+    """
     wanted = [(clip_id, upload) for clip_id, upload in duplicates if _brings_something(upload)]
     if not wanted:
         return set()
@@ -259,7 +267,7 @@ def apply_to_stored(library: Library, duplicates: Sequence[tuple[int, Upload]]) 
                 clip = stored.get(clip_id)
                 if clip is None:
                     continue
-                labels = merge_labels(clip.labels, upload.labels)
+                labels = _capped(clip, merge_labels(clip.labels, upload.labels), refuse_over_cap)
                 updates: dict[str, Any] = {}
                 if labels != clip.labels:
                     updates["labels"] = labels
@@ -274,6 +282,21 @@ def apply_to_stored(library: Library, duplicates: Sequence[tuple[int, Upload]]) 
     except SQLAlchemyError as exc:
         raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
     return changed
+
+
+def _capped(clip: repo.ClipRecord, labels: tuple[str, ...], refuse: bool) -> tuple[str, ...]:
+    """``labels`` (the stored ones first) when within the cap; else refused or cut."""
+    if len(labels) <= MAX_LABELS:
+        return labels
+    added = len(labels) - len(clip.labels)
+    message = (
+        f"labels: clip {clip.id} carries {len(clip.labels)} labels; the {added} new ones of "
+        f"this upload would make {len(labels)}, over the cap of {MAX_LABELS} labels per clip"
+    )
+    if refuse:
+        raise InvalidInput(message)
+    log.warning("%s: kept the first %d", message, MAX_LABELS)
+    return labels[: max(MAX_LABELS, len(clip.labels))]
 
 
 def _brings_something(upload: Upload) -> bool:
