@@ -124,6 +124,26 @@ class Settings(BaseSettings):
             "clips stored without."
         ),
     )
+    max_concurrent_describes: int = Field(
+        default=0,
+        ge=0,
+        description=(
+            "Uploads one server process reads and describes at once (POST /clips, /search, "
+            "/search/moments, /skeleton); others wait up to MOCAP_DESCRIBE_WAIT_SECONDS for a "
+            "slot, then get 503 `busy` with Retry-After. 0 = from the machine: one per CPU "
+            "core, fewer when half the memory cannot hold that many uploads at the "
+            "MOCAP_MAX_FRAME_VALUES and MOCAP_MAX_UPLOAD_BYTES limits (docs/hardening.md)."
+        ),
+    )
+    describe_wait_seconds: float = Field(
+        default=10.0,
+        ge=0,
+        description=(
+            "Longest time an upload waits for a free describe slot (see "
+            "MOCAP_MAX_CONCURRENT_DESCRIBES) before it is answered 503 `busy` with "
+            "Retry-After; it waits with its body on disk, holding no memory or thread."
+        ),
+    )
     max_frame_values: int = Field(
         default=20_000_000,
         gt=0,

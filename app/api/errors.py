@@ -27,6 +27,7 @@ from app.errors import (
     MomentsOff,
     NotFound,
     PayloadTooLarge,
+    ServiceBusy,
     StorageUnavailable,
     Unauthorized,
     UnsupportedMediaType,
@@ -47,6 +48,7 @@ STATUS_BY_ERROR: dict[type[MocapError], int] = {
     MomentsOff: 409,
     StorageUnavailable: 503,
     DescribeTimeout: 503,
+    ServiceBusy: 503,
     MocapError: 400,
 }
 
@@ -109,6 +111,8 @@ async def _on_domain_error(_request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, MocapError)
     status = status_for(exc)
     headers = {"WWW-Authenticate": "Bearer"} if status == 401 else None
+    if isinstance(exc, ServiceBusy):
+        headers = {"Retry-After": str(exc.retry_after)}
     return error_json(status, exc.code, exc.detail, headers)
 
 

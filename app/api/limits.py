@@ -1,4 +1,4 @@
-"""Request body size limit (413), enforced before the body is read.
+"""Request limits: body size (413, before the body is read) and concurrent describes (503).
 
 Starlette spools uploaded files to disk with no size cap, so the limit is ours: a declared
 ``Content-Length`` over the limit is refused before a byte of the body is read, and a body
@@ -6,15 +6,110 @@ without one (chunked) is counted as it arrives and refused as soon as it passes 
 
 Compressed request bodies (``Content-Encoding`` other than ``identity``) are refused with 415:
 the service never decompresses uploads, so no zip or gzip bomb can expand in it.
+
+Describing an upload (parse, kinematics, descriptors) takes CPU and up to
+:func:`describe_bytes` of memory, so a process describes at most :func:`describe_slots`
+uploads at once (:class:`Slots`, taken by every route that reads an upload). A request waits
+for a slot with its body spooled to disk, on the event loop (no thread, no memory), up to
+``MOCAP_DESCRIBE_WAIT_SECONDS``; then 503 ``busy`` with ``Retry-After``.
 """
 
 from __future__ import annotations
+
+import asyncio
+import math
+import os
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
 
 from starlette.exceptions import HTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from app.api.errors import error_json
-from app.errors import PayloadTooLarge, UnsupportedMediaType
+from app.config import Settings
+from app.errors import PayloadTooLarge, ServiceBusy, UnsupportedMediaType
+
+# Peak memory of describing one clip per number its frames expand to (MOCAP_MAX_FRAME_VALUES
+# counts them): 644 MB for a real BVH at the 20-million cap (bench/bench_busy.py), with room.
+BYTES_PER_FRAME_VALUE = 36
+# The upload's bytes are held twice meanwhile (the request's copy, the parser's text).
+UPLOAD_COPIES = 2
+
+
+def describe_bytes(settings: Settings) -> int:
+    """Most memory describing one upload may take, from the limits that bound it."""
+    return (
+        settings.max_frame_values * BYTES_PER_FRAME_VALUE
+        + settings.max_upload_bytes * UPLOAD_COPIES
+    )
+
+
+def _physical_memory() -> int:
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError):
+        return 4 * 2**30
+
+
+def describe_slots(settings: Settings) -> int:
+    """Uploads one process describes at once: ``MOCAP_MAX_CONCURRENT_DESCRIBES``, or one per
+    CPU core as long as half the machine's memory holds them all at :func:`describe_bytes`
+    each (at least one)."""
+    if settings.max_concurrent_describes:
+        return settings.max_concurrent_describes
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    fitting = _physical_memory() // 2 // describe_bytes(settings)
+    return max(1, min(cores or 1, fitting))
+
+
+class Slots:
+    """At most ``size`` holders at once, first come first served; a caller waits up to
+    ``wait_seconds`` for a slot, then gets :class:`ServiceBusy` (503 with ``Retry-After``).
+
+    Waits on the event loop (an :class:`asyncio.Semaphore` of the loop it is used on)."""
+
+    def __init__(self, size: int, *, wait_seconds: float, doing: str, setting: str) -> None:
+        self.size = size
+        self.wait_seconds = wait_seconds
+        self.doing = doing
+        self.setting = setting
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._semaphore = asyncio.Semaphore(size)
+        self.waiting = 0
+
+    @classmethod
+    def for_describes(cls, settings: Settings) -> Slots:
+        return cls(
+            describe_slots(settings),
+            wait_seconds=settings.describe_wait_seconds,
+            doing="describing uploads",
+            setting="MOCAP_MAX_CONCURRENT_DESCRIBES",
+        )
+
+    def _semaphore_here(self) -> asyncio.Semaphore:
+        loop = asyncio.get_running_loop()
+        if self._loop is not loop:  # a new event loop (a test client entered again)
+            self._loop, self._semaphore = loop, asyncio.Semaphore(self.size)
+        return self._semaphore
+
+    @asynccontextmanager
+    async def hold(self) -> AsyncIterator[None]:
+        semaphore = self._semaphore_here()
+        self.waiting += 1
+        try:
+            await asyncio.wait_for(semaphore.acquire(), timeout=self.wait_seconds)
+        except TimeoutError:
+            raise ServiceBusy(
+                f"the server is busy {self.doing} ({self.size} at once, {self.setting}; "
+                f"{self.waiting} waiting); try again in a few seconds",
+                retry_after=math.ceil(max(1.0, self.wait_seconds)),
+            ) from None
+        finally:
+            self.waiting -= 1
+        try:
+            yield
+        finally:
+            semaphore.release()
 
 
 class BodySizeLimit:
