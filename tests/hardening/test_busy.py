@@ -21,31 +21,17 @@ from typing import Any
 import httpx
 
 from tests.hardening.live import (
-    BVH_TEXT,
     LiveServer,
     all_clips,
     database_problems,
     service_problems,
+    stretched_bvh,
 )
 
 FRAME_VALUES = 2_000_000
 LARGE = 40  # uploads of a long take
 AT_THE_CAP = 12  # uploads just under MOCAP_MAX_FRAME_VALUES
 HEALTH_LIMIT = 1.0  # seconds
-
-
-def stretched_bvh(frames: int, n: int) -> bytes:
-    """The real fixture played back and forth to ``frames`` frames; ``n`` makes it unique."""
-    head, _, body = BVH_TEXT.partition("MOTION")
-    lines = [line for line in body.strip().splitlines() if line.strip()]
-    frame_time, rows = lines[1], lines[2:]
-    order = [*range(len(rows)), *range(len(rows) - 2, 0, -1)]
-    chosen = [rows[order[i % len(order)]] for i in range(frames)]
-    first = chosen[0].split()
-    first[0] = f"{float(first[0]) + n * 1e-4:.4f}"
-    chosen[0] = " ".join(first)
-    text = f"{head}MOTION\nFrames: {frames}\n{frame_time}\n" + "\n".join(chosen) + "\n"
-    return text.encode()
 
 
 def frames_at_the_cap() -> int:
