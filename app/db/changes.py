@@ -68,6 +68,13 @@ def horizon(executor: Executor) -> int:
     )
 
 
+def latest_seq(executor: Executor) -> int:
+    """The ``seq`` of the newest change row (0 when none): it moves whenever a clip is
+    stored or deleted or a vector changes, in any process (a cache's version)."""
+    latest = executor.execute(text("SELECT coalesce(max(seq), 0) FROM clip_changes"))
+    return int(latest.scalar_one())
+
+
 def read_since(executor: Executor, position: int) -> tuple[int, list[Change]]:
     """The new position and every change row at or after ``position``.
 

@@ -86,6 +86,7 @@ def update_clip(
         raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
     if not found:
         raise NotFound(f"no clip with id {clip_id}")
+    library.edits += 1
     return get_clip(library, clip_id)
 
 

@@ -281,6 +281,8 @@ def apply_to_stored(
                     changed.add(clip_id)
     except SQLAlchemyError as exc:
         raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
+    if changed:
+        library.edits += 1
     return changed
 
 

@@ -223,6 +223,9 @@ class Library:
     # cannot be read (a describer of the tests' own).
     parsers: ParserPool | None = None
     write_lock: threading.Lock = field(default_factory=threading.Lock)
+    # Renames, relabels and new notes made by this process (the change feed has clips and
+    # vectors only): caches of names and labels compare it.
+    edits: int = 0
     search_reads: repo.SearchReads = field(init=False, repr=False)
     _sync_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
     _checked_at: float = field(default=0.0, repr=False)
