@@ -651,6 +651,7 @@ class LibraryMap:
         self._layouts: dict[str, _Computed] = {}
         self._running: dict[str, Future[_Computed]] = {}
         self._encoded: dict[str, _Encoded] = {}
+        self._encoding: dict[str, threading.Lock] = {}
 
     def body(self, library: Library, descriptor: str) -> bytes:
         """The encoded map of ``descriptor`` (JSON)."""
@@ -660,13 +661,17 @@ class LibraryMap:
         layout = self._layout(library, descriptor, feed)
         key = (feed, library.edits, id(layout))
         with self._lock:
-            encoded = self._encoded.get(descriptor)
-        now = time.monotonic()
-        if encoded is not None and encoded.key == key and now - encoded.made < MAP_MAX_AGE_SECONDS:
-            return encoded.body
-        body = _encode(map_payload(library, descriptor, layout))
-        with self._lock:
-            self._encoded[descriptor] = _Encoded(key, now, body)
+            encoding = self._encoding.setdefault(descriptor, threading.Lock())
+        with encoding:  # one request encodes, those arriving meanwhile take its answer
+            with self._lock:
+                encoded = self._encoded.get(descriptor)
+            now = time.monotonic()
+            fresh = encoded is not None and now - encoded.made < MAP_MAX_AGE_SECONDS
+            if encoded is not None and encoded.key == key and fresh:
+                return encoded.body
+            body = _encode(map_payload(library, descriptor, layout))
+            with self._lock:
+                self._encoded[descriptor] = _Encoded(key, now, body)
         return body
 
     def _layout(self, library: Library, descriptor: str, feed: int) -> Layout:
