@@ -278,6 +278,16 @@ class Settings(BaseSettings):
             "the in-memory indexes up to date; 0 = before every search."
         ),
     )
+    change_retention_hours: float = Field(
+        default=168.0,
+        gt=0,
+        description=(
+            "How long the change feed (the rows telling every process which clips changed) "
+            "keeps its rows; older ones are deleted by the servers. A replica, or an index "
+            "file, away longer than this cannot follow the feed and rebuilds its indexes from "
+            "the database at its next start or sync."
+        ),
+    )
     import_workers: int = Field(
         default=0,
         ge=0,

@@ -65,6 +65,7 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
         library = await run_in_threadpool(open_library, settings, describer=describer)
         await run_in_threadpool(remove_orphan_files, library)  # left by a crash mid-write
         await run_in_threadpool(library.load_window_places)  # the moments search's map
+        library.start_housekeeping()  # prunes the change feed now and then
         app.state.library = library
         try:
             yield
