@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import threading
 import time
 from collections import OrderedDict
@@ -59,6 +60,8 @@ from app.services.describe import read_motion
 from app.services.library import Library
 from app.services.parser_pool import ParserPool
 from app.services.uploads import Upload
+
+log = logging.getLogger(__name__)
 
 # -- stick figures --------------------------------------------------------------------------
 
@@ -626,8 +629,9 @@ class _Computed:
 
 @dataclass
 class _Encoded:
-    key: tuple[int, int, int]  # feed, edits, id of the layout
-    made: float
+    key: tuple[int, int, int]  # the feed, this process's edits, the layout's feed
+    made: float  # time.monotonic()
+    seconds: float  # how long the answer took (its layout's computation included)
     body: bytes
 
 
@@ -637,13 +641,13 @@ class LibraryMap:
     each answer encoded once.
 
     The change feed's last row (:func:`app.db.changes.latest_seq`: clips stored or deleted,
-    vectors changed, by any process) tells when the layout is out of date. A layout that
-    took less than :data:`MAP_WAIT_SECONDS` to compute is waited for; a slower one (a large
-    library) is recomputed in the background, no sooner than twice its time after the last
-    one ended (at most a third of a core), while requests get the last layout — clips stored
-    since have no position until it is done. Names and labels come from the database with
-    each new answer; an answer is reused while nothing changed (this process's renames and
-    relabels count: ``Library.edits``) and for at most :data:`MAP_MAX_AGE_SECONDS`.
+    vectors changed, by any process) tells when the layout is out of date. Work that took
+    less than :data:`MAP_WAIT_SECONDS` the last time is waited for; slower work (a large
+    library) is redone in the background while requests get the last answer: a layout no
+    sooner than twice its time after the last one ended (at most a third of a core), an
+    answer (names, labels: an O(N) read and encoding) once per change. An answer is reused
+    while nothing changed (this process's renames and relabels count: ``Library.edits``),
+    for at most :data:`MAP_MAX_AGE_SECONDS` (renames by other processes).
     """
 
     def __init__(self) -> None:
@@ -652,43 +656,82 @@ class LibraryMap:
         self._running: dict[str, Future[_Computed]] = {}
         self._encoded: dict[str, _Encoded] = {}
         self._encoding: dict[str, threading.Lock] = {}
+        self._encoding_behind: set[str] = set()
 
     def body(self, library: Library, descriptor: str) -> bytes:
         """The encoded map of ``descriptor`` (JSON)."""
         library.descriptor(descriptor)  # 422 for an unknown one, before anything runs
         with library.reads() as session:
             feed = latest_seq(session)
-        layout = self._layout(library, descriptor, feed)
-        key = (feed, library.edits, id(layout))
+        with self._lock:
+            waiting = self._ensure_layout(library, descriptor, feed)
+        if waiting is not None:
+            waiting.result()
+        with self._lock:
+            layout = self._layouts[descriptor]
+            key = (feed, library.edits, layout.feed)
+            encoded = self._encoded.get(descriptor)
+            if encoded is not None:
+                fresh = time.monotonic() - encoded.made < MAP_MAX_AGE_SECONDS
+                if encoded.key == key and fresh:
+                    return encoded.body
+                if encoded.seconds > MAP_WAIT_SECONDS:  # slow: the last answer, meanwhile
+                    if descriptor not in self._encoding_behind:
+                        self._encoding_behind.add(descriptor)
+                        threading.Thread(
+                            target=self._encode_behind,
+                            args=(library, descriptor, key, layout),
+                            name="mocap-map",
+                            daemon=True,
+                        ).start()
+                    return encoded.body
+        return self._encode(library, descriptor, key, layout)
+
+    def _ensure_layout(
+        self, library: Library, descriptor: str, feed: int
+    ) -> Future[_Computed] | None:
+        """Start computing the layout when it is out of date (the caller holds the lock);
+        returns the computation to wait for, or None when the last layout serves."""
+        last = self._layouts.get(descriptor)
+        if last is not None and last.feed == feed:
+            return None
+        running = self._running.get(descriptor)
+        slow = last is not None and last.seconds > MAP_WAIT_SECONDS
+        if running is None:
+            soon = last is not None and time.monotonic() - last.finished < 2 * last.seconds
+            if not (slow and soon):
+                running = self._start(library, descriptor, feed)
+        return None if slow else running
+
+    def _encode(
+        self, library: Library, descriptor: str, key: tuple[int, int, int], layout: _Computed
+    ) -> bytes:
+        """Encode the answer once: requests arriving meanwhile take this one."""
         with self._lock:
             encoding = self._encoding.setdefault(descriptor, threading.Lock())
-        with encoding:  # one request encodes, those arriving meanwhile take its answer
+        with encoding:
             with self._lock:
                 encoded = self._encoded.get(descriptor)
-            now = time.monotonic()
-            fresh = encoded is not None and now - encoded.made < MAP_MAX_AGE_SECONDS
-            if encoded is not None and encoded.key == key and fresh:
+            if encoded is not None and encoded.key == key:
                 return encoded.body
-            body = _encode(map_payload(library, descriptor, layout))
+            started = time.monotonic()
+            body = _encode(map_payload(library, descriptor, layout.layout))
+            now = time.monotonic()
+            took = now - started + (layout.seconds if layout.feed == key[0] else 0.0)
             with self._lock:
-                self._encoded[descriptor] = _Encoded(key, now, body)
+                self._encoded[descriptor] = _Encoded(key, now, took, body)
         return body
 
-    def _layout(self, library: Library, descriptor: str, feed: int) -> Layout:
-        with self._lock:
-            last = self._layouts.get(descriptor)
-            if last is not None and last.feed == feed:
-                return last.layout
-            running = self._running.get(descriptor)
-            slow = last is not None and last.seconds > MAP_WAIT_SECONDS
-            soon = last is not None and time.monotonic() - last.finished < 2 * last.seconds
-            if slow and soon and running is None and last is not None:
-                return last.layout  # recomputed again soon enough
-            if running is None:
-                running = self._start(library, descriptor, feed)
-        if slow and last is not None:
-            return last.layout
-        return running.result().layout
+    def _encode_behind(
+        self, library: Library, descriptor: str, key: tuple[int, int, int], layout: _Computed
+    ) -> None:
+        try:
+            self._encode(library, descriptor, key, layout)
+        except Exception:  # the next request tries again
+            log.exception("encoding the map failed")
+        finally:
+            with self._lock:
+                self._encoding_behind.discard(descriptor)
 
     def _start(self, library: Library, descriptor: str, feed: int) -> Future[_Computed]:
         """Compute the layout in a thread of its own (the caller holds the lock)."""

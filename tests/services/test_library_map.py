@@ -144,14 +144,19 @@ def test_a_slow_layout_is_recomputed_in_the_background(
     new = add(app_client, "c4", [9, 9, 9])
     stale = app_client.get("/map").json()  # answered at once, while the layout is computed
     assert held.started.wait(30)
-    assert stale["count"] == 5
-    (entry,) = [clip for clip in stale["clips"] if clip["id"] == new]
-    assert entry["pca"] is None and entry["outlier"] is False  # not laid out yet
+    assert stale == first  # the last answer
+    listed = wait_for_map(app_client, lambda clips: new in clips)
+    assert listed[new]["pca"] is None and listed[new]["outlier"] is False  # not laid out yet
     held.release.set()
-    for _ in range(100):
-        fresh = app_client.get("/map").json()
-        (entry,) = [clip for clip in fresh["clips"] if clip["id"] == new]
-        if entry["pca"] is not None:
-            break
+    placed = wait_for_map(app_client, lambda clips: clips[new]["pca"] is not None)
+    assert len(placed) == 5 and held.calls == 2
+
+
+def wait_for_map(client: TestClient, ready: Any) -> dict[int, dict[str, Any]]:
+    """The map's clips by id once ``ready(clips)`` (answers made in the background)."""
+    for _ in range(600):
+        clips = {clip["id"]: clip for clip in client.get("/map").json()["clips"]}
+        if ready(clips):
+            return clips
         threading.Event().wait(0.05)
-    assert entry["pca"] is not None and held.calls == 2
+    raise AssertionError("the map did not catch up within 30 s")
