@@ -17,7 +17,7 @@ from starlette.concurrency import run_in_threadpool
 from app.api import clips, meta, moments, search
 from app.api.auth import API_KEY_HEADER, log_access_policy, read_dependencies
 from app.api.errors import error_responses, install_error_handlers
-from app.api.limits import BodySizeLimit
+from app.api.limits import BodySizeLimit, DescribeGate, Slots
 from app.api.ui import mount_ui
 from app.config import Settings
 from app.services.clips import remove_orphan_files
@@ -82,6 +82,8 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
     )
     app.state.settings = settings
     install_error_handlers(app)
+    app.state.describe_slots = Slots.for_describes(settings)
+    app.add_middleware(DescribeGate, slots=app.state.describe_slots)  # inside the size limit
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
     if settings.cors_origins:  # CORS is off unless origins are configured
         app.add_middleware(

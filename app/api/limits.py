@@ -11,7 +11,10 @@ Describing an upload (parse, kinematics, descriptors) takes CPU and up to
 :func:`describe_bytes` of memory, so a process describes at most :func:`describe_slots`
 uploads at once (:class:`Slots`, taken by every route that reads an upload). A request waits
 for a slot with its body spooled to disk, on the event loop (no thread, no memory), up to
-``MOCAP_DESCRIBE_WAIT_SECONDS``; then 503 ``busy`` with ``Retry-After``.
+``MOCAP_DESCRIBE_WAIT_SECONDS``; then 503 ``busy`` with ``Retry-After``. At most as many more
+as there are slots wait so (:class:`DescribeGate`): reading a multipart body is work on the
+event loop, so beyond them an upload is answered 503 ``busy`` at once, its body drained
+unread (a client sending its body before reading the answer still gets it).
 """
 
 from __future__ import annotations
@@ -76,6 +79,14 @@ class Slots:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._semaphore = asyncio.Semaphore(size)
         self.waiting = 0
+        self.admitted = 0  # requests past the gate: reading their body, waiting or holding
+
+    def busy(self, retry_after: float | None = None) -> ServiceBusy:
+        return ServiceBusy(
+            f"the server is busy {self.doing} ({self.size} at once, {self.setting}; "
+            f"{self.waiting} waiting); try again in a few seconds",
+            retry_after=math.ceil(max(1.0, retry_after or self.wait_seconds)),
+        )
 
     @classmethod
     def for_describes(cls, settings: Settings) -> Slots:
@@ -99,11 +110,7 @@ class Slots:
         try:
             await asyncio.wait_for(semaphore.acquire(), timeout=self.wait_seconds)
         except TimeoutError:
-            raise ServiceBusy(
-                f"the server is busy {self.doing} ({self.size} at once, {self.setting}; "
-                f"{self.waiting} waiting); try again in a few seconds",
-                retry_after=math.ceil(max(1.0, self.wait_seconds)),
-            ) from None
+            raise self.busy() from None
         finally:
             self.waiting -= 1
         try:
@@ -174,3 +181,44 @@ def _content_length(scope: Scope) -> int | None:
         return int(value)
     except ValueError:
         return None
+
+
+# The routes that read an upload (UploadDep); tests/api/test_limits_gate.py checks the list.
+UPLOAD_ROUTES = frozenset({"/clips", "/search", "/search/moments", "/skeleton"})
+
+
+class DescribeGate:
+    """Pure ASGI middleware: an upload (POST to :data:`UPLOAD_ROUTES`) arriving while
+    ``2 x slots.size`` are already admitted gets 503 ``busy`` before its body is parsed
+    (the body is drained unread, so the client reads the answer)."""
+
+    def __init__(self, app: ASGIApp, slots: Slots) -> None:
+        self.app = app
+        self.slots = slots
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        gated = (
+            scope["type"] == "http"
+            and scope.get("method") == "POST"
+            and scope.get("path", "").rstrip("/") in UPLOAD_ROUTES
+        )
+        if not gated:
+            await self.app(scope, receive, send)
+            return
+        slots = self.slots
+        if slots.admitted >= 2 * slots.size:
+            while True:  # unread: no multipart parsing, nothing kept
+                message = await receive()
+                if message["type"] != "http.request" or not message.get("more_body", False):
+                    break
+            error = slots.busy()
+            response = error_json(
+                503, error.code, error.detail, {"Retry-After": str(error.retry_after)}
+            )
+            await response(scope, receive, send)
+            return
+        slots.admitted += 1
+        try:
+            await self.app(scope, receive, send)
+        finally:
+            slots.admitted -= 1

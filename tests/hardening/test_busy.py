@@ -148,3 +148,19 @@ def test_a_crowd_of_large_uploads(tmp_path: Path) -> None:
     assert len(crowd.health) > 10 and max(crowd.health) < HEALTH_LIMIT, sorted(crowd.health)[-5:]
     assert not problems, problems
     assert "Traceback" not in log, log[-3000:]
+
+
+def test_the_gate_knows_every_route_that_reads_an_upload(settings: Any) -> None:
+    """DescribeGate turns uploads away by path: it must know each route taking a multipart
+    upload (as the OpenAPI schema documents them)."""
+    from app.api.limits import UPLOAD_ROUTES
+    from app.main import create_app
+
+    paths = create_app(settings).openapi()["paths"]
+    uploads = {
+        (path, method.upper())
+        for path, operations in paths.items()
+        for method, operation in operations.items()
+        if "multipart/form-data" in operation.get("requestBody", {}).get("content", {})
+    }
+    assert uploads == {(path, "POST") for path in UPLOAD_ROUTES}
