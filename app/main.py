@@ -83,7 +83,10 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
     app.state.settings = settings
     install_error_handlers(app)
     app.state.describe_slots = Slots.for_describes(settings)
-    app.add_middleware(DescribeGate, slots=app.state.describe_slots)  # inside the size limit
+    # Inside the size limit: a body over it is refused before the gate counts it.
+    app.add_middleware(
+        DescribeGate, slots=app.state.describe_slots, max_bytes=settings.max_upload_bytes
+    )
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
     if settings.cors_origins:  # CORS is off unless origins are configured
         app.add_middleware(

@@ -11,10 +11,11 @@ Describing an upload (parse, kinematics, descriptors) takes CPU and up to
 :func:`describe_bytes` of memory, so a process describes at most :func:`describe_slots`
 uploads at once (:class:`Slots`, taken by every route that reads an upload). A request waits
 for a slot with its body spooled to disk, on the event loop (no thread, no memory), up to
-``MOCAP_DESCRIBE_WAIT_SECONDS``; then 503 ``busy`` with ``Retry-After``. At most as many more
-as there are slots wait so (:class:`DescribeGate`): reading a multipart body is work on the
-event loop, so beyond them an upload is answered 503 ``busy`` at once, its body drained
-unread (a client sending its body before reading the answer still gets it).
+``MOCAP_DESCRIBE_WAIT_SECONDS``; then 503 ``busy`` with ``Retry-After``. Parsing a multipart
+body is work on the event loop, so the uploads let in at once may declare at most ``slots x
+MOCAP_MAX_UPLOAD_BYTES`` together (:class:`DescribeGate`; one is always let in): beyond, an
+upload is answered 503 ``busy`` at once, its body drained unread (a client sending its body
+before reading the answer still gets it). Many small uploads wait; few large ones do.
 """
 
 from __future__ import annotations
@@ -80,6 +81,7 @@ class Slots:
         self._semaphore = asyncio.Semaphore(size)
         self.waiting = 0
         self.admitted = 0  # requests past the gate: reading their body, waiting or holding
+        self.admitted_bytes = 0  # the bodies they declared
 
     def busy(self, retry_after: float | None = None) -> ServiceBusy:
         return ServiceBusy(
@@ -188,13 +190,16 @@ UPLOAD_ROUTES = frozenset({"/clips", "/search", "/search/moments", "/skeleton"})
 
 
 class DescribeGate:
-    """Pure ASGI middleware: an upload (POST to :data:`UPLOAD_ROUTES`) arriving while
-    ``2 x slots.size`` are already admitted gets 503 ``busy`` before its body is parsed
-    (the body is drained unread, so the client reads the answer)."""
+    """Pure ASGI middleware: an upload (POST to :data:`UPLOAD_ROUTES`) whose body would take
+    the bodies let in past ``slots.size x max_bytes`` gets 503 ``busy`` before its body is
+    parsed (drained unread, so the client reads the answer); a body without a length counts
+    as ``max_bytes``. One upload is always let in."""
 
-    def __init__(self, app: ASGIApp, slots: Slots) -> None:
+    def __init__(self, app: ASGIApp, slots: Slots, max_bytes: int) -> None:
         self.app = app
         self.slots = slots
+        self.budget = slots.size * max_bytes
+        self.max_bytes = max_bytes
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         gated = (
@@ -206,7 +211,9 @@ class DescribeGate:
             await self.app(scope, receive, send)
             return
         slots = self.slots
-        if slots.admitted >= 2 * slots.size:
+        declared = _content_length(scope)
+        size = self.max_bytes if declared is None else min(declared, self.max_bytes)
+        if slots.admitted and slots.admitted_bytes + size > self.budget:
             while True:  # unread: no multipart parsing, nothing kept
                 message = await receive()
                 if message["type"] != "http.request" or not message.get("more_body", False):
@@ -218,7 +225,9 @@ class DescribeGate:
             await response(scope, receive, send)
             return
         slots.admitted += 1
+        slots.admitted_bytes += size
         try:
             await self.app(scope, receive, send)
         finally:
             slots.admitted -= 1
+            slots.admitted_bytes -= size

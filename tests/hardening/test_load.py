@@ -51,12 +51,23 @@ class Record:
     ids: list[int] = field(default_factory=list)
 
     def note(self, kind: str, started: float, response: httpx.Response) -> None:
+        """Count the answer; a 5xx is an error, but for 503 ``busy`` (too many describes at
+        once: the client is told to come back, as it should be under load)."""
         elapsed = time.monotonic() - started
         with self.lock:
             self.latencies[kind].append(elapsed)
             self.statuses[kind][response.status_code] += 1
-            if response.status_code >= 500:
+            if response.status_code >= 500 and not busy(response):
                 self.errors.append(f"{kind}: {response.status_code} {response.text[:200]}")
+
+
+def busy(response: httpx.Response) -> bool:
+    """A 503 ``busy`` with Retry-After: the server turned the request away, on purpose."""
+    return (
+        response.status_code == 503
+        and response.json().get("error") == "busy"
+        and int(response.headers.get("retry-after", "0")) >= 1
+    )
 
 
 def uploader(
@@ -82,6 +93,8 @@ def uploader(
                 record.errors.append(f"upload: {exc!r}")
                 continue
             record.note("upload", started, response)
+            if busy(response):
+                continue
             if response.status_code not in (200, 201):
                 record.errors.append(f"upload: {response.status_code} {response.text[:200]}")
                 continue
@@ -121,6 +134,8 @@ def searcher(url: str, record: Record, stop: threading.Event, rng: random.Random
                 record.errors.append(f"search: {exc!r}")
                 continue
             record.note(kind, started, response)
+            if busy(response):
+                continue
             if response.status_code != 200:
                 record.errors.append(f"{kind}: {response.status_code} {response.text[:200]}")
                 continue
@@ -289,7 +304,7 @@ def crowd_request(
 def crowd_answer(ledger: CrowdLedger, kind: str, response: httpx.Response, mine: list[int]) -> None:
     """Record what an answer acknowledges; anything unexpected is an error."""
     status = response.status_code
-    if status == 503 and response.json().get("error") == "busy":
+    if busy(response):
         with ledger.lock:
             ledger.busy += 1
         return
