@@ -131,8 +131,9 @@ class Settings(BaseSettings):
             "Uploads one server process reads and describes at once (POST /clips, /search, "
             "/search/moments, /skeleton); others wait up to MOCAP_DESCRIBE_WAIT_SECONDS for a "
             "slot, then get 503 `busy` with Retry-After. 0 = from the machine: one per CPU "
-            "core, fewer when half the memory cannot hold that many uploads at the "
-            "MOCAP_MAX_FRAME_VALUES and MOCAP_MAX_UPLOAD_BYTES limits (docs/hardening.md)."
+            "core but one (at least one), fewer when half the memory cannot hold that many "
+            "uploads at the MOCAP_MAX_FRAME_VALUES and MOCAP_MAX_UPLOAD_BYTES limits "
+            "(docs/hardening.md)."
         ),
     )
     describe_wait_seconds: float = Field(

@@ -117,8 +117,10 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--large", type=int, default=40)
     parser.add_argument("--at-cap", type=int, default=12)
+    parser.add_argument("--slots", type=int, help="MOCAP_MAX_CONCURRENT_DESCRIBES (default 0)")
     args = parser.parse_args()
-    settings = Settings()
+    extra = {"MOCAP_MAX_CONCURRENT_DESCRIBES": str(args.slots)} if args.slots else {}
+    settings = Settings(**({"max_concurrent_describes": args.slots} if args.slots else {}))
     slots = describe_slots(settings)
     bound = slots * describe_bytes(settings)
     print(f"machine: {machine()}")
@@ -128,7 +130,7 @@ def main() -> int:
     )
     ok = True
     with tempfile.TemporaryDirectory(prefix="mocap-bench-busy-") as tmp:
-        server = Server(Path(tmp) / "data", Path(tmp) / "server.log")
+        server = Server(Path(tmp) / "data", Path(tmp) / "server.log", **extra)
         try:
             for name, files in (
                 (f"{args.large} large real takes", large_takes(args.large)),

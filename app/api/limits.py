@@ -57,13 +57,15 @@ def _physical_memory() -> int:
 
 def describe_slots(settings: Settings) -> int:
     """Uploads one process describes at once: ``MOCAP_MAX_CONCURRENT_DESCRIBES``, or one per
-    CPU core as long as half the machine's memory holds them all at :func:`describe_bytes`
-    each (at least one)."""
+    CPU core but one — kept for the event loop, ``/health`` and searches (on 2 cores, two
+    describes at the cap took twice as long each, past the describe time limit, and held
+    ``/health`` up to 4 s; one kept it under 1 s: bench/README.md) — as long as half the
+    machine's memory holds them all at :func:`describe_bytes` each; at least one."""
     if settings.max_concurrent_describes:
         return settings.max_concurrent_describes
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     fitting = _physical_memory() // 2 // describe_bytes(settings)
-    return max(1, min(cores or 1, fitting))
+    return max(1, min((cores or 1) - 1, fitting))
 
 
 class Slots:
