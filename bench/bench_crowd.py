@@ -26,7 +26,7 @@ from common import ROOT, machine  # bench/common.py (scripts run from bench/)
 sys.path.insert(0, str(ROOT))
 
 from tests.hardening.live import LiveServer, database_problems
-from tests.hardening.test_load import crowd_problems, crowd_summary, run_crowd
+from tests.hardening.test_load import crowd_problems, crowd_summary, run_crowd, two_replicas
 
 
 def show(summary: dict[str, object], problems: list[str], errors: list[str]) -> bool:
@@ -54,30 +54,17 @@ def one_server(seconds: float, tmp: Path) -> bool:
     return show(crowd_summary(ledger, elapsed, 1), problems, ledger.record.errors)
 
 
-def two_replicas(seconds: float, tmp: Path) -> bool:
+def on_two_replicas(seconds: float, tmp: Path) -> bool:
     from tests import postgres
     from tests.hardening.test_replicas import database_problems as postgres_problems
 
     cluster = postgres.start_cluster()
     try:
         url = cluster.new_database()
-        env = {
-            "MOCAP_DATABASE_URL": url,
-            "MOCAP_INDEX_REFRESH_SECONDS": "0.1",
-            "MOCAP_MAX_K": "100000",
-        }
-        servers = [LiveServer(tmp / name / "data", env) for name in ("a", "b")]
-        for server in servers:
-            server.data_dir.parent.mkdir(parents=True)
-        try:
-            for server in servers:
-                server.start()
+        with two_replicas(tmp, url) as servers:
             urls = [server.url for server in servers]
             ledger, elapsed = run_crowd(urls, seconds)
             problems = crowd_problems(ledger, urls)
-        finally:
-            for server in servers:
-                server.stop()
         problems += postgres_problems(url)
     finally:
         cluster.stop()
@@ -94,7 +81,7 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix="mocap-bench-crowd-") as tmp:
         ok = one_server(args.seconds, Path(tmp))
         if not args.no_postgres:
-            ok = two_replicas(args.seconds, Path(tmp)) and ok
+            ok = on_two_replicas(args.seconds, Path(tmp)) and ok
     print(f"load average after: {os.getloadavg()[0]:.2f}")
     return 0 if ok else 1
 

@@ -16,6 +16,8 @@ import random
 import threading
 import time
 from collections import defaultdict
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -59,6 +61,18 @@ class Record:
             self.statuses[kind][response.status_code] += 1
             if response.status_code >= 500 and not busy(response):
                 self.errors.append(f"{kind}: {response.status_code} {response.text[:200]}")
+
+    def operations(self, elapsed: float) -> dict[str, dict[str, object]]:
+        """Per kind of request: count, rate, statuses and latency percentiles (ms)."""
+        return {
+            kind: {
+                "count": len(values),
+                "per_second": round(len(values) / elapsed, 1),
+                "statuses": dict(self.statuses[kind]),
+                **percentiles(values),
+            }
+            for kind, values in sorted(self.latencies.items())
+        }
 
 
 def busy(response: httpx.Response) -> bool:
@@ -180,15 +194,7 @@ def test_concurrent_uploads_and_searches(tmp_path: Path) -> None:
         "uploaders": UPLOADERS,
         "searchers": SEARCHERS,
         "clips": len(clips),
-        "operations": {
-            kind: {
-                "count": len(values),
-                "per_second": round(len(values) / elapsed, 1),
-                "statuses": dict(record.statuses[kind]),
-                **percentiles(values),
-            }
-            for kind, values in sorted(record.latencies.items())
-        },
+        "operations": record.operations(elapsed),
     }
     print("\nload test:", json.dumps(summary, indent=2))
     if os.environ.get("MOCAP_LOAD_REPORT"):
@@ -358,15 +364,7 @@ def crowd_summary(ledger: CrowdLedger, elapsed: float, servers: int) -> dict[str
         "acknowledged uploads": len(ledger.stored),
         "acknowledged deletes": len(ledger.deleted),
         "503 busy": ledger.busy,
-        "operations": {
-            kind: {
-                "count": len(values),
-                "per_second": round(len(values) / elapsed, 1),
-                "statuses": dict(record.statuses[kind]),
-                **percentiles(values),
-            }
-            for kind, values in sorted(record.latencies.items())
-        },
+        "operations": record.operations(elapsed),
     }
 
 
@@ -417,11 +415,11 @@ def test_a_crowd_on_one_server(tmp_path: Path) -> None:
     assert "Traceback" not in log, log[-3000:]
 
 
-def test_a_crowd_on_two_replicas(postgres_url: str, tmp_path: Path) -> None:
-    from tests.hardening.test_replicas import database_problems as postgres_problems
-
+@contextmanager
+def two_replicas(tmp_path: Path, database_url: str) -> Iterator[list[LiveServer]]:
+    """Two live servers on one PostgreSQL database, each with its own data directory."""
     env = {
-        "MOCAP_DATABASE_URL": postgres_url,
+        "MOCAP_DATABASE_URL": database_url,
         "MOCAP_INDEX_REFRESH_SECONDS": "0.1",
         "MOCAP_MAX_K": "100000",
     }
@@ -431,13 +429,20 @@ def test_a_crowd_on_two_replicas(postgres_url: str, tmp_path: Path) -> None:
     try:
         for server in servers:
             server.start()
+        yield servers
+    finally:
+        for server in servers:
+            server.stop()
+
+
+def test_a_crowd_on_two_replicas(postgres_url: str, tmp_path: Path) -> None:
+    from tests.hardening.test_replicas import database_problems as postgres_problems
+
+    with two_replicas(tmp_path, postgres_url) as servers:
         urls = [server.url for server in servers]
         ledger, elapsed = run_crowd(urls, CROWD_SECONDS)
         problems = crowd_problems(ledger, urls)
         logs = [server.log() for server in servers]
-    finally:
-        for server in servers:
-            server.stop()
     problems += postgres_problems(postgres_url)
     report_crowd(crowd_summary(ledger, elapsed, 2))
     assert not ledger.record.errors, ledger.record.errors[:10]
