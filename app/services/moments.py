@@ -48,7 +48,7 @@ from app.db import repository as repo
 from app.errors import InvalidInput, MomentsOff, NotFound
 from app.labels import label_filter
 from app.motion.windows import hop_share
-from app.services.clips import stored_upload
+from app.services.clips import MAX_ID, stored_upload
 from app.services.describe import (
     WINDOW_LENGTHS,
     MotionDescriber,
@@ -706,6 +706,8 @@ def search_moments_by_clip(
     """Moments like the span ``[start, end)`` of stored clip ``clip_id`` (``GET
     /search/moments``); none overlapping that span itself."""
     _check(library, descriptor, k, per_clip)
+    if not 0 < clip_id <= MAX_ID:  # no such id (and the database driver's overflow)
+        raise NotFound(f"no clip with id {clip_id}")
     info = library.descriptor(descriptor)
     library.refresh()
     with library.search_reads.snapshot() as db:
