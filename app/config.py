@@ -158,6 +158,27 @@ class Settings(BaseSettings):
             "clips stored without."
         ),
     )
+    max_concurrent_describes: int = Field(
+        default=0,
+        ge=0,
+        description=(
+            "Uploads one server process reads and describes at once (POST /clips, /search, "
+            "/search/moments, /skeleton); others wait up to MOCAP_DESCRIBE_WAIT_SECONDS for a "
+            "slot, then get 503 `busy` with Retry-After. 0 = from the machine: one per CPU "
+            "core but one (at least one), fewer when half the memory cannot hold that many "
+            "uploads at the MOCAP_MAX_FRAME_VALUES and MOCAP_MAX_UPLOAD_BYTES limits "
+            "(docs/hardening.md)."
+        ),
+    )
+    describe_wait_seconds: float = Field(
+        default=10.0,
+        ge=0,
+        description=(
+            "Longest time an upload waits for a free describe slot (see "
+            "MOCAP_MAX_CONCURRENT_DESCRIBES) before it is answered 503 `busy` with "
+            "Retry-After; it waits with its body on disk, holding no memory or thread."
+        ),
+    )
     max_frame_values: int = Field(
         default=64_000_000,
         gt=0,
@@ -195,6 +216,17 @@ class Settings(BaseSettings):
             "Memory (address space, MB, above an idle worker's) reading one FBX/glTF file "
             "may take; past it the upload answers 422 `unreadable_file`. A ten-minute "
             "120 fps glTF take of a 78-joint rig peaks at about 1.4 GB in its worker."
+        ),
+    )
+    sqlite_synchronous: str = Field(
+        default="FULL",
+        pattern="^(?i:full|normal)$",
+        description=(
+            "SQLite commit durability. FULL: every commit is on disk before the service "
+            "answers, so an acknowledged upload, change or delete survives a power cut. "
+            "NORMAL: commits reach the disk at WAL checkpoints (faster imports, see "
+            "bench/README.md), and the last ones can roll back on a power loss or OS crash "
+            "(never on a crash of the service alone)."
         ),
     )
     orphan_file_grace_seconds: float = Field(
@@ -291,6 +323,16 @@ class Settings(BaseSettings):
             "How often (at most) a search or /health checks the database for clips stored or "
             "deleted by another process (another replica, `mocap-index import`) and brings "
             "the in-memory indexes up to date; 0 = before every search."
+        ),
+    )
+    change_retention_hours: float = Field(
+        default=168.0,
+        gt=0,
+        description=(
+            "How long the change feed (the rows telling every process which clips changed) "
+            "keeps its rows; older ones are deleted by the servers. A replica, or an index "
+            "file, away longer than this cannot follow the feed and rebuilds its indexes from "
+            "the database at its next start or sync."
         ),
     )
     import_workers: int = Field(

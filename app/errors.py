@@ -180,3 +180,14 @@ class DescribeTimeout(MocapError):
     """Describing an uploaded clip took longer than the configured request time limit."""
 
     code = "describe_timeout"
+
+
+class ServiceBusy(MocapError):
+    """Every slot for this kind of work is taken (describing uploads, reading FBX/glTF files)
+    and none freed up in time: try again after ``retry_after`` seconds."""
+
+    code = "busy"
+
+    def __init__(self, detail: str, *, retry_after: int = 1) -> None:
+        super().__init__(detail)
+        self.retry_after = max(1, int(retry_after))

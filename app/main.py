@@ -19,7 +19,7 @@ from app.api.auth import API_KEY_HEADER, log_access_policy, read_dependencies
 from app.api.compression import add_compression
 from app.api.errors import error_responses, install_error_handlers
 from app.api.guard import RequestGuard, document_access
-from app.api.limits import BodySizeLimit
+from app.api.limits import BodySizeLimit, DescribeGate, Slots
 from app.api.ui import mount_ui
 from app.config import Settings
 from app.services.clips import remove_orphan_files
@@ -67,6 +67,7 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
         library = await run_in_threadpool(open_library, settings, describer=describer)
         await run_in_threadpool(remove_orphan_files, library)  # left by a crash mid-write
         await run_in_threadpool(library.load_window_places)  # the moments search's map
+        library.start_housekeeping()  # prunes the change feed now and then
         app.state.library = library
         try:
             yield
@@ -83,6 +84,11 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
     )
     app.state.settings = settings
     install_error_handlers(app)
+    app.state.describe_slots = Slots.for_describes(settings)
+    # Inside the size limit: a body over it is refused before the gate counts it.
+    app.add_middleware(
+        DescribeGate, slots=app.state.describe_slots, max_bytes=settings.max_upload_bytes
+    )
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
     add_compression(app)  # gzip for larger JSON answers
 

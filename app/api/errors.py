@@ -29,6 +29,7 @@ from app.errors import (
     NoAnimation,
     NotFound,
     PayloadTooLarge,
+    ServiceBusy,
     StorageUnavailable,
     TooManyRequests,
     Unauthorized,
@@ -53,6 +54,7 @@ STATUS_BY_ERROR: dict[type[MocapError], int] = {
     MomentsOff: 409,
     StorageUnavailable: 503,
     DescribeTimeout: 503,
+    ServiceBusy: 503,
     MocapError: 400,
 }
 

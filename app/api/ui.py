@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Annotated, Any
 
 from fastapi import APIRouter, FastAPI, Query, Request, Response
-from fastapi.responses import FileResponse, JSONResponse
+from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, Field
 
@@ -165,11 +165,11 @@ class LabelCount(BaseModel):
     count: int
 
 
-def _map_cache(request: Request) -> ui_service.MapCache:
-    cache = getattr(request.app.state, "map_cache", None)
-    if cache is None:
-        cache = request.app.state.map_cache = ui_service.new_map_cache()
-    return cache
+def _library_map(request: Request) -> ui_service.LibraryMap:
+    maps = getattr(request.app.state, "library_map", None)
+    if maps is None:
+        maps = request.app.state.library_map = ui_service.LibraryMap()
+    return maps
 
 
 def _skeleton_cache(request: Request) -> previews.SkeletonCache:
@@ -312,16 +312,20 @@ def inspect_upload(upload: UploadDep, settings: SettingsDep, library: LibraryDep
 @router.get(
     "/map",
     summary="The whole library in 2-D",
-    response_class=JSONResponse,
-    responses={200: {"model": MapOut}, **error_responses(422)},
+    response_class=Response,
+    responses={200: {"model": MapOut, "description": "The map."}, **error_responses(422)},
 )
-def library_map(library: LibraryDep, descriptor: DescriptorDep, request: Request) -> JSONResponse:
+def library_map(library: LibraryDep, descriptor: DescriptorDep, request: Request) -> Response:
     """Every clip with 2-D coordinates: `x`, `y` = FMDistance's 3-MAN features e_all and
     r_u/l (all three in `three_man`), computed from the stored kinetic vectors, and `pca` =
     the first two principal components of `descriptor`'s vectors; `outlier` marks clips whose
     `descriptor` vectors are far from their nearest neighbours compared with the other
-    clips' (robust z-score of the mean distance to the 5 nearest, over 3.5)."""
-    return JSONResponse(ui_service.library_map(library, descriptor, _map_cache(request)))
+    clips' (robust z-score of the mean distance to the 5 nearest, over 3.5).
+
+    Computed once per change of the library; for a large library in the background, the
+    last map meanwhile (clips stored since then have no `pca` or outlier flag yet)."""
+    body = _library_map(request).body(library, descriptor)
+    return Response(content=body, media_type="application/json")
 
 
 @router.get(
@@ -377,7 +381,7 @@ def mount_ui(app: FastAPI) -> None:
         return
     state.ui_mounted = True
     state.skeleton_cache = previews.SkeletonCache(state.settings.data_dir / PREVIEWS_DIR)
-    state.map_cache = ui_service.new_map_cache()
+    state.library_map = ui_service.LibraryMap()
     app.add_api_route("/", index_page, methods=["GET"], include_in_schema=False)
     app.router.routes.insert(0, app.router.routes.pop())
     # The page and its files are open (like /docs); the data routes are reading routes.

@@ -27,6 +27,10 @@ clip_changes
     The change feed the indexes of every process follow: one row per clip inserted, updated
     or deleted (and per vector updated), written by database triggers (migration 0003), with
     the writing transaction's id on PostgreSQL. See :mod:`app.db.changes`.
+clip_change_marks
+    Where the change feed stood when (recorded now and then by every server), so change rows
+    older than the retention can be deleted; the mark they were deleted up to is ``pruned``.
+    See :mod:`app.db.changes`.
 blobs
     The uploaded files themselves, by sha256, when the database is PostgreSQL (so a replica
     on another machine needs nothing but the database); SQLite keeps them in a directory.
@@ -38,6 +42,7 @@ from datetime import datetime
 
 from sqlalchemy import (
     BigInteger,
+    Boolean,
     DateTime,
     Float,
     ForeignKey,
@@ -48,6 +53,7 @@ from sqlalchemy import (
     String,
     Text,
     UniqueConstraint,
+    false,
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
@@ -212,6 +218,17 @@ class ClipChange(Base):
     seq: Mapped[int] = mapped_column(BigInteger().with_variant(Integer, "sqlite"), primary_key=True)
     clip_id: Mapped[int] = mapped_column(Integer)
     txid: Mapped[int | None] = mapped_column(BigInteger, nullable=True)
+
+
+class ClipChangeMark(Base):
+    """The change feed's position (the coordinate of :class:`ClipChange` rows: txid or seq)
+    at ``recorded_at``; ``pruned``: the change rows before it were deleted."""
+
+    __tablename__ = "clip_change_marks"
+
+    position: Mapped[int] = mapped_column(BigInteger, primary_key=True, autoincrement=False)
+    recorded_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
+    pruned: Mapped[bool] = mapped_column(Boolean, server_default=false())
 
 
 class Blob(Base):

@@ -88,6 +88,7 @@ def update_clip(
         raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
     if not found:
         raise NotFound(f"no clip with id {clip_id}")
+    library.edits += 1
     return get_clip(library, clip_id)
 
 
@@ -147,10 +148,9 @@ def _tidy_after_delete(library: Library, clip_ids: list[int], shas: list[str]) -
             )
     drop_clip_windows(library, clip_ids)
     try:
-        with library.reads() as session:
-            still_used = clip_db.referenced_blobs(session, shas)
-        for sha in set(shas) - still_used:
-            library.blobs.delete(sha)
+        # In a write transaction: another process may be committing a clip against one.
+        with library.writes.begin() as session:
+            library.blobs.release(session, shas)
     except (SQLAlchemyError, OSError) as exc:
         log.warning(
             "%s deleted, but its files could not be removed (%s); they go at a later "

@@ -28,6 +28,8 @@ import time
 from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from datetime import timedelta
+from typing import Any
 
 import numpy as np
 from sqlalchemy import Engine
@@ -39,7 +41,7 @@ from app.db import clips as clip_db
 from app.db import search_reads as search_db
 from app.db import vectors as vector_db
 from app.db import windows as window_db
-from app.db.changes import ChangeFeed, horizon
+from app.db.changes import ChangeFeed, horizon, prune, pruned_before
 from app.db.migrate import upgrade
 from app.db.session import create_db_engine, read_sessions, write_sessions
 from app.errors import DescriptorOutdated, InvalidInput, StorageUnavailable
@@ -140,6 +142,9 @@ class Library:
     # cannot be read (a describer of the tests' own).
     parsers: ParserPool | None = None
     write_lock: threading.Lock = field(default_factory=threading.Lock)
+    # Renames, relabels and new notes made by this process (the change feed has clips and
+    # vectors only): caches of names and labels compare it.
+    edits: int = 0
     search_reads: search_db.SearchReads = field(init=False, repr=False)
     _sync_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
     _checked_at: float = field(default=0.0, repr=False)
@@ -147,6 +152,7 @@ class Library:
     _outdated: dict[str, int] = field(default_factory=dict, repr=False)
     _outdated_at: float = field(default=0.0, repr=False)
     _feed: ChangeFeed = field(init=False, repr=False)
+    _stopping: threading.Event = field(default_factory=threading.Event, repr=False)
 
     def __post_init__(self) -> None:
         self.search_reads = search_db.SearchReads(self.engine)
@@ -255,6 +261,9 @@ class Library:
             return False
         try:
             with self.reads() as session:
+                if self._feed.position < pruned_before(session):
+                    self._rebuild_all(session)  # away longer than the feed keeps its rows
+                    return True
                 poll = self._feed.poll(session)
                 changed = poll.clip_ids
                 for name, info in self.descriptors.items():
@@ -278,6 +287,52 @@ class Library:
         finally:
             self._sync_lock.release()
         return True
+
+    def _rebuild_all(self, session: Session) -> None:
+        """Refill every index from the database and follow the feed from now on (the caller
+        holds the sync lock): the change rows this process had not read yet were pruned."""
+        position = horizon(session)  # before the vectors: nothing older is missed
+        log.warning(
+            "the change feed no longer holds the changes since this process last looked "
+            "(away longer than MOCAP_CHANGE_RETENTION_HOURS): rebuilding the indexes"
+        )
+        for name, info in self.descriptors.items():
+            everything = vector_db.load_vectors(session, info.name, info.version, info.dimension)
+            self.indexes[name].replace_all(*everything, synced_to=position, persist=False)
+            self.indexes[name].try_save()
+        for name, key in self.window_keys.items():
+            everything = window_db.load_windows(session, key)
+            self.window_indexes[name].replace_all(*everything, synced_to=position, persist=False)
+            self.window_indexes[name].try_save()
+            if self.window_places[name].loaded:
+                self._load_places(session, name)
+        self._feed = ChangeFeed(position)
+
+    def prune_changes(self) -> int:
+        """Delete the change rows older than ``MOCAP_CHANGE_RETENTION_HOURS`` (and record
+        where the feed stands now, for a later prune); returns how many went."""
+        retention = timedelta(hours=self.settings.change_retention_hours)
+        with self.write_lock, self.writes.begin() as session:
+            return prune(session, retention)
+
+    def start_housekeeping(self) -> None:
+        """Prune the change feed now and then in a thread of its own (a server's), about
+        eight times per retention, at least hourly; stopped by :meth:`close`."""
+        every = min(3600.0, self.settings.change_retention_hours * 3600 / 8)
+
+        def run() -> None:
+            while True:
+                try:
+                    removed = self.prune_changes()
+                except (SQLAlchemyError, sqlite3.Error) as exc:
+                    log.warning("could not prune the change feed: %s", exc)
+                else:
+                    if removed:
+                        log.info("pruned %d change feed rows older than the retention", removed)
+                if self._stopping.wait(every):
+                    return
+
+        threading.Thread(target=run, name="mocap-housekeeping", daemon=True).start()
 
     def _sync_windows(self, session: Session, changed: np.ndarray, position: int) -> None:
         """The window indexes follow the same feed: a changed clip's windows are replaced
@@ -333,6 +388,7 @@ class Library:
             return clip_db.count_clips(session)
 
     def close(self) -> None:
+        self._stopping.set()
         try:
             self.save_indexes()
         finally:
@@ -365,14 +421,29 @@ def _open_indexes(
         files = dict(zip(every, pool.map(DescriptorIndex.read_file, every), strict=True))
     with reads() as session:  # one feed position for every index, taken before their vectors
         watermark = horizon(session)
+        pruned = pruned_before(session)
         for info in descriptors.values():
             source = StoredVectors(session, info, watermark)
             index = indexes[info.name]
-            index.load_or_rebuild(source, files.pop(index))
+            index.load_or_rebuild(source, _followable(files.pop(index), pruned))
         for name, key in keys.items():
             index = windows[name]
-            index.load_or_rebuild(StoredWindows(session, key, watermark, index), files.pop(index))
+            found = _followable(files.pop(index), pruned)
+            index.load_or_rebuild(StoredWindows(session, key, watermark, index), found)
     return IndexSet(indexes), IndexSet(windows)
+
+
+def _followable(found: tuple[Any, dict[str, Any]] | str, pruned: int) -> Any:
+    """An index file as read (:meth:`DescriptorIndex.read_file`), or why it cannot be
+    brought up to date from the change feed: saved before the rows the feed keeps (the
+    process was away longer than the retention), it is rebuilt from the database."""
+    if isinstance(found, tuple):
+        position = found[1].get("feed_position")
+        if isinstance(position, int) and position < pruned:
+            return (
+                "the index file is older than the change feed keeps (MOCAP_CHANGE_RETENTION_HOURS)"
+            )
+    return found
 
 
 def open_library(settings: Settings, *, describer: Describer | None = None) -> Library:
@@ -384,7 +455,7 @@ def open_library(settings: Settings, *, describer: Describer | None = None) -> L
         raise RuntimeError("the describer offers no descriptor")
     try:
         settings.data_dir.mkdir(parents=True, exist_ok=True)
-        engine = create_db_engine(settings.sqlalchemy_url)
+        engine = create_db_engine(settings.sqlalchemy_url, synchronous=settings.sqlite_synchronous)
         upgrade(engine)
     except (OSError, SQLAlchemyError) as exc:
         parsers.close()

@@ -24,6 +24,13 @@ length(s) nearest the query's length — the largest at most and the smallest at
   nearer one of its clip, nearest first; a query from a stored clip never returns a moment
   overlapping its own span.
 
+The work is bounded whatever the query's length and ``k``: the placing compares every part
+with every stored window near the moments placed (one matrix per comparison), so a long take
+is matched with at most :data:`MAX_PARTS` of its parts (evenly spread: placed to a few
+hundredths of its length), at most :data:`MAX_PAIRS_PER_SEARCH` pairs in all (fewer parts
+when the moments' clips hold many windows), and the moments are placed a block at a time,
+:data:`MAX_PAIRS_PER_BLOCK` pairs each (memory: a few such matrices at once).
+
 Where each window lies comes from the library's in-memory window places
 (:mod:`app.index.places`), not the database: a search reads only the query clip and the
 found clips' names and frame rates. Windows of clips deleted by another process are skipped
@@ -44,7 +51,7 @@ from app.db import windows as window_db
 from app.errors import InvalidInput, MomentsOff, NotFound
 from app.labels import label_filter
 from app.motion.windows import hop_share
-from app.services.clips import stored_upload
+from app.services.clips import MAX_ID, stored_upload
 from app.services.describe import (
     WINDOW_LENGTHS,
     MotionDescriber,
@@ -54,10 +61,17 @@ from app.services.describe import (
 from app.services.library import Library, window_index_name
 from app.services.search import _unavailable, check_k
 from app.services.uploads import Upload
+from app.window_places import Places
 
 MAX_PER_CLIP = 1000
 RANKED = 3  # moments placed per moment returned, ranked by how well their whole span fits
 MAX_ATTEMPTS = 4
+# Bounds on placing (module docstring). A block's float64 matrices of (parts x windows) take
+# 8 MB each at a million pairs; placing takes about 0.3 us per pair (bench/README.md).
+MAX_PARTS = 1024
+MAX_PAIRS_PER_BLOCK = 1_000_000
+MAX_PAIRS_PER_SEARCH = 4_000_000
+MIN_PARTS = 16
 
 
 @dataclass(frozen=True, slots=True)
@@ -192,6 +206,88 @@ def _refined_centre(library: Library, group: _Group, vector: np.ndarray) -> floa
     return centre + float(np.clip(offset, -hop / 2, hop / 2))
 
 
+def _placed_in_blocks(
+    library: Library,
+    groups: list[_Group],
+    frame_times: np.ndarray,
+    parts: Parts,
+    descriptor: str,
+    query_seconds: float,
+    exclude: tuple[int, int, int] | None,
+) -> list[tuple[float, float] | None]:
+    """:func:`_aligned_starts` within the bounds of the module docstring: the query's parts
+    thinned to what the search may compare, the groups split into blocks of at most
+    :data:`MAX_PAIRS_PER_BLOCK` (part, window) pairs. The groups are placed independently:
+    the blocks give what one call would, but for near-ties, which the matrix products of
+    other shapes may round the other way."""
+    name = window_index_name(descriptor, parts.length)
+    if name not in library.window_keys or not groups:
+        return _aligned_starts(
+            library, groups, frame_times, parts, descriptor, query_seconds, exclude
+        )
+    # How many stored windows each group's moment is compared with.
+    _, group_of, keep = _windows_near(library, name, groups, frame_times, query_seconds, exclude)
+    columns = np.maximum(np.bincount(group_of[keep], minlength=len(groups)), 1)
+    budget = max(MIN_PARTS, MAX_PAIRS_PER_SEARCH // int(columns.sum()))
+    parts = _thinned(parts, min(MAX_PARTS, budget))
+    rows = max(1, len(parts.offsets))
+    placed: list[tuple[float, float] | None] = []
+    start = 0
+    while start < len(groups):
+        stop = start + 1
+        width = int(columns[start])
+        while stop < len(groups) and (width + columns[stop]) * rows <= MAX_PAIRS_PER_BLOCK:
+            width += int(columns[stop])
+            stop += 1
+        block = _thinned(parts, max(MIN_PARTS, MAX_PAIRS_PER_BLOCK // width))
+        placed += _aligned_starts(
+            library,
+            groups[start:stop],
+            frame_times[start:stop],
+            block,
+            descriptor,
+            query_seconds,
+            exclude,
+        )
+        start = stop
+    return placed
+
+
+def _thinned(parts: Parts, count: int) -> Parts:
+    """At most ``count`` of the query's parts, evenly spread over it, the first and the last
+    kept (placing reads the end parts)."""
+    held = len(parts.offsets)
+    if held <= count:
+        return parts
+    keep = np.unique(np.linspace(0, held - 1, max(count, 2)).round().astype(np.int64))
+    return Parts(parts.length, parts.offsets[keep], parts.vectors[keep])
+
+
+def _windows_near(
+    library: Library,
+    name: str,
+    groups: list[_Group],
+    frame_times: np.ndarray,
+    query_seconds: float,
+    exclude: tuple[int, int, int] | None,
+) -> tuple[Places, np.ndarray, np.ndarray]:
+    """The windows of index ``name`` of the groups' clips, one group after another: their
+    places, ``(M,)`` the group of each, and ``(M,)`` whether it lies near its group's hits
+    (and outside the query's own span)."""
+    rows, offsets = library.places(name).of_clips(np.array([g.clip_id for g in groups]))
+    group_of = np.repeat(np.arange(len(groups)), np.diff(offsets))
+    reach = query_seconds / frame_times
+    # The frames each group's windows may lie in: the hits' cover and a query's length
+    # either side (truncated like the integers they were read with).
+    low = np.trunc(np.array([g.cover[0] for g in groups]) - reach).astype(np.int64)
+    high = np.trunc(np.array([g.cover[1] for g in groups]) + reach).astype(np.int64) + 1
+    keep = (rows.stops >= low[group_of]) & (rows.starts <= high[group_of])
+    if exclude is not None:
+        own = (rows.ids >> window_db.WINDOW_ID_BITS) == exclude[0]
+        keep &= ~own | (rows.stops <= exclude[1]) | (rows.starts >= exclude[2])
+    return rows, group_of, keep
+
+
 def _aligned_starts(
     library: Library,
     groups: list[_Group],
@@ -213,17 +309,7 @@ def _aligned_starts(
     name = window_index_name(descriptor, parts.length)
     if name not in library.window_keys or parts.vectors.size == 0 or not groups:
         return [None] * len(groups)
-    rows, offsets = library.places(name).of_clips(np.array([g.clip_id for g in groups]))
-    group_of = np.repeat(np.arange(len(groups)), np.diff(offsets))
-    reach = query_seconds / frame_times
-    # The frames each group's windows may lie in: the hits' cover and a query's length
-    # either side (truncated like the integers they were read with).
-    low = np.trunc(np.array([g.cover[0] for g in groups]) - reach).astype(np.int64)
-    high = np.trunc(np.array([g.cover[1] for g in groups]) + reach).astype(np.int64) + 1
-    keep = (rows.stops >= low[group_of]) & (rows.starts <= high[group_of])
-    if exclude is not None:
-        own = (rows.ids >> window_db.WINDOW_ID_BITS) == exclude[0]
-        keep &= ~own | (rows.stops <= exclude[1]) | (rows.starts >= exclude[2])
+    rows, group_of, keep = _windows_near(library, name, groups, frame_times, query_seconds, exclude)
     held, stored = library.window_indexes[name].reconstruct_batch(rows.ids[keep])
     kept = np.flatnonzero(keep)[held]
     starts, group_of = rows.starts[kept], group_of[kept]
@@ -481,7 +567,7 @@ def _search(
     frame_times = np.array([facts[g.clip_id][1] for g in chosen], np.float64)
     placed: list[tuple[float, float] | None] = [None] * len(chosen)
     if parts is not None:
-        placed = _aligned_starts(
+        placed = _placed_in_blocks(
             library, chosen, frame_times, parts, descriptor, query_seconds, exclude
         )
     found: list[tuple[float, int, str, float, float]] = []  # distance, clip, format, span
@@ -623,6 +709,8 @@ def search_moments_by_clip(
     """Moments like the span ``[start, end)`` of stored clip ``clip_id`` (``GET
     /search/moments``); none overlapping that span itself."""
     _check(library, descriptor, k, per_clip)
+    if not 0 < clip_id <= MAX_ID:  # no such id (and the database driver's overflow)
+        raise NotFound(f"no clip with id {clip_id}")
     info = library.descriptor(descriptor)
     library.refresh()
     with library.search_reads.snapshot() as db:

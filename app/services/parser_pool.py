@@ -16,6 +16,9 @@ both formats are binary input from strangers. They are never read in the server 
   keeps every scene it read and retires after :data:`RETIRE_AFTER_FILES` files or half its
   memory budget, exiting without destructors; the pool starts another.
 * The reader's own errors (ParseError, LimitExceeded) come back as themselves.
+* A caller waits at most ``wait_limit`` seconds (default: one ``time_limit``) for a free
+  worker, then gets :class:`~app.errors.ServiceBusy` (503 with Retry-After): a crowd of
+  FBX/glTF requests is turned away instead of queueing without end.
 
 Workers are spawned (not forked: the server process has threads) and import only the
 motion core.
@@ -25,6 +28,7 @@ from __future__ import annotations
 
 import gc
 import logging
+import math
 import multiprocessing
 import os
 import queue
@@ -37,7 +41,14 @@ from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from typing import TYPE_CHECKING, Any, Protocol
 
-from app.errors import LimitExceeded, NoAnimation, ParseError, UnknownAnimation, UnreadableFile
+from app.errors import (
+    LimitExceeded,
+    NoAnimation,
+    ParseError,
+    ServiceBusy,
+    UnknownAnimation,
+    UnreadableFile,
+)
 from app.motion.formats.scene import Animation
 from app.motion.model import Motion, ParseLimits
 
@@ -238,10 +249,13 @@ class ParserPool:
         *,
         time_limit: float | None = 30.0,
         memory_mb: int | None = 1024,
+        wait_limit: float | None = None,
     ) -> None:
         self.size = max(1, size)
         self.time_limit = time_limit
         self.memory_mb = memory_mb
+        # A worker frees up within one time limit unless every one is stuck on a hostile file.
+        self.wait_limit = time_limit if wait_limit is None else wait_limit
         self._context = multiprocessing.get_context("spawn")
         # Idle workers, and a _START token per worker slot not yet filled (LIFO: a warm
         # worker is taken before a new one is started); None once closed.
@@ -291,7 +305,14 @@ class ParserPool:
         return worker
 
     def _borrow(self) -> _Worker:
-        item = self._idle.get()
+        try:
+            item = self._idle.get(timeout=self.wait_limit)
+        except queue.Empty:
+            raise ServiceBusy(
+                f"all {self.size} FBX/glTF file readers are busy (MOCAP_PARSER_WORKERS) and "
+                f"none freed up in {self.wait_limit:g} s; try again in a few seconds",
+                retry_after=math.ceil(self.wait_limit or 1),
+            ) from None
         if item is None or self._closed:
             self._idle.put(None)
             raise UnreadableFile("the service is shutting down")

@@ -18,6 +18,7 @@ from app.db import label_filters as label_db
 from app.db import search_reads as search_db
 from app.errors import DescriptorUnavailable, InvalidInput, NotFound
 from app.labels import label_filter
+from app.services.clips import MAX_ID
 from app.services.ingest import describe, new_clip
 from app.services.library import Library
 from app.services.uploads import Upload
@@ -129,6 +130,8 @@ def search_by_clip_id(
 ) -> tuple[clip_db.ClipRecord, list[Hit]]:
     """The stored clip ``clip_id`` and its neighbours (never the clip itself), read from one
     database snapshot: ``GET /search``. :class:`NotFound` when there is no such clip."""
+    if not 0 < clip_id <= MAX_ID:  # no such id (and the database driver's overflow)
+        raise NotFound(f"no clip with id {clip_id}")
     info = library.descriptor(descriptor)
     check_k(library, k)
     library.require_current(descriptor)

@@ -45,6 +45,20 @@ def unique_amc(n: int) -> bytes:
     ).encode()
 
 
+def stretched_bvh(frames: int, n: int, text: str = BVH_TEXT) -> bytes:
+    """A real BVH (the CMU fixture, or ``text``) played back and forth to ``frames`` frames;
+    ``n`` moves frame 1's root a little: new content."""
+    head, _, body = text.partition("MOTION")
+    lines = [line for line in body.strip().splitlines() if line.strip()]
+    frame_time, rows = lines[1], lines[2:]
+    order = [*range(len(rows)), *range(len(rows) - 2, 0, -1)]
+    chosen = [rows[order[i % len(order)]] for i in range(frames)]
+    first = chosen[0].split()
+    first[0] = f"{float(first[0]) + n * 1e-4:.4f}"
+    chosen[0] = " ".join(first)
+    return (f"{head}MOTION\nFrames: {frames}\n{frame_time}\n" + "\n".join(chosen) + "\n").encode()
+
+
 def unique_upload(n: int) -> dict[str, tuple[str, bytes]]:
     """Upload fields for clip number ``n``: a BVH, or every third one an ASF + AMC."""
     if n % 3 == 2:
