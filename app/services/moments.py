@@ -61,7 +61,7 @@ from app.services.describe import (
 from app.services.library import Library, window_index_name
 from app.services.search import _unavailable, check_k
 from app.services.uploads import Upload
-from app.window_places import Places
+from app.index.places import Places
 
 MAX_PER_CLIP = 1000
 RANKED = 3  # moments placed per moment returned, ranked by how well their whole span fits
