@@ -39,7 +39,7 @@ from bench_search import CLI, Server, environment
 from common import machine, shared_data  # bench/common.py (scripts run from bench/)
 
 from app.config import Settings
-from app.db import repository as repo
+from app.db import vectors as vector_db
 from app.services import library_map
 from app.services.library import open_library
 
@@ -74,7 +74,7 @@ def in_process(data_dir: Path) -> tuple[float, float]:
     try:
         info = library.descriptor(DESCRIPTOR)
         with library.reads() as session:
-            _, vectors = repo.load_vectors(session, info.name, info.version, info.dimension)
+            _, vectors = vector_db.load_vectors(session, info.name, info.version, info.dimension)
     finally:
         library.close()
     n = len(vectors)

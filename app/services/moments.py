@@ -49,6 +49,7 @@ from app.db import label_filters as label_db
 from app.db import search_reads as search_db
 from app.db import windows as window_db
 from app.errors import InvalidInput, MomentsOff, NotFound
+from app.index.places import Places
 from app.labels import label_filter
 from app.motion.windows import hop_share
 from app.services.clips import MAX_ID, stored_upload
@@ -61,7 +62,6 @@ from app.services.describe import (
 from app.services.library import Library, window_index_name
 from app.services.search import _unavailable, check_k
 from app.services.uploads import Upload
-from app.index.places import Places
 
 MAX_PER_CLIP = 1000
 RANKED = 3  # moments placed per moment returned, ranked by how well their whole span fits

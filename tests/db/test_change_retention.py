@@ -16,7 +16,7 @@ import pytest
 from sqlalchemy import func, select
 
 from app.config import Settings
-from app.db import repository as repo
+from app.db import vectors as vector_db
 from app.db.changes import horizon, prune, pruned_before
 from app.db.models import ClipChange
 from app.services.clips import delete_clip
@@ -71,7 +71,7 @@ def assert_follows_the_database(library: Library) -> None:
     """Every index holds exactly the database's clips and vectors."""
     with library.reads() as session:
         for name, info in library.descriptors.items():
-            ids, vectors = repo.load_vectors(session, info.name, info.version, info.dimension)
+            ids, vectors = vector_db.load_vectors(session, info.name, info.version, info.dimension)
             index = library.indexes[name]
             assert sorted(index.ids().tolist()) == sorted(ids.tolist()), name
             for clip_id, vector in zip(ids.tolist(), vectors, strict=True):
