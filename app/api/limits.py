@@ -188,7 +188,7 @@ def _content_length(scope: Scope) -> int | None:
 
 
 # The routes that read an upload (UploadDep); tests/api/test_limits_gate.py checks the list.
-UPLOAD_ROUTES = frozenset({"/clips", "/search", "/search/moments", "/skeleton"})
+UPLOAD_ROUTES = frozenset({"/clips", "/search", "/search/moments", "/skeleton", "/inspect"})
 
 
 class DescribeGate:

@@ -103,6 +103,7 @@ def health_watched(url: str, crowd: Crowd) -> Iterator[None]:
 def test_a_crowd_of_large_uploads(tmp_path: Path) -> None:
     env = {
         "MOCAP_MAX_CONCURRENT_DESCRIBES": "2",
+        "MOCAP_MAX_HEAVY_REQUESTS_PER_CLIENT": "64",  # one address, many uploads at once
         "MOCAP_DESCRIBE_WAIT_SECONDS": "2",
         "MOCAP_MAX_FRAME_VALUES": str(FRAME_VALUES),
         "MOCAP_ORPHAN_FILE_GRACE_SECONDS": "0",

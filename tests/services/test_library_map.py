@@ -69,6 +69,8 @@ def test_isolation_beyond_the_exact_limit_comes_from_the_forest(
 
 @pytest.fixture
 def app_client(settings: Settings) -> Iterator[TestClient]:
+    # Six map requests at once from one client: more than the anonymous per-client share.
+    settings = settings.model_copy(update={"max_heavy_requests_per_client": 16})
     with TestClient(ui_app(settings, FakeDescriber())) as client:
         yield client
 

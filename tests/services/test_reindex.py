@@ -15,7 +15,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pytest
 from fastapi.testclient import TestClient
 
 from app.cli import main
@@ -26,7 +25,7 @@ from app.db import windows as window_db
 from app.main import create_app
 from app.motion.formats import read_bvh
 from app.services.library import open_library
-from tests.conftest import FIXTURES_DIR
+from tests.conftest import FIXTURES_DIR, SharedData
 from tests.motion.gltf_builder import multi_animation_glb
 
 REAL_MULTI_ANIMATION = Path("wild-more") / "threejs-examples" / "danielrmz18_Xbot.glb"
@@ -131,8 +130,8 @@ def test_reindex_keeps_each_animation_of_a_built_file(settings: Settings) -> Non
     check_reindex_keeps_every_animation(settings, "three.glb", glb)
 
 
-def test_reindex_keeps_each_animation_of_a_real_file(settings: Settings, shared_data: Path) -> None:
-    path = shared_data / REAL_MULTI_ANIMATION
-    if not path.is_file():
-        pytest.skip(f"{REAL_MULTI_ANIMATION} not found in {shared_data}")
+def test_reindex_keeps_each_animation_of_a_real_file(
+    settings: Settings, shared_data: SharedData
+) -> None:
+    path = shared_data(*REAL_MULTI_ANIMATION.parts)
     check_reindex_keeps_every_animation(settings, path.name, path.read_bytes())
