@@ -142,3 +142,16 @@ class DescribeTimeout(MocapError):
     """Describing an uploaded clip took longer than the configured request time limit."""
 
     code = "describe_timeout"
+
+
+class FbxUnavailable(MocapError):
+    """``format=fbx`` on a machine where Blender's Python module (the ``fbx`` extra) is not
+    installed or cannot start: FBX files cannot be written here."""
+
+    code = "fbx_unavailable"
+
+
+class ExportFailed(MocapError):
+    """An export worker crashed, ran out of time or memory writing a file."""
+
+    code = "export_failed"

@@ -7,6 +7,7 @@ forward kinematics once, and compute every registered descriptor.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -14,6 +15,7 @@ import numpy as np
 from app.motion.body import Body, build_body
 from app.motion.descriptors import REGISTRY
 from app.motion.model import Motion
+from app.motion.skeleton_map import SkeletonMap
 
 
 @dataclass(frozen=True, eq=False)
@@ -74,11 +76,15 @@ def analyse(motion: Motion, *, descriptors: list[str] | None = None) -> ClipAnal
 
 def mapping_summary(body: Body, motion: Motion) -> dict[str, object]:
     """How ``motion``'s joints became ``body``'s canonical joints, as plain JSON data."""
-    mapping = body.mapping
-    if mapping is None:
+    if body.mapping is None:
         return {}
+    return mapping_json(body.mapping, motion.skeleton.names)
+
+
+def mapping_json(mapping: SkeletonMap, names: Sequence[str]) -> dict[str, object]:
+    """A skeleton's mapping as plain JSON data (a clip's ``joint_mapping``, a rig's)."""
     return {
-        "joints": mapping.describe(motion.skeleton.names),
+        "joints": mapping.describe(names),
         "end_sites": list(mapping.end_sites),
         "pose": mapping.pose,
         "mirrored": mapping.mirrored,

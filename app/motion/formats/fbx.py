@@ -106,8 +106,10 @@ def read_fbx(
     animation: str | None = None,
     limits: ParseLimits = DEFAULT_LIMITS,
     keep: list[Any] | None = None,
+    still: bool = False,
 ) -> tuple[Motion, list[Animation], str]:
-    """Read one animation of an FBX file.
+    """Read one animation of an FBX file (with ``still``, a file with a skeleton and no
+    animation stack gives its rest pose as one frame: a rig).
 
     ``keep``: a list the loaded ufbx scene (with its stacks and ``Anim`` wrappers) is
     appended to, so the caller decides when, or whether, it is freed: freeing them can crash
@@ -164,19 +166,24 @@ def read_fbx(
     )
     if not is_bone.any():
         raise ParseError("the file has no skeleton (no bones or skin clusters)")
-    if not loaded.animations:
+    if not loaded.animations and not still:
         raise ParseError(
             f"the file has a skeleton ({int(is_bone.sum())} bones) but no animation: nothing moves"
         )
-    chosen = pick_animation(loaded.animations, animation)
-    info = loaded.animations[chosen]
-    check_frame_budget(limits, info.frame_count, len(nodes))
     rest_t, rest_r, rest_s = _static(nodes)
-    begin = loaded.spans[chosen][0]
-    times = begin + np.arange(info.frame_count) / loaded.fps
-    translation, rotation, scale = _baked(
-        scene, loaded.anims[chosen], nodes, node_ids, times, loaded.fps, rest_t, rest_r, rest_s
-    )
+    if not loaded.animations:  # a rig: its rest pose as one frame
+        loaded.animations = [Animation("", 1, 0.0)]
+        info = loaded.animations[0]
+        translation, rotation, scale = rest_t[None], rest_r[None], rest_s[None]
+    else:
+        chosen = pick_animation(loaded.animations, animation)
+        info = loaded.animations[chosen]
+        check_frame_budget(limits, info.frame_count, len(nodes))
+        begin = loaded.spans[chosen][0]
+        times = begin + np.arange(info.frame_count) / loaded.fps
+        translation, rotation, scale = _baked(
+            scene, loaded.anims[chosen], nodes, node_ids, times, loaded.fps, rest_t, rest_r, rest_s
+        )
     graph = NodeGraph(
         names=[node.name for node in nodes],
         parents=parents,

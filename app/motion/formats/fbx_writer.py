@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+from typing import Any
 
 import numpy as np
 
@@ -107,7 +108,7 @@ def write_fbx(motion: Motion, *, metres_per_unit: float = 0.01, name: str = "mot
     rest = rest_pose(skeleton) + motion.root_translation[0]
     tails = _tails(motion, rest)
     bpy.ops.object.mode_set(mode="EDIT")
-    bones = []
+    bones: list[Any] = []
     for j, joint in enumerate(skeleton.names):
         bone = armature.edit_bones.new(joint)
         bone.head = tuple(rest[j])
@@ -133,9 +134,9 @@ def write_fbx(motion: Motion, *, metres_per_unit: float = 0.01, name: str = "mot
     if motion.local_translations is not None:
         change = motion.local_translations - skeleton.offsets[None]
         size = float(np.abs(skeleton.offsets).max(initial=0.0)) or 1.0
-        for j in np.flatnonzero(np.abs(change).max(axis=(0, 2)) > 1e-9 * size):
-            if j != 0:
-                locations[int(j)] = change[:, j] @ frames_b[j]
+        for moved in np.flatnonzero(np.abs(change).max(axis=(0, 2)) > 1e-9 * size).tolist():
+            if moved != 0:
+                locations[moved] = change[:, moved] @ frames_b[moved]
 
     action = bpy.data.actions.new(name)
     frame_numbers = np.arange(frames, dtype=np.float64)

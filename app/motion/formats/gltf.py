@@ -324,11 +324,17 @@ def list_gltf_animations(data: bytes, *, limits: ParseLimits = DEFAULT_LIMITS) -
 
 
 def read_gltf(
-    data: bytes, *, animation: str | None = None, limits: ParseLimits = DEFAULT_LIMITS
+    data: bytes,
+    *,
+    animation: str | None = None,
+    limits: ParseLimits = DEFAULT_LIMITS,
+    still: bool = False,
 ) -> tuple[Motion, list[Animation], str]:
     """Read one animation of a glTF 2.0 / GLB / VRMA file (see the module docstring).
 
     Returns ``(motion, animations, chosen)`` like :func:`~app.motion.formats.fbx.read_fbx`.
+    With ``still``, a file with a skeleton and no animation gives its rest (bind) pose as
+    one frame (a rig), animation name ``""``.
     """
     loaded = _Document(data, limits)
     document = loaded.document
@@ -353,6 +359,10 @@ def read_gltf(
             is_bone[node] = True
     if not is_bone.any():
         raise ParseError("the file has no skeleton (no skin joints or VRM humanoid bones)")
+    if not loaded.animations and still:
+        loaded.animations = [Animation("", 1, 0.0)]
+        loaded.rates, loaded.spans = [DEFAULT_FPS], [(0.0, 0.0)]
+        document._raw["animations"] = [{}]
     if not loaded.animations:
         raise ParseError(
             f"the file has a skeleton ({int(is_bone.sum())} joints) but no animation: nothing moves"

@@ -168,9 +168,9 @@ def write_glb(
         if not skeleton.end_site[j]:
             channel(j, "rotation", quats[:, j], "VEC4")
     moving = _moving_joints(motion)
-    for j in np.flatnonzero(moving):
+    for moved in np.flatnonzero(moving).tolist():
         assert motion.local_translations is not None
-        channel(int(j), "translation", motion.local_translations[:, j] * scale, "VEC3")
+        channel(moved, "translation", motion.local_translations[:, moved] * scale, "VEC3")
 
     document = {
         "asset": {"version": "2.0", "generator": GENERATOR},
