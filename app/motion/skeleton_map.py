@@ -422,18 +422,29 @@ class _Tree:
         self.names = skeleton.names
         self.parents = skeleton.parents
         count = skeleton.joint_count
-        self.children: list[list[int]] = [[] for _ in range(count)]
-        for j in range(1, count):
-            self.children[int(self.parents[j])].append(j)
         self.lengths = np.linalg.norm(skeleton.offsets, axis=1)
         self.lengths[0] = 0.0
+        # Leaves that add no point of their own (a zero-length End Site, or a chain of them):
+        # a BVH writer appends one to every leaf joint of an FBX or glTF rig, and the same
+        # rig must map the same with or without them, so the mapper does not see them.
+        self.void = np.zeros(count, dtype=bool)
+        has_point = np.zeros(count, dtype=bool)
+        for j in range(count - 1, 0, -1):
+            if self.lengths[j] > 0 or has_point[j]:
+                has_point[int(self.parents[j])] = True
+            else:
+                self.void[j] = True
+        self.children: list[list[int]] = [[] for _ in range(count)]
+        for j in range(1, count):
+            if not self.void[j]:
+                self.children[int(self.parents[j])].append(j)
         self.depth = np.zeros(count, dtype=np.int64)
         self.path = np.zeros(count)  # bone path length from the root
         for j in range(1, count):
             p = int(self.parents[j])
             self.depth[j] = self.depth[p] + 1
             self.path[j] = self.path[p] + self.lengths[j]
-        self.leaves = [j for j in range(count) if not self.children[j]]
+        self.leaves = [j for j in range(count) if not self.children[j] and not self.void[j]]
         self.bones = np.zeros(count, dtype=np.int64)  # non-zero bones from the root
         for j in range(1, count):
             self.bones[j] = self.bones[self.parents[j]] + (self.lengths[j] > 0)
@@ -441,7 +452,7 @@ class _Tree:
         # The body proper, whose bounding box gives the pose's scale: not shallow leaves (IK
         # targets, props on the root), nor a root with a single child (a floor-level
         # "joint_Root" that may stay at the origin while the body runs off).
-        shallow = set(self.leaves) - set(self.limb_leaves)
+        shallow = set(self.leaves) - set(self.limb_leaves) | set(np.flatnonzero(self.void))
         if len(self.children[0]) == 1:
             shallow.add(0)
         self.body_joints = np.array([j for j in range(count) if j not in shallow])

@@ -22,6 +22,7 @@ from app.main import create_app
 from app.motion.body import build_body
 from app.motion.model import ParseLimits
 from app.services.parser_pool import ParserPool
+from tests.api.roundtrip import check_bvh_export_round_trip
 from tests.conftest import shared_data_dir
 from tests.motion.canonical import check_canonical_body
 
@@ -151,6 +152,21 @@ def test_human_files_are_people(uploaded, pool, path):
 
         motion = read_bvh((FOLDER / path).read_bytes())
     check_canonical_body(build_body(motion), path)
+
+
+@pytest.mark.parametrize(
+    "path",
+    [
+        p
+        for p, k in KINDS.items()
+        if k == "human" and p not in NOT_WHOLE_HUMANOIDS and Path(p).suffix.lower() != ".bvh"
+    ],
+)
+def test_a_bvh_export_re_uploaded_is_the_same_clip(live, uploaded, path):
+    status, body = uploaded[path]
+    if status != 201:
+        pytest.skip(f"{path} is not stored ({body['detail']})")  # GENEA's rig: no animation
+    check_bvh_export_round_trip(live, body["id"], path)
 
 
 @pytest.fixture(scope="module")

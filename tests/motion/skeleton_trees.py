@@ -273,3 +273,55 @@ mixamorig:Hips
         mixamorig:RightToeBase
           mixamorig:RightToe_End*
 """
+
+
+def skeleton_from_points(text: str) -> Skeleton:
+    """Build a Skeleton from an indented tree of ``name x y z`` lines, each the joint's rest
+    position in the world (the offsets are the differences); a ``*`` after the name marks an
+    end site."""
+    names: list[str] = []
+    parents: list[int] = []
+    points: list[np.ndarray] = []
+    end_site: list[bool] = []
+    stack: list[tuple[int, int]] = []  # (indent, joint index)
+    for raw in text.strip("\n").splitlines():
+        if not raw.strip():
+            continue
+        indent = len(raw) - len(raw.lstrip())
+        name, *xyz = raw.split()
+        while stack and stack[-1][0] >= indent:
+            stack.pop()
+        parents.append(stack[-1][1] if stack else -1)
+        names.append(name.rstrip("*"))
+        end_site.append(name.endswith("*"))
+        points.append(np.array([float(v) for v in xyz]))
+        stack.append((indent, len(names) - 1))
+    at = np.array(points)
+    offsets = np.array([at[j] - at[p] if p >= 0 else np.zeros(3) for j, p in enumerate(parents)])
+    return Skeleton(tuple(names), np.array(parents), offsets, np.array(end_site))
+
+
+# A short game rig in the shape of Khronos's CesiumMan sample (Y up, metres): three spine
+# joints, the neck two, arms of three joints with no hand bones, legs ending in a ball joint
+# a little below and ahead of the ankle; every leaf a joint (a point, no tail).
+SHORT_GAME_RIG = """
+torso_1 0 0 0
+  torso_2 0 0.145 0.011
+    torso_3 0 0.395 -0.004
+      neck_1 0 0.459 0.006
+        neck_2 0 0.511 0.008
+      arm_L_4 0.091 0.395 -0.004
+        arm_L_3 0.307 0.285 -0.016
+          arm_L_2 0.45 0.196 0.066
+      arm_R -0.091 0.395 -0.004
+        arm_R_2 -0.306 0.286 -0.016
+          arm_R_3 -0.45 0.196 0.067
+  leg_L_1 0.068 -0.065 0.024
+    leg_L_2 0.077 -0.327 0.068
+      leg_L_3 0.078 -0.593 -0.005
+        leg_L_5 0.08 -0.658 0.027
+  leg_R_1 -0.068 -0.065 0.024
+    leg_R_2 -0.077 -0.327 0.068
+      leg_R_3 -0.078 -0.593 -0.005
+        leg_R_5 -0.08 -0.658 0.027
+"""

@@ -10,16 +10,20 @@ import pytest
 
 from app.motion import transforms
 from app.motion.formats import read_asf_amc, read_bvh
+from app.motion.formats.bvh_writer import write_bvh
 from app.motion.model import Motion, Skeleton
 from app.motion.pipeline import ClipAnalysis, analyse
+from app.motion.skeleton_map import CANONICAL_INDEX, map_skeleton
 from tests.motion.conftest import (
     BANDAI_FIXTURE,
     CMU_AMC_FIXTURE,
     CMU_ASF_FIXTURE,
     CMU_BVH_FIXTURE,
+    FIXTURES_DIR,
     fixture_bytes,
 )
 from tests.motion.shared import SHARED_DATA, requires_shared_data
+from tests.motion.skeleton_trees import SHORT_GAME_RIG, skeleton_from_points
 
 FIXTURES = (CMU_BVH_FIXTURE, BANDAI_FIXTURE)
 
@@ -196,3 +200,65 @@ def test_every_part_of_every_bandai_clip_gets_the_clip_s_mapping():
             if part != whole and part[0] != "SkeletonMappingError":
                 changed.append(f"{path.stem} [{first}, {stop})")
     assert not changed, changed
+
+
+def _leaves_as_joints(motion: Motion) -> Motion:
+    """The motion as an FBX or glTF rig holds it: every leaf a joint of its own (a point
+    without a tail), no End Sites."""
+    skeleton = motion.skeleton
+    return dataclasses.replace(
+        motion,
+        skeleton=Skeleton(
+            skeleton.names,
+            skeleton.parents,
+            skeleton.offsets,
+            np.zeros(skeleton.joint_count, dtype=bool),
+        ),
+    )
+
+
+def _vrma() -> Motion:
+    from app.motion.formats.gltf import read_gltf
+
+    return read_gltf((FIXTURES_DIR / "three_vrm_test.vrma").read_bytes())[0]
+
+
+@pytest.mark.parametrize(
+    "load",
+    [lambda: _leaves_as_joints(_motion(CMU_BVH_FIXTURE)), _vrma],
+    ids=["leaf-joints", "vrma"],
+)
+def test_a_bvh_export_maps_like_its_source(load):
+    # The BVH writer closes every leaf joint with a zero-length End Site: a point the rig
+    # already had, which must not move a single canonical joint, nor the sides.
+    motion = load()
+    source = analyse(motion)
+    exported = read_bvh(write_bvh(motion))
+    assert exported.skeleton.joint_count > motion.skeleton.joint_count  # End Sites added
+    again = analyse(exported)
+    names = [motion.skeleton.names[j] for j in source.body.mapping.joints]
+    assert [exported.skeleton.names[j] for j in again.body.mapping.joints] == names
+    assert again.body.mapping.mirrored is source.body.mapping.mirrored is False
+    _same(source, again, atol=1e-6)
+
+
+def _with_end_sites(skeleton: Skeleton) -> Skeleton:
+    """``skeleton`` with a zero-length End Site under every leaf, as the BVH writer adds."""
+    leaves = [j for j in range(skeleton.joint_count) if j not in set(skeleton.parents.tolist())]
+    return Skeleton(
+        (*skeleton.names, *(f"{skeleton.names[j]}_end" for j in leaves)),
+        np.concatenate([skeleton.parents, leaves]),
+        np.concatenate([skeleton.offsets, np.zeros((len(leaves), 3))]),
+        np.concatenate([skeleton.end_site, np.ones(len(leaves), dtype=bool)]),
+    )
+
+
+def test_zero_length_end_sites_change_no_joint_of_a_short_game_rig():
+    # Legs ending in a ball joint reached going down: the zero-length End Site after it once
+    # passed for a foot turning forward, and the legs' joints all moved one down.
+    rig = skeleton_from_points(SHORT_GAME_RIG)
+    plain, closed = map_skeleton(rig), map_skeleton(_with_end_sites(rig))
+    assert [rig.names[j] for j in closed.joints] == [rig.names[j] for j in plain.joints]
+    assert closed.mirrored is plain.mirrored is False
+    assert rig.names[plain.joints[CANONICAL_INDEX["l_hip"]]] == "leg_L_1"
+    assert rig.names[plain.joints[CANONICAL_INDEX["l_ankle"]]] == "leg_L_3"
