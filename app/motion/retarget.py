@@ -28,11 +28,12 @@ hand, whose direction depends on the fingers) onto the source bone's world direc
 root above the pelvis) keep their reference-pose local rotation; offsets are the rig's own,
 so bone lengths are exactly the rig's.
 
-**Root.** The pelvis travels as the source's pelvis, scaled by the ratio of the legs' bone
-paths (hip -> knee -> ankle) and measured from each clip's floor, then moved up or down per
-frame so that the target's lowest foot point is exactly where the source's is (scaled): feet
-on the floor, neither sinking nor floating. A pelvis below a static top joint gets the
-travel as per-frame offsets.
+**Root.** The pelvis travels as the source's pelvis, scaled about the world origin by the
+ratio of the legs' bone paths (hip -> knee -> ankle), then moved up or down per frame so that
+the target's lowest foot point is exactly where the source's is (scaled): feet on the
+source's floor, neither sinking nor floating; then horizontally so that the foot points
+near the floor are where the source's are (weighted by nearness to the floor). A pelvis
+below a static top joint gets the travel as per-frame offsets.
 
 A capture with left-handed geometry (``SkeletonMap.mirrored``) is first reflected as the
 describer reflects it, so left stays left.
@@ -53,17 +54,26 @@ from app.motion.transforms import reflect
 
 # Canonical bones whose base joint the retarget drives: (base, aim) canonical names.
 # ``None`` aims: the joint's rotation is transferred, its direction not corrected.
-_BONES: tuple[tuple[str, str | None], ...] = (
+# Canonical chains whose joints the retarget drives, top first: (base, end) canonical names.
+# Joints between the two are driven too when both skeletons have as many there (a spine of
+# three against three); ``None``: the base's rotation is transferred, its direction not
+# corrected (the pelvis, whose children go three ways; the hand, whose direction depends on
+# the fingers, which stay at rest).
+_CHAINS: tuple[tuple[str, str | None], ...] = (
     ("pelvis", None),
+    ("pelvis", "spine"),
     ("spine", "chest"),
     ("chest", "neck"),
+    ("neck", "head"),
     *(
         pair
         for side in ("l", "r")
         for pair in (
+            ("chest", f"{side}_shoulder"),
             (f"{side}_shoulder", f"{side}_elbow"),
             (f"{side}_elbow", f"{side}_wrist"),
             (f"{side}_wrist", None),
+            ("pelvis", f"{side}_hip"),
             (f"{side}_hip", f"{side}_knee"),
             (f"{side}_knee", f"{side}_ankle"),
             (f"{side}_ankle", f"{side}_toe"),
@@ -206,14 +216,14 @@ def _between(parents: np.ndarray, top: int, bottom: int) -> list[int]:
 def _driven(
     source: Motion, source_map: SkeletonMap, target: Motion, target_map: SkeletonMap
 ) -> list[_Driven]:
-    """The driven target joints: each canonical bone's base, plus the head joint, the
-    clavicles and the balls of the feet where both skeletons have them."""
-    s_joints, t_joints = source_map.joints, target_map.joints
+    """The driven target joints, each with its source joint and the joints they aim at (see
+    :data:`_CHAINS`); the head joint is a chain end of its own where the head point is an end
+    effector beyond it. Target-first wins: a joint is driven by the first chain naming it."""
     s_parents, t_parents = source.skeleton.parents, target.skeleton.parents
     out: list[_Driven] = []
     seen: set[int] = set()
 
-    def add(t: int, s: int, t_aim: int | None, s_aim: int | None, like: int | None = None) -> None:
+    def add(t: int, s: int, t_aim: int | None, s_aim: int | None, like: int | None) -> None:
         if t in seen or target.skeleton.end_site[t] or source.skeleton.end_site[s]:
             return
         if t_aim is not None and (t_aim == t or s_aim == s or s_aim is None):
@@ -221,45 +231,37 @@ def _driven(
         seen.add(t)
         out.append(_Driven(t, s, t_aim, s_aim, like))
 
-    def head_joint(mapping: SkeletonMap) -> int:
-        head = int(mapping.joints[CANONICAL_INDEX["head"]])
-        return mapping.head_joint if mapping.head_joint >= 0 else head
+    def joints(mapping: SkeletonMap, name: str) -> list[int]:
+        """The canonical joint ``name`` as one or two joints (neck -> head joint -> head)."""
+        j = int(mapping.joints[CANONICAL_INDEX[name]])
+        if name == "head" and 0 <= mapping.head_joint != j:
+            return [mapping.head_joint, j]
+        return [j]
 
-    # Neck -> head joint -> head point (top of the head), when the head point is beyond.
-    s_head_joint, t_head_joint = head_joint(source_map), head_joint(target_map)
-    for base, aim in _BONES:
-        t_base, s_base = int(t_joints[CANONICAL_INDEX[base]]), int(s_joints[CANONICAL_INDEX[base]])
-        if aim is None:
+    for base, end in _CHAINS:
+        t_base, s_base = joints(target_map, base)[-1], joints(source_map, base)[-1]
+        if end is None:
             # The hand turns with the forearm's alignment: its own direction depends on
             # how the fingers are held, which differs between any two reference poses.
-            elbow = base.replace("wrist", "elbow") if base.endswith("_wrist") else None
-            like = None if elbow is None else int(t_joints[CANONICAL_INDEX[elbow]])
+            like = None
+            if base.endswith("_wrist"):
+                like = int(target_map.joints[CANONICAL_INDEX[base.replace("wrist", "elbow")]])
             add(t_base, s_base, None, None, like)
             continue
-        t_aim, s_aim = int(t_joints[CANONICAL_INDEX[aim]]), int(s_joints[CANONICAL_INDEX[aim]])
-        if aim.endswith("_toe"):
-            # The ball of the foot (the joint the toe point hangs from, below the ankle).
-            t_ball = _between(t_parents, t_base, t_aim)
-            s_ball = _between(s_parents, s_base, s_aim)
-            if t_ball and s_ball:
-                add(t_base, s_base, t_ball[0], s_ball[0])
-                add(t_ball[0], s_ball[0], t_aim, s_aim)
-                continue
-        if aim.endswith("_elbow"):
-            # The clavicle: the joint the upper arm hangs from, below the chest.
-            chest_t = int(t_joints[CANONICAL_INDEX["chest"]])
-            chest_s = int(s_joints[CANONICAL_INDEX["chest"]])
-            t_clav = _between(t_parents, chest_t, t_base)
-            s_clav = _between(s_parents, chest_s, s_base)
-            if t_clav and s_clav:
-                add(t_clav[0], s_clav[0], t_base, s_base)
-        add(t_base, s_base, t_aim, s_aim)
-    t_neck = int(t_joints[CANONICAL_INDEX["neck"]])
-    s_neck = int(s_joints[CANONICAL_INDEX["neck"]])
-    add(t_neck, s_neck, t_head_joint, s_head_joint)
-    t_head_point = int(t_joints[CANONICAL_INDEX["head"]])
-    s_head_point = int(s_joints[CANONICAL_INDEX["head"]])
-    add(t_head_joint, s_head_joint, t_head_point, s_head_point)
+        t_stops, s_stops = [t_base, *joints(target_map, end)], [s_base, *joints(source_map, end)]
+        if len(t_stops) != len(s_stops):  # one has a head joint, the other not
+            t_stops, s_stops = [t_stops[0], t_stops[-1]], [s_stops[0], s_stops[-1]]
+        t_path, s_path = [t_stops[0]], [s_stops[0]]
+        for i in range(1, len(t_stops)):
+            t_mid = _between(t_parents, t_stops[i - 1], t_stops[i])[::-1]
+            s_mid = _between(s_parents, s_stops[i - 1], s_stops[i])[::-1]
+            if t_mid and len(t_mid) == len(s_mid):
+                t_path.extend(t_mid)
+                s_path.extend(s_mid)
+            t_path.append(t_stops[i])
+            s_path.append(s_stops[i])
+        for i in range(len(t_path) - 1):
+            add(t_path[i], s_path[i], t_path[i + 1], s_path[i + 1], None)
     return out
 
 
@@ -379,20 +381,19 @@ def retarget(
     up_index = np.where(parents < 0, 0, parents)
     local[:, 1:] = np.swapaxes(world_rot[:, up_index[1:]], -1, -2) @ world_rot[:, 1:]
 
-    # The pelvis's path: the source's, scaled by the legs and moved from floor to floor.
+    # The pelvis's path: the source's, scaled by the legs.
     scale = leg_length(target, target_map) / max(leg_length(source, source_map), _TINY)
     s_feet = foot_heights(s_canon, s_up)
     # The floor the feet stand on, not a converter's rest-pose frame before the motion.
     s_floor = float(s_feet[count_lead_in_frames(source) :].min())
-    t_floor = float((t_ref_pos[target_map.joints][list(FOOT_POINTS)] @ t_up).min())
     s_pelvis = s_canon[:, CANONICAL_INDEX["pelvis"]]
-    pelvis_at = scale * (s_pelvis - s_floor * s_up) @ world + t_floor * t_up  # (F, 3)
+    pelvis_at = scale * s_pelvis @ world  # (F, 3)
     pelvis = int(target_map.joints[CANONICAL_INDEX["pelvis"]])
     out = _assemble(target, source.frame_time, local, world_rot, pelvis, pelvis_at, t_ref_pos)
     # Feet on the floor: the lowest foot point where the source's is (scaled), per frame.
     _, t_pos = forward_kinematics(out, joints=target_map.joints[list(FOOT_POINTS)])
-    t_feet = (t_pos[:, target_map.joints[list(FOOT_POINTS)]] @ t_up).min(axis=1) - t_floor
-    lift = scale * (s_feet - s_floor) - t_feet
+    t_feet = (t_pos[:, target_map.joints[list(FOOT_POINTS)]] @ t_up).min(axis=1)
+    lift = scale * s_feet - t_feet
     pelvis_at = pelvis_at + lift[:, None] * t_up
     # Planted feet stay planted: the legs' proportions differ, so the scaled travel alone
     # would drag a foot on the floor; shift the pelvis horizontally so the foot points near
@@ -401,7 +402,7 @@ def retarget(
     out = _assemble(target, source.frame_time, local, world_rot, pelvis, pelvis_at, t_ref_pos)
     _, t_pos = forward_kinematics(out, joints=feet)
     s_points = s_canon[:, list(FOOT_POINTS)]  # (F, 4, 3)
-    wanted = scale * (s_points - s_floor * s_up) @ world + t_floor * t_up
+    wanted = scale * s_points @ world
     miss = wanted - t_pos[:, feet]
     miss -= (miss @ t_up)[..., None] * t_up  # horizontal only
     contact = CONTACT_LEGS * leg_length(source, source_map)

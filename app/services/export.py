@@ -373,65 +373,84 @@ class _Sink(io.RawIOBase):
         return out
 
 
-def export_zip(
-    exporter: Exporter, items: Iterable[ExportItem], on_progress: object = None
-) -> Iterator[bytes]:
+def export_each(
+    exporter: Exporter, items: Iterable[ExportItem]
+) -> Iterator[tuple[ExportItem, Exported | None, str]]:
+    """Each item exported in turn: ``(item, exported, "")``, or ``(item, None, reason)`` for
+    a clip that cannot be exported (the others go on)."""
+    for item in items:
+        clip = item.clip
+        try:
+            frames = None
+            if item.start is not None or item.end is not None:
+                frames = span_frames(clip.frame_count, clip.frame_time, 0, item.start, item.end)
+            yield item, exporter.export(clip, frames), ""
+        except MocapError as failure:
+            yield item, None, f"{failure.code}: {failure.detail}"
+
+
+class Manifest:
+    """``manifest.csv`` of a many-clip export, and the unique file names in it."""
+
+    def __init__(self, options: ExportOptions) -> None:
+        self.options = options
+        self.taken: set[str] = {"manifest.csv"}
+        self._text = io.StringIO()
+        self._rows = csv.writer(self._text, lineterminator="\n")
+        self._rows.writerow(MANIFEST_COLUMNS)
+
+    def add(self, item: ExportItem, exported: Exported | None, error: str) -> str | None:
+        """Record one clip; the (unique) file name to store its file under, if any."""
+        clip = item.clip
+        notes = [clip.id, clip.name]
+        if exported is None:
+            self._rows.writerow(
+                [
+                    *notes,
+                    "",
+                    clip.source or "",
+                    clip.licence or "",
+                    "",
+                    "",
+                    "",
+                    self.options.describe(),
+                    error,
+                ]
+            )
+            return None
+        filename = _unique(f"{clip.name}.{self.options.format}", self.taken)
+        self._rows.writerow(
+            [
+                *notes,
+                filename,
+                clip.source or "",
+                clip.licence or "",
+                exported.frame_count,
+                f"{1.0 / exported.frame_time:.6g}",
+                f"{exported.frame_count * exported.frame_time:.6g}",
+                self.options.describe(),
+                "",
+            ]
+        )
+        return filename
+
+    def text(self) -> str:
+        return self._text.getvalue()
+
+
+def export_zip(exporter: Exporter, items: Iterable[ExportItem]) -> Iterator[bytes]:
     """The ZIP of ``items``, streamed: each file as soon as it is written, then
     ``manifest.csv`` (one row per clip; a clip that cannot be exported has its reason in
-    ``error`` and no file). ``on_progress(done, item, error)`` is called after each clip."""
+    ``error`` and no file)."""
     sink = _Sink()
-    taken: set[str] = {"manifest.csv"}
-    manifest = io.StringIO()
-    rows = csv.writer(manifest, lineterminator="\n")
-    rows.writerow(MANIFEST_COLUMNS)
-    options = exporter.options.describe()
+    manifest = Manifest(exporter.options)
     with zipfile.ZipFile(sink, "w", compression=zipfile.ZIP_DEFLATED) as archive:
-        for done, item in enumerate(items, start=1):
-            clip = item.clip
-            error = ""
-            try:
-                frames = None
-                if item.start is not None or item.end is not None:
-                    frames = span_frames(clip.frame_count, clip.frame_time, 0, item.start, item.end)
-                exported = exporter.export(clip, frames)
-            except MocapError as failure:
-                error = f"{failure.code}: {failure.detail}"
-                rows.writerow(
-                    [
-                        clip.id,
-                        clip.name,
-                        "",
-                        clip.source or "",
-                        clip.licence or "",
-                        "",
-                        "",
-                        "",
-                        options,
-                        error,
-                    ]
-                )
-            else:
-                filename = _unique(f"{clip.name}.{exporter.options.format}", taken)
+        for item, exported, error in export_each(exporter, items):
+            filename = manifest.add(item, exported, error)
+            if exported is not None and filename is not None:
                 archive.writestr(filename, exported.data)
-                fps = 1.0 / exported.frame_time
-                rows.writerow(
-                    [
-                        clip.id,
-                        clip.name,
-                        filename,
-                        clip.source or "",
-                        clip.licence or "",
-                        exported.frame_count,
-                        f"{fps:.6g}",
-                        f"{exported.frame_count * exported.frame_time:.6g}",
-                        options,
-                        "",
-                    ]
-                )
-            if callable(on_progress):
-                on_progress(done, item, error)
             yield sink.take()
-        archive.writestr("manifest.csv", manifest.getvalue())
+        archive.writestr("manifest.csv", manifest.text())
     yield sink.take()
 
 
@@ -442,6 +461,8 @@ __all__ = [
     "ExportOptions",
     "Exported",
     "Exporter",
+    "Manifest",
+    "export_each",
     "export_items",
     "export_motion",
     "export_zip",
