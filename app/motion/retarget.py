@@ -31,9 +31,10 @@ so bone lengths are exactly the rig's.
 **Root.** The pelvis travels as the source's pelvis, scaled about the world origin by the
 ratio of the legs' bone paths (hip -> knee -> ankle), then moved up or down per frame so that
 the target's lowest foot point is exactly where the source's is (scaled): feet on the
-source's floor, neither sinking nor floating; then horizontally so that the foot points
-near the floor are where the source's are (weighted by nearness to the floor). A pelvis
-below a static top joint gets the travel as per-frame offsets.
+source's floor, neither sinking nor floating. A pelvis below a static top joint gets the
+travel as per-frame offsets. Nothing holds a planted foot: where the legs' proportions
+differ from the source's, a foot slides a little (docs/export.md has the figures); holding
+it would take leg IK, which bends the limbs away from the source's directions.
 
 A capture with left-handed geometry (``SkeletonMap.mirrored``) is first reflected as the
 describer reflects it, so left stays left.
@@ -45,7 +46,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.motion.body import count_lead_in_frames
 from app.motion.ground import FOOT_POINTS, body_frame, foot_heights, snap_axis
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion
@@ -81,9 +81,6 @@ _CHAINS: tuple[tuple[str, str | None], ...] = (
     ),
 )
 _TINY = 1e-9
-# A foot point this near the floor (fraction of the leg's length, about 2.5 % of body
-# height) is planted and pins the pelvis's horizontal position.
-CONTACT_LEGS = 0.05
 
 
 @dataclass(frozen=True)
@@ -384,8 +381,6 @@ def retarget(
     # The pelvis's path: the source's, scaled by the legs.
     scale = leg_length(target, target_map) / max(leg_length(source, source_map), _TINY)
     s_feet = foot_heights(s_canon, s_up)
-    # The floor the feet stand on, not a converter's rest-pose frame before the motion.
-    s_floor = float(s_feet[count_lead_in_frames(source) :].min())
     s_pelvis = s_canon[:, CANONICAL_INDEX["pelvis"]]
     pelvis_at = scale * s_pelvis @ world  # (F, 3)
     pelvis = int(target_map.joints[CANONICAL_INDEX["pelvis"]])
@@ -395,26 +390,6 @@ def retarget(
     t_feet = (t_pos[:, target_map.joints[list(FOOT_POINTS)]] @ t_up).min(axis=1)
     lift = scale * s_feet - t_feet
     pelvis_at = pelvis_at + lift[:, None] * t_up
-    # Planted feet stay planted: the legs' proportions differ, so the scaled travel alone
-    # would drag a foot on the floor; shift the pelvis horizontally so the foot points near
-    # the floor are where the source's are (scaled), weighted by how near the floor they are.
-    feet = target_map.joints[list(FOOT_POINTS)]
-    out = _assemble(target, source.frame_time, local, world_rot, pelvis, pelvis_at, t_ref_pos)
-    _, t_pos = forward_kinematics(out, joints=feet)
-    s_points = s_canon[:, list(FOOT_POINTS)]  # (F, 4, 3)
-    wanted = scale * s_points @ world
-    miss = wanted - t_pos[:, feet]
-    miss -= (miss @ t_up)[..., None] * t_up  # horizontal only
-    contact = CONTACT_LEGS * leg_length(source, source_map)
-    weight = np.clip(1.0 - (s_points @ s_up - s_floor) / max(contact, _TINY), 0.0, 1.0)
-    total = weight.sum(axis=1)
-    planted = total > 1e-6
-    if planted.any():
-        shift = (weight[..., None] * miss).sum(axis=1) / np.where(planted, total, 1.0)[:, None]
-        frames_at = np.arange(frames)
-        for axis in range(3):
-            shift[:, axis] = np.interp(frames_at, frames_at[planted], shift[planted, axis])
-        pelvis_at = pelvis_at + shift
     return _assemble(target, source.frame_time, local, world_rot, pelvis, pelvis_at, t_ref_pos)
 
 
