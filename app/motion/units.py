@@ -2,10 +2,11 @@
 
 FBX and glTF clips are read in metres (the readers convert). BVH files do not say their
 unit and ASF files only give a multiplier, so their unit is inferred from the body: of the
-units motion files are written in (millimetres, centimetres, inches, decimetres, metres),
-the one that makes the body height (leg plus trunk bone path, about 0.83 of stature) nearest
-to an adult's 1.45 m. A child or a giant is still far nearer its own unit than the next one
-(the candidates are at least 2.5x apart).
+units motion files are written in (millimetres, centimetres, inches, Acclaim's default unit
+of 1/0.45 inch — what ASF files with ``:units length 0.45`` and their BVH conversions use —,
+decimetres, metres), the one that makes the body height (leg plus trunk bone path, about
+0.83 of stature) nearest to an adult's 1.45 m. A child or a giant stays nearer its own unit
+than the next one down or up as long as it is within about 1.5x of an adult.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import numpy as np
 UNITS: dict[str, float] = {"m": 1.0, "cm": 0.01, "in": 0.0254}
 """Units an export may be written in, metres per unit."""
 
-_CANDIDATES = (0.001, 0.01, 0.0254, 0.1, 1.0)
+_CANDIDATES = (0.001, 0.01, 0.0254, 0.0254 / 0.45, 0.1, 1.0)
 _TYPICAL_BODY_HEIGHT_M = 1.45
 METRIC_FORMATS = ("fbx", "gltf")
 
