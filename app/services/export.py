@@ -11,8 +11,9 @@ One pipeline for ``GET /clips/{id}/file`` and ``POST /exports`` (:func:`export_c
 6. written: BVH here; GLB here (+Y up, as glTF says); FBX in an export worker with
    Blender's exporter (+Y up).
 
-``format=bvh`` with every other option at its default is exactly the BVH export the service
-has always given (:func:`~app.motion.formats.bvh_writer.write_bvh` of the clip as read).
+``format=bvh`` with every other option at its default is, for BVH and ASF/AMC clips, exactly
+the BVH export the service has always given (:func:`~app.motion.formats.bvh_writer.write_bvh`
+of the clip as read); FBX and glTF clips, read in metres, now come in centimetres.
 
 The size of an export is bounded before anything is computed: frames x joints of the output
 (``fps`` may multiply the frames) count against MOCAP_MAX_FRAME_VALUES like an upload's.
@@ -190,6 +191,45 @@ def _default_metres(source_format: str, metres: float) -> float:
     return UNITS["cm"] if source_format in METRIC_FORMATS else metres
 
 
+@dataclass(frozen=True, eq=False)
+class Prepared:
+    """The motion an export writes, before the writer: in ``metres`` metres per unit (the
+    output unit for BVH and FBX; GLB converts to metres itself), and the turn from its world
+    to +Y up that the GLB and FBX writers apply."""
+
+    motion: Motion
+    metres: float
+    up_rotation: np.ndarray
+
+
+def prepare_motion(motion: Motion, options: ExportOptions, rig: LoadedRig | None) -> Prepared:
+    """Steps 2-5 of the module docstring on an already read (and cut) motion."""
+    body = build_body(motion)
+    assert body.mapping is not None
+    if rig is not None:
+        out = retarget(motion, body.mapping, rig.motion, rig.mapping)
+        mapping = rig.mapping
+        metres = rig.record.metres_per_unit
+        unit_format = rig.motion.source_format
+    else:
+        out, mapping = motion, body.mapping
+        metres = metres_per_unit(motion.source_format, body.height)
+        unit_format = motion.source_format
+    up = up_axis(canonical_positions(out, mapping))
+    if options.root == "in-place":
+        out = in_place(out, mapping)
+    elif options.root == "extract":
+        out = extract_root(out, mapping)
+    if options.fps is not None:
+        out = resample_to_rate(out, options.fps)
+    if options.format != "glb":
+        wanted = UNITS[options.units] if options.units else _default_metres(unit_format, metres)
+        if abs(wanted - metres) > 1e-12 * wanted:
+            out = rescale(out, metres / wanted)
+        metres = wanted
+    return Prepared(out, metres, axis_change(up, Y_UP))
+
+
 def export_motion(
     motion: Motion,
     options: ExportOptions,
@@ -200,46 +240,22 @@ def export_motion(
 ) -> _Written:
     """Steps 2-6 of the module docstring on an already read (and cut) motion; ``fbx`` is a
     ``(motion, metres_per_unit) -> bytes`` callable writing FBX files."""
-    if options.is_plain_bvh:
+    if options.is_plain_bvh and motion.source_format not in METRIC_FORMATS:
         text = write_bvh(motion)
         return _Written(
             text.encode(), motion.frame_count, motion.frame_time, motion.skeleton.joint_count
         )
     _check_size(motion, options, rig, max_values)
-    body = build_body(motion)
-    assert body.mapping is not None
-    source_metres = metres_per_unit(motion.source_format, body.height)
-    if rig is not None:
-        out = retarget(motion, body.mapping, rig.motion, rig.mapping)
-        mapping = rig.mapping
-        metres = rig.record.metres_per_unit
-        unit_format = rig.motion.source_format
-    else:
-        out, mapping, metres, unit_format = (
-            motion,
-            body.mapping,
-            source_metres,
-            motion.source_format,
-        )
-    up = up_axis(canonical_positions(out, mapping))
-    if options.root == "in-place":
-        out = in_place(out, mapping)
-    elif options.root == "extract":
-        out = extract_root(out, mapping)
-    if options.fps is not None:
-        out = resample_to_rate(out, options.fps)
+    prepared = prepare_motion(motion, options, rig)
+    out = prepared.motion
     if options.format == "glb":
-        data = write_glb(out, metres_per_unit=metres, up_rotation=axis_change(up, Y_UP))
-        return _Written(data, out.frame_count, out.frame_time, out.skeleton.joint_count)
-    wanted = UNITS[options.units] if options.units else _default_metres(unit_format, metres)
-    if abs(wanted - metres) > 1e-12 * wanted:
-        out = rescale(out, metres / wanted)
-    if options.format == "bvh":
+        data = write_glb(out, metres_per_unit=prepared.metres, up_rotation=prepared.up_rotation)
+    elif options.format == "bvh":
         data = write_bvh(out).encode()
     else:
         writer = fbx
         assert callable(writer)
-        data = writer(rotate(out, axis_change(up, Y_UP)), wanted)
+        data = writer(rotate(out, prepared.up_rotation), prepared.metres)
     return _Written(data, out.frame_count, out.frame_time, out.skeleton.joint_count)
 
 
@@ -466,4 +482,5 @@ __all__ = [
     "export_items",
     "export_motion",
     "export_zip",
+    "prepare_motion",
 ]

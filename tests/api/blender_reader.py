@@ -16,6 +16,8 @@ import json
 import os
 import sys
 
+import numpy as np
+
 
 def _quiet_import() -> None:
     # Blender talks on stdout/stderr; the answer goes to the real stdout only.
@@ -42,9 +44,12 @@ def read(path: str, frames: list[int]) -> dict[str, object]:
     armature = armatures[0]
     action = armature.animation_data.action if armature.animation_data else None
     start, end = (float(v) for v in action.frame_range) if action else (0.0, 0.0)
-    keys = 0
+    keys, times = 0, []
     if action is not None:
-        keys = max((len(c.keyframe_points) for c in action.fcurves), default=0)
+        longest = max(action.fcurves, key=lambda c: len(c.keyframe_points), default=None)
+        if longest is not None:
+            keys = len(longest.keyframe_points)
+            times = sorted(k.co[0] for k in longest.keyframe_points)
     fps = scene.render.fps / scene.render.fps_base
     step = 1.0  # Blender frames per file frame
     if path.endswith(".glb") and keys > 1:
@@ -62,8 +67,9 @@ def read(path: str, frames: list[int]) -> dict[str, object]:
     }
     poses = {}
     for frame in frames:
-        at = start + frame * step
-        scene.frame_set(int(at), subframe=at - int(at))
+        # At the key itself: an importer may put keys between whole frames.
+        at = times[frame] if frame < len(times) else start + frame * step
+        scene.frame_set(int(np.floor(at)), subframe=at - np.floor(at))
         world = armature.matrix_world
         heads = {}
         for bone in armature.pose.bones:

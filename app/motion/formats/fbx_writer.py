@@ -43,22 +43,33 @@ def bpy_available() -> str | None:
 
 
 def _tails(motion: Motion, rest: np.ndarray) -> np.ndarray:
-    """``(J, 3)`` bone tails: toward the first child with a distinct position, else along
-    the parent's bone (a leaf) by a tenth of the body's size or the parent bone's length."""
+    """``(J, 3)`` bone tails: toward the nearest descendant at a distinct position (the first
+    child's, else a grandchild's: a joint whose children all sit on it, like a hips joint
+    whose hip joints start at its centre, points at its first real bone), else along the
+    parent's bone (a leaf) by a tenth of the body's size or the parent bone's length."""
     skeleton = motion.skeleton
     count = skeleton.joint_count
     size = float(np.ptp(rest, axis=0).max()) if count > 1 else 1.0
     size = size if size > 0 else 1.0
+    children: list[list[int]] = [[] for _ in range(count)]
+    for j in range(1, count):
+        children[int(skeleton.parents[j])].append(j)
     tails = np.empty_like(rest)
     direction = np.tile([0.0, 1.0, 0.0], (count, 1))
     for j in range(count):
-        kids = [int(c) for c in np.flatnonzero(skeleton.parents == j)]
-        vectors = [rest[c] - rest[j] for c in kids]
-        vectors = [v for v in vectors if np.linalg.norm(v) > 1e-6 * size]
+        queue = list(children[j])
+        vector = None
+        while queue:
+            candidate = queue.pop(0)
+            offset = rest[candidate] - rest[j]
+            if np.linalg.norm(offset) > 1e-6 * size:
+                vector = offset
+                break
+            queue.extend(children[candidate])
         p = int(skeleton.parents[j])
-        if vectors:
-            tails[j] = rest[j] + vectors[0]
-            direction[j] = vectors[0] / np.linalg.norm(vectors[0])
+        if vector is not None:
+            tails[j] = rest[j] + vector
+            direction[j] = vector / np.linalg.norm(vector)
             continue
         if p >= 0:
             direction[j] = direction[p]
@@ -165,6 +176,7 @@ def write_fbx(motion: Motion, *, metres_per_unit: float = 0.01, name: str = "mot
     if hasattr(animation, "action_slot") and len(getattr(action, "slots", ())):
         animation.action_slot = action.slots[0]
 
+    scene.frame_set(0)  # the static transforms the exporter writes: the first frame's
     handle, path = tempfile.mkstemp(suffix=".fbx")
     os.close(handle)
     try:
