@@ -139,8 +139,12 @@ class Exporter:
             raise NoStoredFile(clip.id, clip.format)
         from app.services.clips import stored_upload
 
-        upload = stored_upload(self.library, clip)
         settings = self.library.settings
+        if not self.options.is_plain_bvh:  # refused before the file is even read
+            count = clip.frame_count if frames is None else max(0, frames[1] - frames[0])
+            joints = clip.joint_count if self.rig is None else self.rig.motion.skeleton.joint_count
+            _check_size(count, clip.frame_time, joints, self.options, settings.max_frame_values)
+        upload = stored_upload(self.library, clip)
         motion = read_motion(upload, settings.parse_limits, self.library.parsers).motion
         if frames is not None:
             motion = motion.slice_frames(max(0, frames[0]), max(0, frames[1]))
@@ -245,7 +249,8 @@ def export_motion(
         return _Written(
             text.encode(), motion.frame_count, motion.frame_time, motion.skeleton.joint_count
         )
-    _check_size(motion, options, rig, max_values)
+    joints = (rig.motion if rig is not None else motion).skeleton.joint_count
+    _check_size(motion.frame_count, motion.frame_time, joints, options, max_values)
     prepared = prepare_motion(motion, options, rig)
     out = prepared.motion
     if options.format == "glb":
@@ -259,12 +264,14 @@ def export_motion(
     return _Written(data, out.frame_count, out.frame_time, out.skeleton.joint_count)
 
 
-def _check_size(motion: Motion, options: ExportOptions, rig: LoadedRig | None, limit: int) -> None:
-    """LimitExceeded before the work when the output would be over MOCAP_MAX_FRAME_VALUES."""
-    frames = motion.frame_count
+def _check_size(
+    frames: int, frame_time: float, joints: int, options: ExportOptions, limit: int
+) -> None:
+    """LimitExceeded before the work when the output would be over MOCAP_MAX_FRAME_VALUES:
+    its frames (``fps`` may multiply them) times its joints (one more for ``extract``)."""
     if options.fps is not None:
-        frames = len(sample_times(motion.frame_count, motion.frame_time, options.fps))
-    joints = (rig.motion if rig is not None else motion).skeleton.joint_count + 1
+        frames = len(sample_times(frames, frame_time, options.fps))
+    joints += 1
     values = frames * joints * 9
     if values > limit:
         what = f"fps={options.fps:g} makes {frames} frames" if options.fps else f"{frames} frames"
