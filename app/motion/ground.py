@@ -12,9 +12,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from app.motion.body import _frame_poses
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion
-from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap
+from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap, map_skeleton
+
+SAMPLED_FRAMES = 240  # enough frames to find the up axis of a clip of any length
 
 FOOT_POINTS = tuple(CANONICAL_INDEX[f"{s}_{p}"] for s in ("l", "r") for p in ("ankle", "toe"))
 
@@ -23,6 +26,29 @@ def canonical_positions(motion: Motion, mapping: SkeletonMap) -> np.ndarray:
     """``(F, C, 3)`` world positions of the canonical joints of ``motion`` (file units)."""
     _, positions = forward_kinematics(motion, joints=mapping.joints)
     return positions[:, mapping.joints]
+
+
+def map_clip(motion: Motion) -> SkeletonMap:
+    """The skeleton's mapping as :func:`~app.motion.body.build_body` finds it (the rest pose,
+    else a few frames), without the clip's forward kinematics."""
+    return map_skeleton(motion.skeleton, poses=_frame_poses(motion))
+
+
+def sample_frames(motion: Motion, count: int = SAMPLED_FRAMES) -> Motion:
+    """At most ``count`` frames of ``motion`` spread over it (for clip-wide facts like the up
+    axis, which do not need every frame)."""
+    if motion.frame_count <= count:
+        return motion
+    picked = np.linspace(0, motion.frame_count - 1, count).round().astype(np.int64)
+    return Motion(
+        skeleton=motion.skeleton,
+        frame_time=motion.frame_time,
+        root_translation=motion.root_translation[picked],
+        local_rotations=motion.local_rotations[picked],
+        local_translations=None
+        if motion.local_translations is None
+        else motion.local_translations[picked],
+    )
 
 
 def snap_axis(vector: np.ndarray) -> np.ndarray:
@@ -106,6 +132,8 @@ __all__ = [
     "floor_height",
     "foot_heights",
     "horizontal",
+    "map_clip",
+    "sample_frames",
     "snap_axis",
     "up_axis",
     "yaw_matrices",

@@ -33,10 +33,10 @@ import numpy as np
 
 from app.db import repository as repo
 from app.errors import InvalidInput, LimitExceeded, MocapError, NoStoredFile
-from app.motion.body import build_body
+from app.motion.body import body_height
 from app.motion.formats.bvh_writer import write_bvh
 from app.motion.formats.gltf_writer import write_glb
-from app.motion.ground import canonical_positions, up_axis
+from app.motion.ground import canonical_positions, map_clip, sample_frames, up_axis
 from app.motion.model import Motion
 from app.motion.resampling import MAX_FPS, MIN_FPS, resample_to_rate, sample_times
 from app.motion.retarget import axis_change, retarget
@@ -208,18 +208,18 @@ class Prepared:
 
 def prepare_motion(motion: Motion, options: ExportOptions, rig: LoadedRig | None) -> Prepared:
     """Steps 2-5 of the module docstring on an already read (and cut) motion."""
-    body = build_body(motion)
-    assert body.mapping is not None
+    source_map = map_clip(motion)
     if rig is not None:
-        out = retarget(motion, body.mapping, rig.motion, rig.mapping)
+        out = retarget(motion, source_map, rig.motion, rig.mapping)
         mapping = rig.mapping
         metres = rig.record.metres_per_unit
         unit_format = rig.motion.source_format
     else:
-        out, mapping = motion, body.mapping
-        metres = metres_per_unit(motion.source_format, body.height)
+        out, mapping = motion, source_map
+        height = body_height(motion, mapping.joints, head_joint=mapping.head_joint)
+        metres = metres_per_unit(motion.source_format, height)
         unit_format = motion.source_format
-    up = up_axis(canonical_positions(out, mapping))
+    up = up_axis(canonical_positions(sample_frames(out), mapping))
     if options.root == "in-place":
         out = in_place(out, mapping)
     elif options.root == "extract":
