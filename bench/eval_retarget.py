@@ -3,7 +3,8 @@
     .venv/bin/python bench/eval_retarget.py [--limit N]     # uses ../shared/data
 
 Every clip of ``../shared/data`` the service accepts (BVH, ASF/AMC, FBX, glTF; the longest
-animation of a file) is described under ``motion``; then, for each of seven rigs (Mixamo,
+animation of a file; cut to its first 20 s, ``--seconds``, so the sweep fits an hour on a
+shared machine) is described under ``motion``; then, for each of seven rigs (Mixamo,
 CMU ASF, Bandai, Rokoko, Xsens, SMPL, a 19-joint game character), every clip is retargeted
 onto the rig, written as BVH and read back (what a download and re-upload does), described
 again and looked up among all the clips' vectors (Euclidean, as ``GET /search`` does): the
@@ -72,7 +73,7 @@ def read_file(path: Path, pool: ParserPool, *, rig: bool = False) -> Motion:
     ).motion
 
 
-def load_clips(pool: ParserPool, limit: int | None) -> list[Clip]:
+def load_clips(pool: ParserPool, limit: int | None, seconds: float) -> list[Clip]:
     found = discover([shared_data()], scenes=True)
     clips: list[Clip] = []
     for source in found.sources[: limit or None]:
@@ -82,6 +83,9 @@ def load_clips(pool: ParserPool, limit: int | None) -> list[Clip]:
                 motion = read_asf_amc(source.skeleton.read_bytes(), source.motion.read_bytes())
             else:
                 motion = read_file(source.motion, pool)
+            keep = max(1, round(seconds / motion.frame_time))
+            if motion.frame_count > keep:
+                motion = motion.slice_frames(0, keep)
             analysis = analyse(motion, descriptors=["motion"])
         except (MocapError, ValueError):
             continue
@@ -128,12 +132,18 @@ def summary(name: str, joints: int, found: list[bool], qualities: list[RetargetQ
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--limit", type=int, help="only the first N clips (a quick look)")
+    parser.add_argument(
+        "--seconds",
+        type=float,
+        default=20.0,
+        help="clips longer than this are cut to their first SECONDS (library and queries alike)",
+    )
     args = parser.parse_args()
     print(f"machine: {machine()}")
     pool = ParserPool(1)
     try:
         started = time.perf_counter()
-        clips = load_clips(pool, args.limit)
+        clips = load_clips(pool, args.limit, args.seconds)
         vectors = np.stack([c.vector for c in clips])
         print(f"{len(clips)} clips described in {time.perf_counter() - started:.0f} s")
         print(
