@@ -19,21 +19,6 @@ from app.db.models import Rig
 
 
 @dataclass(frozen=True)
-class RigRecord:
-    id: int
-    name: str
-    format: str
-    filename: str
-    joint_count: int
-    skeleton_family: str
-    length_unit: str
-    metres_per_unit: float
-    skeleton: dict[str, Any]
-    joint_mapping: dict[str, Any]
-    created_at: datetime
-
-
-@dataclass(frozen=True)
 class NewRig:
     name: str
     format: str
@@ -44,6 +29,14 @@ class NewRig:
     metres_per_unit: float
     skeleton: dict[str, Any]
     joint_mapping: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class RigRecord(NewRig):
+    """A stored rig: what was stored, its id and when."""
+
+    id: int
+    created_at: datetime
 
 
 def _record(row: Rig) -> RigRecord:

@@ -16,6 +16,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from app.motion.ground import (
@@ -33,21 +35,6 @@ from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap
 
 ROOT_NAME = "root"
 RENAMED_ROOT = "root_source"
-
-
-def _with(motion: Motion, **changes: object) -> Motion:
-    fields = {
-        "skeleton": motion.skeleton,
-        "frame_time": motion.frame_time,
-        "root_translation": motion.root_translation,
-        "local_rotations": motion.local_rotations,
-        "local_translations": motion.local_translations,
-        "source_format": motion.source_format,
-        "length_unit": motion.length_unit,
-        "notes": dict(motion.notes),
-    }
-    fields.update(changes)
-    return Motion(**fields)  # type: ignore[arg-type]
 
 
 def translation_carrier(motion: Motion, joint: int) -> int:
@@ -69,13 +56,13 @@ def shift_joint(motion: Motion, joint: int, shift: np.ndarray) -> Motion:
     """``motion`` with the ``(F, 3)`` world displacement ``shift`` added to ``joint``'s
     per-frame translation (the top joint's ``root_translation``, else its local one)."""
     if joint == 0:
-        return _with(motion, root_translation=motion.root_translation + shift)
+        return replace(motion, root_translation=motion.root_translation + shift)
     assert motion.local_translations is not None
     rotations, _ = forward_kinematics(motion, joints=[int(motion.skeleton.parents[joint])])
     parent = rotations[:, int(motion.skeleton.parents[joint])]
     local = motion.local_translations.copy()
     local[:, joint] += (np.swapaxes(parent, -1, -2) @ shift[:, :, None])[:, :, 0]
-    return _with(motion, local_translations=local)
+    return replace(motion, local_translations=local)
 
 
 def in_place(motion: Motion, mapping: SkeletonMap) -> Motion:
@@ -141,7 +128,7 @@ def extract_root(motion: Motion, mapping: SkeletonMap) -> Motion:
     else:
         local[:, 1:] = motion.local_translations
     local[:, 1] = top_local
-    return _with(
+    return replace(
         motion,
         skeleton=new_skeleton,
         root_translation=root_at,
