@@ -8,8 +8,11 @@ shared machine) is described under ``motion``; then, for each of seven rigs (Mix
 CMU ASF, Bandai, Rokoko, Xsens, SMPL, a 19-joint game character), every clip is retargeted
 onto the rig, written as BVH and read back (what a download and re-upload does), described
 again and looked up among all the clips' vectors (Euclidean, as ``GET /search`` does): the
-round trip holds when the nearest is the source. Per rig the retarget quality of
-:mod:`app.motion.retarget_quality` is summarised. FBX and glTF files are read in parser
+round trip holds when the nearest is the source — or, in brackets, its twin: the same
+capture in another format or folder, by file stem (CMU trials as ASF/AMC, MotionBuilder BVH
+and DAZ BVH; the FBX/BVH pairs), which the retargeted copy cannot tell from its source.
+Per rig the retarget quality of :mod:`app.motion.retarget_quality` is summarised. FBX and
+glTF files are read in parser
 worker processes, as the service reads them.
 """
 
@@ -111,7 +114,19 @@ def load_rig(path: Path, pool: ParserPool) -> tuple[Motion, SkeletonMap]:
     return rig, map_skeleton(rig.skeleton, poses=[("frame 0", positions[0])])
 
 
-def summary(name: str, joints: int, found: list[bool], qualities: list[RetargetQuality]) -> str:
+def capture(name: str) -> str:
+    """The capture a clip is of: its file stem (the CMU trials, the FBX/BVH pairs are one
+    capture in several formats and folders, under one stem)."""
+    return Path(name).stem.lower()
+
+
+def summary(
+    name: str,
+    joints: int,
+    found: list[bool],
+    twin: list[bool],
+    qualities: list[RetargetQuality],
+) -> str:
     n = len(qualities)
 
     def share(values: list[bool]) -> str:
@@ -119,7 +134,7 @@ def summary(name: str, joints: int, found: list[bool], qualities: list[RetargetQ
 
     slide_over = [q.slide - q.source_slide for q in qualities]
     return (
-        f"| {name} | {joints} | {n} | {share(found)} | "
+        f"| {name} | {joints} | {n} | {share(found)} ({share(twin)}) | "
         f"{max(q.bone_error for q in qualities):.1e} | "
         f"{share([q.left_ok == 1.0 for q in qualities])} | "
         f"{share([q.feet_error <= 0.02 for q in qualities])} | "
@@ -151,7 +166,8 @@ def main() -> None:
         print(f"{len(clips)} clips described in {time.perf_counter() - started:.0f} s")
         if not args.rig or "Mixamo" in args.rig:
             print(
-                "| rig | joints | clips | round trip: source is nearest | bones (max error, "
+                "| rig | joints | clips | round trip: source is nearest (or a twin: same "
+                "capture in another format) | bones (max error, "
                 "body heights) | left stays left | feet within 2 % | sliding <= source + 1 %/s "
                 "| finite | limb directions within 5 deg in 99 % of frames |"
             )
@@ -161,6 +177,7 @@ def main() -> None:
                 continue
             rig, rig_map = load_rig(shared_data() / relative, pool)
             found: list[bool] = []
+            twin: list[bool] = []
             qualities: list[RetargetQuality] = []
             failures: list[str] = []
             for index, clip in enumerate(clips):
@@ -171,14 +188,22 @@ def main() -> None:
                 except MocapError as error:
                     failures.append(f"{clip.name}: {error.detail}")
                     found.append(False)
+                    twin.append(False)
                     continue
                 distances = np.linalg.norm(vectors - vector, axis=1)
-                found.append(int(np.argmin(distances)) == index)
+                nearest = int(np.argmin(distances))
+                found.append(nearest == index)
+                twin.append(capture(clips[nearest].name) == capture(clip.name))
+                if not twin[-1]:
+                    failures.append(
+                        f"{clip.name} -> {clips[nearest].name} "
+                        f"({distances[index]:.3f} vs {distances[nearest]:.3f})"
+                    )
                 qualities.append(
                     retarget_quality(clip.motion, clip.mapping, out, rig_map, skip=clip.lead_in)
                 )
-            print(summary(rig_name, rig.skeleton.joint_count, found, qualities), flush=True)
-            for failure in failures[:5]:
+            print(summary(rig_name, rig.skeleton.joint_count, found, twin, qualities), flush=True)
+            for failure in failures:
                 print(f"  failed: {failure}", file=sys.stderr)
     finally:
         pool.close()
