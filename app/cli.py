@@ -482,6 +482,86 @@ def _delete(args: argparse.Namespace, settings: Settings) -> int:
     return 0
 
 
+# -- export ----------------------------------------------------------------------------------
+
+
+def _configure_export(parser: argparse.ArgumentParser) -> None:
+    which = parser.add_mutually_exclusive_group(required=True)
+    which.add_argument(
+        "--clip",
+        action="extend",
+        nargs="+",
+        type=int,
+        metavar="ID",
+        help="the clips to export, by id (several after one --clip, or repeat it)",
+    )
+    which.add_argument(
+        "--label",
+        action="append",
+        metavar="LABEL",
+        help="export every clip carrying this label (repeat, or separate with commas, for "
+        "clips carrying all of them)",
+    )
+    parser.add_argument("--format", choices=("bvh", "fbx", "glb"), default="bvh")
+    parser.add_argument("--rig", type=int, metavar="ID", help="retarget onto this stored rig")
+    parser.add_argument("--root", choices=("keep", "in-place", "extract"), default="keep")
+    parser.add_argument("--units", choices=("cm", "m", "in"), help="BVH/FBX lengths")
+    parser.add_argument("--fps", type=float, help="frame rate of the files")
+    parser.add_argument(
+        "--out", type=Path, required=True, metavar="DIR", help="folder for the files"
+    )
+    parser.add_argument(
+        "--progress",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="show a progress bar (default: when stderr is a terminal)",
+    )
+
+
+@command(
+    "export",
+    "write clips as BVH, FBX or GLB files (on a rig, root motion handled) into a folder",
+    configure=_configure_export,
+)
+def _export(args: argparse.Namespace, settings: Settings) -> int:
+    from app.labels import label_filter
+    from app.services.export import Exporter, ExportOptions, Manifest, export_each, export_items
+    from app.services.library import open_library
+
+    options = ExportOptions(
+        format=args.format, units=args.units, fps=args.fps, root=args.root, rig=args.rig
+    )
+    show = sys.stderr.isatty() if args.progress is None else args.progress
+    bar = _ProgressBar("exporting")
+    library = open_library(settings)
+    failed = written = 0
+    try:
+        exporter = Exporter(library, options)
+        if args.clip:
+            items = export_items(library, clips=[(c, None, None) for c in args.clip])
+        else:
+            items = export_items(library, labels=list(label_filter(args.label)))
+        args.out.mkdir(parents=True, exist_ok=True)
+        manifest = Manifest(options)
+        bar.total = len(items)
+        for done, (item, exported, error) in enumerate(export_each(exporter, items), start=1):
+            filename = manifest.add(item, exported, error)
+            if exported is not None and filename is not None:
+                (args.out / filename).write_bytes(exported.data)
+                written += 1
+            else:
+                failed += 1
+                print(f"clip {item.clip.id}: {error}", file=sys.stderr)
+            if show:
+                bar.set_done(done)
+        (args.out / "manifest.csv").write_text(manifest.text(), encoding="utf-8")
+    finally:
+        bar.stop()
+        library.close()
+    print(f"wrote {written} files and manifest.csv to {args.out}; {failed} failed")
+    return 1 if failed else 0
+
+
 # -- entry point ---------------------------------------------------------------------------
 
 

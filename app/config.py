@@ -341,6 +341,36 @@ class Settings(BaseSettings):
         description="Worker processes of `mocap-index import`; 0 = one per CPU core.",
     )
     # -- end of issue 5 settings -----------------------------------------------------------
+    export_workers: int = Field(
+        default=1,
+        ge=1,
+        le=16,
+        description=(
+            "Worker processes that write FBX files with Blender's exporter (started when the "
+            "first FBX is asked for, then kept warm; each holds Blender, ~300 MB)."
+        ),
+    )
+    export_timeout_seconds: float = Field(
+        default=120.0,
+        gt=0,
+        description=(
+            "Longest time writing one FBX file may take in its worker; past it the worker is "
+            "killed and the download answers 503 `export_failed`."
+        ),
+    )
+    export_memory_mb: int = Field(
+        default=2048,
+        ge=64,
+        description=(
+            "Memory (address space, MB, above an idle export worker's) writing one FBX file "
+            "may take; past it the download answers 503 `export_failed`."
+        ),
+    )
+    max_export_clips: int = Field(
+        default=500,
+        ge=1,
+        description="Most clips one `POST /exports` ZIP may hold (422 above).",
+    )
 
     @field_validator("data_dir")
     @classmethod

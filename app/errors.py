@@ -191,3 +191,16 @@ class ServiceBusy(MocapError):
     def __init__(self, detail: str, *, retry_after: int = 1) -> None:
         super().__init__(detail)
         self.retry_after = max(1, int(retry_after))
+
+
+class FbxUnavailable(MocapError):
+    """``format=fbx`` on a machine where Blender's Python module (the ``fbx`` extra) is not
+    installed or cannot start: FBX files cannot be written here."""
+
+    code = "fbx_unavailable"
+
+
+class ExportFailed(MocapError):
+    """An export worker crashed, ran out of time or memory writing a file."""
+
+    code = "export_failed"

@@ -14,7 +14,7 @@ from fastapi.middleware.cors import CORSMiddleware
 from fastapi_offline import FastAPIOffline
 from starlette.concurrency import run_in_threadpool
 
-from app.api import clips, meta, moments, search
+from app.api import clips, exports, meta, moments, rigs, search
 from app.api.auth import API_KEY_HEADER, log_access_policy, read_dependencies
 from app.api.compression import add_compression
 from app.api.errors import error_responses, install_error_handlers
@@ -109,6 +109,8 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
     app.include_router(clips.router, dependencies=reads, responses=read_errors)
     app.include_router(search.router, dependencies=reads, responses=read_errors)
     app.include_router(moments.router, dependencies=reads, responses=read_errors)
+    app.include_router(rigs.router, dependencies=reads, responses=read_errors)
+    app.include_router(exports.router, dependencies=reads, responses=read_errors)
     app.include_router(meta.read_router, dependencies=reads, responses=read_errors)
     app.include_router(meta.router)
     mount_ui(app)  # the web UI at /, /static/*, and the routes it reads (skeletons, map)

@@ -23,8 +23,10 @@ from app.config import Settings
 from app.errors import InvalidInput
 from app.labels import label_filter, normalise_labels
 from app.services import clips as clip_service
+from app.services.describe import span_frames
+from app.services.export import Exporter, ExportOptions
 from app.services.ingest import ingest
-from app.services.uploads import normalise_name, normalise_note
+from app.services.uploads import SCENE_FORMATS, normalise_name, normalise_note
 
 router = APIRouter(prefix="/clips", tags=["clips"])
 
@@ -103,17 +105,21 @@ def get_clip(
 
 @router.get(
     "/{clip_id}/file",
-    summary="Download the original upload",
+    summary="Download the clip: the original upload, or BVH / FBX / GLB",
     response_class=Response,
     responses={
         200: {
             "description": (
                 "The uploaded file, or for ASF/AMC a ZIP of both (or one `part`); with "
-                "`format=bvh`, the clip as a BVH file."
+                "`format`, the clip converted (and with `rig`, retargeted)."
             ),
-            "content": {"application/octet-stream": {}, "application/zip": {}},
+            "content": {
+                "application/octet-stream": {},
+                "application/zip": {},
+                "model/gltf-binary": {},
+            },
         },
-        **error_responses(404, 422, 503),
+        **error_responses(404, 422, 501, 503),
     },
 )
 def download_clip(
@@ -124,14 +130,49 @@ def download_clip(
         Query(description="One uploaded part, byte for byte (ASF/AMC: skeleton or motion)."),
     ] = None,
     file_format: Annotated[
-        Literal["bvh"] | None,
+        Literal["bvh", "fbx", "glb"] | None,
         Query(
             alias="format",
             description=(
-                "`bvh`: the clip (of any format) as a BVH file of its own skeleton: rest "
-                "offsets, ZXY rotation channels on every joint, root translation, the clip's "
-                "frame rate."
+                "`bvh`: a BVH file (ZXY rotation channels on every joint, root translation); "
+                "`fbx`: binary FBX 7.4 written by Blender's exporter (limb nodes, one "
+                "animation stack; 501 `fbx_unavailable` where Blender is not installed); "
+                "`glb`: binary glTF 2.0 (a node per joint, a skin, one animation; metres, "
+                "+Y up). Of the clip's own skeleton, or of `rig`'s."
             ),
+        ),
+    ] = None,
+    units: Annotated[
+        Literal["cm", "m", "in"] | None,
+        Query(
+            description="BVH and FBX lengths: centimetres, metres or inches. Default: the "
+            "skeleton's own unit for BVH and ASF/AMC skeletons, centimetres for FBX and glTF "
+            "ones. GLB is always metres."
+        ),
+    ] = None,
+    fps: Annotated[
+        float | None,
+        Query(
+            description="Frame rate of the file (1 to 1000): rotations slerped, translations "
+            "interpolated, the first and last frames kept. Default: the clip's own."
+        ),
+    ] = None,
+    root: Annotated[
+        Literal["keep", "in-place", "extract"] | None,
+        Query(
+            description="`keep` (default): the root as captured; `in-place`: the pelvis's "
+            "horizontal travel removed (height and rotations kept); `extract`: a new top "
+            "joint `root` at floor level under the pelvis carries the travel and the "
+            "facing (yaw) — what Unity's and Unreal's root motion expects."
+        ),
+    ] = None,
+    rig: Annotated[
+        int | None,
+        Query(
+            description="Retarget onto this stored rig (see GET /rigs): its joint names, "
+            "hierarchy and rest offsets, every mapped joint turning as the clip's does, "
+            "unmapped ones (fingers, face, twist bones) at rest, the travel scaled by the "
+            "legs' ratio, feet on the floor."
         ),
     ] = None,
     start: Annotated[
@@ -139,17 +180,43 @@ def download_clip(
     ] = None,
     end: Annotated[float | None, Query(description="Cut up to here (exclusive), seconds.")] = None,
 ) -> Response:
-    """The uploaded bytes, unchanged; with `format=bvh` the clip converted to BVH. With
-    `start` and/or `end` the motion cut to that span: BVH in BVH (same hierarchy, only those
-    frames), ASF/AMC as the ASF and the cut AMC (frames renumbered from 1), and FBX/glTF —
-    which cannot be cut as they are — as the BVH export of the span (as with `format=bvh`)."""
-    download = clip_service.clip_download(
-        library, clip, part, start, end, as_bvh=file_format == "bvh"
+    """The uploaded bytes, unchanged; with `format` the clip converted, with `units`, `fps`,
+    `root` and `rig` as asked (all combinable, and with `start`/`end`). Without `format`,
+    `start` and/or `end` cut the motion: BVH in BVH (same hierarchy, only those frames),
+    ASF/AMC as the ASF and the cut AMC (frames renumbered from 1), and FBX/glTF — which
+    cannot be cut as they are — as the BVH export of the span. `format=bvh` alone is the BVH
+    export the service has always given."""
+    options = {"units": units, "fps": fps, "root": root, "rig": rig}
+    given = [name for name, value in options.items() if value is not None]
+    if file_format is None and given:
+        raise InvalidInput(
+            f"{given[0]}: needs format=bvh, fbx or glb (without `format` the original upload "
+            "is sent as it is)"
+        )
+    cut = start is not None or end is not None
+    if file_format is None and cut and part is None and clip.format in SCENE_FORMATS:
+        file_format = "bvh"  # FBX and glTF cannot be cut as they are: the span's BVH export
+    if file_format is None:
+        download = clip_service.clip_download(library, clip, part, start, end, as_bvh=False)
+        return _file_response(download.filename, download.media_type, download.data)
+    if part is not None:
+        raise InvalidInput(f"part: not with format={file_format} (an export is one file)")
+    frames = None
+    if start is not None or end is not None:
+        frames = span_frames(clip.frame_count, clip.frame_time, 0, start, end)
+    exporter = Exporter(
+        library,
+        ExportOptions(format=file_format, units=units, fps=fps, root=root or "keep", rig=rig),
     )
+    exported = exporter.export(clip, frames)
+    return _file_response(exported.filename, exported.media_type, exported.data)
+
+
+def _file_response(filename: str, media_type: str, data: bytes) -> Response:
     return Response(
-        content=download.data,
-        media_type=download.media_type,
-        headers={"Content-Disposition": _attachment(download.filename)},
+        content=data,
+        media_type=media_type,
+        headers={"Content-Disposition": _attachment(filename)},
     )
 
 

@@ -21,6 +21,8 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from app.errors import (
     DescribeTimeout,
     DescriptorUnavailable,
+    ExportFailed,
+    FbxUnavailable,
     Forbidden,
     HostNotAllowed,
     InvalidInput,
@@ -55,6 +57,8 @@ STATUS_BY_ERROR: dict[type[MocapError], int] = {
     StorageUnavailable: 503,
     DescribeTimeout: 503,
     ServiceBusy: 503,
+    ExportFailed: 503,
+    FbxUnavailable: 501,
     MocapError: 400,
 }
 
@@ -255,7 +259,18 @@ ERROR_EXAMPLES: dict[int, dict[str, tuple[str, str]]] = {
             "finished",
         )
     },
+    501: {
+        "fbx_unavailable": (
+            "FBX export not installed",
+            "format=fbx needs Blender's Python module (the `fbx` extra, bpy 4.4.0), which is "
+            "not installed here; use format=glb or format=bvh",
+        )
+    },
     503: {
+        "export_failed": (
+            "Export worker failed",
+            "writing the FBX file took longer than 60 s (MOCAP_EXPORT_TIMEOUT_SECONDS)",
+        ),
         "storage_unavailable": (
             "Database or disk unavailable",
             "cannot store the uploaded file: No space left on device",

@@ -31,6 +31,10 @@ clip_change_marks
     Where the change feed stood when (recorded now and then by every server), so change rows
     older than the retention can be deleted; the mark they were deleted up to is ``pruned``.
     See :mod:`app.db.changes`.
+rigs
+    Characters' skeletons clips can be retargeted onto (``GET /clips/{id}/file?rig=``): the
+    skeleton and its reference pose as JSON (names, parents, offsets, end sites, rotations),
+    its joint mapping and length unit. Not in any index: nothing searches rigs.
 blobs
     The uploaded files themselves, by sha256, when the database is PostgreSQL (so a replica
     on another machine needs nothing but the database); SQLite keeps them in a directory.
@@ -239,4 +243,25 @@ class Blob(Base):
     sha256: Mapped[str] = mapped_column(String(64), primary_key=True)
     size: Mapped[int] = mapped_column(Integer)
     data: Mapped[bytes] = mapped_column(LargeBinary)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
+
+
+class Rig(Base):
+    """A character's skeleton to retarget onto (see :mod:`app.db.rigs`)."""
+
+    __tablename__ = "rigs"
+    __table_args__ = ({"sqlite_autoincrement": True},)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    name: Mapped[str] = mapped_column(String(255))
+    format: Mapped[str] = mapped_column(String(16))
+    filename: Mapped[str] = mapped_column(String(255))
+    joint_count: Mapped[int] = mapped_column(Integer)
+    skeleton_family: Mapped[str] = mapped_column(String(64))
+    length_unit: Mapped[str] = mapped_column(String(64))
+    metres_per_unit: Mapped[float] = mapped_column(Float)
+    # JSON text: {"names", "parents", "offsets", "end_site", "rotations", "root", "frame_time"}.
+    skeleton: Mapped[str] = mapped_column(Text)
+    # JSON text, the shape of a clip's joint_mapping.
+    joint_mapping: Mapped[str] = mapped_column(Text)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))

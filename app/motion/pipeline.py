@@ -14,6 +14,7 @@ vectors are finite by construction (still stretches included: see
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,7 +23,7 @@ from app.errors import ParseError
 from app.motion.body import Body, build_body
 from app.motion.descriptors import REGISTRY
 from app.motion.model import Motion
-from app.motion.skeleton_map import CANONICAL_INDEX, CANONICAL_JOINTS
+from app.motion.skeleton_map import CANONICAL_INDEX, CANONICAL_JOINTS, SkeletonMap
 
 #: Farthest (body heights) a joint may be from the pelvis, and the pelvis from where it was
 #: one frame before, in a clip that is described. No capture comes near (a million body
@@ -151,11 +152,15 @@ def analyse(
 
 def mapping_summary(body: Body, motion: Motion) -> dict[str, object]:
     """How ``motion``'s joints became ``body``'s canonical joints, as plain JSON data."""
-    mapping = body.mapping
-    if mapping is None:
+    if body.mapping is None:
         return {}
+    return mapping_json(body.mapping, motion.skeleton.names)
+
+
+def mapping_json(mapping: SkeletonMap, names: Sequence[str]) -> dict[str, object]:
+    """A skeleton's mapping as plain JSON data (a clip's ``joint_mapping``, a rig's)."""
     return {
-        "joints": mapping.describe(motion.skeleton.names),
+        "joints": mapping.describe(names),
         "end_sites": list(mapping.end_sites),
         "pose": mapping.pose,
         "mirrored": mapping.mirrored,

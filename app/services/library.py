@@ -58,6 +58,7 @@ from app.services.describe import (
     DescriptorInfo,
     MotionDescriber,
 )
+from app.services.export_pool import ExportPool
 from app.services.parser_pool import ParserPool
 
 log = logging.getLogger(__name__)
@@ -141,6 +142,8 @@ class Library:
     # FBX/glTF readers' worker processes (started when first needed); None: those formats
     # cannot be read (a describer of the tests' own).
     parsers: ParserPool | None = None
+    # FBX writers' worker processes (Blender; started when the first FBX is asked for).
+    exporters: ExportPool | None = None
     write_lock: threading.Lock = field(default_factory=threading.Lock)
     # Renames, relabels and new notes made by this process (the change feed has clips and
     # vectors only): caches of names and labels compare it.
@@ -396,6 +399,8 @@ class Library:
             self.engine.dispose()
             if self.parsers is not None:
                 self.parsers.close()
+            if self.exporters is not None:
+                self.exporters.close()
 
 
 def _open_indexes(
@@ -489,6 +494,7 @@ def open_library(settings: Settings, *, describer: Describer | None = None) -> L
         window_indexes=windows,
         window_keys=window_keys(settings, describer.descriptors),
         parsers=parsers,
+        exporters=ExportPool.from_settings(settings),  # no process until an FBX is asked for
     )
     for name, outdated in library.count_outdated().items():
         if outdated:

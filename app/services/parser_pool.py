@@ -36,6 +36,7 @@ import resource
 import signal
 import threading
 import time
+from collections.abc import Callable
 from contextlib import suppress
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
@@ -60,7 +61,7 @@ log = logging.getLogger(__name__)
 START_SECONDS = 60.0  # a worker's imports, on a busy machine
 RETIRE_AFTER_FILES = 32  # a worker exits (and is replaced) after this many files
 READY_SECONDS = 10.0  # a worker's tidying up after a file
-FORMATS = ("fbx", "gltf")
+FORMATS = ("fbx", "gltf", "fbx-rig", "gltf-rig")  # "-rig": a file without animation is a still
 _START = "start"
 
 
@@ -81,15 +82,22 @@ def parse_scene(
     keep: list[Any] | None = None,
 ) -> ParsedScene:
     """Read one animation of an FBX (``kind="fbx"``) or glTF file, in this process
-    (``keep``: see :func:`~app.motion.formats.fbx.read_fbx`)."""
+    (``keep``: see :func:`~app.motion.formats.fbx.read_fbx`); ``"fbx-rig"`` and
+    ``"gltf-rig"`` read a file without animation as its rest pose (a rig)."""
+    kind, _, mode = kind.partition("-")
+    still = mode == "rig"
     if kind == "fbx":
         from app.motion.formats.fbx import read_fbx
 
-        motion, animations, chosen = read_fbx(data, animation=animation, limits=limits, keep=keep)
+        motion, animations, chosen = read_fbx(
+            data, animation=animation, limits=limits, keep=keep, still=still
+        )
     elif kind == "gltf":
         from app.motion.formats.gltf import read_gltf
 
-        motion, animations, chosen = read_gltf(data, animation=animation, limits=limits)
+        motion, animations, chosen = read_gltf(
+            data, animation=animation, limits=limits, still=still
+        )
     else:
         raise ValueError(f"unknown scene format {kind!r}")
     return ParsedScene(motion, tuple(animations), chosen)
@@ -241,7 +249,13 @@ class ParserPool:
     """Up to ``size`` reused worker processes reading FBX/glTF files (see module docstring).
 
     Thread-safe: each call borrows an idle worker (waiting for one when all are busy).
+    A subclass may run other work in its workers: ``worker_main`` (the process's loop,
+    answering ``(kind, data, animation, limits)`` requests as :func:`_worker_main` does) and
+    ``kinds`` (the request kinds it takes).
     """
+
+    worker_main: Callable[[Connection, int | None], None] = staticmethod(_worker_main)
+    kinds: tuple[str, ...] = FORMATS
 
     def __init__(
         self,
@@ -281,7 +295,7 @@ class ParserPool:
     def _spawn(self) -> _Worker:
         ours, theirs = self._context.Pipe()
         process = self._context.Process(
-            target=_worker_main,
+            target=self.worker_main,
             args=(theirs, self.memory_mb),
             name="mocap-parser",
             daemon=True,
@@ -374,7 +388,7 @@ class ParserPool:
         UnreadableFile
             The worker crashed, ran out of time or memory.
         """
-        if kind not in FORMATS:
+        if kind not in self.kinds:
             raise ValueError(f"unknown scene format {kind!r}")
         for _ in range(self.size + 1):  # an idle worker may have died since its last file
             worker = self._borrow()

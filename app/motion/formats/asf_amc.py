@@ -165,6 +165,25 @@ def parse_asf_amc(
     return motion
 
 
+def parse_asf_rest(
+    asf_text: str,
+    *,
+    limits: ParseLimits = DEFAULT_LIMITS,
+    frame_time: float = DEFAULT_AMC_FRAME_TIME,
+) -> Motion:
+    """An ASF skeleton alone, as one frame of its rest pose (every degree of freedom 0): a
+    rig to retarget onto. Raises like :func:`parse_asf_amc` (``source="ASF"``)."""
+    try:
+        asf = _parse_asf(_split_lines(asf_text), limits)
+        joints = _order_joints(asf, limits)
+    except ParseError as error:
+        raise error.with_source("ASF") from None
+    layout = _column_layout(asf)
+    columns = sum(count for _, count in layout.values())
+    values = np.zeros((1, columns))
+    return _build_motion(asf, joints, layout, values, asf.angle_unit, frame_time, 1)
+
+
 def _split_lines(text: str) -> list[str]:
     # CRLF lines keep their '\r', which every check below strips as whitespace
     return normalise_newlines(text).split("\n")

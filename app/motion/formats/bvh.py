@@ -295,6 +295,17 @@ def parse_bvh(
     return motion
 
 
+def parse_bvh_rest(text: str, *, limits: ParseLimits = DEFAULT_LIMITS) -> Motion:
+    """The hierarchy of a BVH file as one frame of its rest pose, whatever its MOTION section
+    holds (``Frames: 0`` included): a rig to retarget onto. Raises like :func:`parse_bvh`."""
+    lines = _Lines(normalise_newlines(text))
+    joints = _HIERARCHIES.read(lines, limits)
+    channel_count = sum(len(j.channels or ()) for j in joints)
+    # Zero channels: no rotation, and position channels that read as "no change" from the
+    # OFFSETs (see _positions_are_deltas), so the rest pose is the OFFSETs'.
+    return _build_motion(joints, np.zeros((1, channel_count)), 1.0 / 30.0)
+
+
 # The line that ends the hierarchy (the parser's rule: a line whose only token is MOTION).
 _MOTION_LINE_RE = re.compile(r"^[ \t\r\f\v]*motion[ \t\r\f\v]*$\n?", re.IGNORECASE | re.MULTILINE)
 

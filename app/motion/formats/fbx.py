@@ -110,8 +110,10 @@ def read_fbx(
     animation: str | None = None,
     limits: ParseLimits = DEFAULT_LIMITS,
     keep: list[Any] | None = None,
+    still: bool = False,
 ) -> tuple[Motion, list[Animation], str]:
-    """Read one animation of an FBX file.
+    """Read one animation of an FBX file (with ``still``, a file with a skeleton and no
+    animation stack gives its rest pose as one frame: a rig).
 
     ``keep``: a list the loaded ufbx scene (with its stacks and ``Anim`` wrappers) is
     appended to, so the caller decides when, or whether, it is freed: freeing them can crash
@@ -169,21 +171,26 @@ def read_fbx(
     )
     if not is_bone.any():
         raise no_skeleton(loaded.animations, "no bones or skin clusters")
-    chosen = pick_animation(loaded.animations, animation, joints=int(is_bone.sum()))
-    info = loaded.animations[chosen]
     # Only the skeleton's nodes are sampled and counted (meshes, props, other trees are not).
     kept = skeleton_nodes(parents, is_bone, joinable)
     if not len(kept):
         raise no_skeleton(loaded.animations, "no bones or skin clusters")
-    check_frame_budget(limits, info.frame_count, len(kept))
     kept_nodes = [nodes[i] for i in kept]
     rest_t, rest_r, rest_s = _static(kept_nodes)
-    begin = loaded.spans[chosen][0]
-    times = begin + np.arange(info.frame_count) / loaded.fps
-    kept_ids = {node.typed_id: i for i, node in enumerate(kept_nodes)}
-    translation, rotation, scale = _baked(
-        scene, loaded.anims[chosen], kept_ids, times, loaded.fps, rest_t, rest_r, rest_s
-    )
+    if not loaded.animations and still:  # a rig: its rest pose as one frame
+        loaded.animations = [Animation("", 1, 0.0)]
+        info = loaded.animations[0]
+        translation, rotation, scale = rest_t[None], rest_r[None], rest_s[None]
+    else:
+        chosen = pick_animation(loaded.animations, animation, joints=int(is_bone.sum()))
+        info = loaded.animations[chosen]
+        check_frame_budget(limits, info.frame_count, len(kept))
+        begin = loaded.spans[chosen][0]
+        times = begin + np.arange(info.frame_count) / loaded.fps
+        kept_ids = {node.typed_id: i for i, node in enumerate(kept_nodes)}
+        translation, rotation, scale = _baked(
+            scene, loaded.anims[chosen], kept_ids, times, loaded.fps, rest_t, rest_r, rest_s
+        )
     graph = NodeGraph(
         names=[node.name for node in kept_nodes],
         parents=kept_parents(parents, kept),

@@ -363,12 +363,18 @@ def list_gltf_animations(data: bytes, *, limits: ParseLimits = DEFAULT_LIMITS) -
 
 
 def read_gltf(
-    data: bytes, *, animation: str | None = None, limits: ParseLimits = DEFAULT_LIMITS
+    data: bytes,
+    *,
+    animation: str | None = None,
+    limits: ParseLimits = DEFAULT_LIMITS,
+    still: bool = False,
 ) -> tuple[Motion, list[Animation], str]:
     """Read one animation of a glTF 2.0 / GLB / VRMA file (see the module docstring).
 
     Returns ``(motion, animations, chosen)`` and raises like
     :func:`~app.motion.formats.fbx.read_fbx` (:class:`~app.errors.NoAnimation` for a rig).
+    With ``still``, a file with a skeleton and no animation gives its rest (bind) pose as
+    one frame (a rig), animation name ``""``.
     """
     loaded = _Document(data, limits)
     document = loaded.document
@@ -395,6 +401,10 @@ def read_gltf(
         is_bone = _animated_nodes(document, parents)
     if not is_bone.any():
         raise no_skeleton(loaded.animations, "no skin joints, VRM humanoid bones or animated nodes")
+    if not loaded.animations and still:  # a rig: its rest (bind) pose as one frame
+        loaded.animations = [Animation("", 1, 0.0)]
+        loaded.rates, loaded.spans = [DEFAULT_FPS], [(0.0, 0.0)]
+        document._raw["animations"] = [{}]
     chosen = pick_animation(loaded.animations, animation, joints=int(is_bone.sum()))
     info = loaded.animations[chosen]
     joinable = np.ones(count, dtype=bool)
