@@ -18,6 +18,7 @@ from app.api.deps import (
     UploadDep,
 )
 from app.api.errors import error_responses
+from app.api.query_check import CheckedQueryRoute
 from app.api.schemas import ClipOut, ClipPage, ClipUpdate
 from app.config import Settings
 from app.errors import InvalidInput
@@ -26,7 +27,7 @@ from app.services import clips as clip_service
 from app.services.ingest import ingest
 from app.services.uploads import normalise_name, normalise_note
 
-router = APIRouter(prefix="/clips", tags=["clips"])
+router = APIRouter(prefix="/clips", tags=["clips"], route_class=CheckedQueryRoute)
 
 
 @router.post(

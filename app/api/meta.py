@@ -10,10 +10,11 @@ from fastapi import APIRouter
 
 from app.api.deps import LibraryDep
 from app.api.errors import error_responses
+from app.api.query_check import CheckedQueryRoute
 from app.api.schemas import DescriptorList, DescriptorOut, Health, IndexHealth
 
-router = APIRouter(tags=["service"])
-read_router = APIRouter(tags=["service"])
+router = APIRouter(tags=["service"], route_class=CheckedQueryRoute)
+read_router = APIRouter(tags=["service"], route_class=CheckedQueryRoute)
 
 
 @read_router.get("/descriptors", summary="Available descriptors")

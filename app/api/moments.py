@@ -10,12 +10,13 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from app.api.deps import KQuery, LabelQuery, LibraryDep, UploadDep
 from app.api.errors import error_responses
+from app.api.query_check import CheckedQueryRoute
 from app.api.schemas import ClipOut
 from app.db import label_filters as label_db
 from app.services import moments as moment_service
 from app.services.library import Library
 
-router = APIRouter(prefix="/search", tags=["search"])
+router = APIRouter(prefix="/search", tags=["search"], route_class=CheckedQueryRoute)
 
 DEFAULT_DESCRIPTOR = "motion"
 

@@ -51,7 +51,10 @@ class ClipFields(BaseModel):
     frame_count: int = Field(description="Frames in the file.")
     frame_time: float = Field(description="Seconds per frame.")
     duration: float = Field(description="Seconds covered by the clip.")
-    joint_count: int = Field(description="Joints of the skeleton, end sites included.")
+    joint_count: int = Field(
+        description="Joints of the skeleton, end sites (bone tips) not counted; clips stored "
+        "before this was fixed count them until `mocap-index reindex --all`."
+    )
     skeleton_family: str = Field(description="Naming convention the skeleton was matched as.")
     lead_in_frames: int = Field(
         description="Rest-pose frames at the start left out of the descriptors."
@@ -84,7 +87,10 @@ class AnimationOut(BaseModel):
 
     name: str = Field(description="As the file names it (`animation N` when it does not).")
     frame_count: int = Field(description="Frames at the rate it is sampled at.")
-    duration: float = Field(description="Seconds from its first to its last key.")
+    duration: float = Field(
+        description="Seconds its frames cover (`frame_count` / its rate): the clip's own "
+        "`duration` for the selected one."
+    )
     selected: bool = Field(description="Whether this clip holds this animation.")
 
     @classmethod

@@ -16,6 +16,7 @@ from app.api.deps import (
     UploadDep,
 )
 from app.api.errors import error_responses
+from app.api.query_check import CheckedQueryRoute
 from app.api.schemas import (
     ClipOut,
     ClipSearchResponse,
@@ -27,7 +28,7 @@ from app.errors import InvalidInput
 from app.services import search as search_service
 from app.services.library import Library
 
-router = APIRouter(prefix="/search", tags=["search"])
+router = APIRouter(prefix="/search", tags=["search"], route_class=CheckedQueryRoute)
 
 
 @router.get(

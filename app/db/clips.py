@@ -44,15 +44,27 @@ class AnimationRecord:
 
 
 def encode_animations(animations: Sequence[AnimationRecord] | None) -> str | None:
+    # "seconds": the frames' cover (frame_count / rate), as a clip's duration counts; rows
+    # written before it have "duration", first to last key (see decode_animations).
     if animations is None:
         return None
     return json.dumps(
         [
-            {"name": a.name, "frame_count": a.frame_count, "duration": a.duration}
+            {"name": a.name, "frame_count": a.frame_count, "seconds": a.duration}
             | ({"selected": True} if a.selected else {})
             for a in animations
         ]
     )
+
+
+def _covered_seconds(animation: Mapping[str, Any]) -> float:
+    """An animation's seconds as a clip's ``duration`` counts them: ``frame_count / rate``.
+    Older rows kept ``(frame_count - 1) / rate`` (first to last key), which disagreed with
+    the clip's own duration: scaled by ``n / (n - 1)`` (a lone frame's rate is unknown)."""
+    if "seconds" in animation:
+        return float(animation["seconds"])
+    frames, first_to_last = int(animation["frame_count"]), float(animation["duration"])
+    return first_to_last * frames / (frames - 1) if frames > 1 else first_to_last
 
 
 def decode_animations(text: str | None) -> tuple[AnimationRecord, ...] | None:
@@ -60,7 +72,7 @@ def decode_animations(text: str | None) -> tuple[AnimationRecord, ...] | None:
         return None
     return tuple(
         AnimationRecord(
-            str(a["name"]), int(a["frame_count"]), float(a["duration"]), bool(a.get("selected"))
+            str(a["name"]), int(a["frame_count"]), _covered_seconds(a), bool(a.get("selected"))
         )
         for a in json.loads(text)
     )

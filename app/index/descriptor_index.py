@@ -720,8 +720,8 @@ class DescriptorIndex:
     def _rebuild(self, source: VectorSource, watermark: int, problem: str) -> str:
         ids, vectors = source.vectors()
         self.replace_all(ids, vectors, synced_to=watermark, persist=True)
-        # A new, empty library has no index yet: that is no news.
-        level = logging.WARNING if ids.size else logging.INFO
+        # A new, empty library has no index yet: that is no news (the library says so once).
+        level = logging.WARNING if ids.size else logging.DEBUG
         log.log(
             level,
             "rebuilt the %s index from the database (%d vectors, %s): %s",

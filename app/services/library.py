@@ -363,6 +363,7 @@ def _open_indexes(
     every = [*indexes.values(), *windows.values()]
     with ThreadPoolExecutor(max_workers=max(1, min(8, len(every)))) as pool:
         files = dict(zip(every, pool.map(DescriptorIndex.read_file, every), strict=True))
+    fresh = all(isinstance(found, str) for found in files.values())  # no index file at all
     with reads() as session:  # one feed position for every index, taken before their vectors
         watermark = horizon(session)
         for info in descriptors.values():
@@ -372,6 +373,8 @@ def _open_indexes(
         for name, key in keys.items():
             index = windows[name]
             index.load_or_rebuild(StoredWindows(session, key, watermark, index), files.pop(index))
+    if fresh and not any(index.size for index in every):
+        log.info("new library: created its %d empty indexes in %s", len(every), settings.index_dir)
     return IndexSet(indexes), IndexSet(windows)
 
 

@@ -346,3 +346,61 @@ def test_health_missing_counts_clips_without_a_vector(
     assert health["indexes"]["posture"]["missing"] == 0
     assert health["indexes"]["posture"]["size"] == 2
     assert health["indexes"]["kinetic"]["missing"] == 1
+
+
+# -- issue 24, item 20: small things that were wrong ---------------------------------------
+
+
+def test_every_route_refuses_a_query_parameter_it_does_not_take(fake_client: TestClient) -> None:
+    clip = stored(fake_client, "one", [0, 0, 0], [])
+    spec = fake_client.get("/openapi.json").json()
+    checked = 0
+    for path, methods in spec["paths"].items():
+        for method in methods:
+            url = path.replace("{clip_id}", str(clip))
+            response = fake_client.request(method.upper(), f"{url}?name=walk")
+            assert response.status_code == 422, (method, path, response.text)
+            body = response.json()
+            assert body["error"] == "invalid_input", (method, path)
+            assert body["detail"].startswith("name: unknown query parameter"), body
+            checked += 1
+    assert checked >= 15
+    # The message names what the route takes; a known parameter still works.
+    detail = fake_client.get("/clips?name=walk").json()["detail"]
+    assert "label" in detail and "limit" in detail
+    assert fake_client.get("/clips?limit=5").status_code == 200
+    assert fake_client.get("/clips").json()["total"] == 1  # nothing was deleted meanwhile
+
+
+def test_joint_count_leaves_out_end_sites(client: TestClient, fixtures_dir: Any) -> None:
+    from app.motion.formats import read_bvh
+
+    path = fixtures_dir / "bandai_walk_normal_001_first40.bvh"
+    skeleton = read_bvh(path.read_text()).skeleton
+    joints = int((~skeleton.end_site).sum())
+    assert 0 < joints < skeleton.joint_count  # the file has end sites
+    clip = client.post("/clips", files={"file": (path.name, path.read_bytes())}).json()
+    assert clip["joint_count"] == joints
+
+
+def test_animations_stored_before_count_seconds_as_the_clip_does() -> None:
+    # Rows written before: "duration" = first to last key ((n - 1) / rate).
+    old = '[{"name": "walk", "frame_count": 121, "duration": 5.0, "selected": true}]'
+    (walk,) = clip_db.decode_animations(old) or ()
+    assert walk.duration == pytest.approx(121 / 24)
+    record = clip_db.AnimationRecord("run", 10, 10 / 30, False)
+    assert clip_db.decode_animations(clip_db.encode_animations([record])) == (record,)
+
+
+def test_a_fresh_library_says_so_once(settings: Settings, caplog: pytest.LogCaptureFixture) -> None:
+    import logging
+
+    caplog.set_level(logging.INFO)
+    open_library(settings, describer=FakeDescriber()).close()
+    fresh = [r for r in caplog.records if "new library" in r.getMessage()]
+    assert len(fresh) == 1 and fresh[0].levelno == logging.INFO
+    assert not [r for r in caplog.records if "rebuilt" in r.getMessage()]
+    caplog.clear()
+    open_library(settings, describer=FakeDescriber()).close()  # the files are there now
+    said = [r.getMessage() for r in caplog.records if r.levelno >= logging.INFO]
+    assert not [message for message in said if "index" in message], said
