@@ -45,6 +45,7 @@ from app.db.session import create_db_engine, read_sessions, write_sessions
 from app.errors import DescriptorOutdated, InvalidInput, StorageUnavailable
 from app.index.descriptor_index import DescriptorIndex, IndexSet
 from app.index.kinds import IndexOptions
+from app.index.neighbour_scale import NeighbourScales
 from app.index.places import Places, WindowPlaces
 from app.index.sources import StoredVectors, StoredWindows, touched_windows, windows_of_clips
 from app.motion.descriptors import DEFAULT_DESCRIPTOR
@@ -140,6 +141,8 @@ class Library:
     # cannot be read (a describer of the tests' own).
     parsers: ParserPool | None = None
     write_lock: threading.Lock = field(default_factory=threading.Lock)
+    # Each index's typical neighbour distances: the similarity of search results.
+    scales: NeighbourScales = field(default_factory=NeighbourScales, repr=False)
     search_reads: search_db.SearchReads = field(init=False, repr=False)
     _sync_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
     _checked_at: float = field(default=0.0, repr=False)

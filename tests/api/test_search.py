@@ -65,6 +65,7 @@ def test_search_by_clip_is_exact_and_excludes_the_query(fake_client: TestClient)
         "filenames",
         "skeleton_family",
         "distance",
+        "similarity",
     } and first["labels"] == ["even"]
 
 
