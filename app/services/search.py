@@ -122,11 +122,15 @@ def _nearest(
     for _ in range(MAX_ATTEMPTS + (8 if rule is not None else 0)):
         found = index.search(vector, wanted, allowed=allowed, exclude=exclude)
         clips = db.names([*found.ids.tolist(), *also])
-        present = [
-            (int(i), float(d))
-            for i, d in zip(found.ids, found.distances, strict=True)
-            if int(i) in clips
-        ]
+        # Equal distances in id order: the same answer whatever FAISS's heap did.
+        present = sorted(
+            (
+                (int(i), float(d))
+                for i, d in zip(found.ids, found.distances, strict=True)
+                if int(i) in clips
+            ),
+            key=lambda hit: (hit[1], hit[0]),
+        )
         exhausted = len(found) < wanted
         if rule is None:
             # A clip deleted (by another process) between the index search and the row
