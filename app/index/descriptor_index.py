@@ -444,6 +444,41 @@ class DescriptorIndex:
         distances = np.sqrt(np.maximum(squared[0][keep][:k].astype(np.float64), 0.0))
         return Neighbours(found, distances)
 
+    def search_batch(
+        self, queries: np.ndarray, k: int, *, allowed: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The ``k`` nearest stored vectors to each of ``queries`` ``(Q, D)`` in one FAISS
+        call (``allowed`` as in :meth:`search`): ``(Q, k)`` Euclidean distances (float64,
+        ascending) and ids (int64, -1 past the vectors that qualify)."""
+        q = as_vectors(queries, self.dimension)
+        selector = None
+        if allowed is not None:
+            allowed = np.unique(as_ids(allowed))
+            selector = faiss.IDSelectorBatch(allowed)
+        wanted = max(1, min(k, self.size if allowed is None else min(self.size, allowed.size)))
+        if q.shape[0] == 0 or self.size == 0 or (allowed is not None and allowed.size == 0):
+            empty = np.full((q.shape[0], k), -1, np.int64)
+            return np.full((q.shape[0], k), np.inf), empty
+        with self._lock.read():
+            index = self._index
+            params: Any = None
+            if kind_of(index) == IVF:
+                params = faiss.SearchParametersIVF()
+                params.nprobe = index.nlist if selector is not None else self.nprobe
+            elif selector is not None:
+                params = faiss.SearchParameters()
+            if selector is not None:
+                params.sel = selector
+            squared, ids = index.search(q, wanted, params=params)
+        distances = np.full((q.shape[0], k), np.inf)
+        found = np.full((q.shape[0], k), -1, np.int64)
+        valid = ids >= 0
+        distances[:, :wanted] = np.where(
+            valid, np.sqrt(np.maximum(squared.astype(np.float64), 0.0)), np.inf
+        )
+        found[:, :wanted] = ids
+        return distances, found
+
     def scan_cost(self, *, filtered: bool = False) -> int:
         """Roughly how many numbers one search compares: every vector for a flat index (or a
         filtered IVF search), the centroids plus ``nprobe`` cells for IVF."""

@@ -119,6 +119,7 @@ def test_moments_of_a_stored_span(take_client: tuple[TestClient, int, int]) -> N
         "start",
         "end",
         "distance",
+        "similarity",
     }
     distances = [r["distance"] for r in results]
     assert distances == sorted(distances)
@@ -179,7 +180,12 @@ def test_cut_bvh_download_has_the_frames_and_finds_its_source_span(
     found = client.post("/search/moments", files={"file": ("cut.bvh", response.content)})
     assert found.status_code == 200, found.text
     body = found.json()
-    assert body["query"] == {"clip": None, "start": 0.0, "end": pytest.approx(1.5, abs=1e-5)}
+    assert body["query"] == {
+        "clip": None,
+        "start": 0.0,
+        "end": pytest.approx(1.5, abs=1e-5),
+        "stored_clip": None,
+    }
     top = body["results"][0]
     assert top["id"] == take and iou((top["start"], top["end"]), (1.0, 2.5)) >= 0.8
     # It starts where a stored window does: its first part lies on that window, to a frame.
