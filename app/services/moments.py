@@ -269,7 +269,7 @@ class _Finder:
         self.cover = cover * (1 + 1e-6) + 1e-9
         self.facts: dict[int, tuple[str, float, int]] = {}
         self._probed: tuple[np.ndarray, np.ndarray] | None = None  # distances, ids
-        self._to_probes = _Known(1)  # window id -> distance to its nearest probe
+        self._nearest = _Known(2)  # window id -> its nearest part, distance
         self._placed = _Known(4)  # seed window id -> clip id, start, end, distance
 
     def probe(self, wanted: int, allowed: np.ndarray | None) -> tuple[np.ndarray, float]:
@@ -335,10 +335,11 @@ class _Finder:
             stored = vectors.astype(np.float64)
             durations = frames[fresh] * frame_time[fresh]
             spans = np.minimum(self.seconds, durations)
-            part, distance = self._nearest_parts(stored[position[fresh]])
             if self.whole:
+                _, distance = self._nearest_parts(stored[position[fresh]])
                 placed = (starts[fresh] + stops[fresh]) / 2 - spans / 2
             else:
+                part = self._nearest.find(rows.ids[fresh])[1][:, 0].astype(np.int64)
                 placed = starts[fresh] - self.parts.offsets[part]
             placed = np.clip(placed, 0.0, durations - spans)
             if not self.whole:
@@ -361,19 +362,19 @@ class _Finder:
     def _local_minima(
         self, rows: Places, group: np.ndarray, region: np.ndarray, seedable: np.ndarray
     ) -> np.ndarray:
-        """The seeds (rows of ``rows``): windows ``seedable`` nearer their nearest probe than
+        """The seeds (rows of ``rows``): windows ``seedable`` nearer their nearest part than
         the window before them in their clip (or as near) and than the one after — a
         moment's best place, not its slopes. ``region`` (the seedable windows and their
-        neighbours) get their nearest probe measured. Whether a window is a seed depends on
+        neighbours) get their nearest part measured. Whether a window is a seed depends on
         it, its neighbours and the query only, never on which windows the probes found."""
         wanted = np.flatnonzero(region)
-        unknown = wanted[~self._to_probes.find(rows.ids[wanted])[0]]
+        unknown = wanted[~self._nearest.find(rows.ids[wanted])[0]]
         held, vectors = self.index.reconstruct_batch(rows.ids[unknown])
         unknown = unknown[held]
         if unknown.size:
-            _, distance = self._nearest_parts(vectors.astype(np.float64), self.probes)
-            self._to_probes.add(rows.ids[unknown], distance[:, None])
-        delta = self._to_probes.find(rows.ids)[1][:, 0]
+            part, distance = self._nearest_parts(vectors.astype(np.float64))
+            self._nearest.add(rows.ids[unknown], np.stack([part, distance], axis=1))
+        delta = self._nearest.find(rows.ids)[1][:, 1]
         candidates = np.flatnonzero(seedable & ~np.isnan(delta))
         last = len(rows) - 1
         left, right = np.maximum(candidates - 1, 0), np.minimum(candidates + 1, last)
@@ -383,13 +384,11 @@ class _Finder:
         lowest = (~has_left | (here <= delta[left])) & (~has_right | (here < delta[right]))
         return candidates[lowest]
 
-    def _nearest_parts(
-        self, windows: np.ndarray, among: np.ndarray | None = None
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """For each of ``windows`` ``(M, D)``: the first query part (of the rows ``among``,
-        default all) nearest to it, and its distance (exact: the parts near the expanded
-        form's minimum are measured again from their differences)."""
-        q = self.query if among is None else self.query[among]
+    def _nearest_parts(self, windows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For each of ``windows`` ``(M, D)``: the first query part nearest to it, and its
+        distance (exact: the parts near the expanded form's minimum are measured again from
+        their differences)."""
+        q = self.query
         squared = q @ windows.T  # (J, M), turned in place into squared distances
         squared *= -2.0
         squared += (q**2).sum(axis=1)[:, None]
@@ -399,7 +398,7 @@ class _Finder:
         exact = _pair_distances(q[rows], windows[columns])
         order = np.lexsort((rows, exact, columns))  # per column: nearest, then first part
         first = order[np.r_[True, columns[order][1:] != columns[order][:-1]]]
-        return (rows if among is None else among[rows])[first], exact[first]
+        return rows[first], exact[first]
 
     def _fits(
         self,
