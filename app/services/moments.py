@@ -77,9 +77,9 @@ from app.services.uploads import SCENE_FORMATS, Upload
 
 MAX_PER_CLIP = 1000
 MAX_PARTS = 2048  # query parts at most: one per frame up to this many
-PROBE_AHEAD = 4  # a probe search asks for this many times the windows a round needs
-MAX_PROBES = 32  # query parts that search the window index, at most
-PROBE_COVER = 0.1  # ... until every part is this near one (share of a typical distance)
+PROBE_AHEAD = 2  # a probe search asks for this many times the windows a round needs
+MAX_PROBES = 16  # query parts that search the window index, at most
+PROBE_COVER = 0.15  # ... until every part is this near one (share of a typical distance)
 FIRST_FETCH = 128  # windows each probe asks for first (twice as many per widening)
 SPAN_CACHE = 32  # described stored spans kept (a page asking again, a span dragged back)
 
