@@ -426,6 +426,17 @@ class DescriptorIndex:
         wanted = min(k + (1 if exclude is not None else 0), available)
         if wanted <= 0:
             return Neighbours(np.empty(0, np.int64), np.empty(0, np.float64))
+        squared, ids = self._search_selected(q, wanted, selector)
+        keep = ids[0] >= 0  # FAISS pads with -1 when fewer vectors qualify
+        if exclude is not None:
+            keep &= ids[0] != exclude
+        found = ids[0][keep][:k].astype(np.int64)
+        distances = np.sqrt(np.maximum(squared[0][keep][:k].astype(np.float64), 0.0))
+        return Neighbours(found, distances)
+
+    def _search_selected(self, q: np.ndarray, wanted: int, selector: Any) -> tuple[Any, Any]:
+        """FAISS's squared distances and ids of the ``wanted`` nearest to ``q`` among the ids
+        ``selector`` lets through (``None``: all; an IVF index then probes every cell)."""
         with self._lock.read():
             index = self._index
             params: Any = None
@@ -436,13 +447,7 @@ class DescriptorIndex:
                 params = faiss.SearchParameters()
             if selector is not None:
                 params.sel = selector
-            squared, ids = index.search(q, wanted, params=params)
-        keep = ids[0] >= 0  # FAISS pads with -1 when fewer vectors qualify
-        if exclude is not None:
-            keep &= ids[0] != exclude
-        found = ids[0][keep][:k].astype(np.int64)
-        distances = np.sqrt(np.maximum(squared[0][keep][:k].astype(np.float64), 0.0))
-        return Neighbours(found, distances)
+            return index.search(q, wanted, params=params)
 
     def search_batch(
         self, queries: np.ndarray, k: int, *, allowed: np.ndarray | None = None
@@ -459,17 +464,7 @@ class DescriptorIndex:
         if q.shape[0] == 0 or self.size == 0 or (allowed is not None and allowed.size == 0):
             empty = np.full((q.shape[0], k), -1, np.int64)
             return np.full((q.shape[0], k), np.inf), empty
-        with self._lock.read():
-            index = self._index
-            params: Any = None
-            if kind_of(index) == IVF:
-                params = faiss.SearchParametersIVF()
-                params.nprobe = index.nlist if selector is not None else self.nprobe
-            elif selector is not None:
-                params = faiss.SearchParameters()
-            if selector is not None:
-                params.sel = selector
-            squared, ids = index.search(q, wanted, params=params)
+        squared, ids = self._search_selected(q, wanted, selector)
         distances = np.full((q.shape[0], k), np.inf)
         found = np.full((q.shape[0], k), -1, np.int64)
         valid = ids >= 0
