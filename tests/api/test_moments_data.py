@@ -183,3 +183,29 @@ def test_exact_copies_are_placed_to_a_frame(
     with capsys.disabled():
         print(f"\nexact copies: {tried} spans of 1.25-4 s, {len(misses)} not first to a frame")
     assert not misses, misses
+
+
+def test_filtered_clip_search_is_the_unfiltered_ranking_restricted(library: TestClient) -> None:
+    stored = clips(library)
+    by_id = {c["id"]: c for c in stored}
+    labels = sorted({label.lower() for c in stored for label in c["labels"]})
+    rng = np.random.default_rng(61)
+    for _ in range(PROPERTY_QUERIES):
+        clip = stored[int(rng.integers(len(stored)))]
+        descriptor = str(rng.choice(["motion", "posture", "kinetic"]))
+        query = {"clip": clip["id"], "descriptor": descriptor}
+
+        def hits(query: dict[str, Any] = query, **params: Any) -> list[tuple[int, float]]:
+            response = library.get("/search", params={**query, **params})
+            assert response.status_code == 200, response.text
+            return [(h["id"], h["distance"]) for h in response.json()["results"]]
+
+        everything = hits(k=1000)
+        assert len(everything) == len(stored) - 1
+        label = labels[int(rng.integers(len(labels)))]
+        carriers = {c["id"] for c in stored if label in {x.lower() for x in c["labels"]}}
+        assert hits(k=10, label=label) == [h for h in everything if h[0] in carriers][:10]
+        other = [h for h in everything if by_id[h[0]]["licence"] != BANDAI]
+        assert hits(k=10, licence=f"!{BANDAI}") == other[:10]
+        k = int(rng.integers(1, 20))
+        assert hits(k=k) == everything[:k]
