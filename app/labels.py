@@ -60,9 +60,11 @@ def normalise_labels(values: str | Iterable[str] | None) -> tuple[str, ...]:
     Raises
     ------
     InvalidInput
-        A label over :data:`MAX_LABEL_LENGTH` characters, or over :data:`MAX_LABELS` labels.
+        A label over :data:`MAX_LABEL_LENGTH` characters, or over :data:`MAX_LABELS` labels,
+        or holding a NUL character (PostgreSQL stores none).
     """
     labels = tuple(_split(values).values())
+    refuse_nul("labels", labels)
     for label in labels:
         if len(label) > MAX_LABEL_LENGTH:
             raise InvalidInput(f"labels: {label[:20]!r}... is over {MAX_LABEL_LENGTH} characters")
@@ -74,8 +76,23 @@ def normalise_labels(values: str | Iterable[str] | None) -> tuple[str, ...]:
 def label_filter(values: str | Iterable[str] | None) -> tuple[str, ...]:
     """The labels a ``label`` filter asks for, each clip must carry all of them (compared by
     :func:`label_key`); ``()`` means no filter. ``"walk,happy"``, ``["walk", "happy"]`` and
-    ``["walk,", " Happy"]`` all ask for the same two labels; ``""`` and ``[""]`` for none."""
-    return tuple(_split(values).values())
+    ``["walk,", " Happy"]`` all ask for the same two labels; ``""`` and ``[""]`` for none.
+
+    Raises
+    ------
+    InvalidInput
+        A NUL character: no label holds one (PostgreSQL cannot even compare it).
+    """
+    labels = tuple(_split(values).values())
+    refuse_nul("label", labels)
+    return labels
+
+
+def refuse_nul(field: str, values: Iterable[str]) -> None:
+    """:class:`InvalidInput` when a filter's text holds a NUL character, which no stored text
+    holds and PostgreSQL refuses in any statement."""
+    if any("\x00" in value for value in values):
+        raise InvalidInput(f"{field}: contains a NUL character")
 
 
 def merge_labels(stored: Iterable[str], added: Iterable[str]) -> tuple[str, ...]:

@@ -19,6 +19,8 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass
 
+from app.labels import refuse_nul
+
 EXCLUDE = "!"
 
 
@@ -67,4 +69,5 @@ def licence_filter(values: LicenceArg) -> LicenceFilter:
             text = item[len(EXCLUDE) :].strip() if excluded else item
             if text:
                 (drop if excluded else keep).setdefault(licence_key(text), text)
+    refuse_nul("licence", [*keep.values(), *drop.values()])
     return LicenceFilter(tuple(keep.values()), tuple(drop.values()))

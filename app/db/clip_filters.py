@@ -17,13 +17,18 @@ from sqlalchemy import and_, exists, func, not_, or_, select
 from app.db.label_filters import LabelFilter, label_conditions
 from app.db.models import Clip, ClipFile, ClipLabel
 from app.db.rows import Executor
-from app.labels import label_filter
+from app.errors import InvalidInput
+from app.labels import label_filter, refuse_nul
 from app.licences import LicenceArg, LicenceFilter, licence_filter
+
+MAX_ID = 2**63 - 1  # ids are signed 64-bit integers in every database
 
 
 def search_words(text: str | None) -> tuple[str, ...]:
     """The words of a text search (split on white space, lower case, each once)."""
-    return tuple(dict.fromkeys(word.lower() for word in (text or "").split()))
+    words = tuple(dict.fromkeys(word.lower() for word in (text or "").split()))
+    refuse_nul("q", words)
+    return words
 
 
 @dataclass(frozen=True)
@@ -45,6 +50,11 @@ class ClipFilter:
         licence: LicenceArg = None,
         q: str | None = None,
     ) -> ClipFilter:
+        """The filter of these criteria (:class:`InvalidInput` for an id no clip can have:
+        ids are positive 64-bit integers)."""
+        for clip_id in ids or ():
+            if not 0 < clip_id <= MAX_ID:
+                raise InvalidInput(f"ids: {clip_id} is no clip id (1 to {MAX_ID})")
         return cls(
             None if ids is None else tuple(int(i) for i in ids),
             label,

@@ -612,3 +612,28 @@ def test_bulk_delete_by_ids_licence_or_text(
     assert names(fake_client.get("/clips").json()) == ["nc_walk", "by_jump"]
     nothing = fake_client.delete("/clips?confirm=true")
     assert nothing.status_code == 422 and nothing.json()["error"] == "invalid_input"
+
+
+def test_bulk_selections_refuse_ids_no_clip_can_have(fake_client: TestClient) -> None:
+    for body in ({"ids": [2**63], "add": ["x"]}, {"ids": [-1, 0], "add": ["x"]}):
+        response = fake_client.post("/clips/labels", json=body)
+        assert response.status_code == 422 and "is no clip id" in response.json()["detail"]
+    response = fake_client.delete(f"/clips?id={2**64}&confirm=true")
+    assert response.status_code == 422 and response.json()["error"] == "invalid_input"
+
+
+@pytest.mark.parametrize("param", ["q", "licence", "label"])
+def test_filters_with_control_characters_never_fail(fake_client: TestClient, param: str) -> None:
+    stored(fake_client, "one", [0, 0, 0], [])
+    for route in ("/clips", "/search?clip=1"):
+        response = fake_client.get(route, params={param: "a\x00b"})
+        assert response.status_code in (200, 422), (route, response.text)
+
+
+def test_labels_with_a_nul_character_are_refused(fake_client: TestClient) -> None:
+    clip = stored(fake_client, "one", [0, 0, 0], [])
+    for response in (
+        fake_client.post("/clips/labels", json={"all": True, "add": ["a\x00"]}),
+        fake_client.patch(f"/clips/{clip}", json={"labels": ["a\x00"]}),
+    ):
+        assert response.status_code == 422 and "NUL" in response.json()["detail"]
