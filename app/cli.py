@@ -254,6 +254,26 @@ def _configure_import(parser: argparse.ArgumentParser) -> None:
         metavar="LABEL",
         help="a label for every imported clip (repeat for more)",
     )
+    parser.add_argument(
+        "--source",
+        metavar="TEXT",
+        help="where the clips come from (a URL, a dataset), for every clip whose --labels-tsv "
+        "row gives none; a duplicate gets it too",
+    )
+    parser.add_argument(
+        "--licence",
+        "--license",
+        dest="licence",
+        metavar="TEXT",
+        help="the clips' licence (e.g. 'CC BY 4.0'), for every clip whose --labels-tsv row "
+        "gives none; a duplicate gets it too",
+    )
+    parser.add_argument(
+        "--strict",
+        action="store_true",
+        help="exit with 1 when any file failed, also one an earlier run already reported as "
+        "refused (default: only new failures make the exit status 1)",
+    )
     progress = parser.add_mutually_exclusive_group()
     progress.add_argument(
         "--progress",
@@ -330,6 +350,8 @@ def _import(args: argparse.Namespace, settings: Settings) -> int:
         regex=args.labels_regex,
         fixed=args.label,
         columns=args.label_columns,
+        source=args.source,
+        licence=args.licence,
     )
     if rules.left_out:
         print(
@@ -368,20 +390,31 @@ def _import(args: argparse.Namespace, settings: Settings) -> int:
     if report.failed:
         print("failed:")
         for failure in sorted(report.failed, key=lambda f: str(f.path)):
-            print(f"  {failure.path}: {failure.reason}")
+            before = " (refused before)" if failure.path in report.known_refusals else ""
+            print(f"  {failure.path}: {failure.reason}{before}")
     rate = report.done / report.seconds if report.seconds else 0.0
     updated = sum(d.updated for d in report.duplicates)
+    known = len(report.known_refusals)
     print(
         f"{'interrupted: ' if report.interrupted else ''}"
         f"imported {len(report.imported)}, skipped {len(report.duplicates)} as duplicates"
         f"{f' ({updated} given new labels, source or licence)' if updated else ''}, "
-        f"failed {len(report.failed)} of {report.found} clips found, in {report.seconds:.2f} s "
+        f"failed {len(report.failed)}{f' ({known} refused before)' if known else ''} "
+        f"of {report.found} clips found, in {report.seconds:.2f} s "
         f"({rate:.0f} clips/s, {report.workers} worker{'s' if report.workers != 1 else ''})"
     )
     if report.interrupted:
         print("run the same command again to finish the import", file=sys.stderr)
         return 130
-    return 1 if report.failed else 0
+    return import_status(report, strict=args.strict)
+
+
+def import_status(report: Any, *, strict: bool) -> int:
+    """``import``'s exit status: 1 when a clip failed that no earlier run reported (any
+    failure with ``strict``), else 0 — re-running an import over files known to be
+    unreadable is not an error."""
+    failures = report.failed if strict else report.new_failures
+    return 1 if failures else 0
 
 
 # -- fill-synthetic ------------------------------------------------------------------------

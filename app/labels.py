@@ -61,7 +61,8 @@ def normalise_labels(values: str | Iterable[str] | None) -> tuple[str, ...]:
     Raises
     ------
     InvalidInput
-        A label over :data:`MAX_LABEL_LENGTH` characters, or over :data:`MAX_LABELS` labels.
+        A label over :data:`MAX_LABEL_LENGTH` characters, or over :data:`MAX_LABELS` labels,
+        or holding a NUL character (PostgreSQL stores none).
     """
     labels = tuple(_split(values, "labels").values())
     for label in labels:
@@ -77,6 +78,13 @@ def label_filter(values: str | Iterable[str] | None) -> tuple[str, ...]:
     :func:`label_key`); ``()`` means no filter. ``"walk,happy"``, ``["walk", "happy"]`` and
     ``["walk,", " Happy"]`` all ask for the same two labels; ``""`` and ``[""]`` for none."""
     return tuple(_split(values, "label").values())
+
+
+def refuse_nul(field: str, values: Iterable[str]) -> None:
+    """:class:`InvalidInput` naming ``field`` when a filter's text holds a NUL character or a
+    lone surrogate (:func:`~app.text.checked_text`), which no stored text holds."""
+    for value in values:
+        checked_text(field, value)
 
 
 def merge_labels(stored: Iterable[str], added: Iterable[str]) -> tuple[str, ...]:

@@ -14,12 +14,16 @@ from app.api.deps import (
     ClipDep,
     LabelQuery,
     LibraryDep,
+    LicenceQuery,
     SettingsDep,
     UploadDep,
 )
 from app.api.errors import error_responses
-from app.api.schemas import ClipOut, ClipPage, ClipUpdate
+from app.api.query_check import CheckedQueryRoute
+from app.api.schemas import ClipOut, ClipPage, ClipUpdate, LabelChanges, LabelsChanged
 from app.config import Settings
+from app.db.clip_filters import ClipFilter
+from app.db.clips import SORT_KEYS
 from app.errors import InvalidInput
 from app.labels import label_filter, normalise_labels
 from app.services import clips as clip_service
@@ -28,7 +32,7 @@ from app.services.export import Exporter, ExportOptions
 from app.services.ingest import ingest
 from app.services.uploads import SCENE_FORMATS, normalise_name, normalise_note
 
-router = APIRouter(prefix="/clips", tags=["clips"])
+router = APIRouter(prefix="/clips", tags=["clips"], route_class=CheckedQueryRoute)
 
 
 @router.post(
@@ -64,6 +68,30 @@ def create_clip(upload: UploadDep, library: LibraryDep, response: Response) -> C
     return ClipOut.of(result.clip, duplicate=True)
 
 
+TextQuery = Annotated[
+    str | None,
+    Query(
+        description="Text to find, any case: every word (split on spaces) must appear in the "
+        "clip's name, one of its file names, one of its labels, its source or its licence.",
+        examples=["walk cmu"],
+    ),
+]
+SORT_DOC = (
+    "Order: `id` (default: the order clips were stored in), `name` (any case), `created_at` "
+    "(date added), `duration`, `frame_count`; a leading `-` for descending "
+    "(`sort=-created_at`: newest first). Ties go by id."
+)
+
+
+def sort_param(sort: str) -> str:
+    if sort.removeprefix("-") not in SORT_KEYS:
+        raise InvalidInput(
+            f"sort: unknown {sort!r}; use one of {', '.join(SORT_KEYS)}, with a leading - "
+            "for descending"
+        )
+    return sort
+
+
 @router.get("", summary="List clips", responses=error_responses(422, 503))
 def list_clips(
     library: LibraryDep,
@@ -71,11 +99,43 @@ def list_clips(
     limit: Annotated[int, Query(description="Page size, 1 to MOCAP_MAX_PAGE_SIZE.")] = 50,
     offset: Annotated[int, Query(description="Clips to skip (≥ 0).")] = 0,
     label: LabelQuery = None,
+    licence: LicenceQuery = None,
+    q: TextQuery = None,
+    sort: Annotated[str, Query(description=SORT_DOC, examples=["-created_at"])] = "id",
 ) -> ClipPage:
-    """Clips in id order, a page at a time, with the total count."""
+    """Clips a page at a time, with the total count: those carrying every `label`, of the
+    `licence`s asked for and holding every word of `q`, ordered by `sort`."""
     check_page(settings, limit, offset)
-    items, total = clip_service.list_clips(library, label=label, limit=limit, offset=offset)
+    items, total = clip_service.list_clips(
+        library,
+        selection=ClipFilter.of(label=label, licence=licence, q=q),
+        sort=sort_param(sort),
+        limit=limit,
+        offset=offset,
+    )
     return ClipPage(total=total, limit=limit, offset=offset, items=[ClipOut.of(c) for c in items])
+
+
+@router.post(
+    "/labels",
+    summary="Add or remove labels on many clips",
+    dependencies=[WriteAccess],
+    responses=error_responses(400, 401, 403, 422, 503),
+)
+def change_labels(changes: LabelChanges, library: LibraryDep) -> LabelsChanged:
+    """Add `add` to and remove `remove` from every clip the selection keeps — `ids`, and/or
+    `label`, `licence` and `q` as in `GET /clips` (all given must hold), or `all: true` —
+    in one transaction. An added label goes at the end of a clip's labels unless the clip
+    carries it already (in any case). `PATCH /clips/{id}` still *replaces* one clip's
+    labels."""
+    add = normalise_labels(changes.add)
+    remove = normalise_labels(changes.remove)
+    result = clip_service.relabel_clips(
+        library, changes.selection(), add=add, remove=remove, every=changes.all
+    )
+    return LabelsChanged(
+        matched=result.matched, changed=result.changed, added=list(add), removed=list(remove)
+    )
 
 
 @router.get("/{clip_id}", summary="Get a clip", responses=error_responses(404, 422, 503))
@@ -264,7 +324,7 @@ class DeletedClips(BaseModel):
 
 @router.delete(
     "",
-    summary="Delete every clip carrying a label",
+    summary="Delete every clip carrying a label (or chosen otherwise)",
     dependencies=[WriteAccess],
     responses=error_responses(401, 403, 422, 503),
 )
@@ -273,26 +333,36 @@ def delete_clips(
     label: Annotated[
         list[str] | None,
         Query(
-            description="The clips to delete: those carrying this label (required). "
+            description="The clips to delete: those carrying this label. "
             + LABEL_FILTER_DOC.split(". ", 1)[1]
         ),
+    ] = None,
+    licence: LicenceQuery = None,
+    q: TextQuery = None,
+    clip_ids: Annotated[
+        list[int] | None,
+        Query(alias="id", description="These clips, by id (repeat `id`).", examples=[[3, 7]]),
     ] = None,
     confirm: Annotated[
         bool,
         Query(description="Must be `true`; without it nothing is deleted (422 with the count)."),
     ] = False,
 ) -> DeletedClips:
-    """Delete, in one transaction, every clip carrying all the labels given (e.g. the
-    `synthetic` clips `mocap-index fill-synthetic` added), with their vectors and stored files.
-    Without `confirm=true` nothing is deleted and the answer (422) says how many would be."""
+    """Delete, in one transaction, every clip the filters keep — carrying all the `label`s
+    given (e.g. the `synthetic` clips `mocap-index fill-synthetic` added), of the `licence`s,
+    holding the words of `q`, among the `id`s; at least one of them — with their vectors and
+    stored files. Without `confirm=true` nothing is deleted and the answer (422) says how many
+    would be."""
     labels = label_filter(label)
+    selection = ClipFilter.of(ids=clip_ids, label=labels, licence=licence, q=q)
     if not confirm:
-        count = len(clip_service.clips_with_labels(library, labels))
+        count = len(clip_service.clips_with_labels(library, selection))
+        what = f" labelled {', '.join(labels)}" if labels else ""
         raise InvalidInput(
-            f"confirm: this would delete {count} clip{'s' if count != 1 else ''} labelled "
-            f"{', '.join(labels)}; add confirm=true to delete them"
+            f"confirm: this would delete {count} clip{'s' if count != 1 else ''}{what}; add "
+            "confirm=true to delete them"
         )
-    deleted = clip_service.delete_clips_with(library, labels)
+    deleted = clip_service.delete_clips_with(library, selection)
     return DeletedClips(deleted=deleted, labels=list(labels))
 
 

@@ -8,7 +8,7 @@ routes never repeat that check; ``UploadDep`` reads and checks a multipart uploa
 from __future__ import annotations
 
 from collections.abc import AsyncIterator
-from typing import Annotated
+from typing import Annotated, Literal
 
 from fastapi import Depends, File, Form, Query, Request, UploadFile
 
@@ -164,4 +164,22 @@ LABEL_FILTER_DOC = (
 )
 LabelQuery = Annotated[
     list[str] | None, Query(description=LABEL_FILTER_DOC, examples=[["walk", "happy"]])
+]
+CollapseQuery = Annotated[
+    Literal["capture"] | None,
+    Query(
+        description="`capture`: one result per group of near-identical clips (one capture "
+        "stored as several files or formats: distance under every descriptor below the "
+        "thresholds the README gives), the nearest standing for the others, listed in its "
+        "`others`."
+    ),
+]
+LICENCE_FILTER_DOC = (
+    "Only clips of these licences: repeat `licence` or separate with commas for any of them "
+    "(`licence=CC0,CC BY 4.0`); a leading `!` leaves a licence out instead "
+    "(`licence=!CC BY-NC 4.0`: every clip but those, clips without a licence included). "
+    "Compared with the whole licence, case-insensitively; an empty value is no filter."
+)
+LicenceQuery = Annotated[
+    list[str] | None, Query(description=LICENCE_FILTER_DOC, examples=[["!CC BY-NC 4.0"]])
 ]

@@ -11,11 +11,12 @@ from fastapi import APIRouter, Request
 
 from app.api.deps import LibraryDep
 from app.api.errors import error_responses
+from app.api.query_check import CheckedQueryRoute
 from app.api.schemas import DescriptorList, DescriptorOut, Health, IndexHealth
 from app.services.library import Library
 
-router = APIRouter(tags=["service"])
-read_router = APIRouter(tags=["service"])
+router = APIRouter(tags=["service"], route_class=CheckedQueryRoute)
+read_router = APIRouter(tags=["service"], route_class=CheckedQueryRoute)
 
 # /health has threads of its own: when uploads and searches hold every thread of the
 # default pool (40), a load balancer's health check must still be answered at once.

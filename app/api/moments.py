@@ -8,16 +8,36 @@ import anyio
 from fastapi import APIRouter, Query, Request, Response
 from pydantic import BaseModel, ConfigDict, Field
 
-from app.api.deps import ClipIdQuery, KQuery, LabelQuery, LibraryDep, UploadDep
+from app.api.deps import (
+    ClipIdQuery,
+    CollapseQuery,
+    KQuery,
+    LabelQuery,
+    LibraryDep,
+    LicenceQuery,
+    UploadDep,
+)
 from app.api.errors import error_responses
-from app.api.schemas import ClipOut
+from app.api.query_check import CheckedQueryRoute
+from app.api.schemas import OTHERS_DOC, SIMILARITY_DOC, ClipOut, StoredClipRef
 from app.db import label_filters as label_db
 from app.services import moments as moment_service
 from app.services.library import Library
 
-router = APIRouter(prefix="/search", tags=["search"])
+router = APIRouter(prefix="/search", tags=["search"], route_class=CheckedQueryRoute)
 
 DEFAULT_DESCRIPTOR = "motion"
+
+
+class OtherMoment(BaseModel):
+    """The same moment in a near-identical clip (``collapse=capture``)."""
+
+    id: int
+    name: str
+    format: str
+    start: float
+    end: float
+    distance: float
 
 
 class MomentOut(BaseModel):
@@ -31,9 +51,18 @@ class MomentOut(BaseModel):
         description="How far the moment is from the query: the mean Euclidean distance of the "
         "clip's windows inside the moment to the query's own windows at the same offsets."
     )
+    similarity: float = Field(
+        description=SIMILARITY_DOC.replace(
+            "clips to its 10 nearest others",
+            "windows of the query's window length to its 10 nearest windows of other clips",
+        )
+    )
+    others: list[OtherMoment] | None = Field(
+        default=None, exclude_if=lambda value: value is None, description=OTHERS_DOC
+    )
 
     @classmethod
-    def of(cls, moment: moment_service.Moment) -> MomentOut:
+    def of(cls, moment: moment_service.Moment, *, collapsed: bool = False) -> MomentOut:
         return cls(
             id=moment.clip.id,
             name=moment.clip.name,
@@ -42,6 +71,20 @@ class MomentOut(BaseModel):
             start=moment.start,
             end=moment.end,
             distance=moment.distance,
+            similarity=moment.similarity,
+            others=[
+                OtherMoment(
+                    id=o.clip.id,
+                    name=o.clip.name,
+                    format=o.format,
+                    start=o.start,
+                    end=o.end,
+                    distance=o.distance,
+                )
+                for o in moment.others
+            ]
+            if collapsed
+            else None,
         )
 
 
@@ -49,6 +92,11 @@ class MomentQueryOut(BaseModel):
     clip: ClipOut | None = Field(description="The query clip; null for an uploaded file.")
     start: float = Field(description="Start of the query span, seconds from the file's start.")
     end: float = Field(description="End of the query span (exclusive), seconds.")
+    stored_clip: StoredClipRef | None = Field(
+        default=None,
+        description="An uploaded file already in the library (same content): that clip. Null "
+        "otherwise (and for a query by a stored clip, which `clip` is).",
+    )
 
 
 class MomentSearchResponse(BaseModel):
@@ -70,6 +118,7 @@ class MomentSearchResponse(BaseModel):
                             "start": 41.2,
                             "end": 43.7,
                             "distance": 0.41,
+                            "similarity": 88.5,
                         }
                     ],
                 }
@@ -112,16 +161,19 @@ def _body(
     *,
     descriptor: str,
     k: int,
+    collapsed: bool = False,
 ) -> bytes:
+    stored = query.stored_clip
     body = MomentSearchResponse(
         query=MomentQueryOut(
             clip=None if query.clip is None else ClipOut.of(query.clip),
             start=query.start,
             end=query.end,
+            stored_clip=None if stored is None else StoredClipRef(id=stored.id, name=stored.name),
         ),
         descriptor=descriptor,
         k=k,
-        results=[MomentOut.of(m) for m in moments],
+        results=[MomentOut.of(m, collapsed=collapsed) for m in moments],
     )
     return body.model_dump_json().encode()
 
@@ -135,11 +187,22 @@ def _by_clip(
     descriptor: str,
     label: label_db.LabelFilter,
     per_clip: int,
+    licence: list[str] | None = None,
+    collapse: bool = False,
 ) -> bytes:
     query, moments = moment_service.search_moments_by_clip(
-        library, clip, descriptor, start=start, end=end, k=k, per_clip=per_clip, label=label
+        library,
+        clip,
+        descriptor,
+        start=start,
+        end=end,
+        k=k,
+        per_clip=per_clip,
+        label=label,
+        licence=licence,
+        collapse=collapse,
     )
-    return _body(query, moments, descriptor=descriptor, k=k)
+    return _body(query, moments, descriptor=descriptor, k=k, collapsed=collapse)
 
 
 @router.get(
@@ -157,11 +220,16 @@ async def search_moments_by_clip(
     descriptor: MomentDescriptorQuery = DEFAULT_DESCRIPTOR,
     label: LabelQuery = None,
     per_clip: PerClipQuery = 3,
+    licence: LicenceQuery = None,
+    collapse: CollapseQuery = None,
 ) -> Response:
     """The `k` moments (spans of stored clips) nearest to the span [`start`, `end`) of clip
     `clip`, nearest first, at most `per_clip` from one clip; moments overlapping the query
     span itself are left out (other parts of the same clip may come back). Times are seconds
-    from the first frame of the file as uploaded."""
+    from the first frame of the file as uploaded. The answer is the first `k` of one list
+    whatever `k` and the filters: a larger `k` extends it, a `label` or `licence` filter
+    restricts it to the clips kept. `collapse=capture`: one moment per place in a group of
+    near-identical clips."""
     library: Library = request.app.state.library
     body = await anyio.to_thread.run_sync(
         _by_clip,
@@ -173,6 +241,8 @@ async def search_moments_by_clip(
         descriptor,
         label,
         per_clip,
+        licence,
+        collapse == "capture",
         limiter=MOMENT_THREADS,
     )
     return Response(body, media_type="application/json")
@@ -193,12 +263,26 @@ def search_moments_by_upload(
     descriptor: MomentDescriptorQuery = DEFAULT_DESCRIPTOR,
     label: LabelQuery = None,
     per_clip: PerClipQuery = 3,
+    licence: LicenceQuery = None,
+    collapse: CollapseQuery = None,
 ) -> Response:
     """Like `GET /search/moments`, the query being the span [`start`, `end`) of an uploaded
-    file (same fields as `POST /clips`), which is stored nowhere; nothing is excluded."""
+    file (same fields as `POST /clips`), which is stored nowhere; nothing is excluded. When
+    the file is already stored, `query.stored_clip` names that clip."""
+    capture = collapse == "capture"
     query, moments = moment_service.search_moments_by_upload(
-        library, upload, descriptor, start=start, end=end, k=k, per_clip=per_clip, label=label
+        library,
+        upload,
+        descriptor,
+        start=start,
+        end=end,
+        k=k,
+        per_clip=per_clip,
+        label=label,
+        licence=licence,
+        collapse=capture,
     )
     return Response(
-        _body(query, moments, descriptor=descriptor, k=k), media_type="application/json"
+        _body(query, moments, descriptor=descriptor, k=k, collapsed=capture),
+        media_type="application/json",
     )

@@ -9,17 +9,21 @@ from fastapi import APIRouter, Query, Request, Response
 
 from app.api.deps import (
     ClipIdQuery,
+    CollapseQuery,
     DescriptorDep,
     DescriptorQuery,
     KQuery,
     LabelQuery,
     LibraryDep,
+    LicenceQuery,
     UploadDep,
 )
 from app.api.errors import error_responses
+from app.api.query_check import CheckedQueryRoute
 from app.api.schemas import (
     ClipOut,
     ClipSearchResponse,
+    OtherFile,
     SearchHit,
     UploadedClipOut,
     UploadSearchResponse,
@@ -28,7 +32,7 @@ from app.errors import InvalidInput
 from app.services import search as search_service
 from app.services.library import Library
 
-router = APIRouter(prefix="/search", tags=["search"])
+router = APIRouter(prefix="/search", tags=["search"], route_class=CheckedQueryRoute)
 
 
 @router.get(
@@ -43,10 +47,15 @@ async def search_by_clip(
     k: KQuery = 10,
     descriptor: DescriptorQuery = None,
     label: LabelQuery = None,
+    licence: LicenceQuery = None,
+    collapse: CollapseQuery = None,
 ) -> Response:
     """The `k` clips nearest to clip `clip` under `descriptor`, nearest first, never the
-    query clip itself; Euclidean distances. Fewer than `k` only when the library (or the
-    `label`) has fewer other clips."""
+    query clip itself; Euclidean distances and each result's `similarity`. Fewer than `k`
+    only when the library (or the `label` and `licence` filters) has fewer other clips. A
+    filtered search returns the unfiltered ranking restricted to the clips the filters keep.
+    With `collapse=capture` the clips near-identical to the query are set aside in
+    `query_others`."""
     # The hot path (see bench/README.md): no dependency functions (each sync one is a
     # thread-pool hop), one database snapshot in the service, the body serialised once by
     # pydantic. A quick search (an IVF index or a small flat one, no label filter, small k:
@@ -56,11 +65,20 @@ async def search_by_clip(
     library: Library = request.app.state.library
     if descriptor is None:
         descriptor = library.default_descriptor
-    if search_service.is_quick(library, descriptor, k, label):
-        body = _search_by_clip(library, clip, descriptor, k, label)
+    capture = collapse == "capture"
+    if search_service.is_quick(library, descriptor, k, label, licence, capture):
+        body = _search_by_clip(library, clip, descriptor, k, label, licence, capture)
     else:
         body = await anyio.to_thread.run_sync(
-            _search_by_clip, library, clip, descriptor, k, label, limiter=SEARCH_THREADS
+            _search_by_clip,
+            library,
+            clip,
+            descriptor,
+            k,
+            label,
+            licence,
+            capture,
+            limiter=SEARCH_THREADS,
         )
     return Response(body, media_type="application/json")
 
@@ -70,14 +88,23 @@ SEARCH_THREADS = anyio.CapacityLimiter(4)
 
 
 def _search_by_clip(
-    library: Library, clip: int, descriptor: str, k: int, label: list[str] | None
+    library: Library,
+    clip: int,
+    descriptor: str,
+    k: int,
+    label: list[str] | None,
+    licence: list[str] | None,
+    collapse: bool,
 ) -> bytes:
-    query, hits = search_service.search_by_clip_id(library, clip, descriptor, k, label=label)
+    answer = search_service.find_by_clip(
+        library, clip, descriptor, k, label=label, licence=licence, collapse=collapse
+    )
     body = ClipSearchResponse(
-        query=ClipOut.of(query),
+        query=ClipOut.of(answer.clip),
         descriptor=descriptor,
         k=k,
-        results=[SearchHit.of(h) for h in hits],
+        results=[SearchHit.of(h, collapsed=collapse) for h in answer.hits],
+        query_others=[OtherFile.of(h) for h in answer.query_others] if collapse else None,
     )
     return body.model_dump_json().encode()
 
@@ -93,20 +120,26 @@ def search_by_upload(
     descriptor: DescriptorDep,
     k: KQuery = 10,
     label: LabelQuery = None,
+    licence: LicenceQuery = None,
+    collapse: CollapseQuery = None,
     clip: Annotated[
         str | None,
         Query(description="Not allowed here: search by a stored clip with `GET /search?clip=`."),
     ] = None,
 ) -> UploadSearchResponse:
     """Describe the uploaded clip (same fields as `POST /clips`) without storing it and
-    return the `k` nearest stored clips; nothing is excluded (an identical stored clip comes
-    first, at distance 0)."""
+    return the `k` nearest stored clips; nothing is excluded: when the file is already
+    stored, `query.stored_clip` names that clip, which comes first at distance 0."""
     if clip is not None:
         raise InvalidInput("clip: give a clip id or a file, not both")
-    query, hits = search_service.search_by_upload(library, upload, descriptor, k, label=label)
+    capture = collapse == "capture"
+    query, hits = search_service.search_by_upload(
+        library, upload, descriptor, k, label=label, licence=licence, collapse=capture
+    )
+    stored = search_service.stored_copy(library, query.content_hash)
     return UploadSearchResponse(
-        query=UploadedClipOut.of(query),
+        query=UploadedClipOut.of(query, stored),
         descriptor=descriptor,
         k=k,
-        results=[SearchHit.of(h) for h in hits],
+        results=[SearchHit.of(h, collapsed=capture) for h in hits],
     )

@@ -31,6 +31,7 @@ from app.api.clips import check_page
 from app.api.compression import MINIMUM_BYTES
 from app.api.deps import ClipDep, DescriptorDep, LabelQuery, LibraryDep, SettingsDep, UploadDep
 from app.api.errors import error_responses
+from app.api.query_check import CheckedQueryRoute
 from app.api.schemas import ClipOut, ClipPage
 from app.services import library_map as ui_service
 from app.services import previews
@@ -47,7 +48,7 @@ CONTENT_SECURITY_POLICY = (
     "connect-src 'self'; object-src 'none'; base-uri 'none'; frame-ancestors 'none'"
 )
 
-router = APIRouter(tags=["ui"])
+router = APIRouter(tags=["ui"], route_class=CheckedQueryRoute)
 
 
 class SkeletonExtent(BaseModel):

@@ -26,6 +26,7 @@ from typing import Any, Protocol
 import numpy as np
 from sqlalchemy import Connection, Engine, select
 
+from app.db.clip_filters import licence_condition, licence_sql
 from app.db.clips import (
     ClipRecord,
     FileRecord,
@@ -39,6 +40,7 @@ from app.db.label_filters import LabelFilter, clip_ids_with_label, label_keys, l
 from app.db.models import Clip
 from app.db.rows import chunks, decode_vector, utc
 from app.db.vectors import StoredVector, get_vector
+from app.licences import LicenceFilter
 
 _SQLITE_CLIP_COLUMNS = (
     "c.id, c.name, c.format, c.content_hash, c.frame_count, c.frame_time, c.duration, "
@@ -80,6 +82,10 @@ class SearchSnapshot(Protocol):
 
     def clip_ids_with_label(self, label: LabelFilter) -> np.ndarray:
         """Ids of the clips carrying every label of ``label`` (any case)."""
+        ...
+
+    def clip_ids_with_licence(self, licence: LicenceFilter) -> np.ndarray:
+        """Ids (ascending) of the clips ``licence`` allows."""
         ...
 
     def frame_times(self, clip_ids: Sequence[int]) -> dict[int, tuple[str, float, int]]:
@@ -179,6 +185,11 @@ class _SqliteSnapshot:
         rows = self._db.execute(labelled_sql(keys) + " ORDER BY l.clip_id", keys)
         return np.fromiter((r[0] for r in rows), dtype=np.int64)
 
+    def clip_ids_with_licence(self, licence: LicenceFilter) -> np.ndarray:
+        sql, params = licence_sql(licence)
+        rows = self._db.execute(sql + " ORDER BY id", params)
+        return np.fromiter((r[0] for r in rows), dtype=np.int64)
+
     def frame_times(self, clip_ids: Sequence[int]) -> dict[int, tuple[str, float, int]]:
         found: dict[int, tuple[str, float, int]] = {}
         for chunk in chunks([int(i) for i in clip_ids]):
@@ -249,6 +260,10 @@ class _CoreSnapshot:
 
     def clip_ids_with_label(self, label: LabelFilter) -> np.ndarray:
         return clip_ids_with_label(self._db, label)
+
+    def clip_ids_with_licence(self, licence: LicenceFilter) -> np.ndarray:
+        query = select(Clip.id).where(*licence_condition(licence)).order_by(Clip.id)
+        return np.fromiter(self._db.scalars(query), dtype=np.int64)
 
     def frame_times(self, clip_ids: Sequence[int]) -> dict[int, tuple[str, float, int]]:
         found: dict[int, tuple[str, float, int]] = {}

@@ -140,7 +140,9 @@ def analyse(
         frame_count=motion.frame_count,
         frame_time=motion.frame_time,
         duration=motion.duration,
-        joint_count=motion.skeleton.joint_count,
+        # Joints proper: end sites are the tips of bones, not joints (MOCAP_MAX_JOINTS, a
+        # bound on the arrays a file makes, counts them).
+        joint_count=int(np.count_nonzero(~motion.skeleton.end_site)),
         skeleton_family=body.skeleton_family,
         lead_in_frames=body.lead_in_frames,
         warnings=body.warnings,

@@ -83,6 +83,7 @@ class SpanDescription:
     part_length: float = 0.0
     part_offsets: np.ndarray = dataclasses.field(default_factory=lambda: np.empty(0, np.int64))
     parts: np.ndarray = dataclasses.field(default_factory=lambda: np.empty((0, 0), np.float32))
+    animation: str | None = None  # FBX/glTF: the animation read
 
 
 @dataclass(frozen=True)
@@ -379,14 +380,17 @@ class MotionDescriber:
         min_seconds: float = 0.0,
         part_length: Callable[[float], float] | None = None,
         part_step: float = 1 / 30,
+        max_parts: int | None = None,
     ) -> SpanDescription:
         """Describe the part ``[start, end)`` (seconds from the file's first frame; ``None``:
         its start / end) of ``upload`` under descriptor ``name``. A span of the whole clip
         gives the clip's vector. With ``part_length`` (span seconds -> window seconds) also
-        the span's own windows of that length, one every ``part_step`` seconds (and one
-        ending with the span)."""
+        the span's own windows of that length, one every ``part_step`` seconds (at least a
+        frame; more apart when that would make over ``max_parts``) and one ending with the
+        span."""
         started = time.monotonic()
-        motion = self.read(upload, limits, started=started).motion
+        read = self.read(upload, limits, started=started)
+        motion = read.motion
         self._check_time(started, "reading the file")
         body = self._body(motion, upload)
         first, stop = span_frames(
@@ -397,7 +401,13 @@ class MotionDescriber:
         vector = check_vectors({name: REGISTRY[name].compute(part)}, self._descriptors)[name]
         self._check_time(started, "computing the descriptor")
         description = SpanDescription(
-            motion.frame_count, motion.frame_time, lead_in, first, stop, vector
+            motion.frame_count,
+            motion.frame_time,
+            lead_in,
+            first,
+            stop,
+            vector,
+            animation=read.animation,
         )
         if part_length is None:
             return description
@@ -406,7 +416,10 @@ class MotionDescriber:
         if size > part.frame_count:
             return description
         step = max(1, int(np.floor(part_step / motion.frame_time + 0.5)))
-        offsets = np.arange(0, part.frame_count - size + 1, step, dtype=np.int64)
+        places = part.frame_count - size + 1
+        if max_parts is not None and places > max_parts * step:
+            step = -(-places // max_parts)
+        offsets = np.arange(0, places, step, dtype=np.int64)
         if offsets[-1] + size < part.frame_count:
             offsets = np.append(offsets, part.frame_count - size)
         spans = np.stack([np.zeros_like(offsets), offsets, offsets + size], axis=1)

@@ -47,6 +47,7 @@ from app.db.session import create_db_engine, read_sessions, write_sessions
 from app.errors import DescriptorOutdated, InvalidInput, StorageUnavailable
 from app.index.descriptor_index import DescriptorIndex, IndexSet
 from app.index.kinds import IndexOptions
+from app.index.neighbour_scale import NeighbourScales
 from app.index.places import Places, WindowPlaces
 from app.index.sources import StoredVectors, StoredWindows, touched_windows, windows_of_clips
 from app.motion.descriptors import DEFAULT_DESCRIPTOR
@@ -148,6 +149,8 @@ class Library:
     # Renames, relabels and new notes made by this process (the change feed has clips and
     # vectors only): caches of names and labels compare it.
     edits: int = 0
+    # Each index's typical neighbour distances: the similarity of search results.
+    scales: NeighbourScales = field(default_factory=NeighbourScales, repr=False)
     search_reads: search_db.SearchReads = field(init=False, repr=False)
     _sync_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
     _checked_at: float = field(default=0.0, repr=False)
@@ -424,6 +427,7 @@ def _open_indexes(
     every = [*indexes.values(), *windows.values()]
     with ThreadPoolExecutor(max_workers=max(1, min(8, len(every)))) as pool:
         files = dict(zip(every, pool.map(DescriptorIndex.read_file, every), strict=True))
+    fresh = all(isinstance(found, str) for found in files.values())  # no index file at all
     with reads() as session:  # one feed position for every index, taken before their vectors
         watermark = horizon(session)
         pruned = pruned_before(session)
@@ -435,6 +439,8 @@ def _open_indexes(
             index = windows[name]
             found = _followable(files.pop(index), pruned)
             index.load_or_rebuild(StoredWindows(session, key, watermark, index), found)
+    if fresh and not any(index.size for index in every):
+        log.info("new library: created its %d empty indexes in %s", len(every), settings.index_dir)
     return IndexSet(indexes), IndexSet(windows)
 
 

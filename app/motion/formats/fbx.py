@@ -96,7 +96,7 @@ class _Scene:
         for name, (begin, end) in zip(names, self.spans, strict=True):
             span = end - begin if np.isfinite(end - begin) and end >= begin else 0.0
             frames = int(np.floor(span * self.fps + 0.5)) + 1
-            self.animations.append(Animation(name, frames, (frames - 1) / self.fps))
+            self.animations.append(Animation(name, frames, frames / self.fps))
 
 
 def list_fbx_animations(data: bytes, *, limits: ParseLimits = DEFAULT_LIMITS) -> list[Animation]:

@@ -317,7 +317,7 @@ class _Document:
         for name, animation in zip(names, animations, strict=True):
             begin, end, rate = self._timing(animation)
             frames = int(np.floor((end - begin) * rate + 0.5)) + 1
-            self.animations.append(Animation(name, frames, (frames - 1) / rate))
+            self.animations.append(Animation(name, frames, frames / rate))
             self.rates.append(rate)
             self.spans.append((begin, end))
 

@@ -37,7 +37,8 @@ from app.motion.model import Motion, ParseLimits, Skeleton
 
 @dataclass(frozen=True)
 class Animation:
-    """One animation of a file: its name, length in frames at the sampling rate, seconds."""
+    """One animation of a file: its name, length in frames at the sampling rate, and the
+    seconds those frames cover (``frame_count / rate``: a clip's ``duration`` counts so)."""
 
     name: str
     frame_count: int
