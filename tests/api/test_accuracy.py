@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
+from app.config import Settings
 from tests.conftest import SharedData
 
 MIN_ACCURACY = 0.35
@@ -23,6 +24,13 @@ def content_labels(bandai: Path) -> dict[str, str]:
         content = json.loads(clip.with_suffix(".json").read_text())["content"]
         labels[clip.name] = names[content].removeprefix("dataset-1_")
     return labels
+
+
+@pytest.fixture
+def settings(tmp_path: Path) -> Settings:
+    """SQLite only: the accuracy is the descriptors' and FAISS's, and which database keeps
+    the clips changes no hit (every other test of tests/api runs on PostgreSQL too)."""
+    return Settings(data_dir=tmp_path / "data")
 
 
 @pytest.mark.slow
