@@ -34,7 +34,9 @@ def curves(data: bytes) -> list[np.ndarray]:
     import ufbx
 
     scene = ufbx.load_memory(data)
-    return [np.array([key.value for key in curve.keyframes]) for curve in scene.anim_curves]
+    curves = list(scene.anim_curves)  # every object kept referenced: the binding frees them
+    keys = [list(curve.keyframes) for curve in curves]
+    return [np.array([key.value for key in one]) for one in keys]
 
 
 def main() -> None:

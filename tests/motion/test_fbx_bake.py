@@ -124,8 +124,13 @@ def ufbx_curves(path: Path) -> tuple[list[str], list[np.ndarray]]:
     import ufbx
 
     scene = ufbx.load_memory(path.read_bytes())
-    names = sorted(node.name for node in scene.nodes)
-    return names, [np.array([k.value for k in curve.keyframes]) for curve in scene.anim_curves]
+    nodes = list(scene.nodes)  # every object kept referenced: the binding frees them
+    curves = list(scene.anim_curves)
+    keys = [list(curve.keyframes) for curve in curves]
+    values = [np.array([key.value for key in one]) for one in keys]
+    names = sorted(node.name for node in nodes)
+    del keys, curves, nodes, scene
+    return names, values
 
 
 @pytest.mark.parametrize(

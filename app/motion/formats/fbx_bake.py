@@ -4,8 +4,9 @@
 :mod:`app.motion.formats.fbx_writer`).
 
 Blender's exporter (``io_scene_fbx``) bakes an armature's animation by stepping the scene
-through every frame (``scene.frame_set``) and decomposing every bone's matrix in Python: about
-12 ms per frame for a 38-joint skeleton, 90 s for a minute at 120 fps. Every value it reads
+through every frame (``scene.frame_set``) and decomposing every bone's matrix in Python: 2-13
+ms per frame for a 38-joint skeleton on the shared development machine, 16-90 s for a minute
+at 120 fps (bench/bench_fbx_bake.py). Every value it reads
 there is already known to the writer: a bone's local transform in the file is its rest
 transform relative to its parent (the exporter's own ``fbx_object_matrix(rest=True)``) times
 the pose key the writer set, ``[basis | location]``. :func:`numpy_bake` swaps the exporter's
@@ -16,8 +17,11 @@ simplification, the animation stack): the file is still written by Blender's exp
 
 It takes over only the scene it expects — one armature object and its bones, nothing else,
 one key per frame — and first checks the posed scene's current frame against the exporter's
-own transforms; anything else (another Blender version composing bones otherwise) goes to
-the exporter's own bake, slow but right.
+own transforms; it refuses anything else (another Blender version composing bones
+otherwise), and the writer then exports again with the exporter's own bake, slow but right.
+Its values are double precision where Blender's are single: they agree to Blender's
+rounding (a few 1e-4 cm on a bone's offset once a minute's walk has taken the root tens of
+metres away, where Blender's armature-space matrices lose digits).
 """
 
 from __future__ import annotations
@@ -202,8 +206,11 @@ def compatible_eulers(rotation: np.ndarray, previous: np.ndarray) -> np.ndarray:
         (swap_count - swap_count[rows, last_fixed]) % 2 == 1
     )
     chosen = np.where(choice[..., None], candidates[1], candidates[0])  # (N, F, 3)
-    # ... then each angle wrapped to within half a turn of the frame before's.
-    return np.unwrap(np.concatenate([start[:, None], chosen], axis=1), axis=1)[:, 1:]
+    # ... then each angle wrapped by whole turns to within half a turn of the frame
+    # before's: the turns taken off add up along the frames.
+    steps = np.diff(np.concatenate([start[:, None], chosen], axis=1), axis=1)
+    turns = np.cumsum(np.floor(steps / (2.0 * np.pi) + 0.5), axis=1)
+    return chosen - (2.0 * np.pi) * turns
 
 
 def _circle(angles: np.ndarray, reference: np.ndarray) -> np.ndarray:
