@@ -133,19 +133,35 @@ def ufbx_curves(path: Path) -> tuple[list[str], list[np.ndarray]]:
     return names, values
 
 
-@pytest.mark.parametrize(
-    "fixture", ["cmu_mb_02_01_first41.bvh", "bandai_walk_normal_001_first40.bvh"]
-)
-def test_the_numpy_bake_writes_blenders_file(tmp_path: Path, fixture: str) -> None:
+def write_both(fixture: str, folder: Path, *extra: str) -> list[str | None]:
+    """Both files of ``fixture`` in ``folder`` (fbx_bake_runner.py); the bake's refusals."""
     need_fbx()
     done = subprocess.run(
-        [sys.executable, str(RUNNER), str(FIXTURES / fixture), str(tmp_path)],
+        [sys.executable, str(RUNNER), str(FIXTURES / fixture), str(folder), *extra],
         capture_output=True,
         text=True,
         timeout=600,
         check=True,
     )
-    assert json.loads(done.stdout.strip().splitlines()[-1]) == [None]  # baked, not refused
+    refusals: list[str | None] = json.loads(done.stdout.strip().splitlines()[-1])
+    return refusals
+
+
+@pytest.mark.parametrize(
+    "fixture", ["cmu_mb_02_01_first41.bvh", "bandai_walk_normal_001_first40.bvh"]
+)
+def test_the_numpy_bake_writes_blenders_file(tmp_path: Path, fixture: str) -> None:
+    assert write_both(fixture, tmp_path) == [None]  # baked, not refused
+    assert_same_curves(tmp_path)
+
+
+def test_a_scene_the_bake_refuses_is_written_with_blenders_bake(tmp_path: Path) -> None:
+    refusals = write_both("cmu_mb_02_01_first41.bvh", tmp_path, "refuse")
+    assert len(refusals) == 1 and "posed otherwise" in str(refusals[0])
+    assert_same_curves(tmp_path)  # the animation is there: exported again, Blender's way
+
+
+def assert_same_curves(tmp_path: Path) -> None:
     names, fast = ufbx_curves(tmp_path / "numpy.fbx")
     blender_names, slow = ufbx_curves(tmp_path / "blender.fbx")
     assert names == blender_names
