@@ -133,6 +133,7 @@ def _bake(
     if correction is not None:
         keys = unfix @ keys @ fix
     linear = rest[:, None, :3, :3] @ keys
+    del keys  # peak memory: a long clip's (N, F, 3, 3) arrays are hundreds of MB each
     location = np.broadcast_to(rest[:, None, :3, 3], linear.shape[:-1]).copy()
     for n in np.flatnonzero(np.isin(joints, list(locations))).tolist():
         if n not in static:
@@ -154,7 +155,9 @@ def _bake(
     size = np.sqrt(np.einsum("...ij,...ij->...j", linear, linear))  # (N, F, 3)
     mirrors = np.einsum("...i,...i->...", linear[..., 0], np.cross(linear[..., 1], linear[..., 2]))
     size[mirrors < 0] *= -1.0
-    rotation = linear / size[..., None, :]
+    del mirrors
+    rotation = linear
+    rotation /= size[..., None, :]  # in place: the linear part is not needed any more
     previous = np.array([tuple(ob_obj.fbx_object_tx(scene_data)[1]) for ob_obj in objects])
     euler = compatible_eulers(rotation, previous)
     return {ob_obj: (location[n], euler[n], size[n]) for n, ob_obj in enumerate(objects)}
