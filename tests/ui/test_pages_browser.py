@@ -144,7 +144,8 @@ def test_search_previews_are_compact_and_compressed(browser: Any, library: dict[
                 else None
             ),
         )
-        page.goto(f"/#/search?clip={library['bvh']['id']}&k=4")
+        # Every file a result (collapse=off): the library holds twins of one capture.
+        page.goto(f"/#/search?clip={library['bvh']['id']}&k=4&collapse=off")
         expect(page.locator(".card.result")).to_have_count(4)
         figures_drawn(page)
         expect(page.locator(".progress-note")).to_have_text("")  # all came
