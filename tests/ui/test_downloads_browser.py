@@ -325,3 +325,21 @@ def test_rigs_page_uploads_draws_and_deletes(browser: Any, tmp_path: Path) -> No
         expect(page.locator("main .status")).to_contain_text("Deleted rig #")
         listed = httpx.get(f"{base}/rigs", timeout=30).json()
         assert [r["name"] for r in listed["items"]] == ["CMU subject 02"]
+
+        # A stored clip's skeleton as a rig (POST /rigs?from_clip=); a wrong id is said.
+        clip = httpx.post(
+            f"{base}/clips",
+            files={"file": (CMU_BVH.name, CMU_BVH.read_bytes())},
+            headers={"X-API-Key": key},
+            timeout=120,
+        ).json()
+        page.get_by_label("…or clip #").fill(str(clip["id"] + 100))
+        page.get_by_role("button", name="Use its skeleton").click()
+        expect(page.locator("main .status.error")).to_contain_text("Not stored")
+        page.get_by_label("…or clip #").fill(str(clip["id"]))
+        page.get_by_role("button", name="Use its skeleton").click()
+        expect(page.locator("main .status")).to_contain_text("Stored rig #")
+        expect(cards).to_have_count(2)
+        listed = httpx.get(f"{base}/rigs", timeout=30).json()
+        assert listed["items"][-1]["filename"] == clip["filenames"][0]
+        expect(cards.nth(1).locator(".clip-name")).to_have_text(listed["items"][-1]["name"])
