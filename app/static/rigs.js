@@ -93,7 +93,7 @@ export async function renderRigs(main) {
         canvas,
         caption,
         el("h2", { id: headingId, class: "clip-name", title: rig.filename }, rig.name),
-        el("p", { class: "meta format-line" }, formatBadge(rig.format), ` ${plural(rig.joint_count, "joint")} · ${rig.units} · #${rig.id}`),
+        el("p", { class: "meta format-line" }, formatBadge(rig.format), ` ${plural(rig.joint_count, "joint")} · ${unitsText(rig.units)} · #${rig.id}`),
         el("p", { class: "meta filenames" }, rig.filename),
         mapping,
         remove,
@@ -185,6 +185,13 @@ export async function renderRigs(main) {
     resizes.disconnect();
     if (confirm.node.open) confirm.node.close();
   };
+}
+
+/** A rig's length unit: "cm", "in"…, or a scale the service gives as metres ("0.0564444 m"). */
+function unitsText(units) {
+  const scale = /^(\d*\.?\d+(?:e-?\d+)?) m$/.exec(units || "");
+  if (!scale || Number(scale[1]) === 1) return units;
+  return `1 unit = ${Number((Number(scale[1]) * 100).toPrecision(3))} cm`;
 }
 
 /** Which of the rig's joints is each canonical joint, and how it was found. */

@@ -126,6 +126,13 @@ def test_every_page_fits_the_screen(browser: Any, library: dict[str, Any], width
             if name == "rigs":  # drawn, its mapping unfolded
                 page.wait_for_function("() => window.__mocap.rigs().length === 1")
                 page.locator(".rig-card summary").first.click()
+                # A BVH's unit the service gives as a scale in metres reads in centimetres.
+                units = httpx.get(f"{base}/rigs").json()["items"][0]["units"]
+                if units.endswith(" m") and units != "1 m":
+                    cm = f"{float(units[:-2]) * 100:.3g}"
+                    expect(page.locator(".rig-card .format-line")).to_contain_text(
+                        f"1 unit = {cm} cm"
+                    )
             if name == "clip":  # a span picked, the rail zoomed
                 page.get_by_label("From (s)").fill("12")
                 page.get_by_label("To (s)").fill("14.5")
