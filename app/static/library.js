@@ -8,7 +8,7 @@ import { formatBadge } from "./clip.js";
 import { Figure, libraryPlayer } from "./figure.js";
 import { licenceFilter } from "./filters.js";
 import { withKey } from "./keys.js";
-import { clear, debounce, el, formatSeconds, labelChips, nextId, plural } from "./util.js";
+import { clear, debounce, deleteDialog, el, formatSeconds, labelChips, nextId, plural } from "./util.js";
 
 const PAGE_SIZE = 24;
 export const PREVIEW = { fps: 15, maxFrames: 300 }; // small previews: 20 s at 15 fps
@@ -456,31 +456,17 @@ export function card(clip, { selectable = false, onSelect = null } = {}) {
 
 /** "Delete N clips?": resolves to true when confirmed. */
 function confirmDialog() {
-  const headingId = nextId("confirm");
-  const heading = el("h2", { id: headingId });
-  const text = el("p", {});
-  const names = el("ul", { class: "plain confirm-names" });
-  const yes = el("button", { type: "button", class: "danger" }, "Delete");
-  const no = el("button", { type: "button", class: "secondary", autofocus: true }, "Cancel");
-  const node = el("dialog", { class: "confirm", "aria-labelledby": headingId }, heading, text, names, el("div", { class: "dialog-buttons" }, no, yes));
-  let answer = null;
-  no.addEventListener("click", () => node.close());
-  yes.addEventListener("click", () => {
-    answer = true;
-    node.close();
-  });
+  const dialog = deleteDialog();
   return {
-    node,
+    node: dialog.node,
     ask(count, list, what) {
-      heading.textContent = `Delete ${plural(count, "clip")}?`;
-      text.textContent = `${what ? `${what} ` : ""}Their descriptor vectors and stored files are removed too. This cannot be undone.`;
-      clear(names);
       const shown = list.slice(0, 8);
-      for (const name of shown) names.append(el("li", {}, name));
-      if (shown.length && count > shown.length) names.append(el("li", { class: "muted" }, `and ${count - shown.length} more`));
-      answer = null;
-      node.showModal();
-      return new Promise((resolve) => node.addEventListener("close", () => resolve(answer === true), { once: true }));
+      const more = shown.length && count > shown.length ? el("li", { class: "muted" }, `and ${count - shown.length} more`) : null;
+      return dialog.ask(
+        `Delete ${plural(count, "clip")}?`,
+        el("p", {}, `${what ? `${what} ` : ""}Their descriptor vectors and stored files are removed too. This cannot be undone.`),
+        el("ul", { class: "plain confirm-names" }, shown.map((name) => el("li", {}, name)), more),
+      );
     },
   };
 }

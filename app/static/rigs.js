@@ -7,7 +7,7 @@ import { formatBadge } from "./clip.js";
 import { RIG_ACCEPT } from "./download.js";
 import { withKey } from "./keys.js";
 import { drawRig, jointAt } from "./rigfigure.js";
-import { clear, el, nextId, plural } from "./util.js";
+import { clear, deleteDialog, el, nextId, plural } from "./util.js";
 
 export async function renderRigs(main) {
   const ids = { file: nextId("rig-file"), name: nextId("rig-name"), clip: nextId("rig-clip") };
@@ -222,30 +222,9 @@ function mappingTable(mapping) {
 }
 
 function confirmDelete() {
-  const headingId = nextId("confirm-rig");
-  const heading = el("h2", { id: headingId });
-  const yes = el("button", { type: "button", class: "danger" }, "Delete");
-  const no = el("button", { type: "button", class: "secondary", autofocus: true }, "Cancel");
-  const node = el(
-    "dialog",
-    { class: "confirm", "aria-labelledby": headingId },
-    heading,
-    el("p", {}, "Clips are not touched; downloads can no longer use this rig."),
-    el("div", { class: "dialog-buttons" }, no, yes),
-  );
-  let answer = false;
-  no.addEventListener("click", () => node.close());
-  yes.addEventListener("click", () => {
-    answer = true;
-    node.close();
-  });
+  const dialog = deleteDialog();
   return {
-    node,
-    ask(rig) {
-      heading.textContent = `Delete rig “${rig.name}”?`;
-      answer = false;
-      node.showModal();
-      return new Promise((resolve) => node.addEventListener("close", () => resolve(answer), { once: true }));
-    },
+    node: dialog.node,
+    ask: (rig) => dialog.ask(`Delete rig “${rig.name}”?`, el("p", {}, "Clips are not touched; downloads can no longer use this rig.")),
   };
 }

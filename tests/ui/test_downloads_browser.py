@@ -26,7 +26,7 @@ from tests.api.exporting import blender_read, five_frames, need_fbx
 from tests.conftest import FIXTURES_DIR
 from tests.ui.takes import bandai_take
 from tests.ui.test_browser import browser, screenshot, screenshot_of, serve  # noqa: F401
-from tests.ui.test_everyday_ui import browsing
+from tests.ui.test_everyday_ui import browsing, upload
 
 pytestmark = pytest.mark.slow
 
@@ -58,13 +58,6 @@ Frame Time: 0.033333
 0 0 0 0 0 0 0 0 0
 0 0 0 0 10 0 0 0 0
 """
-
-
-def upload(base: str, files: dict[str, tuple[str, bytes]], **data: Any) -> dict[str, Any]:
-    response = httpx.post(f"{base}/clips", files=files, data=data, timeout=120)
-    assert response.status_code in (200, 201), response.text
-    clip: dict[str, Any] = response.json()
-    return clip
 
 
 def dialog_of(page: Any) -> Any:

@@ -20,7 +20,7 @@ import pytest
 from tests.conftest import FIXTURES_DIR
 from tests.ui.takes import bandai_take
 from tests.ui.test_browser import browser, screenshot, serve  # noqa: F401 - fixtures
-from tests.ui.test_everyday_ui import browsing
+from tests.ui.test_everyday_ui import browsing, upload
 
 pytestmark = pytest.mark.slow
 
@@ -29,13 +29,6 @@ CMU_ASF, CMU_AMC = FIXTURES_DIR / "cmu_02.asf", FIXTURES_DIR / "cmu_02_01_first4
 BANDAI = FIXTURES_DIR / "bandai_walk_normal_001_first40.bvh"
 TAKES = 25  # with the three above: two pages of 24
 PHONE = {"width": 360, "height": 740}
-
-
-def upload(base: str, files: dict[str, tuple[str, bytes]], **data: Any) -> dict[str, Any]:
-    response = httpx.post(f"{base}/clips", files=files, data=data, timeout=120)
-    assert response.status_code in (200, 201), response.text
-    clip: dict[str, Any] = response.json()
-    return clip
 
 
 @pytest.fixture(scope="module")
