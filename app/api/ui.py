@@ -9,7 +9,7 @@
 * ``GET /map`` — every clip placed in 2-D (FMDistance's 3-MAN features and a PCA of a
   descriptor), with an outlier flag;
 * ``GET /library/clips`` — the clip list filtered by name and label; ``GET /library/labels``
-  the labels in use.
+  and ``GET /library/licences`` the labels and licences in use.
 
 The computations live in :mod:`app.services.previews` (stick figures) and
 :mod:`app.services.library_map` (the map, the filtered list).
@@ -163,6 +163,11 @@ class MapOut(BaseModel):
 
 class LabelCount(BaseModel):
     label: str
+    count: int
+
+
+class LicenceCount(BaseModel):
+    licence: str = Field(description="As stored (one spelling per licence, any case).")
     count: int
 
 
@@ -359,6 +364,16 @@ def list_labels(library: LibraryDep) -> list[LabelCount]:
     """Every label carried by some clip, with its number of clips, most used first (labels
     differing only in case count as one)."""
     return [LabelCount(label=label, count=n) for label, n in ui_service.label_counts(library)]
+
+
+@router.get("/library/licences", summary="Licences in use")
+def list_licences(library: LibraryDep) -> list[LicenceCount]:
+    """Every licence some clip has, with its number of clips, most used first (licences
+    differing only in case or surrounding spaces count as one, as the `licence=` filters
+    compare them): what the UI's licence filter offers."""
+    return [
+        LicenceCount(licence=licence, count=n) for licence, n in ui_service.licence_counts(library)
+    ]
 
 
 def index_page() -> FileResponse:

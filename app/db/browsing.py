@@ -77,3 +77,17 @@ def label_counts(session: Session) -> list[tuple[str, int]]:
         .order_by(func.count().desc(), ClipLabel.label_key)
     ).all()
     return [(str(label), int(count)) for label, count in rows]
+
+
+def licence_counts(session: Session) -> list[tuple[str, int]]:
+    """Every licence in use (one spelling per licence compared as filters compare them:
+    trimmed, any case) with its number of clips, most used first; clips without one are not
+    counted."""
+    key = func.lower(func.trim(Clip.licence))
+    rows = session.execute(
+        select(func.min(func.trim(Clip.licence)), func.count())
+        .where(Clip.licence.is_not(None), key != "")
+        .group_by(key)
+        .order_by(func.count().desc(), key)
+    ).all()
+    return [(str(licence), int(count)) for licence, count in rows]

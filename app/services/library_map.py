@@ -526,3 +526,9 @@ def label_counts(library: Library) -> list[tuple[str, int]]:
     """Every label in use with its number of clips, most used first."""
     with library.reads() as session:
         return browse_db.label_counts(session)
+
+
+def licence_counts(library: Library) -> list[tuple[str, int]]:
+    """Every licence in use with its number of clips, most used first."""
+    with library.reads() as session:
+        return browse_db.licence_counts(session)

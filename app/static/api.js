@@ -64,11 +64,14 @@ async function errorOf(response) {
   return new ApiError(response.status, code, detail);
 }
 
+/** path?params: empty values left out; an array value repeats its key (id=1&id=2). */
 function url(path, params) {
   const query = new URLSearchParams();
   for (const [key, value] of Object.entries(params || {})) {
-    if (value === null || value === undefined || value === "") continue;
-    query.set(key, String(value));
+    for (const one of Array.isArray(value) ? value : [value]) {
+      if (one === null || one === undefined || one === "") continue;
+      query.append(key, String(one));
+    }
   }
   const text = query.toString();
   return text ? `${path}?${text}` : path;
@@ -133,16 +136,24 @@ function dispositionName(header, fallback) {
 
 /**
  * Download a file the API serves, with the API key if one is set (a plain link could not
- * send it): the browser saves it under the name the service gives.
+ * send it): the browser saves it under the name the service gives. With `body` it is a POST
+ * of that JSON (POST /exports). With quietAuth a 401/403 is only thrown (see sendJson).
  */
-export async function download(path, params, fallbackName = "download") {
+export async function download(path, params, fallbackName = "download", { body, quietAuth = false } = {}) {
   let response;
+  const request =
+    body === undefined
+      ? { headers: authHeaders() }
+      : { method: "POST", headers: { "Content-Type": "application/json", ...authHeaders() }, body: JSON.stringify(body) };
   try {
-    response = await fetch(url(path, params), { headers: authHeaders() });
+    response = await fetch(url(path, params), request);
   } catch (error) {
     throw new ApiError(0, "network_error", `the service cannot be reached (${error.message})`);
   }
-  if (!response.ok) throw reportAuth(await errorOf(response));
+  if (!response.ok) {
+    const error = await errorOf(response);
+    throw quietAuth ? error : reportAuth(error);
+  }
   const name = dispositionName(response.headers.get("Content-Disposition"), fallbackName);
   const link = document.createElement("a");
   link.href = URL.createObjectURL(await response.blob());
@@ -156,9 +167,10 @@ export async function download(path, params, fallbackName = "download") {
 
 /**
  * POST multipart form data with upload progress (fetch has none): resolves to
- * {status, body}; rejects with ApiError. onProgress(fraction) gets 0..1.
+ * {status, body}; rejects with ApiError. onProgress(fraction) gets 0..1; quietAuth: see
+ * sendJson.
  */
-export function postForm(path, params, form, { onProgress, signal } = {}) {
+export function postForm(path, params, form, { onProgress, signal, quietAuth = false } = {}) {
   return new Promise((resolve, reject) => {
     const request = new XMLHttpRequest();
     request.open("POST", url(path, params));
@@ -184,7 +196,8 @@ export function postForm(path, params, form, { onProgress, signal } = {}) {
           body && typeof body.detail === "string"
             ? body.detail
             : `${request.status} ${request.statusText || "error"}`;
-        reject(reportAuth(new ApiError(request.status, (body && body.error) || "http_error", detail)));
+        const error = new ApiError(request.status, (body && body.error) || "http_error", detail);
+        reject(quietAuth ? error : reportAuth(error));
       }
     });
     request.addEventListener("error", () =>
@@ -199,10 +212,10 @@ export function postForm(path, params, form, { onProgress, signal } = {}) {
 }
 
 /**
- * The form fields of one clip: {file} or {skeleton, motion}, plus labels and (FBX/glTF) the
- * animation to read (`clip.animation`).
+ * The form fields of one clip: {file} or {skeleton, motion}, plus labels, `fields` (source,
+ * licence: empty ones left out) and (FBX/glTF) the animation to read (`clip.animation`).
  */
-export function clipForm(clip, labels = []) {
+export function clipForm(clip, labels = [], fields = {}) {
   const form = new FormData();
   if (clip.bvh) {
     form.append("file", clip.bvh, clip.bvh.name);
@@ -211,6 +224,7 @@ export function clipForm(clip, labels = []) {
     form.append("motion", clip.amc, clip.amc.name);
   }
   for (const label of labels) form.append("labels", label);
+  for (const [name, value] of Object.entries(fields)) if (value) form.append(name, value);
   if (clip.animation) form.append("animation", clip.animation);
   return form;
 }
@@ -243,4 +257,15 @@ export function descriptors() {
 /** Labels in use with their counts (not cached: uploads change them). */
 export function labels() {
   return getJson("/library/labels");
+}
+
+/** Licences in use with their counts, most used first (not cached). */
+export function licences() {
+  return getJson("/library/licences");
+}
+
+/** Stored rigs, in id order (the first 200: a rig picker's worth). */
+export async function rigs() {
+  const page = await getJson("/rigs", { limit: 200 });
+  return page.items;
 }

@@ -1,4 +1,4 @@
-// The single page: hash routes #/library, #/upload, #/search, #/map and #/clips/{id} -> one
+// The single page: hash routes #/library, #/upload, #/search, #/map, #/rigs and #/clips/{id} -> one
 // view at a time. Only hashes starting with "#/" are routes: "#view" (the skip link) is not.
 
 import { apiKey, onAuthError, setApiKey } from "./api.js";
@@ -8,12 +8,14 @@ import { renderUpload } from "./upload.js";
 import { renderSearch } from "./search.js";
 import { renderMap } from "./map.js";
 import { renderClip } from "./clip.js";
+import { renderRigs } from "./rigs.js";
 
 const VIEWS = {
   library: { title: "Library", render: renderLibrary },
   upload: { title: "Upload", render: renderUpload },
   search: { title: "Search", render: renderSearch },
   map: { title: "Map", render: renderMap },
+  rigs: { title: "Rigs", render: renderRigs },
   clip: { title: "Clip", render: renderClip },
 };
 

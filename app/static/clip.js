@@ -4,10 +4,12 @@
 // Changing a clip may need the API key: on 401/403 the page asks for it next to the button
 // that needed it and tries again, keeping what was typed.
 
-import { ApiError, apiKey, download, getJson, sendJson, setApiKey } from "./api.js";
+import { download, getJson, sendJson } from "./api.js";
+import { openDownload } from "./download.js";
+import { withKey } from "./keys.js";
 import { Figure, Player, loadSkeleton } from "./figure.js";
 import { Timeline, formatTime } from "./timeline.js";
-import { clear, el, labelChips, nextId, plural } from "./util.js";
+import { el, labelChips, nextId, plural } from "./util.js";
 
 const MAX_FRAMES = 600; // per skeleton request (the API's cap)
 const OVERVIEW_FPS = 30;
@@ -164,7 +166,18 @@ export async function renderClip(main, params, { navigate, notify }) {
     el("div", { class: "field" }, el("label", { for: spanIds.end }, "To (s)"), spanEnd),
     el("div", { class: "field check" }, loopSpan, el("label", { for: spanIds.loop }, "Play only the span")),
     el("div", { class: "field" }, el("button", { type: "submit" }, "Find moments like this span")),
+    el("div", { class: "field" }, el("button", { type: "button", class: "secondary", onclick: () => downloadSpan() }, "Download the span…")),
   );
+  async function downloadSpan() {
+    const [start, end] = spanValues();
+    if (!(end > start)) {
+      actionStatus.textContent = "Pick a span: its end must come after its start.";
+      spanEnd.focus();
+      return;
+    }
+    const name = await openDownload({ clip, span: [start, end] });
+    if (name) actionStatus.textContent = `Downloaded ${name}.`;
+  }
   const spanValues = () => [Number.parseFloat(spanStart.value), Number.parseFloat(spanEnd.value)];
   function showSpan() {
     const [from, to] = spanValues();
@@ -300,6 +313,18 @@ export async function renderClip(main, params, { navigate, notify }) {
     });
     downloads.append(button);
   };
+  if (clip.filenames.length) {
+    const choose = el(
+      "button",
+      { type: "button", class: "download-choose", title: "BVH, FBX or GLB; on one of your rigs; root kept, in place or extracted; units; frame rate" },
+      "Download…",
+    );
+    choose.addEventListener("click", async () => {
+      const name = await openDownload({ clip, span: null });
+      if (name) actionStatus.textContent = `Downloaded ${name}.`;
+    });
+    downloads.append(choose);
+  }
   if (!clip.filenames.length) {
     downloads.append(el("p", { class: "muted" }, "Synthetic clip: no stored file to download."));
   } else if (clip.filenames.length === 1) {
@@ -318,25 +343,13 @@ export async function renderClip(main, params, { navigate, notify }) {
   const deleteButton = el("button", { type: "button", class: "danger" }, "Delete clip…");
   const dialog = confirmDialog(clip);
 
-  const asking = (error) => error instanceof ApiError && (error.status === 401 || error.status === 403);
-
-  /** Run `action`; on 401/403 ask for the key next to the buttons and run it again. */
-  async function withKey(action, what) {
-    try {
-      return await action();
-    } catch (error) {
-      if (!asking(error)) throw error;
-      const key = await askForKey(keyArea, error, what);
-      if (key === null) return undefined;
-      return withKey(action, what);
-    }
-  }
 
   form.node.addEventListener("submit", async (event) => {
     event.preventDefault();
     actionStatus.textContent = "Saving…";
     try {
       const saved = await withKey(
+        keyArea,
         () => sendJson("PATCH", `/clips/${clip.id}`, form.changes(), { quietAuth: true }),
         "save the changes",
       );
@@ -356,6 +369,7 @@ export async function renderClip(main, params, { navigate, notify }) {
     actionStatus.textContent = "Deleting…";
     try {
       const done = await withKey(
+        keyArea,
         () => sendJson("DELETE", `/clips/${clip.id}`, undefined, { quietAuth: true }),
         "delete the clip",
       );
@@ -489,34 +503,4 @@ function confirmDialog(clip) {
     if (confirmed) confirmed();
   });
   return { node, onConfirm: (fn) => (confirmed = fn) };
-}
-
-/** Ask for the API key in `area`; resolves to the key, or null when the user gives up. */
-function askForKey(area, error, what) {
-  return new Promise((resolve) => {
-    const inputId = nextId("clip-key");
-    const input = el("input", { id: inputId, type: "password", autocomplete: "off", value: apiKey() });
-    const reason = error.status === 401 ? `The service needs an API key to ${what}.` : `The API key was refused (${error.detail}); another key is needed to ${what}.`;
-    const done = (key) => {
-      clear(area);
-      resolve(key);
-    };
-    const form = el(
-      "form",
-      { class: "key-form inline", "aria-label": "Give the API key" },
-      el("p", { role: "alert" }, reason),
-      el("label", { for: inputId }, "API key"),
-      input,
-      el("button", { type: "submit" }, "Use this key"),
-      el("button", { type: "button", class: "secondary", onclick: () => done(null) }, "Cancel"),
-    );
-    form.addEventListener("submit", (event) => {
-      event.preventDefault();
-      setApiKey(input.value.trim());
-      done(input.value.trim());
-    });
-    clear(area);
-    area.append(form);
-    input.focus();
-  });
 }

@@ -3,8 +3,10 @@
 // In "moments" mode the results are spans of clips (GET/POST /search/moments): each plays
 // only its span, with a thin timeline showing where in its clip it lies.
 
-import { clipForm, descriptors, download as downloadFile, fileAnimations, getJson, labels as fetchLabels, mayHoldAnimations, postForm } from "./api.js";
+import { clipForm, descriptors, fileAnimations, getJson, labels as fetchLabels, mayHoldAnimations, postForm } from "./api.js";
 import { formatBadge } from "./clip.js";
+import { openDownload } from "./download.js";
+import { licenceFilter } from "./filters.js";
 import { Figure, Player } from "./figure.js";
 import { Timeline } from "./timeline.js";
 import { ACCEPT, dropTarget, groupFiles } from "./upload.js";
@@ -21,6 +23,58 @@ const DEFAULT_K = 8;
 // answers up to MOCAP_MAX_K (GET /search?k=...).
 const MAX_K = 50;
 
+// What "97 % similar" means (the API's `similarity`), in one line.
+const SIMILARITY_HELP =
+  "“97 % similar”: nearer to the query than 97 % of the library's typical neighbours are to each other under this descriptor (50 %: as near as a typical neighbour).";
+const MOMENT_SIMILARITY_HELP =
+  "“97 % similar”: nearer to the query than 97 % of the library's typical nearest moments are to each other (50 %: as near as a typical neighbour).";
+
+/** "97 % similar" and the raw distance, with the explanation on hover. */
+function similarityLine(hit, help) {
+  const percent = Number.isFinite(hit.similarity) ? `${Math.round(hit.similarity)} % similar` : "–";
+  return el(
+    "p",
+    { class: "meta distance", title: help },
+    el("strong", { class: "similarity-value" }, percent),
+    " · distance ",
+    el("span", { class: "distance-value" }, formatNumber(hit.distance, 4)),
+  );
+}
+
+/**
+ * "+2 other files of this capture" (collapse=capture): the near-identical clips a result
+ * stands for, each a link; moments give their span.
+ */
+function othersList(others, what = "of this capture") {
+  if (!Array.isArray(others) || !others.length) return null;
+  const n = others.length;
+  return el(
+    "details",
+    { class: "others" },
+    el("summary", {}, `+${n} other file${n === 1 ? "" : "s"} ${what}`),
+    el(
+      "ul",
+      { class: "plain" },
+      others.map((o) =>
+        el(
+          "li",
+          { dataset: { clipId: String(o.id) } },
+          el("a", { href: `#/clips/${o.id}` }, o.name),
+          " ",
+          formatBadge(o.format),
+          el(
+            "span",
+            { class: "muted" },
+            " ",
+            o.start !== undefined ? `${formatSeconds(o.start)} – ${formatSeconds(o.end)}` : (o.filenames || []).join(", "),
+            ` · distance ${formatNumber(o.distance, 4)}`,
+          ),
+        ),
+      ),
+    ),
+  );
+}
+
 export async function renderSearch(main, params, { navigate }) {
   const clipParam = Number.parseInt(params.get("clip") || "", 10);
   const askedK = Number.parseInt(params.get("k") || "", 10) || DEFAULT_K;
@@ -32,6 +86,9 @@ export async function renderSearch(main, params, { navigate }) {
     mode: params.get("mode") === "moments" ? "moments" : "clips",
     start: params.get("start") ?? "",
     end: params.get("end") ?? "",
+    licence: params.get("licence") || "",
+    // One result per capture unless the address says otherwise (collapse=off).
+    collapse: params.get("collapse") !== "off",
   };
   let capped = askedK > MAX_K; // say so rather than silently showing fewer
 
@@ -46,6 +103,7 @@ export async function renderSearch(main, params, { navigate }) {
     label: nextId("label"),
     mode: nextId("mode"),
     animation: nextId("animation"),
+    collapse: nextId("collapse"),
   };
   const modeButtons = ["clips", "moments"].map((value) =>
     el("input", { type: "radio", name: ids.mode, value, id: `${ids.mode}-${value}`, checked: state.mode === value }),
@@ -73,6 +131,14 @@ export async function renderSearch(main, params, { navigate }) {
   const kInput = el("input", { id: ids.k, type: "number", min: "1", value: String(state.k), "aria-describedby": ids.kHelp });
   const kHelp = el("p", { id: ids.kHelp, class: "hint" }, `Results: 1–${MAX_K} on this page, as each one is animated; the API (GET /search?k=) gives more.`);
   const labelSelect = el("select", { id: ids.label }, el("option", { value: "" }, "Any"));
+  const licence = licenceFilter(state.licence);
+  const collapseBox = el("input", { id: ids.collapse, type: "checkbox", checked: state.collapse });
+  const collapseField = el(
+    "div",
+    { class: "field check", title: "One capture stored as several files or formats (ASF/AMC and BVH conversions) takes one place: “+2 other files of this capture”." },
+    collapseBox,
+    el("label", { for: ids.collapse }, "One result per capture"),
+  );
   const status = el("p", { class: "status", role: "status", "aria-live": "polite" });
   const progress = el("p", { class: "hint progress-note", "aria-live": "off" });
   // A dropped FBX/glTF file of several animations: which one to search with.
@@ -84,6 +150,16 @@ export async function renderSearch(main, params, { navigate }) {
     animationSelect,
   );
   const results = el("ol", { class: "cards results", "aria-label": "Query and nearest clips" });
+  const similarityHelp = el("p", { class: "hint similarity-help" }, SIMILARITY_HELP);
+  // Every result at once, as one ZIP (POST /exports), with the options of the Download dialog.
+  let shown = []; // [{id, name, start?, end?}] of the results on the page
+  const downloadAll = el("button", { type: "button", class: "secondary download-all" }, "Download all (ZIP)…");
+  const resultsBar = el("div", { class: "results-bar", hidden: true }, downloadAll);
+  downloadAll.addEventListener("click", async () => {
+    const items = shown.slice();
+    const name = await openDownload({ items, title: "Every result shown, each as its own file, with a manifest.csv." });
+    if (name) say(`Downloaded ${name} (${plural(items.length, "clip")}).`);
+  });
 
   // Nothing plays until there are results to play.
   const player = new Player({ playing: false });
@@ -101,6 +177,8 @@ export async function renderSearch(main, params, { navigate }) {
     el("div", { class: "field" }, el("label", { for: ids.descriptor }, "Descriptor"), descriptorSelect),
     el("div", { class: "field narrow" }, el("label", { for: ids.k }, "Results"), kInput),
     el("div", { class: "field" }, el("label", { for: ids.label }, "Only label"), labelSelect),
+    licence.node,
+    collapseField,
     el("div", { class: "field" }, el("button", { type: "submit" }, "Search")),
   );
   const dropHint = el(
@@ -108,7 +186,19 @@ export async function renderSearch(main, params, { navigate }) {
     { class: "hint drop-hint" },
     "Drop a motion file — BVH, FBX, glTF/GLB or VRMA, or an ASF skeleton with its AMC motion — anywhere on this page to search with it.",
   );
-  main.append(el("div", { class: "view-head" }, el("h1", {}, "Search")), form, descriptorHelp, kHelp, dropHint, status, progress, controls, results);
+  main.append(
+    el("div", { class: "view-head" }, el("h1", {}, "Search")),
+    form,
+    descriptorHelp,
+    kHelp,
+    similarityHelp,
+    dropHint,
+    status,
+    progress,
+    controls,
+    resultsBar,
+    results,
+  );
 
   /** A status line; failures look like errors (red, announced at once). */
   function say(message) {
@@ -202,7 +292,7 @@ export async function renderSearch(main, params, { navigate }) {
   function searchParams() {
     // The URL keeps the k asked for: the page shows at most MAX_K, and says so.
     const k = Math.max(1, Number.parseInt(kInput.value, 10) || DEFAULT_K);
-    const params = { descriptor: state.descriptor, k, label: state.label };
+    const params = { descriptor: state.descriptor, k, label: state.label, licence: state.licence, collapse: state.collapse ? "" : "off" };
     return state.mode === "moments" ? { ...params, mode: "moments" } : params;
   }
 
@@ -256,15 +346,57 @@ export async function renderSearch(main, params, { navigate }) {
     if (clipId !== null && role !== "query") {
       node.classList.add("clickable");
       node.addEventListener("click", (event) => {
-        if (event.target.closest("a, button")) return;
+        if (event.target.closest("a, button, details")) return;
         navigate("search", { clip: clipId, ...searchParams(), ...(span ? { start: span[0], end: span[1] } : {}) });
       });
     }
     return { node, figure };
   }
 
-  function showResults(query, hits, queryFigureLoad) {
+  /** A result's "Download…" (the dialog: format, rig, root, units, fps; a moment's span). */
+  function downloadButton(hit, span = null) {
+    const label = span ? `Download ${hit.name} from ${formatSeconds(span[0])} to ${formatSeconds(span[1])}` : `Download ${hit.name}`;
+    // A moment's link is the cut itself, for a plain click without the page's script.
+    const node = span
+      ? el("a", { class: "button small download", href: `/clips/${hit.id}/file?start=${span[0]}&end=${span[1]}`, download: "", "aria-label": label }, "Download…")
+      : el("button", { type: "button", class: "small download", "aria-label": label }, "Download…");
+    node.addEventListener("click", async (event) => {
+      event.preventDefault();
+      const name = await openDownload({ clip: { id: hit.id, name: hit.name }, span });
+      if (name) say(`Downloaded ${name}.`);
+    });
+    return node;
+  }
+
+  /** The query's own facts: its length, and what collapse and a stored copy say of it. */
+  function queryDetail(query, text, others = null) {
+    const stored = query.stored_clip;
+    return el(
+      "div",
+      {},
+      text,
+      stored
+        ? el(
+            "p",
+            { class: "meta stored-clip" },
+            "This file is ",
+            el("a", { href: `#/clips/${stored.id}` }, `clip #${stored.id}`),
+            ` (${stored.name}) of the library.`,
+          )
+        : null,
+      othersList(others, "of this capture, left out of the results"),
+    );
+  }
+
+  function showBar(items) {
+    shown = items;
+    resultsBar.hidden = !items.length;
+    downloadAll.textContent = `Download all ${items.length} (ZIP)…`;
+  }
+
+  function showResults(query, hits, queryFigureLoad, queryOthers = null) {
     for (const f of figures.splice(0)) f.dispose();
+    similarityHelp.textContent = SIMILARITY_HELP;
     clear(results);
     const q = figureCard({
       clipId: query.id ?? null,
@@ -274,7 +406,7 @@ export async function renderSearch(main, params, { navigate }) {
       format: query.format,
       filenames: query.filenames,
       family: query.skeleton_family,
-      detail: el("p", { class: "meta" }, formatSeconds(query.duration)),
+      detail: queryDetail(query, el("p", { class: "meta" }, formatSeconds(query.duration)), queryOthers),
     });
     results.append(q.node);
     const loads = [queryFigureLoad(q.figure)];
@@ -288,11 +420,12 @@ export async function renderSearch(main, params, { navigate }) {
         format: hit.format,
         filenames: hit.filenames,
         family: hit.skeleton_family,
-        detail: el("p", { class: "meta distance" }, "distance ", el("strong", { class: "distance-value" }, formatNumber(hit.distance, 4))),
+        detail: el("div", { class: "result-detail" }, similarityLine(hit, SIMILARITY_HELP), othersList(hit.others), downloadButton(hit)),
       });
       results.append(card.node);
       loads.push(card.figure.load(PREVIEW));
     });
+    showBar(hits.map((hit) => ({ id: hit.id, name: hit.name })));
     player.seek(0);
     controls.hidden = false;
     timeline.setPlaying(true);
@@ -323,6 +456,7 @@ export async function renderSearch(main, params, { navigate }) {
 
   function showMoments(body, queryClip, queryLoad) {
     for (const f of figures.splice(0)) f.dispose();
+    similarityHelp.textContent = MOMENT_SIMILARITY_HELP;
     clear(results);
     const { start, end } = body.query;
     const q = figureCard({
@@ -333,32 +467,11 @@ export async function renderSearch(main, params, { navigate }) {
       format: queryClip.format,
       filenames: queryClip.filenames || [],
       family: queryClip.skeleton_family || "",
-      detail: spanBar(start, end, queryClip.duration),
+      detail: queryDetail(body.query, spanBar(start, end, queryClip.duration)),
     });
     results.append(q.node);
     const loads = [queryLoad(q.figure)];
     body.results.forEach((moment, i) => {
-      const download = el(
-        "a",
-        {
-          class: "button download",
-          href: `/clips/${moment.id}/file?start=${moment.start}&end=${moment.end}`,
-          download: "",
-          "aria-label": `Download ${moment.name} from ${formatSeconds(moment.start)} to ${formatSeconds(moment.end)}`,
-        },
-        "Download",
-      );
-      // The link alone could not send the API key (a cut is heavy work, which may need it):
-      // fetch the file with the key, as the clip page's buttons do.
-      download.addEventListener("click", async (event) => {
-        event.preventDefault();
-        try {
-          const name = await downloadFile(`/clips/${moment.id}/file`, { start: moment.start, end: moment.end });
-          status.textContent = `Downloaded ${name}.`;
-        } catch (error) {
-          if (error.status !== 401 && error.status !== 403) status.textContent = `Download failed: ${error.detail || error.message}`;
-        }
-      });
       const holder = el("div", { class: "moment-detail" });
       const card = figureCard({
         clipId: moment.id,
@@ -374,8 +487,9 @@ export async function renderSearch(main, params, { navigate }) {
           "div",
           {},
           holder,
-          el("p", { class: "meta distance" }, "distance ", el("strong", { class: "distance-value" }, formatNumber(moment.distance, 4))),
-          download,
+          similarityLine(moment, MOMENT_SIMILARITY_HELP),
+          othersList(moment.others),
+          downloadButton(moment, [moment.start, moment.end]),
         ),
       });
       card.node.classList.add("moment");
@@ -387,10 +501,17 @@ export async function renderSearch(main, params, { navigate }) {
         }),
       );
     });
+    showBar(body.results.map((m) => ({ id: m.id, name: m.name, start: m.start, end: m.end })));
     player.seek(0);
     controls.hidden = false;
     timeline.setPlaying(true);
     track(loads);
+  }
+
+  /** No results on the page (a failed search): nothing to download either. */
+  function clearResults() {
+    clear(results);
+    showBar([]);
   }
 
   async function searchMoments(clipId) {
@@ -400,6 +521,8 @@ export async function renderSearch(main, params, { navigate }) {
         clip: clipId,
         k: state.k,
         label: state.label,
+        licence: state.licence,
+        collapse: state.collapse ? "capture" : "",
         start: state.start,
         end: state.end,
         descriptor: MOMENT_DESCRIPTOR,
@@ -414,7 +537,7 @@ export async function renderSearch(main, params, { navigate }) {
           : `No moment like this one${state.label ? ` under the label ${state.label}` : ""}.`,
       );
     } catch (error) {
-      clear(results);
+      clearResults();
       fail(`Search failed: ${error.detail || error.message}`);
     }
   }
@@ -428,17 +551,21 @@ export async function renderSearch(main, params, { navigate }) {
         descriptor: state.descriptor,
         k: state.k,
         label: state.label,
+        licence: state.licence,
+        collapse: state.collapse ? "capture" : "",
       });
       queryInput.value = optionText(body.query);
       byOption.set(queryInput.value, body.query.id);
-      showResults(body.query, body.results, (figure) => figure.load(PREVIEW));
+      showResults(body.query, body.results, (figure) => figure.load(PREVIEW), body.query_others);
       say(
         body.results.length
           ? `${nearestPhrase(body.results.length)} ${body.query.name} under ${body.descriptor}, nearest first.${cappedNote()}`
-          : `No other clip to compare ${body.query.name} with${state.label ? ` under the label ${state.label}` : ""}.`,
+          : body.query_others && body.query_others.length
+            ? `No other capture to compare ${body.query.name} with: only other files of this capture (untick “One result per capture” to see them as results).`
+            : `No other clip to compare ${body.query.name} with${state.label ? ` under the label ${state.label}` : ""}.`,
       );
     } catch (error) {
-      clear(results);
+      clearResults();
       fail(`Search failed: ${error.detail || error.message}`);
     }
   }
@@ -459,7 +586,7 @@ export async function renderSearch(main, params, { navigate }) {
       try {
         animations = await fileAnimations(item);
       } catch (error) {
-        clear(results);
+        clearResults();
         fail(`Cannot search with ${item.name}: ${error.detail || error.message}`);
         return;
       }
@@ -486,7 +613,7 @@ export async function renderSearch(main, params, { navigate }) {
   async function searchItem(item) {
     const what = item.animation ? `${item.name} · ${item.animation}` : item.name;
     say(`Searching with ${what}…`);
-    const query = { descriptor: state.descriptor, k: state.k, label: state.label };
+    const query = { descriptor: state.descriptor, k: state.k, label: state.label, licence: state.licence, collapse: state.collapse ? "capture" : "" };
     const preview = () =>
       postForm("/skeleton", { fps: PREVIEW.fps, max_frames: PREVIEW.maxFrames, encoding: "compact" }, clipForm(item));
     if (state.mode === "moments") {
@@ -497,9 +624,9 @@ export async function renderSearch(main, params, { navigate }) {
         showMoments(body, uploaded, (figure) =>
           skeleton.then(({ body: answer }) => figure.setSkeleton(answer), (error) => figure.setError(error)),
         );
-        say(`Moments like the file ${what}, nearest first.`);
+        say(`Moments like the file ${what}, nearest first.${storedNote(body.query.stored_clip)}`);
       } catch (error) {
-        clear(results);
+        clearResults();
         fail(`Search with ${what} failed: ${error.detail || error.message}`);
       }
       return;
@@ -510,11 +637,15 @@ export async function renderSearch(main, params, { navigate }) {
       showResults({ ...body.query, id: null }, body.results, (figure) =>
         skeleton.then(({ body: answer }) => figure.setSkeleton(answer), (error) => figure.setError(error)),
       );
-      say(`${nearestPhrase(body.results.length)} the file ${what} under ${body.descriptor}, nearest first.${cappedNote()}`);
+      say(`${nearestPhrase(body.results.length)} the file ${what} under ${body.descriptor}, nearest first.${storedNote(body.query.stored_clip)}${cappedNote()}`);
     } catch (error) {
-      clear(results);
+      clearResults();
       fail(`Search with ${what} failed: ${error.detail || error.message}`);
     }
+  }
+
+  function storedNote(stored) {
+    return stored ? ` This file is clip #${stored.id} of the library.` : "";
   }
 
   function cappedNote() {
@@ -527,6 +658,8 @@ export async function renderSearch(main, params, { navigate }) {
     capped = asked > MAX_K;
     state.k = Math.min(MAX_K, Math.max(1, asked));
     state.label = labelSelect.value;
+    state.licence = licence.value();
+    state.collapse = collapseBox.checked;
     const mode = modeButtons.find((b) => b.checked);
     if (mode && mode.value !== state.mode) {
       state.mode = mode.value;

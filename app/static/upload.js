@@ -1,7 +1,7 @@
 // Upload: drop (or choose) BVH files and ASF+AMC pairs; each clip uploads with its own
 // progress bar, and the service's error is shown next to the file that caused it.
 
-import { clipForm, fileAnimations, mayHoldAnimations, postForm } from "./api.js";
+import { clipForm, fileAnimations, licences as fetchLicences, mayHoldAnimations, postForm } from "./api.js";
 import { el, formatSeconds, nextId, plural } from "./util.js";
 
 const PARALLEL_UPLOADS = 2;
@@ -148,6 +148,9 @@ export async function renderUpload(main) {
   const labelsId = nextId("labels");
   const patternId = nextId("pattern");
   const patternHelpId = nextId("pattern-help");
+  const sourceId = nextId("source");
+  const licenceId = nextId("licence");
+  const licenceOptions = nextId("licence-options");
   const fileInput = el("input", {
     id: inputId,
     type: "file",
@@ -156,6 +159,14 @@ export async function renderUpload(main) {
     class: "file-input",
   });
   const labelsInput = el("input", { id: labelsId, type: "text", placeholder: "e.g. walk, happy", autocomplete: "off" });
+  // Where the clips come from and their licence: stored with each clip (the Library and the
+  // searches filter by licence).
+  const sourceInput = el("input", { id: sourceId, type: "text", maxlength: "500", autocomplete: "off", placeholder: "e.g. CMU Graphics Lab Motion Capture Database" });
+  const licenceInput = el("input", { id: licenceId, type: "text", maxlength: "500", autocomplete: "off", placeholder: "e.g. CC BY 4.0", list: licenceOptions });
+  const licenceList = el("datalist", { id: licenceOptions });
+  fetchLicences()
+    .then((rows) => licenceList.append(...rows.map((r) => el("option", { value: r.licence }))))
+    .catch(() => {});
   const patternInput = el("input", {
     id: patternId,
     type: "text",
@@ -186,6 +197,12 @@ export async function renderUpload(main) {
       { class: "filters align-top" },
       el("div", { class: "field" }, el("label", { for: labelsId }, "Labels for these clips (comma-separated)"), labelsInput),
       el("div", { class: "field wide" }, el("label", { for: patternId }, "Labels from file names"), patternInput, patternHelp),
+    ),
+    el(
+      "div",
+      { class: "filters align-top" },
+      el("div", { class: "field wide" }, el("label", { for: sourceId }, "Source of these clips"), sourceInput),
+      el("div", { class: "field" }, el("label", { for: licenceId }, "Licence of these clips"), licenceInput, licenceList),
     ),
     zone,
     summary,
@@ -223,6 +240,7 @@ export async function renderUpload(main) {
       }
     }
     const common = labelsInput.value.split(",").map((s) => s.trim()).filter(Boolean);
+    const fields = { source: sourceInput.value.trim(), licence: licenceInput.value.trim() };
     for (const item of groupFiles([...files])) {
       const row = uploadRow(item);
       list.append(row.node);
@@ -236,8 +254,8 @@ export async function renderUpload(main) {
         const motionName = (item.bvh || item.amc).name;
         const labels = [...common, ...labelsFromName(pattern, motionName)];
         totals.all += 1;
-        if (mayHoldAnimations(item)) chooseAnimations({ item, row, labels });
-        else queue.push({ item, row, labels });
+        if (mayHoldAnimations(item)) chooseAnimations({ item, row, labels, fields });
+        else queue.push({ item, row, labels, fields });
       }
     }
     updateSummary();
@@ -297,10 +315,10 @@ export async function renderUpload(main) {
     }
   }
 
-  async function upload({ item, row, labels }) {
+  async function upload({ item, row, labels, fields }) {
     row.start();
     try {
-      const { status, body } = await postForm("/clips", null, clipForm(item, labels), {
+      const { status, body } = await postForm("/clips", null, clipForm(item, labels, fields), {
         onProgress: (fraction) => row.progress(fraction),
       });
       row.succeed(body, status === 201, labels.length > 0);

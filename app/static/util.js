@@ -96,3 +96,33 @@ export function labelChips(labels) {
     labels.map((label) => el("li", { class: "chip" }, label)),
   );
 }
+
+/**
+ * A modal "Delete …?" dialog: {node, ask(heading, ...body)} — ask() shows `heading` and the
+ * `body` nodes and resolves to true when "Delete" is pressed, false on Cancel or Escape.
+ */
+export function deleteDialog() {
+  const headingId = nextId("confirm");
+  const heading = el("h2", { id: headingId });
+  const body = el("div", {});
+  const yes = el("button", { type: "button", class: "danger" }, "Delete");
+  const no = el("button", { type: "button", class: "secondary", autofocus: true }, "Cancel");
+  const node = el("dialog", { class: "confirm", "aria-labelledby": headingId }, heading, body, el("div", { class: "dialog-buttons" }, no, yes));
+  let answer = false;
+  no.addEventListener("click", () => node.close());
+  yes.addEventListener("click", () => {
+    answer = true;
+    node.close();
+  });
+  return {
+    node,
+    ask(title, ...content) {
+      heading.textContent = title;
+      clear(body);
+      body.append(...content.filter(Boolean));
+      answer = false;
+      node.showModal();
+      return new Promise((resolve) => node.addEventListener("close", () => resolve(answer), { once: true }));
+    },
+  };
+}

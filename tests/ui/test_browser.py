@@ -187,6 +187,12 @@ def screenshot(page: Any, name: str) -> None:
     page.screenshot(path=str(ARTIFACTS / f"{name}.png"), full_page=True)
 
 
+def screenshot_of(locator: Any, name: str) -> None:
+    """One element (a dialog, say) as it is shown."""
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    locator.screenshot(path=str(ARTIFACTS / f"{name}.png"))
+
+
 def upload_row(page: Any, name: str) -> Any:
     return page.locator(f'.upload[data-name="{name}"]')
 
@@ -231,6 +237,17 @@ def test_upload_search_and_map(
     query = page.locator(".card.query")
     expect(query).to_have_attribute("data-clip-id", str(bvh_id))
     results = page.locator(".card.result")
+    # One result per capture (the UI's default): the twin stands beside the query, not as a
+    # result; switched off, it is the one result.
+    others = query.locator("details.others")
+    expect(others.locator("summary")).to_have_text(
+        "+1 other file of this capture, left out of the results"
+    )
+    expect(results).to_have_count(0)
+    expect(page.locator("main .status")).to_contain_text("only other files of this capture")
+    page.get_by_label("One result per capture").uncheck()
+    page.get_by_role("button", name="Search", exact=True).click()
+    expect(page).to_have_url(re.compile("collapse=off"))
     expect(results).to_have_count(1)
     expect(results.first).to_have_attribute("data-clip-id", str(amc_id))
     expect(results.first.locator(".distance-value")).to_have_text(re.compile(r"^\d+\.\d{4}$"))
@@ -275,7 +292,9 @@ def test_upload_search_and_map(
     screenshot(page, "map")
     page.keyboard.press("Enter")
     expect(page).to_have_title("Search · mocap-index")
-    expect(results).to_have_count(1)
+    # One result per capture again (a new search from the map): the twin beside the query.
+    expect(query.locator("details.others")).to_have_count(1)
+    expect(results).to_have_count(0)
 
     # Library: both clips with moving previews; the name filter.
     page.get_by_role("link", name="Library", exact=True).click()
@@ -286,7 +305,7 @@ def test_upload_search_and_map(
     )
     expect(page.locator("main .status")).to_have_text("Showing 1–2 of 2 clips.")
     screenshot(page, "library")
-    page.get_by_label("Name contains").fill("nothing like it")
+    page.get_by_label("Find", exact=True).fill("nothing like it")
     expect(cards).to_have_count(0)
     expect(page.locator("main .status")).to_have_text("No clip matches these filters.")
 

@@ -269,11 +269,12 @@ def test_drop_a_file_anywhere_and_same_named_results(browser: Any, tmp_path: Pat
     clips = same_named_clips(tmp_path)
     with serve(tmp_path) as base, browsing(browser, base) as page:
         stored = [upload(base, files) for files in clips]
-        page.goto("/#/search")
+        # Every file a result (collapse=off): the same-named clips are twins of one capture.
+        page.goto("/#/search?collapse=off")
         # A drop on the header (not a drop zone) neither leaves the app nor navigates.
         bvh_name, bvh_bytes = clips[1]["file"]
         drop_files(page, "header.top", [(bvh_name, bvh_bytes)])
-        expect(page).to_have_url(re.compile(r"#/search$"))
+        expect(page).to_have_url(re.compile(r"#/search\?collapse=off$"))
         query = page.locator(".card.query")
         expect(page.locator("main .status")).to_contain_text(f"nearest to the file {bvh_name}")
         expect(query).to_have_attribute("data-clip-id", "")
@@ -285,7 +286,7 @@ def test_drop_a_file_anywhere_and_same_named_results(browser: Any, tmp_path: Pat
         screenshot(page, "search-drop")
 
         # Same-named clips: each card says its format and file names; the name is not cut.
-        page.goto(f"/#/search?clip={stored[1]['id']}")
+        page.goto(f"/#/search?clip={stored[1]['id']}&collapse=off")
         expect(results).to_have_count(len(stored) - 1)
         badges = sorted(results.locator(".badge").all_inner_texts())
         want = sorted(s["format"].upper() for i, s in enumerate(stored) if i != 1)

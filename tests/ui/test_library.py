@@ -105,6 +105,31 @@ def test_find_clips_by_name_and_label(fake_ui_client: TestClient) -> None:
     ]
 
 
+def test_licences_in_use_are_counted_as_the_filters_compare_them(
+    fake_ui_client: TestClient,
+) -> None:
+    for name, licence in [
+        ("a", "CC0"),
+        ("b", " cc0 "),
+        ("c", "CC BY-NC 4.0"),
+        ("d", ""),
+        ("e", None),
+        ("f", "CC0"),
+    ]:
+        data = {} if licence is None else {"licence": licence}
+        response = fake_ui_client.post(
+            "/clips", files={"file": (f"{name}.bvh", fake_motion(name=name))}, data=data
+        )
+        assert response.status_code == 201, response.text
+    rows = fake_ui_client.get("/library/licences").json()
+    # One row per licence (trimmed, any case), most used first; no licence is not a licence.
+    assert [(r["licence"].lower(), r["count"]) for r in rows] == [("cc0", 3), ("cc by-nc 4.0", 1)]
+    # Each value offered filters to exactly its count.
+    for row in rows:
+        page = fake_ui_client.get("/clips", params={"licence": row["licence"]}).json()
+        assert page["total"] == row["count"]
+
+
 def test_data_routes_need_the_key_when_reads_do(tmp_path: Path) -> None:
     settings = Settings(
         data_dir=tmp_path / "data", api_key=SecretStr("s3cret"), require_key_for_reads=True
@@ -113,7 +138,13 @@ def test_data_routes_need_the_key_when_reads_do(tmp_path: Path) -> None:
         # The page and its files are open, like /docs: the page asks for the key.
         assert client.get("/").status_code == 200
         assert client.get("/static/app.js").status_code == 200
-        for path in ("/map", "/library/clips", "/library/labels", "/clips/1/skeleton"):
+        for path in (
+            "/map",
+            "/library/clips",
+            "/library/labels",
+            "/library/licences",
+            "/clips/1/skeleton",
+        ):
             response = client.get(path)
             assert response.status_code == 401, path
             assert response.json()["error"] == "unauthorized"

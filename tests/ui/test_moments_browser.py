@@ -121,8 +121,11 @@ def test_the_moment_download_sends_the_api_key(browser: Any, tmp_path: Path) -> 
             page.goto(f"/#/search?clip={take}&mode=moments&start=0&end=1.3")
             expect(page.locator("main .status")).to_contain_text("Moments like")
             link = page.locator(".card.moment").first.locator("a.download")
+            # The link opens the Download dialog (format, rig, root…); its button fetches.
+            link.click()
+            dialog = page.locator("dialog.download-dialog")
             with page.expect_download() as got:
-                link.click()
+                dialog.get_by_role("button", name="Download", exact=True).click()
             saved = got.value.path()
             assert Path(saved).read_bytes().startswith(b"HIERARCHY"), Path(saved).read_bytes()[:200]
             expect(page.locator("main .status")).to_contain_text("Downloaded")

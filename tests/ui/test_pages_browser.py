@@ -67,6 +67,9 @@ def library(browser: Any, tmp_path_factory: pytest.TempPathFactory) -> Iterator[
             "take": upload(base, {"file": ("take.bvh", bandai_take(30.0))}, labels="take"),
             "climb": upload(base, {"file": ("climb.bvh", climb())}, labels="climb"),
         }
+        # A rig for the Rigs page: the BVH clip's skeleton.
+        rig = httpx.post(f"{base}/rigs", params={"from_clip": clips["bvh"]["id"]}, timeout=60)
+        assert rig.status_code == 201, rig.text
         yield {"base": base, **clips}
 
 
@@ -101,6 +104,7 @@ def test_every_page_fits_the_screen(browser: Any, library: dict[str, Any], width
         "map": ("/#/map", "canvas.map-canvas[data-points]"),
         "clip": (f"/#/clips/{take}", ".span-band"),
         "upload": ("/#/upload", ".dropzone"),
+        "rigs": ("/#/rigs", ".rig-card canvas"),
     }
     with browsing(browser, base, viewport) as page:
         for name, (url, ready) in pages.items():
@@ -119,6 +123,16 @@ def test_every_page_fits_the_screen(browser: Any, library: dict[str, Any], width
                 )
                 expect(page.locator(".animation-choice")).to_be_visible()
                 expect(page.locator('.upload[data-state="error"]')).to_have_count(1)
+            if name == "rigs":  # drawn, its mapping unfolded
+                page.wait_for_function("() => window.__mocap.rigs().length === 1")
+                page.locator(".rig-card summary").first.click()
+                # A BVH's unit the service gives as a scale in metres reads in centimetres.
+                units = httpx.get(f"{base}/rigs").json()["items"][0]["units"]
+                if units.endswith(" m") and units != "1 m":
+                    cm = f"{float(units[:-2]) * 100:.3g}"
+                    expect(page.locator(".rig-card .format-line")).to_contain_text(
+                        f"1 unit = {cm} cm"
+                    )
             if name == "clip":  # a span picked, the rail zoomed
                 page.get_by_label("From (s)").fill("12")
                 page.get_by_label("To (s)").fill("14.5")
@@ -144,7 +158,8 @@ def test_search_previews_are_compact_and_compressed(browser: Any, library: dict[
                 else None
             ),
         )
-        page.goto(f"/#/search?clip={library['bvh']['id']}&k=4")
+        # Every file a result (collapse=off): the library holds twins of one capture.
+        page.goto(f"/#/search?clip={library['bvh']['id']}&k=4&collapse=off")
         expect(page.locator(".card.result")).to_have_count(4)
         figures_drawn(page)
         expect(page.locator(".progress-note")).to_have_text("")  # all came

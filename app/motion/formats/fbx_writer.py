@@ -11,6 +11,9 @@ into one animation stack with every key kept (``bake_anim_simplify_factor=0``). 
 bone frames are not the motion's (a bone's Y axis runs along it), so each key is the joint's
 rotation seen in its bone's rest frame: ``basis = B^T · L · B`` for bone rest orientation
 ``B`` and local rotation ``L`` — the armature's world positions are exactly the motion's.
+The exporter's bake would step the scene through every frame (seconds per hundred frames);
+it gets each frame's bone transforms computed from those keys in numpy instead
+(:mod:`app.motion.formats.fbx_bake`), and writes the same file.
 
 Lengths: the motion arrives in the output unit and the scene's unit scale says what that
 unit is (``UnitScaleFactor`` is centimetres per unit: 1 for cm, 100 for m, 2.54 for inches).
@@ -23,10 +26,14 @@ from __future__ import annotations
 
 import os
 import tempfile
-from typing import Any
+from collections.abc import Mapping, Sequence
+from contextlib import AbstractContextManager, nullcontext
+from typing import Any, Literal
 
 import numpy as np
 
+from app.motion.formats.fbx_bake import BakeOutcome, numpy_bake
+from app.motion.formats.gltf_writer import quaternions
 from app.motion.model import Motion
 from app.motion.skeleton_map import rest_pose
 
@@ -81,8 +88,21 @@ def _tails(motion: Motion, rest: np.ndarray) -> np.ndarray:
     return tails
 
 
-def write_fbx(motion: Motion, *, metres_per_unit: float = 0.01, name: str = "motion") -> bytes:
+def write_fbx(
+    motion: Motion,
+    *,
+    metres_per_unit: float = 0.01,
+    name: str = "motion",
+    bake: Literal["numpy", "blender"] = "numpy",
+) -> bytes:
     """The FBX bytes of ``motion`` (Y-up, lengths in a unit of ``metres_per_unit`` metres).
+
+    ``bake``: where the exporter's animation bake gets each frame's bone transforms from.
+    ``"numpy"``: computed from the keys for all frames at once
+    (:mod:`app.motion.formats.fbx_bake`; the same file, tens of times faster), and should
+    Blender compose bones otherwise than that module expects, the export is done again the
+    other way. ``"blender"``: the motion keyed as an action that the exporter plays through,
+    one ``frame_set`` per frame, as it does alone.
 
     Raises
     ------
@@ -91,16 +111,28 @@ def write_fbx(motion: Motion, *, metres_per_unit: float = 0.01, name: str = "mot
     RuntimeError
         The exporter failed.
     """
-    import bpy
-    from scipy.spatial.transform import Rotation
-
-    skeleton = motion.skeleton
-    too_long = [n for n in skeleton.names if len(n.encode("utf-8")) > BONE_NAME_BYTES]
+    too_long = [n for n in motion.skeleton.names if len(n.encode("utf-8")) > BONE_NAME_BYTES]
     if too_long:
         raise ValueError(
             f"joint name {too_long[0][:80]!r} is longer than FBX export keeps "
             f"({BONE_NAME_BYTES} bytes)"
         )
+    if bake == "numpy":
+        data = _export(motion, metres_per_unit, name, keyed=False)
+        if data is not None:
+            return data
+    data = _export(motion, metres_per_unit, name, keyed=True)
+    assert data is not None  # a keyed scene is always baked
+    return data
+
+
+def _export(motion: Motion, metres_per_unit: float, name: str, *, keyed: bool) -> bytes | None:
+    """One export from an empty scene: the motion keyed as an action (``keyed``) or posed at
+    its first frame with the bake computed in numpy; ``None`` when the numpy bake refused
+    the scene."""
+    import bpy
+
+    skeleton = motion.skeleton
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     fps = 1.0 / motion.frame_time
@@ -136,9 +168,6 @@ def write_fbx(motion: Motion, *, metres_per_unit: float = 0.01, name: str = "mot
     # Keys: rotation in each bone's rest frame, translation of the top bone (and of bones
     # whose offset changes) in its rest frame too.
     basis = frames_b_t[None] @ motion.local_rotations @ frames_b[None]  # (F, J, 3, 3)
-    count, frames = skeleton.joint_count, motion.frame_count
-    quats = Rotation.from_matrix(basis.reshape(-1, 3, 3)).as_quat().reshape(frames, count, 4)
-    quats = np.concatenate([quats[..., 3:], quats[..., :3]], axis=-1)  # Blender: (w, x, y, z)
     locations: dict[int, np.ndarray] = {
         0: ((motion.root_translation - rest[0]) @ frames_b[0]),
     }
@@ -149,6 +178,50 @@ def write_fbx(motion: Motion, *, metres_per_unit: float = 0.01, name: str = "mot
             if moved != 0:
                 locations[moved] = change[:, moved] @ frames_b[moved]
 
+    if keyed:
+        _key_action(obj, name, skeleton.names, basis, locations)
+    else:
+        # The first frame's pose: the static transforms the exporter writes, and what the
+        # numpy bake checks itself against.
+        first = quaternions(basis[:1])[0][:, [3, 0, 1, 2]]  # (J, 4) Blender's (w, x, y, z)
+        for j, joint in enumerate(skeleton.names):
+            pose_bone = obj.pose.bones[joint]
+            pose_bone.rotation_mode = "QUATERNION"
+            pose_bone.rotation_quaternion = tuple(first[j])
+            if j in locations:
+                pose_bone.location = tuple(locations[j][0])
+    scene.frame_set(0)  # the static transforms the exporter writes: the first frame's
+    baking: AbstractContextManager[BakeOutcome | None] = (
+        nullcontext() if keyed else numpy_bake(skeleton.names, basis, locations)
+    )
+    handle, path = tempfile.mkstemp(suffix=".fbx")
+    os.close(handle)
+    try:
+        with baking as outcome:
+            result = _run_exporter(path)
+        if outcome is not None and outcome.refused is not None:
+            return None
+        if "FINISHED" not in result:
+            raise RuntimeError(f"Blender's FBX exporter did not finish ({result})")
+        with open(path, "rb") as stream:
+            return stream.read()
+    finally:
+        os.unlink(path)
+
+
+def _key_action(
+    obj: Any,
+    name: str,
+    joints: Sequence[str],
+    basis: np.ndarray,
+    locations: Mapping[int, np.ndarray],
+) -> None:
+    """Key ``basis`` ``(F, J, 3, 3)`` and ``locations`` (joint -> ``(F, 3)``) on the
+    armature ``obj``'s pose bones at frames ``0 .. F-1``, as one action named ``name``."""
+    import bpy
+
+    frames = basis.shape[0]
+    quats = quaternions(basis)[..., [3, 0, 1, 2]]  # (F, J, 4) Blender's (w, x, y, z)
     action = bpy.data.actions.new(name)
     frame_numbers = np.arange(frames, dtype=np.float64)
 
@@ -161,7 +234,7 @@ def write_fbx(motion: Motion, *, metres_per_unit: float = 0.01, name: str = "mot
         fcurve.keyframe_points.foreach_set("co", keys)
         fcurve.update()
 
-    for j, joint in enumerate(skeleton.names):
+    for j, joint in enumerate(joints):
         pose_bone = obj.pose.bones[joint]
         pose_bone.rotation_mode = "QUATERNION"
         path = f'pose.bones["{_escape(joint)}"]'
@@ -176,37 +249,33 @@ def write_fbx(motion: Motion, *, metres_per_unit: float = 0.01, name: str = "mot
     if hasattr(animation, "action_slot") and len(getattr(action, "slots", ())):
         animation.action_slot = action.slots[0]
 
-    scene.frame_set(0)  # the static transforms the exporter writes: the first frame's
-    handle, path = tempfile.mkstemp(suffix=".fbx")
-    os.close(handle)
-    try:
-        result = bpy.ops.export_scene.fbx(
-            filepath=path,
-            object_types={"ARMATURE"},
-            use_selection=False,
-            apply_unit_scale=True,
-            apply_scale_options="FBX_SCALE_UNITS",
-            axis_forward="-Z",
-            axis_up="Y",
-            add_leaf_bones=False,
-            primary_bone_axis="Y",
-            secondary_bone_axis="X",
-            use_armature_deform_only=False,
-            armature_nodetype="NULL",
-            bake_anim=True,
-            bake_anim_use_all_bones=True,
-            bake_anim_use_nla_strips=False,
-            bake_anim_use_all_actions=False,
-            bake_anim_force_startend_keying=True,
-            bake_anim_step=1.0,
-            bake_anim_simplify_factor=0.0,
-        )
-        if "FINISHED" not in result:
-            raise RuntimeError(f"Blender's FBX exporter did not finish ({result})")
-        with open(path, "rb") as stream:
-            return stream.read()
-    finally:
-        os.unlink(path)
+
+def _run_exporter(path: str) -> set[str]:
+    """Blender's FBX exporter on the scene, into ``path``: the operator's result."""
+    import bpy
+
+    result: set[str] = bpy.ops.export_scene.fbx(
+        filepath=path,
+        object_types={"ARMATURE"},
+        use_selection=False,
+        apply_unit_scale=True,
+        apply_scale_options="FBX_SCALE_UNITS",
+        axis_forward="-Z",
+        axis_up="Y",
+        add_leaf_bones=False,
+        primary_bone_axis="Y",
+        secondary_bone_axis="X",
+        use_armature_deform_only=False,
+        armature_nodetype="NULL",
+        bake_anim=True,
+        bake_anim_use_all_bones=True,
+        bake_anim_use_nla_strips=False,
+        bake_anim_use_all_actions=False,
+        bake_anim_force_startend_keying=True,
+        bake_anim_step=1.0,
+        bake_anim_simplify_factor=0.0,
+    )
+    return result
 
 
 def _escape(name: str) -> str:
