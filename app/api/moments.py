@@ -8,8 +8,10 @@ import anyio
 from fastapi import APIRouter, Query, Request, Response
 from pydantic import BaseModel, ConfigDict, Field
 
+from app.api import render
 from app.api.deps import KQuery, LabelQuery, LibraryDep, UploadDep
 from app.api.errors import error_responses
+from app.api.offload import Offload
 from app.api.schemas import ClipOut
 from app.db import label_filters as label_db
 from app.services import moments as moment_service
@@ -100,10 +102,10 @@ PerClipQuery = Annotated[
 MomentDescriptorQuery = Annotated[
     str, Query(description="Descriptor with windows to compare with.", examples=["motion"])
 ]
-# A moments search reads the index and a few rows (a few ms of Python), but may describe a
-# span of a stored file: always in a thread, at most two at once (more only fight over the
-# GIL on two cores).
-MOMENT_THREADS = anyio.CapacityLimiter(2)
+# A moments search reads the indexes and the catalogue (a few ms of Python), and may describe
+# a span of a stored file: in a thread unless searches of its kind have been quick
+# (app/api/offload.py), at most two at once (more only fight over the GIL on two cores).
+MOMENTS = Offload(anyio.CapacityLimiter(2))
 
 
 def _body(
@@ -113,17 +115,14 @@ def _body(
     descriptor: str,
     k: int,
 ) -> bytes:
-    body = MomentSearchResponse(
-        query=MomentQueryOut(
-            clip=None if query.clip is None else ClipOut.of(query.clip),
-            start=query.start,
-            end=query.end,
-        ),
-        descriptor=descriptor,
-        k=k,
-        results=[MomentOut.of(m) for m in moments],
+    return render.moment_search(
+        query.clip,
+        query.start,
+        query.end,
+        descriptor,
+        k,
+        [(m.clip, m.format, m.start, m.end, m.distance) for m in moments],
     )
-    return body.model_dump_json().encode()
 
 
 def _by_clip(
@@ -163,17 +162,9 @@ async def search_moments_by_clip(
     span itself are left out (other parts of the same clip may come back). Times are seconds
     from the first frame of the file as uploaded."""
     library: Library = request.app.state.library
-    body = await anyio.to_thread.run_sync(
-        _by_clip,
-        library,
-        clip,
-        start,
-        end,
-        k,
-        descriptor,
-        label,
-        per_clip,
-        limiter=MOMENT_THREADS,
+    body = await MOMENTS.run(
+        (descriptor, bool(label), start is not None or end is not None),
+        lambda: _by_clip(library, clip, start, end, k, descriptor, label, per_clip),
     )
     return Response(body, media_type="application/json")
 

@@ -7,6 +7,7 @@ from typing import Annotated
 import anyio
 from fastapi import APIRouter, Query, Request, Response
 
+from app.api import render
 from app.api.deps import (
     DescriptorDep,
     DescriptorQuery,
@@ -16,8 +17,8 @@ from app.api.deps import (
     UploadDep,
 )
 from app.api.errors import error_responses
+from app.api.offload import Offload
 from app.api.schemas import (
-    ClipOut,
     ClipSearchResponse,
     SearchHit,
     UploadedClipOut,
@@ -47,38 +48,29 @@ async def search_by_clip(
     query clip itself; Euclidean distances. Fewer than `k` only when the library (or the
     `label`) has fewer other clips."""
     # The hot path (see bench/README.md): no dependency functions (each sync one is a
-    # thread-pool hop), one database snapshot in the service, the body serialised once by
-    # pydantic. A quick search (an IVF index or a small flat one, no label filter, small k:
-    # well under a millisecond) runs right here on the event loop: handing it to a thread
-    # cost more than the search (at 32 clients, 1,000 instead of 1,550 requests/s on two
-    # cores). Anything longer goes to the thread pool, so it never holds up the loop.
+    # thread-pool hop), no SQL (the index and the in-memory catalogue), the body serialised
+    # once by orjson (app/api/render.py). Run on the event loop while searches of its kind
+    # have been quick, in a thread when they have been slow (app/api/offload.py).
     library: Library = request.app.state.library
     if descriptor is None:
         descriptor = library.default_descriptor
-    if search_service.is_quick(library, descriptor, k, label):
-        body = _search_by_clip(library, clip, descriptor, k, label)
-    else:
-        body = await anyio.to_thread.run_sync(
-            _search_by_clip, library, clip, descriptor, k, label, limiter=SEARCH_THREADS
-        )
+    body = await SEARCHES.run(
+        (descriptor, bool(label), k > QUICK_K),
+        lambda: _search_by_clip(library, clip, descriptor, k, label),
+    )
     return Response(body, media_type="application/json")
 
 
 # Slow searches running at once: more threads than cores only fight over the GIL.
-SEARCH_THREADS = anyio.CapacityLimiter(4)
+SEARCHES = Offload(anyio.CapacityLimiter(4))
+QUICK_K = 100  # more hits than this are searches of another kind (more to show)
 
 
 def _search_by_clip(
     library: Library, clip: int, descriptor: str, k: int, label: list[str] | None
 ) -> bytes:
     query, hits = search_service.search_by_clip_id(library, clip, descriptor, k, label=label)
-    body = ClipSearchResponse(
-        query=ClipOut.of(query),
-        descriptor=descriptor,
-        k=k,
-        results=[SearchHit.of(h) for h in hits],
-    )
-    return body.model_dump_json().encode()
+    return render.clip_search(query, descriptor, k, [(h.clip, h.distance) for h in hits])
 
 
 @router.post(

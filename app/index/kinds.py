@@ -34,6 +34,7 @@ class IndexOptions:
     recall_target: float = 0.995
     autosave_below: int = 20_000  # indexes this small are saved soon after a change
     save_delay: float = 1.0  # ... this many seconds after it (0: at once), changes batched
+    mmap: bool = True  # IVF indexes read from their files' pages (app/index/frozen.py)
 
     def __post_init__(self) -> None:
         if self.kind not in INDEX_TYPES:

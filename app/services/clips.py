@@ -10,6 +10,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import PurePosixPath
 
+import numpy as np
 from sqlalchemy.exc import SQLAlchemyError
 
 from app.db import clips as clip_db
@@ -88,6 +89,7 @@ def update_clip(
         raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
     if not found:
         raise NotFound(f"no clip with id {clip_id}")
+    library.sync_indexes()  # searches here show the new name and labels at once
     return get_clip(library, clip_id)
 
 
@@ -146,6 +148,7 @@ def _tidy_after_delete(library: Library, clip_ids: list[int], shas: list[str]) -
                 exc,
             )
     drop_clip_windows(library, clip_ids)
+    library.catalogue.apply_changes(np.asarray(clip_ids, np.int64), {})
     try:
         with library.reads() as session:
             still_used = clip_db.referenced_blobs(session, shas)

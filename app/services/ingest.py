@@ -267,6 +267,8 @@ def apply_to_stored(library: Library, duplicates: Sequence[tuple[int, Upload]]) 
                     changed.add(clip_id)
     except SQLAlchemyError as exc:
         raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
+    if changed:
+        library.sync_indexes()  # searches here show the new name and labels at once
     return changed
 
 

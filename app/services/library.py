@@ -36,17 +36,24 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from app.config import Settings
 from app.db import clips as clip_db
-from app.db import search_reads as search_db
 from app.db import vectors as vector_db
 from app.db import windows as window_db
 from app.db.changes import ChangeFeed, horizon
+from app.db.entries import clip_entries
 from app.db.migrate import upgrade
 from app.db.session import create_db_engine, read_sessions, write_sessions
 from app.errors import DescriptorOutdated, InvalidInput, StorageUnavailable
+from app.index.catalogue import Catalogue
 from app.index.descriptor_index import DescriptorIndex, IndexSet
 from app.index.kinds import IndexOptions
 from app.index.places import Places, WindowPlaces
-from app.index.sources import StoredVectors, StoredWindows, touched_windows, windows_of_clips
+from app.index.sources import (
+    StoredClips,
+    StoredVectors,
+    StoredWindows,
+    touched_windows,
+    windows_of_clips,
+)
 from app.motion.descriptors import DEFAULT_DESCRIPTOR
 from app.services.blobs import BlobStore, open_blob_store
 from app.services.describe import (
@@ -131,6 +138,8 @@ class Library:
     blobs: BlobStore
     indexes: IndexSet
     describer: Describer
+    # What a search shows of each clip (names, labels, ...): searches read no SQL.
+    catalogue: Catalogue
     # Moments search: one index per window descriptor and length, keyed like window_keys.
     window_indexes: IndexSet = field(default_factory=lambda: IndexSet({}))
     window_keys: dict[str, window_db.WindowKey] = field(default_factory=dict)
@@ -140,21 +149,22 @@ class Library:
     # cannot be read (a describer of the tests' own).
     parsers: ParserPool | None = None
     write_lock: threading.Lock = field(default_factory=threading.Lock)
-    search_reads: search_db.SearchReads = field(init=False, repr=False)
     _sync_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
-    _checked_at: float = field(default=0.0, repr=False)
+    _refresher: threading.Thread | None = field(default=None, repr=False)
+    _stopping: threading.Event = field(default_factory=threading.Event, repr=False)
+    _refresher_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
     # Descriptor -> stored vectors of an older version, and when that was last counted.
     _outdated: dict[str, int] = field(default_factory=dict, repr=False)
     _outdated_at: float = field(default=0.0, repr=False)
     _feed: ChangeFeed = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        self.search_reads = search_db.SearchReads(self.engine)
         self.window_places = {
             name: WindowPlaces(window_db.WINDOW_ID_BITS) for name in self.window_keys
         }
         # Every index is at least this far along the feed (they were loaded from one snapshot).
-        self._feed = ChangeFeed(min((i.synced_to for i in self.indexes.values()), default=0))
+        positions = [i.synced_to for i in self.indexes.values()] + [self.catalogue.synced_to]
+        self._feed = ChangeFeed(min(positions))
 
     @property
     def descriptors(self) -> Mapping[str, DescriptorInfo]:
@@ -223,6 +233,13 @@ class Library:
                 if self.window_places[name].loaded:
                     self._load_places(session, name)
 
+    def rebuild_catalogue(self) -> None:
+        """Refill the catalogue from the database and save it (after a bulk load that went
+        around the feed's readers, like ``fill-synthetic``)."""
+        with self._sync_lock, self.reads() as session:
+            position = horizon(session)  # before the rows: nothing older is missed
+            self.catalogue.replace_all(clip_entries(session), synced_to=position)
+
     def places(self, name: str) -> WindowPlaces:
         """Where the windows of window index ``name`` lie (loaded from the database when
         first asked for; then kept up to date with the index)."""
@@ -257,6 +274,12 @@ class Library:
             with self.reads() as session:
                 poll = self._feed.poll(session)
                 changed = poll.clip_ids
+                if not changed.size:  # the usual poll: nothing to look up or lock
+                    for index in (*self.indexes.values(), *self.window_indexes.values()):
+                        index.mark_synced(poll.position)
+                    self.catalogue.mark_synced(poll.position)
+                    self._feed.advance(poll)
+                    return True
                 for name, info in self.descriptors.items():
                     index = self.indexes[name]
                     ids, vectors = vector_db.load_vectors_of(
@@ -274,10 +297,23 @@ class Library:
                         index.replace_all(*everything, synced_to=position, persist=False)
                         index.try_save()
                 self._sync_windows(session, changed, poll.position)
+                self._sync_catalogue(session, changed, poll.position)
                 self._feed.advance(poll)
         finally:
             self._sync_lock.release()
         return True
+
+    def _sync_catalogue(self, session: Session, changed: np.ndarray, position: int) -> None:
+        """The catalogue follows the same feed: a changed clip's entry is replaced by what the
+        database holds now (none when it was deleted)."""
+        try:
+            entries = {e.id: e for e in clip_entries(session, changed.tolist())}
+            self.catalogue.apply_changes(changed, entries, synced_to=position)
+        except Exception:
+            log.exception("updating the catalogue failed; rebuilding it")
+            now = horizon(session)
+            self.catalogue.replace_all(clip_entries(session), synced_to=now, persist=False)
+            self.catalogue.try_save()
 
     def _sync_windows(self, session: Session, changed: np.ndarray, position: int) -> None:
         """The window indexes follow the same feed: a changed clip's windows are replaced
@@ -302,22 +338,42 @@ class Library:
                     self._load_places(session, name)
 
     def refresh(self) -> None:
-        """Bring the indexes up to date with the database when the last check is older than
-        ``MOCAP_INDEX_REFRESH_SECONDS`` (called before searches; cheap when nothing changed)."""
-        now = time.monotonic()
-        if now - self._checked_at < self.settings.index_refresh_seconds:
+        """Keep the indexes up to date with the database, within
+        ``MOCAP_INDEX_REFRESH_SECONDS`` (called before searches). With 0, check now; else a
+        thread of the library checks that often (started here the first time), so no search
+        waits for the database."""
+        interval = self.settings.index_refresh_seconds
+        if interval <= 0:
+            self._check()
             return
-        self._checked_at = now
+        if self._refresher is None:
+            with self._refresher_lock:
+                if self._refresher is None and not self._stopping.is_set():
+                    self._refresher = threading.Thread(
+                        target=self._refresh_loop, args=(interval,), daemon=True
+                    )
+                    self._refresher.start()
+
+    def _refresh_loop(self, interval: float) -> None:
+        while True:
+            self._check()
+            if self._stopping.wait(interval):
+                return
+
+    def _check(self) -> None:
         try:
             self.sync_indexes(wait=False)
         except (SQLAlchemyError, sqlite3.Error) as exc:  # the indexes as they are still work
             log.warning("could not check the database for changed clips: %s", exc)
+        except Exception:  # never let the refresher die
+            log.exception("checking the database for changed clips failed")
 
     def save_indexes(self) -> None:
         """Write the indexes that have unsaved changes (large ones are not saved after every
         change; a file that is behind is brought up to date from the database when loaded)."""
         self.indexes.save(only_changed=True)
         self.window_indexes.save(only_changed=True)
+        self.catalogue.flush()
 
     def vector_counts(self) -> tuple[int, dict[str, int]]:
         """The number of clips and, per descriptor, of current vectors (one snapshot)."""
@@ -333,10 +389,12 @@ class Library:
             return clip_db.count_clips(session)
 
     def close(self) -> None:
+        self._stopping.set()
+        if self._refresher is not None:
+            self._refresher.join(timeout=30)
         try:
             self.save_indexes()
         finally:
-            self.search_reads.close()
             self.engine.dispose()
             if self.parsers is not None:
                 self.parsers.close()
@@ -344,8 +402,9 @@ class Library:
 
 def _open_indexes(
     settings: Settings, reads: sessionmaker[Session], descriptors: Mapping[str, DescriptorInfo]
-) -> tuple[IndexSet, IndexSet]:
-    """The clip indexes and the window indexes, loaded (or rebuilt) from their files."""
+) -> tuple[IndexSet, IndexSet, Catalogue]:
+    """The clip indexes, the window indexes and the catalogue, loaded (or rebuilt) from their
+    files."""
     options = index_options(settings)
     indexes = {
         info.name: DescriptorIndex(
@@ -358,11 +417,16 @@ def _open_indexes(
         name: DescriptorIndex(name, key.dimension, key.version, settings.index_dir, options=options)
         for name, key in keys.items()
     }
+    catalogue = Catalogue(
+        settings.index_dir, autosave_below=options.autosave_below, save_delay=options.save_delay
+    )
     # Reading and checksumming the files (hundreds of MB at a million clips) releases the
     # GIL: all at once, in threads.
     every = [*indexes.values(), *windows.values()]
-    with ThreadPoolExecutor(max_workers=max(1, min(8, len(every)))) as pool:
+    with ThreadPoolExecutor(max_workers=max(1, min(8, len(every) + 1))) as pool:
+        listed = pool.submit(catalogue.read_file)
         files = dict(zip(every, pool.map(DescriptorIndex.read_file, every), strict=True))
+        catalogue_file = listed.result()
     with reads() as session:  # one feed position for every index, taken before their vectors
         watermark = horizon(session)
         for info in descriptors.values():
@@ -372,7 +436,8 @@ def _open_indexes(
         for name, key in keys.items():
             index = windows[name]
             index.load_or_rebuild(StoredWindows(session, key, watermark, index), files.pop(index))
-    return IndexSet(indexes), IndexSet(windows)
+        catalogue.load_or_rebuild(StoredClips(session, watermark), catalogue_file)
+    return IndexSet(indexes), IndexSet(windows), catalogue
 
 
 def open_library(settings: Settings, *, describer: Describer | None = None) -> Library:
@@ -391,7 +456,7 @@ def open_library(settings: Settings, *, describer: Describer | None = None) -> L
         raise StorageUnavailable(f"cannot open the database: {exc}") from exc
     reads = read_sessions(engine)
     try:
-        indexes, windows = _open_indexes(settings, reads, describer.descriptors)
+        indexes, windows, catalogue = _open_indexes(settings, reads, describer.descriptors)
         with reads() as session:
             clips = clip_db.count_clips(session)
     except BaseException:
@@ -415,6 +480,7 @@ def open_library(settings: Settings, *, describer: Describer | None = None) -> L
         blobs=open_blob_store(engine, settings.files_dir),
         indexes=indexes,
         describer=describer,
+        catalogue=catalogue,
         window_indexes=windows,
         window_keys=window_keys(settings, describer.descriptors),
         parsers=parsers,

@@ -39,8 +39,8 @@ import numpy as np
 
 from app.db import clips as clip_db
 from app.db import label_filters as label_db
-from app.db import search_reads as search_db
 from app.db import windows as window_db
+from app.db.entries import ClipEntry
 from app.errors import InvalidInput, MomentsOff, NotFound
 from app.labels import label_filter
 from app.motion.windows import hop_share
@@ -52,7 +52,7 @@ from app.services.describe import (
     span_frames,
 )
 from app.services.library import Library, window_index_name
-from app.services.search import _unavailable, check_k
+from app.services.search import check_k, clip_vector
 from app.services.uploads import Upload
 
 MAX_PER_CLIP = 1000
@@ -64,7 +64,7 @@ MAX_ATTEMPTS = 4
 class Moment:
     """A found span ``[start, end)`` in seconds of the clip's file."""
 
-    clip: search_db.ClipName
+    clip: ClipEntry
     format: str
     start: float
     end: float
@@ -75,7 +75,7 @@ class Moment:
 class MomentQuery:
     """The query's span in seconds of its file, and its clip when it is a stored one."""
 
-    clip: clip_db.ClipRecord | None
+    clip: ClipEntry | None
     start: float
     end: float
 
@@ -445,7 +445,6 @@ def fitted_minima(
 
 def _search(
     library: Library,
-    db: search_db.SearchSnapshot,
     descriptor: str,
     vector: np.ndarray,
     query_seconds: float,
@@ -458,7 +457,7 @@ def _search(
     """``exclude``: (clip id, first, stop) frames of the query's own span; ``parts``: the
     query's own windows, to place the moments (else their best window's neighbours do)."""
     names = _index_names(library, descriptor, query_seconds)
-    labelled = db.clip_ids_with_label(label) if label_filter(label) else None
+    labelled = library.catalogue.ids_with_labels(label) if label_filter(label) else None
     allowed = {
         name: None if labelled is None else library.places(name).ids_of_clips(labelled)
         for name in names
@@ -476,9 +475,9 @@ def _search(
             break
         fetch *= 4
     chosen = sorted(groups, key=lambda g: g.distance)
-    facts = db.frame_times([g.clip_id for g in chosen])
-    chosen = [g for g in chosen if g.clip_id in facts]  # not deleted meanwhile
-    frame_times = np.array([facts[g.clip_id][1] for g in chosen], np.float64)
+    clips = library.catalogue.get_many(g.clip_id for g in chosen)
+    chosen = [g for g in chosen if g.clip_id in clips]  # not deleted meanwhile
+    frame_times = np.array([clips[g.clip_id].frame_time for g in chosen], np.float64)
     placed: list[tuple[float, float] | None] = [None] * len(chosen)
     if parts is not None:
         placed = _aligned_starts(
@@ -486,7 +485,8 @@ def _search(
         )
     found: list[tuple[float, int, str, float, float]] = []  # distance, clip, format, span
     for group, place in zip(chosen, placed, strict=True):
-        fmt, frame_time, frame_count = facts[group.clip_id]
+        clip = clips[group.clip_id]
+        fmt, frame_time, frame_count = clip.format, clip.frame_time, clip.frame_count
         length = min(query_seconds / frame_time, float(frame_count))
         if place is not None:
             start, distance = place
@@ -514,7 +514,6 @@ def _search(
             shown.append(moment)
             if len(shown) == k:
                 break
-    clips = db.names([clip_id for _, clip_id, *_ in shown])  # only those shown
     return [
         Moment(clips[clip_id], fmt, _round(start), _round(end), distance)
         for distance, clip_id, fmt, start, end in shown
@@ -625,31 +624,29 @@ def search_moments_by_clip(
     _check(library, descriptor, k, per_clip)
     info = library.descriptor(descriptor)
     library.refresh()
-    with library.search_reads.snapshot() as db:
-        clip = db.clip(clip_id)
-        if clip is None:
-            raise NotFound(f"no clip with id {clip_id}")
-        first, stop = span_frames(
-            clip.frame_count, clip.frame_time, clip.lead_in_frames, start, end, WINDOW_LENGTHS[0]
-        )
-        stored = _StoredSpan(clip, descriptor, info.version, first, stop)
-        vector = _stored_span_vector(library, db, stored)
-        if vector is None:
-            vector = _described_span(library, clip, descriptor, first, stop).vector
-        seconds = (stop - first) * clip.frame_time
-        parts = _stored_parts(library, stored)
-        moments = _search(
-            library,
-            db,
-            descriptor,
-            vector,
-            seconds,
-            k,
-            per_clip,
-            label,
-            (clip.id, first, stop),
-            parts,
-        )
+    clip = library.catalogue.get(clip_id)
+    if clip is None:
+        raise NotFound(f"no clip with id {clip_id}")
+    first, stop = span_frames(
+        clip.frame_count, clip.frame_time, clip.lead_in_frames, start, end, WINDOW_LENGTHS[0]
+    )
+    stored = _StoredSpan(clip, descriptor, info.version, first, stop)
+    vector = _stored_span_vector(library, stored)
+    if vector is None:
+        vector = _described_span(library, clip, descriptor, first, stop).vector
+    seconds = (stop - first) * clip.frame_time
+    parts = _stored_parts(library, stored)
+    moments = _search(
+        library,
+        descriptor,
+        vector,
+        seconds,
+        k,
+        per_clip,
+        label,
+        (clip.id, first, stop),
+        parts,
+    )
     query = MomentQuery(
         clip,
         _round(start if start is not None else 0.0),
@@ -662,33 +659,19 @@ def search_moments_by_clip(
 class _StoredSpan:
     """Frames ``[first, stop)`` of a stored clip, queried under ``descriptor`` of ``version``."""
 
-    clip: clip_db.ClipRecord
+    clip: ClipEntry
     descriptor: str
     version: int
     first: int
     stop: int
 
 
-def _stored_span_vector(
-    library: Library, db: search_db.SearchSnapshot, span: _StoredSpan
-) -> np.ndarray | None:
+def _stored_span_vector(library: Library, span: _StoredSpan) -> np.ndarray | None:
     """The query vector without reading the file, when the span is the whole clip (the clip's
     vector) or exactly a stored window; else ``None``."""
-    clip, descriptor, version, first, stop = (
-        span.clip,
-        span.descriptor,
-        span.version,
-        span.first,
-        span.stop,
-    )
+    clip, descriptor, first, stop = span.clip, span.descriptor, span.first, span.stop
     if first == clip.lead_in_frames and stop == clip.frame_count:
-        try:
-            return library.indexes[descriptor].reconstruct(clip.id)
-        except KeyError:
-            stored = db.vector(clip.id, descriptor)
-            if stored is None or stored.version != version:
-                raise _unavailable(clip.id, descriptor, version) from None
-            return stored.vector
+        return clip_vector(library, clip.id, descriptor)
     for name, key in library.window_keys.items():
         if key.name != descriptor:
             continue
@@ -719,10 +702,14 @@ def _stored_parts(library: Library, span: _StoredSpan) -> Parts | None:
 
 
 def _described_span(
-    library: Library, clip: clip_db.ClipRecord, descriptor: str, first: int, stop: int
+    library: Library, entry: ClipEntry, descriptor: str, first: int, stop: int
 ) -> SpanDescription:
     """Read the clip's stored file and describe frames ``[first, stop)``."""
     describer = library.describer
+    with library.reads() as session:  # the files' hashes are not in the catalogue
+        clip = clip_db.get_clip(session, entry.id)
+    if clip is None:
+        raise NotFound(f"no clip with id {entry.id}")
     if not clip.files or not isinstance(describer, MotionDescriber):
         raise InvalidInput(
             f"clip {clip.id} has no stored file to describe a part of ({clip.format} clip); "
@@ -767,19 +754,7 @@ def search_moments_by_upload(
     library.refresh()
     seconds = (span.end_frame - span.start_frame) * span.frame_time
     parts = Parts(span.part_length, span.part_offsets * span.frame_time, span.parts)
-    with library.search_reads.snapshot() as db:
-        moments = _search(
-            library,
-            db,
-            descriptor,
-            span.vector,
-            seconds,
-            k,
-            per_clip,
-            label,
-            None,
-            parts,
-        )
+    moments = _search(library, descriptor, span.vector, seconds, k, per_clip, label, None, parts)
     duration = span.frame_count * span.frame_time
     query = MomentQuery(
         None,

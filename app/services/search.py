@@ -8,14 +8,14 @@ comma-separated one) keep the clips carrying all of them, compared case-insensit
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
 from app.db import clips as clip_db
 from app.db import label_filters as label_db
-from app.db import search_reads as search_db
+from app.db import vectors as vector_db
+from app.db.entries import ClipEntry
 from app.errors import DescriptorUnavailable, InvalidInput, NotFound
 from app.labels import label_filter
 from app.services.ingest import describe, new_clip
@@ -27,26 +27,8 @@ MAX_ATTEMPTS = 3
 
 @dataclass(frozen=True, slots=True)
 class Hit:
-    clip: search_db.ClipName  # id, name and labels (a ClipRecord has them too)
+    clip: ClipEntry  # what a result shows of the clip, from the catalogue
     distance: float
-
-
-QUICK_SCAN = 1_000_000  # numbers compared per query below which a search is "quick"
-QUICK_K = 100
-
-
-def is_quick(library: Library, descriptor: str, k: int, label: label_db.LabelFilter) -> bool:
-    """Whether a search by clip takes well under a millisecond (an unfiltered search that
-    compares at most :data:`QUICK_SCAN` numbers and fetches at most :data:`QUICK_K` rows), so
-    a caller may run it without handing it to a thread. Unknown descriptors count as quick
-    (they fail at once). Never on a database server (PostgreSQL): its rows come over the
-    network, and waiting for them must not hold up the event loop."""
-    if library.engine.dialect.name != "sqlite":
-        return False
-    index = library.indexes.get(descriptor)
-    if index is None:
-        return True
-    return not label_filter(label) and k <= QUICK_K and index.scan_cost() <= QUICK_SCAN
 
 
 def check_k(library: Library, k: int) -> None:
@@ -56,35 +38,34 @@ def check_k(library: Library, k: int) -> None:
 
 def _nearest(
     library: Library,
-    db: search_db.SearchSnapshot,
     descriptor: str,
     vector: np.ndarray,
     k: int,
     *,
     label: label_db.LabelFilter,
     exclude: int | None,
-) -> tuple[list[Hit], search_db.ClipName | None]:
-    """The hits, and the name and labels of ``exclude`` (the query clip; fetched with the
-    hits' to save a query)."""
+) -> list[Hit]:
+    """The hits, read from the index and the catalogue (no SQL)."""
     index = library.indexes[descriptor]
-    allowed = db.clip_ids_with_label(label) if label_filter(label) else None
-    also = [] if exclude is None else [exclude]
+    catalogue = library.catalogue
+    allowed = catalogue.ids_with_labels(label) if label_filter(label) else None
     wanted = k
+    hits: list[Hit] = []
     for _ in range(MAX_ATTEMPTS):
         found = index.search(vector, wanted, allowed=allowed, exclude=exclude)
-        clips = db.names([*found.ids.tolist(), *also])
+        clips = catalogue.get_many(found.ids.tolist())
         hits = [
-            Hit(clips[int(i)], float(d))
-            for i, d in zip(found.ids, found.distances, strict=True)
-            if int(i) in clips
+            Hit(clips[i], d)
+            for i, d in zip(found.ids.tolist(), found.distances.tolist(), strict=True)
+            if i in clips
         ]
-        # A clip deleted (by another process) between the index search and the row lookup is
-        # skipped; ask for as many more as went missing, so the answer still has k hits when
-        # the library does.
+        # A clip the index holds but the catalogue not (a sync between the two, which follow
+        # the same feed one after the other) is skipped; ask for as many more as went
+        # missing, so the answer still has k hits when the library does.
         if len(hits) >= k or len(found) < wanted:
             break
         wanted += len(found) - len(hits)
-    return hits[:k], None if exclude is None else clips.get(exclude)
+    return hits[:k]
 
 
 def search_vector(
@@ -101,8 +82,7 @@ def search_vector(
     library.descriptor(descriptor)
     library.require_current(descriptor)
     library.refresh()
-    with library.search_reads.snapshot() as db:
-        return _nearest(library, db, descriptor, vector, k, label=label, exclude=exclude)[0]
+    return _nearest(library, descriptor, vector, k, label=label, exclude=exclude)
 
 
 def _unavailable(clip_id: int, descriptor: str, version: int) -> DescriptorUnavailable:
@@ -110,6 +90,21 @@ def _unavailable(clip_id: int, descriptor: str, version: int) -> DescriptorUnava
         f"clip {clip_id} has no {descriptor!r} vector of version {version} yet; "
         "run `mocap-index reindex`"
     )
+
+
+def clip_vector(library: Library, clip_id: int, descriptor: str) -> np.ndarray:
+    """The stored ``descriptor`` vector ``(D,)`` of clip ``clip_id``: from its index, or
+    (a clip the index does not hold yet) from the database."""
+    try:
+        return library.indexes[descriptor].reconstruct(clip_id)
+    except KeyError:
+        pass
+    info = library.descriptors[descriptor]
+    with library.reads() as session:
+        stored = vector_db.get_vector(session, clip_id, descriptor)
+    if stored is None or stored.version != info.version or stored.vector.size != info.dimension:
+        raise _unavailable(clip_id, descriptor, info.version)
+    return stored.vector
 
 
 def search_by_clip(
@@ -126,33 +121,18 @@ def search_by_clip(
 
 def search_by_clip_id(
     library: Library, clip_id: int, descriptor: str, k: int, *, label: label_db.LabelFilter
-) -> tuple[clip_db.ClipRecord, list[Hit]]:
-    """The stored clip ``clip_id`` and its neighbours (never the clip itself), read from one
-    database snapshot: ``GET /search``. :class:`NotFound` when there is no such clip."""
-    info = library.descriptor(descriptor)
+) -> tuple[ClipEntry, list[Hit]]:
+    """The stored clip ``clip_id`` and its neighbours (never the clip itself): ``GET
+    /search``. :class:`NotFound` when there is no such clip."""
+    library.descriptor(descriptor)
     check_k(library, k)
     library.require_current(descriptor)
     library.refresh()
-    with library.search_reads.snapshot() as db:
-        clip = db.clip(clip_id, labels=False)
-        if clip is None:
-            raise NotFound(f"no clip with id {clip_id}")
-        try:  # the index holds the clip's current vector: no need to read it
-            vector = library.indexes[descriptor].reconstruct(clip_id)
-        except KeyError:  # not in the index (yet): the database knows
-            stored = db.vector(clip_id, descriptor)
-            if (
-                stored is None
-                or stored.version != info.version
-                or stored.vector.size != info.dimension
-            ):
-                raise _unavailable(clip_id, descriptor, info.version) from None
-            vector = stored.vector
-        hits, named = _nearest(library, db, descriptor, vector, k, label=label, exclude=clip_id)
-        if named is None:  # deleted meanwhile by another process
-            raise NotFound(f"no clip with id {clip_id}")
-        clip = dataclasses.replace(clip, labels=named.labels)
-    return clip, hits
+    clip = library.catalogue.get(clip_id)
+    if clip is None:
+        raise NotFound(f"no clip with id {clip_id}")
+    vector = clip_vector(library, clip_id, descriptor)
+    return clip, _nearest(library, descriptor, vector, k, label=label, exclude=clip_id)
 
 
 def search_by_upload(
