@@ -5,9 +5,11 @@ Handing work to a thread costs a wake-up, a context switch and a fight for the G
 million clips that was half of the CPU of a 0.2-ms search and halved the throughput. Running
 on the event loop costs the other connections their wait while it runs: a 30-ms search there
 put a p99 of 2 s on the rest. So each kind of search (the caller names it: descriptor, label
-filter or not, ...) keeps the moving average of how long it took; while that is under
+filter or not, ...) keeps the moving average of the CPU time it took; while that is under
 :data:`INLINE_BELOW` it runs right on the loop, else in a thread. The first of a kind runs in
-a thread, until there is a measure.
+a thread, until there is a measure. (CPU time: what a search costs the others; its wall time
+also counts every other process of a busy machine. A search waiting on the database — with
+``MOCAP_INDEX_REFRESH_SECONDS=0`` it polls the feed first — is measured by its CPU too.)
 """
 
 from __future__ import annotations
@@ -24,6 +26,10 @@ T = TypeVar("T")
 # loop under load, so a quick search never waits behind another one for long.
 INLINE_BELOW = 0.002
 WEIGHT = 0.2  # of the newest measure in the moving average
+# Calls measured: the first few of a kind, then one in SAMPLE_EVERY. Reading a thread's CPU
+# clock is a system call (no vDSO), which on this VM cost more than the search it measured.
+FIRST_MEASURED = 4
+SAMPLE_EVERY = 32
 
 
 class Offload:
@@ -33,9 +39,11 @@ class Offload:
         self._limiter = limiter
         self._inline_below = inline_below
         self._seconds: dict[Hashable, float] = {}
+        self._calls: dict[Hashable, int] = {}
 
     def estimate(self, kind: Hashable) -> float | None:
-        """The moving average of the seconds a call of ``kind`` took (None: never ran)."""
+        """The moving average of the CPU seconds a call of ``kind`` took (None: never
+        measured)."""
         return self._seconds.get(kind)
 
     def _measured(self, kind: Hashable, seconds: float) -> None:
@@ -43,11 +51,17 @@ class Offload:
         self._seconds[kind] = seconds if before is None else before + WEIGHT * (seconds - before)
 
     def _timed(self, kind: Hashable, call: Callable[[], T]) -> T:
-        started = time.perf_counter()
+        calls = self._calls.get(kind, 0)
+        self._calls[kind] = calls + 1
+        if calls >= FIRST_MEASURED and calls % SAMPLE_EVERY:
+            return call()
+        # CPU time of this thread, not wall time: on a loaded machine (or behind the GIL in
+        # a thread) a 0.3-ms search can take 3 ms of wall time, and would never run inline.
+        started = time.thread_time()
         try:
             return call()
         finally:
-            self._measured(kind, time.perf_counter() - started)
+            self._measured(kind, time.thread_time() - started)
 
     async def run(self, kind: Hashable, call: Callable[[], T]) -> T:
         """``call()``: inline when calls of ``kind`` have been quick, else in a thread."""

@@ -85,11 +85,12 @@ def write_arrays(
 
 
 def read_arrays(
-    directory: Path, stem: str, expect: Mapping[str, Any]
+    directory: Path, stem: str, expect: Mapping[str, Any], *, verify: bool = True
 ) -> tuple[dict[str, np.ndarray], dict[str, Any]] | str:
     """The arrays of ``<stem>.arrays`` (read-only views of the mapped file) and the metadata,
     or why they cannot be used: a file missing, unreadable or not matching its checksum, or
-    metadata differing from ``expect`` (a format version, a descriptor)."""
+    metadata differing from ``expect`` (a format version, a descriptor). With
+    ``verify=False`` the checksum is left to :func:`verify_arrays` (later, in a thread)."""
     path = directory / f"{stem}.arrays"
     with directory_lock(directory, exclusive=False):
         try:
@@ -99,7 +100,7 @@ def read_arrays(
             for key, value in expect.items():
                 if meta.get(key) != value:
                     return f"{key} is {meta.get(key)!r}, expected {value!r}"
-            if file_sha256(path) != meta.get("sha256"):
+            if verify and file_sha256(path) != meta.get("sha256"):
                 return f"{path.name} does not match its checksum"
             with open(path, "rb") as stream:
                 size = os.fstat(stream.fileno()).st_size
@@ -122,3 +123,25 @@ def read_arrays(
     except (KeyError, TypeError, ValueError) as exc:
         return f"unreadable {stem} metadata: {exc}"
     return arrays, meta
+
+
+def verify_arrays(arrays: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> str | None:
+    """Check the checksum of arrays read with ``verify=False`` (the mapped file itself, even if
+    another process has replaced the file since): why they cannot be used, or None."""
+    mapped = next(filter(None, (_mapping_of(a) for a in arrays.values())), None)
+    if mapped is None:  # an empty file: nothing mapped
+        return None
+    digest = hashlib.sha256()
+    view = memoryview(mapped)
+    for start in range(0, len(view), HASH_CHUNK):
+        digest.update(view[start : start + HASH_CHUNK])
+    view.release()
+    return None if digest.hexdigest() == meta.get("sha256") else "file does not match its checksum"
+
+
+def _mapping_of(array: np.ndarray) -> mmap.mmap | None:
+    """The file mapping an array of :func:`read_arrays` is a view of, if any."""
+    base: Any = array
+    while base is not None and not isinstance(base, mmap.mmap):
+        base = base.obj if isinstance(base, memoryview) else getattr(base, "base", None)
+    return base

@@ -39,13 +39,13 @@ import orjson
 
 from app.db.clips import AnimationRecord
 from app.db.entries import ClipEntry
-from app.index.array_file import read_arrays, write_arrays
+from app.index.array_file import read_arrays, verify_arrays, write_arrays
 from app.labels import label_filter, label_key
 
 log = logging.getLogger(__name__)
 
 STEM = "catalogue"
-FORMAT = 1  # the layout of the file; another one is rebuilt from the database
+FORMAT = 2  # the layout of the file; another one is rebuilt from the database
 COMPACT_MIN = 20_000  # overlay entries that make a new base (at least)
 COMPACT_SHARE = 20  # ... or this share of the base (1/20)
 EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
@@ -57,71 +57,26 @@ def _micros(value: datetime) -> int:
 
 
 def encode_entry(entry: ClipEntry) -> bytes:
-    """One clip as stored in the catalogue file (an orjson list; the id is the row's)."""
-    return orjson.dumps(
-        [
-            entry.name,
-            entry.format,
-            entry.filenames,
-            entry.skeleton_family,
-            entry.labels,
-            entry.frame_count,
-            entry.frame_time,
-            entry.duration,
-            entry.source,
-            entry.licence,
-            entry.content_hash,
-            entry.joint_count,
-            entry.lead_in_frames,
-            entry.warnings,
-            None
-            if entry.animations is None
-            else [[a.name, a.frame_count, a.duration, a.selected] for a in entry.animations],
-            _micros(entry.created_at),
-        ]
+    """One clip as stored in the catalogue file: an orjson list of its fields after the id (the
+    row's), in :class:`ClipEntry` order, ``created_at`` in microseconds since 1970."""
+    fields: list[Any] = list(entry[1:])
+    fields[-2] = (
+        None
+        if entry.animations is None
+        else [[a.name, a.frame_count, a.duration, a.selected] for a in entry.animations]
     )
+    fields[-1] = _micros(entry.created_at)
+    return orjson.dumps(fields)
 
 
 def decode_entry(clip_id: int, data: bytes | memoryview) -> ClipEntry:
-    (
-        name,
-        fmt,
-        filenames,
-        family,
-        labels,
-        frame_count,
-        frame_time,
-        duration,
-        source,
-        licence,
-        content_hash,
-        joint_count,
-        lead_in_frames,
-        warnings,
-        animations,
-        created,
-    ) = orjson.loads(data)
-    return ClipEntry(
-        id=clip_id,
-        name=name,
-        format=fmt,
-        filenames=tuple(filenames),
-        skeleton_family=family,
-        labels=tuple(labels),
-        frame_count=frame_count,
-        frame_time=frame_time,
-        duration=duration,
-        source=source,
-        licence=licence,
-        content_hash=content_hash,
-        joint_count=joint_count,
-        lead_in_frames=lead_in_frames,
-        warnings=tuple(warnings),
-        animations=None
-        if animations is None
-        else tuple(AnimationRecord(n, f, d, s) for n, f, d, s in animations),
-        created_at=EPOCH + timedelta(microseconds=created),
-    )
+    fields = orjson.loads(data)
+    fields.insert(0, clip_id)
+    fields[3], fields[5], fields[14] = tuple(fields[3]), tuple(fields[5]), tuple(fields[14])
+    if fields[15] is not None:
+        fields[15] = tuple(AnimationRecord(n, f, d, s) for n, f, d, s in fields[15])
+    fields[16] = EPOCH + timedelta(microseconds=fields[16])
+    return ClipEntry._make(fields)
 
 
 class ClipSource(Protocol):
@@ -295,9 +250,16 @@ class _Base:
             tables={name: orjson.loads(arrays[f"{name}_table"].tobytes()) for name in CODED},
         )
 
+    def rows(self, clip_ids: np.ndarray) -> np.ndarray:
+        """The rows of ``clip_ids`` ``(M,)`` (-1: not held)."""
+        if not self.ids.size:
+            return np.full(clip_ids.size, -1, np.int64)
+        at = np.minimum(self.ids.searchsorted(clip_ids), self.ids.size - 1)
+        return np.where(self.ids[at] == clip_ids, at, -1)
+
     def row(self, clip_id: int) -> int:
         """The row of ``clip_id``, or -1."""
-        at = int(np.searchsorted(self.ids, clip_id))
+        at = int(self.ids.searchsorted(clip_id))
         return at if at < self.ids.size and int(self.ids[at]) == clip_id else -1
 
     def entry(self, row: int) -> ClipEntry:
@@ -348,6 +310,7 @@ class Catalogue:
         self.autosave_below = autosave_below
         self.save_delay = save_delay
         self.autosave = True  # False: changes are saved only by an explicit save() or flush()
+        self._unchecked: tuple[dict[str, np.ndarray], dict[str, Any]] | None = None
         self._state = _State(_Base.empty())
         self._synced_to = 0
         self._unsaved = 0
@@ -382,18 +345,23 @@ class Catalogue:
         return None if row < 0 else state.base.entry(row)
 
     def get_many(self, clip_ids: Iterable[int]) -> dict[int, ClipEntry]:
-        """The clips among ``clip_ids`` that exist, by id."""
+        """The clips among ``clip_ids`` that exist, by id (one binary search for all)."""
         state = self._state
         found: dict[int, ClipEntry] = {}
+        wanted = []
         for clip_id in clip_ids:
             if clip_id in state.overlay:
                 entry = state.overlay[clip_id]
                 if entry is not None:
                     found[clip_id] = entry
-                continue
-            row = state.base.row(clip_id)
-            if row >= 0:
-                found[clip_id] = state.base.entry(row)
+            else:
+                wanted.append(clip_id)
+        if wanted:
+            base = state.base
+            rows = base.rows(np.asarray(wanted, np.int64))
+            for clip_id, row in zip(wanted, rows.tolist(), strict=True):
+                if row >= 0:
+                    found[clip_id] = base.entry(row)
         return found
 
     def ids(self) -> np.ndarray:
@@ -492,6 +460,7 @@ class Catalogue:
         """Hold exactly ``entries`` (as the database has them at feed position
         ``synced_to``)."""
         base = _Base.build(entries)
+        self._unchecked = None  # that file is no longer used
         with self._changing:
             self._state = _State(base)
             self._synced_to = int(synced_to)
@@ -571,10 +540,22 @@ class Catalogue:
             self._timer = None
         self.try_save()
 
-    def read_file(self) -> tuple[dict[str, np.ndarray], dict[str, Any]] | str:
+    def read_file(
+        self, *, verify: bool = True
+    ) -> tuple[dict[str, np.ndarray], dict[str, Any]] | str:
         """The persisted arrays and metadata, or why they cannot be used (file work only:
-        it can run in a thread beside the indexes' reads)."""
-        return read_arrays(self.directory, STEM, {"format": FORMAT})
+        it can run in a thread beside the indexes' reads). ``verify=False``: the checksum is
+        checked later, by :meth:`verify_file`."""
+        found = read_arrays(self.directory, STEM, {"format": FORMAT}, verify=verify)
+        if not verify and not isinstance(found, str):
+            self._unchecked = found
+        return found
+
+    def verify_file(self) -> str | None:
+        """Check the checksum of the file read with ``read_file(verify=False)``: why it
+        cannot be used (the caller rebuilds the catalogue), or None."""
+        unchecked, self._unchecked = self._unchecked, None
+        return None if unchecked is None else verify_arrays(*unchecked)
 
     def load_or_rebuild(
         self,

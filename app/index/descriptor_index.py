@@ -166,6 +166,7 @@ class DescriptorIndex:
         self._timer_lock = threading.Lock()
         self._lock = ReadWriteLock()
         self._save_lock = threading.Lock()
+        self._unchecked: tuple[int, str] | None = None  # see read_file(verify=False)
         self._mapped_inode = -1  # the index file mapped (see _map), and its metadata
         self._mapped_meta: dict[str, Any] = {}
 
@@ -591,6 +592,7 @@ class DescriptorIndex:
         )
         kind = kind or self.options.kind_for(int(ids_.size))
         fresh = build_index(ids_, array, kind, self.options, threads=threads)
+        self._drop_unchecked()  # that file is no longer used
         with self._lock.write():
             self._index = fresh
             self._max_id = None
@@ -681,14 +683,16 @@ class DescriptorIndex:
         except OSError:
             return False
 
-    def read_file(self) -> tuple[Any, dict[str, Any]] | str:
+    def read_file(self, *, verify: bool = True) -> tuple[Any, dict[str, Any]] | str:
         """The persisted index and its metadata, or why they cannot be used (file work only:
         several indexes can be read at once, in threads). An IVF index is mapped, not read
-        (see app/index/frozen.py)."""
+        (see app/index/frozen.py); with ``verify=False`` its checksum is checked later, by
+        :meth:`verify_file` (hashing a large file is most of a server's start-up)."""
         with directory_lock(self.directory, exclusive=False):
             try:
                 meta = json.loads(self.meta_path.read_text())
-                digest = _file_sha256(self.path)
+                later = not verify and meta.get("kind") == IVF and self.options.mmap
+                digest = None if later else _file_sha256(self.path)
             except FileNotFoundError as exc:
                 return f"missing {Path(exc.filename).name}"
             except (OSError, ValueError) as exc:
@@ -702,10 +706,13 @@ class DescriptorIndex:
             ):
                 if meta.get(key) != value:
                     return f"{key} is {meta.get(key)!r}, expected {value!r}"
-            if meta.get("sha256") != digest:
+            if digest is not None and meta.get("sha256") != digest:
                 return "index file does not match its checksum"
             try:
                 if meta.get("kind") == IVF and self.options.mmap:
+                    if digest is None:  # the file now mapped, open until checked (the lock
+                        # keeps another process from replacing it meanwhile)
+                        self._unchecked = (os.open(self.path, os.O_RDONLY), str(meta["sha256"]))
                     mapped = self._map(meta)
                     if mapped is None:
                         return "unreadable index"
@@ -725,6 +732,27 @@ class DescriptorIndex:
         if kind_of(index) == FLAT and index.id_map.size() != index.ntotal:
             return "index count disagrees with its id map"
         return index, meta
+
+    def _drop_unchecked(self) -> None:
+        unchecked, self._unchecked = self._unchecked, None
+        if unchecked is not None:
+            os.close(unchecked[0])
+
+    def verify_file(self) -> str | None:
+        """Check the checksum of the file mapped by ``read_file(verify=False)``: why it cannot
+        be used (the caller rebuilds the index), or None."""
+        unchecked, self._unchecked = self._unchecked, None
+        if unchecked is None:
+            return None
+        fd, expected = unchecked
+        try:
+            with os.fdopen(fd, "rb") as stream:
+                digest = hashlib.sha256()
+                while chunk := stream.read(HASH_CHUNK):
+                    digest.update(chunk)
+        except OSError as exc:
+            return f"unreadable index file: {exc}"
+        return None if digest.hexdigest() == expected else "index file does not match its checksum"
 
     def load_or_rebuild(
         self, source: VectorSource, found: tuple[Any, dict[str, Any]] | str | None = None

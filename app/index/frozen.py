@@ -77,7 +77,7 @@ class FrozenIVF:
         ids = np.asarray(ids, np.int64)
         if not self.base_ids.size:
             return np.full(ids.size, -1, np.int64)
-        at = np.minimum(np.searchsorted(self.base_ids, ids), self.base_ids.size - 1)
+        at = np.minimum(self.base_ids.searchsorted(ids), self.base_ids.size - 1)
         found = self.base_ids[at] == ids
         if self.gone.size:
             found &= ~np.isin(ids, self.gone)

@@ -38,11 +38,12 @@ from app.config import Settings
 from app.db import clips as clip_db
 from app.db import vectors as vector_db
 from app.db import windows as window_db
-from app.db.changes import ChangeFeed, horizon
+from app.db.changes import ChangeFeed, horizon, read_since
 from app.db.entries import clip_entries
 from app.db.migrate import upgrade
 from app.db.session import create_db_engine, read_sessions, write_sessions
 from app.errors import DescriptorOutdated, InvalidInput, StorageUnavailable
+from app.index.array_file import read_arrays, write_arrays
 from app.index.catalogue import Catalogue
 from app.index.descriptor_index import DescriptorIndex, IndexSet
 from app.index.kinds import IndexOptions
@@ -67,6 +68,7 @@ from app.services.parser_pool import ParserPool
 
 log = logging.getLogger(__name__)
 
+PLACES_FORMAT = 1  # the layout of a window index's places file
 # While a descriptor has outdated vectors, how often a search recounts them.
 OUTDATED_RECOUNT_SECONDS = 5.0
 
@@ -150,6 +152,8 @@ class Library:
     parsers: ParserPool | None = None
     write_lock: threading.Lock = field(default_factory=threading.Lock)
     _sync_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+    # Checks the checksums of the files mapped unchecked at start (verify_files).
+    verifier: threading.Thread | None = field(default=None, repr=False)
     _refresher: threading.Thread | None = field(default=None, repr=False)
     _stopping: threading.Event = field(default_factory=threading.Event, repr=False)
     _refresher_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
@@ -240,6 +244,29 @@ class Library:
             position = horizon(session)  # before the rows: nothing older is missed
             self.catalogue.replace_all(clip_entries(session), synced_to=position)
 
+    def verify_files(self) -> list[str]:
+        """Check the checksums left unchecked at start (``open_library(verify_later=True)``);
+        rebuild from the database whatever fails. Returns what was rebuilt."""
+        rebuilt = []
+        for name, index in self.indexes.items():
+            problem = index.verify_file()
+            if problem is not None and not self._stopping.is_set():
+                log.warning("rebuilding the %s index from the database: %s", name, problem)
+                self.rebuild_index(name)
+                rebuilt.append(name)
+        for name, index in self.window_indexes.items():
+            problem = index.verify_file()
+            if problem is not None and not self._stopping.is_set():
+                log.warning("rebuilding the %s index from the database: %s", name, problem)
+                self.rebuild_window_indexes()
+                rebuilt.append(name)
+        problem = self.catalogue.verify_file()
+        if problem is not None and not self._stopping.is_set():
+            log.warning("rebuilding the catalogue from the database: %s", problem)
+            self.rebuild_catalogue()
+            rebuilt.append("catalogue")
+        return rebuilt
+
     def places(self, name: str) -> WindowPlaces:
         """Where the windows of window index ``name`` lie (loaded from the database when
         first asked for; then kept up to date with the index)."""
@@ -259,10 +286,47 @@ class Library:
             self.window_indexes[name].sorted_ids()
 
     def _load_places(self, session: Session, name: str) -> None:
-        # Any later feed position is fine: the clips changed since the indexes' position are
-        # replaced again from the database at the next sync (a clip's windows as a whole).
-        places = Places(*window_db.load_window_places(session, self.window_keys[name]))
-        self.window_places[name].replace_all(places)
+        """From the places file when it can be used (mapped: shared by the server's
+        processes), with the clips changed since it was written read again; else from the
+        database, then saved. Changes after the indexes' feed position are applied again at
+        the next sync (a clip's windows as a whole), so any later state is fine here."""
+        places = self.window_places[name]
+        found = read_arrays(self.settings.index_dir, f"{name}.places", {"format": PLACES_FORMAT})
+        if not isinstance(found, str):
+            arrays, meta = found
+            loaded = Places(arrays["ids"], arrays["starts"], arrays["stops"])
+            position = int(meta.get("feed_position", -1))
+            if len(loaded) == meta.get("count") and 0 <= position <= horizon(session):
+                changed = read_since(session, position)[1]
+                clips = np.unique(np.fromiter((r.clip_id for r in changed), np.int64))
+                places.replace_all(loaded)
+                if clips.size:
+                    key = self.window_keys[name]
+                    found_rows = window_db.window_places_of_clips(session, key, clips.tolist())
+                    places.apply_changes(clips, Places(*found_rows))
+                if len(places) == self.window_indexes[name].size:
+                    return
+                log.warning(
+                    "the %s places hold %d windows, the index %d: reading them again",
+                    name,
+                    len(places),
+                    self.window_indexes[name].size,
+                )
+        position = horizon(session)  # before the rows: nothing older is missed
+        places.replace_all(Places(*window_db.load_window_places(session, self.window_keys[name])))
+        self._save_places(name, position)
+
+    def _save_places(self, name: str, position: int) -> None:
+        held = self.window_places[name].held
+        try:
+            write_arrays(
+                self.settings.index_dir,
+                f"{name}.places",
+                {"ids": held.ids, "starts": held.starts, "stops": held.stops},
+                {"format": PLACES_FORMAT, "count": len(held), "feed_position": position},
+            )
+        except OSError as exc:
+            log.warning("could not save the %s places (%s); read again at next start", name, exc)
 
     def sync_indexes(self, *, wait: bool = True) -> bool:
         """Apply to the indexes the clips added or deleted since they last looked (by this
@@ -355,10 +419,15 @@ class Library:
                     self._refresher.start()
 
     def _refresh_loop(self, interval: float) -> None:
-        while True:
-            self._check()
-            if self._stopping.wait(interval):
-                return
+        watch = _DataVersion(self.engine)
+        try:
+            while True:
+                if watch.changed():
+                    self._check()
+                if self._stopping.wait(interval):
+                    return
+        finally:
+            watch.close()
 
     def _check(self) -> None:
         try:
@@ -374,6 +443,9 @@ class Library:
         self.indexes.save(only_changed=True)
         self.window_indexes.save(only_changed=True)
         self.catalogue.flush()
+        for name, places in self.window_places.items():
+            if places.loaded and places.changed:
+                self._save_places(name, self._feed.position)
 
     def vector_counts(self) -> tuple[int, dict[str, int]]:
         """The number of clips and, per descriptor, of current vectors (one snapshot)."""
@@ -390,6 +462,8 @@ class Library:
 
     def close(self) -> None:
         self._stopping.set()
+        if self.verifier is not None:
+            self.verifier.join(timeout=60)
         if self._refresher is not None:
             self._refresher.join(timeout=30)
         try:
@@ -400,11 +474,47 @@ class Library:
                 self.parsers.close()
 
 
+class _DataVersion:
+    """Whether a SQLite database may have changed since last asked: ``PRAGMA data_version``
+    on a connection of its own moves when another connection commits (no file read), so the
+    refresher polls the feed only then — ten times a second a session and two statements
+    cost an idle server a few per cent of a core. Other databases: always maybe."""
+
+    def __init__(self, engine: Engine) -> None:
+        self._connection: sqlite3.Connection | None = None
+        self._seen: int | None = None
+        path = engine.url.database if engine.dialect.name == "sqlite" else None
+        if path:
+            try:
+                self._connection = sqlite3.connect(path, check_same_thread=False)
+            except sqlite3.Error:
+                self._connection = None
+
+    def changed(self) -> bool:
+        if self._connection is None:
+            return True
+        try:
+            version = int(self._connection.execute("PRAGMA data_version").fetchone()[0])
+        except sqlite3.Error:
+            return True
+        changed, self._seen = version != self._seen, version
+        return changed
+
+    def close(self) -> None:
+        if self._connection is not None:
+            self._connection.close()
+
+
 def _open_indexes(
-    settings: Settings, reads: sessionmaker[Session], descriptors: Mapping[str, DescriptorInfo]
+    settings: Settings,
+    reads: sessionmaker[Session],
+    descriptors: Mapping[str, DescriptorInfo],
+    *,
+    verify: bool = True,
 ) -> tuple[IndexSet, IndexSet, Catalogue]:
     """The clip indexes, the window indexes and the catalogue, loaded (or rebuilt) from their
-    files."""
+    files (``verify=False``: the mapped files' checksums are left to
+    :meth:`Library.verify_files`)."""
     options = index_options(settings)
     indexes = {
         info.name: DescriptorIndex(
@@ -424,8 +534,8 @@ def _open_indexes(
     # GIL: all at once, in threads.
     every = [*indexes.values(), *windows.values()]
     with ThreadPoolExecutor(max_workers=max(1, min(8, len(every) + 1))) as pool:
-        listed = pool.submit(catalogue.read_file)
-        files = dict(zip(every, pool.map(DescriptorIndex.read_file, every), strict=True))
+        listed = pool.submit(catalogue.read_file, verify=verify)
+        files = dict(zip(every, pool.map(lambda i: i.read_file(verify=verify), every), strict=True))
         catalogue_file = listed.result()
     with reads() as session:  # one feed position for every index, taken before their vectors
         watermark = horizon(session)
@@ -440,8 +550,15 @@ def _open_indexes(
     return IndexSet(indexes), IndexSet(windows), catalogue
 
 
-def open_library(settings: Settings, *, describer: Describer | None = None) -> Library:
-    """Migrate the database to the newest schema and load (or rebuild) the indexes."""
+def open_library(
+    settings: Settings, *, describer: Describer | None = None, verify_later: bool = False
+) -> Library:
+    """Migrate the database to the newest schema and load (or rebuild) the indexes.
+
+    ``verify_later`` (the server): the large, mapped files are used before their checksums
+    are checked; :meth:`Library.verify_files` checks them in a thread of the library and
+    rebuilds any that fails, so a server answers within seconds of starting at a million
+    clips (hashing them was most of the start)."""
     parsers = ParserPool.from_settings(settings)  # no process until an FBX/glTF arrives
     if describer is None:
         describer = MotionDescriber.from_settings(settings, parsers=parsers)
@@ -456,7 +573,9 @@ def open_library(settings: Settings, *, describer: Describer | None = None) -> L
         raise StorageUnavailable(f"cannot open the database: {exc}") from exc
     reads = read_sessions(engine)
     try:
-        indexes, windows, catalogue = _open_indexes(settings, reads, describer.descriptors)
+        indexes, windows, catalogue = _open_indexes(
+            settings, reads, describer.descriptors, verify=not verify_later
+        )
         with reads() as session:
             clips = clip_db.count_clips(session)
     except BaseException:
@@ -485,6 +604,11 @@ def open_library(settings: Settings, *, describer: Describer | None = None) -> L
         window_keys=window_keys(settings, describer.descriptors),
         parsers=parsers,
     )
+    if verify_later:
+        library.verifier = threading.Thread(
+            target=library.verify_files, name="verify-files", daemon=True
+        )
+        library.verifier.start()
     for name, outdated in library.count_outdated().items():
         if outdated:
             log.warning(

@@ -5,7 +5,6 @@ so every search's hits carry exactly the database's data."""
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import signal
 import subprocess
@@ -58,7 +57,7 @@ def entry(clip_id: int, **changes: object) -> ClipEntry:
         animations=None,
         created_at=datetime(2024, 1, 2, 3, 4, 5, clip_id, tzinfo=UTC),
     )
-    return dataclasses.replace(base, **changes)  # type: ignore[arg-type]
+    return base._replace(**changes)  # type: ignore[arg-type]
 
 
 entries_strategy = st.builds(
