@@ -538,11 +538,12 @@ class DescriptorIndex:
         if not ids.size:
             return np.zeros(0, bool), np.empty((0, self.dimension), np.float32)
         with self._lock.read():
-            if not self.mapped:
-                try:
-                    return np.ones(ids.size, bool), self._index.reconstruct_batch(ids)
-                except RuntimeError:  # one is not held
-                    pass
+            if isinstance(self._index, FrozenIVF):
+                return self._index.vectors(ids)
+            try:
+                return np.ones(ids.size, bool), self._index.reconstruct_batch(ids)
+            except RuntimeError:  # one is not held
+                pass
         kept, vectors = self.reconstruct_many(ids)
         return np.isin(ids, kept), vectors
 

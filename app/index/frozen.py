@@ -22,6 +22,8 @@ Shapes: a query is ``(1, D)`` float32; ids ``(N,)`` int64; vectors ``(N, D)`` fl
 
 from __future__ import annotations
 
+import ctypes
+import os
 from typing import Any
 
 import faiss
@@ -52,6 +54,8 @@ class FrozenIVF:
         order = np.argsort(every, kind="stable")
         self.base_ids = every[order]  # sorted
         self.places = np.concatenate(places)[order] if places else np.zeros(0, np.int64)
+        self._codes: np.ndarray | None = None  # see _view_codes
+        self._list_starts = np.zeros(0, np.int64)
 
     @classmethod
     def open(cls, path: str) -> FrozenIVF:
@@ -59,7 +63,32 @@ class FrozenIVF:
         base = faiss.read_index(path, faiss.IO_FLAG_MMAP_IFC)
         if base.direct_map.type != faiss.DirectMap.NoMap:  # type: ignore[attr-defined]
             base.set_direct_map_type(faiss.DirectMap.NoMap)  # type: ignore[attr-defined]
-        return cls(base)
+        frozen = cls(base)
+        frozen._view_codes(os.path.getsize(path))
+        return frozen
+
+    def _view_codes(self, file_size: int) -> None:
+        """For a mapped IVFFlat file, a numpy view of the mapping holding every list's codes
+        (raw float32 vectors) and each list's offset in it, so many vectors are read in one
+        gather instead of one FAISS call each (a moments search reads a hundred or more).
+        Only when every list lies inside one span no longer than the file: the mapping."""
+        base: Any = self.base
+        if not isinstance(base, faiss.IndexIVFFlat) or not self.base_ids.size:
+            return
+        invlists: Any = base.invlists
+        code_size = 4 * self.dimension
+        sizes = np.array([invlists.list_size(c) for c in range(base.nlist)], np.int64)
+        starts = np.array(
+            [int(invlists.get_codes(c)) if sizes[c] else 0 for c in range(base.nlist)], np.int64
+        )
+        used = sizes > 0
+        first = int(starts[used].min())
+        span = int((starts[used] + sizes[used] * code_size).max()) - first
+        if span > file_size:
+            return
+        region = (ctypes.c_uint8 * span).from_address(first)
+        self._codes = np.frombuffer(memoryview(region).cast("B"), np.uint8)
+        self._list_starts = np.where(used, starts - first, -1)
 
     # -- what it holds ---------------------------------------------------------------------
 
@@ -109,6 +138,29 @@ class FrozenIVF:
             place >> LIST_SHIFT, place & ((1 << LIST_SHIFT) - 1), faiss.swig_ptr(out)
         )
         return out
+
+    def vectors(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Which of ``ids`` ``(M,)`` are held ``(M,)`` bool, and their ``(K, D)`` float32
+        vectors in the order of ``ids``."""
+        ids = np.asarray(ids, np.int64)
+        rows = self._base_rows(ids)
+        from_base = rows >= 0
+        if self._codes is None or self.delta.ntotal:
+            kept, found = [], []
+            for vector_id in ids.tolist():
+                vector = self.vector(vector_id)
+                kept.append(vector is not None)
+                if vector is not None:
+                    found.append(vector)
+            stacked = np.stack(found) if found else np.empty((0, self.dimension), np.float32)
+            return np.array(kept, bool), stacked
+        places = self.places[rows[from_base]]
+        code_size = 4 * self.dimension
+        offsets = (
+            self._list_starts[places >> LIST_SHIFT] + (places & ((1 << LIST_SHIFT) - 1)) * code_size
+        )
+        gathered = self._codes[offsets[:, None] + np.arange(code_size)]
+        return from_base, gathered.view(np.float32).reshape(-1, self.dimension)
 
     def all_vectors(self) -> tuple[np.ndarray, np.ndarray]:
         """Every ``(ids (N,), vectors (N, D))`` held."""

@@ -624,7 +624,7 @@ def search_moments_by_clip(
     _check(library, descriptor, k, per_clip)
     info = library.descriptor(descriptor)
     library.refresh()
-    clip = library.catalogue.get(clip_id)
+    clip = library.clip_entry(clip_id)
     if clip is None:
         raise NotFound(f"no clip with id {clip_id}")
     first, stop = span_frames(

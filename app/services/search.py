@@ -128,7 +128,7 @@ def search_by_clip_id(
     check_k(library, k)
     library.require_current(descriptor)
     library.refresh()
-    clip = library.catalogue.get(clip_id)
+    clip = library.clip_entry(clip_id)
     if clip is None:
         raise NotFound(f"no clip with id {clip_id}")
     vector = clip_vector(library, clip_id, descriptor)
