@@ -391,12 +391,17 @@ def scale(args: argparse.Namespace) -> int:
     log = data_dir.parent / "mocap-bench-moments-server.log"
     workers = str(args.workers or os.cpu_count() or 1)
     print(f"server: {workers} worker processes (--workers)")
-    startups = []
+    startups, startup_cpu = [], []
     for _ in range(3):
         server = Server(data_dir, log, MOCAP_WORKERS=workers)
         startups.append(server.startup)
+        startup_cpu.append(server.startup_cpu)
         server.stop()
-    print(f"start-up: median {statistics.median(startups):.2f} s of {startups} (target 5 s)")
+    print(
+        f"start-up: median {statistics.median(startups):.2f} s of "
+        f"{', '.join(f'{s:.2f}' for s in startups)} (target 5 s); CPU "
+        f"{', '.join(f'{s:.2f}' for s in startup_cpu)} s, all processes"
+    )
     server = Server(data_dir, log, MOCAP_WORKERS=workers)
     floor = Floor(data_dir, log, MOCAP_WORKERS=workers)
     options = {"path": "/search/moments", "descriptor": DESCRIPTOR}

@@ -364,6 +364,29 @@ class Catalogue:
                     found[clip_id] = base.entry(row)
         return found
 
+    def frames(self, clip_ids: Iterable[int]) -> dict[int, tuple[float, int]]:
+        """``(frame_time, frame_count)`` of the clips among ``clip_ids`` that exist, by id,
+        read from the columns (no entry decoded: a moments search asks for dozens)."""
+        state = self._state
+        found: dict[int, tuple[float, int]] = {}
+        wanted = []
+        for clip_id in clip_ids:
+            if clip_id in state.overlay:
+                entry = state.overlay[clip_id]
+                if entry is not None:
+                    found[clip_id] = (entry.frame_time, entry.frame_count)
+            else:
+                wanted.append(clip_id)
+        if wanted:
+            base = state.base
+            rows = base.rows(np.asarray(wanted, np.int64))
+            held = rows >= 0
+            times = base.frame_times[rows[held]].tolist()
+            counts = base.frame_counts[rows[held]].tolist()
+            kept = np.asarray(wanted, np.int64)[held].tolist()
+            found.update(zip(kept, zip(times, counts, strict=True), strict=True))
+        return found
+
     def ids(self) -> np.ndarray:
         """``(N,)`` int64 sorted ids of every clip."""
         state = self._state

@@ -475,18 +475,17 @@ def _search(
             break
         fetch *= 4
     chosen = sorted(groups, key=lambda g: g.distance)
-    clips = library.catalogue.get_many(g.clip_id for g in chosen)
-    chosen = [g for g in chosen if g.clip_id in clips]  # not deleted meanwhile
-    frame_times = np.array([clips[g.clip_id].frame_time for g in chosen], np.float64)
+    facts = library.catalogue.frames(g.clip_id for g in chosen)
+    chosen = [g for g in chosen if g.clip_id in facts]  # not deleted meanwhile
+    frame_times = np.array([facts[g.clip_id][0] for g in chosen], np.float64)
     placed: list[tuple[float, float] | None] = [None] * len(chosen)
     if parts is not None:
         placed = _aligned_starts(
             library, chosen, frame_times, parts, descriptor, query_seconds, exclude
         )
-    found: list[tuple[float, int, str, float, float]] = []  # distance, clip, format, span
+    found: list[tuple[float, int, float, float]] = []  # distance, clip, span
     for group, place in zip(chosen, placed, strict=True):
-        clip = clips[group.clip_id]
-        fmt, frame_time, frame_count = clip.format, clip.frame_time, clip.frame_count
+        frame_time, frame_count = facts[group.clip_id]
         length = min(query_seconds / frame_time, float(frame_count))
         if place is not None:
             start, distance = place
@@ -500,23 +499,22 @@ def _search(
             first = float(exclude[2]) if after else exclude[1] - length
             if first < 0 or first + length > frame_count:
                 continue
-        found.append(
-            (distance, group.clip_id, fmt, first * frame_time, (first + length) * frame_time)
-        )
+        found.append((distance, group.clip_id, first * frame_time, (first + length) * frame_time))
     found.sort(key=lambda moment: moment[0])
     # Nearest first, at most per_clip of a clip, none overlapping a nearer one of its clip.
-    shown: list[tuple[float, int, str, float, float]] = []
+    shown: list[tuple[float, int, float, float]] = []
     of_clip: dict[int, list[tuple[float, float]]] = {}
     for moment in found:
         spans = of_clip.setdefault(moment[1], [])
-        if len(spans) < per_clip and all(moment[4] <= a or b <= moment[3] for a, b in spans):
-            spans.append((moment[3], moment[4]))
+        if len(spans) < per_clip and all(moment[3] <= a or b <= moment[2] for a, b in spans):
+            spans.append((moment[2], moment[3]))
             shown.append(moment)
             if len(shown) == k:
                 break
+    clips = library.catalogue.get_many(clip_id for _, clip_id, _, _ in shown)  # those shown
     return [
-        Moment(clips[clip_id], fmt, _round(start), _round(end), distance)
-        for distance, clip_id, fmt, start, end in shown
+        Moment(clips[clip_id], clips[clip_id].format, _round(start), _round(end), distance)
+        for distance, clip_id, start, end in shown
         if clip_id in clips
     ]
 

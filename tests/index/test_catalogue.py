@@ -91,6 +91,9 @@ def check_against(catalogue: Catalogue, model: dict[int, ClipEntry]) -> None:
     for clip_id in range(0, 62):
         assert catalogue.get(clip_id) == model.get(clip_id)
     assert catalogue.get_many(range(62)) == model
+    assert catalogue.frames(range(62)) == {
+        i: (e.frame_time, e.frame_count) for i, e in model.items()
+    }
     for labels in (["walk"], ["WALK", "happy"], ["run"], ["nobody"], ["sad", "jump", "walk"]):
         assert catalogue.ids_with_labels(labels).tolist() == model_ids_with(model, labels)
     assert catalogue.ids_with_labels(None).tolist() == sorted(model)
