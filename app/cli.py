@@ -254,6 +254,26 @@ def _configure_import(parser: argparse.ArgumentParser) -> None:
         metavar="LABEL",
         help="a label for every imported clip (repeat for more)",
     )
+    parser.add_argument(
+        "--source",
+        metavar="TEXT",
+        help="where the clips come from (a URL, a dataset), for every clip whose --labels-tsv "
+        "row gives none; a duplicate gets it too",
+    )
+    parser.add_argument(
+        "--licence",
+        "--license",
+        dest="licence",
+        metavar="TEXT",
+        help="the clips' licence (e.g. 'CC BY 4.0'), for every clip whose --labels-tsv row "
+        "gives none; a duplicate gets it too",
+    )
+    parser.add_argument(
+        "--strict",
+        action="store_true",
+        help="exit with 1 when any file failed, also one an earlier run already reported as "
+        "refused (default: only new failures make the exit status 1)",
+    )
     progress = parser.add_mutually_exclusive_group()
     progress.add_argument(
         "--progress",
@@ -330,6 +350,8 @@ def _import(args: argparse.Namespace, settings: Settings) -> int:
         regex=args.labels_regex,
         fixed=args.label,
         columns=args.label_columns,
+        source=args.source,
+        licence=args.licence,
     )
     if rules.left_out:
         print(
@@ -368,20 +390,31 @@ def _import(args: argparse.Namespace, settings: Settings) -> int:
     if report.failed:
         print("failed:")
         for failure in sorted(report.failed, key=lambda f: str(f.path)):
-            print(f"  {failure.path}: {failure.reason}")
+            before = " (refused before)" if failure.path in report.known_refusals else ""
+            print(f"  {failure.path}: {failure.reason}{before}")
     rate = report.done / report.seconds if report.seconds else 0.0
     updated = sum(d.updated for d in report.duplicates)
+    known = len(report.known_refusals)
     print(
         f"{'interrupted: ' if report.interrupted else ''}"
         f"imported {len(report.imported)}, skipped {len(report.duplicates)} as duplicates"
         f"{f' ({updated} given new labels, source or licence)' if updated else ''}, "
-        f"failed {len(report.failed)} of {report.found} clips found, in {report.seconds:.2f} s "
+        f"failed {len(report.failed)}{f' ({known} refused before)' if known else ''} "
+        f"of {report.found} clips found, in {report.seconds:.2f} s "
         f"({rate:.0f} clips/s, {report.workers} worker{'s' if report.workers != 1 else ''})"
     )
     if report.interrupted:
         print("run the same command again to finish the import", file=sys.stderr)
         return 130
-    return 1 if report.failed else 0
+    return import_status(report, strict=args.strict)
+
+
+def import_status(report: Any, *, strict: bool) -> int:
+    """``import``'s exit status: 1 when a clip failed that no earlier run reported (any
+    failure with ``strict``), else 0 — re-running an import over files known to be
+    unreadable is not an error."""
+    failures = report.failed if strict else report.new_failures
+    return 1 if failures else 0
 
 
 # -- fill-synthetic ------------------------------------------------------------------------
@@ -480,6 +513,86 @@ def _delete(args: argparse.Namespace, settings: Settings) -> int:
         library.close()
     print(f"deleted {deleted} clip{'s' if deleted != 1 else ''} labelled {named}; {remaining} left")
     return 0
+
+
+# -- export ----------------------------------------------------------------------------------
+
+
+def _configure_export(parser: argparse.ArgumentParser) -> None:
+    which = parser.add_mutually_exclusive_group(required=True)
+    which.add_argument(
+        "--clip",
+        action="extend",
+        nargs="+",
+        type=int,
+        metavar="ID",
+        help="the clips to export, by id (several after one --clip, or repeat it)",
+    )
+    which.add_argument(
+        "--label",
+        action="append",
+        metavar="LABEL",
+        help="export every clip carrying this label (repeat, or separate with commas, for "
+        "clips carrying all of them)",
+    )
+    parser.add_argument("--format", choices=("bvh", "fbx", "glb"), default="bvh")
+    parser.add_argument("--rig", type=int, metavar="ID", help="retarget onto this stored rig")
+    parser.add_argument("--root", choices=("keep", "in-place", "extract"), default="keep")
+    parser.add_argument("--units", choices=("cm", "m", "in"), help="BVH/FBX lengths")
+    parser.add_argument("--fps", type=float, help="frame rate of the files")
+    parser.add_argument(
+        "--out", type=Path, required=True, metavar="DIR", help="folder for the files"
+    )
+    parser.add_argument(
+        "--progress",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="show a progress bar (default: when stderr is a terminal)",
+    )
+
+
+@command(
+    "export",
+    "write clips as BVH, FBX or GLB files (on a rig, root motion handled) into a folder",
+    configure=_configure_export,
+)
+def _export(args: argparse.Namespace, settings: Settings) -> int:
+    from app.labels import label_filter
+    from app.services.export import Exporter, ExportOptions, Manifest, export_each, export_items
+    from app.services.library import open_library
+
+    options = ExportOptions(
+        format=args.format, units=args.units, fps=args.fps, root=args.root, rig=args.rig
+    )
+    show = sys.stderr.isatty() if args.progress is None else args.progress
+    bar = _ProgressBar("exporting")
+    library = open_library(settings)
+    failed = written = 0
+    try:
+        exporter = Exporter(library, options)
+        if args.clip:
+            items = export_items(library, clips=[(c, None, None) for c in args.clip])
+        else:
+            items = export_items(library, labels=list(label_filter(args.label)))
+        args.out.mkdir(parents=True, exist_ok=True)
+        manifest = Manifest(options)
+        bar.total = len(items)
+        for done, (item, exported, error) in enumerate(export_each(exporter, items), start=1):
+            filename = manifest.add(item, exported, error)
+            if exported is not None and filename is not None:
+                (args.out / filename).write_bytes(exported.data)
+                written += 1
+            else:
+                failed += 1
+                print(f"clip {item.clip.id}: {error}", file=sys.stderr)
+            if show:
+                bar.set_done(done)
+        (args.out / "manifest.csv").write_text(manifest.text(), encoding="utf-8")
+    finally:
+        bar.stop()
+        library.close()
+    print(f"wrote {written} files and manifest.csv to {args.out}; {failed} failed")
+    return 1 if failed else 0
 
 
 # -- entry point ---------------------------------------------------------------------------

@@ -57,11 +57,13 @@ class Settings(BaseSettings):
         ),
     )
     max_upload_bytes: int = Field(
-        default=50 * 1024 * 1024,
+        default=256 * 1024 * 1024,
         gt=0,
         description=(
             "Largest request body accepted, in bytes (all uploaded parts together); larger "
-            "uploads get 413 before they are read."
+            "uploads get 413 before they are read. The default takes a ten-minute 120 fps "
+            "take of a 100-joint rig as BVH text (about 190 MB); a describe holds an upload "
+            "twice (the file and its text)."
         ),
     )
     max_frames: int = Field(
@@ -96,6 +98,35 @@ class Settings(BaseSettings):
             "/health and the docs stay open. Needs MOCAP_API_KEY."
         ),
     )
+    require_key_for_heavy: bool = Field(
+        default=False,
+        description=(
+            "Also require the API key for every route that parses an upload or does heavy "
+            "work: POST /search, GET and POST /search/moments, POST /skeleton, GET /map, "
+            "GET /clips/{id}/file with `format`, `start` or `end`, and any other POST, PUT, "
+            "PATCH or DELETE that does not change the library. Needs MOCAP_API_KEY."
+        ),
+    )
+    max_heavy_requests_per_client: int = Field(
+        default=4,
+        ge=1,
+        description=(
+            "Heavy requests (those MOCAP_REQUIRE_KEY_FOR_HEAVY names) one client address may "
+            "have in progress at once without a valid API key; more answer 429 with "
+            "Retry-After. Behind a proxy the address is the proxy's unless it is trusted to "
+            "pass the client's (uvicorn's FORWARDED_ALLOW_IPS)."
+        ),
+    )
+    allowed_hosts: Annotated[list[str], NoDecode] = Field(
+        default_factory=list,
+        description=(
+            "Names requests may be addressed to (the Host header) besides localhost, IP "
+            "addresses and MOCAP_HOST, comma-separated; `*` for any name. Other names answer "
+            "400 `host_not_allowed`: a web page whose name an attacker points at this "
+            "server (DNS rebinding) cannot talk to it. Behind a proxy, list the names users "
+            "type, and have the proxy pass the Host header on."
+        ),
+    )
     cors_origins: Annotated[list[str], NoDecode] = Field(
         default_factory=list,
         description=(
@@ -104,12 +135,15 @@ class Settings(BaseSettings):
         ),
     )
     describe_timeout_seconds: float = Field(
-        default=30.0,
+        default=60.0,
         gt=0,
         description=(
             "Longest time describing one uploaded clip (parse, kinematics, descriptors) may "
             "take; past it the upload or search answers 503 `describe_timeout` and stores "
-            "nothing. Checked between stages, each bounded by the frame/joint/value limits."
+            "nothing. It reaches into the parse: the readers look at the clock every few "
+            "thousand lines and between bounded chunks of work, so a hostile file stops "
+            "there; then it is checked between stages. A ten-minute 120 fps take of an "
+            "80-joint rig takes 15-30 s on a busy 2-core machine."
         ),
     )
     moments: bool = Field(
@@ -124,13 +158,38 @@ class Settings(BaseSettings):
             "clips stored without."
         ),
     )
+    max_concurrent_describes: int = Field(
+        default=0,
+        ge=0,
+        description=(
+            "Uploads one server process reads and describes at once (POST /clips, /search, "
+            "/search/moments, /skeleton); others wait up to MOCAP_DESCRIBE_WAIT_SECONDS for a "
+            "slot, then get 503 `busy` with Retry-After. 0 = from the machine: one per CPU "
+            "core but one (at least one), fewer when half the memory cannot hold that many "
+            "uploads at the MOCAP_MAX_FRAME_VALUES and MOCAP_MAX_UPLOAD_BYTES limits "
+            "(docs/hardening.md)."
+        ),
+    )
+    describe_wait_seconds: float = Field(
+        default=10.0,
+        ge=0,
+        description=(
+            "Longest time an upload waits for a free describe slot (see "
+            "MOCAP_MAX_CONCURRENT_DESCRIBES) before it is answered 503 `busy` with "
+            "Retry-After; it waits with its body on disk, holding no memory or thread."
+        ),
+    )
     max_frame_values: int = Field(
-        default=20_000_000,
+        default=64_000_000,
         gt=0,
         description=(
-            "Most numbers the frames of one clip may expand to (frames x max(channels, "
-            "9 x joints)); bounds the memory one upload can take (about 400 bytes per "
-            "frame and joint in all), whatever its size in bytes (422 above)."
+            "Most numbers the frames of one clip may expand to: frames x max(channels, 9 x "
+            "joints), joints counting end sites (BVH, ASF/AMC) or the skeleton's nodes only "
+            "(FBX/glTF: meshes and props are not read); checked before anything is "
+            "allocated (422 above). It bounds the memory one upload can take whatever its "
+            "size in bytes: about 21 bytes per value at the peak of a describe, so 1.4 GB at "
+            "the default, plus twice the upload's bytes. The default takes a ten-minute take "
+            "at 120 fps (72,000 frames) of a rig of up to 98 joints, fingers included."
         ),
     )
     parser_workers: int = Field(
@@ -143,7 +202,7 @@ class Settings(BaseSettings):
         ),
     )
     parser_timeout_seconds: float = Field(
-        default=30.0,
+        default=60.0,
         gt=0,
         description=(
             "Longest time reading one FBX/glTF file may take in its worker; past it the "
@@ -151,11 +210,23 @@ class Settings(BaseSettings):
         ),
     )
     parser_memory_mb: int = Field(
-        default=1024,
+        default=2048,
         ge=64,
         description=(
             "Memory (address space, MB, above an idle worker's) reading one FBX/glTF file "
-            "may take; past it the upload answers 422 `unreadable_file`."
+            "may take; past it the upload answers 422 `unreadable_file`. A ten-minute "
+            "120 fps glTF take of a 78-joint rig peaks at about 1.4 GB in its worker."
+        ),
+    )
+    sqlite_synchronous: str = Field(
+        default="FULL",
+        pattern="^(?i:full|normal)$",
+        description=(
+            "SQLite commit durability. FULL: every commit is on disk before the service "
+            "answers, so an acknowledged upload, change or delete survives a power cut. "
+            "NORMAL: commits reach the disk at WAL checkpoints (faster imports, see "
+            "bench/README.md), and the last ones can roll back on a power loss or OS crash "
+            "(never on a crash of the service alone)."
         ),
     )
     orphan_file_grace_seconds: float = Field(
@@ -184,9 +255,16 @@ class Settings(BaseSettings):
             raise ValueError("MOCAP_REQUIRE_KEY_FOR_READS needs MOCAP_API_KEY to be set")
         return value
 
-    @field_validator("cors_origins", mode="before")
+    @field_validator("require_key_for_heavy")
     @classmethod
-    def _split_origins(cls, value: object) -> object:
+    def _heavy_needs_a_key(cls, value: bool, info: ValidationInfo) -> bool:
+        if value and info.data.get("api_key") is None:
+            raise ValueError("MOCAP_REQUIRE_KEY_FOR_HEAVY needs MOCAP_API_KEY to be set")
+        return value
+
+    @field_validator("cors_origins", "allowed_hosts", mode="before")
+    @classmethod
+    def _split_list(cls, value: object) -> object:
         if isinstance(value, str):
             text = value.strip()
             if text.startswith("["):
@@ -247,12 +325,52 @@ class Settings(BaseSettings):
             "the in-memory indexes up to date; 0 = before every search."
         ),
     )
+    change_retention_hours: float = Field(
+        default=168.0,
+        gt=0,
+        description=(
+            "How long the change feed (the rows telling every process which clips changed) "
+            "keeps its rows; older ones are deleted by the servers. A replica, or an index "
+            "file, away longer than this cannot follow the feed and rebuilds its indexes from "
+            "the database at its next start or sync."
+        ),
+    )
     import_workers: int = Field(
         default=0,
         ge=0,
         description="Worker processes of `mocap-index import`; 0 = one per CPU core.",
     )
     # -- end of issue 5 settings -----------------------------------------------------------
+    export_workers: int = Field(
+        default=1,
+        ge=1,
+        le=16,
+        description=(
+            "Worker processes that write FBX files with Blender's exporter (started when the "
+            "first FBX is asked for, then kept warm; each holds Blender, ~300 MB)."
+        ),
+    )
+    export_timeout_seconds: float = Field(
+        default=120.0,
+        gt=0,
+        description=(
+            "Longest time writing one FBX file may take in its worker; past it the worker is "
+            "killed and the download answers 503 `export_failed`."
+        ),
+    )
+    export_memory_mb: int = Field(
+        default=2048,
+        ge=64,
+        description=(
+            "Memory (address space, MB, above an idle export worker's) writing one FBX file "
+            "may take; past it the download answers 503 `export_failed`."
+        ),
+    )
+    max_export_clips: int = Field(
+        default=500,
+        ge=1,
+        description="Most clips one `POST /exports` ZIP may hold (422 above).",
+    )
 
     @field_validator("data_dir")
     @classmethod

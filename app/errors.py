@@ -55,13 +55,29 @@ class ParseError(InvalidInput):
         """Return a copy that names the file it came from (keeps the line number)."""
         if self.source:
             return self
-        return ParseError(self.reason, line=self.line, source=source)
+        return type(self)(self.reason, line=self.line, source=source)
 
 
 class SkeletonMappingError(ParseError):
     """The skeleton lacks joints every descriptor needs (names the missing canonical joints)."""
 
     code = "unmappable_skeleton"
+
+
+class UnknownAnimation(ParseError):
+    """An FBX/glTF animation asked for by a name the file does not have (the detail lists
+    the file's animations)."""
+
+    code = "unknown_animation"
+
+
+class NoAnimation(ParseError):
+    """A rig with no animation: a skeleton (and maybe a mesh) that is read fine but holds no
+    motion to describe (BVH ``Frames: 0`` or no MOTION section, an FBX/glTF without an
+    animation or with only a zero-length one). Not a damaged file: it is usable as a target
+    rig, just not as a clip."""
+
+    code = "no_animation"
 
 
 class UnreadableFile(InvalidInput):
@@ -111,6 +127,28 @@ class Forbidden(MocapError):
     code = "forbidden"
 
 
+class CrossSiteRequest(Forbidden):
+    """A browser sent a request that changes something or does heavy work from a page of
+    another site (its ``Origin`` or ``Sec-Fetch-Site`` says so)."""
+
+    code = "cross_site_request"
+
+
+class HostNotAllowed(MocapError):
+    """The request is addressed (``Host``) to a name this server does not answer to: the
+    mark of a DNS-rebinding page."""
+
+    code = "host_not_allowed"
+
+
+class TooManyRequests(MocapError):
+    """One client has as many heavy requests in progress as it may; ``retry_after`` seconds
+    is a fair wait before trying again."""
+
+    code = "too_many_requests"
+    retry_after = 1
+
+
 class StorageUnavailable(MocapError):
     """The data directory or database cannot be written (disk full, read-only, locked)."""
 
@@ -142,3 +180,27 @@ class DescribeTimeout(MocapError):
     """Describing an uploaded clip took longer than the configured request time limit."""
 
     code = "describe_timeout"
+
+
+class ServiceBusy(MocapError):
+    """Every slot for this kind of work is taken (describing uploads, reading FBX/glTF files)
+    and none freed up in time: try again after ``retry_after`` seconds."""
+
+    code = "busy"
+
+    def __init__(self, detail: str, *, retry_after: int = 1) -> None:
+        super().__init__(detail)
+        self.retry_after = max(1, int(retry_after))
+
+
+class FbxUnavailable(MocapError):
+    """``format=fbx`` on a machine where Blender's Python module (the ``fbx`` extra) is not
+    installed or cannot start: FBX files cannot be written here."""
+
+    code = "fbx_unavailable"
+
+
+class ExportFailed(MocapError):
+    """An export worker crashed, ran out of time or memory writing a file."""
+
+    code = "export_failed"

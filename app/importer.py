@@ -41,6 +41,8 @@ This module imports neither SQLAlchemy nor FAISS at module level (workers import
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import multiprocessing
 import os
 import re
@@ -69,7 +71,7 @@ from app.labels import (
 from app.motion.model import ParseLimits
 from app.services.describe import Description, MotionDescriber
 from app.services.parser_pool import InlineParser
-from app.services.uploads import Upload
+from app.services.uploads import Upload, normalise_note
 
 if TYPE_CHECKING:
     from app.config import Settings
@@ -105,8 +107,13 @@ class Duplicate:
 
 @dataclass(frozen=True)
 class Failed:
+    """A clip not stored: ``refused`` when its file cannot be stored as it is (a parse error,
+    no skeleton, an ``.amc`` without ``.asf``: running again changes nothing), not when the
+    run failed it (storage, a crash, a file unreadable or changing meanwhile)."""
+
     path: Path
     reason: str
+    refused: bool = False
 
 
 @dataclass
@@ -120,6 +127,14 @@ class ImportReport:
     interrupted: bool = False
     seconds: float = 0.0
     workers: int = 0
+    # Refusals an earlier run reported for the same bytes with the same reason (see
+    # RefusalMemory): expected, so they do not fail the run unless --strict.
+    known_refusals: set[Path] = field(default_factory=set)
+
+    @property
+    def new_failures(self) -> list[Failed]:
+        """The failures no earlier run reported: every failure but known refusals."""
+        return [f for f in self.failed if not (f.refused and f.path in self.known_refusals)]
 
     @property
     def done(self) -> int:
@@ -160,6 +175,7 @@ class LabelRules:
     fixed: tuple[str, ...] = ()
     notes: dict[str, dict[str, str]] = field(default_factory=dict)
     left_out: tuple[str, ...] = ()
+    fixed_notes: dict[str, str] = field(default_factory=dict)  # --source, --licence
 
     @classmethod
     def build(
@@ -169,8 +185,11 @@ class LabelRules:
         regex: str | None = None,
         fixed: Sequence[str] = (),
         columns: Sequence[str] | None = None,
+        source: str | None = None,
+        licence: str | None = None,
     ) -> LabelRules:
-        """Read the TSV and compile the regex (:class:`InvalidInput` when unusable)."""
+        """Read the TSV and compile the regex (:class:`InvalidInput` when unusable);
+        ``source`` and ``licence`` are every clip's unless its TSV row gives its own."""
         table: dict[str, dict[str, str]] | None = None
         notes: dict[str, dict[str, str]] = {}
         left_out: tuple[str, ...] = ()
@@ -192,7 +211,16 @@ class LabelRules:
             fixed=normalise_labels(fixed),
             notes=notes,
             left_out=left_out,
+            fixed_notes={
+                key: note
+                for key, value in (("source", source), ("licence", licence))
+                if (note := normalise_note(f"--{key}", value)) is not None
+            },
         )
+
+    def notes_of(self, source: ClipSource) -> dict[str, str]:
+        """The clip's source and licence: its TSV row's, else the command line's."""
+        return {**self.fixed_notes, **self.notes.get(source.name, {})}
 
     def labels(self, source: ClipSource) -> list[str]:
         kinds: dict[str, str] = {}
@@ -206,7 +234,8 @@ class LabelRules:
 # ------------------------------------------------------------------------------ workers
 
 TaskClip = tuple[int, str, tuple[str, ...]]  # (item number, kind, paths: bvh | asf, amc)
-# ("ok", [Description, ...], part sha256s) | ("error", reason, None); FBX/glTF files give a
+# ("ok", [Description, ...], part sha256s) | ("refused" or "error", reason, None): refused,
+# the file cannot be stored as it is; error, describing it failed. FBX/glTF files give a
 # description per animation imported (each knows its animation), others one.
 Outcome = tuple[str, Any, Any]
 
@@ -263,7 +292,7 @@ def _describe_one(describer: MotionDescriber, limits: ParseLimits, clip: TaskCli
         descriptions = describe_animations(describer, upload, limits)
         return ("ok", descriptions, tuple(part.sha256 for part in upload.parts))
     except MocapError as error:
-        return ("error", error.detail, None)
+        return ("refused", error.detail, None)
     except OSError as error:
         return ("error", f"cannot read the file: {error.strerror or error}", None)
     except MemoryError:
@@ -490,16 +519,19 @@ def run_import(
     rules = labels or LabelRules()
     found = discover([Path(p) for p in paths], scenes=True)
     report = ImportReport(found=len(found.sources) + len(found.failures))
-    report.failed.extend(Failed(f.path, f.reason) for f in found.failures)
+    report.failed.extend(Failed(f.path, f.reason, refused=True) for f in found.failures)
     items = deque(
-        _Item(number, source, rules.labels(source), rules.notes.get(source.name, {}))
+        _Item(number, source, rules.labels(source), rules.notes_of(source))
         for number, source in enumerate(found.sources)
     )
     size = max(1, min(workers or default_workers(settings), len(items)))
     report.workers = size if items else 0
     if on_start is not None:
         on_start(report.found, report.workers)
+    memory = RefusalMemory(settings.data_dir / REFUSALS_FILE)
+    found_paths = {source.motion for source in found.sources}
     if not items:
+        memory.settle(report, found_paths)
         report.seconds = time.perf_counter() - started
         return report
 
@@ -530,8 +562,75 @@ def run_import(
                 library.close()  # saves the indexes that changed
             except Exception as error:
                 print(f"mocap-index: could not save the indexes: {error}", file=sys.stderr)
+    memory.settle(report, found_paths)
     report.seconds = time.perf_counter() - started
     return report
+
+
+# ---------------------------------------------------------------- refusals remembered
+
+REFUSALS_FILE = "import-refusals.json"
+
+
+def _file_sha256(path: Path) -> str | None:
+    try:
+        return hashlib.sha256(path.read_bytes()).hexdigest()
+    except OSError:
+        return None
+
+
+class RefusalMemory:
+    """The files earlier runs refused, so a run over the same folders can tell a new failure
+    from one already reported: ``<data dir>/import-refusals.json`` maps each refused file's
+    absolute path to the sha256 of its bytes and the reason given. A refusal is *known* when
+    the same bytes were refused for the same reason before; editing the file, or a release
+    that refuses it for another reason, makes it new again."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def _load(self) -> dict[str, dict[str, str]]:
+        try:
+            data = json.loads(self.path.read_text(encoding="utf-8"))
+            refused = data["refused"]
+        except (OSError, ValueError, KeyError, TypeError):
+            return {}  # none yet (or unreadable: every refusal counts as new, once)
+        return {
+            str(path): entry
+            for path, entry in refused.items()
+            if isinstance(entry, dict) and {"sha256", "reason"} <= entry.keys()
+        }
+
+    def settle(self, report: ImportReport, found: set[Path]) -> None:
+        """Mark the report's known refusals, then remember this run's: its refusals replace
+        what was remembered of their files, and files it found and did not refuse are
+        forgotten (files under other folders are kept)."""
+        remembered = self._load()
+        seen = {str(path.resolve()) for path in found}
+        refusals: dict[str, dict[str, str]] = {}
+        for failure in report.failed:
+            if not failure.refused:
+                continue
+            key = str(failure.path.resolve())
+            seen.add(key)
+            sha = _file_sha256(failure.path)
+            if sha is None:
+                continue
+            entry = {"sha256": sha, "reason": failure.reason}
+            if remembered.get(key) == entry:
+                report.known_refusals.add(failure.path)
+            refusals[key] = entry
+        kept = {key: entry for key, entry in remembered.items() if key not in seen}
+        if not refusals and kept == remembered:
+            return
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            partial = self.path.with_name(self.path.name + ".partial")
+            text = json.dumps({"refused": {**kept, **refusals}}, indent=1, sort_keys=True)
+            partial.write_text(text, encoding="utf-8")
+            partial.replace(self.path)
+        except OSError as error:
+            print(f"mocap-index: could not remember the refused files: {error}", file=sys.stderr)
 
 
 def _open_library(settings: Settings) -> Library:
@@ -588,8 +687,8 @@ class _Run:
             return None
         return self.library_future.result()  # raises when opening failed
 
-    def fail(self, item: _Item, reason: str) -> None:
-        self.report.failed.append(Failed(item.source.motion, reason))
+    def fail(self, item: _Item, reason: str, *, refused: bool = False) -> None:
+        self.report.failed.append(Failed(item.source.motion, reason, refused))
         self.by_number.pop(item.number, None)
 
     def upload_of(self, item: _Item) -> Upload | None:
@@ -597,7 +696,7 @@ class _Run:
             try:
                 item.upload = read_upload(item.source, item.labels, item.notes)
             except MocapError as error:
-                self.fail(item, error.detail)
+                self.fail(item, error.detail, refused=True)
             except OSError as error:
                 self.fail(item, f"cannot read the file: {error.strerror or error}")
         return item.upload
@@ -673,7 +772,7 @@ class _Run:
             return
         status, value, shas = outcome
         if status != "ok":
-            self.fail(item, str(value))
+            self.fail(item, str(value), refused=status == "refused")
             self.progress(self.report)
             return
         item.shas = shas

@@ -28,6 +28,7 @@ from functools import lru_cache
 from pathlib import Path
 
 from app.errors import InvalidInput
+from app.text import checked_text
 
 MAX_LABEL_LENGTH = 100
 MAX_LABELS = 100
@@ -38,7 +39,7 @@ def label_key(label: str) -> str:
     return label.strip().casefold()
 
 
-def _split(values: str | Iterable[str] | None) -> dict[str, str]:
+def _split(values: str | Iterable[str] | None, field: str) -> dict[str, str]:
     """key -> first spelling, for each trimmed, non-empty comma-separated value."""
     if values is None:
         return {}
@@ -46,7 +47,7 @@ def _split(values: str | Iterable[str] | None) -> dict[str, str]:
         values = [values]
     found: dict[str, str] = {}
     for value in values:
-        for label in value.split(","):
+        for label in checked_text(field, value).split(","):
             label = label.strip()
             if label:
                 found.setdefault(label_key(label), label)
@@ -60,9 +61,10 @@ def normalise_labels(values: str | Iterable[str] | None) -> tuple[str, ...]:
     Raises
     ------
     InvalidInput
-        A label over :data:`MAX_LABEL_LENGTH` characters, or over :data:`MAX_LABELS` labels.
+        A label over :data:`MAX_LABEL_LENGTH` characters, or over :data:`MAX_LABELS` labels,
+        or holding a NUL character (PostgreSQL stores none).
     """
-    labels = tuple(_split(values).values())
+    labels = tuple(_split(values, "labels").values())
     for label in labels:
         if len(label) > MAX_LABEL_LENGTH:
             raise InvalidInput(f"labels: {label[:20]!r}... is over {MAX_LABEL_LENGTH} characters")
@@ -75,13 +77,20 @@ def label_filter(values: str | Iterable[str] | None) -> tuple[str, ...]:
     """The labels a ``label`` filter asks for, each clip must carry all of them (compared by
     :func:`label_key`); ``()`` means no filter. ``"walk,happy"``, ``["walk", "happy"]`` and
     ``["walk,", " Happy"]`` all ask for the same two labels; ``""`` and ``[""]`` for none."""
-    return tuple(_split(values).values())
+    return tuple(_split(values, "label").values())
+
+
+def refuse_nul(field: str, values: Iterable[str]) -> None:
+    """:class:`InvalidInput` naming ``field`` when a filter's text holds a NUL character or a
+    lone surrogate (:func:`~app.text.checked_text`), which no stored text holds."""
+    for value in values:
+        checked_text(field, value)
 
 
 def merge_labels(stored: Iterable[str], added: Iterable[str]) -> tuple[str, ...]:
     """``stored`` followed by those of ``added`` it does not already carry (in any case)."""
-    merged = _split(list(stored))
-    for key, label in _split(list(added)).items():
+    merged = _split(list(stored), "labels")
+    for key, label in _split(list(added), "labels").items():
         merged.setdefault(key, label)
     return tuple(merged.values())
 

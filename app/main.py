@@ -14,10 +14,12 @@ from fastapi.middleware.cors import CORSMiddleware
 from fastapi_offline import FastAPIOffline
 from starlette.concurrency import run_in_threadpool
 
-from app.api import clips, meta, moments, search
+from app.api import clips, exports, meta, moments, rigs, search
 from app.api.auth import API_KEY_HEADER, log_access_policy, read_dependencies
+from app.api.compression import add_compression
 from app.api.errors import error_responses, install_error_handlers
-from app.api.limits import BodySizeLimit
+from app.api.guard import RequestGuard, document_access
+from app.api.limits import BodySizeLimit, DescribeGate, Slots
 from app.api.ui import mount_ui
 from app.config import Settings
 from app.services.clips import remove_orphan_files
@@ -67,6 +69,7 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
         )
         await run_in_threadpool(remove_orphan_files, library)  # left by a crash mid-write
         await run_in_threadpool(library.load_window_places)  # the moments search's map
+        library.start_housekeeping()  # prunes the change feed now and then
         app.state.library = library
         try:
             yield
@@ -83,7 +86,17 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
     )
     app.state.settings = settings
     install_error_handlers(app)
+    app.state.describe_slots = Slots.for_describes(settings)
+    # Inside the size limit: a body over it is refused before the gate counts it.
+    app.add_middleware(
+        DescribeGate, slots=app.state.describe_slots, max_bytes=settings.max_upload_bytes
+    )
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
+    add_compression(app)  # gzip for larger JSON answers
+
+    # Outside the size limit (and inside CORS, so refusals carry its headers): Host, Origin,
+    # API key and per-client limits are checked on the request's head, before its body.
+    app.add_middleware(RequestGuard, settings=settings, schema=lambda: app.openapi())
     if settings.cors_origins:  # CORS is off unless origins are configured
         app.add_middleware(
             CORSMiddleware,
@@ -99,7 +112,10 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
     app.include_router(search.router, dependencies=reads, responses=read_errors)
     app.include_router(moments.router, dependencies=reads, responses=read_errors)
     app.include_router(clips.router, dependencies=reads, responses=read_errors)
+    app.include_router(rigs.router, dependencies=reads, responses=read_errors)
+    app.include_router(exports.router, dependencies=reads, responses=read_errors)
     app.include_router(meta.read_router, dependencies=reads, responses=read_errors)
     app.include_router(meta.router)
     mount_ui(app)  # the web UI at /, /static/*, and the routes it reads (skeletons, map)
+    document_access(app, settings)
     return app

@@ -13,6 +13,10 @@ The data folder is ``../shared/data`` or ``$MOCAP_SHARED_DATA``.
 ``--clips N`` imports a library of N Bandai-sized clips instead: copies of the dataset's
 files, copy ``i`` with ``i`` extra trailing newlines so every file is new content (target:
 at least 250 clips/s for 3,000 clips, issue 13).
+
+``--synchronous FULL,NORMAL`` runs the import under each ``MOCAP_SQLITE_SYNCHRONOUS`` in turn
+(interleaved, so both see the same load) and prints each median and their ratio: what the
+durable default costs (issue 21).
 """
 
 from __future__ import annotations
@@ -35,12 +39,16 @@ TARGET_SECONDS = 2.5
 TARGET_CLIPS_PER_SECOND = 250
 
 
-def run_import(data_dir: Path, source: Path, workers: int | None) -> tuple[float, str]:
+def run_import(
+    data_dir: Path, source: Path, workers: int | None, synchronous: str | None = None
+) -> tuple[float, str]:
     command = [str(ROOT / ".venv" / "bin" / "mocap-index"), "import", "--no-progress"]
     if workers:
         command += ["--workers", str(workers)]
     command += ["--data-dir", str(data_dir), str(source)]
     env = {k: v for k, v in os.environ.items() if not k.startswith("MOCAP_")}
+    if synchronous:
+        env["MOCAP_SQLITE_SYNCHRONOUS"] = synchronous
     started = time.perf_counter()
     done = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True)
     seconds = time.perf_counter() - started
@@ -68,6 +76,10 @@ def main() -> int:
     parser.add_argument("--workers", type=int, help="default: the command's default")
     parser.add_argument("--data", type=Path, help="default: <shared data>/bandai-ds1")
     parser.add_argument("--clips", type=int, help="import this many copies of the files")
+    parser.add_argument(
+        "--synchronous",
+        help="comma-separated MOCAP_SQLITE_SYNCHRONOUS modes to compare (e.g. FULL,NORMAL)",
+    )
     args = parser.parse_args()
     source = args.data or shared_data() / "bandai-ds1"
     if args.clips:
@@ -96,17 +108,29 @@ def run(args: argparse.Namespace, source: Path) -> int:
     size = sum(f.stat().st_size for f in files)
     print(f"machine: {machine()}")
     print(f"data: {source} ({len(files)} BVH, {size / 1e6:.1f} MB)")
-    times = []
+    modes = args.synchronous.split(",") if args.synchronous else [None]
+    runs: dict[str | None, list[float]] = {mode: [] for mode in modes}
     for attempt in range(1, args.repeat + 1):
-        with tempfile.TemporaryDirectory(prefix="mocap-bench-ingest-") as tmp:
-            data_dir = Path(tmp) / "data"
-            seconds, summary = run_import(data_dir, source, args.workers)
-            check(data_dir, len(files))
-            again, summary_again = run_import(data_dir, source, args.workers)
-            assert f"skipped {len(files)} as duplicates" in summary_again, summary_again
-            check(data_dir, len(files))
-        times.append(seconds)
-        print(f"run {attempt}: {seconds:.2f} s wall ({summary}); re-run {again:.2f} s")
+        for mode in modes:
+            with tempfile.TemporaryDirectory(prefix="mocap-bench-ingest-") as tmp:
+                data_dir = Path(tmp) / "data"
+                seconds, summary = run_import(data_dir, source, args.workers, mode)
+                check(data_dir, len(files))
+                again, summary_again = run_import(data_dir, source, args.workers, mode)
+                assert f"skipped {len(files)} as duplicates" in summary_again, summary_again
+                check(data_dir, len(files))
+            runs[mode].append(seconds)
+            named = f" synchronous={mode}" if mode else ""
+            print(f"run {attempt}{named}: {seconds:.2f} s wall ({summary}); re-run {again:.2f} s")
+    if len(modes) > 1:
+        medians = {mode: statistics.median(times) for mode, times in runs.items()}
+        base = medians[modes[0]]
+        for mode, median in medians.items():
+            print(
+                f"synchronous={mode}: median {median:.2f} s "
+                f"({len(files) / median:.0f} clips/s), {median / base:.2f} x {modes[0]}"
+            )
+    times = runs[modes[0]]
     median = statistics.median(times)
     print(
         f"import of {len(files)} clips: best {min(times):.2f} s, median "

@@ -8,6 +8,7 @@ import os
 from collections.abc import Iterator
 from pathlib import Path
 
+import hypothesis
 import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine
@@ -17,8 +18,14 @@ from app.db.migrate import upgrade
 from app.db.session import create_db_engine
 from tests import postgres
 
+# No hypothesis deadline by default: how long an example takes on a loaded, shared machine is
+# no verdict on the code (speed is measured under bench/).
+hypothesis.settings.register_profile("mocap", deadline=None)
+hypothesis.settings.load_profile("mocap")
+
 REPO_ROOT = Path(__file__).resolve().parents[1]
 FIXTURES_DIR = Path(__file__).resolve().parent / "fixtures"
+TEST_CLIENT_HOST = "testserver"
 
 
 def shared_data_dir() -> Path:
@@ -27,11 +34,22 @@ def shared_data_dir() -> Path:
     return Path(override) if override else REPO_ROOT.parent / "shared" / "data"
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _test_client_host() -> Iterator[None]:
+    # Starlette's TestClient addresses every request to http://testserver: the one name the
+    # tests add to the Host allow-list (Django's test runner does the same), for the whole
+    # session so module-scoped apps get it too. Servers started in a subprocess
+    # (tests/hardening/live.py) get no MOCAP_* variable: the real defaults.
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("MOCAP_ALLOWED_HOSTS", TEST_CLIENT_HOST)
+        yield
+
+
 @pytest.fixture(autouse=True)
 def _no_mocap_environment(monkeypatch: pytest.MonkeyPatch) -> None:
     # A developer's MOCAP_* variables must not leak into the settings tests build.
     for name in list(os.environ):
-        if name.startswith("MOCAP_") and name != "MOCAP_SHARED_DATA":
+        if name.startswith("MOCAP_") and name not in ("MOCAP_SHARED_DATA", "MOCAP_ALLOWED_HOSTS"):
             monkeypatch.delenv(name)
 
 
@@ -65,13 +83,29 @@ def fixtures_dir() -> Path:
     return FIXTURES_DIR
 
 
+class SharedData:
+    """Folders and files of the real datasets, each asked for by name, so a test skips when
+    the one it needs is missing (naming it), not only when ``../shared/data`` is."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+
+    def __call__(self, *parts: str) -> Path:
+        """``shared_data("bandai-ds1", "data")``: that path, or a skip naming it."""
+        path = self.root.joinpath(*parts)
+        if not path.exists():
+            pytest.skip(
+                f"real motion data not found: {path} (../shared/data beside the repository, "
+                "or set MOCAP_SHARED_DATA)"
+            )
+        return path
+
+
 @pytest.fixture(scope="session")
-def shared_data() -> Path:
-    """The real datasets (``../shared/data``); tests using it skip when it is absent."""
-    path = shared_data_dir()
-    if not path.is_dir():
-        pytest.skip(f"real motion data not found at {path} (set MOCAP_SHARED_DATA to its location)")
-    return path
+def shared_data() -> SharedData:
+    """The real datasets (``../shared/data``): ``shared_data("cmu", "asf-amc")`` gives a
+    folder of them, or skips the test when that folder is absent."""
+    return SharedData(shared_data_dir())
 
 
 @pytest.fixture(scope="session")

@@ -19,10 +19,12 @@ def test_defaults(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     assert settings.sqlalchemy_url == f"sqlite:///{tmp_path}/data/mocap-index.sqlite3"
     assert settings.files_dir == tmp_path / "data" / "files"
     assert settings.index_dir == tmp_path / "data" / "indexes"
-    assert settings.max_upload_bytes == 50 * 1024 * 1024
+    assert settings.max_upload_bytes == 256 * 1024 * 1024  # a ten-minute take as BVH text
     assert settings.max_k == 1000 and settings.host == "127.0.0.1" and settings.port == 8000
     limits = settings.parse_limits
     assert (limits.max_frames, limits.max_joints, limits.max_depth) == (100_000, 512, 128)
+    # ten minutes at 120 fps of a 98-joint rig (end sites included) fit, nine values a joint
+    assert limits.max_values == 64_000_000 >= 72_000 * 98 * 9
 
 
 def test_environment_variables(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

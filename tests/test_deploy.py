@@ -45,6 +45,7 @@ def test_api_replicas_use_the_database() -> None:
         f"@postgres:5432/{postgres['POSTGRES_DB']}"
     )
     known = {f"MOCAP_{name.upper()}" for name in Settings.model_fields}
+    known.add("FORWARDED_ALLOW_IPS")  # uvicorn's own: trust the proxy's X-Forwarded-For
     assert set(env) <= known, set(env) - known
     assert str(env["MOCAP_PORT"]) in {str(p) for p in api["expose"]}
 
@@ -66,6 +67,10 @@ def test_proxy_in_front_of_the_replicas() -> None:
     size = re.search(r"client_max_body_size\s+(\d+)m;", config)
     assert size is not None and int(size.group(1)) * 2**20 > limit
     assert config.count("{") == config.count("}")
+    # The service checks Host (port included) and compares it with a write's Origin; the
+    # replicas trust X-Forwarded-For, so nginx sets it to the address it saw, nothing more.
+    assert "proxy_set_header Host $http_host;" in config
+    assert "proxy_set_header X-Forwarded-For $remote_addr;" in config
 
 
 def test_dockerfile_installs_the_postgres_driver() -> None:

@@ -17,6 +17,7 @@ from app.db import clips as clip_db
 from app.importer import LabelRules, WorkerPool, run_import
 from app.services.library import open_library
 from app.services.search import search_by_clip_id
+from tests.conftest import SharedData
 
 BVH_FIXTURES = ("bandai_walk_normal_001_first40.bvh", "cmu_mb_02_01_first41.bvh")
 
@@ -148,8 +149,8 @@ def test_nothing_to_import(tmp_path: Path, settings: Settings) -> None:
     assert [f.reason for f in report.failed] == ["no such file or folder"]
 
 
-def test_cmu_data_imports_with_every_skeleton(shared_data: Path, settings: Settings) -> None:
-    cmu = shared_data / "cmu" / "asf-amc"
+def test_cmu_data_imports_with_every_skeleton(shared_data: SharedData, settings: Settings) -> None:
+    cmu = shared_data("cmu", "asf-amc")
     amc = sorted(cmu.rglob("*.amc"))
     report = run_import(settings, [cmu])
     assert not report.failed, report.failed

@@ -7,10 +7,12 @@ routes never repeat that check; ``UploadDep`` reads and checks a multipart uploa
 
 from __future__ import annotations
 
-from typing import Annotated
+from collections.abc import AsyncIterator
+from typing import Annotated, Literal
 
 from fastapi import Depends, File, Form, Query, Request, UploadFile
 
+from app.api.limits import Slots
 from app.config import Settings
 from app.db.clips import ClipRecord
 from app.errors import UnsupportedMediaType
@@ -40,12 +42,21 @@ def get_clip(clip_id: int, library: LibraryDep) -> ClipRecord:
 ClipDep = Annotated[ClipRecord, Depends(get_clip)]
 
 
-def _read(part: UploadFile | None) -> tuple[str | None, bytes] | None:
+async def _read(part: UploadFile | None) -> tuple[str | None, bytes] | None:
     # The body size limit (BodySizeLimit) already bounds what can be read here.
-    return None if part is None else (part.filename, part.file.read())
+    return None if part is None else (part.filename, await part.read())
 
 
-def read_upload(
+def describe_slots(request: Request) -> Slots:
+    """The process's describe slots (made when first needed, from the app's settings)."""
+    state = request.app.state
+    slots: Slots | None = getattr(state, "describe_slots", None)
+    if slots is None:
+        slots = state.describe_slots = Slots.for_describes(state.settings)
+    return slots
+
+
+async def read_upload(
     request: Request,
     file: Annotated[
         UploadFile | None,
@@ -91,26 +102,35 @@ def read_upload(
             )
         ),
     ] = None,
-) -> Upload:
+) -> AsyncIterator[Upload]:
+    """The upload, read into memory once a describe slot is free (its body waits on disk;
+    see :mod:`app.api.limits`); the slot is held until the request is answered."""
     content_type = request.headers.get("content-type", "")
     if not content_type.lower().startswith("multipart/form-data"):
         raise UnsupportedMediaType(
             f"send the files as multipart/form-data (got {content_type or 'no content type'!r})"
         )
-    return Upload.from_files(
-        file=_read(file),
-        skeleton=_read(skeleton),
-        motion=_read(motion),
-        name=name,
-        labels=labels,
-        source=source,
-        licence=licence,
-        animation=animation,
-    )
+    async with describe_slots(request).hold():
+        yield Upload.from_files(
+            file=await _read(file),
+            skeleton=await _read(skeleton),
+            motion=await _read(motion),
+            name=name,
+            labels=labels,
+            source=source,
+            licence=licence,
+            animation=animation,
+        )
 
 
 UploadDep = Annotated[Upload, Depends(read_upload)]
 
+
+# Ids are 64-bit database keys: a larger one is a bad parameter (422), never a driver error.
+ClipIdQuery = Annotated[
+    int,
+    Query(description="Id of the query clip.", examples=[7], ge=1, le=clip_service.MAX_ID),
+]
 
 DescriptorQuery = Annotated[
     str | None,
@@ -144,4 +164,22 @@ LABEL_FILTER_DOC = (
 )
 LabelQuery = Annotated[
     list[str] | None, Query(description=LABEL_FILTER_DOC, examples=[["walk", "happy"]])
+]
+CollapseQuery = Annotated[
+    Literal["capture"] | None,
+    Query(
+        description="`capture`: one result per group of near-identical clips (one capture "
+        "stored as several files or formats: distance under every descriptor below the "
+        "thresholds the README gives), the nearest standing for the others, listed in its "
+        "`others`."
+    ),
+]
+LICENCE_FILTER_DOC = (
+    "Only clips of these licences: repeat `licence` or separate with commas for any of them "
+    "(`licence=CC0,CC BY 4.0`); a leading `!` leaves a licence out instead "
+    "(`licence=!CC BY-NC 4.0`: every clip but those, clips without a licence included). "
+    "Compared with the whole licence, case-insensitively; an empty value is no filter."
+)
+LicenceQuery = Annotated[
+    list[str] | None, Query(description=LICENCE_FILTER_DOC, examples=[["!CC BY-NC 4.0"]])
 ]

@@ -21,13 +21,19 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from app.errors import (
     DescribeTimeout,
     DescriptorUnavailable,
+    ExportFailed,
+    FbxUnavailable,
     Forbidden,
+    HostNotAllowed,
     InvalidInput,
     MocapError,
     MomentsOff,
+    NoAnimation,
     NotFound,
     PayloadTooLarge,
+    ServiceBusy,
     StorageUnavailable,
+    TooManyRequests,
     Unauthorized,
     UnsupportedMediaType,
 )
@@ -37,16 +43,22 @@ log = logging.getLogger(__name__)
 # THE table: domain exception class -> HTTP status. Subclasses inherit their base's status
 # (ParseError, SkeletonMappingError and LimitExceeded are InvalidInput: 422).
 STATUS_BY_ERROR: dict[type[MocapError], int] = {
+    NoAnimation: 422,  # a rig without motion: readable, but not a clip
     InvalidInput: 422,
     NotFound: 404,
     PayloadTooLarge: 413,
     UnsupportedMediaType: 415,
     Unauthorized: 401,
     Forbidden: 403,
+    HostNotAllowed: 400,
+    TooManyRequests: 429,
     DescriptorUnavailable: 409,
     MomentsOff: 409,
     StorageUnavailable: 503,
     DescribeTimeout: 503,
+    ServiceBusy: 503,
+    ExportFailed: 503,
+    FbxUnavailable: 501,
     MocapError: 400,
 }
 
@@ -105,11 +117,20 @@ def describe_validation_error(exc: RequestValidationError) -> str:
     return "; ".join(f"{_location(tuple(e.get('loc', ())))}: {e.get('msg')}" for e in exc.errors())
 
 
+def response_for(error: MocapError) -> JSONResponse:
+    """The error response of a domain error: its status from the table, the one shape, and
+    ``WWW-Authenticate`` (401) or ``Retry-After`` (an error that says when to retry)."""
+    status = status_for(error)
+    headers = {"WWW-Authenticate": "Bearer"} if status == 401 else {}
+    retry_after = getattr(error, "retry_after", None)
+    if retry_after is not None:
+        headers["Retry-After"] = str(retry_after)
+    return error_json(status, error.code, error.detail, headers or None)
+
+
 async def _on_domain_error(_request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, MocapError)
-    status = status_for(exc)
-    headers = {"WWW-Authenticate": "Bearer"} if status == 401 else None
-    return error_json(status, exc.code, exc.detail, headers)
+    return response_for(exc)
 
 
 async def _on_validation_error(_request: Request, exc: Exception) -> JSONResponse:
@@ -159,9 +180,26 @@ def install_error_handlers(app: FastAPI) -> None:
 # -- OpenAPI documentation of the error responses ------------------------------------------
 
 ERROR_EXAMPLES: dict[int, dict[str, tuple[str, str]]] = {
-    400: {"bad_request": ("Malformed request", "There was an error parsing the body")},
+    400: {
+        "bad_request": ("Malformed request", "There was an error parsing the body"),
+        "host_not_allowed": (
+            "Request addressed to a name the server does not answer to",
+            "this server does not answer to the name 'evil.example' (Host header); add it to "
+            "MOCAP_ALLOWED_HOSTS if users reach the service by that name",
+        ),
+    },
     401: {"unauthorized": ("Missing or wrong API key", "missing API key")},
-    403: {"forbidden": ("Key without the right", "this API key may not change clips")},
+    403: {
+        "forbidden": (
+            "Wrong API key",
+            "the API key in 'X-API-Key' is not valid for changing the library",
+        ),
+        "cross_site_request": (
+            "Sent by a page of another site",
+            "a page of another site (https://evil.example) may not send this request; list "
+            "its origin in MOCAP_CORS_ORIGINS to allow it",
+        ),
+    },
     404: {
         "not_found": ("Unknown clip", "no clip with id 42"),
         "no_stored_file": (
@@ -193,6 +231,17 @@ ERROR_EXAMPLES: dict[int, dict[str, tuple[str, str]]] = {
             "Unreadable motion file",
             "file 'walk.bvh', line 12: CHANNELS: 'x' is not a number",
         ),
+        "unknown_animation": (
+            "No animation of that name in the FBX/glTF file",
+            "file 'robot.glb': animation: the file has no animation 'Run'; it has 'Dance', "
+            "'Idle', 'Walk'",
+        ),
+        "no_animation": (
+            "A rig with no animation",
+            "file 'tpose.fbx': the file is a rig with no animation: a skeleton of 68 joints and "
+            "only a zero-length animation ('Take 001', one instant), so there is no motion to "
+            "describe",
+        ),
         "limit_exceeded": (
             "Over the frame or joint limit",
             "file 'long.bvh', line 9: 200000 frames, more than the limit of 100000",
@@ -202,7 +251,26 @@ ERROR_EXAMPLES: dict[int, dict[str, tuple[str, str]]] = {
             "query.k: Input should be a valid integer",
         ),
     },
+    429: {
+        "too_many_requests": (
+            "Too many heavy requests from one client",
+            "2 heavy requests from this address are in progress, the most one client may have "
+            "without an API key (MOCAP_MAX_HEAVY_REQUESTS_PER_CLIENT); try again when one has "
+            "finished",
+        )
+    },
+    501: {
+        "fbx_unavailable": (
+            "FBX export not installed",
+            "format=fbx needs Blender's Python module (the `fbx` extra, bpy 4.4.0), which is "
+            "not installed here; use format=glb or format=bvh",
+        )
+    },
     503: {
+        "export_failed": (
+            "Export worker failed",
+            "writing the FBX file took longer than 60 s (MOCAP_EXPORT_TIMEOUT_SECONDS)",
+        ),
         "storage_unavailable": (
             "Database or disk unavailable",
             "cannot store the uploaded file: No space left on device",

@@ -11,11 +11,15 @@ pydantic-core both write the shortest repr and ``Z`` for UTC) — from plain dic
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import orjson
 
 from app.db.entries import ClipEntry
+
+if TYPE_CHECKING:
+    from app.services.moments import Moment, MomentQuery
+    from app.services.search import Hit
 
 OPTIONS = orjson.OPT_UTC_Z
 
@@ -54,65 +58,106 @@ def clip_out(clip: ClipEntry) -> dict[str, Any]:
     return fields
 
 
-def hit_out(clip: ClipEntry, distance: float) -> dict[str, Any]:
-    """:class:`app.api.schemas.SearchHit`."""
-    return {
+def hit_out(hit: Hit, collapsed: bool) -> dict[str, Any]:
+    """:class:`app.api.schemas.SearchHit` (``others`` only when ``collapsed``)."""
+    clip = hit.clip
+    fields: dict[str, Any] = {
         "id": clip.id,
         "name": clip.name,
         "labels": clip.labels,
         "format": clip.format,
         "filenames": clip.filenames,
         "skeleton_family": clip.skeleton_family,
-        "distance": distance,
+        "distance": hit.distance,
+        "similarity": hit.similarity,
+    }
+    if collapsed:
+        fields["others"] = [other_out(other) for other in hit.others]
+    return fields
+
+
+def other_out(hit: Hit) -> dict[str, Any]:
+    """:class:`app.api.schemas.OtherFile`."""
+    clip = hit.clip
+    return {
+        "id": clip.id,
+        "name": clip.name,
+        "format": clip.format,
+        "filenames": clip.filenames,
+        "distance": hit.distance,
     }
 
 
 def clip_search(
-    query: ClipEntry, descriptor: str, k: int, hits: Sequence[tuple[ClipEntry, float]]
+    query: ClipEntry,
+    descriptor: str,
+    k: int,
+    hits: Sequence[Hit],
+    *,
+    query_others: Sequence[Hit] | None = None,
 ) -> bytes:
-    """:class:`app.api.schemas.ClipSearchResponse` as JSON."""
-    return orjson.dumps(
-        {
-            "query": clip_out(query),
-            "descriptor": descriptor,
-            "k": k,
-            "results": [hit_out(clip, distance) for clip, distance in hits],
-        },
-        option=OPTIONS,
-    )
+    """:class:`app.api.schemas.ClipSearchResponse` as JSON; ``query_others`` (and each hit's
+    ``others``) only for a collapsed search."""
+    collapsed = query_others is not None
+    body: dict[str, Any] = {
+        "query": clip_out(query),
+        "descriptor": descriptor,
+        "k": k,
+        "results": [hit_out(hit, collapsed) for hit in hits],
+    }
+    if query_others is not None:
+        body["query_others"] = [other_out(other) for other in query_others]
+    return orjson.dumps(body, option=OPTIONS)
 
 
 def moment_search(
-    query: ClipEntry | None,
-    start: float,
-    end: float,
+    query: MomentQuery,
     descriptor: str,
     k: int,
-    moments: Sequence[tuple[ClipEntry, str, float, float, float]],
+    moments: Sequence[Moment],
+    *,
+    collapsed: bool = False,
 ) -> bytes:
-    """:class:`app.api.moments.MomentSearchResponse` as JSON; ``moments`` are (clip,
-    format, start, end, distance)."""
+    """:class:`app.api.moments.MomentSearchResponse` as JSON (each moment's ``others`` only
+    when ``collapsed``)."""
+    stored = query.stored_clip
+    results = []
+    for moment in moments:
+        clip = moment.clip
+        fields: dict[str, Any] = {
+            "id": clip.id,
+            "name": clip.name,
+            "labels": clip.labels,
+            "format": moment.format,
+            "start": moment.start,
+            "end": moment.end,
+            "distance": moment.distance,
+            "similarity": moment.similarity,
+        }
+        if collapsed:
+            fields["others"] = [
+                {
+                    "id": other.clip.id,
+                    "name": other.clip.name,
+                    "format": other.format,
+                    "start": other.start,
+                    "end": other.end,
+                    "distance": other.distance,
+                }
+                for other in moment.others
+            ]
+        results.append(fields)
     return orjson.dumps(
         {
             "query": {
-                "clip": None if query is None else clip_out(query),
-                "start": start,
-                "end": end,
+                "clip": None if query.clip is None else clip_out(query.clip),
+                "start": query.start,
+                "end": query.end,
+                "stored_clip": None if stored is None else {"id": stored.id, "name": stored.name},
             },
             "descriptor": descriptor,
             "k": k,
-            "results": [
-                {
-                    "id": clip.id,
-                    "name": clip.name,
-                    "labels": clip.labels,
-                    "format": fmt,
-                    "start": first,
-                    "end": last,
-                    "distance": distance,
-                }
-                for clip, fmt, first, last, distance in moments
-            ],
+            "results": results,
         },
         option=OPTIONS,
     )

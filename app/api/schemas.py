@@ -7,6 +7,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from app.db.clip_filters import ClipFilter
 from app.db.clips import AnimationRecord, ClipRecord, NewClip
 from app.db.vectors import StoredVector
 from app.services.describe import DescriptorInfo
@@ -51,7 +52,10 @@ class ClipFields(BaseModel):
     frame_count: int = Field(description="Frames in the file.")
     frame_time: float = Field(description="Seconds per frame.")
     duration: float = Field(description="Seconds covered by the clip.")
-    joint_count: int = Field(description="Joints of the skeleton, end sites included.")
+    joint_count: int = Field(
+        description="Joints of the skeleton, end sites (bone tips) not counted; clips stored "
+        "before this was fixed count them until `mocap-index reindex --all`."
+    )
     skeleton_family: str = Field(description="Naming convention the skeleton was matched as.")
     lead_in_frames: int = Field(
         description="Rest-pose frames at the start left out of the descriptors."
@@ -84,7 +88,10 @@ class AnimationOut(BaseModel):
 
     name: str = Field(description="As the file names it (`animation N` when it does not).")
     frame_count: int = Field(description="Frames at the rate it is sampled at.")
-    duration: float = Field(description="Seconds from its first to its last key.")
+    duration: float = Field(
+        description="Seconds its frames cover (`frame_count` / its rate): the clip's own "
+        "`duration` for the selected one."
+    )
     selected: bool = Field(description="Whether this clip holds this animation.")
 
     @classmethod
@@ -154,12 +161,29 @@ class ClipOut(ClipFields):
         )
 
 
+class StoredClipRef(BaseModel):
+    """A stored clip, by id and name."""
+
+    id: int
+    name: str
+
+
 class UploadedClipOut(ClipFields):
     """An uploaded query clip (described, not stored: it has no id)."""
 
+    stored_clip: StoredClipRef | None = Field(
+        default=None,
+        description="The stored clip with this very content (same content hash), when there "
+        "is one: the file is already in the library as that clip (which a search then finds "
+        "at distance 0). Null otherwise.",
+    )
+
     @classmethod
-    def of(cls, clip: NewClip) -> UploadedClipOut:
-        return cls(**_clip_fields(clip))
+    def of(cls, clip: NewClip, stored: ClipRecord | None = None) -> UploadedClipOut:
+        return cls(
+            **_clip_fields(clip),
+            stored_clip=None if stored is None else StoredClipRef(id=stored.id, name=stored.name),
+        )
 
 
 def _clip_fields(clip: ClipRecord | NewClip) -> dict[str, Any]:
@@ -216,6 +240,92 @@ class ClipUpdate(BaseModel):
     )
 
 
+# Ids one bulk request may name (a selection by label, licence or text has no bound).
+MAX_SELECTED_IDS = 100_000
+
+
+class ClipSelection(BaseModel):
+    """Which clips: those matching every criterion given (at least one, or `all`)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    ids: list[int] | None = Field(
+        default=None, max_length=MAX_SELECTED_IDS, description="These clips (by id)."
+    )
+    label: list[str] | None = Field(
+        default=None, description="Clips carrying all these labels (any case)."
+    )
+    licence: list[str] | None = Field(
+        default=None, description="Clips of these licences; `!` in front leaves one out."
+    )
+    q: str | None = Field(default=None, description="Clips holding every word, as `GET /clips?q=`.")
+    all: bool = Field(default=False, description="Every clip (when nothing else is given).")
+
+    def selection(self) -> ClipFilter:
+        return ClipFilter.of(ids=self.ids, label=self.label, licence=self.licence, q=self.q)
+
+
+class LabelChanges(ClipSelection):
+    """Labels to add to and remove from a set of clips."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [
+                {"ids": [3, 7, 12], "add": ["jump"], "remove": ["todo"]},
+                {"q": "cmu walk", "licence": ["!CC BY-NC 4.0"], "add": ["shippable"]},
+            ]
+        },
+    )
+
+    add: list[str] = Field(default=[], description="Labels every selected clip then carries.")
+    remove: list[str] = Field(
+        default=[], description="Labels no selected clip then carries (any case)."
+    )
+
+
+class LabelsChanged(BaseModel):
+    matched: int = Field(description="Clips the selection kept.")
+    changed: int = Field(description="Of those, clips whose labels changed.")
+    added: list[str] = Field(description="The labels added (as normalised).")
+    removed: list[str] = Field(description="The labels removed.")
+
+
+SIMILARITY_DOC = (
+    "How similar, in percent: the share of the library's typical neighbour distances under "
+    "this descriptor (each of a sample of clips to its 10 nearest others) that are larger than "
+    "this result's distance. 97: nearer than 97 % of them; 50: as near as a typical neighbour."
+)
+
+
+class OtherFile(BaseModel):
+    """A near-identical clip a collapsed result stands for."""
+
+    id: int
+    name: str
+    format: str
+    filenames: list[str]
+    distance: float
+
+    @classmethod
+    def of(cls, hit: Hit) -> OtherFile:
+        clip = hit.clip
+        return cls(
+            id=clip.id,
+            name=clip.name,
+            format=clip.format,
+            filenames=list(clip.filenames),
+            distance=hit.distance,
+        )
+
+
+OTHERS_DOC = (
+    "Only with `collapse=capture`: the other clips near-identical to this one (the same "
+    "capture in other files or formats), which take no place of their own: "
+    '"+2 other files of this capture".'
+)
+
+
 class SearchHit(BaseModel):
     id: int
     name: str
@@ -224,9 +334,13 @@ class SearchHit(BaseModel):
     filenames: list[str] = Field(description="Original file names.")
     skeleton_family: str = Field(description="Naming convention the skeleton was matched as.")
     distance: float = Field(description="Euclidean distance between the descriptor vectors.")
+    similarity: float = Field(description=SIMILARITY_DOC)
+    others: list[OtherFile] | None = Field(
+        default=None, exclude_if=lambda value: value is None, description=OTHERS_DOC
+    )
 
     @classmethod
-    def of(cls, hit: Hit) -> SearchHit:
+    def of(cls, hit: Hit, *, collapsed: bool = False) -> SearchHit:
         clip = hit.clip
         return cls(
             id=clip.id,
@@ -236,6 +350,8 @@ class SearchHit(BaseModel):
             filenames=list(clip.filenames),
             skeleton_family=clip.skeleton_family,
             distance=hit.distance,
+            similarity=hit.similarity,
+            others=[OtherFile.of(o) for o in hit.others] if collapsed else None,
         )
 
 
@@ -248,6 +364,7 @@ _HITS_EXAMPLE: list[Any] = [
         "filenames": ["dataset-1_walk_sad_001.bvh"],
         "skeleton_family": "bandai",
         "distance": 0.0123,
+        "similarity": 96.4,
     },
     {
         "id": 31,
@@ -257,6 +374,7 @@ _HITS_EXAMPLE: list[Any] = [
         "filenames": ["dataset-1_walk_proud_001.bvh"],
         "skeleton_family": "bandai",
         "distance": 0.0201,
+        "similarity": 91.0,
     },
 ]
 
@@ -276,6 +394,12 @@ class ClipSearchResponse(BaseModel):
     descriptor: str
     k: int
     results: list[SearchHit]
+    query_others: list[OtherFile] | None = Field(
+        default=None,
+        exclude_if=lambda value: value is None,
+        description="Only with `collapse=capture`: clips near-identical to the query clip "
+        "(its own capture in other files), left out of `results`.",
+    )
 
 
 class UploadSearchResponse(BaseModel):

@@ -9,15 +9,19 @@ from fastapi import APIRouter, Query, Request, Response
 
 from app.api import render
 from app.api.deps import (
+    ClipIdQuery,
+    CollapseQuery,
     DescriptorDep,
     DescriptorQuery,
     KQuery,
     LabelQuery,
     LibraryDep,
+    LicenceQuery,
     UploadDep,
 )
 from app.api.errors import error_responses
 from app.api.offload import Offload
+from app.api.query_check import CheckedQueryRoute
 from app.api.schemas import (
     ClipSearchResponse,
     SearchHit,
@@ -28,7 +32,7 @@ from app.errors import InvalidInput
 from app.services import search as search_service
 from app.services.library import Library
 
-router = APIRouter(prefix="/search", tags=["search"])
+router = APIRouter(prefix="/search", tags=["search"], route_class=CheckedQueryRoute)
 
 
 @router.get(
@@ -39,14 +43,19 @@ router = APIRouter(prefix="/search", tags=["search"])
 )
 async def search_by_clip(
     request: Request,
-    clip: Annotated[int, Query(description="Id of the query clip.", examples=[7])],
+    clip: ClipIdQuery,
     k: KQuery = 10,
     descriptor: DescriptorQuery = None,
     label: LabelQuery = None,
+    licence: LicenceQuery = None,
+    collapse: CollapseQuery = None,
 ) -> Response:
     """The `k` clips nearest to clip `clip` under `descriptor`, nearest first, never the
-    query clip itself; Euclidean distances. Fewer than `k` only when the library (or the
-    `label`) has fewer other clips."""
+    query clip itself; Euclidean distances and each result's `similarity`. Fewer than `k`
+    only when the library (or the `label` and `licence` filters) has fewer other clips. A
+    filtered search returns the unfiltered ranking restricted to the clips the filters keep.
+    With `collapse=capture` the clips near-identical to the query are set aside in
+    `query_others`."""
     # The hot path (see bench/README.md): no dependency functions (each sync one is a
     # thread-pool hop), no SQL (the index and the in-memory catalogue), the body serialised
     # once by orjson (app/api/render.py). Run on the event loop while searches of its kind
@@ -54,9 +63,11 @@ async def search_by_clip(
     library: Library = request.app.state.library
     if descriptor is None:
         descriptor = library.default_descriptor
+    capture = collapse == "capture"
+    # Licence filters narrow the ids like labels: one kind with them.
     body = await SEARCHES.run(
-        (descriptor, bool(label), k > QUICK_K),
-        lambda: _search_by_clip(library, clip, descriptor, k, label),
+        (descriptor, bool(label) or bool(licence), capture, k > QUICK_K),
+        lambda: _search_by_clip(library, clip, descriptor, k, label, licence, capture),
     )
     return Response(body, media_type="application/json")
 
@@ -67,10 +78,24 @@ QUICK_K = 100  # more hits than this are searches of another kind (more to show)
 
 
 def _search_by_clip(
-    library: Library, clip: int, descriptor: str, k: int, label: list[str] | None
+    library: Library,
+    clip: int,
+    descriptor: str,
+    k: int,
+    label: list[str] | None,
+    licence: list[str] | None,
+    collapse: bool,
 ) -> bytes:
-    query, hits = search_service.search_by_clip_id(library, clip, descriptor, k, label=label)
-    return render.clip_search(query, descriptor, k, [(h.clip, h.distance) for h in hits])
+    answer = search_service.find_by_clip(
+        library, clip, descriptor, k, label=label, licence=licence, collapse=collapse
+    )
+    return render.clip_search(
+        answer.clip,
+        descriptor,
+        k,
+        answer.hits,
+        query_others=answer.query_others if collapse else None,
+    )
 
 
 @router.post(
@@ -84,20 +109,26 @@ def search_by_upload(
     descriptor: DescriptorDep,
     k: KQuery = 10,
     label: LabelQuery = None,
+    licence: LicenceQuery = None,
+    collapse: CollapseQuery = None,
     clip: Annotated[
         str | None,
         Query(description="Not allowed here: search by a stored clip with `GET /search?clip=`."),
     ] = None,
 ) -> UploadSearchResponse:
     """Describe the uploaded clip (same fields as `POST /clips`) without storing it and
-    return the `k` nearest stored clips; nothing is excluded (an identical stored clip comes
-    first, at distance 0)."""
+    return the `k` nearest stored clips; nothing is excluded: when the file is already
+    stored, `query.stored_clip` names that clip, which comes first at distance 0."""
     if clip is not None:
         raise InvalidInput("clip: give a clip id or a file, not both")
-    query, hits = search_service.search_by_upload(library, upload, descriptor, k, label=label)
+    capture = collapse == "capture"
+    query, hits = search_service.search_by_upload(
+        library, upload, descriptor, k, label=label, licence=licence, collapse=capture
+    )
+    stored = search_service.stored_copy(library, query.content_hash)
     return UploadSearchResponse(
-        query=UploadedClipOut.of(query),
+        query=UploadedClipOut.of(query, stored),
         descriptor=descriptor,
         k=k,
-        results=[SearchHit.of(h) for h in hits],
+        results=[SearchHit.of(h, collapsed=capture) for h in hits],
     )

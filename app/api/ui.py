@@ -5,12 +5,14 @@
 
 * ``GET /clips/{id}/skeleton`` — canonical joint positions per frame and the bone list, for
   drawing stick figures (``POST /skeleton`` does the same for an uploaded, unstored file);
+* ``POST /inspect`` — the animations of an uploaded file (to choose one before storing it);
 * ``GET /map`` — every clip placed in 2-D (FMDistance's 3-MAN features and a PCA of a
   descriptor), with an outlier flag;
 * ``GET /library/clips`` — the clip list filtered by name and label; ``GET /library/labels``
   the labels in use.
 
-The computations live in :mod:`app.services.library_map`.
+The computations live in :mod:`app.services.previews` (stick figures) and
+:mod:`app.services.library_map` (the map, the filtered list).
 """
 
 from __future__ import annotations
@@ -20,19 +22,25 @@ from pathlib import Path
 from typing import Annotated, Any
 
 from fastapi import APIRouter, FastAPI, Query, Request, Response
-from fastapi.responses import FileResponse, JSONResponse
+from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, Field
 
 from app.api.auth import read_dependencies
 from app.api.clips import check_page
+from app.api.compression import MINIMUM_BYTES
 from app.api.deps import ClipDep, DescriptorDep, LabelQuery, LibraryDep, SettingsDep, UploadDep
 from app.api.errors import error_responses
+from app.api.query_check import CheckedQueryRoute
 from app.api.schemas import ClipOut, ClipPage
 from app.services import library_map as ui_service
+from app.services import previews
+from app.services.describe import read_motion
+from app.text import checked_text
 
 STATIC_DIR = Path(__file__).resolve().parent.parent / "static"
 INDEX_HTML = STATIC_DIR / "index.html"
+PREVIEWS_DIR = "previews"  # stored previews, under the data directory (a cache)
 
 # The page loads only its own files: no inline script, no other origin.
 CONTENT_SECURITY_POLICY = (
@@ -40,28 +48,83 @@ CONTENT_SECURITY_POLICY = (
     "connect-src 'self'; object-src 'none'; base-uri 'none'; frame-ancestors 'none'"
 )
 
-router = APIRouter(tags=["ui"])
+router = APIRouter(tags=["ui"], route_class=CheckedQueryRoute)
+
+
+class SkeletonExtent(BaseModel):
+    height: float = Field(
+        description="The tallest frame of the span: its highest joint minus its lowest."
+    )
+    reach: float = Field(
+        description="The farthest any joint gets from the pelvis over the floor in the span."
+    )
 
 
 class SkeletonOut(BaseModel):
     """Canonical joint positions per frame, for drawing a stick figure."""
 
     clip_id: int | None = Field(description="The clip (null for an uploaded file).")
-    fps: int = Field(description="Frames per second of `frames`.")
-    frame_count: int = Field(description="Frames in `frames`.")
-    truncated: bool = Field(
-        description="True when the clip is longer than the frames returned (cut at the end)."
+    fps: float = Field(description="Frames per second of `frames`.")
+    start: float = Field(
+        description="Seconds of the file (lead-in frames included, as `start` asks) of the "
+        "first frame returned."
     )
-    duration: float = Field(description="Seconds covered by `frames`.")
+    frame_count: int = Field(description="Frames returned.")
+    truncated: bool = Field(
+        description="True when the span (default: the whole clip) is longer than the frames "
+        "returned (cut at the end)."
+    )
+    duration: float = Field(description="Seconds covered by the frames returned.")
     source_frame_count: int = Field(description="Frames of the clip after lead-in frames.")
     source_duration: float = Field(description="Seconds covered by the whole clip.")
+    source_fps: float = Field(description="The file's own frame rate.")
     lead_in_frames: int = Field(description="Rest-pose frames at the start left out.")
     units: str = Field(description='Always "body heights".')
     joints: list[str] = Field(description="Canonical joint names, the order of each frame.")
     bones: list[list[int]] = Field(description="[parent index, child index] pairs.")
-    frames: list[list[list[float]]] = Field(
-        description="[frame][joint] = [x, y, z]: body heights, y up, x the subject's left and "
-        "z its forward at the first frame, origin on the floor under the first frame's pelvis."
+    extent: SkeletonExtent = Field(
+        description="Room the figure needs around its pelvis over the span (every frame of "
+        "it, not only those returned): for framing it."
+    )
+    encoding: str = Field(description="`json` (`frames`) or `compact` (`root`, `offsets`).")
+    frames: list[list[list[float]]] | None = Field(
+        None,
+        description="`json`: [frame][joint] = [x, y, z]: body heights, y up, x the subject's "
+        "left and z its forward at the first frame, origin on the floor under the first "
+        "frame's pelvis (4 decimals).",
+    )
+    root: str | None = Field(
+        None,
+        description="`compact`: base64 of little-endian float32 [frame][x, y, z], the pelvis.",
+    )
+    offsets: str | None = Field(
+        None,
+        description="`compact`: base64 of little-endian int16 [frame][joint][x, y, z], each "
+        "joint minus the pelvis in `offset_unit` body heights.",
+    )
+    offset_unit: float | None = Field(None, description="`compact`: 0.0001 body heights.")
+
+
+class InspectedAnimation(BaseModel):
+    name: str = Field(description="As the file names it (`animation N` when it does not).")
+    frame_count: int
+    duration: float = Field(description="Seconds.")
+    selected: bool = Field(
+        description="The one read: named in `animation`, else the longest (what `POST /clips` "
+        "stores without `animation`)."
+    )
+
+
+class InspectOut(BaseModel):
+    """What an uploaded file holds, before it is stored or searched with."""
+
+    format: str
+    filenames: list[str]
+    frame_count: int = Field(description="Frames of the animation read.")
+    duration: float = Field(description="Seconds of the animation read.")
+    animations: list[InspectedAnimation] = Field(
+        description="FBX/glTF: every animation of the file (each can be its own clip); empty "
+        "for BVH and ASF/AMC, which hold one motion."
     )
 
 
@@ -103,24 +166,23 @@ class LabelCount(BaseModel):
     count: int
 
 
-def _map_cache(request: Request) -> ui_service.MapCache:
-    cache = getattr(request.app.state, "map_cache", None)
-    if cache is None:
-        cache = request.app.state.map_cache = ui_service.new_map_cache()
-    return cache
+def _library_map(request: Request) -> ui_service.LibraryMap:
+    maps = getattr(request.app.state, "library_map", None)
+    if maps is None:
+        maps = request.app.state.library_map = ui_service.LibraryMap()
+    return maps
 
 
-def _skeleton_cache(request: Request) -> ui_service.SkeletonCache:
-    cache = getattr(request.app.state, "skeleton_cache", None)
-    if cache is None:
-        cache = request.app.state.skeleton_cache = ui_service.SkeletonCache()
+def _skeleton_cache(request: Request) -> previews.SkeletonCache:
+    cache: previews.SkeletonCache = request.app.state.skeleton_cache
     return cache
 
 
 FpsQuery = Annotated[
-    int,
+    float,
     Query(
-        description=f"Frames per second, {ui_service.MIN_FPS} to {ui_service.MAX_FPS}.",
+        description=f"Frames per second, {previews.MIN_FPS:g} to {previews.MAX_FPS:g} (need not "
+        "be whole: 0.2 gives an overview of a long take).",
         examples=[30],
     ),
 ]
@@ -128,9 +190,21 @@ MaxFramesQuery = Annotated[
     int,
     Query(
         description="Most frames to return, 1 to "
-        f"{ui_service.MAX_SKELETON_FRAMES}; a longer clip is cut (`truncated`)."
+        f"{previews.MAX_SKELETON_FRAMES}; a longer span is cut (`truncated`)."
     ),
 ]
+EncodingQuery = Annotated[
+    str,
+    Query(
+        description="`json`: `frames` as nested lists; `compact`: `root` (float32) and "
+        "`offsets` (int16) in base64, a third of the size (see `root`, `offsets`)."
+    ),
+]
+SpanStart = Annotated[
+    float | None,
+    Query(description="From here, seconds of the file (lead-in frames included)."),
+]
+SpanEnd = Annotated[float | None, Query(description="Up to here, seconds of the file.")]
 
 
 @router.get(
@@ -147,16 +221,34 @@ def clip_skeleton(
     clip: ClipDep,
     library: LibraryDep,
     request: Request,
-    fps: FpsQuery = ui_service.DEFAULT_FPS,
-    max_frames: MaxFramesQuery = ui_service.MAX_SKELETON_FRAMES,
+    fps: FpsQuery = previews.DEFAULT_FPS,
+    max_frames: MaxFramesQuery = previews.MAX_SKELETON_FRAMES,
+    start: SpanStart = None,
+    end: SpanEnd = None,
+    encoding: EncodingQuery = "json",
 ) -> Response:
     """The clip's canonical joints (`joints`), per frame resampled to `fps`, in body heights
     with y up, and the bones between them: what the UI draws. Rest-pose lead-in frames are
-    left out as for the descriptors; at most `max_frames` frames (default and cap 600)."""
-    skeleton = ui_service.clip_skeleton(library, _skeleton_cache(request), clip, fps, max_frames)
+    left out as for the descriptors; at most `max_frames` frames (default and cap 600) from
+    `start` to `end` (default: the whole clip), so any part of a take of any length can be
+    fetched (a low `fps` for an overview, windows of it in detail)."""
+    skeleton = previews.clip_skeleton(
+        library,
+        _skeleton_cache(request),
+        clip,
+        fps,
+        max_frames,
+        start=start,
+        end=end,
+        encoding=encoding,
+    )
     headers = {"ETag": skeleton.etag, "Cache-Control": "private, max-age=3600"}
     if request.headers.get("if-none-match") == skeleton.etag:
         return Response(status_code=304, headers=headers)
+    if "gzip" in request.headers.get("accept-encoding", "") and len(skeleton.body) > MINIMUM_BYTES:
+        # Compressed once and kept (the compression middleware leaves an encoded body alone).
+        headers.update({"Content-Encoding": "gzip", "Vary": "Accept-Encoding"})
+        return Response(content=skeleton.gzipped, media_type="application/json", headers=headers)
     return Response(content=skeleton.body, media_type="application/json", headers=headers)
 
 
@@ -174,30 +266,67 @@ def upload_skeleton(
     upload: UploadDep,
     settings: SettingsDep,
     library: LibraryDep,
-    fps: FpsQuery = ui_service.DEFAULT_FPS,
-    max_frames: MaxFramesQuery = ui_service.MAX_SKELETON_FRAMES,
+    fps: FpsQuery = previews.DEFAULT_FPS,
+    max_frames: MaxFramesQuery = previews.MAX_SKELETON_FRAMES,
+    encoding: EncodingQuery = "json",
 ) -> Response:
     """As `GET /clips/{id}/skeleton` for a file sent like `POST /clips` (nothing stored):
     the UI previews a file dropped as a search query with it."""
     # The same memory bound as describing an upload (MOCAP_MAX_FRAME_VALUES).
     limits = dataclasses.replace(settings.parse_limits, max_values=settings.max_frame_values)
-    body = ui_service.upload_skeleton(upload, limits, fps, max_frames, library.parsers)
+    body = previews.upload_skeleton(
+        upload, limits, fps, max_frames, library.parsers, encoding=encoding
+    )
     return Response(content=body, media_type="application/json")
+
+
+@router.post(
+    "/inspect",
+    summary="The animations an uploaded file holds",
+    responses=error_responses(400, 413, 415, 422),
+)
+def inspect_upload(upload: UploadDep, settings: SettingsDep, library: LibraryDep) -> InspectOut:
+    """Read a file sent like `POST /clips` (nothing stored) and list its animations with their
+    lengths, so one can be chosen (the `animation` field of `POST /clips`, `POST /search`, `POST
+    /skeleton`) before a multi-animation FBX or glTF file is stored or searched with. FBX and
+    glTF are read in a parser worker, as for every upload. An `animation` the file does not have
+    is 422 `unknown_animation`, listing those it has."""
+    limits = dataclasses.replace(settings.parse_limits, max_values=settings.max_frame_values)
+    read = read_motion(upload, limits, library.parsers)
+    return InspectOut(
+        format=upload.format,
+        filenames=[part.filename for part in upload.parts],
+        frame_count=read.motion.frame_count,
+        duration=round(read.motion.duration, 6),
+        animations=[
+            InspectedAnimation(
+                name=a.name,
+                frame_count=a.frame_count,
+                duration=round(a.duration, 6),
+                selected=a.name == read.animation,
+            )
+            for a in read.animations
+        ],
+    )
 
 
 @router.get(
     "/map",
     summary="The whole library in 2-D",
-    response_class=JSONResponse,
-    responses={200: {"model": MapOut}, **error_responses(422)},
+    response_class=Response,
+    responses={200: {"model": MapOut, "description": "The map."}, **error_responses(422)},
 )
-def library_map(library: LibraryDep, descriptor: DescriptorDep, request: Request) -> JSONResponse:
+def library_map(library: LibraryDep, descriptor: DescriptorDep, request: Request) -> Response:
     """Every clip with 2-D coordinates: `x`, `y` = FMDistance's 3-MAN features e_all and
     r_u/l (all three in `three_man`), computed from the stored kinetic vectors, and `pca` =
     the first two principal components of `descriptor`'s vectors; `outlier` marks clips whose
     `descriptor` vectors are far from their nearest neighbours compared with the other
-    clips' (robust z-score of the mean distance to the 5 nearest, over 3.5)."""
-    return JSONResponse(ui_service.library_map(library, descriptor, _map_cache(request)))
+    clips' (robust z-score of the mean distance to the 5 nearest, over 3.5).
+
+    Computed once per change of the library; for a large library in the background, the
+    last map meanwhile (clips stored since then have no `pca` or outlier flag yet)."""
+    body = _library_map(request).body(library, descriptor)
+    return Response(content=body, media_type="application/json")
 
 
 @router.get(
@@ -216,7 +345,11 @@ def find_clips(
     """As `GET /clips`, with a name filter: clips in id order, a page at a time."""
     check_page(settings, limit, offset)
     items, total = ui_service.find_clips(
-        library, q=(q or "").strip() or None, label=label, limit=limit, offset=offset
+        library,
+        q=checked_text("q", q or "").strip() or None,
+        label=label,
+        limit=limit,
+        offset=offset,
     )
     return ClipPage(total=total, limit=limit, offset=offset, items=[ClipOut.of(c) for c in items])
 
@@ -248,8 +381,8 @@ def mount_ui(app: FastAPI) -> None:
     if getattr(state, "ui_mounted", False):
         return
     state.ui_mounted = True
-    state.skeleton_cache = ui_service.SkeletonCache()
-    state.map_cache = ui_service.new_map_cache()
+    state.skeleton_cache = previews.SkeletonCache(state.settings.data_dir / PREVIEWS_DIR)
+    state.library_map = ui_service.LibraryMap()
     app.add_api_route("/", index_page, methods=["GET"], include_in_schema=False)
     app.router.routes.insert(0, app.router.routes.pop())
     # The page and its files are open (like /docs); the data routes are reading routes.

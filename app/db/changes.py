@@ -23,22 +23,30 @@ PostgreSQL
     PgQ.
 SQLite
     One writer at a time, and ``seq`` (AUTOINCREMENT) is handed out inside the write
-    transaction, so rows commit in ``seq`` order: the position is ``max(seq) + 1`` of the
-    snapshot read.
+    transaction, so rows commit in ``seq`` order: the position is the next ``seq`` of the
+    snapshot read (``max(seq) + 1``, kept by ``sqlite_sequence`` once rows are pruned).
 
 Both are read as "rows with coordinate >= position", the coordinate being ``txid`` or ``seq``.
+
+Retention (:func:`prune`): every server records now and then a *mark* (``clip_change_marks``:
+the horizon and the time). The rows before the newest mark older than the retention are
+deleted and that mark is flagged ``pruned``. A mark is a past horizon, so no transaction can
+still add a row below it. A reader whose position is before :func:`pruned_before` (a replica
+or an index file that was away longer than the retention) may have missed changes: it
+rebuilds its indexes from the database instead (``app.services.library``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from datetime import UTC, datetime, timedelta
 
 import numpy as np
-from sqlalchemy import Connection, select, text
+from sqlalchemy import Connection, delete, func, select, text, update
 from sqlalchemy.orm import Session
 
-from app.db.models import ClipChange
+from app.db.models import ClipChange, ClipChangeMark
 
 Executor = Session | Connection
 
@@ -63,9 +71,55 @@ def horizon(executor: Executor) -> int:
                 text("SELECT pg_snapshot_xmin(pg_current_snapshot())::text::bigint")
             ).scalar_one()
         )
+    # The next seq AUTOINCREMENT hands out: past every row ever written, also once pruning
+    # has deleted them all (max(seq) would go back then).
     return int(
-        executor.execute(text("SELECT coalesce(max(seq), 0) + 1 FROM clip_changes")).scalar_one()
+        executor.execute(
+            text(
+                "SELECT max(coalesce((SELECT seq FROM sqlite_sequence WHERE name = "
+                "'clip_changes'), 0), coalesce((SELECT max(seq) FROM clip_changes), 0)) + 1"
+            )
+        ).scalar_one()
     )
+
+
+def latest_seq(executor: Executor) -> int:
+    """The ``seq`` of the newest change row (0 when none): it moves whenever a clip is
+    stored or deleted or a vector changes, in any process (a cache's version)."""
+    latest = executor.execute(text("SELECT coalesce(max(seq), 0) FROM clip_changes"))
+    return int(latest.scalar_one())
+
+
+def pruned_before(executor: Executor) -> int:
+    """The position before which change rows were deleted (0: none ever were)."""
+    found = executor.execute(
+        select(func.max(ClipChangeMark.position)).where(ClipChangeMark.pruned)
+    ).scalar_one()
+    return int(found or 0)
+
+
+def prune(session: Session, retention: timedelta, *, now: datetime | None = None) -> int:
+    """Record a mark at the current horizon, then delete the change rows before the newest
+    mark recorded at least ``retention`` ago (and the older marks); returns how many rows
+    went. Run it in a write transaction (SQLite: the write lock, so the horizon is exact)."""
+    now = now if now is not None else datetime.now(UTC)
+    position = horizon(session)
+    if session.get(ClipChangeMark, position) is None:
+        session.add(ClipChangeMark(position=position, recorded_at=now, pruned=False))
+        session.flush()
+    cutoff = now - retention
+    mark = session.execute(
+        select(func.max(ClipChangeMark.position)).where(ClipChangeMark.recorded_at <= cutoff)
+    ).scalar_one()
+    if mark is None or int(mark) <= pruned_before(session):
+        return 0
+    coordinate = ClipChange.txid if _is_postgres(session) else ClipChange.seq
+    removed = session.execute(delete(ClipChange).where(coordinate < mark))
+    session.execute(delete(ClipChangeMark).where(ClipChangeMark.position < mark))
+    session.execute(
+        update(ClipChangeMark).where(ClipChangeMark.position == mark).values(pruned=True)
+    )
+    return int(removed.rowcount or 0)  # type: ignore[attr-defined]
 
 
 def read_since(executor: Executor, position: int) -> tuple[int, list[Change]]:

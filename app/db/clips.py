@@ -15,7 +15,8 @@ from typing import Any
 from sqlalchemy import Select, delete, func, insert, select
 from sqlalchemy.orm import Session, selectinload
 
-from app.db.label_filters import LabelFilter, label_conditions
+from app.db.clip_filters import ClipFilter, clip_conditions
+from app.db.label_filters import LabelFilter
 from app.db.models import Clip, ClipDescriptor, ClipFile, ClipLabel, ClipWindow
 from app.db.rows import Executor, chunks, encode_vector, insert_values, utc
 from app.db.vectors import VECTOR_COLUMNS, StoredVector
@@ -44,15 +45,27 @@ class AnimationRecord:
 
 
 def encode_animations(animations: Sequence[AnimationRecord] | None) -> str | None:
+    # "seconds": the frames' cover (frame_count / rate), as a clip's duration counts; rows
+    # written before it have "duration", first to last key (see decode_animations).
     if animations is None:
         return None
     return json.dumps(
         [
-            {"name": a.name, "frame_count": a.frame_count, "duration": a.duration}
+            {"name": a.name, "frame_count": a.frame_count, "seconds": a.duration}
             | ({"selected": True} if a.selected else {})
             for a in animations
         ]
     )
+
+
+def _covered_seconds(animation: Mapping[str, Any]) -> float:
+    """An animation's seconds as a clip's ``duration`` counts them: ``frame_count / rate``.
+    Older rows kept ``(frame_count - 1) / rate`` (first to last key), which disagreed with
+    the clip's own duration: scaled by ``n / (n - 1)`` (a lone frame's rate is unknown)."""
+    if "seconds" in animation:
+        return float(animation["seconds"])
+    frames, first_to_last = int(animation["frame_count"]), float(animation["duration"])
+    return first_to_last * frames / (frames - 1) if frames > 1 else first_to_last
 
 
 def decode_animations(text: str | None) -> tuple[AnimationRecord, ...] | None:
@@ -60,7 +73,7 @@ def decode_animations(text: str | None) -> tuple[AnimationRecord, ...] | None:
         return None
     return tuple(
         AnimationRecord(
-            str(a["name"]), int(a["frame_count"]), float(a["duration"]), bool(a.get("selected"))
+            str(a["name"]), int(a["frame_count"]), _covered_seconds(a), bool(a.get("selected"))
         )
         for a in json.loads(text)
     )
@@ -243,13 +256,37 @@ def clip_ids_by_hash(session: Executor, hashes: Iterable[str]) -> dict[str, int]
     return found
 
 
+# What a list may be sorted by (``-`` in front: descending); ties go by id.
+SORT_KEYS: dict[str, Any] = {
+    "id": Clip.id,
+    "name": func.lower(Clip.name),
+    "created_at": Clip.created_at,
+    "duration": Clip.duration,
+    "frame_count": Clip.frame_count,
+}
+
+
 def list_clips(
-    session: Session, *, label: LabelFilter, limit: int, offset: int
+    session: Session,
+    *,
+    selection: ClipFilter | None = None,
+    label: LabelFilter = None,
+    sort: str = "id",
+    limit: int,
+    offset: int,
 ) -> tuple[list[ClipRecord], int]:
-    """One page of clips in id order (those carrying every label of ``label``), and how many
-    match in total."""
-    conditions = label_conditions(session, label)
-    query = _clip_rows().where(*conditions).order_by(Clip.id)
+    """One page of the clips ``selection`` keeps (or those carrying every label of
+    ``label``), ordered by ``sort`` (a key of :data:`SORT_KEYS`, ``-`` in front for
+    descending, then by id), and how many match in total."""
+    if selection is None:
+        selection = ClipFilter.of(label=label)
+    descending = sort.startswith("-")
+    key = SORT_KEYS[sort.removeprefix("-")]
+    order = [key.desc() if descending else key.asc()]
+    if key is not Clip.id:
+        order.append(Clip.id.desc() if descending else Clip.id.asc())
+    conditions = clip_conditions(session, selection)
+    query = _clip_rows().where(*conditions).order_by(*order)
     count = select(func.count()).select_from(Clip).where(*conditions)
     total = session.scalar(count) or 0
     rows = session.execute(query.limit(limit).offset(offset)).all()

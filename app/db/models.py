@@ -27,6 +27,14 @@ clip_changes
     The change feed the indexes of every process follow: one row per clip inserted, updated
     or deleted (and per vector updated), written by database triggers (migration 0003), with
     the writing transaction's id on PostgreSQL. See :mod:`app.db.changes`.
+clip_change_marks
+    Where the change feed stood when (recorded now and then by every server), so change rows
+    older than the retention can be deleted; the mark they were deleted up to is ``pruned``.
+    See :mod:`app.db.changes`.
+rigs
+    Characters' skeletons clips can be retargeted onto (``GET /clips/{id}/file?rig=``): the
+    skeleton and its reference pose as JSON (names, parents, offsets, end sites, rotations),
+    its joint mapping and length unit. Not in any index: nothing searches rigs.
 blobs
     The uploaded files themselves, by sha256, when the database is PostgreSQL (so a replica
     on another machine needs nothing but the database); SQLite keeps them in a directory.
@@ -38,6 +46,7 @@ from datetime import datetime
 
 from sqlalchemy import (
     BigInteger,
+    Boolean,
     DateTime,
     Float,
     ForeignKey,
@@ -48,6 +57,7 @@ from sqlalchemy import (
     String,
     Text,
     UniqueConstraint,
+    false,
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
@@ -214,6 +224,17 @@ class ClipChange(Base):
     txid: Mapped[int | None] = mapped_column(BigInteger, nullable=True)
 
 
+class ClipChangeMark(Base):
+    """The change feed's position (the coordinate of :class:`ClipChange` rows: txid or seq)
+    at ``recorded_at``; ``pruned``: the change rows before it were deleted."""
+
+    __tablename__ = "clip_change_marks"
+
+    position: Mapped[int] = mapped_column(BigInteger, primary_key=True, autoincrement=False)
+    recorded_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
+    pruned: Mapped[bool] = mapped_column(Boolean, server_default=false())
+
+
 class Blob(Base):
     """An uploaded file's bytes, content-addressed (PostgreSQL deployments only)."""
 
@@ -222,4 +243,25 @@ class Blob(Base):
     sha256: Mapped[str] = mapped_column(String(64), primary_key=True)
     size: Mapped[int] = mapped_column(Integer)
     data: Mapped[bytes] = mapped_column(LargeBinary)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
+
+
+class Rig(Base):
+    """A character's skeleton to retarget onto (see :mod:`app.db.rigs`)."""
+
+    __tablename__ = "rigs"
+    __table_args__ = ({"sqlite_autoincrement": True},)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    name: Mapped[str] = mapped_column(String(255))
+    format: Mapped[str] = mapped_column(String(16))
+    filename: Mapped[str] = mapped_column(String(255))
+    joint_count: Mapped[int] = mapped_column(Integer)
+    skeleton_family: Mapped[str] = mapped_column(String(64))
+    length_unit: Mapped[str] = mapped_column(String(64))
+    metres_per_unit: Mapped[float] = mapped_column(Float)
+    # JSON text: {"names", "parents", "offsets", "end_site", "rotations", "root", "frame_time"}.
+    skeleton: Mapped[str] = mapped_column(Text)
+    # JSON text, the shape of a clip's joint_mapping.
+    joint_mapping: Mapped[str] = mapped_column(Text)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))

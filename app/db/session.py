@@ -7,6 +7,12 @@ SQLAlchemy emits BEGIN itself (the recipe of the SQLAlchemy SQLite documentation
 sessions begin with ``BEGIN IMMEDIATE`` so they take the write lock up front instead of failing
 when a read transaction is upgraded.
 
+Durability: ``synchronous=FULL`` by default, so the WAL is fsynced at every commit and a write
+the service acknowledged (a 201, a 204) survives an OS crash or a power cut; the stored files'
+renames ride in the same file-system journal commit (``app.services.blobs``). ``NORMAL``
+(``MOCAP_SQLITE_SYNCHRONOUS``) syncs only at checkpoints: faster, but the last commits before a
+power loss can roll back (bench/README.md measures the difference on the import).
+
 PostgreSQL goes through psycopg 3 (the ``postgres`` extra): a plain ``postgresql://`` URL
 means ``postgresql+psycopg://``. The pool holds at most 20 connections per process (searches
 read no SQL: they answer from memory), so a handful of replicas fit in PostgreSQL's default
@@ -25,10 +31,12 @@ from sqlalchemy.orm import Session, sessionmaker
 SQLITE_BUSY_TIMEOUT_MS = 30_000
 POOL_SIZE = 5
 POOL_OVERFLOW = 15
+SYNCHRONOUS_MODES = ("FULL", "NORMAL")
 
 
-def create_db_engine(url: str) -> Engine:
-    """An engine for ``url``; for SQLite the parent directory of the file is created."""
+def create_db_engine(url: str, *, synchronous: str = "FULL") -> Engine:
+    """An engine for ``url``; for SQLite the parent directory of the file is created and
+    ``synchronous`` (``FULL`` or ``NORMAL``) is SQLite's commit durability."""
     parsed = make_url(url)
     if parsed.drivername == "postgresql":
         parsed = parsed.set(drivername="postgresql+psycopg")
@@ -42,6 +50,9 @@ def create_db_engine(url: str) -> Engine:
         raise ValueError(
             "use a SQLite file (in-memory databases are per connection and lose the schema)"
         )
+    mode = synchronous.upper()
+    if mode not in SYNCHRONOUS_MODES:
+        raise ValueError(f"synchronous: one of {', '.join(SYNCHRONOUS_MODES)}, not {synchronous!r}")
     Path(database).parent.mkdir(parents=True, exist_ok=True)
     engine = create_engine(
         url, connect_args={"check_same_thread": False, "timeout": SQLITE_BUSY_TIMEOUT_MS / 1000}
@@ -54,7 +65,7 @@ def create_db_engine(url: str) -> Engine:
         cursor.execute("PRAGMA journal_mode=WAL")
         cursor.execute("PRAGMA foreign_keys=ON")
         cursor.execute(f"PRAGMA busy_timeout={SQLITE_BUSY_TIMEOUT_MS}")
-        cursor.execute("PRAGMA synchronous=NORMAL")  # durable with WAL except on power loss
+        cursor.execute(f"PRAGMA synchronous={mode}")  # FULL: every commit reaches the disk
         cursor.close()
 
     @event.listens_for(engine, "begin")

@@ -448,40 +448,67 @@ class DescriptorIndex:
         q = as_vectors(query, self.dimension)
         if q.shape[0] != 1:
             raise ValueError("search takes one query vector")
-        selector = None
         available = self.size
         if allowed is not None:
             allowed = np.unique(as_ids(allowed))
             if exclude is not None:
                 allowed = allowed[allowed != exclude]
                 exclude = None
-            selector = allowed if self.mapped else faiss.IDSelectorBatch(allowed)
             available = min(available, int(allowed.size))
         wanted = min(k + (1 if exclude is not None else 0), available)
         if wanted <= 0:
             return Neighbours(np.empty(0, np.int64), np.empty(0, np.float64))
-        with self._lock.read():
-            index = self._index
-            params: Any = None
-            if isinstance(index, FrozenIVF):
-                squared, ids = index.search(
-                    q, wanted, nprobe=self.nprobe, allowed=None if selector is None else allowed
-                )
-            elif kind_of(index) == IVF:
-                params = faiss.SearchParametersIVF()
-                params.nprobe = index.nlist if selector is not None else self.nprobe
-            elif selector is not None:
-                params = faiss.SearchParameters()
-            if selector is not None and params is not None:
-                params.sel = selector
-            if not isinstance(index, FrozenIVF):
-                squared, ids = index.search(q, wanted, params=params)
+        squared, ids = self._search_selected(q, wanted, allowed)
         keep = ids[0] >= 0  # FAISS pads with -1 when fewer vectors qualify
         if exclude is not None:
             keep &= ids[0] != exclude
         found = ids[0][keep][:k].astype(np.int64)
         distances = np.sqrt(np.maximum(squared[0][keep][:k].astype(np.float64), 0.0))
         return Neighbours(found, distances)
+
+    def _search_selected(
+        self, q: np.ndarray, wanted: int, allowed: np.ndarray | None
+    ) -> tuple[Any, Any]:
+        """FAISS's squared distances and ids ``(Q, wanted)`` of the ``wanted`` nearest to ``q``
+        ``(Q, D)`` among ``allowed`` (sorted unique ids; ``None``: all; an IVF index then probes
+        every cell)."""
+        with self._lock.read():
+            index = self._index
+            if isinstance(index, FrozenIVF):
+                return index.search(q, wanted, nprobe=self.nprobe, allowed=allowed)
+            selector = None if allowed is None else faiss.IDSelectorBatch(allowed)
+            params: Any = None
+            if kind_of(index) == IVF:
+                params = faiss.SearchParametersIVF()
+                params.nprobe = index.nlist if selector is not None else self.nprobe
+            elif selector is not None:
+                params = faiss.SearchParameters()
+            if selector is not None:
+                params.sel = selector
+            return index.search(q, wanted, params=params)
+
+    def search_batch(
+        self, queries: np.ndarray, k: int, *, allowed: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The ``k`` nearest stored vectors to each of ``queries`` ``(Q, D)`` in one FAISS
+        call (``allowed`` as in :meth:`search`): ``(Q, k)`` Euclidean distances (float64,
+        ascending) and ids (int64, -1 past the vectors that qualify)."""
+        q = as_vectors(queries, self.dimension)
+        if allowed is not None:
+            allowed = np.unique(as_ids(allowed))
+        wanted = max(1, min(k, self.size if allowed is None else min(self.size, allowed.size)))
+        if q.shape[0] == 0 or self.size == 0 or (allowed is not None and allowed.size == 0):
+            empty = np.full((q.shape[0], k), -1, np.int64)
+            return np.full((q.shape[0], k), np.inf), empty
+        squared, ids = self._search_selected(q, wanted, allowed)
+        distances = np.full((q.shape[0], k), np.inf)
+        found = np.full((q.shape[0], k), -1, np.int64)
+        valid = ids >= 0
+        distances[:, :wanted] = np.where(
+            valid, np.sqrt(np.maximum(squared.astype(np.float64), 0.0)), np.inf
+        )
+        found[:, :wanted] = ids
+        return distances, found
 
     def scan_cost(self, *, filtered: bool = False) -> int:
         """Roughly how many numbers one search compares: every vector for a flat index (or a
@@ -840,8 +867,8 @@ class DescriptorIndex:
     def _rebuild(self, source: VectorSource, watermark: int, problem: str) -> str:
         ids, vectors = source.vectors()
         self.replace_all(ids, vectors, synced_to=watermark, persist=True)
-        # A new, empty library has no index yet: that is no news.
-        level = logging.WARNING if ids.size else logging.INFO
+        # A new, empty library has no index yet: that is no news (the library says so once).
+        level = logging.WARNING if ids.size else logging.DEBUG
         log.log(
             level,
             "rebuilt the %s index from the database (%d vectors, %s): %s",

@@ -16,7 +16,8 @@ canonical joints only, and works out from the skeleton itself:
   the pelvis toward the neck (orthogonalised), forward = lateral x up. It depends on the
   pelvis alone — never on the clip's other frames — so every clip of one skeleton has the
   same axes, and a frame's features are the same whether computed from the whole clip or a
-  part of it. Neither the file's up axis, its units nor the facing direction matter.
+  part of it (only a rig whose rest pose shows no side at all reads them from the frames).
+  Neither the file's up axis, its units nor the facing direction matter.
 * ``world_up`` — the world's vertical axis, needed to split root speed into horizontal and
   vertical parts: the coordinate axis (with sign) nearest to the clip's mean body-up
   direction. Motion-capture files are authored with a coordinate axis up, and a body that
@@ -35,7 +36,13 @@ import numpy as np
 from app.errors import ParseError
 from app.motion.kinematics import bone_lengths, forward_kinematics
 from app.motion.model import Motion
-from app.motion.skeleton_map import CANONICAL_INDEX, CANONICAL_JOINTS, SkeletonMap, map_skeleton
+from app.motion.skeleton_map import (
+    CANONICAL_INDEX,
+    CANONICAL_JOINTS,
+    COINCIDENT,
+    SkeletonMap,
+    map_skeleton,
+)
 from app.motion.transforms import reflect
 
 T = TypeVar("T")
@@ -149,7 +156,7 @@ def build_body(motion: Motion) -> Body:
     if not np.all(np.isfinite(canon_pos)) or not np.all(np.isfinite(canon_rot)):
         raise ParseError("forward kinematics produced non-finite joint positions")
 
-    height = body_height(motion, mapping.joints, head_joint=mapping.head_joint)
+    height = body_height(motion, mapping.joints, head_joint=mapping.head_joint, held=mapping.held)
     if not height > 0:
         raise ParseError(
             "the skeleton has zero height (all bones between ankle and head are empty)"
@@ -238,12 +245,11 @@ def _plausible_span(implausible: np.ndarray) -> tuple[int, int]:
     return int(plausible[0]), int(plausible[-1]) + 1
 
 
-def _frame_poses(motion: Motion) -> Iterator[tuple[str, np.ndarray]]:
-    """``(J, 3)`` world positions at a few frames across the clip, for rigs whose rest pose
-    is not a standing figure (joint orientation in rotations). Computed when the mapper
-    first asks, all in one pass: it maps from one and lets several vote on the sides."""
-    count = motion.frame_count
-    frames = sorted({round(i * (count - 1) / (_POSE_FRAMES - 1)) for i in range(_POSE_FRAMES)})
+def _spread_frames(motion: Motion, count: int = _POSE_FRAMES) -> tuple[list[int], Motion]:
+    """Up to ``count`` frames evenly spread over the clip (first and last included), and the
+    clip cut down to them."""
+    total = motion.frame_count
+    frames = sorted({round(i * (total - 1) / (count - 1)) for i in range(count)})
     picked = dataclasses.replace(
         motion,
         root_translation=motion.root_translation[frames],
@@ -252,19 +258,37 @@ def _frame_poses(motion: Motion) -> Iterator[tuple[str, np.ndarray]]:
         if motion.local_translations is None
         else motion.local_translations[frames],
     )
+    return frames, picked
+
+
+def _frame_poses(motion: Motion) -> Iterator[tuple[str, np.ndarray]]:
+    """``(J, 3)`` world positions at a few frames across the clip, for rigs whose rest pose
+    is not a standing figure (joint orientation in rotations). Computed when the mapper
+    first asks, all in one pass: it maps from one and lets several vote on the sides."""
+    frames, picked = _spread_frames(motion)
     _, positions = forward_kinematics(picked)
     for f, pose in zip(frames, positions, strict=True):
         yield f"frame {f}", pose
 
 
-def body_height(motion: Motion, canonical: np.ndarray, *, head_joint: int = -1) -> float:
+def body_height(
+    motion: Motion,
+    canonical: np.ndarray,
+    *,
+    head_joint: int = -1,
+    held: tuple[tuple[int, int, float], ...] = (),
+) -> float:
     """Leg plus trunk bone-path length in file units (see module docstring).
 
     The trunk ends at the head *joint* (``head_joint`` when given): an end effector beyond
     it (the top of the head) does not count, so the height means the same with or without.
+    ``held``: ``(joint, limb end, distance)`` for joints that IK holds at a limb's end
+    (:attr:`~app.motion.skeleton_map.SkeletonMap.held`): their bone is that distance.
     """
-    lengths = bone_lengths(motion)
-    parents = motion.skeleton.parents
+    lengths = bone_lengths(motion).copy()
+    parents = motion.skeleton.parents.copy()
+    for joint, end, distance in held:
+        parents[joint], lengths[joint] = end, distance
 
     def path_length(top: str, bottom: str) -> float:
         j, stop, total = (
@@ -331,7 +355,10 @@ def rest_pelvis_basis(motion: Motion, canonical: np.ndarray) -> np.ndarray:
     """``(3, 3)`` body axes (columns lateral, up, forward) in the pelvis joint's coordinates.
 
     Found in the rest pose of the skeleton's offsets; a rig whose offsets are empty and whose
-    shape lives in per-frame position channels uses those of its first frame instead.
+    shape lives in per-frame position channels uses those of its first frame instead; a rig
+    whose rest pose shows no side at all (joint orientation in the rotations and both hips
+    at the pelvis: the legs coincide) takes the directions, seen from the pelvis, averaged
+    over a dozen frames of the clip.
     """
     skeleton = motion.skeleton
     candidates = [skeleton.offsets]
@@ -342,24 +369,50 @@ def rest_pelvis_basis(motion: Motion, canonical: np.ndarray) -> np.ndarray:
         rest = np.zeros((skeleton.joint_count, 3))
         for j in range(1, skeleton.joint_count):
             rest[j] = rest[skeleton.parents[j]] + offsets[j]
-        at = {name: rest[canonical[CANONICAL_INDEX[name]]] for name in ("pelvis", "neck")}
-        lateral = (
-            rest[canonical[CANONICAL_INDEX["l_hip"]]] - rest[canonical[CANONICAL_INDEX["r_hip"]]]
+        try:
+            return _basis(rest[None], np.eye(3)[None], canonical)
+        except ParseError as why:
+            problem = str(why)
+    # Joint orientation in the rotations and both hips at the pelvis: the rest pose's legs
+    # coincide. Where the legs part in the frames, seen from the pelvis, tells the sides.
+    _, picked = _spread_frames(motion)
+    rotations, positions = forward_kinematics(picked, joints=canonical)
+    try:
+        return _basis(positions, rotations[:, canonical[CANONICAL_INDEX["pelvis"]]], canonical)
+    except ParseError:
+        raise ParseError(problem) from None
+
+
+def _basis(positions: np.ndarray, pelvis: np.ndarray, canonical: np.ndarray) -> np.ndarray:
+    """``(3, 3)`` body axes in the pelvis joint's coordinates from ``(F, J, 3)`` poses and the
+    ``(F, 3, 3)`` pelvis rotations in them (directions averaged over the poses)."""
+    at = {
+        name: positions[:, canonical[CANONICAL_INDEX[name]]]
+        for name in (
+            "pelvis",
+            "neck",
+            *(f"{s}_{p}" for s in "lr" for p in ("hip", "knee", "ankle")),
         )
-        lateral_norm = float(np.linalg.norm(lateral))
-        if lateral_norm < 1e-9:
-            problem = "the left and right hips coincide; cannot tell left from right"
-            continue
-        x = lateral / lateral_norm
-        up = at["neck"] - at["pelvis"]
-        up = up - np.dot(up, x) * x
-        up_norm = float(np.linalg.norm(up))
-        if up_norm < 1e-9:
-            problem = "the neck is level with the hips; cannot find the body's up direction"
-            continue
-        y = up / up_norm
-        return np.stack([x, y, np.cross(x, y)], axis=1)
-    raise ParseError(problem)
+    }
+    size = float(np.ptp(positions[:, canonical], axis=1).max())
+    local = np.swapaxes(pelvis, -1, -2)
+    # Some rigs put both hip joints at the pelvis and separate the legs only at the next
+    # joint down: the legs then show the sides where they part.
+    for part in ("hip", "knee", "ankle"):
+        across = np.einsum("fab,fb->fa", local, at[f"l_{part}"] - at[f"r_{part}"])
+        if float(np.linalg.norm(across, axis=1).min()) > COINCIDENT * size:
+            break
+    else:
+        raise ParseError("the left and right legs coincide; cannot tell left from right")
+    lateral = (across / np.linalg.norm(across, axis=1, keepdims=True)).sum(axis=0)
+    x = lateral / np.linalg.norm(lateral)
+    up = np.einsum("fab,fb->a", local, at["neck"] - at["pelvis"])
+    up = up - np.dot(up, x) * x
+    up_norm = float(np.linalg.norm(up))
+    if up_norm < 1e-9 * max(size, 1e-300):
+        raise ParseError("the neck is level with the hips; cannot find the body's up direction")
+    y = up / up_norm
+    return np.stack([x, y, np.cross(x, y)], axis=1)
 
 
 def _world_up(pelvis_frames: np.ndarray) -> np.ndarray:

@@ -18,9 +18,13 @@ Nothing here imports web, database or index code.
 
 from __future__ import annotations
 
+import dataclasses
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from app.errors import DescribeTimeout
 
 
 @dataclass(frozen=True)
@@ -29,17 +33,42 @@ class ParseLimits:
 
     ``None`` means unlimited. The service passes its configured limits; tests and tools may
     use the defaults.
+
+    ``deadline`` is a :func:`time.monotonic` instant by which reading must be over: the
+    readers call :meth:`check_time` between bounded chunks of work (every few thousand lines,
+    around each C reader call), so a read that runs too long stops with
+    :class:`~app.errors.DescribeTimeout` and frees its thread; the process goes on. It takes
+    no part in comparisons, so limits that differ only in their deadline are equal (the BVH
+    reader remembers hierarchies by their limits).
     """
 
     max_frames: int | None = 1_000_000
     max_joints: int | None = 1_000
     max_depth: int | None = 256
     max_values: int | None = 200_000_000
+    deadline: float | None = field(default=None, compare=False)
+
+    def within(self, seconds: float | None) -> ParseLimits:
+        """These limits with a deadline ``seconds`` from now (unchanged for ``None``)."""
+        if seconds is None:
+            return self
+        return dataclasses.replace(self, deadline=time.monotonic() + seconds)
+
+    def check_time(self) -> None:
+        """:class:`~app.errors.DescribeTimeout` once the deadline has passed."""
+        if self.deadline is not None and time.monotonic() > self.deadline:
+            raise DescribeTimeout("reading the file took longer than its time limit")
 
     def frame_budget_problem(self, frame_count: int, columns: int, joint_count: int) -> str | None:
         """Why ``frame_count`` frames of ``columns`` numbers for ``joint_count`` joints are too
         many, or None. Checked before allocating: the values read and the rotation matrices
-        produced (nine numbers per joint and frame) both count."""
+        produced (nine numbers per joint and frame) both count, whichever is more.
+
+        The count is what the clip's frames become in memory, so it bounds one upload's
+        memory whatever its size in bytes: describing a clip peaks at about 21 bytes per
+        counted value (the motion's rotations, forward kinematics of every joint, the body
+        and its descriptors; measured in bench/README.md), plus the upload's bytes twice
+        (the file and its text)."""
         if self.max_frames is not None and frame_count > self.max_frames:
             return f"{frame_count} frames is more than the limit of {self.max_frames}"
         produced = frame_count * max(columns, 9 * joint_count)

@@ -6,23 +6,35 @@ head, with two arms branching off the upper spine. That shape is visible in a st
 figure, as in rigs that bake joint orientation into rotations) whatever the up axis, units,
 facing, naming or extra joints (fingers, face, twist bones, props, IK targets, dummies).
 
-1. **Extremities.** Leaves far apart along bones are found greedily (the farthest leaf from
-   the ones already chosen, up to :data:`_CANDIDATES`); every choice of five of them as head,
+0. **Points, not joints.** Leaves that add no point (zero-length End Sites, which a BVH
+   writer appends to every leaf joint of an FBX or glTF rig) are not seen at all.
+1. **Extremities.** Leaves at least two bones below the root (thigh and shin, upper arm and
+   forearm: a hip may sit at the pelvis itself) and far apart along bones are found
+   greedily (the farthest leaf from the ones already chosen, up to :data:`_CANDIDATES`);
+   every choice of five of them as head,
    two hands and two feet is checked: the arms' branch point (chest) must carry the head
    and not the feet, the feet must lie well below the pelvis (the branch point of legs and
    spine) along the pelvis->chest direction, and the legs must point opposite the spine
    (a horizontal spine over four limbs is a quadruped). The cheapest valid choice wins;
    costs are left/right chain-length differences and names that contradict a role (an arm
    chain whose joints are called leg names).
-2. **Chains.** Along each limb chain: the ankle is where the chain turns forward (the rest
-   of the chain drops little for its length; a last bone under half the one before is a
-   foot that points down); the hip and shoulder start the straight run ending at the ankle
-   or wrist (or the joint above it when the run leaves no room for a middle joint); the
-   knee and elbow split that run (a rest-pose bend decides when there is one, otherwise
-   the split nearest human proportions); the wrist is where the fingers branch (else the
-   joint before the hand's end, else the arm's last joint on a rig without hand bones);
-   two legs never share their hip. Names whole-matched by
-   :mod:`app.motion.skeleton_names` choose among joints when they name one in the chain.
+2. **Chains.** Along each limb chain: the ankle is where the chain turns forward (the
+   rest of the chain drops little for its length), else named, else the one of the leg's
+   last joints nearest human proportions (a foot that points down); the hip and shoulder
+   start the straight run ending at the ankle or wrist (or the joint above it when the run
+   leaves no room for a middle joint, or the joint at the trunk's own place when hips sit at
+   the pelvis); the knee and elbow split that run (a rest-pose bend decides when there is
+   one, otherwise the split nearest human proportions); the wrist is named, or else, among
+   where the fingers branch (a joint with several, or sibling palm joints at one place), the
+   two joints before the hand's end and the arm's last joint (a rig without hand bones), the
+   one whose upper arm, forearm and hand come nearest human proportions; the ankle likewise
+   when the foot does not turn forward; two legs never share their hip, and each limb makes
+   most of the way from the trunk to its end (a creature's claws hanging at the end of its
+   legs are no person's legs). A game rig whose feet are IK bones under the root (legs
+   ending at the knees) is mapped, when nothing else maps, with each foot hung from the knee
+   it stays at one distance from while the knee bends (:attr:`SkeletonMap.held`). Names
+   whole-matched by :mod:`app.motion.skeleton_names` choose among joints when they name one
+   in the chain.
 3. **End effectors** (Miura et al.: "end effectors are hereafter regarded as joints"): the
    canonical ``head`` point is the first point of non-zero length on the single chain
    beyond the head joint (an End Site, or a ``HeadTop``-like leaf bone: a BVH converted
@@ -39,7 +51,8 @@ facing, naming or extra joints (fingers, face, twist bones, props, IK targets, d
    geometry alone. When the mapping comes from frames (no standing rest pose), the sides are
    read from the hips and shoulders only (knees and hands cross in a side step or a slash)
    and several frames vote, so every clip of a rig — and every part of a clip, cut out and
-   searched with — gets the same sides.
+   searched with — gets the same sides. A standing rest pose that shows no side (straight
+   knees, no feet) lets the clip's frames vote likewise (:attr:`SkeletonMap.sides_open`).
 
 What the tree alone decides (the candidate limb ends, the choices it allows) and, when the
 rest pose shows a standing figure, the whole mapping are kept per skeleton: every clip of a
@@ -52,6 +65,7 @@ missing.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import itertools
 import math
@@ -144,7 +158,7 @@ MIRROR_INDEX: np.ndarray = np.array(
 )
 
 # Bones of non-zero length between the root and a limb's end, at least.
-_MIN_LIMB_BONES = 3
+_MIN_LIMB_BONES = 2
 # The shorter limb of a pair is at least this fraction of the longer one's bone path.
 _LIMB_PARTNER = 0.6
 # An end effector continues its joint's direction (up for the head, forward for the toes)
@@ -152,10 +166,14 @@ _LIMB_PARTNER = 0.6
 _EFFECTOR_COS = 0.7
 # Head/hands/feet choices walked, cheapest first, before giving up on a pose.
 _TRIED_CHOICES = 12
-# Leaves considered as extremities (head, hands, feet and up to three props/IK targets).
+# Leaves considered as extremities (head, hands, feet and up to three props/IK targets),
+# and, when none of their choices is a humanoid, up to seven.
 _CANDIDATES = 8
+_MORE_CANDIDATES = 12
+# ...read in the rest pose and this many frames (their choices are many more to check).
+_MORE_FRAMES = 3
 # Fractions of the pose's extent (its bounding-box diagonal, about body height).
-_COINCIDENT = 1e-4  # joints closer than this share a position
+COINCIDENT = 1e-4  # joints closer than this share a position
 _BENT_KNEE = np.sin(np.radians(10))  # a knee bent this much shows its hinge axis
 _MIN_LEG = 0.15  # a leg chain is at least this long
 _MIN_ARM = 0.15  # an arm chain is at least this long
@@ -170,15 +188,24 @@ _PROPORTION_MARGIN = 0.3
 # Upper arm : forearm and thigh : shin (Drillis & Contini's segment table).
 _UPPER_TO_FORE = 1.27
 _THIGH_TO_SHIN = 1.0
+# Hand (wrist to fingertip) : forearm, same table (0.108 and 0.146 of height).
+_HAND_TO_FORE = 0.74
 # The foot turns away from the shin by at least this much at the ankle, degrees.
 _ANKLE_TURN_DEG = 25.0
-# A leg's last bone shorter than this fraction of the bone before is a foot, not a shin
-# (a shin is about as long as the thigh; ankle to ball is under half the shin).
-_FOOT_TO_SHIN = 0.5
+# Foot (ankle to toe tip) : shin, same table (0.152 and 0.246 of height).
+_FOOT_TO_SHIN = 0.62
 # Feet lie below the pelvis by at least this fraction of the leg chain's length.
 _LEG_DROP_RATIO = 0.5
 # cos of the smallest angle between the spine and the legs of a standing biped (120 deg).
 _LEGS_OPPOSITE_SPINE = -0.5
+# The share of a limb (top, middle and end joints, in straight lines) in the way from the
+# trunk joint it hangs from to its end. A person's hip sits half a hip width (~0.1 of the
+# height) from the pelvis, against a leg of ~0.49: 0.83; the shortest-legged cartoon of the
+# dev data (Mixamo's Mousey) 0.69; a leg shorter than its hip's distance from the pelvis
+# (under 0.5) is not one. An arm hangs a clavicle and some spine from the arms' branch
+# point: 0.55 to 0.83 in the dev data; under a third, the arm is shorter than half that way.
+_LEG_SHARE = 0.5
+_ARM_SHARE = 1 / 3
 
 FAMILY_NAMES = (
     "cmu-asf",
@@ -221,6 +248,13 @@ class SkeletonMap:
         World axis (0, 1, 2) nearest the body's lateral direction, to reflect across.
     pose:
         Which pose the geometry was read from: ``"rest pose"`` or ``"frame N"``.
+    sides_open:
+        The rest pose shows no side (straight knees, no feet): the clip's frames chose left
+        and right, so the mapping is made again for every clip of the rig.
+    held:
+        ``(joint, limb end, distance)`` for mapped joints that do not hang from the limb
+        they end (a foot bone under the root that IK keeps at the end of the shin): in the
+        mapping they hang from that limb end, at that rest-pose distance.
     warnings:
         Short sentences for the user about what the mapping had to decide.
     """
@@ -234,6 +268,8 @@ class SkeletonMap:
     mirrored: bool = False
     mirror_axis: int = 0
     pose: str = "rest pose"
+    sides_open: bool = False
+    held: tuple[tuple[int, int, float], ...] = ()
     warnings: tuple[str, ...] = ()
 
     def describe(self, names: Sequence[str]) -> dict[str, dict[str, str]]:
@@ -293,26 +329,170 @@ def map_skeleton(skeleton: Skeleton, poses: Iterable[tuple[str, np.ndarray]] = (
     SkeletonMappingError
         The skeleton is not a whole humanoid; the message says what was found and missing.
     """
-    known = _known(skeleton)
+    stream = _Lookahead(poses)
+    try:
+        return _map_tree(skeleton, stream)
+    except _NotHumanoid as reason:
+        problem = SkeletonMappingError(str(reason))
+    # Limb ends that IK holds without hanging from them (a game rig's foot bone under the
+    # root, kept at the end of the shin): the frames show them, and the rig is mapped with
+    # each hung from the limb it moves with.
+    known = _known(skeleton, _CANDIDATES)
+    held = _held_ends(known.tree, stream.after(-1, _POSES))
+    if not held:
+        raise problem
+    rehung = _rehung(skeleton, known.rest, held)
+    if rehung is None:
+        raise problem
+    order, virtual = rehung
+    moved = _Lookahead((label, pose[order]) for label, pose in stream)
+    try:
+        mapping = _map_tree(virtual, moved)
+    except _NotHumanoid:
+        raise problem from None
+    joints = order[mapping.joints]
+    ends = ", ".join(
+        f"{skeleton.names[joint]!r} with {skeleton.names[leaf]!r}"
+        for joint, leaf in held.items()
+        if joint in joints
+    )
+    if not ends:
+        return dataclasses.replace(
+            mapping, joints=joints, head_joint=int(order[mapping.head_joint])
+        )
+    return dataclasses.replace(
+        mapping,
+        joints=joints,
+        head_joint=int(order[mapping.head_joint]),
+        held=tuple(
+            (joint, leaf, float(np.linalg.norm(known.rest[joint] - known.rest[leaf])))
+            for joint, leaf in held.items()
+            if joint in joints
+        ),
+        warnings=(*mapping.warnings, f"limb ends held by IK, not by their limbs: {ends}"),
+    )
+
+
+def _map_tree(skeleton: Skeleton, stream: _Lookahead) -> SkeletonMap:
+    """The mapping of ``skeleton`` as its tree stands (see :func:`map_skeleton`); else the
+    rest pose's reason (_NotHumanoid)."""
+    known = _known(skeleton, _CANDIDATES)
+    try:
+        return _map_known(known, stream)
+    except _NotHumanoid:
+        if len(known.candidates) < _CANDIDATES:
+            raise
+        # Many long leaves (IK targets, props, hair, long fingers) may have kept a hand or a
+        # foot out of the candidates: look at more before refusing.
+        try:
+            return _map_known(_known(skeleton, _MORE_CANDIDATES), stream, _MORE_FRAMES)
+        except _NotHumanoid:
+            pass
+        raise
+
+
+# A joint whose distance from a limb's last joint stays within this fraction of itself over
+# the frames (IK reaching its target: Quaternius robots stay within 5e-4)...
+_HELD_SPREAD = 0.01
+# ...while its distance from the limb's joint above changes by at least this fraction (the
+# limb bends: a still or rigid clip shows nothing), ten times what the held one does.
+_HELD_MOVES = 0.01
+_HELD_CONTRAST = 10.0
+
+
+def _held_ends(tree: _Tree, poses: list[np.ndarray]) -> dict[int, int]:
+    """Joints that hang from a limb's line above it (the root, the pelvis) but move with the
+    limb's last joint as if they hung from it: joint -> that last joint. Read from ``poses``
+    (``(J, 3)`` frames); a still clip shows none."""
+    if len(poses) < 3:
+        return {}
+    at = np.stack(poses)
+    found: dict[int, tuple[float, int]] = {}
+    for leaf in tree.limb_leaves:
+        line = set(tree.chain(0, leaf))
+        above = int(tree.parents[leaf])
+        for joint in range(1, len(tree.names)):
+            if joint in line or tree.void[joint] or int(tree.parents[joint]) not in line:
+                continue
+            gap = np.linalg.norm(at[:, joint] - at[:, leaf], axis=1)
+            mean = float(gap.mean())
+            if not mean > 0 or float(np.ptp(gap)) > _HELD_SPREAD * mean:
+                continue
+            spread = float(np.ptp(gap)) / mean
+            reach = np.linalg.norm(at[:, joint] - at[:, above], axis=1)
+            bend = float(np.ptp(reach)) / max(float(reach.mean()), 1e-300)
+            if bend < max(_HELD_MOVES, _HELD_CONTRAST * spread):
+                continue
+            if joint not in found or spread < found[joint][0]:
+                found[joint] = (spread, leaf)
+    return {joint: leaf for joint, (_, leaf) in found.items()}
+
+
+def _rehung(
+    skeleton: Skeleton, rest: np.ndarray, held: dict[int, int]
+) -> tuple[np.ndarray, Skeleton] | None:
+    """``skeleton`` with each held joint hung from its limb's last joint, its joints in a new
+    order (parents first), and ``order``: the original index of each new joint (None when
+    the held joints would hang from one another in a loop)."""
+    parents = skeleton.parents.copy()
+    for joint, leaf in held.items():
+        parents[joint] = leaf
+    children: list[list[int]] = [[] for _ in range(skeleton.joint_count)]
+    for j in range(1, skeleton.joint_count):
+        children[int(parents[j])].append(j)
+    order_list: list[int] = []
+    stack = [0]
+    while stack:
+        j = stack.pop()
+        order_list.append(j)
+        stack.extend(reversed(children[j]))
+    if len(order_list) != skeleton.joint_count:
+        return None
+    order = np.array(order_list, dtype=np.int64)
+    position = np.empty_like(order)
+    position[order] = np.arange(len(order))
+    new_parents = np.array([-1] + [int(position[parents[j]]) for j in order[1:]])
+    offsets = rest[order] - rest[order[np.maximum(new_parents, 0)]]
+    offsets[0] = 0.0
+    names = tuple(skeleton.names[j] for j in order)
+    return order, Skeleton(names, new_parents, offsets, skeleton.end_site[order])
+
+
+def _map_known(known: _Known, stream: _Lookahead, frames: int | None = None) -> SkeletonMap:
+    """The mapping of ``known``'s rig in its rest pose, else in the first of the offered
+    poses (the first ``frames`` of them) that shows a humanoid; else the rest pose's reason
+    (_NotHumanoid)."""
     rest_result = known.rest_result
     if isinstance(rest_result, SkeletonMap):
-        return rest_result  # the rest pose decided: the same for every clip of this skeleton
-    reasons: list[str] = [rest_result]
-    stream = _Lookahead(poses)
+        if not rest_result.sides_open:
+            return rest_result  # the rest pose decided: the same for every clip of the rig
+        # The rest pose placed every joint but showed no side: the clip's frames vote.
+        return _map_pose(known, known.rest, "rest pose", others=partial(stream.after, -1, _POSES))
+    if not known.choices:
+        raise _NotHumanoid(rest_result)  # the tree alone refuses: no pose can help
+    read = 0
     for index, (label, pose) in enumerate(stream):
+        if frames is not None and index >= frames:
+            break
+        read += 1
         try:
             return _map_pose(
                 known, pose, label, others=partial(stream.after, index, _SIDE_VOTES - 1)
             )
-        except _NotHumanoid as reason:
-            reasons.append(str(reason))
-    raise SkeletonMappingError(reasons[0])
+        except _NotHumanoid:
+            continue
+    if read:
+        raise _NotHumanoid(f"{rest_result} (in the rest pose, and in none of {read} frames)")
+    raise _NotHumanoid(rest_result)
 
 
 # Poses whose geometry votes on left and right when the mapping comes from the frames: one
 # frame can mislead (legs crossing in a side step, feet pointing back at a toe-off), and the
 # same rig must get the same sides in every clip — and in every part of one.
 _SIDE_VOTES = 5
+# Frames that vote on the sides of a rig whose rest pose shows none: all that are offered
+# (the caller offers a dozen across the clip).
+_POSES = 64
 
 
 class _Lookahead:
@@ -363,6 +543,7 @@ class _Known:
     # passes the geometry.
     reason: str
     progress: int
+    rest: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     rest_result: SkeletonMap | str = ""
 
 
@@ -384,10 +565,11 @@ def _skeleton_key(skeleton: Skeleton) -> bytes:
     return digest.digest()
 
 
-def _known(skeleton: Skeleton) -> _Known:
-    """The structural facts and the rest-pose result of ``skeleton`` (memoised: every clip
-    of one rig shares them, so importing many clips maps the rig once)."""
-    key = _skeleton_key(skeleton)
+def _known(skeleton: Skeleton, candidates: int) -> _Known:
+    """The structural facts and the rest-pose result of ``skeleton`` with up to
+    ``candidates`` limb ends (memoised: every clip of one rig shares them, so importing many
+    clips maps the rig once)."""
+    key = _skeleton_key(skeleton) + candidates.to_bytes(2, "little")
     with _KNOWN_LOCK:
         known = _KNOWN.get(key)
         if known is not None:
@@ -400,7 +582,8 @@ def _known(skeleton: Skeleton) -> _Known:
             "every OFFSET is 0: the skeleton has no shape to map "
             f"({skeleton.joint_count} joints collapse to one point)"
         )
-    known = _structure(tree)
+    known = _structure(tree, candidates)
+    known.rest = rest
     try:
         known.rest_result = _map_pose(known, rest, "rest pose")
     except _NotHumanoid as reason:
@@ -422,18 +605,29 @@ class _Tree:
         self.names = skeleton.names
         self.parents = skeleton.parents
         count = skeleton.joint_count
-        self.children: list[list[int]] = [[] for _ in range(count)]
-        for j in range(1, count):
-            self.children[int(self.parents[j])].append(j)
         self.lengths = np.linalg.norm(skeleton.offsets, axis=1)
         self.lengths[0] = 0.0
+        # Leaves that add no point of their own (a zero-length End Site, or a chain of them):
+        # a BVH writer appends one to every leaf joint of an FBX or glTF rig, and the same
+        # rig must map the same with or without them, so the mapper does not see them.
+        self.void = np.zeros(count, dtype=bool)
+        has_point = np.zeros(count, dtype=bool)
+        for j in range(count - 1, 0, -1):
+            if self.lengths[j] > 0 or has_point[j]:
+                has_point[int(self.parents[j])] = True
+            else:
+                self.void[j] = True
+        self.children: list[list[int]] = [[] for _ in range(count)]
+        for j in range(1, count):
+            if not self.void[j]:
+                self.children[int(self.parents[j])].append(j)
         self.depth = np.zeros(count, dtype=np.int64)
         self.path = np.zeros(count)  # bone path length from the root
         for j in range(1, count):
             p = int(self.parents[j])
             self.depth[j] = self.depth[p] + 1
             self.path[j] = self.path[p] + self.lengths[j]
-        self.leaves = [j for j in range(count) if not self.children[j]]
+        self.leaves = [j for j in range(count) if not self.children[j] and not self.void[j]]
         self.bones = np.zeros(count, dtype=np.int64)  # non-zero bones from the root
         for j in range(1, count):
             self.bones[j] = self.bones[self.parents[j]] + (self.lengths[j] > 0)
@@ -441,10 +635,12 @@ class _Tree:
         # The body proper, whose bounding box gives the pose's scale: not shallow leaves (IK
         # targets, props on the root), nor a root with a single child (a floor-level
         # "joint_Root" that may stay at the origin while the body runs off).
-        shallow = set(self.leaves) - set(self.limb_leaves)
+        shallow = set(self.leaves) - set(self.limb_leaves) | set(np.flatnonzero(self.void))
         if len(self.children[0]) == 1:
             shallow.add(0)
-        self.body_joints = np.array([j for j in range(count) if j not in shallow])
+        # (Every joint of a rig too small to have a body proper: a bone or two.)
+        body = [j for j in range(count) if j not in shallow] or list(range(count))
+        self.body_joints = np.array(body, dtype=np.int64)
         self.reach = np.zeros(count)  # longest bone path from a joint down to a descendant
         for j in range(count - 1, 0, -1):
             p = int(self.parents[j])
@@ -538,6 +734,21 @@ class _Limb:
         return self.joints[part]
 
 
+@dataclass(frozen=True)
+class _LimbKind:
+    """A leg or an arm: its three joints, and a person's upper : lower and (what lies beyond
+    its end) : lower length ratios."""
+
+    what: str
+    parts: tuple[str, str, str]
+    upper: float
+    beyond: float
+
+
+_LEG = _LimbKind("leg", ("hip", "knee", "ankle"), _THIGH_TO_SHIN, _FOOT_TO_SHIN)
+_ARM = _LimbKind("arm", ("shoulder", "elbow", "wrist"), _UPPER_TO_FORE, _HAND_TO_FORE)
+
+
 @dataclass
 class _Body:
     """One hypothesis: which leaves are head, hands and feet, and what follows from it."""
@@ -551,17 +762,17 @@ class _Body:
     cost: float
 
 
-def _extremity_candidates(tree: _Tree) -> list[int]:
-    """Up to :data:`_CANDIDATES` leaves, each the farthest (along bones) from those before.
+def _extremity_candidates(tree: _Tree, count: int = 8) -> list[int]:
+    """Up to ``count`` leaves, each the farthest (along bones) from those before.
 
     Only leaves at least :data:`_MIN_LIMB_BONES` bones of non-zero length below the root
-    count: a limb has hip, knee and ankle; an IK target or prop hanging from the root does
-    not.
+    count: a limb has at least a thigh and a shin (its hip may sit at the pelvis itself); an
+    IK target or prop hanging from the root by one bone does not.
     """
     leaves = np.array(tree.limb_leaves or tree.leaves)
     chosen = [int(leaves[int(np.argmax(tree.path[leaves]))])]
     nearest = tree.geodesic(chosen[0])
-    while len(chosen) < min(_CANDIDATES, len(leaves)):
+    while len(chosen) < min(count, len(leaves)):
         gaps = nearest[leaves]
         best = int(np.argmax(gaps))
         if gaps[best] <= 0:
@@ -592,10 +803,10 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
 
 
-def _structure(tree: _Tree) -> _Known:
-    """Every head/hands/feet choice among the candidate leaves that the tree allows, and the
-    best reason a rejected one gave (for the error message)."""
-    candidates = _extremity_candidates(tree)
+def _structure(tree: _Tree, count: int) -> _Known:
+    """Every head/hands/feet choice among up to ``count`` candidate leaves that the tree
+    allows, and the best reason a rejected one gave (for the error message)."""
+    candidates = _extremity_candidates(tree, count)
     found = ", ".join(tree.names[c] for c in candidates)
     if len(candidates) < 5:
         reason = (
@@ -607,60 +818,95 @@ def _structure(tree: _Tree) -> _Known:
             f"found {len(candidates)} limb ends ({found}) but missing a pelvis with two legs "
             "going down and a spine going up to a head between two arms"
         )
-    choices = []
+    # Enumerated by hands first, so that a pair whose branch point carries no head, or the
+    # feet below it, cuts every choice with them at once; kept in the order of the plain
+    # enumeration (five candidates, a head among them, two feet among the rest), which
+    # breaks ties between equally cheap choices.
+    order = {c: i for i, c in enumerate(candidates)}
+    keyed: list[tuple[tuple[int, ...], _Choice]] = []
+    alike_failed = False
+    for hands in itertools.combinations(candidates, 2):
+        chest = tree.lca(*hands)
+        if chest in hands:
+            continue
+        others = [c for c in candidates if c not in hands]
+        heads = [h for h in others if h != chest and tree.is_ancestor(chest, h)]
+        lower = [c for c in others if not tree.is_ancestor(chest, c)]
+        if not heads:
+            continue
+        for feet in itertools.combinations(lower, 2):
+            hips = tree.lca(*feet)
+            if hips in feet:
+                continue
+            if not _pairs_alike(tree, chest, hands, hips, feet):
+                alike_failed = True
+                continue
+            for head in heads:
+                five = sorted((head, *hands, *feet), key=order.__getitem__)
+                rest = [c for c in five if c != head]
+                key = (
+                    *(order[c] for c in five),
+                    five.index(head),
+                    rest.index(feet[0]),
+                    rest.index(feet[1]),
+                )
+                keyed.append((key, _choice(tree, head, hands, feet, chest, hips)))
+    choices = [choice for _, choice in sorted(keyed, key=lambda item: item[0])]
     best_partial = -1
+    if alike_failed:
+        best_partial, reason = 1, _NOT_ALIKE
+    else:
+        first = _first_misfit(tree, candidates)
+        if first is not None:
+            best_partial, reason = 0, first
+    return _Known(tree, candidates, choices, reason, best_partial)
+
+
+_NOT_ALIKE = "no two limbs of a pair alike: missing legs or arms"
+
+
+def _first_misfit(tree: _Tree, candidates: list[int]) -> str | None:
+    """Why the first choice (in the plain enumeration) that the tree refuses is refused."""
     for five in itertools.combinations(candidates, 5):
         for head in five:
             rest = [c for c in five if c != head]
             for feet in itertools.combinations(rest, 2):
                 hands = tuple(c for c in rest if c not in feet)
-                choice, why, progress = _check_tree(tree, head, hands, feet)  # type: ignore[arg-type]
-                if choice is not None:
-                    choices.append(choice)
-                elif progress > best_partial:
-                    best_partial, reason = progress, why
-    return _Known(tree, candidates, choices, reason, best_partial)
+                chest = tree.lca(*hands)
+                if chest in hands or not tree.is_ancestor(chest, head) or head == chest:
+                    return "no joint carries two arms and a head"
+                if any(tree.is_ancestor(chest, f) for f in feet):
+                    return "the legs hang from the arms' branch point"
+                hips = tree.lca(*feet)
+                if hips in feet:
+                    return "one leg hangs from the other"
+                if not _pairs_alike(tree, chest, hands, hips, feet):  # type: ignore[arg-type]
+                    return _NOT_ALIKE
+    return None
 
 
-def _hypotheses(known: _Known, pose: np.ndarray, extent: float) -> tuple[list[_Body], str]:
-    """Every valid head/hands/feet choice in ``pose``, and the best reason a rejected one
-    gave (for the error message)."""
-    valid: list[_Body] = []
-    reason, best_partial = known.reason, known.progress
-    for choice in known.choices:
-        body, why, progress = _check_pose(known.tree, pose, extent, *choice)
-        if body is not None:
-            valid.append(body)
-        elif progress > best_partial:
-            best_partial, reason = progress, why
-    return valid, reason
-
-
-def _check_tree(
-    tree: _Tree, head: int, hands: tuple[int, int], feet: tuple[int, int]
-) -> tuple[
-    _Choice | None,
-    str,
-    int,
-]:
-    """The structural half of a hypothesis (whatever the pose), else (None, why, how far
-    it got)."""
-    chest = tree.lca(*hands)
-    if chest in hands or not tree.is_ancestor(chest, head) or head == chest:
-        return None, "no joint carries two arms and a head", 0
-    if any(tree.is_ancestor(chest, f) for f in feet):
-        return None, "the legs hang from the arms' branch point", 0
-    hips = tree.lca(*feet)
-    if hips in feet:
-        return None, "one leg hangs from the other", 0
-    # A limb has at least two bones of its own (thigh and shin, upper arm and forearm) and
-    # its partner is about as long: not a twist bone beside the other leg's knee.
-    pairs: list[tuple[int, tuple[int, ...]]] = [(hips, feet), (chest, hands)]
-    for top, limb_ends in pairs:
-        own = [tree.bones[e] - tree.bones[top] for e in limb_ends]
-        reach = [tree.path[e] - tree.path[top] for e in limb_ends]
+def _pairs_alike(
+    tree: _Tree, chest: int, hands: tuple[int, int], hips: int, feet: tuple[int, int]
+) -> bool:
+    """A limb has at least two bones of its own (thigh and shin, upper arm and forearm) and
+    its partner is about as long: not a twist bone beside the other leg's knee."""
+    for top, ends in ((hips, feet), (chest, hands)):
+        own = [tree.bones[e] - tree.bones[top] for e in ends]
+        reach = [tree.path[e] - tree.path[top] for e in ends]
         if min(own) < 2 or min(reach) < _LIMB_PARTNER * max(reach):
-            return None, "no two limbs of a pair alike: missing legs or arms", 1
+            return False
+    return True
+
+
+def _choice(
+    tree: _Tree,
+    head: int,
+    hands: tuple[int, int],
+    feet: tuple[int, int],
+    chest: int,
+    hips: int,
+) -> _Choice:
+    """A structurally valid choice with its lengths and name costs (see :data:`_Choice`)."""
     pelvis = tree.lca(hips, chest)
     leg_lengths = [float(tree.path[f] - tree.path[pelvis]) for f in feet]
     arm_lengths = [float(tree.path[h] - tree.path[chest]) for h in hands]
@@ -677,7 +923,21 @@ def _check_tree(
                 cost.append(3.0)
             elif role in words:
                 cost.append(-0.5)
-    return (head, hands, feet, chest, pelvis, leg_lengths, arm_lengths, tuple(cost)), "", 4
+    return (head, hands, feet, chest, pelvis, leg_lengths, arm_lengths, tuple(cost))
+
+
+def _hypotheses(known: _Known, pose: np.ndarray, extent: float) -> tuple[list[_Body], str]:
+    """Every valid head/hands/feet choice in ``pose``, and the best reason a rejected one
+    gave (for the error message)."""
+    valid: list[_Body] = []
+    reason, best_partial = known.reason, known.progress
+    for choice in known.choices:
+        body, why, progress = _check_pose(known.tree, pose, extent, *choice)
+        if body is not None:
+            valid.append(body)
+        elif progress > best_partial:
+            best_partial, reason = progress, why
+    return valid, reason
 
 
 def _check_pose(
@@ -696,7 +956,7 @@ def _check_pose(
     """The geometric half: a hypothesis if the choice is a humanoid in ``pose``, else (None,
     why, how far it got)."""
     spine = pose[chest] - pose[pelvis]
-    if _length(spine) < _COINCIDENT * extent:
+    if _length(spine) < COINCIDENT * extent:
         spine = pose[head] - pose[pelvis]
     up = _unit(spine)
     if not _length(up) > 0:
@@ -710,7 +970,7 @@ def _check_pose(
         names = ", ".join(tree.names[j] for j in (*feet, *hands))
         return (
             None,
-            "the spine is horizontal in the rest pose with the limbs hanging down "
+            "the spine is horizontal with the limbs hanging down "
             f"({names}): a four-legged animal, not a humanoid",
             3,
         )
@@ -782,11 +1042,13 @@ class _Mapper:
         self.how: dict[str, str] = {}
         self.derived: list[str] = []
         self.warnings: list[str] = []
+        # The rest pose showed no side: the clip's frames chose (so it is not kept per rig).
+        self.sides_open = False
 
     # -- small helpers -------------------------------------------------------------------
 
     def same_place(self, a: int, b: int) -> bool:
-        return _length(self.pose[a] - self.pose[b]) <= _COINCIDENT * self.extent
+        return _length(self.pose[a] - self.pose[b]) <= COINCIDENT * self.extent
 
     def deepest_coincident(self, joint: int, chain: list[int]) -> int:
         """The last joint of ``chain`` at ``joint``'s position from ``joint`` on (dummies)."""
@@ -853,6 +1115,12 @@ class _Mapper:
                 "the two legs share their hip: no two separate legs below the pelvis"
             )
         arms = [self.map_arm(h) for h in body.hands]
+        for limbs, parts, trunk, share in (
+            (legs, ("hip", "knee", "ankle"), body.pelvis, _LEG_SHARE),
+            (arms, ("shoulder", "elbow", "wrist"), body.chest, _ARM_SHARE),
+        ):
+            for limb in limbs:
+                self.check_share(limb, parts, trunk, share)
         mirrored, axis = self.assign_sides(legs, arms)
         joints = np.array([self.found[name] for name in CANONICAL_JOINTS], dtype=np.int64)
         end_sites = tuple(
@@ -870,8 +1138,28 @@ class _Mapper:
             mirrored=mirrored,
             mirror_axis=axis,
             pose=self.label,
+            sides_open=self.sides_open,
             warnings=tuple(self.warnings),
         )
+
+    def check_share(
+        self, limb: _Limb, parts: tuple[str, str, str], trunk: int, share: float
+    ) -> None:
+        """A limb (top -> middle -> end, straight lines in the pose) makes at least ``share``
+        of the way from the trunk joint it hangs from to its end: a chain whose top hangs
+        far from the trunk for its length (a creature's fingers, the feathers on its head)
+        is not a person's leg or arm."""
+        at = [self.pose[limb[part]] for part in parts]
+        length = _length(at[1] - at[0]) + _length(at[2] - at[1])
+        hang = _length(at[0] - self.pose[trunk])
+        if length < share * (length + hang):
+            what = "leg" if parts[0] == "hip" else "arm"
+            raise _NotHumanoid(
+                f"the {what} {self.tree.names[limb[parts[0]]]!r} .. "
+                f"{self.tree.names[limb[parts[2]]]!r} hangs {hang / max(length, 1e-12):.1f} "
+                f"of its length away from the {'pelvis' if what == 'leg' else 'chest'}: "
+                f"not a {what} of a person"
+            )
 
     def map_head(self) -> None:
         tree, body = self.tree, self.body
@@ -997,6 +1285,12 @@ class _Mapper:
             split = self.split(above, start, end, ratio)
             if split is not None:
                 best = (0.0, start, split)
+        if best is None and first > 1:
+            # Nothing below the trunk's place fits: the top joint sits there itself (hip
+            # joints at the pelvis, the legs parting only at the knees).
+            split = self.split(above, first - 1, end, ratio)
+            if split is not None:
+                best = (0.0, first - 1, split)
         start, split = (straight, None) if best is None else best[1:]
         if split is None:
             raise _NotHumanoid(
@@ -1007,6 +1301,44 @@ class _Mapper:
         limb.joints[parts[1]] = self.deepest_coincident(above[split], above)
         limb.how[parts[0]] = f"geometry: top of the straight {what}"
         limb.how[parts[1]] = f"geometry: middle of the {what}"
+
+    def best_limb(self, chain: list[int], ends: list[tuple[int, str]], kind: _LimbKind) -> _Limb:
+        """The limb along ``chain`` (trunk joint first) ending at the one of ``ends`` (joint,
+        how it was found) that leaves room for its top and middle joints and comes nearest
+        a person's proportions (the first on ties); else the first end's _NotHumanoid."""
+        best: tuple[float, _Limb] | None = None
+        problem: _NotHumanoid | None = None
+        for end, end_how in dict(ends).items():
+            limb = _Limb({kind.parts[2]: end}, {kind.parts[2]: end_how})
+            try:
+                self.upper_and_middle(
+                    limb, chain[: chain.index(end) + 1], kind.parts[:2], kind.upper, kind.what
+                )
+            except _NotHumanoid as why:
+                problem = problem or why
+                continue
+            cost = self.limb_proportions(limb, kind)
+            if best is None or cost < best[0]:
+                best = (cost, limb)
+        if best is None:
+            assert problem is not None
+            raise problem
+        return best[1]
+
+    def limb_proportions(self, limb: _Limb, kind: _LimbKind) -> float:
+        """How far a limb's upper : lower : end part lengths (along the bones; the end part
+        is the longest path beyond the limb's end: hand, foot) are from a person's, as the
+        sum of ``|log|`` of each ratio's error; an end part with no bones costs as much as
+        one twice too long or too short."""
+        path = self.tree.path
+        top, middle, end = (limb[part] for part in kind.parts)
+        upper = path[middle] - path[top]
+        lower = max(path[end] - path[middle], 1e-12)
+        beyond = self.tree.reach[end]
+        cost = abs(math.log(max(upper, 1e-12) / lower / kind.upper))
+        if beyond > 0:
+            return cost + abs(math.log(beyond / lower / kind.beyond))
+        return cost + math.log(2.0)
 
     def map_leg(self, foot: int) -> _Limb:
         tree, pose, up = self.tree, self.pose, self.body.up
@@ -1035,42 +1367,42 @@ class _Mapper:
             turn = float(np.arccos(np.clip(incoming @ outgoing, -1.0, 1.0)))
             if turn > best_turn:
                 turned, best_turn = i, turn
-        ankle_found = turned is not None
-        ankle_rule = "geometry: where the foot turns forward"
-        if turned is not None:
-            ankle_i = turned
-        else:
-            ankle_rule = "structure: the leg's last joint"
-            ankle_i = len(chain) - 1
-            while ankle_i > 1 and (
-                tree.skeleton.end_site[chain[ankle_i]] or tree.lengths[chain[ankle_i]] == 0
-            ):
-                ankle_i -= 1
-            # A foot that drops more than it turns (a crude rig's ankle-to-ball bone): a last
-            # bone less than half the one before cannot be a shin, so it is the foot.
-            before = [i for i in range(1, ankle_i) if tree.lengths[chain[i]] > 0]
-            if (
-                before
-                and tree.lengths[chain[ankle_i]] < _FOOT_TO_SHIN * tree.lengths[chain[before[-1]]]
-            ):
-                ankle_i = before[-1]
-                ankle_rule = "geometry: above a foot bone that points down"
         # Names choose among the joints next to the geometric ankle (``foot`` is the ankle in
         # most rigs and the ball of the foot in some), or alone when the foot never turns.
         named_ankles = [i for i, j in enumerate(chain) if i > 0 and "ankle" in tree.hints[j].parts]
-        near = [i for i in named_ankles if abs(i - ankle_i) <= 1]
-        if ankle_found and near:
-            ankle = chain[min(near, key=lambda i: (abs(i - ankle_i), i))]
-            ankle_how = "name"
-        elif not ankle_found and named_ankles:
-            ankle = chain[min(named_ankles, key=lambda i: (tree.hints[chain[i]].parts["ankle"], i))]
-            ankle_how = "name"
+        near = [i for i in named_ankles if turned is not None and abs(i - turned) <= 1]
+        if turned is not None and near:
+            ankles = [(chain[min(near, key=lambda i: (abs(i - turned), i))], "name")]
+        elif turned is None and named_ankles:
+            named = min(named_ankles, key=lambda i: (tree.hints[chain[i]].parts["ankle"], i))
+            ankles = [(chain[named], "name")]
+        elif turned is not None:
+            ankles = [
+                (
+                    self.deepest_coincident(chain[turned], chain),
+                    "geometry: where the foot turns forward",
+                )
+            ]
         else:
-            ankle = self.deepest_coincident(chain[ankle_i], chain)
-            ankle_how = ankle_rule
+            # The foot never turns in this pose (it points down, or there is none): the leg's
+            # last joints, the one whose thigh, shin and foot come nearest human proportions.
+            last = len(chain) - 1
+            while last > 1 and (
+                tree.skeleton.end_site[chain[last]] or tree.lengths[chain[last]] == 0
+            ):
+                last -= 1
+            ankles = [
+                (
+                    self.deepest_coincident(chain[i], chain),
+                    "structure: the leg's last joint"
+                    if i == last
+                    else "geometry: above the foot's bones",
+                )
+                for i in range(last, max(last - 3, 0), -1)
+            ]
+        limb = self.best_limb(chain, ankles, _LEG)
+        ankle = limb["ankle"]
         ankle_i = chain.index(ankle)
-        limb = _Limb({"ankle": ankle}, {"ankle": ankle_how})
-        self.upper_and_middle(limb, chain[: ankle_i + 1], ("hip", "knee"), _THIGH_TO_SHIN, "leg")
         result, how = limb.joints, limb.how
 
         below = chain[ankle_i + 1 :]
@@ -1096,33 +1428,38 @@ class _Mapper:
         chain = tree.chain(self.body.chest, hand)
         named_wrist = self.named(chain[1:], "wrist")
         if named_wrist is not None:
-            wrist, wrist_how = named_wrist, "name"
+            wrists = [(named_wrist, "name")]
         else:
-            branching = [
-                j
-                for j in chain[1:-1]
+            # Where the fingers branch (the last branching joint first: a twist bone beside
+            # the upper arm branches too), the joint before the hand's end, the arm's end (a
+            # rig without hand bones, glTF and FBX joints being points without tails): the
+            # one whose arm comes nearest human proportions.
+            wrists = [
+                (j, "structure: where the fingers branch")
+                for j in chain[-2:0:-1]
                 if sum(1 for c in tree.children[j] if tree.lengths[c] > 0 or tree.children[c]) >= 2
             ]
-            if branching:
-                wrist, wrist_how = branching[-1], "structure: where the fingers branch"
-            else:
-                last = len(chain) - 1
-                while last > 1 and tree.lengths[chain[last]] == 0:
-                    last -= 1
-                wrist = chain[last - 1] if last > 1 else chain[last]
-                wrist_how = "structure: the joint before the hand's end"
-        limb = _Limb({"wrist": wrist}, {"wrist": wrist_how})
-        above = chain[: chain.index(wrist) + 1]
-        try:
-            self.upper_and_middle(limb, above, ("shoulder", "elbow"), _UPPER_TO_FORE, "arm")
-        except _NotHumanoid:
-            if wrist_how != "structure: the joint before the hand's end" or wrist == chain[-1]:
-                raise
-            # No joints to spare for a hand: the leaf is the wrist itself (glTF and FBX
-            # joints are points without tails, and a rig without hand bones ends there).
-            wrist = chain[-1]
-            limb = _Limb({"wrist": wrist}, {"wrist": "structure: the arm's end, no hand"})
-            self.upper_and_middle(limb, chain, ("shoulder", "elbow"), _UPPER_TO_FORE, "arm")
+            # Fingers may also start from sibling joints at one place (a palm bone per finger).
+            wrists += [
+                (j, "structure: where the fingers start together")
+                for j in chain[-2:1:-1]
+                if tree.children[j]
+                and any(
+                    s != j and tree.children[s] and self.same_place(s, j)
+                    for s in tree.children[int(tree.parents[j])]
+                )
+            ]
+            last = len(chain) - 1
+            while last > 1 and tree.lengths[chain[last]] == 0:
+                last -= 1
+            # (Two before it: a hand bone closed by an End Site, as SMPL exports write it.)
+            wrists += [
+                (chain[i], "structure: the joint before the hand's end")
+                for i in range(last - 1, max(last - 3, 1), -1)
+            ]
+            wrists.append((chain[last], "structure: the arm's end, no hand"))
+        limb = self.best_limb(chain, wrists, _ARM)
+        wrist = limb["wrist"]
         result, how = limb.joints, limb.how
         result["hand_tip"] = _farthest_descendant(tree, wrist, skip=_is_thumb)
         how["hand_tip"] = "derived: farthest point beyond the wrist"
@@ -1157,24 +1494,37 @@ class _Mapper:
                 mid = 0.5 * (pose[leg["hip"]] + pose[leg["ankle"]])
                 step = pose[leg["knee"]] - mid
                 forward += step - (step @ up) * up
+        if _length(forward) <= COINCIDENT * self.extent:
+            return np.zeros(3)  # straight knees, no feet: only rounding errors point anywhere
         return _unit(_cross(up, _unit(forward)))
 
     def assign_sides(self, legs: list[_Limb], arms: list[_Limb]) -> tuple[bool, int]:
         """Put the limbs on their sides; returns (mirrored, lateral world axis)."""
         tree, pose, up = self.tree, self.pose, self.body.up
         left = self.left(pose, up, legs)
-        axis = int(np.argmax(np.abs(left))) if _length(left) else 0
-        # The clip's other poses vote with this one (not the rest pose: it is the same in
-        # every clip, and the caller asked for frames only when it showed no standing figure).
-        voters = [(pose, left)]
-        if not self.rest:
+        # In a frame, knees, elbows and hands cross (side steps, a slash, folded arms); hips
+        # (or, where both hips sit at the pelvis, the knees below them) and shoulders, fixed
+        # to the trunk, do not.
+        hips = ("hip",) if not self.same_place(legs[0]["hip"], legs[1]["hip"]) else ("knee",)
+        keys = (
+            (("hip", "knee"), ("shoulder", "elbow", "wrist"))
+            if self.rest
+            else (hips, ("shoulder",))
+        )
+        voters = [(pose, left, keys)]
+        # The clip's other poses vote with this one: always when the mapping comes from a frame
+        # (one frame can mislead); from the rest pose, only when it shows no side at all
+        # (straight knees, no feet: the motion's bent knees do).
+        if not self.rest or not _length(left):
+            self.sides_open = self.rest
             for other in self.others():
                 spine = other[self.body.chest] - other[self.body.pelvis]
-                if _length(spine) < _COINCIDENT * self.extent:
+                if _length(spine) < COINCIDENT * self.extent:
                     spine = other[self.body.head] - other[self.body.pelvis]
                 other_up = _unit(spine)
                 if _length(other_up) > 0:
-                    voters.append((other, self.left(other, other_up, legs)))
+                    voters.append((other, self.left(other, other_up, legs), (hips, ("shoulder",))))
+        axis = next((int(np.argmax(np.abs(v[1]))) for v in voters if _length(v[1])), 0)
 
         def name_of(limb: _Limb, top: int) -> str | None:
             votes = [
@@ -1190,18 +1540,19 @@ class _Mapper:
                 else None
             )
 
-        def order(
-            pair: list[_Limb], keys: tuple[str, ...], top: int
-        ) -> tuple[list[_Limb], bool | None, bool]:
+        def order(pair: list[_Limb], limb: int, top: int) -> tuple[list[_Limb], bool | None, bool]:
             """(pair as [left, right] by geometry, names agree?, geometry known?)"""
             votes = 0
-            for voter, voter_left in voters:
+            for voter, voter_left, voter_keys in voters:
                 lateral = (
-                    sum(float((voter[pair[0][k]] - voter[pair[1][k]]) @ voter_left) for k in keys)
+                    sum(
+                        float((voter[pair[0][k]] - voter[pair[1][k]]) @ voter_left)
+                        for k in voter_keys[limb]
+                    )
                     if _length(voter_left)
                     else 0.0
                 )
-                if abs(lateral) > _COINCIDENT * self.extent:
+                if abs(lateral) > COINCIDENT * self.extent:
                     votes += 1 if lateral > 0 else -1
             known = votes != 0  # a tie tells nothing
             by_geometry = pair if votes >= 0 else pair[::-1]
@@ -1212,12 +1563,8 @@ class _Mapper:
                 return by_geometry, False, known
             return by_geometry, None, known
 
-        # In a frame, knees, elbows and hands cross (side steps, a slash, folded arms); hips
-        # and shoulders, fixed to the trunk, do not.
-        leg_keys = ("hip", "knee") if self.rest else ("hip",)
-        arm_keys = ("shoulder", "elbow", "wrist") if self.rest else ("shoulder",)
-        legs_lr, legs_agree, legs_known = order(legs, leg_keys, self.body.pelvis)
-        arms_lr, arms_agree, arms_known = order(arms, arm_keys, self.body.chest)
+        legs_lr, legs_agree, legs_known = order(legs, 0, self.body.pelvis)
+        arms_lr, arms_agree, arms_known = order(arms, 1, self.body.chest)
         mirrored = False
         if not (legs_known and arms_known):
             # No usable geometry: names alone (or the file's order) decide.

@@ -12,6 +12,22 @@ Identical bytes are stored once (a CMU skeleton shared by many motions, say); th
 clip refers to it any more. Files are stored (and committed) before the clip rows that name
 them; those a crash left without a clip are removed by :meth:`BlobStore.remove_unreferenced`.
 
+Several processes share one store (replicas, ``serve --workers N``, an import beside the
+server), so a file one of them finds already stored may be removed by another — deleting the
+last clip that used it — before the first commits its clip against it. Removing and claiming
+are therefore both done inside a database write transaction, which orders them:
+
+* :meth:`BlobStore.claim`, in the transaction that inserts the clips, writes again any of
+  their files that is gone and keeps them until the commit;
+* :meth:`BlobStore.release` (after a delete, or a failed store) and
+  :meth:`BlobStore.remove_unreferenced` remove a file only while holding it against claims and
+  seeing every committed clip that refers to it.
+
+On SQLite the transaction's write lock (``BEGIN IMMEDIATE``, one writer for every process)
+orders them; on PostgreSQL row locks on ``blobs`` do: a claim holds its rows ``FOR SHARE``, a
+removal takes them ``FOR UPDATE`` (waiting for the claimer's commit) and then looks for
+references in a new statement, which sees that commit.
+
 Paths come from sha256 hex digests only (:meth:`FileBlobStore.path` refuses anything else): a
 file name a user uploads is kept in the database as text and never becomes a path.
 """
@@ -23,13 +39,13 @@ import hashlib
 import os
 import re
 import threading
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, Protocol
 
-from sqlalchemy import Engine, Exists, delete, exists, select
+from sqlalchemy import Engine, Exists, Select, delete, exists, select
 from sqlalchemy.dialects.postgresql import insert as pg_insert
 from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session
@@ -67,11 +83,23 @@ class BlobStore(Protocol):
     def exists(self, sha256: str) -> bool: ...
 
     def delete(self, sha256: str) -> None:
-        """Remove a file (the caller checked that no clip refers to it)."""
+        """Remove a file (the caller checked, under :meth:`release`'s rules, that no clip
+        refers to it)."""
+        ...
+
+    def claim(self, session: Session, files: Sequence[tuple[bytes, str]]) -> list[str]:
+        """In ``session``, the write transaction inserting the clips that name ``files``
+        (``(data, sha256 of data)`` pairs): store again any file removed since it was put,
+        and keep them all until the transaction ends; returns the sha256s written again."""
+        ...
+
+    def release(self, session: Session, shas: Iterable[str]) -> int:
+        """In ``session``, a write transaction: remove the files of ``shas`` no clip refers
+        to (none that a concurrent :meth:`claim` holds); returns how many went."""
         ...
 
     def remove_unreferenced(self, session: Session, *, older_than: float) -> int:
-        """Remove the files no clip refers to (as ``session`` sees the database) and any
+        """In ``session``, a write transaction: remove the files no clip refers to and any
         half-written ones, last written before ``older_than`` (a ``time.time()`` value);
         returns how many went."""
         ...
@@ -172,6 +200,18 @@ class FileBlobStore:
         with contextlib.suppress(OSError):  # removes the fan-out directory only when empty
             path.parent.rmdir()
 
+    def claim(self, session: Session, files: Sequence[tuple[bytes, str]]) -> list[str]:
+        # ``session`` holds SQLite's write lock, as every release does: nothing is removed
+        # between this look and the commit.
+        return [sha for sha, new in self.put_many(files) if new]
+
+    def release(self, session: Session, shas: Iterable[str]) -> int:
+        wanted = set(shas)
+        unused = wanted - clip_db.referenced_blobs(session, wanted)
+        for sha in sorted(unused):  # under the write lock: no claim runs meanwhile
+            self.delete(sha)
+        return len(unused)
+
     def stored(self) -> Iterator[tuple[str, Path]]:
         """Every stored file as ``(sha256, path)``; temporary and foreign files are skipped."""
         if not self.root.is_dir():
@@ -271,15 +311,62 @@ class DatabaseBlobStore:
 
     def delete(self, sha256: str) -> None:
         # Only while unreferenced: a clip committed meanwhile by another replica keeps it.
-        with self._engine.begin() as connection:
-            connection.execute(delete(Blob).where(Blob.sha256 == sha256, ~_referenced(Blob.sha256)))
+        with Session(self._engine) as session, session.begin():
+            self.release(session, [sha256])
+
+    def claim(self, session: Session, files: Sequence[tuple[bytes, str]]) -> list[str]:
+        wanted = {sha: data for data, sha in files}
+        # FOR SHARE: a removal (FOR UPDATE) waits for this transaction; in sha256 order, as
+        # removals lock, so two transactions never wait for each other.
+        held = set(
+            session.scalars(
+                select(Blob.sha256)
+                .where(Blob.sha256.in_(sorted(wanted)))
+                .order_by(Blob.sha256)
+                .with_for_update(read=True)
+            )
+        )
+        missing = sorted(set(wanted) - held)
+        for sha in missing:  # removed since it was put: store it again, locked (DO UPDATE)
+            data = wanted[sha]
+            statement = pg_insert(Blob).values(
+                sha256=sha, size=len(data), data=data, created_at=datetime.now(UTC)
+            )
+            session.execute(
+                statement.on_conflict_do_update(
+                    index_elements=[Blob.sha256], set_={"size": statement.excluded.size}
+                )
+            )
+        return missing
+
+    def release(self, session: Session, shas: Iterable[str]) -> int:
+        wanted = sorted(set(shas))
+        if not wanted:
+            return 0
+        return self._remove_locked(
+            session, select(Blob.sha256).where(Blob.sha256.in_(wanted)).with_for_update()
+        )
 
     def remove_unreferenced(self, session: Session, *, older_than: float) -> int:
         cutoff = datetime.fromtimestamp(older_than, UTC)
-        result = session.execute(
-            delete(Blob).where(Blob.created_at < cutoff, ~_referenced(Blob.sha256))
-        )
-        return int(result.rowcount or 0)  # type: ignore[attr-defined]
+        candidates = select(Blob.sha256).where(Blob.created_at < cutoff, ~_referenced(Blob.sha256))
+        # Files a claim holds are skipped, not waited for: they are in use.
+        return self._remove_locked(session, candidates.with_for_update(skip_locked=True))
+
+    @staticmethod
+    def _remove_locked(session: Session, rows: Select[Any]) -> int:
+        """Lock the blob rows ``rows`` selects (sha256 order, as claims lock), then delete
+        those no clip refers to: in a statement of its own, whose snapshot (READ COMMITTED)
+        sees every clip committed before the locks were granted."""
+        locked = list(session.scalars(rows.order_by(Blob.sha256)))
+        removed = 0
+        for start in range(0, len(locked), IN_CHUNK):
+            chunk = locked[start : start + IN_CHUNK]
+            result = session.execute(
+                delete(Blob).where(Blob.sha256.in_(chunk), ~_referenced(Blob.sha256))
+            )
+            removed += int(result.rowcount or 0)  # type: ignore[attr-defined]
+        return removed
 
 
 SYNC_THREADS = 8  # fsyncs in flight at once (they wait on the disk, not the CPU)

@@ -16,8 +16,9 @@ from sqlalchemy.exc import SQLAlchemyError
 from app.db import clips as clip_db
 from app.db import label_filters as label_db
 from app.db import vectors as vector_db
+from app.db.clip_filters import ClipFilter, selected_ids
+from app.db.relabel import Relabelled, relabel
 from app.errors import InvalidInput, NoStoredFile, NotFound, ParseError, StorageUnavailable
-from app.labels import label_filter
 from app.motion.formats import decode_text
 from app.motion.formats.bvh_writer import write_bvh
 from app.motion.formats.cut import cut_amc, cut_bvh
@@ -51,11 +52,41 @@ def get_clip(library: Library, clip_id: int) -> clip_db.ClipRecord:
 
 
 def list_clips(
-    library: Library, *, label: label_db.LabelFilter, limit: int, offset: int
+    library: Library,
+    *,
+    selection: ClipFilter | None = None,
+    label: label_db.LabelFilter = None,
+    sort: str = "id",
+    limit: int,
+    offset: int,
 ) -> tuple[list[clip_db.ClipRecord], int]:
-    """One page of clips in id order and the total carrying every label of ``label``."""
+    """One page of the clips ``selection`` (or ``label``) keeps, ordered by ``sort`` (see
+    :data:`app.db.clips.SORT_KEYS`), and how many it keeps in all."""
     with library.reads() as session:
-        return clip_db.list_clips(session, label=label, limit=limit, offset=offset)
+        return clip_db.list_clips(
+            session, selection=selection, label=label, sort=sort, limit=limit, offset=offset
+        )
+
+
+def relabel_clips(
+    library: Library,
+    selection: ClipFilter,
+    *,
+    add: tuple[str, ...],
+    remove: tuple[str, ...],
+    every: bool = False,
+) -> Relabelled:
+    """Add and remove labels on every clip ``selection`` keeps (an empty selection only with
+    ``every``: then every clip), in one transaction."""
+    if not selection and not every:
+        raise InvalidInput("name the clips: ids, label, licence or q (all: true for every clip)")
+    if not add and not remove:
+        raise InvalidInput("add, remove: give a label to add or to remove")
+    try:
+        with library.writes.begin() as session:
+            return relabel(session, selection, add=add, remove=remove)
+    except SQLAlchemyError as exc:
+        raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
 
 
 def clip_vectors(library: Library, clip_id: int) -> dict[str, vector_db.StoredVector]:
@@ -90,6 +121,7 @@ def update_clip(
     if not found:
         raise NotFound(f"no clip with id {clip_id}")
     library.sync_indexes()  # searches here show the new name and labels at once
+    library.edits += 1
     return get_clip(library, clip_id)
 
 
@@ -107,23 +139,31 @@ def delete_clip(library: Library, clip_id: int) -> None:
         _tidy_after_delete(library, [clip_id], shas)
 
 
-def clips_with_labels(library: Library, labels: label_db.LabelFilter) -> list[int]:
-    """Ids of the clips carrying every label of ``labels`` (see :func:`delete_clips_with`)."""
-    if not label_filter(labels):
-        raise InvalidInput("label: name the label(s) of the clips to delete")
+def _deletion(selection: ClipFilter | label_db.LabelFilter) -> ClipFilter:
+    if not isinstance(selection, ClipFilter):
+        selection = ClipFilter.of(label=selection)
+    if not selection:
+        raise InvalidInput("label: name the label(s) (or id, licence, q) of the clips to delete")
+    return selection
+
+
+def clips_with_labels(library: Library, selection: ClipFilter | label_db.LabelFilter) -> list[int]:
+    """Ids of the clips ``selection`` keeps — the clips carrying every label of it, when it
+    is a label filter (see :func:`delete_clips_with`)."""
+    chosen = _deletion(selection)
     with library.reads() as session:
-        return label_db.clip_ids_with_labels(session, labels)
+        return selected_ids(session, chosen)
 
 
-def delete_clips_with(library: Library, labels: label_db.LabelFilter) -> int:
-    """Delete every clip carrying all of ``labels`` (at least one label; compared
-    case-insensitively) in one transaction, as :func:`delete_clip` does one; returns how many."""
-    if not label_filter(labels):
-        raise InvalidInput("label: name the label(s) of the clips to delete")
+def delete_clips_with(library: Library, selection: ClipFilter | label_db.LabelFilter) -> int:
+    """Delete every clip ``selection`` keeps — every clip carrying all its labels (compared
+    case-insensitively) when it is a label filter — in one transaction, as
+    :func:`delete_clip` does one; returns how many. An empty selection is refused."""
+    chosen = _deletion(selection)
     with library.write_lock:
         try:
             with library.writes.begin() as session:
-                ids = label_db.clip_ids_with_labels(session, labels)
+                ids = selected_ids(session, chosen)
                 shas = clip_db.delete_clips(session, ids)
         except SQLAlchemyError as exc:
             raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
@@ -150,10 +190,9 @@ def _tidy_after_delete(library: Library, clip_ids: list[int], shas: list[str]) -
     drop_clip_windows(library, clip_ids)
     library.catalogue.apply_changes(np.asarray(clip_ids, np.int64), {})
     try:
-        with library.reads() as session:
-            still_used = clip_db.referenced_blobs(session, shas)
-        for sha in set(shas) - still_used:
-            library.blobs.delete(sha)
+        # In a write transaction: another process may be committing a clip against one.
+        with library.writes.begin() as session:
+            library.blobs.release(session, shas)
     except (SQLAlchemyError, OSError) as exc:
         log.warning(
             "%s deleted, but its files could not be removed (%s); they go at a later "

@@ -13,17 +13,17 @@ import json
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, NoReturn, Protocol
 
 import numpy as np
 
 from app.errors import DescribeTimeout, InvalidInput, LimitExceeded, ParseError, UnreadableFile
-from app.motion.body import Body, build_body
+from app.motion.body import Body
 from app.motion.descriptors import REGISTRY
 from app.motion.formats import read_asf_amc, read_bvh
 from app.motion.formats.scene import Animation
 from app.motion.model import Motion, ParseLimits
-from app.motion.pipeline import analyse
+from app.motion.pipeline import analyse, describable_body
 from app.motion.windows import (
     DEFAULT_LENGTHS,
     describe_windows,
@@ -83,6 +83,7 @@ class SpanDescription:
     part_length: float = 0.0
     part_offsets: np.ndarray = dataclasses.field(default_factory=lambda: np.empty(0, np.int64))
     parts: np.ndarray = dataclasses.field(default_factory=lambda: np.empty((0, 0), np.float32))
+    animation: str | None = None  # FBX/glTF: the animation read
 
 
 @dataclass(frozen=True)
@@ -228,10 +229,12 @@ class MotionDescriber:
     Parameters
     ----------
     time_limit:
-        Seconds one :meth:`describe` may take, or ``None``. Checked between the stages (parse,
-        then kinematics and descriptors); each stage's work is bounded by the parse limits, so
-        a request overruns the limit by at most one bounded stage. Past it:
-        :class:`~app.errors.DescribeTimeout` (503).
+        Seconds one :meth:`describe` may take, or ``None``. It reaches inside the parse: the
+        readers get it as ``ParseLimits.deadline`` and look at the clock between bounded
+        chunks of their work (every few thousand lines, around each C reader call, per chunk
+        of rotations), so a hostile file stops there; then it is checked between the stages
+        (kinematics and descriptors, windows), each bounded by the parse limits. Past it:
+        :class:`~app.errors.DescribeTimeout` (503), and the thread is free again.
     max_values:
         Cap on ``ParseLimits.max_values`` (numbers the frames may expand to), whatever limits
         the caller passes: it bounds the memory one clip takes, which the byte size of an
@@ -269,9 +272,26 @@ class MotionDescriber:
             windows=settings.moments,
         )
 
-    def read(self, upload: Upload, limits: ParseLimits) -> ReadMotion:
-        """:func:`read_motion` under this describer's value cap and parser pool."""
-        return read_motion(upload, self._capped(limits), self.parsers)
+    def read(
+        self, upload: Upload, limits: ParseLimits, *, started: float | None = None
+    ) -> ReadMotion:
+        """:func:`read_motion` under this describer's value cap and parser pool, and its time
+        limit counted from ``started`` (a :func:`time.monotonic` instant; default now)."""
+        limits = self._capped(limits)
+        begun = time.monotonic() if started is None else started
+        if self.time_limit is not None:
+            limits = dataclasses.replace(limits, deadline=begun + self.time_limit)
+        try:
+            return read_motion(upload, limits, self.parsers)
+        except DescribeTimeout:
+            self._timed_out(begun, "while reading the file")
+
+    def _body(self, motion: Motion, upload: Upload) -> Body:
+        """The one verdict (:func:`~app.motion.pipeline.describable_body`), naming the file."""
+        try:
+            return describable_body(motion)
+        except ParseError as error:  # e.g. SkeletonMappingError: joints the descriptors need
+            raise _name_source(error, upload) from None
 
     def _capped(self, limits: ParseLimits) -> ParseLimits:
         if self.max_values is None:
@@ -283,13 +303,16 @@ class MotionDescriber:
     def _check_time(self, started: float, stage: str) -> None:
         if self.time_limit is None:
             return
+        if time.monotonic() - started > self.time_limit:
+            self._timed_out(started, f"after {stage}")
+
+    def _timed_out(self, started: float, when: str) -> NoReturn:
         elapsed = time.monotonic() - started
-        if elapsed > self.time_limit:
-            raise DescribeTimeout(
-                f"describing the clip took longer than the {self.time_limit:g}-second limit "
-                f"(MOCAP_DESCRIBE_TIMEOUT_SECONDS; {elapsed:.1f} s after {stage}); the server "
-                "is busy or the clip too long: try again later or upload a shorter clip"
-            )
+        raise DescribeTimeout(
+            f"describing the clip took longer than the {self.time_limit:g}-second limit "
+            f"(MOCAP_DESCRIBE_TIMEOUT_SECONDS; {elapsed:.1f} s, {when}); the server "
+            "is busy or the clip too long: try again later or upload a shorter clip"
+        )
 
     @property
     def descriptors(self) -> Mapping[str, DescriptorInfo]:
@@ -306,12 +329,10 @@ class MotionDescriber:
         """:meth:`Describer.describe`; with ``windows`` (default: when describing every
         descriptor) also the windows of :attr:`window_descriptors`."""
         started = time.monotonic()
-        read = self.read(upload, limits)
+        read = self.read(upload, limits, started=started)
         self._check_time(started, "reading the file")
-        try:
-            analysis = analyse(read.motion, descriptors=None if only is None else list(only))
-        except ParseError as error:  # e.g. SkeletonMappingError: joints the descriptors need
-            raise _name_source(error, upload) from None
+        body = self._body(read.motion, upload)
+        analysis = analyse(read.motion, descriptors=None if only is None else list(only), body=body)
         self._check_time(started, "computing the descriptors")
         described_windows = None
         if windows is None:
@@ -359,19 +380,19 @@ class MotionDescriber:
         min_seconds: float = 0.0,
         part_length: Callable[[float], float] | None = None,
         part_step: float = 1 / 30,
+        max_parts: int | None = None,
     ) -> SpanDescription:
         """Describe the part ``[start, end)`` (seconds from the file's first frame; ``None``:
         its start / end) of ``upload`` under descriptor ``name``. A span of the whole clip
         gives the clip's vector. With ``part_length`` (span seconds -> window seconds) also
-        the span's own windows of that length, one every ``part_step`` seconds (and one
-        ending with the span)."""
+        the span's own windows of that length, one every ``part_step`` seconds (at least a
+        frame; more apart when that would make over ``max_parts``) and one ending with the
+        span."""
         started = time.monotonic()
-        motion = self.read(upload, limits).motion
+        read = self.read(upload, limits, started=started)
+        motion = read.motion
         self._check_time(started, "reading the file")
-        try:
-            body = build_body(motion)
-        except ParseError as error:
-            raise _name_source(error, upload) from None
+        body = self._body(motion, upload)
         first, stop = span_frames(
             motion.frame_count, motion.frame_time, body.lead_in_frames, start, end, min_seconds
         )
@@ -380,7 +401,13 @@ class MotionDescriber:
         vector = check_vectors({name: REGISTRY[name].compute(part)}, self._descriptors)[name]
         self._check_time(started, "computing the descriptor")
         description = SpanDescription(
-            motion.frame_count, motion.frame_time, lead_in, first, stop, vector
+            motion.frame_count,
+            motion.frame_time,
+            lead_in,
+            first,
+            stop,
+            vector,
+            animation=read.animation,
         )
         if part_length is None:
             return description
@@ -389,7 +416,10 @@ class MotionDescriber:
         if size > part.frame_count:
             return description
         step = max(1, int(np.floor(part_step / motion.frame_time + 0.5)))
-        offsets = np.arange(0, part.frame_count - size + 1, step, dtype=np.int64)
+        places = part.frame_count - size + 1
+        if max_parts is not None and places > max_parts * step:
+            step = -(-places // max_parts)
+        offsets = np.arange(0, places, step, dtype=np.int64)
         if offsets[-1] + size < part.frame_count:
             offsets = np.append(offsets, part.frame_count - size)
         spans = np.stack([np.zeros_like(offsets), offsets, offsets + size], axis=1)

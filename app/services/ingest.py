@@ -30,8 +30,8 @@ from sqlalchemy.exc import IntegrityError, SQLAlchemyError
 from app.db import clips as clip_db
 from app.db import vectors as vector_db
 from app.db import windows as window_db
-from app.errors import MocapError, StorageUnavailable
-from app.labels import merge_labels
+from app.errors import InvalidInput, MocapError, StorageUnavailable
+from app.labels import MAX_LABELS, merge_labels
 from app.services.describe import Description
 from app.services.library import Library
 from app.services.uploads import Upload, UploadPart
@@ -147,26 +147,31 @@ def new_windows(library: Library, description: Description) -> tuple[window_db.N
 
 
 def _forget_files(library: Library, written: Iterable[str]) -> None:
-    """Remove files this call wrote (they did not exist before) that no committed clip uses."""
+    """Remove files this call wrote (they did not exist before) that no committed clip uses,
+    in a write transaction (:meth:`BlobStore.release`: another process may be committing a
+    clip against one of them)."""
     written = set(written)
     if not written:
         return
     try:
-        with library.reads() as session:
-            used = clip_db.referenced_blobs(session, written)
+        with library.writes.begin() as session:
+            library.blobs.release(session, written)
     except SQLAlchemyError:
         # The database is down: only another process could have referred to these new files
         # meanwhile, far less likely than this failure, so they go.
-        used = set()
-    for sha in written - used:
-        library.blobs.delete(sha)
+        for sha in written:
+            library.blobs.delete(sha)
+
+
+def _unique_files(parts: Sequence[UploadPart]) -> list[tuple[bytes, str]]:
+    """``(data, sha256)`` of each distinct content among ``parts`` (hashed once)."""
+    return [(part.data, part.sha256) for part in {part.sha256: part for part in parts}.values()]
 
 
 def _put_files(library: Library, parts: Sequence[UploadPart], written: list[str]) -> None:
-    """Store the files of ``parts`` (each distinct content once, hashed once), appending to
-    ``written`` the sha256 of those that were new; all or none are stored."""
-    unique = list({part.sha256: part for part in parts}.values())
-    stored = library.blobs.put_many([(part.data, part.sha256) for part in unique])
+    """Store the files of ``parts``, appending to ``written`` the sha256 of those that were
+    new; all or none are stored."""
+    stored = library.blobs.put_many(_unique_files(parts))
     written.extend(sha for sha, new in stored if new)
 
 
@@ -195,9 +200,12 @@ def store_many(library: Library, items: Sequence[Described]) -> list[IngestResul
                     fresh[content_hash] = describe(library, item.upload)
             written: list[str] = []
             try:
-                _put_files(library, [p for i in fresh.values() for p in i.upload.parts], written)
+                parts = [p for i in fresh.values() for p in i.upload.parts]
+                _put_files(library, parts, written)
                 rows = [new_clip(library, item) for item in fresh.values()]
                 with library.writes.begin() as session:
+                    # Another process may have removed a file found stored: write it again.
+                    written.extend(library.blobs.claim(session, _unique_files(parts)))
                     clip_db.insert_clips(session, rows)
             except IntegrityError:
                 # Another process stored some of this content meanwhile: look again.
@@ -225,6 +233,7 @@ def store_many(library: Library, items: Sequence[Described]) -> list[IngestResul
                 for item in items
                 if item.upload.content_hash not in created and item.upload.content_hash in by_hash
             ],
+            refuse_over_cap=len(items) == 1,  # one upload gets its 422; a batch goes on
         )
         with library.reads() as session:
             clips = clip_db.get_clips(session, by_hash.values())
@@ -238,10 +247,17 @@ def store_many(library: Library, items: Sequence[Described]) -> list[IngestResul
     return results
 
 
-def apply_to_stored(library: Library, duplicates: Sequence[tuple[int, Upload]]) -> set[int]:
+def apply_to_stored(
+    library: Library, duplicates: Sequence[tuple[int, Upload]], *, refuse_over_cap: bool = True
+) -> set[int]:
     """Apply to already-stored clips what repeated uploads of their content bring: labels are
     added (those the clip lacks, in any case), a given name, source or licence replaces the
-    stored one. One transaction; returns the ids of the clips that changed."""
+    stored one. One transaction; returns the ids of the clips that changed.
+
+    Labels that would take a clip past :data:`~app.labels.MAX_LABELS` are refused
+    (:class:`InvalidInput`, nothing applied), or with ``refuse_over_cap=False`` (a batch of
+    an import, which one clip must not fail) left out, the stored ones kept, with a warning.
+    """
     wanted = [(clip_id, upload) for clip_id, upload in duplicates if _brings_something(upload)]
     if not wanted:
         return set()
@@ -253,7 +269,7 @@ def apply_to_stored(library: Library, duplicates: Sequence[tuple[int, Upload]]) 
                 clip = stored.get(clip_id)
                 if clip is None:
                     continue
-                labels = merge_labels(clip.labels, upload.labels)
+                labels = _capped(clip, merge_labels(clip.labels, upload.labels), refuse_over_cap)
                 updates: dict[str, Any] = {}
                 if labels != clip.labels:
                     updates["labels"] = labels
@@ -269,7 +285,23 @@ def apply_to_stored(library: Library, duplicates: Sequence[tuple[int, Upload]]) 
         raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
     if changed:
         library.sync_indexes()  # searches here show the new name and labels at once
+        library.edits += 1
     return changed
+
+
+def _capped(clip: clip_db.ClipRecord, labels: tuple[str, ...], refuse: bool) -> tuple[str, ...]:
+    """``labels`` (the stored ones first) when within the cap; else refused or cut."""
+    if len(labels) <= MAX_LABELS:
+        return labels
+    added = len(labels) - len(clip.labels)
+    message = (
+        f"labels: clip {clip.id} carries {len(clip.labels)} labels; the {added} new ones of "
+        f"this upload would make {len(labels)}, over the cap of {MAX_LABELS} labels per clip"
+    )
+    if refuse:
+        raise InvalidInput(message)
+    log.warning("%s: kept the first %d", message, MAX_LABELS)
+    return labels[: max(MAX_LABELS, len(clip.labels))]
 
 
 def _brings_something(upload: Upload) -> bool:

@@ -29,6 +29,8 @@ import time
 from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from datetime import timedelta
+from typing import Any
 
 import numpy as np
 from sqlalchemy import Engine
@@ -39,7 +41,7 @@ from app.config import Settings
 from app.db import clips as clip_db
 from app.db import vectors as vector_db
 from app.db import windows as window_db
-from app.db.changes import ChangeFeed, horizon, read_since
+from app.db.changes import ChangeFeed, horizon, prune, pruned_before, read_since
 from app.db.entries import ClipEntry, clip_entries
 from app.db.migrate import upgrade
 from app.db.session import create_db_engine, read_sessions, write_sessions
@@ -48,6 +50,7 @@ from app.index.array_file import read_arrays, write_arrays
 from app.index.catalogue import Catalogue
 from app.index.descriptor_index import DescriptorIndex, IndexSet
 from app.index.kinds import IndexOptions
+from app.index.neighbour_scale import NeighbourScales
 from app.index.places import Places, WindowPlaces
 from app.index.sources import (
     StoredClips,
@@ -65,6 +68,7 @@ from app.services.describe import (
     DescriptorInfo,
     MotionDescriber,
 )
+from app.services.export_pool import ExportPool
 from app.services.parser_pool import ParserPool
 
 log = logging.getLogger(__name__)
@@ -152,7 +156,14 @@ class Library:
     # FBX/glTF readers' worker processes (started when first needed); None: those formats
     # cannot be read (a describer of the tests' own).
     parsers: ParserPool | None = None
+    # FBX writers' worker processes (Blender; started when the first FBX is asked for).
+    exporters: ExportPool | None = None
     write_lock: threading.Lock = field(default_factory=threading.Lock)
+    # Renames, relabels and new notes made by this process: caches of names and labels
+    # compare it (the catalogue follows the change feed, which has them since migration 0010).
+    edits: int = 0
+    # Each index's typical neighbour distances: the similarity of search results.
+    scales: NeighbourScales = field(default_factory=NeighbourScales, repr=False)
     _sync_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
     # Checks the checksums of the files mapped unchecked at start (verify_files).
     verifier: threading.Thread | None = field(default=None, repr=False)
@@ -307,7 +318,9 @@ class Library:
             arrays, meta = found
             loaded = Places(arrays["ids"], arrays["starts"], arrays["stops"])
             position = int(meta.get("feed_position", -1))
-            if len(loaded) == meta.get("count") and 0 <= position <= horizon(session):
+            # A file older than the feed keeps cannot be brought up to date from it.
+            followable = pruned_before(session) <= position <= horizon(session)
+            if len(loaded) == meta.get("count") and followable:
                 changed = read_since(session, position)[1]
                 clips = np.unique(np.fromiter((r.clip_id for r in changed), np.int64))
                 places.replace_all(loaded)
@@ -347,6 +360,9 @@ class Library:
             return False
         try:
             with self.reads() as session:
+                if self._feed.position < pruned_before(session):
+                    self._rebuild_all(session)  # away longer than the feed keeps its rows
+                    return True
                 poll = self._feed.poll(session)
                 changed = poll.clip_ids
                 if not changed.size:  # the usual poll: nothing to look up or lock
@@ -390,6 +406,55 @@ class Library:
             now = horizon(session)
             self.catalogue.replace_all(clip_entries(session), synced_to=now, persist=False)
             self.catalogue.try_save()
+
+    def _rebuild_all(self, session: Session) -> None:
+        """Refill every index from the database and follow the feed from now on (the caller
+        holds the sync lock): the change rows this process had not read yet were pruned."""
+        position = horizon(session)  # before the vectors: nothing older is missed
+        log.warning(
+            "the change feed no longer holds the changes since this process last looked "
+            "(away longer than MOCAP_CHANGE_RETENTION_HOURS): rebuilding the indexes"
+        )
+        # The catalogue first: a hit an index finds always has its display data.
+        self.catalogue.replace_all(clip_entries(session), synced_to=position, persist=False)
+        self.catalogue.try_save()
+        for name, info in self.descriptors.items():
+            everything = vector_db.load_vectors(session, info.name, info.version, info.dimension)
+            self.indexes[name].replace_all(*everything, synced_to=position, persist=False)
+            self.indexes[name].try_save()
+        for name, key in self.window_keys.items():
+            everything = window_db.load_windows(session, key)
+            self.window_indexes[name].replace_all(*everything, synced_to=position, persist=False)
+            self.window_indexes[name].try_save()
+            if self.window_places[name].loaded:
+                self._load_places(session, name)
+        self._feed = ChangeFeed(position)
+
+    def prune_changes(self) -> int:
+        """Delete the change rows older than ``MOCAP_CHANGE_RETENTION_HOURS`` (and record
+        where the feed stands now, for a later prune); returns how many went."""
+        retention = timedelta(hours=self.settings.change_retention_hours)
+        with self.write_lock, self.writes.begin() as session:
+            return prune(session, retention)
+
+    def start_housekeeping(self) -> None:
+        """Prune the change feed now and then in a thread of its own (a server's), about
+        eight times per retention, at least hourly; stopped by :meth:`close`."""
+        every = min(3600.0, self.settings.change_retention_hours * 3600 / 8)
+
+        def run() -> None:
+            while True:
+                try:
+                    removed = self.prune_changes()
+                except (SQLAlchemyError, sqlite3.Error) as exc:
+                    log.warning("could not prune the change feed: %s", exc)
+                else:
+                    if removed:
+                        log.info("pruned %d change feed rows older than the retention", removed)
+                if self._stopping.wait(every):
+                    return
+
+        threading.Thread(target=run, name="mocap-housekeeping", daemon=True).start()
 
     def _sync_windows(self, session: Session, changed: np.ndarray, position: int) -> None:
         """The window indexes follow the same feed: a changed clip's windows are replaced
@@ -484,6 +549,8 @@ class Library:
             self.engine.dispose()
             if self.parsers is not None:
                 self.parsers.close()
+            if self.exporters is not None:
+                self.exporters.close()
 
 
 class _DataVersion:
@@ -556,17 +623,36 @@ def _open_indexes(
         listed = pool.submit(catalogue.read_file, verify=verify)
         files = dict(zip(every, pool.map(lambda i: i.read_file(verify=verify), every), strict=True))
         catalogue_file = listed.result()
+    fresh = all(isinstance(found, str) for found in files.values())  # no index file at all
     with reads() as session:  # one feed position for every index, taken before their vectors
         watermark = horizon(session)
+        pruned = pruned_before(session)
         for info in descriptors.values():
             source = StoredVectors(session, info, watermark)
             index = indexes[info.name]
-            index.load_or_rebuild(source, files.pop(index))
+            index.load_or_rebuild(source, _followable(files.pop(index), pruned))
         for name, key in keys.items():
             index = windows[name]
-            index.load_or_rebuild(StoredWindows(session, key, watermark, index), files.pop(index))
-        catalogue.load_or_rebuild(StoredClips(session, watermark), catalogue_file)
+            found = _followable(files.pop(index), pruned)
+            index.load_or_rebuild(StoredWindows(session, key, watermark, index), found)
+        found = _followable(catalogue_file, pruned)
+        catalogue.load_or_rebuild(StoredClips(session, watermark), found)
+    if fresh and not any(index.size for index in every):
+        log.info("new library: created its %d empty indexes in %s", len(every), settings.index_dir)
     return IndexSet(indexes), IndexSet(windows), catalogue
+
+
+def _followable(found: tuple[Any, dict[str, Any]] | str, pruned: int) -> Any:
+    """An index file as read (:meth:`DescriptorIndex.read_file`), or why it cannot be
+    brought up to date from the change feed: saved before the rows the feed keeps (the
+    process was away longer than the retention), it is rebuilt from the database."""
+    if isinstance(found, tuple):
+        position = found[1].get("feed_position")
+        if isinstance(position, int) and position < pruned:
+            return (
+                "the index file is older than the change feed keeps (MOCAP_CHANGE_RETENTION_HOURS)"
+            )
+    return found
 
 
 def open_library(
@@ -585,7 +671,7 @@ def open_library(
         raise RuntimeError("the describer offers no descriptor")
     try:
         settings.data_dir.mkdir(parents=True, exist_ok=True)
-        engine = create_db_engine(settings.sqlalchemy_url)
+        engine = create_db_engine(settings.sqlalchemy_url, synchronous=settings.sqlite_synchronous)
         upgrade(engine)
     except (OSError, SQLAlchemyError) as exc:
         parsers.close()
@@ -622,6 +708,7 @@ def open_library(
         window_indexes=windows,
         window_keys=window_keys(settings, describer.descriptors),
         parsers=parsers,
+        exporters=ExportPool.from_settings(settings),  # no process until an FBX is asked for
     )
     if verify_later:
         library.verifier = threading.Thread(

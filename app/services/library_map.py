@@ -1,14 +1,5 @@
-"""The library as the browser UI shows it: stick-figure previews, a 2-D map, a filtered list.
-
-Stick figures (:func:`clip_skeleton`)
-    A stored clip is read again from its stored file(s) and run through the motion core
-    (parse -> :func:`~app.motion.body.build_body`, so converter lead-in frames are dropped as
-    for the descriptors). The canonical joints are put in a *display frame*: lengths in body
-    heights, y up (the file's vertical axis, see :func:`display_up`), the pelvis's floor
-    point at the first frame at the origin (floor = the 5th percentile over frames of each
-    frame's lowest joint, so a wild frame cannot move it), facing +z at the first frame (x is
-    then the subject's left). Frames are resampled to the requested rate by linear
-    interpolation in time and cut after :data:`MAX_SKELETON_FRAMES`.
+"""The library as the browser UI shows it: a 2-D map and a filtered list (the stick-figure
+previews are in :mod:`app.services.previews`).
 
 Map (:func:`library_map`)
     For every clip two 2-D views, both from the *stored* vectors (no clip is re-read):
@@ -24,19 +15,25 @@ Map (:func:`library_map`)
     distance to its :data:`OUTLIER_NEIGHBOURS` nearest other clips has a modified z-score
     (Iglewicz and Hoaglin: median and MAD, so the outliers do not hide themselves) above
     :data:`OUTLIER_Z`. (The distance to the library's median vector was tried first: it
-    marks whole minority classes — every dash among walks — rather than odd clips.) The
-    PCA and the outliers are cached by the content of the vectors they come from.
+    marks whole minority classes — every dash among walks — rather than odd clips.)
+
+    The work grows as N log N, not N²: beyond :data:`EXACT_NEIGHBOURS_UP_TO` clips the
+    nearest neighbours come from a random-projection forest (:func:`forest_neighbours`), and
+    the PCA axes are fitted on a sample of :data:`PCA_SAMPLE` clips. :class:`LibraryMap`
+    computes a layout once per change of the library, one at a time, in the background for
+    a large library (serving the last one meanwhile); bench/bench_map.py measures it.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
+import logging
 import threading
-from collections import OrderedDict
-from collections.abc import Callable, Hashable
+import time
+from collections.abc import Iterator
+from concurrent.futures import Future
 from dataclasses import dataclass
-from typing import Any, Generic, TypeVar
+from typing import Any
 
 import numpy as np
 
@@ -44,252 +41,11 @@ from app.db import browsing as browse_db
 from app.db import clips as clip_db
 from app.db import label_filters as label_db
 from app.db import vectors as vector_db
-from app.errors import InvalidInput, NoStoredFile, ParseError
-from app.motion.body import Body, build_body
+from app.db.changes import latest_seq
 from app.motion.descriptors import kinetic
-from app.motion.model import Motion, ParseLimits
-from app.motion.skeleton_map import CANONICAL_BONES, CANONICAL_INDEX, CANONICAL_JOINTS
-from app.services.clips import stored_upload
-from app.services.describe import read_motion
 from app.services.library import Library
-from app.services.parser_pool import ParserPool
-from app.services.uploads import Upload
 
-# -- stick figures --------------------------------------------------------------------------
-
-MAX_SKELETON_FRAMES = 600
-"""Most frames one skeleton response carries; longer clips are truncated (``truncated``)."""
-MIN_FPS, MAX_FPS, DEFAULT_FPS = 1, 120, 30
-DECIMALS = 4
-"""Joint coordinates are rounded to this many decimals of a body height (0.1 mm at 1.7 m)."""
-SKELETON_FORMAT_VERSION = 1
-"""Changes whenever the numbers a skeleton response carries change (part of its ETag)."""
-
-K = TypeVar("K", bound=Hashable)
-V = TypeVar("V")
-
-
-class LRUCache(Generic[K, V]):
-    """A small thread-safe least-recently-used cache."""
-
-    def __init__(self, size: int) -> None:
-        self.size = size
-        self._items: OrderedDict[K, V] = OrderedDict()
-        self._lock = threading.Lock()
-
-    def get(self, key: K) -> V | None:
-        with self._lock:
-            if key not in self._items:
-                return None
-            self._items.move_to_end(key)
-            return self._items[key]
-
-    def put(self, key: K, value: V) -> None:
-        with self._lock:
-            self._items[key] = value
-            self._items.move_to_end(key)
-            while len(self._items) > self.size:
-                self._items.popitem(last=False)
-
-    def get_or_compute(self, key: K, compute: Callable[[], V]) -> V:
-        found = self.get(key)
-        if found is None:
-            found = compute()
-            self.put(key, found)
-        return found
-
-    def __len__(self) -> int:
-        return len(self._items)
-
-
-@dataclass(frozen=True, eq=False)
-class DisplayMotion:
-    """A clip's canonical joints in the display frame at the file's own frame rate."""
-
-    positions: np.ndarray  # (F, C, 3) body heights; y up, facing +z at frame 0
-    frame_time: float
-    lead_in_frames: int
-
-
-@dataclass(frozen=True)
-class Skeleton:
-    """One skeleton response, already encoded (``body`` is JSON bytes)."""
-
-    body: bytes
-    etag: str
-
-
-class SkeletonCache:
-    """Per-application caches: display motions by (clip id, content hash), responses by
-    (clip id, content hash, fps, max frames)."""
-
-    def __init__(self, motions: int = 8, responses: int = 64) -> None:
-        self.motions: LRUCache[tuple[int, str], DisplayMotion] = LRUCache(motions)
-        self.responses: LRUCache[tuple[int, str, int, int], Skeleton] = LRUCache(responses)
-
-
-def display_up(world_up: np.ndarray) -> np.ndarray:
-    """The coordinate axis nearest to the body's ``world_up``, as a unit vector.
-
-    Mocap files are authored with an axis up. ``Body.world_up`` snaps to an axis only within
-    30 degrees; clips whose body leans more on average (Bandai's dashes and sad side-steps,
-    35-39 degrees) keep a tilted up there, which would make a figure drift upwards as it
-    travels. A picture needs the true vertical, so it always snaps.
-    """
-    vector = np.asarray(world_up, dtype=float)
-    axis = int(np.argmax(np.abs(vector)))
-    up = np.zeros(3)
-    up[axis] = 1.0 if vector[axis] >= 0 else -1.0
-    return up
-
-
-# Percentile over frames of each frame's lowest joint that sets the preview's floor.
-_FLOOR_PERCENTILE = 5.0
-
-
-def display_positions(body: Body) -> np.ndarray:
-    """``(F, C, 3)`` canonical joint positions in the display frame (see module docstring).
-
-    Axes: x = the subject's left at the first frame, y = up (:func:`display_up`), z = the
-    subject's forward at the first frame projected on the floor; a proper rotation of the
-    file's world (no mirroring), then divided by body height.
-    """
-    up = display_up(body.world_up)
-    frame0 = body.pelvis_frames[0]
-
-    def horizontal(v: np.ndarray) -> np.ndarray:
-        return np.asarray(v - np.dot(v, up) * up, dtype=float)
-
-    forward = horizontal(frame0[:, 2])
-    if np.linalg.norm(forward) > 1e-6:
-        z = forward / np.linalg.norm(forward)
-        x = np.cross(up, z)
-    else:  # lying face down or up at the first frame: face by the hips instead
-        left = horizontal(frame0[:, 0])
-        if np.linalg.norm(left) < 1e-6:
-            left = horizontal(np.eye(3)[int(np.argmin(np.abs(up)))])
-        x = left / np.linalg.norm(left)
-        z = np.cross(x, up)
-    basis = np.stack([x, up, z], axis=1)  # columns: display axes in world coordinates
-    pelvis0 = body.positions[0, CANONICAL_INDEX["pelvis"]]
-    # Robust: the lowest point of most frames, so a frame gone wild (a sentinel value kept
-    # in the middle of a clip) cannot lift the figure far above the floor.
-    floor = float(np.percentile((body.positions @ up).min(axis=1), _FLOOR_PERCENTILE))
-    origin = horizontal(pelvis0) + floor * up
-    return np.asarray(((body.positions - origin) @ basis) / body.height)
-
-
-def resample(
-    positions: np.ndarray, frame_time: float, fps: int, max_frames: int
-) -> tuple[np.ndarray, bool]:
-    """Frames at ``fps`` by linear interpolation in time, at most ``max_frames`` of them.
-
-    Returns the ``(F', C, 3)`` frames and whether the clip was cut short.
-    """
-    count = positions.shape[0]
-    duration = (count - 1) * frame_time
-    # Files round their frame time (0.008333 for 1/120 s): a relative slack of 1e-4 keeps
-    # the last frame, and output times within 1/1000 of a source frame take that frame.
-    wanted = int(np.floor(duration * fps * (1 + 1e-4) + 1e-6)) + 1
-    truncated = wanted > max_frames
-    n = min(wanted, max_frames)
-    source = np.arange(n) / fps / frame_time  # fractional source frame of each output frame
-    nearest = np.round(source)
-    source = np.where(np.abs(source - nearest) < 1e-3, nearest, source)
-    low = np.clip(np.floor(source).astype(np.int64), 0, count - 1)
-    high = np.minimum(low + 1, count - 1)
-    weight = np.clip(source - low, 0.0, 1.0)[:, None, None]
-    return positions[low] * (1.0 - weight) + positions[high] * weight, truncated
-
-
-def read_stored_motion(library: Library, clip: clip_db.ClipRecord) -> Motion:
-    """Parse a stored clip's file(s) again (ParseError if they no longer parse;
-    NoStoredFile for a clip without files)."""
-    if not clip.files:
-        raise NoStoredFile(clip.id, clip.format)
-    upload = stored_upload(library, clip)
-    return read_motion(upload, library.settings.parse_limits, library.parsers).motion
-
-
-def upload_display_motion(
-    upload: Upload, limits: ParseLimits, parsers: ParserPool | None = None
-) -> DisplayMotion:
-    """Parse and map an uploaded (not stored) clip; errors name the uploaded file."""
-    read = read_motion(upload, limits, parsers)
-    try:
-        return display_motion(read.motion)
-    except ParseError as error:
-        part = upload.parts[0]
-        source = f"{part.role} {part.filename!r}"
-        raise type(error)(error.reason, line=error.line, source=source) from None
-
-
-def display_motion(motion: Motion) -> DisplayMotion:
-    body = build_body(motion)
-    return DisplayMotion(display_positions(body), body.frame_time, body.lead_in_frames)
-
-
-def skeleton_payload(
-    display: DisplayMotion, *, clip_id: int | None, fps: int, max_frames: int
-) -> dict[str, Any]:
-    """The skeleton response (see ``GET /clips/{id}/skeleton``) as plain JSON values."""
-    frames, truncated = resample(display.positions, display.frame_time, fps, max_frames)
-    source_frames = display.positions.shape[0]
-    return {
-        "clip_id": clip_id,
-        "fps": fps,
-        "frame_count": int(frames.shape[0]),
-        "truncated": truncated,
-        "duration": round((frames.shape[0] - 1) / fps, 6),
-        "source_frame_count": int(source_frames),
-        "source_duration": round((source_frames - 1) * display.frame_time, 6),
-        "lead_in_frames": display.lead_in_frames,
-        "units": "body heights",
-        "joints": list(CANONICAL_JOINTS),
-        "bones": [list(b) for b in CANONICAL_BONES],
-        "frames": np.round(frames, DECIMALS).tolist(),
-    }
-
-
-def check_skeleton_params(fps: int, max_frames: int) -> None:
-    if not MIN_FPS <= fps <= MAX_FPS:
-        raise InvalidInput(f"fps: must be between {MIN_FPS} and {MAX_FPS}, got {fps}")
-    if not 1 <= max_frames <= MAX_SKELETON_FRAMES:
-        raise InvalidInput(
-            f"max_frames: must be between 1 and {MAX_SKELETON_FRAMES}, got {max_frames}"
-        )
-
-
-def clip_skeleton(
-    library: Library, cache: SkeletonCache, clip: clip_db.ClipRecord, fps: int, max_frames: int
-) -> Skeleton:
-    """The encoded skeleton response of a stored clip (cached)."""
-    check_skeleton_params(fps, max_frames)
-    key = (clip.id, clip.content_hash, fps, max_frames)
-
-    def compute() -> Skeleton:
-        display = cache.motions.get_or_compute(
-            (clip.id, clip.content_hash),
-            lambda: display_motion(read_stored_motion(library, clip)),
-        )
-        payload = skeleton_payload(display, clip_id=clip.id, fps=fps, max_frames=max_frames)
-        tag = hashlib.sha256(f"{SKELETON_FORMAT_VERSION}:{key}".encode()).hexdigest()[:32]
-        return Skeleton(_encode(payload), f'"{tag}"')
-
-    return cache.responses.get_or_compute(key, compute)
-
-
-def upload_skeleton(
-    upload: Upload,
-    limits: ParseLimits,
-    fps: int,
-    max_frames: int,
-    parsers: ParserPool | None = None,
-) -> bytes:
-    """The encoded skeleton response of an uploaded clip (nothing stored, nothing cached)."""
-    check_skeleton_params(fps, max_frames)
-    display = upload_display_motion(upload, limits, parsers)
-    return _encode(skeleton_payload(display, clip_id=None, fps=fps, max_frames=max_frames))
+log = logging.getLogger(__name__)
 
 
 def _encode(payload: dict[str, Any]) -> bytes:
@@ -304,6 +60,20 @@ OUTLIER_NEIGHBOURS = 5
 """A clip's isolation is its mean distance to this many nearest other clips."""
 THREE_MAN_DESCRIPTOR = kinetic.DESCRIPTOR.name
 KINETIC_DIMENSION = kinetic.DESCRIPTOR.dimension
+EXACT_NEIGHBOURS_UP_TO = 5_000
+"""Up to this many clips the nearest neighbours are exact (a block of all pairs: under a
+second); beyond, a random-projection forest finds them (:func:`forest_neighbours`)."""
+FOREST_TREES = 8
+FOREST_LEAF = 64
+PCA_SAMPLE = 20_000
+"""The PCA axes are fitted on at most this many clips (drawn at random, the same each time);
+every clip is then projected on them."""
+MAP_WAIT_SECONDS = 1.0
+"""A layout computed in less than this is waited for; a slower one (a large library) is
+recomputed in the background while requests get the last one (:class:`LibraryMap`)."""
+MAP_MAX_AGE_SECONDS = 60.0
+"""An encoded map is reused while the library shows no change, at most this long (names and
+labels another process changed show within it)."""
 
 
 def three_man_from_kinetic(vector: np.ndarray) -> np.ndarray:
@@ -331,8 +101,9 @@ class Projection:
     explained: tuple[float, float]  # fraction of the total variance along each axis
 
 
-def pca_2d(vectors: np.ndarray) -> Projection:
-    """The first two principal components of ``(N, D)`` vectors (centred, not scaled).
+def pca_2d(vectors: np.ndarray, *, sample: int = PCA_SAMPLE) -> Projection:
+    """The first two principal components of ``(N, D)`` vectors (centred, not scaled), the
+    axes fitted on at most ``sample`` of them (drawn with a fixed seed), every one projected.
 
     Signs are fixed (each axis's largest loading is positive) so maps do not flip between
     requests. Fewer than two dimensions or points give zeros.
@@ -342,8 +113,10 @@ def pca_2d(vectors: np.ndarray) -> Projection:
     points = np.zeros((n, 2))
     if n < 2 or data.ndim != 2 or data.shape[1] == 0:
         return Projection(points, (0.0, 0.0))
-    centred = data - data.mean(axis=0)
-    covariance = centred.T @ centred / (n - 1)
+    fitted = data if n <= sample else data[np.random.default_rng(0).choice(n, sample, False)]
+    mean = fitted.mean(axis=0)
+    centred = fitted - mean
+    covariance = centred.T @ centred / (len(fitted) - 1)
     values, axes = np.linalg.eigh(covariance)
     order = np.argsort(values)[::-1][:2]
     total = float(values.clip(min=0).sum())
@@ -351,7 +124,7 @@ def pca_2d(vectors: np.ndarray) -> Projection:
     for k, axis_index in enumerate(order):
         axis = axes[:, axis_index]
         axis = axis * (1.0 if axis[np.argmax(np.abs(axis))] >= 0 else -1.0)
-        points[:, k] = centred @ axis
+        points[:, k] = (data - mean) @ axis
         explained[k] = max(float(values[axis_index]), 0.0) / total if total > 0 else 0.0
     return Projection(points, (explained[0], explained[1]))
 
@@ -375,13 +148,17 @@ def modified_z_scores(values: np.ndarray) -> np.ndarray:
 
 
 def isolation_scores(vectors: np.ndarray, k: int = OUTLIER_NEIGHBOURS) -> np.ndarray:
-    """``(N,)`` mean Euclidean distance from each vector to its ``k`` nearest others (exact,
-    in blocks of rows so 10,000 clips need ~40 MB at a time)."""
+    """``(N,)`` mean Euclidean distance from each vector to its ``k`` nearest others: exact
+    up to :data:`EXACT_NEIGHBOURS_UP_TO` vectors (in blocks of rows so 10,000 clips need
+    ~40 MB at a time), from :func:`forest_neighbours` beyond (the nearest found, so never
+    below the exact score)."""
     data = np.asarray(vectors, dtype=np.float64)
     n = data.shape[0]
     k = min(k, n - 1)
     if k < 1:
         return np.zeros(n)
+    if n > EXACT_NEIGHBOURS_UP_TO:
+        return np.asarray(np.sqrt(forest_neighbours(data, k)).mean(axis=1))
     squared = np.einsum("ij,ij->i", data, data)
     scores = np.empty(n)
     block = max(1, min(n, 4_000_000 // max(n, 1)))
@@ -395,6 +172,85 @@ def isolation_scores(vectors: np.ndarray, k: int = OUTLIER_NEIGHBOURS) -> np.nda
     return scores
 
 
+def forest_neighbours(
+    vectors: np.ndarray,
+    k: int,
+    *,
+    trees: int = FOREST_TREES,
+    leaf: int = FOREST_LEAF,
+    seed: int = 0,
+) -> np.ndarray:
+    """``(N, k)`` squared distances from each of ``(N, D)`` vectors to the ``k`` nearest
+    others found by a random-projection forest, ascending. Each tree halves the vectors at
+    the median of their projection on a random direction (one per level), again and again
+    down to leaves of at most ``leaf``, and compares all pairs within each leaf; a vector's
+    neighbours are the nearest it met in any tree. O(trees N (log N + leaf) D) instead of
+    O(N^2 D): near neighbours mostly share a leaf, and what is missed makes a score larger,
+    never smaller (``inf`` when a vector met fewer than ``k`` others)."""
+    data = np.ascontiguousarray(vectors, dtype=np.float32)
+    n = data.shape[0]
+    rng = np.random.default_rng(seed)
+    found: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    for _ in range(trees):
+        for rows in _forest_leaves(data, leaf, rng):
+            found.append(_nearest_in_leaves(data, rows, k))
+    result = np.full((n, k), np.inf)
+    if not found:
+        return result
+    row = np.concatenate([f[0] for f in found])
+    other = np.concatenate([f[1] for f in found])
+    d2 = np.concatenate([f[2] for f in found]).astype(np.float64)
+    # The same pair met in several trees counts once; then each vector's nearest, in order.
+    _, first = np.unique(row.astype(np.int64) * n + other, return_index=True)
+    row, d2 = row[first], d2[first]
+    order = np.lexsort((d2, row))
+    row, d2 = row[order], d2[order]
+    starts = np.searchsorted(row, np.arange(n))
+    rank = np.arange(len(row)) - starts[row]
+    within = rank < k
+    result[row[within], rank[within]] = d2[within]
+    return result
+
+
+def _forest_leaves(data: np.ndarray, leaf: int, rng: np.random.Generator) -> Iterator[np.ndarray]:
+    """The leaves of one random-projection tree over ``data`` ``(N, D)``, as ``(L, m)`` row
+    indices (every leaf of ``m`` rows; one array per leaf size). Level by level: a stable
+    sort by (node, projection on the level's direction) puts each node's lower half first."""
+    n = data.shape[0]
+    levels = max(0, int(np.ceil(np.log2(max(n, 1) / leaf))))
+    projected = data @ rng.standard_normal((data.shape[1], levels)).astype(np.float32)
+    order = np.arange(n)
+    bounds = np.array([0, n])
+    for level in range(levels):
+        sizes = np.diff(bounds)
+        node = np.repeat(np.arange(len(sizes)), sizes)
+        order = order[np.lexsort((projected[order, level], node))]
+        bounds = np.sort(np.concatenate([bounds, bounds[:-1] + sizes // 2]))
+    sizes = np.diff(bounds)
+    for size in np.unique(sizes):
+        if size < 2:
+            continue
+        starts = bounds[:-1][sizes == size]
+        yield order[starts[:, None] + np.arange(size)]
+
+
+def _nearest_in_leaves(
+    data: np.ndarray, leaves: np.ndarray, k: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For ``(L, m)`` leaves of rows of ``data``: each row's nearest ``min(k, m - 1)`` others
+    of its leaf as (rows, others, squared distances), flat."""
+    count = min(k, leaves.shape[1] - 1)
+    members = data[leaves]  # (L, m, D) float32: the neighbours' order, not their last digits
+    squared = np.einsum("lmd,lmd->lm", members, members)
+    d2 = squared[:, :, None] + squared[:, None, :] - 2.0 * (members @ members.transpose(0, 2, 1))
+    np.maximum(d2, 0.0, out=d2)
+    d2[:, np.arange(leaves.shape[1]), np.arange(leaves.shape[1])] = np.inf
+    nearest = np.argpartition(d2, count - 1, axis=2)[:, :, :count]
+    rows = np.repeat(leaves.reshape(-1), count)
+    others = np.take_along_axis(leaves[:, None, :], nearest, axis=2).reshape(-1)
+    return rows, others, np.take_along_axis(d2, nearest, axis=2).reshape(-1)
+
+
 def robust_outliers(vectors: np.ndarray, threshold: float = OUTLIER_Z) -> np.ndarray:
     """``(N,)`` bool: clips far from their nearest neighbours compared with the rest — the
     modified z-score of :func:`isolation_scores` is above ``threshold``. Needs 3 clips."""
@@ -406,39 +262,36 @@ def robust_outliers(vectors: np.ndarray, threshold: float = OUTLIER_Z) -> np.nda
 
 @dataclass(frozen=True)
 class Layout:
-    """What the map computes from one descriptor's vectors (cached by their content)."""
+    """What the map computes from one descriptor's vectors (and the kinetic ones, for the
+    3-MAN features); clip ids ascending."""
 
+    ids: np.ndarray  # (N,) clips with a current vector of the descriptor
     projection: Projection
     outlier_scores: np.ndarray  # (N,) modified z-scores of the isolation
     outliers: np.ndarray  # (N,) bool
+    three_man_ids: np.ndarray  # (M,) clips with a current, finite kinetic vector
+    three_man: np.ndarray  # (M, 3)
 
 
-def vector_layout(vectors: np.ndarray) -> Layout:
-    projection = pca_2d(vectors)
+def vector_layout(vectors: np.ndarray) -> tuple[Projection, np.ndarray]:
+    """PCA-2D and the modified z-scores of the isolation of ``(N, D)`` vectors."""
     n = vectors.shape[0]
     scores = modified_z_scores(isolation_scores(vectors)) if n >= 3 else np.zeros(n)
-    return Layout(projection, scores, np.asarray(scores > OUTLIER_Z))
+    return pca_2d(vectors), scores
 
 
-MapCache = LRUCache[tuple[str, int, str], Layout]
+def three_man_available(library: Library) -> bool:
+    info = library.descriptors.get(THREE_MAN_DESCRIPTOR)
+    return info is not None and info.dimension == KINETIC_DIMENSION
 
 
-def new_map_cache() -> MapCache:
-    return LRUCache(6)
-
-
-def library_map(library: Library, descriptor: str, cache: MapCache | None = None) -> dict[str, Any]:
-    """Every clip with its 3-MAN features, the PCA-2D of ``descriptor`` and an outlier flag.
-
-    A clip without a current vector of a descriptor gets ``null`` for that view.
-    """
+def compute_layout(library: Library, descriptor: str) -> Layout:
+    """Read the stored vectors and lay the library out (the slow part of the map)."""
     info = library.descriptor(descriptor)
     kinetic_info = library.descriptors.get(THREE_MAN_DESCRIPTOR)
-    three_man_available = kinetic_info is not None and kinetic_info.dimension == KINETIC_DIMENSION
     with library.reads() as session:
-        summaries = browse_db.clip_summaries(session)
         ids, vectors = vector_db.load_vectors(session, info.name, info.version, info.dimension)
-        if three_man_available and kinetic_info is not None:
+        if three_man_available(library) and kinetic_info is not None:
             if kinetic_info.name == info.name:
                 kinetic_ids, kinetic_vectors = ids, vectors
             else:
@@ -447,32 +300,34 @@ def library_map(library: Library, descriptor: str, cache: MapCache | None = None
                 )
         else:
             kinetic_ids, kinetic_vectors = np.zeros(0, np.int64), np.zeros((0, 0), np.float32)
+    projection, scores = vector_layout(vectors)
+    features = three_man_many(kinetic_vectors) if len(kinetic_ids) else np.zeros((0, 3))
+    finite = np.all(np.isfinite(features), axis=1)
+    return Layout(
+        ids, projection, scores, np.asarray(scores > OUTLIER_Z), kinetic_ids[finite],
+        features[finite],
+    )  # fmt: skip
 
-    digest = hashlib.sha256(ids.tobytes() + vectors.tobytes()).hexdigest()
-    key = (info.name, info.version, digest)
-    layout = (
-        cache.get_or_compute(key, lambda: vector_layout(vectors))
-        if cache is not None
-        else vector_layout(vectors)
-    )
+
+def map_payload(library: Library, descriptor: str, layout: Layout) -> dict[str, Any]:
+    """Every clip with its 3-MAN features, the PCA-2D of ``descriptor`` and an outlier flag
+    (from ``layout``), and its name, labels, format, duration and frames (read now).
+
+    A clip without a current vector of a descriptor — or stored after ``layout`` was
+    computed — gets ``null`` for that view.
+    """
+    info = library.descriptor(descriptor)
+    with library.reads() as session:
+        summaries = browse_db.clip_summaries(session)
     projection = layout.projection
     # Round whole arrays once; per-clip work is then dictionary look-ups only.
-    id_list = ids.tolist()
+    id_list = layout.ids.tolist()
     pca_by_id = dict(zip(id_list, np.round(projection.points, 5).tolist(), strict=True))
     outlier_by_id = dict(zip(id_list, layout.outliers.tolist(), strict=True))
     score_by_id = dict(zip(id_list, np.round(layout.outlier_scores, 2).tolist(), strict=True))
-    three_man_by_id: dict[int, list[float]] = {}
-    if len(kinetic_ids):
-        features = three_man_many(kinetic_vectors)
-        finite = np.all(np.isfinite(features), axis=1)
-        three_man_by_id = dict(
-            zip(
-                kinetic_ids[finite].tolist(),
-                np.round(features[finite], 5).tolist(),
-                strict=True,
-            )
-        )
-
+    three_man_by_id = dict(
+        zip(layout.three_man_ids.tolist(), np.round(layout.three_man, 5).tolist(), strict=True)
+    )
     clips = []
     for summary in summaries:
         clip_id = summary.id
@@ -496,7 +351,7 @@ def library_map(library: Library, descriptor: str, cache: MapCache | None = None
     return {
         "descriptor": info.name,
         "count": len(clips),
-        "three_man_available": three_man_available,
+        "three_man_available": three_man_available(library),
         "three_man_axes": ["e_all", "r_u/l", "r_l/t"],
         "pca_explained_variance": [round(v, 4) for v in projection.explained],
         "outlier_rule": (
@@ -505,6 +360,150 @@ def library_map(library: Library, descriptor: str, cache: MapCache | None = None
         ),
         "clips": clips,
     }
+
+
+def library_map(library: Library, descriptor: str) -> dict[str, Any]:
+    """The map of ``descriptor`` computed now (no cache: see :class:`LibraryMap`)."""
+    return map_payload(library, descriptor, compute_layout(library, descriptor))
+
+
+@dataclass
+class _Computed:
+    layout: Layout
+    feed: int  # the change feed's last row when the computation started
+    finished: float  # time.monotonic()
+    seconds: float
+
+
+@dataclass
+class _Encoded:
+    key: tuple[int, int, int]  # the feed, this process's edits, the layout's feed
+    made: float  # time.monotonic()
+    seconds: float  # how long the answer took (its layout's computation included)
+    body: bytes
+
+
+class LibraryMap:
+    """``GET /map`` of one application: each descriptor's layout computed once per change
+    of the library, one computation at a time in a thread of its own (single flight), and
+    each answer encoded once.
+
+    The change feed's last row (:func:`app.db.changes.latest_seq`: clips stored or deleted,
+    vectors changed, by any process) tells when the layout is out of date. Work that took
+    less than :data:`MAP_WAIT_SECONDS` the last time is waited for; slower work (a large
+    library) is redone in the background while requests get the last answer: a layout no
+    sooner than twice its time after the last one ended (at most a third of a core), an
+    answer (names, labels: an O(N) read and encoding) once per change. An answer is reused
+    while nothing changed (this process's renames and relabels count: ``Library.edits``),
+    for at most :data:`MAP_MAX_AGE_SECONDS` (renames by other processes).
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._layouts: dict[str, _Computed] = {}
+        self._running: dict[str, Future[_Computed]] = {}
+        self._encoded: dict[str, _Encoded] = {}
+        self._encoding: dict[str, threading.Lock] = {}
+        self._encoding_behind: set[str] = set()
+
+    def body(self, library: Library, descriptor: str) -> bytes:
+        """The encoded map of ``descriptor`` (JSON)."""
+        library.descriptor(descriptor)  # 422 for an unknown one, before anything runs
+        with library.reads() as session:
+            feed = latest_seq(session)
+        with self._lock:
+            waiting = self._ensure_layout(library, descriptor, feed)
+        if waiting is not None:
+            waiting.result()
+        with self._lock:
+            layout = self._layouts[descriptor]
+            key = (feed, library.edits, layout.feed)
+            encoded = self._encoded.get(descriptor)
+            if encoded is not None:
+                fresh = time.monotonic() - encoded.made < MAP_MAX_AGE_SECONDS
+                if encoded.key == key and fresh:
+                    return encoded.body
+                if encoded.seconds > MAP_WAIT_SECONDS:  # slow: the last answer, meanwhile
+                    if descriptor not in self._encoding_behind:
+                        self._encoding_behind.add(descriptor)
+                        threading.Thread(
+                            target=self._encode_behind,
+                            args=(library, descriptor, key, layout),
+                            name="mocap-map",
+                            daemon=True,
+                        ).start()
+                    return encoded.body
+        return self._encode(library, descriptor, key, layout)
+
+    def _ensure_layout(
+        self, library: Library, descriptor: str, feed: int
+    ) -> Future[_Computed] | None:
+        """Start computing the layout when it is out of date (the caller holds the lock);
+        returns the computation to wait for, or None when the last layout serves."""
+        last = self._layouts.get(descriptor)
+        if last is not None and last.feed == feed:
+            return None
+        running = self._running.get(descriptor)
+        slow = last is not None and last.seconds > MAP_WAIT_SECONDS
+        if running is None:
+            soon = last is not None and time.monotonic() - last.finished < 2 * last.seconds
+            if not (slow and soon):
+                running = self._start(library, descriptor, feed)
+        return None if slow else running
+
+    def _encode(
+        self, library: Library, descriptor: str, key: tuple[int, int, int], layout: _Computed
+    ) -> bytes:
+        """Encode the answer once: requests arriving meanwhile take this one."""
+        with self._lock:
+            encoding = self._encoding.setdefault(descriptor, threading.Lock())
+        with encoding:
+            with self._lock:
+                encoded = self._encoded.get(descriptor)
+            if encoded is not None and encoded.key == key:
+                return encoded.body
+            started = time.monotonic()
+            body = _encode(map_payload(library, descriptor, layout.layout))
+            now = time.monotonic()
+            took = now - started + (layout.seconds if layout.feed == key[0] else 0.0)
+            with self._lock:
+                self._encoded[descriptor] = _Encoded(key, now, took, body)
+        return body
+
+    def _encode_behind(
+        self, library: Library, descriptor: str, key: tuple[int, int, int], layout: _Computed
+    ) -> None:
+        try:
+            self._encode(library, descriptor, key, layout)
+        except Exception:  # the next request tries again
+            log.exception("encoding the map failed")
+        finally:
+            with self._lock:
+                self._encoding_behind.discard(descriptor)
+
+    def _start(self, library: Library, descriptor: str, feed: int) -> Future[_Computed]:
+        """Compute the layout in a thread of its own (the caller holds the lock)."""
+        future: Future[_Computed] = Future()
+        self._running[descriptor] = future
+
+        def compute() -> None:
+            started = time.monotonic()
+            try:
+                layout = compute_layout(library, descriptor)
+            except BaseException as error:
+                with self._lock:
+                    self._running.pop(descriptor, None)
+                future.set_exception(error)
+                return
+            now = time.monotonic()
+            done = _Computed(layout, feed, now, now - started)
+            with self._lock:
+                self._layouts[descriptor] = done
+                self._running.pop(descriptor, None)
+            future.set_result(done)
+
+        threading.Thread(target=compute, name="mocap-map", daemon=True).start()
+        return future
 
 
 # -- filtered list --------------------------------------------------------------------------

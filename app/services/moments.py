@@ -1,28 +1,44 @@
 """Moments search: where in the stored clips a span of motion happens.
 
 The query is a span ``[start, end)`` (seconds from the first frame of the file, lead-in
-included) of a stored clip or of an uploaded file, described under one descriptor exactly as
-a window is (:mod:`app.motion.windows`). It is compared with the stored windows of the window
-length(s) nearest the query's length — the largest at most and the smallest at least as long
-— through their FAISS indexes. Then:
+included) of a stored clip or of an uploaded file. It is described as its own *parts*: its
+windows of one stored window length ``L`` (:func:`part_length`: the longest length whose
+stored windows always fit one whole inside a span of the query's length), one starting at
+every frame of the query (a few frames apart past :data:`MAX_PARTS`). A stored clip has its
+windows of length ``L`` every quarter (1 s) or half (longer) of ``L``.
 
-* **merge**: window hits of one clip that overlap or touch (one after another, in distance
-  order) become one moment, whose distance is its best window's;
-* **localise**: the query's own windows (its *parts*, one every frame or so) are matched with
-  the clip's stored windows near the hits: where a stored window lies whole inside the query
-  (or exactly at its end) a part equals it and the moment lands on its frames; else the
-  distance branches of the two stored windows around the true place are extrapolated to
-  where they meet. Without parts (a stored span too short for any), the best window's place
-  moved by the equiangular fit of its neighbours' distances. A moment is as long as the
-  query (clipped to its clip) — a 3-s query finds a 3-s span, not a union of windows;
-* **rank**: ``3 k`` moments are placed (and up to ``3 per_clip`` regions of one clip: its
-  best window may lie in a repetition of the motion), then ranked by how well their whole
-  span fits (the mean distance of the stored windows inside it to the query's parts at the
-  same offsets): one window's distance ranks a long query by a few seconds of it, and
-  windows straddle the boundaries between the motions of a take;
-* **limit**: at most ``k`` moments, at most ``per_clip`` of one clip and none overlapping a
-  nearer one of its clip, nearest first; a query from a stored clip never returns a moment
-  overlapping its own span.
+**The moments of a clip.** Every stored window ``w`` of length ``L`` of a clip places one
+moment: the span of the query's length that puts ``w`` where the query part nearest to it
+lies (``w``'s start minus that part's offset; moved to lie inside the clip, and the whole
+clip when it is shorter than the query). Its ``distance`` is how well the whole span fits:
+the mean, over the clip's windows lying inside it, of each window's distance to the query's
+part at the same offset. An exact copy of a query of 1.25 s or more is therefore placed to
+a frame (a stored window lies whole inside it and equals the part at its offset) and found
+at distance 0.
+
+**The list.** Moments nearest first (by distance, then clip id, then start), at most
+``per_clip`` of one clip and none overlapping a nearer one of its clip; a query from a
+stored clip never returns a moment overlapping its own span. This list depends on the query
+and the library only: a larger ``k`` extends it, a larger ``per_clip`` keeps every moment a
+smaller one chose, in the same order, and a ``label`` or ``licence`` filter returns it
+restricted to the clips the filter keeps.
+
+**Finding it without scanning every window.** A moment's distance is a mean over its
+windows, each at least as far as that window is from its nearest query part, so a moment
+nearer than ``d`` holds a window within ``d`` of some part. A few parts (:data:`PROBES`,
+spread over the query) search the window index for their nearest windows; every part lies
+within ``cover`` of one of them, so a window none of their searches reached within ``t`` is
+at least ``t - cover`` from every part. Every moment nearer than ``t - cover`` thus holds a
+window among the hits, and is placed by a window at most a query's length from it: the
+moments of all windows that near the hits are placed and ranked, and the search widens (four
+times as many hits) until the ``k``-th moment of the list is nearer than ``t - cover`` or the
+index has no more windows. The answer is then exact on flat indexes (libraries of fewer than
+``MOCAP_INDEX_AUTO_THRESHOLD`` windows of a length); on IVF indexes the probes' searches are
+approximate (a filtered one scans every cell).
+
+A query too short for any stored window to lie inside it (a clip shorter than 1 s) has no
+parts: its whole-span vector searches the shortest windows, a moment is centred on its
+window and its distance is that window's.
 
 Where each window lies comes from the library's in-memory window places
 (:mod:`app.index.places`), not the database: a search reads only the query clip and the
@@ -32,7 +48,9 @@ found clips' names and frame rates. Windows of clips deleted by another process 
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import dataclasses
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,9 +60,11 @@ from app.db import label_filters as label_db
 from app.db import windows as window_db
 from app.db.entries import ClipEntry
 from app.errors import InvalidInput, MomentsOff, NotFound
-from app.labels import label_filter
+from app.index.places import Places
+from app.licences import LicenceArg, licence_filter
 from app.motion.windows import hop_share
-from app.services.clips import stored_upload
+from app.services.captures import group_nearest_first
+from app.services.clips import MAX_ID, stored_upload
 from app.services.describe import (
     WINDOW_LENGTHS,
     MotionDescriber,
@@ -52,12 +72,16 @@ from app.services.describe import (
     span_frames,
 )
 from app.services.library import Library, window_index_name
-from app.services.search import check_k, clip_vector
-from app.services.uploads import Upload
+from app.services.search import allowed_clip_ids, capture_rule, check_k, clip_vector
+from app.services.uploads import SCENE_FORMATS, Upload
 
 MAX_PER_CLIP = 1000
-RANKED = 3  # moments placed per moment returned, ranked by how well their whole span fits
-MAX_ATTEMPTS = 4
+MAX_PARTS = 2048  # query parts at most: one per frame up to this many
+PROBE_AHEAD = 2  # a probe search asks for this many times the windows a round needs
+MAX_PROBES = 16  # query parts that search the window index, at most
+PROBE_COVER = 0.15  # ... until every part is this near one (share of a typical distance)
+FIRST_FETCH = 128  # windows each probe asks for first (twice as many per widening)
+SPAN_CACHE = 32  # described stored spans kept (a page asking again, a span dragged back)
 
 
 @dataclass(frozen=True, slots=True)
@@ -69,22 +93,26 @@ class Moment:
     start: float
     end: float
     distance: float
+    similarity: float = 100.0  # see app.index.neighbour_scale
+    others: tuple[Moment, ...] = ()  # collapse: the same moment in near-identical clips
 
 
 @dataclass(frozen=True, slots=True)
 class MomentQuery:
-    """The query's span in seconds of its file, and its clip when it is a stored one."""
+    """The query's span in seconds of its file, its clip when it is a stored one, and (an
+    upload) the stored clip with the same content, if any."""
 
     clip: ClipEntry | None
     start: float
     end: float
+    stored_clip: clip_db.ClipRecord | None = None
 
 
 @dataclass(frozen=True)
 class Parts:
-    """The query's own windows of one ``length`` (seconds): ``offsets`` ``(J,)`` seconds from
-    the query's start, ``vectors`` ``(J, D)`` float32. They place a moment to a frame or so:
-    a window stored in the found clip matches the query's part at the same place."""
+    """The query's own windows of one ``length`` (seconds; 0: none, ``vectors`` is then the
+    whole span's vector): ``offsets`` ``(J,)`` seconds from the query's start, ascending,
+    ``vectors`` ``(J, D)`` float32."""
 
     length: float
     offsets: np.ndarray
@@ -103,18 +131,15 @@ def part_length(seconds: float) -> float:
     return fitting[-1] if fitting else min(WINDOW_LENGTHS)
 
 
-@dataclass
-class _Group:
-    """Window hits of one clip merged so far: the best of them (its id and frames ``[start,
-    stop)``, in window index ``index``), and ``cover`` the frames of their union."""
-
-    clip_id: int
-    best_id: int
-    best_start: int
-    best_stop: int
-    distance: float
-    index: str
-    cover: tuple[int, int]
+def nearest_lengths(seconds: float, lengths: tuple[float, ...] = WINDOW_LENGTHS) -> list[float]:
+    """The window lengths nearest ``seconds``: the longest at most as long and the shortest
+    at least as long (one when the query is shorter or longer than every window, or as long
+    as one)."""
+    ordered = sorted(lengths)
+    below = [length for length in ordered if length <= seconds + 1e-9]
+    above = [length for length in ordered if length >= seconds - 1e-9]
+    chosen = {below[-1] if below else ordered[0], above[0] if above else ordered[-1]}
+    return sorted(chosen)
 
 
 def window_descriptors(library: Library) -> list[str]:
@@ -140,470 +165,383 @@ def _check(library: Library, descriptor: str, k: int, per_clip: int) -> None:
         raise InvalidInput(f"per_clip: must be between 1 and {MAX_PER_CLIP}, got {per_clip}")
 
 
-def nearest_lengths(seconds: float, lengths: tuple[float, ...] = WINDOW_LENGTHS) -> list[float]:
-    """The window lengths a query of ``seconds`` is compared with: the longest at most as
-    long and the shortest at least as long (one when the query is shorter or longer than
-    every window, or as long as one)."""
-    ordered = sorted(lengths)
-    below = [length for length in ordered if length <= seconds + 1e-9]
-    above = [length for length in ordered if length >= seconds - 1e-9]
-    chosen = {below[-1] if below else ordered[0], above[0] if above else ordered[-1]}
-    return sorted(chosen)
+# -------------------------------------------------------------------- the moments' list
 
 
-def _index_names(library: Library, descriptor: str, seconds: float) -> list[str]:
-    wanted = nearest_lengths(seconds)
-    return [
-        name
-        for name, key in library.window_keys.items()
-        if key.name == descriptor and key.length in wanted
-    ]
+def _pair_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise distances ``(N,)`` of ``a`` and ``b`` ``(N, D)``, from the differences: the
+    same number for the same pair whatever else a search computed (the expanded form
+    through a matrix product loses the last digits near zero, and depends on the batch)."""
+    difference = a - b
+    return np.sqrt(np.einsum("ij,ij->i", difference, difference))
 
 
-def _refined_centre(library: Library, group: _Group, vector: np.ndarray) -> float:
-    """The frame (fractional) where the moment's centre lies: its best window's centre moved
-    by the equiangular fit of its neighbours' distances (see the module docstring)."""
-    centre = (group.best_start + group.best_stop) / 2
-    index = library.window_indexes[group.index]
-    neighbours = np.array([group.best_id - 1, group.best_id + 1], np.int64)
-    held, starts, _ = library.places(group.index).find(neighbours)
-    distances: dict[int, tuple[float, int]] = {}
-    for step, window_id, is_held, start in zip(
-        (-1, 1), neighbours.tolist(), held.tolist(), starts.tolist(), strict=True
-    ):
-        if not is_held or window_id >> window_db.WINDOW_ID_BITS != group.clip_id:
-            continue
-        shift = start - group.best_start
-        if shift == 0 or (shift > 0) != (step > 0):
-            continue
-        try:
-            other = index.reconstruct(window_id)
-        except KeyError:
-            continue
-        distances[step] = (float(np.linalg.norm(other - vector)), abs(shift))
-    if len(distances) < 2:
-        return centre
-    (left, hop_left), (right, hop_right) = distances[-1], distances[1]
-    rise = max(left, right) - group.distance
-    if rise <= 1e-12:
-        return centre
-    hop = min(hop_left, hop_right)
-    offset = (left - right) / (2 * rise) * hop
-    return centre + float(np.clip(offset, -hop / 2, hop / 2))
+@dataclass(frozen=True)
+class _Candidates:
+    """Placed moments: clip ids, starts and ends (seconds), distances ``(N,)``."""
+
+    clips: np.ndarray
+    starts: np.ndarray
+    ends: np.ndarray
+    distances: np.ndarray
+
+    @classmethod
+    def empty(cls) -> _Candidates:
+        nothing = np.zeros(0)
+        return cls(np.zeros(0, np.int64), nothing, nothing, nothing)
 
 
-def _aligned_starts(
-    library: Library,
-    groups: list[_Group],
-    frame_times: np.ndarray,
-    parts: Parts,
-    descriptor: str,
-    query_seconds: float,
+class _Known:
+    """Numbers measured per window id, kept across a search's rounds: ``(N, C)`` float64
+    rows, looked up by binary search."""
+
+    def __init__(self, columns: int) -> None:
+        self.ids = np.zeros(0, np.int64)
+        self.values = np.zeros((0, columns))
+
+    def find(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Which of ``ids`` ``(M,)`` are known ``(M,)`` bool, and their rows ``(M, C)``
+        (nan where unknown)."""
+        at = np.minimum(np.searchsorted(self.ids, ids), max(self.ids.size - 1, 0))
+        known = self.ids[at] == ids if self.ids.size else np.zeros(ids.size, bool)
+        rows = np.full((ids.size, self.values.shape[1]), np.nan)
+        rows[known] = self.values[at[known]]
+        return known, rows
+
+    def add(self, ids: np.ndarray, values: np.ndarray) -> None:
+        ids = np.concatenate([self.ids, ids])
+        values = np.concatenate([self.values, values])
+        order = np.argsort(ids, kind="stable")
+        self.ids, self.values = ids[order], values[order]
+
+
+def _to_nearest(keys: np.ndarray, marks: np.ndarray) -> np.ndarray:
+    """For each of ``keys`` ``(N,)``, how far the nearest of ``marks`` ``(M,)`` (M >= 1) is."""
+    marks = np.sort(marks)
+    at = np.clip(np.searchsorted(marks, keys), 1, max(marks.size - 1, 1))
+    below, above = marks[np.maximum(at - 1, 0)], marks[np.minimum(at, marks.size - 1)]
+    return np.minimum(np.abs(keys - below), np.abs(keys - above))
+
+
+def _probes(query: np.ndarray, target: float, most: int) -> tuple[np.ndarray, float]:
+    """The parts that search the index — from the middle one, each next the part farthest
+    from those chosen, until every part lies within ``target`` of one or ``most`` are
+    chosen — and how far the farthest part lies from them: ``(P,)`` rows of ``query``
+    ``(J, D)`` and that distance."""
+    count = len(query)
+    chosen = [count // 2]
+    nearest = np.linalg.norm(query - query[chosen[0]], axis=1)
+    while len(chosen) < min(most, count) and float(nearest.max()) > target:
+        far = int(nearest.argmax())
+        chosen.append(far)
+        nearest = np.minimum(nearest, np.linalg.norm(query - query[far], axis=1))
+    return np.array(sorted(chosen), np.int64), float(nearest.max())
+
+
+class _Finder:
+    """One moments search (see the module docstring): the query's parts against one window
+    index, the moments placed around the probes' hits. What it measured of a window (its
+    nearest part) and of a seed (its moment) is kept for the next, wider round."""
+
+    def __init__(
+        self,
+        library: Library,
+        descriptor: str,
+        parts: Parts,
+        seconds: float,
+        exclude: tuple[int, int, int] | None,
+    ) -> None:
+        self.library, self.seconds, self.exclude = library, seconds, exclude
+        self.whole = parts.length == 0  # no parts: the span's vector against short windows
+        self.length = min(WINDOW_LENGTHS) if self.whole else parts.length
+        self.name = window_index_name(descriptor, self.length)
+        self.index = library.window_indexes[self.name]
+        self.places = library.places(self.name)
+        self.parts = parts
+        self.query = parts.vectors.astype(np.float64)
+        self.scale = library.scales.of(
+            self.name, self.index, lambda ids: ids >> window_db.WINDOW_ID_BITS
+        )
+        typical = float(np.median(self.scale.distances)) if self.scale.distances.size else 0.0
+        self.probes, cover = _probes(self.query, PROBE_COVER * typical, MAX_PROBES)
+        # Every part lies within this of a probe (a hair more: float noise).
+        self.cover = cover * (1 + 1e-6) + 1e-9
+        self.facts: dict[int, tuple[float, int]] = {}  # clip id -> frame time, frame count
+        self._probed: tuple[np.ndarray, np.ndarray] | None = None  # distances, ids
+        self._nearest = _Known(2)  # window id -> its nearest part, distance
+        self._placed = _Known(4)  # seed window id -> clip id, start, end, distance
+
+    def probe(self, wanted: int, allowed: np.ndarray | None) -> tuple[np.ndarray, float]:
+        """The window ids the probes found (each its ``wanted`` nearest) and how far their
+        searches surely reach: every window nearer a probe than that is among them (inf:
+        the probes saw every window). One FAISS search serves several widenings: it asks
+        for :data:`PROBE_AHEAD` times as many (a flat index's cost hardly depends on it)."""
+        if self._probed is None or self._probed[1].shape[1] < wanted:
+            self._probed = self.index.search_batch(
+                self.query[self.probes].astype(np.float32),
+                min(wanted * PROBE_AHEAD, max(self.index.size, wanted)),
+                allowed=allowed,
+            )
+        distances, ids = self._probed[0][:, :wanted], self._probed[1][:, :wanted]
+        full = ids[:, -1] >= 0
+        reach = float(distances[full, -1].min()) if full.any() else np.inf
+        return np.unique(ids[ids >= 0]), reach
+
+    def moments(self, hits: np.ndarray) -> _Candidates:
+        """The moments placed by the seeds near the hits (within a query's length of one, in
+        its clip), with their distances."""
+        bits = window_db.WINDOW_ID_BITS
+        clips = np.unique(hits >> bits)
+        new = [int(c) for c in clips if int(c) not in self.facts]
+        self.facts.update(self.library.catalogue.frames(new))  # no SQL: the catalogue
+        clips = np.array([c for c in clips.tolist() if c in self.facts], np.int64)
+        if not clips.size:
+            return _Candidates.empty()
+        rows, offsets = self.places.of_clips(clips)
+        group = np.repeat(np.arange(clips.size), np.diff(offsets))
+        frame_time = np.array([self.facts[int(c)][0] for c in clips])[group]
+        frames = np.array([self.facts[int(c)][1] for c in clips])[group]
+        starts, stops = rows.starts * frame_time, rows.stops * frame_time
+        # Seconds from each window to the nearest hit of its clip (clips kept far apart).
+        apart = 4.0 * (float(np.max(frames * frame_time)) + self.seconds + 1.0)
+        keys = group * apart + starts
+        marked = np.isin(rows.ids, hits)
+        if not marked.any():  # their clips deleted meanwhile
+            return _Candidates.empty()
+        to_hit = _to_nearest(keys, keys[marked])
+        slack = float(frame_time.max())
+        seed_reach = max(self.seconds - self.length, 0.0) + slack
+        if self.whole:  # the hits themselves, centred on their window
+            seeds = np.flatnonzero(np.isin(rows.ids, hits))
+        else:
+            seeds = self._local_minima(
+                rows, group, to_hit <= seed_reach + self.length + slack, to_hit <= seed_reach
+            )
+        if self.exclude is not None:  # nothing overlapping the query's own span
+            clip, first, stop = self.exclude
+            mine = (rows.ids[seeds] >> bits == clip) & (rows.starts[seeds] < stop)
+            seeds = seeds[~(mine & (rows.stops[seeds] > first))]
+        fresh = seeds[~self._placed.find(rows.ids[seeds])[0]]
+        if fresh.size:
+            # Windows a moment placed by a fresh seed may hold (in its clip, a query's
+            # length around it), with their vectors.
+            near = _to_nearest(keys, keys[fresh]) <= self.seconds + slack
+            held, vectors = self.index.reconstruct_batch(rows.ids[near])
+            window = np.flatnonzero(near)[held]
+            position = np.full(len(rows), -1)
+            position[window] = np.arange(window.size)
+            fresh = fresh[position[fresh] >= 0]
+            stored = vectors.astype(np.float64)
+            durations = frames[fresh] * frame_time[fresh]
+            spans = np.minimum(self.seconds, durations)
+            if self.whole:
+                _, distance = self._nearest_parts(stored[position[fresh]])
+                placed = (starts[fresh] + stops[fresh]) / 2 - spans / 2
+            else:
+                part = self._nearest.find(rows.ids[fresh])[1][:, 0].astype(np.int64)
+                placed = starts[fresh] - self.parts.offsets[part]
+            placed = np.clip(placed, 0.0, durations - spans)
+            if not self.whole:
+                distance = self._fits(
+                    placed,
+                    spans,
+                    group[window],
+                    starts[window],
+                    stops[window],
+                    frame_time[window],
+                    position[fresh],
+                    stored,
+                )
+            moments = np.stack([clips[group[fresh]], placed, placed + spans, distance], axis=1)
+            self._placed.add(rows.ids[fresh], moments)
+        known, found = self._placed.find(rows.ids[seeds])
+        found = found[known]
+        return _Candidates(found[:, 0].astype(np.int64), found[:, 1], found[:, 2], found[:, 3])
+
+    def _local_minima(
+        self, rows: Places, group: np.ndarray, region: np.ndarray, seedable: np.ndarray
+    ) -> np.ndarray:
+        """The seeds (rows of ``rows``): windows ``seedable`` nearer their nearest part than
+        the window before them in their clip (or as near) and than the one after — a
+        moment's best place, not its slopes. ``region`` (the seedable windows and their
+        neighbours) get their nearest part measured. Whether a window is a seed depends on
+        it, its neighbours and the query only, never on which windows the probes found."""
+        wanted = np.flatnonzero(region)
+        unknown = wanted[~self._nearest.find(rows.ids[wanted])[0]]
+        held, vectors = self.index.reconstruct_batch(rows.ids[unknown])
+        unknown = unknown[held]
+        if unknown.size:
+            part, distance = self._nearest_parts(vectors.astype(np.float64))
+            self._nearest.add(rows.ids[unknown], np.stack([part, distance], axis=1))
+        delta = self._nearest.find(rows.ids)[1][:, 1]
+        candidates = np.flatnonzero(seedable & ~np.isnan(delta))
+        last = len(rows) - 1
+        left, right = np.maximum(candidates - 1, 0), np.minimum(candidates + 1, last)
+        has_left = (candidates > 0) & (group[left] == group[candidates])
+        has_right = (candidates < last) & (group[right] == group[candidates])
+        here = delta[candidates]
+        lowest = (~has_left | (here <= delta[left])) & (~has_right | (here < delta[right]))
+        return candidates[lowest]
+
+    def _nearest_parts(self, windows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For each of ``windows`` ``(M, D)``: the first query part nearest to it, and its
+        distance (exact: the parts near the expanded form's minimum are measured again from
+        their differences)."""
+        q = self.query
+        squared = q @ windows.T  # (J, M), turned in place into squared distances
+        squared *= -2.0
+        squared += (q**2).sum(axis=1)[:, None]
+        squared += (windows**2).sum(axis=1)[None, :]
+        lowest = np.sqrt(np.maximum(squared.min(axis=0), 0.0))
+        rows, columns = np.nonzero(squared <= ((lowest + 1e-6) ** 2)[None, :])
+        exact = _pair_distances(q[rows], windows[columns])
+        order = np.lexsort((rows, exact, columns))  # per column: nearest, then first part
+        first = order[np.r_[True, columns[order][1:] != columns[order][:-1]]]
+        return rows[first], exact[first]
+
+    def _fits(
+        self,
+        placed: np.ndarray,
+        spans: np.ndarray,
+        group: np.ndarray,
+        starts: np.ndarray,
+        stops: np.ndarray,
+        frame_time: np.ndarray,
+        seeds: np.ndarray,
+        stored: np.ndarray,
+    ) -> np.ndarray:
+        """The distance of each moment ``[placed, placed + spans)`` ``(S,)`` placed by the
+        windows ``seeds`` (rows of ``group``, ``starts``, ... and ``stored`` ``(M, D)``: the
+        windows near them): the mean distance of its clip's windows lying inside it to the
+        parts at their offsets."""
+        tolerance = frame_time[seeds] / 2
+        # A clip's windows are contiguous and in start order (and stop order: one length).
+        apart = 4.0 * (float(stops.max()) + self.seconds + 1.0)
+        start_keys, stop_keys = group * apart + starts, group * apart + stops
+        base = group[seeds] * apart + placed
+        low = np.searchsorted(start_keys, base - tolerance)
+        high = np.searchsorted(stop_keys, base + spans + tolerance, side="right")
+        counts = np.maximum(high - low, 0)
+        owner = np.repeat(np.arange(seeds.size), counts)
+        within = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+        columns = np.repeat(low, counts) + within
+        # Each window against the part nearest its offset in the moment.
+        offsets = starts[columns] - placed[owner]
+        known = self.parts.offsets
+        part = np.clip(np.searchsorted(known, offsets), 0, len(known) - 1)
+        below = np.maximum(part - 1, 0)
+        closer = np.abs(known[below] - offsets) <= np.abs(known[part] - offsets)
+        part = np.where(closer, below, part)
+        # Moments placed near each other share most pairs: each measured once.
+        pairs, which = np.unique(part * len(stored) + columns, return_inverse=True)
+        unique = _pair_distances(self.query[pairs // len(stored)], stored[pairs % len(stored)])
+        sums = np.bincount(owner, weights=unique[which], minlength=seeds.size)
+        return sums / np.maximum(counts, 1)
+
+
+def _chosen(
+    found: _Candidates,
+    per_clip: int,
     exclude: tuple[int, int, int] | None,
-) -> list[tuple[float, float] | None]:
-    """For each group, where (seconds) its moment starts — the stored window of its clip
-    nearest to one of the query's parts, minus that part's offset — and how well the whole
-    span fits: the mean distance of the stored windows inside the placed span to the query's
-    parts at the same offsets (``None``: no window to compare). ``frame_times`` ``(G,)``.
-
-    All groups at once: their clips' windows of the parts' length near the hits come from
-    the window places, their vectors from one batch read of the window index, and their
-    distances to the parts from one matrix product; only the fits are per group.
-    """
-    name = window_index_name(descriptor, parts.length)
-    if name not in library.window_keys or parts.vectors.size == 0 or not groups:
-        return [None] * len(groups)
-    rows, offsets = library.places(name).of_clips(np.array([g.clip_id for g in groups]))
-    group_of = np.repeat(np.arange(len(groups)), np.diff(offsets))
-    reach = query_seconds / frame_times
-    # The frames each group's windows may lie in: the hits' cover and a query's length
-    # either side (truncated like the integers they were read with).
-    low = np.trunc(np.array([g.cover[0] for g in groups]) - reach).astype(np.int64)
-    high = np.trunc(np.array([g.cover[1] for g in groups]) + reach).astype(np.int64) + 1
-    keep = (rows.stops >= low[group_of]) & (rows.starts <= high[group_of])
-    if exclude is not None:
-        own = (rows.ids >> window_db.WINDOW_ID_BITS) == exclude[0]
-        keep &= ~own | (rows.stops <= exclude[1]) | (rows.starts >= exclude[2])
-    held, stored = library.window_indexes[name].reconstruct_batch(rows.ids[keep])
-    kept = np.flatnonzero(keep)[held]
-    starts, group_of = rows.starts[kept], group_of[kept]
-    stored64 = stored.astype(np.float64)
-    query = parts.vectors.astype(np.float64)
-    squared = (
-        (query**2).sum(axis=1)[:, None]
-        + (stored64**2).sum(axis=1)[None, :]
-        - 2 * query @ stored64.T
-    )
-    distances = np.sqrt(np.maximum(squared, 0.0))
-    bounds = np.searchsorted(group_of, np.arange(len(groups) + 1))
-
-    def pair_distances(rows: np.ndarray, columns: np.ndarray) -> np.ndarray:
-        """Distances of some (part, stored window) pairs, from the differences (the expanded
-        form above loses the last digits near zero)."""
-        return np.linalg.norm(query[rows] - stored64[columns], axis=1)
-
-    def window_gaps(these: np.ndarray, those: np.ndarray) -> np.ndarray:
-        """Distances between some stored windows."""
-        return np.linalg.norm(stored64[these] - stored64[those], axis=1)
-
-    starts_s = _placed_starts(
-        distances, starts, group_of, bounds, parts, frame_times, pair_distances, window_gaps
-    )
-    fits = _span_fits(
-        distances,
-        starts * frame_times[group_of] - starts_s[group_of],
-        group_of,
-        len(groups),
-        parts,
-        query_seconds,
-    )
-    return [
-        None if bounds[g] == bounds[g + 1] else (float(starts_s[g]), float(fits[g]))
-        for g in range(len(groups))
-    ]
-
-
-def _placed_starts(
-    distances: np.ndarray,
-    starts: np.ndarray,
-    group_of: np.ndarray,
-    bounds: np.ndarray,
-    parts: Parts,
-    frame_times: np.ndarray,
-    pair_distances: Callable[[np.ndarray, np.ndarray], np.ndarray],
-    window_gaps: Callable[[np.ndarray, np.ndarray], np.ndarray],
-) -> np.ndarray:
-    """Where (seconds) each group's moment starts (see :func:`_aligned_starts`; nan for a
-    group without windows). ``distances`` ``(J, M)`` parts x stored windows, ``starts``
-    ``(M,)`` frames and ``group_of`` ``(M,)`` of those windows (grouped, each group's in
-    start order: columns ``bounds[g]:bounds[g + 1]``); ``pair_distances(rows, columns)``
-    the exact distances of some pairs, ``window_gaps(columns, columns)`` those between some
-    stored windows."""
-    groups = len(frame_times)
-    placed = np.full(groups, np.nan)
-    if not distances.size:
-        return placed
-    present = bounds[1:] > bounds[:-1]
-    part, best = _group_argmin(distances, group_of, bounds)
-    paired = np.where(present, starts[best] * frame_times - parts.offsets[part], np.nan)
-    inner = present & (part > 0) & (part < len(parts.offsets) - 1)
-    # Parts on both sides fit worse: this part lies on the stored window itself.
-    placed[inner] = paired[inner]
-    # Else the best place is beyond the parts' offsets (no stored window fits whole in the
-    # query's span): between two stored windows, where their distance branches cross.
-    ends = np.flatnonzero(present & ~inner)
-    if not ends.size:
-        return placed
-    # The neighbour on the other side of the true place, if the group has it.
-    other = np.where(part[ends] == 0, best[ends] + 1, best[ends] - 1)
-    other = np.where((other >= bounds[ends]) & (other < bounds[ends + 1]), other, -1)
-    seconds = starts * frame_times[group_of]
-    crossing = branch_crossings(distances, seconds, parts.offsets, part[ends], best[ends], other)
-    # Unless the end part lies on its stored window itself (a query starting where a window
-    # does): it is then nearer to it than half a frame's share of the way to the next
-    # stored window (of the same group: the one beyond the end, else the one before).
-    step = np.where(part[ends] == 0, 1, -1)
-    neighbour = np.where(other >= 0, other, best[ends] - step)
-    has = (neighbour >= bounds[ends]) & (neighbour < bounds[ends + 1])
-    neighbour = np.where(has, neighbour, best[ends])
-    hop = np.abs(seconds[neighbour] - seconds[best[ends]])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        share = (frame_times[ends] / 2) / hop
-    near = pair_distances(part[ends], best[ends]) <= window_gaps(best[ends], neighbour) * share
-    on_window = has & (hop > 0) & near
-    placed[ends] = np.where(on_window, paired[ends], crossing)
-    # Else: where a part fits best between the stored windows (equiangular fits).
-    rest = ends[np.isnan(placed[ends])]
-    if rest.size:
-        shift, lowest = fitted_minima(distances, starts, group_of)
-        part, best = _group_argmin(lowest, group_of, bounds)
-        placed[rest] = shift[part[rest], best[rest]] * frame_times[rest] - parts.offsets[part[rest]]
-    return placed
-
-
-def _group_argmin(
-    matrix: np.ndarray, group_of: np.ndarray, bounds: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Each group's smallest entry of ``matrix`` ``(J, M)`` (its columns ``bounds[g]:
-    bounds[g + 1]``, ``group_of`` ``(M,)``), as np.argmin over its block picks it (row-major:
-    the lowest row, then the first column, among equal values): rows and columns ``(G,)``
-    (0 for a group without columns)."""
-    column_row = matrix.argmin(axis=0)
-    column_best = matrix[column_row, np.arange(matrix.shape[1])]
-    order = np.lexsort((np.arange(len(group_of)), column_row, column_best, group_of))
-    present = bounds[1:] > bounds[:-1]
-    columns = np.zeros(len(bounds) - 1, np.int64)
-    columns[present] = order[bounds[:-1][present]]
-    return column_row[columns], columns
-
-
-def _span_fits(
-    distances: np.ndarray,
-    offsets: np.ndarray,
-    group_of: np.ndarray,
-    groups: int,
-    parts: Parts,
-    query_seconds: float,
-) -> np.ndarray:
-    """Per group ``(G,)``: the mean distance of its stored windows at ``offsets`` ``(M,)``
-    (seconds from its placed start) inside the placed span to the query's parts nearest
-    those offsets; its best distance when no stored window lies inside."""
-    last = len(parts.offsets) - 1
-    inside = (offsets >= -0.02) & (offsets <= query_seconds - parts.length + 0.02)
-    rows = np.clip(np.searchsorted(parts.offsets, offsets), 0, last)
-    below = np.clip(rows - 1, 0, last)
-    nearer = np.abs(parts.offsets[below] - offsets) < np.abs(parts.offsets[rows] - offsets)
-    rows = np.where(nearer, below, rows)
-    values = distances[rows, np.arange(len(offsets))]
-    counts = np.bincount(group_of[inside], minlength=groups)
-    sums = np.bincount(group_of[inside], weights=values[inside], minlength=groups)
-    lowest = np.full(groups, np.inf)
-    np.minimum.at(lowest, group_of, distances.min(axis=0))
-    return np.where(counts > 0, sums / np.maximum(counts, 1), lowest)
-
-
-def branch_crossings(
-    distances: np.ndarray,
-    starts: np.ndarray,
-    offsets: np.ndarray,
-    best_part: np.ndarray,
-    best: np.ndarray,
-    other: np.ndarray,
-) -> np.ndarray:
-    """Where (seconds) the query starts in each of ``G`` moments whose best pair is an end
-    part ``best_part`` ``(G,)`` (0 or the last) and stored window ``best`` ``(G,)``: every
-    part against one stored window puts the query's start at ``start - offset``; along those
-    places the distance of a window is one branch of a V (about linear). The best window's
-    branch and its neighbour's on the other side of the true place, ``other`` ``(G,)`` (-1:
-    none), each fitted with a line over the parts, cross there — each with its own slope,
-    which a fit from three windows cannot have. nan when the branches do not go down towards
-    each other (or too few parts to fit a line).
-
-    ``distances`` ``(J, M)`` parts x stored windows, ``starts`` ``(M,)`` seconds (each
-    moment's windows sorted), ``offsets`` ``(J,)`` seconds (ascending).
-    """
-    count = len(offsets)
-    place = np.full(len(best), np.nan)
-    if count < 3 or not len(best):
-        return place
-    there = np.maximum(other, 0)
-    # A branch's places are start - offsets: the same spread for every window.
-    spread = offsets - offsets.mean()
-    scale = max(float((spread**2).sum()), 1e-18)
-
-    def line(column: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Least-squares slope and intercept of each column's distances over its places."""
-        y = distances[:, column]
-        slope = -(spread[:, None] * (y - y.mean(axis=0))).sum(axis=0) / scale
-        return slope, y.mean(axis=0) - slope * (starts[column] - offsets.mean())
-
-    slope_here, at_here = line(best)
-    slope_there, at_there = line(there)
-    rising = np.where(best_part == 0, 1.0, -1.0)  # the true place is above (below) this branch
-    crossing = (other >= 0) & (slope_here * rising < 0) & (slope_there * rising > 0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        where = (at_there - at_here) / (slope_here - slope_there)
-    edge_here = starts[best] - offsets[best_part]
-    edge_there = starts[there] - offsets[count - 1 - best_part]
-    within = np.clip(where, np.minimum(edge_here, edge_there), np.maximum(edge_here, edge_there))
-    place[crossing] = within[crossing]
-    return place
-
-
-def fitted_minima(
-    distances: np.ndarray, starts: np.ndarray, group_of: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Where between the stored windows each query part fits best, and how well.
-
-    ``distances`` ``(J, M)`` from each query part to each stored window, whose ``starts``
-    ``(M,)`` (frames) are sorted within each group of ``group_of`` ``(M,)`` (a group is one
-    moment's windows, its columns contiguous). A window's distance grows about linearly with
-    how far it is shifted from the best place (means over shifted frames change linearly),
-    so at a window nearer than both its neighbours of the same group (an equal hop ``h``
-    away) the equiangular fit gives the best place ``start + x`` with ``x = h (d_left -
-    d_right) / (2 rise)`` and its distance ``d - rise |x| / h`` (``rise = max(d_left,
-    d_right) - d``). Elsewhere the window's own start and distance stand.
-
-    Returns ``(J, M)`` fitted starts (frames) and fitted distances.
-    """
-    shift = np.broadcast_to(starts.astype(np.float64), distances.shape).copy()
-    lowest = distances.copy()
-    if distances.shape[1] < 3:
-        return shift, lowest
-    left, centre, right = distances[:, :-2], distances[:, 1:-1], distances[:, 2:]
-    hop_left = (starts[1:-1] - starts[:-2]).astype(np.float64)
-    hop_right = (starts[2:] - starts[1:-1]).astype(np.float64)
-    rise = np.maximum(left, right) - centre
-    ok = (rise > 1e-12) & (centre <= np.minimum(left, right)) & (hop_left == hop_right)
-    ok &= (hop_left > 0) & (group_of[:-2] == group_of[1:-1]) & (group_of[2:] == group_of[1:-1])
-    safe_rise = np.where(ok, rise, 1.0)
-    x = np.clip((left - right) / (2 * safe_rise), -0.5, 0.5) * hop_left
-    shift[:, 1:-1] += np.where(ok, x, 0.0)
-    lowest[:, 1:-1] = np.where(ok, centre - safe_rise * np.abs(x) / np.maximum(hop_left, 1), centre)
-    return shift, lowest
+    frame_of: dict[int, float],
+) -> list[int]:
+    """Rows of ``found`` in the list's order: nearest first (then clip id, then start), at
+    most ``per_clip`` of a clip, none overlapping a nearer one of its clip or the query's own
+    span."""
+    order = np.lexsort((found.starts, found.clips, found.distances))
+    chosen: list[int] = []
+    of_clip: dict[int, list[tuple[float, float]]] = {}
+    last: tuple[int, float] | None = None
+    for row in order.tolist():
+        clip, start, end = int(found.clips[row]), float(found.starts[row]), float(found.ends[row])
+        if last == (clip, start):
+            continue  # the same moment, placed by another window
+        last = (clip, start)
+        if exclude is not None and clip == exclude[0]:
+            frame = frame_of[clip]
+            if start < exclude[2] * frame - 1e-9 and exclude[1] * frame < end - 1e-9:
+                continue
+        spans = of_clip.setdefault(clip, [])
+        if len(spans) < per_clip and all(end <= a + 1e-9 or b <= start + 1e-9 for a, b in spans):
+            spans.append((start, end))
+            chosen.append(row)
+    return chosen
 
 
 def _search(
     library: Library,
     descriptor: str,
-    vector: np.ndarray,
-    query_seconds: float,
+    parts: Parts,
+    seconds: float,
     k: int,
     per_clip: int,
-    label: label_db.LabelFilter,
+    allowed_clips: np.ndarray | None,
     exclude: tuple[int, int, int] | None,
-    parts: Parts | None = None,
+    collapse: bool = False,
 ) -> list[Moment]:
-    """``exclude``: (clip id, first, stop) frames of the query's own span; ``parts``: the
-    query's own windows, to place the moments (else their best window's neighbours do)."""
-    names = _index_names(library, descriptor, query_seconds)
-    labelled = library.catalogue.ids_with_labels(label) if label_filter(label) else None
-    allowed = {
-        name: None if labelled is None else library.places(name).ids_of_clips(labelled)
-        for name in names
-    }
-    # More moments than asked for are placed, then ranked by how well their whole span fits
-    # (of one clip too: its best window may lie in a repetition of the motion, not the copy).
-    ranked = RANKED if parts is not None else 1
-    candidates = k * ranked
-    fetch = min(4 * candidates + 20, 4096)  # windows per index; more when too few moments
-    groups: list[_Group] = []
-    for _ in range(MAX_ATTEMPTS):
-        hits, exhausted = _window_hits(library, names, vector, fetch, allowed)
-        groups, counted = _merged(hits, exclude, per_clip, per_clip * ranked, candidates)
-        if counted >= candidates or exhausted:
+    """The first ``k`` moments of the list (see the module docstring); ``exclude``: (clip
+    id, first, stop) frames of the query's own span."""
+    finder = _Finder(library, descriptor, parts, seconds, exclude)
+    allowed = None if allowed_clips is None else finder.places.ids_of_clips(allowed_clips)
+    need = 3 * k + 10 if collapse else k
+    wanted = min(FIRST_FETCH + need, max(finder.index.size, 1))
+    if exclude is not None:  # the query's own windows come first: do not count them
+        own, _ = finder.places.of_clips(np.array([exclude[0]]))
+        wanted += int(np.count_nonzero((own.starts < exclude[2]) & (own.stops > exclude[1])))
+    while True:
+        hits, reach = finder.probe(wanted, allowed)
+        found = finder.moments(hits)
+        frame_of = {c: f[0] for c, f in finder.facts.items()}
+        chosen = _chosen(found, per_clip, exclude, frame_of)
+        sure = reach * (1 - 1e-5) - finder.cover  # FAISS measures in float32
+        if np.isinf(reach) or (len(chosen) >= need and found.distances[chosen[need - 1]] < sure):
             break
-        fetch *= 4
-    chosen = sorted(groups, key=lambda g: g.distance)
-    facts = library.catalogue.frames(g.clip_id for g in chosen)
-    chosen = [g for g in chosen if g.clip_id in facts]  # not deleted meanwhile
-    frame_times = np.array([facts[g.clip_id][0] for g in chosen], np.float64)
-    placed: list[tuple[float, float] | None] = [None] * len(chosen)
-    if parts is not None:
-        placed = _aligned_starts(
-            library, chosen, frame_times, parts, descriptor, query_seconds, exclude
+        wanted = min(wanted * 2, finder.index.size + wanted)
+    chosen = chosen[:need]
+    names = library.catalogue.get_many(int(found.clips[r]) for r in chosen)
+    similarity = finder.scale.similarity(found.distances[chosen]).tolist()
+    moments = [
+        Moment(
+            names[int(found.clips[r])],
+            names[int(found.clips[r])].format,
+            _round(float(found.starts[r])),
+            _round(float(found.ends[r])),
+            float(found.distances[r]),
+            s,
         )
-    found: list[tuple[float, int, float, float]] = []  # distance, clip, span
-    for group, place in zip(chosen, placed, strict=True):
-        frame_time, frame_count = facts[group.clip_id]
-        length = min(query_seconds / frame_time, float(frame_count))
-        if place is not None:
-            start, distance = place
-        else:
-            distance = group.distance
-            start = (_refined_centre(library, group, vector) - length / 2) * frame_time
-        first = min(max(0.0, start / frame_time), frame_count - length)
-        if exclude is not None and _overlaps_query(exclude, group.clip_id, first, first + length):
-            # Placed over the query's own span: next to it, on the side of the best window.
-            after = group.best_start >= exclude[1]
-            first = float(exclude[2]) if after else exclude[1] - length
-            if first < 0 or first + length > frame_count:
-                continue
-        found.append((distance, group.clip_id, first * frame_time, (first + length) * frame_time))
-    found.sort(key=lambda moment: moment[0])
-    # Nearest first, at most per_clip of a clip, none overlapping a nearer one of its clip.
-    shown: list[tuple[float, int, float, float]] = []
-    of_clip: dict[int, list[tuple[float, float]]] = {}
-    for moment in found:
-        spans = of_clip.setdefault(moment[1], [])
-        if len(spans) < per_clip and all(moment[3] <= a or b <= moment[2] for a, b in spans):
-            spans.append((moment[2], moment[3]))
-            shown.append(moment)
-            if len(shown) == k:
-                break
-    clips = library.catalogue.get_many(clip_id for _, clip_id, _, _ in shown)  # those shown
-    return [
-        Moment(clips[clip_id], clips[clip_id].format, _round(start), _round(end), distance)
-        for distance, clip_id, start, end in shown
-        if clip_id in clips
+        for r, s in zip(chosen, similarity, strict=True)
+        if int(found.clips[r]) in names
     ]
+    if collapse:
+        moments = _collapsed(library, moments)
+    return moments[:k]
 
 
-# (distance, window id, index name, start, stop) of one window hit
-_Hit = tuple[float, int, str, int, int]
+def _collapsed(library: Library, moments: list[Moment]) -> list[Moment]:
+    """One moment per group of the same moment in near-identical clips (spans overlapping
+    by half their length or more): the nearest, the others in its ``others``."""
+    ids = np.array([m.clip.id for m in moments], np.int64)
+    unique, position = np.unique(ids, return_inverse=True)
+    clip_near = capture_rule(library).pairs(unique)
+    near = clip_near[np.ix_(position, position)]
 
+    def same_place(a: int, b: int) -> bool:
+        first, second = moments[a], moments[b]
+        overlap = min(first.end, second.end) - max(first.start, second.start)
+        shorter = min(first.end - first.start, second.end - second.start)
+        return first.clip.id != second.clip.id and overlap >= shorter / 2
 
-def _window_hits(
-    library: Library,
-    names: list[str],
-    vector: np.ndarray,
-    fetch: int,
-    allowed: dict[str, np.ndarray | None],
-) -> tuple[list[_Hit], bool]:
-    """The ``fetch`` nearest windows of each index in ``names``, nearest first, with where
-    they lie (windows no longer held — their clip deleted meanwhile — are left out), and
-    whether every index gave fewer than asked for (no more to fetch)."""
-    hits: list[_Hit] = []
-    exhausted = True
-    for name in names:
-        found = library.window_indexes[name].search(vector, fetch, allowed=allowed[name])
-        exhausted &= len(found) < fetch
-        held, starts, stops = library.places(name).find(found.ids)
-        hits.extend(
-            (distance, window_id, name, start, stop)
-            for distance, window_id, start, stop in zip(
-                found.distances[held].tolist(),
-                found.ids[held].tolist(),
-                starts[held].tolist(),
-                stops[held].tolist(),
-                strict=True,
-            )
-        )
-    hits.sort()
-    return hits, exhausted
-
-
-def _merged(
-    hits: list[_Hit],
-    exclude: tuple[int, int, int] | None,
-    per_clip: int,
-    placed_per_clip: int,
-    candidates: int,
-) -> tuple[list[_Group], int]:
-    """Merge the hits (nearest first) into moments: a hit overlapping or touching one of its
-    clip's moments widens it; else it starts a new one while its clip has fewer than
-    ``per_clip`` and fewer than ``candidates`` count so far, or as one more to place of a
-    clip with fewer than ``placed_per_clip`` (at most ``candidates`` such). Returns the
-    moments and how many count (at most ``per_clip`` of a clip)."""
-    by_clip: dict[int, list[_Group]] = {}
-    groups: list[_Group] = []
-    counted = extra = 0
-    for distance, window_id, name, start, stop in hits:
-        clip_id = window_id >> window_db.WINDOW_ID_BITS
-        if _overlaps_query(exclude, clip_id, start, stop):
-            continue
-        of_clip = by_clip.setdefault(clip_id, [])
-        merged = False
-        for group in of_clip:
-            if start <= group.cover[1] and group.cover[0] <= stop:
-                group.cover = (min(group.cover[0], start), max(group.cover[1], stop))
-                merged = True
-                break
-        if merged:
-            continue
-        if len(of_clip) < per_clip and counted < candidates:
-            counted += 1
-        elif per_clip <= len(of_clip) < placed_per_clip and extra < candidates:
-            extra += 1
-        else:
-            continue
-        group = _Group(clip_id, window_id, start, stop, distance, name, (start, stop))
-        of_clip.append(group)
-        groups.append(group)
-    return groups, counted
-
-
-def _overlaps_query(
-    exclude: tuple[int, int, int] | None, clip_id: int, first: float, stop: float
-) -> bool:
-    """Whether frames ``[first, stop)`` of clip ``clip_id`` overlap the query's own span."""
-    return (
-        exclude is not None and clip_id == exclude[0] and first < exclude[2] and exclude[1] < stop
-    )
+    groups = group_nearest_first(ids.tolist(), near, fits=same_place)
+    return [
+        dataclasses.replace(moments[g[0]], others=tuple(moments[p] for p in g[1:])) for g in groups
+    ]
 
 
 def _round(seconds: float) -> float:
     return round(seconds, 6)
+
+
+# --------------------------------------------------------------------------- the queries
 
 
 def search_moments_by_clip(
@@ -616,10 +554,14 @@ def search_moments_by_clip(
     k: int,
     per_clip: int,
     label: label_db.LabelFilter,
+    licence: LicenceArg = None,
+    collapse: bool = False,
 ) -> tuple[MomentQuery, list[Moment]]:
     """Moments like the span ``[start, end)`` of stored clip ``clip_id`` (``GET
     /search/moments``); none overlapping that span itself."""
     _check(library, descriptor, k, per_clip)
+    if not 0 < clip_id <= MAX_ID:  # no such id (and the database driver's overflow)
+        raise NotFound(f"no clip with id {clip_id}")
     info = library.descriptor(descriptor)
     library.refresh()
     clip = library.clip_entry(clip_id)
@@ -628,22 +570,20 @@ def search_moments_by_clip(
     first, stop = span_frames(
         clip.frame_count, clip.frame_time, clip.lead_in_frames, start, end, WINDOW_LENGTHS[0]
     )
-    stored = _StoredSpan(clip, descriptor, info.version, first, stop)
-    vector = _stored_span_vector(library, stored)
-    if vector is None:
-        vector = _described_span(library, clip, descriptor, first, stop).vector
     seconds = (stop - first) * clip.frame_time
-    parts = _stored_parts(library, stored)
+    stored = _StoredSpan(clip, descriptor, info.version, first, stop)
+    parts = _span_parts(library, stored)
+    allowed = allowed_clip_ids(library, label, licence_filter(licence))
     moments = _search(
         library,
         descriptor,
-        vector,
+        parts,
         seconds,
         k,
         per_clip,
-        label,
+        allowed,
         (clip.id, first, stop),
-        parts,
+        collapse,
     )
     query = MomentQuery(
         clip,
@@ -662,6 +602,66 @@ class _StoredSpan:
     version: int
     first: int
     stop: int
+
+
+class _SpanCache:
+    """The parts of the stored spans described last (by clip, content, descriptor version
+    and frames): describing reads the clip's file."""
+
+    def __init__(self, size: int) -> None:
+        self._size = size
+        self._held: OrderedDict[tuple[object, ...], Parts] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, key: tuple[object, ...]) -> Parts | None:
+        with self._lock:
+            parts = self._held.get(key)
+            if parts is not None:
+                self._held.move_to_end(key)
+            return parts
+
+    def put(self, key: tuple[object, ...], parts: Parts) -> None:
+        with self._lock:
+            self._held[key] = parts
+            while len(self._held) > self._size:
+                self._held.popitem(last=False)
+
+
+_SPANS = _SpanCache(SPAN_CACHE)
+
+
+def _span_parts(library: Library, span: _StoredSpan) -> Parts:
+    """The query's parts: described from the clip's stored file at every frame (as an
+    upload's are), else — a clip without a file — its stored windows inside the span."""
+    clip = span.clip
+    if clip.filenames and isinstance(library.describer, MotionDescriber):
+        key: tuple[object, ...] = (id(library), clip.id, clip.content_hash, span.descriptor)
+        key = (*key, span.version, span.first, span.stop)
+        parts = _SPANS.get(key)
+        if parts is None:
+            parts = _parts_of(
+                _described_span(library, clip, span.descriptor, span.first, span.stop)
+            )
+            _SPANS.put(key, parts)
+        return parts
+    parts = _stored_parts(library, span)
+    if parts is not None:
+        return parts
+    vector = _stored_span_vector(library, span)
+    if vector is None:
+        raise InvalidInput(
+            f"clip {clip.id} has no stored file to describe a part of ({clip.format} clip); "
+            "search from the whole clip or one of its windows"
+        )
+    return Parts(0.0, np.zeros(1), vector[None, :])
+
+
+def _parts_of(span: SpanDescription) -> Parts:
+    """A described span's parts (its own vector alone when it has none)."""
+    if span.parts.size == 0:
+        return Parts(0.0, np.zeros(1), span.vector[None, :])
+    offsets = span.part_offsets.astype(np.float64) * span.frame_time
+    return Parts(span.part_length, offsets, span.parts)
 
 
 def _stored_span_vector(library: Library, span: _StoredSpan) -> np.ndarray | None:
@@ -684,7 +684,8 @@ def _stored_span_vector(library: Library, span: _StoredSpan) -> np.ndarray | Non
 
 
 def _stored_parts(library: Library, span: _StoredSpan) -> Parts | None:
-    """The query's parts from the stored windows of its clip inside its span."""
+    """The query's parts from the stored windows of its clip inside its span (a clip with
+    no file: a window every quarter or half window, not every frame)."""
     clip, first, stop = span.clip, span.first, span.stop
     length = part_length((stop - first) * clip.frame_time)
     name = window_index_name(span.descriptor, length)
@@ -702,24 +703,22 @@ def _stored_parts(library: Library, span: _StoredSpan) -> Parts | None:
 def _described_span(
     library: Library, entry: ClipEntry, descriptor: str, first: int, stop: int
 ) -> SpanDescription:
-    """Read the clip's stored file and describe frames ``[first, stop)``."""
+    """Read the clip's stored file and describe frames ``[first, stop)`` with its parts."""
     describer = library.describer
+    assert isinstance(describer, MotionDescriber)
     with library.reads() as session:  # the files' hashes are not in the catalogue
         clip = clip_db.get_clip(session, entry.id)
-    if clip is None:
+    if clip is None:  # deleted meanwhile
         raise NotFound(f"no clip with id {entry.id}")
-    if not clip.files or not isinstance(describer, MotionDescriber):
-        raise InvalidInput(
-            f"clip {clip.id} has no stored file to describe a part of ({clip.format} clip); "
-            "search from the whole clip or one of its windows"
-        )
-    upload = stored_upload(library, clip)
     return describer.describe_span(
-        upload,
+        stored_upload(library, clip),
         library.settings.parse_limits,
         descriptor,
         first * clip.frame_time,
         stop * clip.frame_time,
+        part_length=part_length,
+        part_step=0.0,
+        max_parts=MAX_PARTS,
     )
 
 
@@ -733,6 +732,8 @@ def search_moments_by_upload(
     k: int,
     per_clip: int,
     label: label_db.LabelFilter,
+    licence: LicenceArg = None,
+    collapse: bool = False,
 ) -> tuple[MomentQuery, list[Moment]]:
     """Moments like the span ``[start, end)`` of an uploaded file, which is stored nowhere
     (``POST /search/moments``)."""
@@ -748,16 +749,25 @@ def search_moments_by_upload(
         end,
         min_seconds=WINDOW_LENGTHS[0],
         part_length=part_length,
+        part_step=0.0,
+        max_parts=MAX_PARTS,
     )
     library.refresh()
     seconds = (span.end_frame - span.start_frame) * span.frame_time
-    parts = Parts(span.part_length, span.part_offsets * span.frame_time, span.parts)
-    moments = _search(library, descriptor, span.vector, seconds, k, per_clip, label, None, parts)
+    allowed = allowed_clip_ids(library, label, licence_filter(licence))
+    moments = _search(
+        library, descriptor, _parts_of(span), seconds, k, per_clip, allowed, None, collapse
+    )
+    if upload.format in SCENE_FORMATS:
+        upload = dataclasses.replace(upload, animation=span.animation)
+    with library.reads() as session:
+        stored = clip_db.get_clip_by_hash(session, upload.content_hash)
     duration = span.frame_count * span.frame_time
     query = MomentQuery(
         None,
         _round(start if start is not None else 0.0),
         _round(end if end is not None else duration),
+        stored,
     )
     return query, moments
 

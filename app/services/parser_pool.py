@@ -16,6 +16,9 @@ both formats are binary input from strangers. They are never read in the server 
   keeps every scene it read and retires after :data:`RETIRE_AFTER_FILES` files or half its
   memory budget, exiting without destructors; the pool starts another.
 * The reader's own errors (ParseError, LimitExceeded) come back as themselves.
+* A caller waits at most ``wait_limit`` seconds (default: one ``time_limit``) for a free
+  worker, then gets :class:`~app.errors.ServiceBusy` (503 with Retry-After): a crowd of
+  FBX/glTF requests is turned away instead of queueing without end.
 
 Workers are spawned (not forked: the server process has threads) and import only the
 motion core.
@@ -25,6 +28,7 @@ from __future__ import annotations
 
 import gc
 import logging
+import math
 import multiprocessing
 import os
 import queue
@@ -32,12 +36,20 @@ import resource
 import signal
 import threading
 import time
+from collections.abc import Callable
 from contextlib import suppress
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from typing import TYPE_CHECKING, Any, Protocol
 
-from app.errors import LimitExceeded, ParseError, UnreadableFile
+from app.errors import (
+    LimitExceeded,
+    NoAnimation,
+    ParseError,
+    ServiceBusy,
+    UnknownAnimation,
+    UnreadableFile,
+)
 from app.motion.formats.scene import Animation
 from app.motion.model import Motion, ParseLimits
 
@@ -49,7 +61,7 @@ log = logging.getLogger(__name__)
 START_SECONDS = 60.0  # a worker's imports, on a busy machine
 RETIRE_AFTER_FILES = 32  # a worker exits (and is replaced) after this many files
 READY_SECONDS = 10.0  # a worker's tidying up after a file
-FORMATS = ("fbx", "gltf")
+FORMATS = ("fbx", "gltf", "fbx-rig", "gltf-rig")  # "-rig": a file without animation is a still
 _START = "start"
 
 
@@ -70,15 +82,22 @@ def parse_scene(
     keep: list[Any] | None = None,
 ) -> ParsedScene:
     """Read one animation of an FBX (``kind="fbx"``) or glTF file, in this process
-    (``keep``: see :func:`~app.motion.formats.fbx.read_fbx`)."""
+    (``keep``: see :func:`~app.motion.formats.fbx.read_fbx`); ``"fbx-rig"`` and
+    ``"gltf-rig"`` read a file without animation as its rest pose (a rig)."""
+    kind, _, mode = kind.partition("-")
+    still = mode == "rig"
     if kind == "fbx":
         from app.motion.formats.fbx import read_fbx
 
-        motion, animations, chosen = read_fbx(data, animation=animation, limits=limits, keep=keep)
+        motion, animations, chosen = read_fbx(
+            data, animation=animation, limits=limits, keep=keep, still=still
+        )
     elif kind == "gltf":
         from app.motion.formats.gltf import read_gltf
 
-        motion, animations, chosen = read_gltf(data, animation=animation, limits=limits)
+        motion, animations, chosen = read_gltf(
+            data, animation=animation, limits=limits, still=still
+        )
     else:
         raise ValueError(f"unknown scene format {kind!r}")
     return ParsedScene(motion, tuple(animations), chosen)
@@ -176,8 +195,10 @@ def _worker_main(conn: Connection, memory_mb: int | None) -> None:
         exit_after = False
         try:
             answer: tuple[Any, ...] = ("ok", parse_scene(kind, data, animation, limits, kept))
+        except UnknownAnimation as error:
+            answer = ("unknown_animation", error.reason, None)
         except ParseError as error:
-            answer = ("parse_error", error.reason, error.line)
+            answer = ("parse_error", error.reason, error.line, error.code)
         except LimitExceeded as error:
             answer = ("limit", error.detail)
         except MemoryError:
@@ -228,7 +249,13 @@ class ParserPool:
     """Up to ``size`` reused worker processes reading FBX/glTF files (see module docstring).
 
     Thread-safe: each call borrows an idle worker (waiting for one when all are busy).
+    A subclass may run other work in its workers: ``worker_main`` (the process's loop,
+    answering ``(kind, data, animation, limits)`` requests as :func:`_worker_main` does) and
+    ``kinds`` (the request kinds it takes).
     """
+
+    worker_main: Callable[[Connection, int | None], None] = staticmethod(_worker_main)
+    kinds: tuple[str, ...] = FORMATS
 
     def __init__(
         self,
@@ -236,10 +263,13 @@ class ParserPool:
         *,
         time_limit: float | None = 30.0,
         memory_mb: int | None = 1024,
+        wait_limit: float | None = None,
     ) -> None:
         self.size = max(1, size)
         self.time_limit = time_limit
         self.memory_mb = memory_mb
+        # A worker frees up within one time limit unless every one is stuck on a hostile file.
+        self.wait_limit = time_limit if wait_limit is None else wait_limit
         self._context = multiprocessing.get_context("spawn")
         # Idle workers, and a _START token per worker slot not yet filled (LIFO: a warm
         # worker is taken before a new one is started); None once closed.
@@ -265,7 +295,7 @@ class ParserPool:
     def _spawn(self) -> _Worker:
         ours, theirs = self._context.Pipe()
         process = self._context.Process(
-            target=_worker_main,
+            target=self.worker_main,
             args=(theirs, self.memory_mb),
             name="mocap-parser",
             daemon=True,
@@ -289,7 +319,14 @@ class ParserPool:
         return worker
 
     def _borrow(self) -> _Worker:
-        item = self._idle.get()
+        try:
+            item = self._idle.get(timeout=self.wait_limit)
+        except queue.Empty:
+            raise ServiceBusy(
+                f"all {self.size} FBX/glTF file readers are busy (MOCAP_PARSER_WORKERS) and "
+                f"none freed up in {self.wait_limit:g} s; try again in a few seconds",
+                retry_after=math.ceil(self.wait_limit or 1),
+            ) from None
         if item is None or self._closed:
             self._idle.put(None)
             raise UnreadableFile("the service is shutting down")
@@ -351,7 +388,7 @@ class ParserPool:
         UnreadableFile
             The worker crashed, ran out of time or memory.
         """
-        if kind not in FORMATS:
+        if kind not in self.kinds:
             raise ValueError(f"unknown scene format {kind!r}")
         for _ in range(self.size + 1):  # an idle worker may have died since its last file
             worker = self._borrow()
@@ -388,7 +425,11 @@ class ParserPool:
         if status == "ok":
             parsed: ParsedScene = answer[1]
             return parsed
+        if status == "unknown_animation":
+            raise UnknownAnimation(answer[1])
         if status == "parse_error":
+            if answer[3] == NoAnimation.code:  # a rig: readable, with no motion
+                raise NoAnimation(answer[1], line=answer[2])
             raise ParseError(answer[1], line=answer[2])
         if status == "limit":
             raise LimitExceeded(answer[1])

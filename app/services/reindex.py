@@ -17,10 +17,11 @@ from app.db import clips as clip_db
 from app.db import vectors as vector_db
 from app.db import windows as window_db
 from app.errors import InvalidInput, MocapError
+from app.services.clips import stored_upload
 from app.services.describe import Description, MotionDescriber
 from app.services.ingest import new_windows
 from app.services.library import Library
-from app.services.uploads import Upload, UploadPart
+from app.services.uploads import Upload
 
 
 @dataclass
@@ -28,12 +29,6 @@ class ReindexReport:
     recomputed: int = 0
     failed: dict[int, str] = field(default_factory=dict)  # clip id -> why
     index_sizes: dict[str, int] = field(default_factory=dict)
-
-
-def stored_upload(library: Library, clip: clip_db.ClipRecord) -> Upload:
-    """The clip's original upload, read back from the stored files."""
-    parts = tuple(UploadPart(f.role, f.filename, library.blobs.read(f.sha256)) for f in clip.files)
-    return Upload(parts, clip.name, clip.labels)
 
 
 def describe_stored(

@@ -3,12 +3,20 @@
 Distances are Euclidean (not squared). A search by a stored clip never returns that clip; a
 search by an uploaded file excludes nothing. With a label, only clips carrying it are
 searched — exactly, as FAISS skips the other ids while scanning. Several labels (or a
-comma-separated one) keep the clips carrying all of them, compared case-insensitively.
+comma-separated one) keep the clips carrying all of them, compared case-insensitively. A
+licence filter (:mod:`app.licences`) narrows the ids the same way: a filtered search is the
+unfiltered ranking restricted to the clips the filters keep.
+
+Each hit carries its ``similarity`` (:mod:`app.index.neighbour_scale`). With
+``collapse=True`` one hit stands for each group of near-identical clips
+(:mod:`app.services.captures`), listing the others (``others``), and near-identical copies
+of a query clip are set aside (:attr:`ClipAnswer.query_others`).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import dataclasses
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -18,6 +26,9 @@ from app.db import vectors as vector_db
 from app.db.entries import ClipEntry
 from app.errors import DescriptorUnavailable, InvalidInput, NotFound
 from app.labels import label_filter
+from app.licences import LicenceArg, LicenceFilter, licence_filter
+from app.services.captures import CaptureRule, group_nearest_first
+from app.services.clips import MAX_ID
 from app.services.ingest import describe, new_clip
 from app.services.library import Library
 from app.services.uploads import Upload
@@ -29,11 +40,41 @@ MAX_ATTEMPTS = 3
 class Hit:
     clip: ClipEntry  # what a result shows of the clip, from the catalogue
     distance: float
+    similarity: float = 100.0  # percent of the library's typical neighbour distances larger
+    others: tuple[Hit, ...] = ()  # collapse: the near-identical clips this hit stands for
+
+
+@dataclass(frozen=True)
+class ClipAnswer:
+    """``GET /search``: the query clip, its hits, and (collapse) its own near-identical
+    copies, which are not among the hits."""
+
+    clip: ClipEntry
+    hits: list[Hit]
+    query_others: list[Hit] = field(default_factory=list)
 
 
 def check_k(library: Library, k: int) -> None:
     if not 1 <= k <= library.settings.max_k:
         raise InvalidInput(f"k: must be between 1 and {library.settings.max_k}, got {k}")
+
+
+def allowed_clip_ids(
+    library: Library, label: label_db.LabelFilter, licence: LicenceFilter
+) -> np.ndarray | None:
+    """``(N,)`` ids of the clips the label and licence filters keep (from the catalogue);
+    ``None``: no filter."""
+    catalogue = library.catalogue
+    allowed = catalogue.ids_with_labels(label) if label_filter(label) else None
+    if licence:
+        licensed = catalogue.ids_matching("licence", licence.allows)
+        allowed = licensed if allowed is None else np.intersect1d(allowed, licensed)
+    return allowed
+
+
+def capture_rule(library: Library) -> CaptureRule:
+    versions = {name: info.version for name, info in library.descriptors.items()}
+    return CaptureRule.of(library.indexes, versions)
 
 
 def _nearest(
@@ -43,29 +84,68 @@ def _nearest(
     k: int,
     *,
     label: label_db.LabelFilter,
+    licence: LicenceFilter = LicenceFilter(),  # noqa: B008 - frozen, never changed
     exclude: int | None,
-) -> list[Hit]:
-    """The hits, read from the index and the catalogue (no SQL)."""
+    collapse: bool = False,
+) -> tuple[list[Hit], list[Hit]]:
+    """The hits, read from the index and the catalogue (no SQL), and (collapse) the query
+    clip's near-identical copies."""
     index = library.indexes[descriptor]
     catalogue = library.catalogue
-    allowed = catalogue.ids_with_labels(label) if label_filter(label) else None
-    wanted = k
-    hits: list[Hit] = []
-    for _ in range(MAX_ATTEMPTS):
+    allowed = allowed_clip_ids(library, label, licence)
+    also = [] if exclude is None else [exclude]
+    rule = capture_rule(library) if collapse else None
+    wanted = k if rule is None else 3 * k + 10
+    groups: list[list[int]] = []
+    for _ in range(MAX_ATTEMPTS + (8 if rule is not None else 0)):
         found = index.search(vector, wanted, allowed=allowed, exclude=exclude)
         clips = catalogue.get_many(found.ids.tolist())
-        hits = [
-            Hit(clips[i], d)
-            for i, d in zip(found.ids.tolist(), found.distances.tolist(), strict=True)
-            if i in clips
-        ]
-        # A clip the index holds but the catalogue not (a sync between the two, which follow
-        # the same feed one after the other) is skipped; ask for as many more as went
-        # missing, so the answer still has k hits when the library does.
-        if len(hits) >= k or len(found) < wanted:
+        # Equal distances in id order: the same answer whatever FAISS's heap did.
+        present = sorted(
+            (
+                (i, d)
+                for i, d in zip(found.ids.tolist(), found.distances.tolist(), strict=True)
+                if i in clips
+            ),
+            key=lambda hit: (hit[1], hit[0]),
+        )
+        exhausted = len(found) < wanted
+        if rule is None:
+            # A clip the index holds but the catalogue not (a sync between the two, which
+            # follow the same feed one after the other) is skipped; ask for as many more as
+            # went missing, so the answer still has k hits when the library does.
+            if len(present) >= k or exhausted:
+                break
+            wanted += len(found) - len(present)
+            continue
+        ids = np.array([*also, *(i for i, _ in present)], np.int64)
+        groups = group_nearest_first(ids.tolist(), rule.pairs(ids))
+        shown = [g for g in groups if not (also and g[0] == 0)]
+        # Complete once the k-th group's leader is nearer than the farthest hit by more
+        # than a near-identical clip can lie beyond it.
+        if exhausted or (
+            len(shown) >= k
+            and present[-1][1] >= present[shown[k - 1][0] - len(also)][1] + rule.reach(descriptor)
+        ):
             break
-        wanted += len(found) - len(hits)
-    return hits[:k]
+        wanted *= 2
+    if rule is None:
+        present = present[:k]  # no similarity computed for hits not shown
+    scale = library.scales.of(descriptor, index)
+    similarity = scale.similarity(np.array([d for _, d in present], np.float64)).tolist()
+    hits = [Hit(clips[i], d, s) for (i, d), s in zip(present, similarity, strict=True)]
+    query_others: list[Hit] = []
+    if rule is not None:
+        offset = len(also)
+        collapsed = []
+        for group in groups:
+            members = [hits[p - offset] for p in group if p >= offset]
+            if also and group[0] == 0:
+                query_others = members
+                continue
+            collapsed.append(dataclasses.replace(members[0], others=tuple(members[1:])))
+        hits = collapsed
+    return hits[:k], query_others
 
 
 def search_vector(
@@ -75,14 +155,25 @@ def search_vector(
     k: int,
     *,
     label: label_db.LabelFilter = None,
+    licence: LicenceArg = None,
     exclude: int | None = None,
+    collapse: bool = False,
 ) -> list[Hit]:
     """The ``k`` stored clips nearest to ``vector`` ``(D,)`` under ``descriptor``."""
     check_k(library, k)
     library.descriptor(descriptor)
     library.require_current(descriptor)
     library.refresh()
-    return _nearest(library, descriptor, vector, k, label=label, exclude=exclude)
+    return _nearest(
+        library,
+        descriptor,
+        vector,
+        k,
+        label=label,
+        licence=licence_filter(licence),
+        exclude=exclude,
+        collapse=collapse,
+    )[0]
 
 
 def _unavailable(clip_id: int, descriptor: str, version: int) -> DescriptorUnavailable:
@@ -122,8 +213,27 @@ def search_by_clip(
 def search_by_clip_id(
     library: Library, clip_id: int, descriptor: str, k: int, *, label: label_db.LabelFilter
 ) -> tuple[ClipEntry, list[Hit]]:
-    """The stored clip ``clip_id`` and its neighbours (never the clip itself): ``GET
-    /search``. :class:`NotFound` when there is no such clip."""
+    """The stored clip ``clip_id`` and its neighbours (never the clip itself). :class:`NotFound`
+    when there is no such clip."""
+    answer = find_by_clip(library, clip_id, descriptor, k, label=label)
+    return answer.clip, answer.hits
+
+
+def find_by_clip(
+    library: Library,
+    clip_id: int,
+    descriptor: str,
+    k: int,
+    *,
+    label: label_db.LabelFilter = None,
+    licence: LicenceArg = None,
+    collapse: bool = False,
+) -> ClipAnswer:
+    """``GET /search``: the stored clip ``clip_id`` and its neighbours (never the clip
+    itself), read from the indexes and the catalogue. :class:`NotFound` when there is no
+    such clip."""
+    if not 0 < clip_id <= MAX_ID:  # no such id (and the database driver's overflow)
+        raise NotFound(f"no clip with id {clip_id}")
     library.descriptor(descriptor)
     check_k(library, k)
     library.require_current(descriptor)
@@ -132,11 +242,28 @@ def search_by_clip_id(
     if clip is None:
         raise NotFound(f"no clip with id {clip_id}")
     vector = clip_vector(library, clip_id, descriptor)
-    return clip, _nearest(library, descriptor, vector, k, label=label, exclude=clip_id)
+    hits, query_others = _nearest(
+        library,
+        descriptor,
+        vector,
+        k,
+        label=label,
+        licence=licence_filter(licence),
+        exclude=clip_id,
+        collapse=collapse,
+    )
+    return ClipAnswer(clip, hits, query_others)
 
 
 def search_by_upload(
-    library: Library, upload: Upload, descriptor: str, k: int, *, label: label_db.LabelFilter
+    library: Library,
+    upload: Upload,
+    descriptor: str,
+    k: int,
+    *,
+    label: label_db.LabelFilter,
+    licence: LicenceArg = None,
+    collapse: bool = False,
 ) -> tuple[clip_db.NewClip, list[Hit]]:
     """Describe an upload without storing it and find its neighbours (nothing excluded).
 
@@ -148,4 +275,13 @@ def search_by_upload(
     described = describe(library, upload, only=[descriptor])
     query = new_clip(library, described)
     vector = query.vectors[descriptor].vector
-    return query, search_vector(library, descriptor, vector, k, label=label)
+    hits = search_vector(
+        library, descriptor, vector, k, label=label, licence=licence, collapse=collapse
+    )
+    return query, hits
+
+
+def stored_copy(library: Library, content_hash: str) -> clip_db.ClipRecord | None:
+    """The stored clip with this content (an upload's), if any: "this file is clip #316"."""
+    with library.reads() as session:
+        return clip_db.get_clip_by_hash(session, content_hash)

@@ -26,6 +26,7 @@ from app.discovery import content_hash_of_animation, content_hash_of_digests
 from app.errors import InvalidInput, UnsupportedMediaType
 from app.labels import normalise_labels
 from app.motion.formats.scene import Animation
+from app.text import checked_text
 
 MAX_NAME_LENGTH = 255
 MAX_SOURCE_LENGTH = 500  # source and licence: the columns' size
@@ -68,7 +69,8 @@ def clean_filename(raw: str | None, role: str) -> str:
     """The base name of an uploaded file (clients may send a path), control characters
     replaced by ``_``. Only ever stored as text: stored files are named by content hash."""
     name = PureWindowsPath(PurePosixPath(raw or "").name).name
-    name = "".join("_" if unicodedata.category(c) == "Cc" else c for c in name).strip()
+    # Control characters and lone surrogates (no UTF-8 exists for them) become "_".
+    name = "".join("_" if unicodedata.category(c) in ("Cc", "Cs") else c for c in name).strip()
     if not name:
         raise InvalidInput(f"field '{role}': the uploaded file has no file name")
     return name[-MAX_NAME_LENGTH:]
@@ -80,14 +82,14 @@ def normalise_animation(value: str | None) -> str | None:
         return None
     if len(value) > MAX_ANIMATION_NAME:
         raise InvalidInput(f"animation: at most {MAX_ANIMATION_NAME} characters")
-    return value.strip()
+    return checked_text("animation", value.strip())
 
 
 def normalise_name(value: str | None) -> str | None:
     """A clip name stripped of surrounding space; ``None`` when absent or blank."""
     if value is None or not value.strip():
         return None
-    name = value.strip()
+    name = checked_text("name", value.strip())
     if len(name) > MAX_NAME_LENGTH:
         raise InvalidInput(f"name: at most {MAX_NAME_LENGTH} characters")
     return name
@@ -97,7 +99,7 @@ def normalise_note(field: str, value: str | None) -> str | None:
     """A source or licence text stripped of surrounding space; ``None`` when absent or blank."""
     if value is None or not value.strip():
         return None
-    text = value.strip()
+    text = checked_text(field, value.strip())
     if len(text) > MAX_SOURCE_LENGTH:
         raise InvalidInput(f"{field}: at most {MAX_SOURCE_LENGTH} characters")
     return text

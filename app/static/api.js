@@ -198,7 +198,10 @@ export function postForm(path, params, form, { onProgress, signal } = {}) {
   });
 }
 
-/** The form fields of one clip: {file} or {skeleton, motion}, plus labels. */
+/**
+ * The form fields of one clip: {file} or {skeleton, motion}, plus labels and (FBX/glTF) the
+ * animation to read (`clip.animation`).
+ */
 export function clipForm(clip, labels = []) {
   const form = new FormData();
   if (clip.bvh) {
@@ -208,7 +211,19 @@ export function clipForm(clip, labels = []) {
     form.append("motion", clip.amc, clip.amc.name);
   }
   for (const label of labels) form.append("labels", label);
+  if (clip.animation) form.append("animation", clip.animation);
   return form;
+}
+
+/** Files that may hold several animations (FBX, glTF, VRM animation). */
+export function mayHoldAnimations(clip) {
+  return Boolean(clip.bvh) && /\.(fbx|glb|gltf|vrma)$/i.test(clip.bvh.name);
+}
+
+/** The animations of a file (POST /inspect): [{name, frame_count, duration, selected}]. */
+export async function fileAnimations(clip) {
+  const { body } = await postForm("/inspect", null, clipForm(clip));
+  return body.animations;
 }
 
 // -- cached look-ups ------------------------------------------------------------------

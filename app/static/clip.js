@@ -5,11 +5,69 @@
 // that needed it and tries again, keeping what was typed.
 
 import { ApiError, apiKey, download, getJson, sendJson, setApiKey } from "./api.js";
-import { Figure, Player } from "./figure.js";
+import { Figure, Player, loadSkeleton } from "./figure.js";
 import { Timeline, formatTime } from "./timeline.js";
 import { clear, el, labelChips, nextId, plural } from "./util.js";
 
-const PREVIEW = { fps: 30, maxFrames: 600 };
+const MAX_FRAMES = 600; // per skeleton request (the API's cap)
+const OVERVIEW_FPS = 30;
+const MAX_DETAIL_FPS = 120;
+
+/**
+ * The frames of a take of any length for the clip page's figure: an overview of the whole
+ * take (at most MAX_FRAMES frames: 30 fps up to 20 s, a frame every 6 s for an hour) that
+ * frames the figure and fills in, and windows of MAX_FRAMES frames at the file's own rate
+ * (up to 120 fps) around the playhead, fetched as it gets near them. So the page never holds
+ * more than a few windows, whatever the take's length, and every frame can be stepped to.
+ */
+class TakeLoader {
+  constructor(clip, figure) {
+    this.clip = clip;
+    this.figure = figure;
+    this.fileFps = clip.frame_time > 0 ? 1 / clip.frame_time : 30;
+    this.duration = Math.max(0, clip.frame_count - clip.lead_in_frames) * clip.frame_time;
+    this.detailFps = Math.round(Math.min(this.fileFps, MAX_DETAIL_FPS) * 1e6) / 1e6;
+    this.windowSeconds = MAX_FRAMES / this.detailFps;
+    this.windows = new Map(); // window number -> Track, or null while it loads
+  }
+
+  /** Load the overview; then the figure plays it, with detail windows where they are loaded. */
+  async load() {
+    const fps = Math.min(OVERVIEW_FPS, Math.floor(((MAX_FRAMES - 1) / Math.max(this.duration, 1e-6)) * 1e4) / 1e4);
+    await this.figure.load({ fps: Math.max(0.01, fps), maxFrames: MAX_FRAMES });
+    if (this.figure.track && this.figure.track.fps < this.detailFps - 1e-6) {
+      this.figure.detailAt = (time) => this.detailAt(time);
+    }
+  }
+
+  /** The loaded window for preview time `time` (else null, and it is fetched). */
+  detailAt(time) {
+    const k = Math.max(0, Math.floor(time / this.windowSeconds));
+    const found = this.windows.get(k);
+    if (found === undefined) this.fetch(k);
+    // Playing on: the next window comes before it is needed.
+    if (time - k * this.windowSeconds > this.windowSeconds / 2) this.fetch(k + 1);
+    return found || null;
+  }
+
+  fetch(k) {
+    if (this.windows.has(k) || k * this.windowSeconds >= this.duration) return;
+    this.windows.set(k, null);
+    const lead = this.clip.lead_in_frames * this.clip.frame_time;
+    const first = this.clip.lead_in_frames + Math.round(k * MAX_FRAMES * (this.fileFps / this.detailFps));
+    const start = first * this.clip.frame_time;
+    const end = Math.min(lead + this.duration, start + this.windowSeconds);
+    loadSkeleton(this.clip.id, { fps: this.detailFps, maxFrames: MAX_FRAMES, start: start.toFixed(6), end: end.toFixed(6), priority: () => 2 }).then(
+      (track) => {
+        this.windows.set(k, track);
+        // Only the windows near the playhead are kept.
+        for (const key of this.windows.keys()) if (Math.abs(key - k) > 3) this.windows.delete(key);
+        this.figure.lastKey = "";
+      },
+      () => this.windows.set(k, false), // not asked again: the overview stands in
+    );
+  }
+}
 
 /** A format as a short badge text ("bvh" -> "BVH", "asf/amc" -> "ASF/AMC"). */
 export function formatBadge(format) {
@@ -47,9 +105,10 @@ export async function renderClip(main, params, { navigate, notify }) {
   }
   document.title = `${clip.name} · mocap-index`;
 
-  // -- preview ---------------------------------------------------------------------------------
-  const player = new Player({ playing: true });
-  const timeline = new Timeline(player, { label: `Playback of ${clip.name}` });
+  // -- preview: the whole take, at a resolution that fits what is shown ----------------------------
+  // The clock starts once the take's length is known (it would run off the end before).
+  const player = new Player({ playing: false });
+  const timeline = new Timeline(player, { label: `Playback of ${clip.name}`, zoomable: true });
   const canvas = el("canvas", {
     class: "figure large",
     role: "img",
@@ -57,11 +116,17 @@ export async function renderClip(main, params, { navigate, notify }) {
     dataset: { role: "clip", clipId: String(clip.id) },
   });
   const figure = new Figure(canvas, { player, clipId: clip.id, name: clip.name });
+  const take = new TakeLoader(clip, figure);
   const previewNote = el("p", { class: "hint preview-note" });
-  figure.load(PREVIEW).then(() => {
-    const skeleton = figure.skeleton;
-    if (!skeleton) {
+  const keysHint = el(
+    "p",
+    { class: "hint keys-hint" },
+    "Keys: Space plays or pauses, ←/→ step a frame, Shift+←/→ a second, Home/End, +/− zoom, [ and ] set the span's start and end at the playhead.",
+  );
+  take.load().then(() => {
+    if (!figure.track) {
       timeline.node.hidden = true;
+      keysHint.hidden = true;
       previewNote.textContent =
         figure.error && figure.error.code === "no_stored_file"
           ? "Synthetic clip: no preview (it has no stored file)."
@@ -69,47 +134,75 @@ export async function renderClip(main, params, { navigate, notify }) {
       return;
     }
     // The readout counts the file's own frames; the preview leaves out the lead-in frames.
-    timeline.setLength(figure.duration, {
-      fps: 1 / clip.frame_time,
+    timeline.setLength(take.duration, {
+      fps: take.fileFps,
       frameCount: clip.frame_count,
       firstFrame: clip.lead_in_frames,
     });
-    const notes = [];
-    if (clip.lead_in_frames) notes.push(`the first ${plural(clip.lead_in_frames, "rest-pose frame")} left out`);
-    if (skeleton.truncated) notes.push(`the first ${formatTime(skeleton.duration)} of ${formatTime(skeleton.source_duration)} shown`);
-    previewNote.textContent = notes.length ? `Preview: ${notes.join("; ")}.` : "";
+    previewNote.textContent = clip.lead_in_frames ? `Preview: the first ${plural(clip.lead_in_frames, "rest-pose frame")} left out.` : "";
+    showSpan();
+    if (!player.range) timeline.setPlaying(true);
   });
 
-  // -- a span of the clip: drag on the band under the timeline (or type the times) ----------------
+  // -- a span of the clip: drag on the band under the timeline, type it, or press [ and ] -------
   // Times in the form are seconds of the file as uploaded (lead-in included), like the API's;
   // the preview leaves the lead-in out, so its time is shifted by it.
   const leadIn = clip.lead_in_frames * clip.frame_time;
   const spanBox = el("div", { class: "span-box", hidden: true });
   const spanBand = el("div", { class: "span-band", title: "Drag across to pick a span of the clip" }, spanBox);
   timeline.track.append(spanBand);
-  const spanIds = { start: nextId("span-start"), end: nextId("span-end") };
+  const spanIds = { start: nextId("span-start"), end: nextId("span-end"), loop: nextId("span-loop") };
   const step = "any"; // a frame-time step would make most typed times "invalid"
   const spanStart = el("input", { id: spanIds.start, type: "number", min: "0", step, required: true, inputmode: "decimal" });
   const spanEnd = el("input", { id: spanIds.end, type: "number", min: "0", step, required: true, inputmode: "decimal" });
+  const loopSpan = el("input", { id: spanIds.loop, type: "checkbox" });
   const spanForm = el(
     "form",
     { class: "span-form", "aria-label": "Find moments like a span of this clip" },
-    el("p", { class: "hint" }, "Drag across the band under the timeline to pick a span, or type it, then find where in the library the same motion happens."),
+    el("p", { class: "hint" }, "Drag across the band under the timeline to pick a span (or type it, or press [ and ] at the playhead), then find where in the library the same motion happens."),
     el("div", { class: "field" }, el("label", { for: spanIds.start }, "From (s)"), spanStart),
     el("div", { class: "field" }, el("label", { for: spanIds.end }, "To (s)"), spanEnd),
+    el("div", { class: "field check" }, loopSpan, el("label", { for: spanIds.loop }, "Play only the span")),
     el("div", { class: "field" }, el("button", { type: "submit" }, "Find moments like this span")),
   );
-  const showSpan = (from, to) => {
-    const left = timeline.xAt(Math.max(0, from - leadIn));
-    const right = timeline.xAt(Math.max(0, to - leadIn));
-    spanBox.hidden = !(to > from);
+  const spanValues = () => [Number.parseFloat(spanStart.value), Number.parseFloat(spanEnd.value)];
+  function showSpan() {
+    const [from, to] = spanValues();
+    const valid = Number.isFinite(from) && Number.isFinite(to) && to > from;
+    const width = timeline.rail.clientWidth;
+    const left = Math.max(0, timeline.xAt(from - leadIn));
+    const right = Math.min(width, timeline.xAt(to - leadIn));
+    spanBox.hidden = !valid || right < 0 || left > width || right <= left;
     spanBox.style.left = `${left}px`;
     spanBox.style.width = `${Math.max(2, right - left)}px`;
-  };
-  const round = (t) => Math.round(t * 100) / 100;
+    spanBox.dataset.start = valid ? String(from) : "";
+    spanBox.dataset.end = valid ? String(to) : "";
+  }
+  timeline.onView(showSpan);
+  /** Play only the span when asked (and it is one), else the whole take. */
+  function previewSpan() {
+    const [from, to] = spanValues();
+    const valid = Number.isFinite(from) && Number.isFinite(to) && to > from;
+    player.setRange(loopSpan.checked && valid ? [Math.max(0, from - leadIn), Math.max(0, to - leadIn)] : null);
+  }
+  player.onChange(() => {
+    if (!player.range && loopSpan.checked) loopSpan.checked = false; // the user went elsewhere
+  });
+  const round = (t) => Math.round(t * 1000) / 1000;
+  /** A span picked (the times of the file): shown, and played in a loop to check it. */
+  function pick(from, to) {
+    spanStart.value = Number.isFinite(from) ? String(round(from)) : "";
+    spanEnd.value = Number.isFinite(to) ? String(round(to)) : "";
+    showSpan();
+    if (Number.isFinite(from) && Number.isFinite(to) && to > from) {
+      loopSpan.checked = true;
+      previewSpan();
+      player.setPlaying(true);
+    }
+  }
   let dragFrom = null;
   spanBand.addEventListener("pointerdown", (event) => {
-    if (!timeline.duration) return;
+    if (!timeline.duration || event.button !== 0) return;
     dragFrom = timeline.timeAt(event.clientX);
     spanBand.setPointerCapture(event.pointerId);
     event.preventDefault();
@@ -120,24 +213,37 @@ export async function renderClip(main, params, { navigate, notify }) {
     const [a, b] = [Math.min(dragFrom, at), Math.max(dragFrom, at)];
     spanStart.value = String(round(a + leadIn));
     spanEnd.value = String(round(b + leadIn));
-    showSpan(a + leadIn, b + leadIn);
+    showSpan();
   });
   const endDrag = () => {
     if (dragFrom === null) return;
     dragFrom = null;
-    // The figure plays the span picked, so it can be checked before searching.
-    const from = Number(spanStart.value) - leadIn;
-    if (Number.isFinite(from)) player.seek(Math.max(0, from));
+    const [from, to] = spanValues();
+    pick(from, to); // the figure plays the span picked, so it can be checked before searching
   };
   spanBand.addEventListener("pointerup", endDrag);
   spanBand.addEventListener("pointercancel", endDrag);
   for (const input of [spanStart, spanEnd]) {
-    input.addEventListener("input", () => showSpan(Number(spanStart.value), Number(spanEnd.value)));
+    input.addEventListener("input", () => {
+      showSpan();
+      if (loopSpan.checked) previewSpan();
+    });
   }
+  loopSpan.addEventListener("change", previewSpan);
+  const here = () => round(player.time + leadIn);
+  const unbindKeys = timeline.bindKeys(document, {
+    "[": () => {
+      const [, to] = spanValues();
+      pick(here(), Number.isFinite(to) && to > here() ? to : NaN);
+    },
+    "]": () => {
+      const [from] = spanValues();
+      pick(Number.isFinite(from) && from < here() ? from : NaN, here());
+    },
+  });
   spanForm.addEventListener("submit", (event) => {
     event.preventDefault();
-    const start = Number(spanStart.value);
-    const end = Number(spanEnd.value);
+    const [start, end] = spanValues();
     if (!(end > start)) {
       actionStatus.textContent = "Pick a span: its end must come after its start.";
       spanEnd.focus();
@@ -275,7 +381,7 @@ export async function renderClip(main, params, { navigate, notify }) {
     el(
       "div",
       { class: "clip-layout" },
-      el("section", { class: "clip-preview", "aria-label": "Preview" }, canvas, timeline.node, previewNote, clip.filenames.length ? spanForm : null),
+      el("section", { class: "clip-preview", "aria-label": "Preview" }, canvas, timeline.node, previewNote, keysHint, clip.filenames.length ? spanForm : null),
       el("section", { class: "clip-facts", "aria-labelledby": "facts-head" }, el("h2", { id: "facts-head" }, "About this clip"), factList),
     ),
     warnings,
@@ -295,6 +401,7 @@ export async function renderClip(main, params, { navigate, notify }) {
   );
 
   return () => {
+    unbindKeys();
     timeline.dispose();
     figure.dispose();
     player.dispose();

@@ -4,15 +4,46 @@
 
 import { descriptors, getJson } from "./api.js";
 import { Figure, libraryPlayer } from "./figure.js";
-import { OTHER_COLOUR, PALETTE, UNLABELLED_COLOUR, clear, el, formatNumber, nextId, plural } from "./util.js";
+import { MAX_LABEL_STYLES, OTHER_COLOUR, UNLABELLED_COLOUR, clear, el, formatNumber, labelStyle, nextId, plural } from "./util.js";
 
+// Axes in plain words; the paper's names (Onuma et al. 2008, FMDistance's 3-MAN features) are
+// in each axis's tooltip (`paper`).
+const ENERGY = {
+  name: "How much the body moves",
+  short: "movement",
+  paper: "e_all: the total kinetic energy of the body's joints (3-MAN, Onuma et al. 2008)",
+};
 const PROJECTIONS = {
-  "3man-ul": { title: "3-MAN: total energy e_all × upper/lower ratio r_u/l", axes: ["e_all", "r_u/l"], pick: (c) => (c.three_man ? [c.three_man[0], c.three_man[1]] : null) },
-  "3man-lt": { title: "3-MAN: total energy e_all × limbs/trunk ratio r_l/t", axes: ["e_all", "r_l/t"], pick: (c) => (c.three_man ? [c.three_man[0], c.three_man[2]] : null) },
-  pca: { title: "PCA of the descriptor", axes: ["PC 1", "PC 2"], pick: (c) => c.pca },
+  "3man-ul": {
+    title: "How much the body moves × upper body against legs",
+    paper: "3-MAN features e_all × r_u/l (Onuma et al. 2008)",
+    axes: [
+      ENERGY,
+      { name: "Upper body against legs", short: "upper/legs", paper: "r_u/l: the energy of the upper body over that of the lower body (3-MAN)" },
+    ],
+    pick: (c) => (c.three_man ? [c.three_man[0], c.three_man[1]] : null),
+  },
+  "3man-lt": {
+    title: "How much the body moves × arms and legs against the trunk",
+    paper: "3-MAN features e_all × r_l/t (Onuma et al. 2008)",
+    axes: [
+      ENERGY,
+      { name: "Arms and legs against the trunk", short: "limbs/trunk", paper: "r_l/t: the energy of the limbs over that of the trunk (3-MAN)" },
+    ],
+    pick: (c) => (c.three_man ? [c.three_man[0], c.three_man[2]] : null),
+  },
+  pca: {
+    title: "The two main ways clips differ (under the descriptor)",
+    paper: "PCA: the first two principal components of the descriptor's vectors",
+    axes: [
+      { name: "Main way clips differ", short: "PC 1", paper: "PC 1: the first principal component of the descriptor's vectors" },
+      { name: "Second way clips differ", short: "PC 2", paper: "PC 2: the second principal component" },
+    ],
+    pick: (c) => c.pca,
+  },
 };
 const MARGIN = { left: 56, right: 16, top: 16, bottom: 44 };
-const RADIUS = 3.2;
+const RADIUS = 4;
 const mapCache = new Map(); // descriptor -> Promise<map>
 
 function loadMap(descriptor, { fresh = false } = {}) {
@@ -49,7 +80,7 @@ export async function renderMap(main, params, { navigate }) {
   const projectionSelect = el(
     "select",
     { id: ids.projection },
-    Object.entries(PROJECTIONS).map(([value, p]) => el("option", { value }, p.title)),
+    Object.entries(PROJECTIONS).map(([value, p]) => el("option", { value, title: p.paper }, p.title)),
   );
   projectionSelect.value = state.projection;
   const resetButton = el("button", { type: "button" }, "Reset zoom");
@@ -63,6 +94,9 @@ export async function renderMap(main, params, { navigate }) {
     "aria-label": "Map of the library",
   });
   const tooltip = el("div", { class: "map-tooltip", hidden: true });
+  // Axis names as text over the canvas, so each has a tooltip with the paper's name.
+  const xName = el("span", { class: "axis-name axis-x", tabindex: "0" });
+  const yName = el("span", { class: "axis-name axis-y", tabindex: "0" });
   const legend = el("ul", { class: "legend", "aria-label": "Colours" });
   const help = el(
     "p",
@@ -80,7 +114,7 @@ export async function renderMap(main, params, { navigate }) {
       el("div", { class: "field" }, resetButton),
     ),
     status,
-    el("div", { class: "map-wrap" }, canvas, tooltip),
+    el("div", { class: "map-wrap" }, canvas, xName, yName, tooltip),
     legend,
     help,
     announce,
@@ -125,16 +159,19 @@ export async function renderMap(main, params, { navigate }) {
       if (first !== undefined) counts.set(first, (counts.get(first) || 0) + 1);
     }
     const ranked = [...counts.entries()].sort((a, b) => b[1] - a[1] || a[0].localeCompare(b[0]));
-    const colourOf = new Map(ranked.slice(0, PALETTE.length).map(([label], i) => [label, PALETTE[i]]));
+    const styleOf = new Map(ranked.slice(0, MAX_LABEL_STYLES).map(([label], i) => [label, labelStyle(i)]));
+    const otherStyle = { colour: OTHER_COLOUR, marker: "circle" };
+    const noLabelStyle = { colour: UNLABELLED_COLOUR, marker: "circle" };
     const n = map.clips.length;
     const xs = new Float64Array(n);
     const ys = new Float64Array(n);
     const shown = [];
-    const colours = new Array(n);
+    const colours = new Array(n); // a style per clip: "colour marker"
     map.clips.forEach((clip, i) => {
       const point = projection.pick(clip);
       const first = clip.labels[0];
-      colours[i] = first === undefined ? UNLABELLED_COLOUR : colourOf.get(first) || OTHER_COLOUR;
+      const style = first === undefined ? noLabelStyle : styleOf.get(first) || otherStyle;
+      colours[i] = `${style.colour} ${style.marker}`;
       if (point && Number.isFinite(point[0]) && Number.isFinite(point[1])) {
         xs[i] = point[0];
         ys[i] = point[1];
@@ -143,16 +180,16 @@ export async function renderMap(main, params, { navigate }) {
     });
     // Outliers last, so they are drawn on top.
     shown.sort((a, b) => Number(map.clips[a].outlier) - Number(map.clips[b].outlier));
-    data = { map, projection, xs, ys, colours, shown, colourOf, counts, version: (data ? data.version : 0) + 1 };
+    data = { map, projection, xs, ys, colours, shown, styleOf, counts, version: (data ? data.version : 0) + 1 };
     selected = -1;
     view = { scale: 1, tx: 0, ty: 0 };
     hideTooltip();
 
     clear(legend);
-    for (const [label, colour] of colourOf) {
-      legend.append(el("li", {}, el("span", { class: "swatch", style: `background:${colour}` }), `${label} (${counts.get(label)})`));
+    for (const [label, style] of styleOf) {
+      legend.append(el("li", { dataset: { colour: style.colour, marker: style.marker } }, el("span", { class: `swatch ${style.marker}`, style: `background:${style.colour}` }), `${label} (${counts.get(label)})`));
     }
-    if (ranked.length > PALETTE.length) {
+    if (ranked.length > MAX_LABEL_STYLES) {
       legend.append(el("li", {}, el("span", { class: "swatch", style: `background:${OTHER_COLOUR}` }), "other labels"));
     }
     if (map.clips.some((c) => c.labels.length === 0)) {
@@ -168,6 +205,13 @@ export async function renderMap(main, params, { navigate }) {
       `; ${plural(outliers, "outlier")} under ${map.descriptor}.` +
       (state.projection === "pca" ? ` The two axes explain ${Math.round(100 * (map.pca_explained_variance[0] + map.pca_explained_variance[1]))} % of the variance.` : "");
     canvas.setAttribute("aria-label", `Map of ${plural(shown.length, "clip")}: ${projection.title}`);
+    const [xAxis, yAxis] = projection.axes;
+    xName.textContent = xAxis.name;
+    xName.title = xAxis.paper;
+    xName.setAttribute("aria-label", `Horizontal axis: ${xAxis.name} (${xAxis.paper})`);
+    yName.textContent = yAxis.name;
+    yName.title = yAxis.paper;
+    yName.setAttribute("aria-label", `Vertical axis: ${yAxis.name} (${yAxis.paper})`);
     canvas.dataset.points = String(shown.length);
     draw();
   }
@@ -281,17 +325,7 @@ export async function renderMap(main, params, { navigate }) {
       g.stroke();
       g.fillText(String(t), left - 6, py);
     }
-    g.fillStyle = "#111827";
-    g.font = "12px system-ui, sans-serif";
-    g.textAlign = "center";
-    g.textBaseline = "bottom";
-    g.fillText(projection.axes[0], (left + right) / 2, geo.height - 4);
-    g.save();
-    g.translate(14, (top + bottom) / 2);
-    g.rotate(-Math.PI / 2);
-    g.textBaseline = "middle";
-    g.fillText(projection.axes[1], 0, 0);
-    g.restore();
+    // The axes' names are HTML over the canvas (xName, yName): they carry tooltips.
 
     // Points: one path per colour; screen positions kept for hit tests.
     screen = new Float32Array(xs.length * 2).fill(Number.NaN);
@@ -313,17 +347,24 @@ export async function renderMap(main, params, { navigate }) {
       if (!byColour.has(colours[i])) byColour.set(colours[i], []);
       byColour.get(colours[i]).push(i);
     }
-    g.globalAlpha = 0.85;
-    for (const [colour, members] of byColour) {
+    for (const [style, members] of byColour) {
+      const [colour, marker] = style.split(" ");
       g.fillStyle = colour;
+      g.strokeStyle = "rgba(17, 24, 39, 0.55)"; // outlined: light colours stay visible on white
+      g.lineWidth = 0.75;
       g.beginPath();
       for (const i of members) {
-        g.moveTo(screen[2 * i] + RADIUS, screen[2 * i + 1]);
-        g.arc(screen[2 * i], screen[2 * i + 1], RADIUS, 0, 2 * Math.PI);
+        const [px, py] = [screen[2 * i], screen[2 * i + 1]];
+        if (marker === "square") {
+          g.rect(px - RADIUS, py - RADIUS, 2 * RADIUS, 2 * RADIUS);
+        } else {
+          g.moveTo(px + RADIUS, py);
+          g.arc(px, py, RADIUS, 0, 2 * Math.PI);
+        }
       }
       g.fill();
+      g.stroke();
     }
-    g.globalAlpha = 1;
     g.strokeStyle = "#d00000";
     g.lineWidth = 1.5;
     g.beginPath();
@@ -385,7 +426,7 @@ export async function renderMap(main, params, { navigate }) {
       previewCanvas,
       el("p", { class: "clip-name" }, clip.name),
       el("p", { class: "meta" }, clip.labels.length ? clip.labels.join(", ") : "no labels"),
-      el("p", { class: "meta" }, `${data.projection.axes[0]} ${formatNumber(point[0])} · ${data.projection.axes[1]} ${formatNumber(point[1])}`),
+      el("p", { class: "meta" }, `${data.projection.axes[0].short} ${formatNumber(point[0])} · ${data.projection.axes[1].short} ${formatNumber(point[1])}`),
       clip.outlier
         ? el("p", { class: "meta outlier-note" }, `outlier under ${data.map.descriptor} (isolation z ${formatNumber(clip.outlier_score, 1)})`)
         : null,

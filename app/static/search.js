@@ -3,14 +3,15 @@
 // In "moments" mode the results are spans of clips (GET/POST /search/moments): each plays
 // only its span, with a thin timeline showing where in its clip it lies.
 
-import { clipForm, descriptors, getJson, labels as fetchLabels, postForm } from "./api.js";
+import { clipForm, descriptors, download as downloadFile, fileAnimations, getJson, labels as fetchLabels, mayHoldAnimations, postForm } from "./api.js";
 import { formatBadge } from "./clip.js";
 import { Figure, Player } from "./figure.js";
 import { Timeline } from "./timeline.js";
 import { ACCEPT, dropTarget, groupFiles } from "./upload.js";
-import { clear, debounce, el, formatNumber, formatSeconds, labelChips, nextId } from "./util.js";
+import { clear, debounce, el, formatNumber, formatSeconds, labelChips, nextId, plural } from "./util.js";
 
 const PREVIEW = { fps: 30, maxFrames: 600 };
+const MOMENT_DESCRIPTOR = "motion";
 
 function nearestPhrase(count) {
   return count === 1 ? "The clip nearest to" : `The ${count} clips nearest to`;
@@ -44,6 +45,7 @@ export async function renderSearch(main, params, { navigate }) {
     kHelp: nextId("k-help"),
     label: nextId("label"),
     mode: nextId("mode"),
+    animation: nextId("animation"),
   };
   const modeButtons = ["clips", "moments"].map((value) =>
     el("input", { type: "radio", name: ids.mode, value, id: `${ids.mode}-${value}`, checked: state.mode === value }),
@@ -72,6 +74,15 @@ export async function renderSearch(main, params, { navigate }) {
   const kHelp = el("p", { id: ids.kHelp, class: "hint" }, `Results: 1–${MAX_K} on this page, as each one is animated; the API (GET /search?k=) gives more.`);
   const labelSelect = el("select", { id: ids.label }, el("option", { value: "" }, "Any"));
   const status = el("p", { class: "status", role: "status", "aria-live": "polite" });
+  const progress = el("p", { class: "hint progress-note", "aria-live": "off" });
+  // A dropped FBX/glTF file of several animations: which one to search with.
+  const animationSelect = el("select", { id: ids.animation });
+  const animationField = el(
+    "div",
+    { class: "field animation-field", hidden: true },
+    el("label", { for: ids.animation }, "Animation of the file"),
+    animationSelect,
+  );
   const results = el("ol", { class: "cards results", "aria-label": "Query and nearest clips" });
 
   // Nothing plays until there are results to play.
@@ -86,13 +97,30 @@ export async function renderSearch(main, params, { navigate }) {
     modeSwitch,
     el("div", { class: "field wide" }, el("label", { for: ids.query }, "Query clip"), queryInput, options),
     el("div", { class: "field" }, el("label", { for: ids.file }, "…or search with a file"), fileInput),
+    animationField,
     el("div", { class: "field" }, el("label", { for: ids.descriptor }, "Descriptor"), descriptorSelect),
     el("div", { class: "field narrow" }, el("label", { for: ids.k }, "Results"), kInput),
     el("div", { class: "field" }, el("label", { for: ids.label }, "Only label"), labelSelect),
     el("div", { class: "field" }, el("button", { type: "submit" }, "Search")),
   );
-  const dropHint = el("p", { class: "hint drop-hint" }, "Drop a .bvh file (or an .asf with its .amc) anywhere on this page to search with it.");
-  main.append(el("div", { class: "view-head" }, el("h1", {}, "Search")), form, descriptorHelp, kHelp, dropHint, status, controls, results);
+  const dropHint = el(
+    "p",
+    { class: "hint drop-hint" },
+    "Drop a motion file — BVH, FBX, glTF/GLB or VRMA, or an ASF skeleton with its AMC motion — anywhere on this page to search with it.",
+  );
+  main.append(el("div", { class: "view-head" }, el("h1", {}, "Search")), form, descriptorHelp, kHelp, dropHint, status, progress, controls, results);
+
+  /** A status line; failures look like errors (red, announced at once). */
+  function say(message) {
+    status.textContent = message;
+    status.classList.remove("error");
+    status.setAttribute("role", "status");
+  }
+  function fail(message) {
+    status.textContent = message;
+    status.classList.add("error");
+    status.setAttribute("role", "alert");
+  }
 
   // -- form data ---------------------------------------------------------------------------
   const known = await descriptors();
@@ -101,12 +129,27 @@ export async function renderSearch(main, params, { navigate }) {
   }
   if (!known.descriptors.some((d) => d.name === state.descriptor)) state.descriptor = known.default;
   descriptorSelect.value = state.descriptor;
+  // Moments are found with the motion descriptor only (its windows are what is stored):
+  // in that mode the control says so and cannot be changed.
   const describe = () => {
+    const moments = modeButtons.some((b) => b.checked && b.value === "moments");
+    if (moments) {
+      if (!descriptorSelect.disabled) descriptorSelect.dataset.chosen = descriptorSelect.value;
+      descriptorSelect.value = MOMENT_DESCRIPTOR;
+      descriptorSelect.disabled = true;
+      descriptorHelp.textContent = `Moments are always found with the ${MOMENT_DESCRIPTOR} descriptor: its windows are what the library stores for moments.`;
+      return;
+    }
+    if (descriptorSelect.disabled) {
+      descriptorSelect.disabled = false;
+      descriptorSelect.value = descriptorSelect.dataset.chosen || state.descriptor;
+    }
     const d = known.descriptors.find((x) => x.name === descriptorSelect.value);
     descriptorHelp.textContent = d ? d.description : "";
   };
   describe();
   descriptorSelect.addEventListener("change", describe);
+  for (const button of modeButtons) button.addEventListener("change", describe);
 
   fetchLabels()
     .then((rows) => {
@@ -136,6 +179,25 @@ export async function renderSearch(main, params, { navigate }) {
   // -- playback ------------------------------------------------------------------------------
   const figures = [];
   const syncLoop = () => timeline.setLength(Math.max(0, ...figures.map((f) => f.duration)));
+  const unbindKeys = timeline.bindKeys(document);
+
+  /** Results are shown at once and each figure as its frames arrive (those on screen first):
+   * say how many are still coming. */
+  function track(loads) {
+    let done = 0;
+    const total = loads.length;
+    const show = () => {
+      progress.textContent = done < total ? `Loading previews: ${done} of ${plural(total, "figure")}…` : "";
+    };
+    show();
+    for (const load of loads) {
+      Promise.resolve(load).finally(() => {
+        done += 1;
+        show();
+      });
+    }
+    return Promise.allSettled(loads).then(syncLoop);
+  }
 
   function searchParams() {
     // The URL keeps the k asked for: the page shows at most MAX_K, and says so.
@@ -234,11 +296,10 @@ export async function renderSearch(main, params, { navigate }) {
     player.seek(0);
     controls.hidden = false;
     timeline.setPlaying(true);
-    Promise.all(loads).then(syncLoop);
+    track(loads);
   }
 
   // -- moments ---------------------------------------------------------------------------------
-  const MOMENT_DESCRIPTOR = "motion";
 
   function spanBar(start, end, duration) {
     const whole = Math.max(duration, end, 1e-6);
@@ -253,14 +314,11 @@ export async function renderSearch(main, params, { navigate }) {
     );
   }
 
-  /** A figure playing [start, end) seconds of its file (lead-in frames are not in the preview). */
-  async function loadSpan(figure, clip, start, end) {
-    const leadIn = clip.lead_in_frames * clip.frame_time;
-    const from = Math.max(0, start - leadIn);
-    const to = Math.max(from + 0.05, end - leadIn);
-    const fps = Math.max(1, Math.min(PREVIEW.fps, Math.floor((PREVIEW.maxFrames - 1) / to)));
-    figure.setSpan(from, to);
-    await figure.load({ fps, maxFrames: PREVIEW.maxFrames });
+  /** A figure playing [start, end) seconds of its file: only those frames are fetched. */
+  async function loadSpan(figure, start, end) {
+    const length = Math.max(0.05, end - start);
+    const fps = Math.max(0.5, Math.min(PREVIEW.fps, Math.floor((PREVIEW.maxFrames - 1) / length)));
+    await figure.load({ fps, maxFrames: PREVIEW.maxFrames, start, end });
   }
 
   function showMoments(body, queryClip, queryLoad) {
@@ -290,6 +348,17 @@ export async function renderSearch(main, params, { navigate }) {
         },
         "Download",
       );
+      // The link alone could not send the API key (a cut is heavy work, which may need it):
+      // fetch the file with the key, as the clip page's buttons do.
+      download.addEventListener("click", async (event) => {
+        event.preventDefault();
+        try {
+          const name = await downloadFile(`/clips/${moment.id}/file`, { start: moment.start, end: moment.end });
+          status.textContent = `Downloaded ${name}.`;
+        } catch (error) {
+          if (error.status !== 401 && error.status !== 403) status.textContent = `Download failed: ${error.detail || error.message}`;
+        }
+      });
       const holder = el("div", { class: "moment-detail" });
       const card = figureCard({
         clipId: moment.id,
@@ -314,18 +383,18 @@ export async function renderSearch(main, params, { navigate }) {
       loads.push(
         getJson(`/clips/${moment.id}`).then((clip) => {
           holder.append(spanBar(moment.start, moment.end, clip.duration));
-          return loadSpan(card.figure, clip, moment.start, moment.end);
+          return loadSpan(card.figure, moment.start, moment.end);
         }),
       );
     });
     player.seek(0);
     controls.hidden = false;
     timeline.setPlaying(true);
-    Promise.allSettled(loads).then(syncLoop);
+    track(loads);
   }
 
   async function searchMoments(clipId) {
-    status.textContent = "Searching moments…";
+    say("Searching moments…");
     try {
       const body = await getJson("/search/moments", {
         clip: clipId,
@@ -338,19 +407,21 @@ export async function renderSearch(main, params, { navigate }) {
       const clip = body.query.clip;
       queryInput.value = optionText(clip);
       byOption.set(queryInput.value, clip.id);
-      showMoments(body, clip, (figure) => loadSpan(figure, clip, body.query.start, body.query.end));
-      status.textContent = body.results.length
-        ? `Moments like ${formatSeconds(body.query.start)} – ${formatSeconds(body.query.end)} of ${clip.name}, nearest first.`
-        : `No moment like this one${state.label ? ` under the label ${state.label}` : ""}.`;
+      showMoments(body, clip, (figure) => loadSpan(figure, body.query.start, body.query.end));
+      say(
+        body.results.length
+          ? `Moments like ${formatSeconds(body.query.start)} – ${formatSeconds(body.query.end)} of ${clip.name}, nearest first.`
+          : `No moment like this one${state.label ? ` under the label ${state.label}` : ""}.`,
+      );
     } catch (error) {
       clear(results);
-      status.textContent = `Search failed: ${error.detail || error.message}`;
+      fail(`Search failed: ${error.detail || error.message}`);
     }
   }
 
   async function searchClip(clipId) {
     if (state.mode === "moments") return searchMoments(clipId);
-    status.textContent = "Searching…";
+    say("Searching…");
     try {
       const body = await getJson("/search", {
         clip: clipId,
@@ -361,49 +432,88 @@ export async function renderSearch(main, params, { navigate }) {
       queryInput.value = optionText(body.query);
       byOption.set(queryInput.value, body.query.id);
       showResults(body.query, body.results, (figure) => figure.load(PREVIEW));
-      status.textContent = body.results.length
-        ? `${nearestPhrase(body.results.length)} ${body.query.name} under ${body.descriptor}, nearest first.${cappedNote()}`
-        : `No other clip to compare ${body.query.name} with${state.label ? ` under the label ${state.label}` : ""}.`;
+      say(
+        body.results.length
+          ? `${nearestPhrase(body.results.length)} ${body.query.name} under ${body.descriptor}, nearest first.${cappedNote()}`
+          : `No other clip to compare ${body.query.name} with${state.label ? ` under the label ${state.label}` : ""}.`,
+      );
     } catch (error) {
       clear(results);
-      status.textContent = `Search failed: ${error.detail || error.message}`;
+      fail(`Search failed: ${error.detail || error.message}`);
     }
   }
+
+  let droppedItem = null; // the file searched with, searched again with another animation
 
   async function searchFile(files) {
     const items = groupFiles(files, new Map()).filter((item) => !item.note);
     if (items.length !== 1 || items[0].error) {
-      status.textContent = items.length === 1 ? items[0].error : "Drop one clip: one .bvh file, or one .asf with one .amc.";
+      fail(items.length === 1 ? items[0].error : "Drop one clip: one motion file, or one .asf with one .amc.");
       return;
     }
     const item = items[0];
-    status.textContent = `Searching with ${item.name}…`;
+    animationField.hidden = true;
+    if (mayHoldAnimations(item)) {
+      say(`Reading the animations of ${item.name}…`);
+      let animations;
+      try {
+        animations = await fileAnimations(item);
+      } catch (error) {
+        clear(results);
+        fail(`Cannot search with ${item.name}: ${error.detail || error.message}`);
+        return;
+      }
+      if (animations.length > 1) {
+        clear(animationSelect);
+        for (const a of animations) {
+          animationSelect.append(el("option", { value: a.name, selected: a.selected }, `${a.name} (${formatSeconds(a.duration)})`));
+        }
+        animationField.hidden = false;
+        item.animation = animationSelect.value;
+      }
+    }
+    droppedItem = item;
+    await searchItem(item);
+  }
+
+  animationSelect.addEventListener("change", () => {
+    if (!droppedItem) return;
+    droppedItem.animation = animationSelect.value;
+    readForm();
+    searchItem(droppedItem);
+  });
+
+  async function searchItem(item) {
+    const what = item.animation ? `${item.name} · ${item.animation}` : item.name;
+    say(`Searching with ${what}…`);
     const query = { descriptor: state.descriptor, k: state.k, label: state.label };
+    const preview = () =>
+      postForm("/skeleton", { fps: PREVIEW.fps, max_frames: PREVIEW.maxFrames, encoding: "compact" }, clipForm(item));
     if (state.mode === "moments") {
       try {
         const { body } = await postForm("/search/moments", { ...query, descriptor: MOMENT_DESCRIPTOR }, clipForm(item));
-        const preview = postForm("/skeleton", { fps: PREVIEW.fps, max_frames: PREVIEW.maxFrames }, clipForm(item));
-        const uploaded = { id: null, name: item.name, labels: [], duration: body.query.end };
+        const skeleton = preview();
+        const uploaded = { id: null, name: what, labels: [], duration: body.query.end };
         showMoments(body, uploaded, (figure) =>
-          preview.then(({ body: skeleton }) => figure.setSkeleton(skeleton), (error) => figure.setError(error)),
+          skeleton.then(({ body: answer }) => figure.setSkeleton(answer), (error) => figure.setError(error)),
         );
-        status.textContent = `Moments like the file ${item.name}, nearest first.`;
+        say(`Moments like the file ${what}, nearest first.`);
       } catch (error) {
         clear(results);
-        status.textContent = `Search with ${item.name} failed: ${error.detail || error.message}`;
+        fail(`Search with ${what} failed: ${error.detail || error.message}`);
       }
       return;
     }
     try {
       const { body } = await postForm("/search", query, clipForm(item));
-      const preview = postForm("/skeleton", { fps: PREVIEW.fps, max_frames: PREVIEW.maxFrames }, clipForm(item));
+      const skeleton = preview();
       showResults({ ...body.query, id: null }, body.results, (figure) =>
-        preview.then(({ body: skeleton }) => figure.setSkeleton(skeleton), (error) => figure.setError(error)),
+        skeleton.then(({ body: answer }) => figure.setSkeleton(answer), (error) => figure.setError(error)),
       );
-      status.textContent = `${nearestPhrase(body.results.length)} the file ${item.name} under ${body.descriptor}, nearest first.${cappedNote()}`;
+      say(`${nearestPhrase(body.results.length)} the file ${what} under ${body.descriptor}, nearest first.${cappedNote()}`);
     } catch (error) {
       clear(results);
-      status.textContent = `Search with ${item.name} failed: ${error.detail || error.message}`;
+      fail(`Search with ${what} failed: ${error.detail || error.message}`);
     }
   }
 
@@ -412,7 +522,7 @@ export async function renderSearch(main, params, { navigate }) {
   }
 
   function readForm() {
-    state.descriptor = descriptorSelect.value;
+    if (!descriptorSelect.disabled) state.descriptor = descriptorSelect.value;
     const asked = Number.parseInt(kInput.value, 10) || DEFAULT_K;
     capped = asked > MAX_K;
     state.k = Math.min(MAX_K, Math.max(1, asked));
@@ -442,12 +552,12 @@ export async function renderSearch(main, params, { navigate }) {
       const page = await getJson("/library/clips", { q: text, limit: 2 }).catch(() => null);
       if (page && page.total === 1) clipId = page.items[0].id;
       else {
-        status.textContent = page && page.total > 1 ? `Several clips match “${text}”: pick one from the list.` : `No clip is named like “${text}”.`;
+        fail(page && page.total > 1 ? `Several clips match “${text}”: pick one from the list.` : `No clip is named like “${text}”.`);
         return;
       }
     }
     if (clipId === undefined) {
-      status.textContent = "Pick a query clip, or choose a file.";
+      fail("Pick a query clip, or choose a file.");
       queryInput.focus();
       return;
     }
@@ -465,11 +575,12 @@ export async function renderSearch(main, params, { navigate }) {
   if (state.clip !== null) {
     await searchClip(state.clip);
   } else {
-    status.textContent = "Pick a clip (type part of its name) or choose a file, then search.";
+    say("Pick a clip (type part of its name) or choose a file, then search.");
   }
 
   return () => {
     stopDrops();
+    unbindKeys();
     timeline.dispose();
     for (const f of figures) f.dispose();
     player.dispose();

@@ -1,8 +1,8 @@
 // Upload: drop (or choose) BVH files and ASF+AMC pairs; each clip uploads with its own
 // progress bar, and the service's error is shown next to the file that caused it.
 
-import { clipForm, postForm } from "./api.js";
-import { el, nextId, plural } from "./util.js";
+import { clipForm, fileAnimations, mayHoldAnimations, postForm } from "./api.js";
+import { el, formatSeconds, nextId, plural } from "./util.js";
 
 const PARALLEL_UPLOADS = 2;
 
@@ -193,14 +193,19 @@ export async function renderUpload(main) {
   );
 
   const queue = [];
-  const totals = { done: 0, failed: 0, all: 0 };
+  // stored: new clips; known: already in the library (nothing new stored); waiting: files of
+  // several animations waiting for the user's choice.
+  const totals = { stored: 0, known: 0, failed: 0, all: 0, waiting: 0 };
   let active = 0;
 
   function updateSummary() {
-    const left = totals.all - totals.done - totals.failed;
-    summary.textContent = totals.all
-      ? `${plural(totals.done, "clip")} stored, ${totals.failed} failed${left ? `, ${left} to go` : ""}.`
-      : "";
+    const left = totals.all - totals.stored - totals.known - totals.failed - totals.waiting;
+    const parts = [`${plural(totals.stored, "clip")} stored`];
+    if (totals.known) parts.push(`${totals.known} already in the library`);
+    parts.push(`${totals.failed} failed`);
+    if (totals.waiting) parts.push(`${plural(totals.waiting, "file")} waiting for a choice of animations`);
+    if (left) parts.push(`${left} to go`);
+    summary.textContent = totals.all ? `${parts.join(", ")}.` : "";
   }
 
   function addFiles(files) {
@@ -231,11 +236,53 @@ export async function renderUpload(main) {
         const motionName = (item.bvh || item.amc).name;
         const labels = [...common, ...labelsFromName(pattern, motionName)];
         totals.all += 1;
-        queue.push({ item, row, labels });
+        if (mayHoldAnimations(item)) chooseAnimations({ item, row, labels });
+        else queue.push({ item, row, labels });
       }
     }
     updateSummary();
     pump();
+  }
+
+  /**
+   * An FBX/glTF file: its animations are listed first (POST /inspect). One animation is
+   * uploaded at once; of several, the user ticks those to store (the longest is ticked), each
+   * becoming its own clip.
+   */
+  async function chooseAnimations(job) {
+    const { item, row } = job;
+    row.note("reading its animations…");
+    totals.waiting += 1;
+    let animations;
+    try {
+      animations = await fileAnimations(item);
+    } catch (error) {
+      totals.waiting -= 1;
+      row.fail(error.detail || error.message, error.code);
+      totals.failed += 1;
+      updateSummary();
+      return;
+    }
+    if (animations.length <= 1) {
+      totals.waiting -= 1;
+      row.reset();
+      queue.push(job);
+      updateSummary();
+      pump();
+      return;
+    }
+    updateSummary();
+    row.choose(animations, (names) => {
+      totals.waiting -= 1;
+      totals.all += names.length - 1; // each animation is a clip of its own
+      const rows = names.map((name, i) => (i === 0 ? row : uploadRow({ name: `${item.name} · ${name}` }, row.node)));
+      names.forEach((name, i) => {
+        rows[i].reset(`${item.name} · ${name}`);
+        queue.push({ ...job, item: { ...item, animation: name }, row: rows[i] });
+      });
+      updateSummary();
+      pump();
+    });
   }
 
   function pump() {
@@ -257,7 +304,8 @@ export async function renderUpload(main) {
         onProgress: (fraction) => row.progress(fraction),
       });
       row.succeed(body, status === 201, labels.length > 0);
-      totals.done += 1;
+      if (status === 201) totals.stored += 1;
+      else totals.known += 1;
     } catch (error) {
       row.fail(error.detail || error.message, error.code);
       totals.failed += 1;
@@ -272,16 +320,13 @@ export async function renderUpload(main) {
   return dropTarget(main, addFiles, "Drop to upload these files");
 }
 
-function uploadRow(item) {
+/** One row of the upload list (placed after `after` when given). */
+function uploadRow(item, after = null) {
   const bar = el("progress", { max: "1", value: "0", "aria-label": `Upload of ${item.name}` });
   const message = el("span", { class: "upload-message" }, "waiting");
-  const node = el(
-    "li",
-    { class: "upload", dataset: { name: item.name, state: "waiting" } },
-    el("span", { class: "upload-name" }, item.name),
-    bar,
-    message,
-  );
+  const nameNode = el("span", { class: "upload-name" }, item.name);
+  const node = el("li", { class: "upload", dataset: { name: item.name, state: "waiting" } }, nameNode, bar, message);
+  if (after) after.after(node);
   const set = (state, text) => {
     node.dataset.state = state;
     message.textContent = text;
@@ -292,6 +337,49 @@ function uploadRow(item) {
     progress(fraction) {
       bar.value = fraction;
       set("uploading", fraction < 1 ? `uploading… ${Math.round(fraction * 100)} %` : "reading and describing…");
+    },
+    /** Back to waiting in the queue (under a new name: one animation of a file). */
+    reset(name = null) {
+      if (name) {
+        nameNode.textContent = name;
+        node.dataset.name = name;
+        bar.setAttribute("aria-label", `Upload of ${name}`);
+      }
+      if (!bar.isConnected) nameNode.after(bar);
+      node.querySelector(".animation-choice")?.remove();
+      set("waiting", "waiting");
+    },
+    /** The animations of the file, to tick those to store; `onChosen(names)`. */
+    choose(animations, onChosen) {
+      bar.remove();
+      set("choose", "");
+      const groupId = nextId("animations");
+      const boxes = animations.map((a) => {
+        const id = nextId("animation");
+        return {
+          name: a.name,
+          box: el("input", { type: "checkbox", id, value: a.name, checked: a.selected }),
+          label: el("label", { for: id }, `${a.name} `, el("span", { class: "muted" }, formatSeconds(a.duration))),
+        };
+      });
+      const button = el("button", { type: "submit", class: "small" }, "Upload the animations ticked");
+      const form = el(
+        "form",
+        { class: "animation-choice", "aria-labelledby": groupId },
+        el("p", { id: groupId }, `${animations.length} animations in this file; each one ticked becomes a clip:`),
+        el("ul", { class: "plain" }, boxes.map(({ box, label }) => el("li", {}, box, label))),
+        button,
+      );
+      form.addEventListener("submit", (event) => {
+        event.preventDefault();
+        const names = boxes.filter((b) => b.box.checked).map((b) => b.name);
+        if (!names.length) {
+          form.querySelector("p").textContent = "Tick at least one animation.";
+          return;
+        }
+        onChosen(names);
+      });
+      node.append(form);
     },
     succeed(clip, created, labelled) {
       bar.value = 1;

@@ -71,11 +71,19 @@ export function debounce(fn, ms) {
   };
 }
 
-// 12 distinguishable colours (Tableau-like), then grey for "other" labels.
+// Label colours a colour-blind eye tells apart: Okabe and Ito's set (yellow kept: markers are
+// outlined) and two of Paul Tol's; twenty hues cannot all be, so labels 11-20 take the same
+// ten colours as squares (MARKERS). Then grey for "other" labels.
 export const PALETTE = [
-  "#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b",
-  "#e377c2", "#17becf", "#bcbd22", "#393b79", "#ad494a", "#637939",
+  "#0072B2", "#E69F00", "#009E73", "#CC79A7", "#56B4E9",
+  "#D55E00", "#000000", "#F0E442", "#882255", "#999933",
 ];
+export const MARKERS = ["circle", "square"];
+/** The colour and marker of the label ranked `i` (0-based), for up to 20 labels. */
+export function labelStyle(i) {
+  return { colour: PALETTE[i % PALETTE.length], marker: MARKERS[Math.floor(i / PALETTE.length) % MARKERS.length] };
+}
+export const MAX_LABEL_STYLES = PALETTE.length * MARKERS.length;
 export const OTHER_COLOUR = "#9aa0a6";
 export const UNLABELLED_COLOUR = "#c8ccd0";
 

@@ -1,7 +1,7 @@
 """Clip updates on the change feed: a renamed, relabelled or re-licensed clip gets a feed row.
 
 Revision ID: 0010
-Revises: 0006
+Revises: 0008
 Create Date: 2026-11-25
 
 The change feed (0003) recorded clips inserted and deleted and vectors updated: enough for
@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from alembic import op
 
 revision: str = "0010"
-down_revision: str | Sequence[str] | None = "0006"
+down_revision: str | Sequence[str] | None = "0008"
 branch_labels: str | Sequence[str] | None = None
 depends_on: str | Sequence[str] | None = None
 

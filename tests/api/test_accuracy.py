@@ -10,6 +10,8 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
+from tests.conftest import SharedData
+
 MIN_ACCURACY = 0.35
 
 
@@ -25,9 +27,9 @@ def content_labels(bandai: Path) -> dict[str, str]:
 
 @pytest.mark.slow
 def test_bandai_leave_one_out_accuracy(
-    client: TestClient, shared_data: Path, capsys: pytest.CaptureFixture[str]
+    client: TestClient, shared_data: SharedData, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    bandai = shared_data / "bandai-ds1"
+    bandai = shared_data("bandai-ds1")
     labels = content_labels(bandai)
     action_of: dict[int, str] = {}
     for filename, action in labels.items():

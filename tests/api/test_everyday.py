@@ -346,3 +346,294 @@ def test_health_missing_counts_clips_without_a_vector(
     assert health["indexes"]["posture"]["missing"] == 0
     assert health["indexes"]["posture"]["size"] == 2
     assert health["indexes"]["kinetic"]["missing"] == 1
+
+
+# -- issue 24, item 20: small things that were wrong ---------------------------------------
+
+
+def test_every_route_refuses_a_query_parameter_it_does_not_take(fake_client: TestClient) -> None:
+    clip = stored(fake_client, "one", [0, 0, 0], [])
+    spec = fake_client.get("/openapi.json").json()
+    checked = 0
+    for path, methods in spec["paths"].items():
+        for method in methods:
+            url = path.replace("{clip_id}", str(clip))
+            response = fake_client.request(method.upper(), f"{url}?name=walk")
+            assert response.status_code == 422, (method, path, response.text)
+            body = response.json()
+            assert body["error"] == "invalid_input", (method, path)
+            assert body["detail"].startswith("name: unknown query parameter"), body
+            checked += 1
+    assert checked >= 15
+    # The message names what the route takes; a known parameter still works.
+    detail = fake_client.get("/clips?name=walk").json()["detail"]
+    assert "label" in detail and "limit" in detail
+    assert fake_client.get("/clips?limit=5").status_code == 200
+    assert fake_client.get("/clips").json()["total"] == 1  # nothing was deleted meanwhile
+
+
+def test_joint_count_leaves_out_end_sites(client: TestClient, fixtures_dir: Any) -> None:
+    from app.motion.formats import read_bvh
+
+    path = fixtures_dir / "bandai_walk_normal_001_first40.bvh"
+    skeleton = read_bvh(path.read_text()).skeleton
+    joints = int((~skeleton.end_site).sum())
+    assert 0 < joints < skeleton.joint_count  # the file has end sites
+    clip = client.post("/clips", files={"file": (path.name, path.read_bytes())}).json()
+    assert clip["joint_count"] == joints
+
+
+def test_animations_stored_before_count_seconds_as_the_clip_does() -> None:
+    # Rows written before: "duration" = first to last key ((n - 1) / rate).
+    old = '[{"name": "walk", "frame_count": 121, "duration": 5.0, "selected": true}]'
+    (walk,) = clip_db.decode_animations(old) or ()
+    assert walk.duration == pytest.approx(121 / 24)
+    record = clip_db.AnimationRecord("run", 10, 10 / 30, False)
+    assert clip_db.decode_animations(clip_db.encode_animations([record])) == (record,)
+
+
+def test_a_fresh_library_says_so_once(settings: Settings, caplog: pytest.LogCaptureFixture) -> None:
+    import logging
+
+    caplog.set_level(logging.INFO)
+    open_library(settings, describer=FakeDescriber()).close()
+    fresh = [r for r in caplog.records if "new library" in r.getMessage()]
+    assert len(fresh) == 1 and fresh[0].levelno == logging.INFO
+    assert not [r for r in caplog.records if "rebuilt" in r.getMessage()]
+    caplog.clear()
+    open_library(settings, describer=FakeDescriber()).close()  # the files are there now
+    said = [r.getMessage() for r in caplog.records if r.levelno >= logging.INFO]
+    assert not [message for message in said if "index" in message], said
+
+
+# -- issue 24, items 12-14: licence filters, one search box, bulk labels -------------------
+
+
+@pytest.fixture
+def licensed(fake_client: TestClient) -> dict[str, int]:
+    def add(name: str, posture: list[float], licence: str | None, **extra: Any) -> int:
+        data = {"licence": licence} if licence else {}
+        response = upload(fake_client, name, posture, **data, **extra)
+        assert response.status_code == 201, response.text
+        clip_id: int = response.json()["id"]
+        return clip_id
+
+    return {
+        "cc0_walk": add("cc0_walk", [0, 0, 1], "CC0", labels=["walk"], source="studio A"),
+        "nc_walk": add("nc_walk", [0, 0, 2], "CC BY-NC 4.0", labels=["walk"]),
+        "nc_run": add("nc_run", [0, 0, 3], "cc by-nc 4.0", labels=["run"]),
+        "by_jump": add("by_jump", [0, 0, 4], "CC BY 4.0", labels=["jump"], source="Studio B"),
+        "unknown": add("unknown", [0, 0, 5], None),
+    }
+
+
+@pytest.mark.parametrize(
+    "query, expected",
+    [
+        ("licence=CC0", ["cc0_walk"]),
+        ("licence=cc%20by-nc%204.0", ["nc_walk", "nc_run"]),
+        ("licence=CC0,CC%20BY%204.0", ["cc0_walk", "by_jump"]),
+        ("licence=CC0&licence=CC%20BY%204.0", ["cc0_walk", "by_jump"]),
+        ("licence=!CC%20BY-NC%204.0", ["cc0_walk", "by_jump", "unknown"]),
+        ("licence=!cc0,!CC%20BY-NC%204.0", ["by_jump", "unknown"]),
+        ("licence=CC0,CC%20BY%204.0&licence=!CC0", ["by_jump"]),
+        ("licence=&licence=%20", ["cc0_walk", "nc_walk", "nc_run", "by_jump", "unknown"]),
+        ("licence=!CC%20BY-NC%204.0&label=walk", ["cc0_walk"]),
+    ],
+)
+def test_licence_filters_on_the_list_and_both_searches(
+    fake_client: TestClient, licensed: dict[str, int], query: str, expected: list[str]
+) -> None:
+    listed = fake_client.get(f"/clips?{query}")
+    assert listed.status_code == 200, listed.text
+    assert names(listed.json()) == expected and listed.json()["total"] == len(expected)
+    # A filtered search is the unfiltered ranking restricted to the clips the filter keeps.
+    probe = upload(fake_client, "probe", [0, 0, 0], licence="probe").json()["id"]
+    everything = fake_client.get(f"/search?clip={probe}&k=10").json()["results"]
+    kept = [h["name"] for h in everything if h["name"] in expected]
+    searched = fake_client.get(f"/search?clip={probe}&k=10&{query}")
+    assert [h["name"] for h in searched.json()["results"]] == kept
+    for k in range(1, len(kept) + 1):
+        top = fake_client.get(f"/search?clip={probe}&k={k}&{query}").json()["results"]
+        assert [h["name"] for h in top] == kept[:k]
+    keeps = set(names(fake_client.get(f"/clips?{query}").json()))  # the probe too, maybe
+    query_file = {"file": ("q.bvh", fake_motion([0, 0, 0.1]))}
+    unfiltered = fake_client.post("/search?k=10", files=query_file).json()["results"]
+    by_file = fake_client.post(f"/search?k=10&{query}", files=query_file).json()["results"]
+    assert [h["name"] for h in by_file] == [h["name"] for h in unfiltered if h["name"] in keeps]
+
+
+def test_licence_filter_is_documented(fake_client: TestClient) -> None:
+    spec = fake_client.get("/openapi.json").json()
+    for path, method in (("/clips", "get"), ("/search", "get"), ("/search", "post")):
+        params = {p["name"]: p for p in spec["paths"][path][method]["parameters"]}
+        assert "`!`" in params["licence"]["description"], path
+
+
+@pytest.mark.parametrize(
+    "q, expected",
+    [
+        ("walk", ["cc0_walk", "nc_walk"]),  # names and labels
+        ("WALK studio", ["cc0_walk"]),  # words ANDed, any case, source
+        ("studio", ["cc0_walk", "by_jump"]),
+        ("nc_walk.bvh", ["nc_walk"]),  # file names
+        ("by-nc", ["nc_walk", "nc_run"]),  # licence
+        ("jump 4.0", ["by_jump"]),
+        ("100%", []),  # % and _ are plain characters
+        ("  ", ["cc0_walk", "nc_walk", "nc_run", "by_jump", "unknown"]),
+    ],
+)
+def test_one_search_box_finds_text_anywhere(
+    fake_client: TestClient, licensed: dict[str, int], q: str, expected: list[str]
+) -> None:
+    response = fake_client.get("/clips", params={"q": q})
+    assert response.status_code == 200, response.text
+    assert names(response.json()) == expected
+
+
+def test_sorting_the_list(fake_client: TestClient) -> None:
+    for name, frames in (("b", 30), ("A", 10), ("c", 20)):
+        motion = fake_motion([frames, 0, 0], frames=frames)
+        assert fake_client.post("/clips", files={"file": (f"{name}.bvh", motion)}).is_success
+
+    def order(sort: str) -> list[str]:
+        response = fake_client.get("/clips", params={"sort": sort})
+        assert response.status_code == 200, response.text
+        return names(response.json())
+
+    assert order("id") == ["b", "A", "c"] == order("created_at")
+    assert order("-created_at") == ["c", "A", "b"] == order("-id")
+    assert order("name") == ["A", "b", "c"] and order("-name") == ["c", "b", "A"]
+    assert order("frame_count") == ["A", "c", "b"] == order("duration")
+    assert order("-frame_count") == ["b", "c", "A"]
+    page = fake_client.get("/clips", params={"sort": "name", "limit": 1, "offset": 1}).json()
+    assert names(page) == ["b"] and page["total"] == 3
+    bad = fake_client.get("/clips", params={"sort": "size"})
+    assert bad.status_code == 422 and "sort: unknown 'size'" in bad.json()["detail"]
+
+
+def labels_by_name(client: TestClient) -> dict[str, list[str]]:
+    return {c["name"]: c["labels"] for c in client.get("/clips").json()["items"]}
+
+
+def test_bulk_labels_by_ids_label_licence_or_text(
+    fake_client: TestClient, licensed: dict[str, int]
+) -> None:
+    ids = [licensed["cc0_walk"], licensed["nc_run"]]
+    done = fake_client.post("/clips/labels", json={"ids": ids, "add": ["Todo", "todo, keep"]})
+    assert done.status_code == 200, done.text
+    assert done.json() == {"matched": 2, "changed": 2, "added": ["Todo", "keep"], "removed": []}
+    labels = labels_by_name(fake_client)
+    assert labels["cc0_walk"] == ["walk", "Todo", "keep"] and labels["nc_run"] == [
+        "run",
+        "Todo",
+        "keep",
+    ]
+    # Again: nothing changes (a label a clip carries in any case is not added twice).
+    again = fake_client.post("/clips/labels", json={"ids": ids, "add": ["TODO"]}).json()
+    assert again["matched"] == 2 and again["changed"] == 0
+    # By label and licence (all given must hold), removing in any case.
+    removed = fake_client.post(
+        "/clips/labels", json={"label": ["todo"], "licence": ["!CC0"], "remove": ["TODO"]}
+    ).json()
+    assert (removed["matched"], removed["changed"]) == (1, 1)
+    assert labels_by_name(fake_client)["nc_run"] == ["run", "keep"]
+    # By the search box's text; then every clip.
+    texted = fake_client.post("/clips/labels", json={"q": "studio", "add": ["studio"]}).json()
+    assert (texted["matched"], texted["changed"]) == (2, 2)
+    every = fake_client.post("/clips/labels", json={"all": True, "remove": ["keep"]}).json()
+    assert (every["matched"], every["changed"]) == (5, 2)
+    labels = labels_by_name(fake_client)
+    assert labels["by_jump"] == ["jump", "studio"] and labels["cc0_walk"] == [
+        "walk",
+        "Todo",
+        "studio",
+    ]
+    # Searches filter by the new labels at once.
+    found = fake_client.get("/clips?label=studio").json()
+    assert sorted(names(found)) == ["by_jump", "cc0_walk"]
+    # PATCH still replaces a clip's labels.
+    patched = fake_client.patch(f"/clips/{licensed['by_jump']}", json={"labels": ["only"]})
+    assert patched.json()["labels"] == ["only"]
+
+
+@pytest.mark.parametrize(
+    "body, message",
+    [
+        ({"add": ["x"]}, "name the clips"),
+        ({"ids": [1]}, "add, remove"),
+        ({"ids": [1], "add": ["x" * 101]}, "over 100 characters"),
+        ({"ids": [1], "add": ["x"], "colour": "red"}, "colour"),
+        ({"ids": "1", "add": ["x"]}, "ids"),
+    ],
+)
+def test_bulk_labels_say_what_is_wrong(
+    fake_client: TestClient, licensed: dict[str, int], body: dict[str, Any], message: str
+) -> None:
+    response = fake_client.post("/clips/labels", json=body)
+    assert response.status_code == 422, response.text
+    assert response.json()["error"] == "invalid_input"
+    assert message in response.json()["detail"]
+
+
+def test_bulk_labels_keep_the_label_limit(fake_client: TestClient) -> None:
+    many = [f"l{i}" for i in range(99)]
+    clip = upload(fake_client, "full", [1, 2, 3], labels=many).json()["id"]
+    refused = fake_client.post("/clips/labels", json={"ids": [clip], "add": ["a", "b"]})
+    assert refused.status_code == 422 and "more than 100 labels" in refused.json()["detail"]
+    assert len(fake_client.get(f"/clips/{clip}").json()["labels"]) == 99  # all or nothing
+
+
+def test_bulk_labels_need_the_key(tmp_path: Any) -> None:
+    from app.main import create_app
+
+    settings = Settings(data_dir=tmp_path / "data", api_key="s3cret")
+    with TestClient(create_app(settings, describer=FakeDescriber())) as client:
+        body = {"all": True, "add": ["x"]}
+        assert client.post("/clips/labels", json=body).status_code == 401
+        assert (
+            client.post("/clips/labels", json=body, headers={"X-API-Key": "no"}).status_code == 403
+        )
+        ok = client.post("/clips/labels", json=body, headers={"X-API-Key": "s3cret"})
+        assert ok.status_code == 200 and ok.json()["matched"] == 0
+
+
+def test_bulk_delete_by_ids_licence_or_text(
+    fake_client: TestClient, licensed: dict[str, int]
+) -> None:
+    ask = fake_client.delete("/clips?licence=cc%20by-nc%204.0")
+    assert ask.status_code == 422 and "would delete 2 clips" in ask.json()["detail"]
+    done = fake_client.delete("/clips?licence=cc%20by-nc%204.0&q=run&confirm=true")
+    assert done.json()["deleted"] == 1
+    by_id = fake_client.delete(
+        f"/clips?id={licensed['unknown']}&id={licensed['cc0_walk']}&confirm=true"
+    )
+    assert by_id.json()["deleted"] == 2
+    assert names(fake_client.get("/clips").json()) == ["nc_walk", "by_jump"]
+    nothing = fake_client.delete("/clips?confirm=true")
+    assert nothing.status_code == 422 and nothing.json()["error"] == "invalid_input"
+
+
+def test_bulk_selections_refuse_ids_no_clip_can_have(fake_client: TestClient) -> None:
+    for body in ({"ids": [2**63], "add": ["x"]}, {"ids": [-1, 0], "add": ["x"]}):
+        response = fake_client.post("/clips/labels", json=body)
+        assert response.status_code == 422 and "is no clip id" in response.json()["detail"]
+    response = fake_client.delete(f"/clips?id={2**64}&confirm=true")
+    assert response.status_code == 422 and response.json()["error"] == "invalid_input"
+
+
+@pytest.mark.parametrize("param", ["q", "licence", "label"])
+def test_filters_with_control_characters_never_fail(fake_client: TestClient, param: str) -> None:
+    stored(fake_client, "one", [0, 0, 0], [])
+    for route in ("/clips", "/search?clip=1"):
+        response = fake_client.get(route, params={param: "a\x00b"})
+        assert response.status_code in (200, 422), (route, response.text)
+
+
+def test_labels_with_a_nul_character_are_refused(fake_client: TestClient) -> None:
+    clip = stored(fake_client, "one", [0, 0, 0], [])
+    for response in (
+        fake_client.post("/clips/labels", json={"all": True, "add": ["a\x00"]}),
+        fake_client.patch(f"/clips/{clip}", json={"labels": ["a\x00"]}),
+    ):
+        assert response.status_code == 422 and "NUL" in response.json()["detail"]

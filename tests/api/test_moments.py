@@ -119,6 +119,7 @@ def test_moments_of_a_stored_span(take_client: tuple[TestClient, int, int]) -> N
         "start",
         "end",
         "distance",
+        "similarity",
     }
     distances = [r["distance"] for r in results]
     assert distances == sorted(distances)
@@ -179,7 +180,12 @@ def test_cut_bvh_download_has_the_frames_and_finds_its_source_span(
     found = client.post("/search/moments", files={"file": ("cut.bvh", response.content)})
     assert found.status_code == 200, found.text
     body = found.json()
-    assert body["query"] == {"clip": None, "start": 0.0, "end": pytest.approx(1.5, abs=1e-5)}
+    assert body["query"] == {
+        "clip": None,
+        "start": 0.0,
+        "end": pytest.approx(1.5, abs=1e-5),
+        "stored_clip": None,
+    }
     top = body["results"][0]
     assert top["id"] == take and iou((top["start"], top["end"]), (1.0, 2.5)) >= 0.8
     # It starts where a stored window does: its first part lies on that window, to a frame.
@@ -385,3 +391,35 @@ def test_window_places_come_from_their_file_and_catch_up(settings: Settings) -> 
         other.engine.dispose()  # killed: nothing saved
     with TestClient(create_app(settings)) as client:
         assert window_index_sizes(client) == window_rows(settings)  # the places agree too
+
+
+# -- issue 24: licence filters, collapse=capture, "this file is clip #N", similarity ----------
+
+
+def test_moments_filters_collapse_and_the_stored_file(
+    take_client: tuple[TestClient, int, int],
+) -> None:
+    client, take, walk = take_client
+    # The walk again in another file (one more newline): the same capture twice.
+    copy = upload(client, fixture_bytes(BANDAI_FIXTURE) + b"\n", "walk copy.bvh")["id"]
+    client.patch(f"/clips/{walk}", json={"licence": "CC BY-NC 4.0"})
+    span = {"clip": take, "start": 0.0, "end": 1.3, "k": 10}
+    everything = client.get("/search/moments", params=span).json()["results"]
+    assert {walk, copy} <= {m["id"] for m in everything}
+    assert all(0 <= m["similarity"] <= 100 for m in everything)
+    for licence, keeps in (("cc by-nc 4.0", {walk}), ("!CC BY-NC 4.0", {take, copy})):
+        kept = [m for m in everything if m["id"] in keeps]
+        found = client.get("/search/moments", params={**span, "licence": licence}).json()
+        assert found["results"] == kept, licence
+    collapsed = client.get("/search/moments", params={**span, "collapse": "capture"}).json()
+    ids = [m["id"] for m in collapsed["results"]]
+    assert walk in ids and copy not in ids  # the copy is listed with the walk's moment
+    first = collapsed["results"][ids.index(walk)]
+    assert [(o["id"], o["start"]) for o in first["others"]] == [(copy, first["start"])]
+    # Searching with a stored file names it.
+    stored = client.post(
+        "/search/moments", files={"file": ("w.bvh", fixture_bytes(BANDAI_FIXTURE))}
+    )
+    assert stored.json()["query"]["stored_clip"] == {"id": walk, "name": "walk"}
+    assert stored.json()["results"][0]["id"] in (take, walk, copy)  # the take holds it too
+    assert stored.json()["results"][0]["distance"] == 0.0

@@ -20,7 +20,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from tests.conftest import REPO_ROOT
+from tests.conftest import REPO_ROOT, SharedData
 
 
 def _free_port() -> int:
@@ -83,10 +83,10 @@ def all_searches(client: httpx.Client, ids: list[int], names: list[str]) -> dict
     return answers
 
 
-def test_restart_with_missing_or_damaged_indexes(shared_data: Path, tmp_path: Path) -> None:
+def test_restart_with_missing_or_damaged_indexes(shared_data: SharedData, tmp_path: Path) -> None:
     data_dir, log = tmp_path / "data", tmp_path / "server.log"
-    bandai = shared_data / "bandai-ds1" / "data"
-    cmu = shared_data / "cmu" / "asf-amc" / "02"
+    bandai = shared_data("bandai-ds1", "data")
+    cmu = shared_data("cmu", "asf-amc", "02")
     with running_server(data_dir, log) as client:
         ids = []
         for path in sorted(bandai.glob("*.bvh"))[::17]:  # 11 clips of various actions

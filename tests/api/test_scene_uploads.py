@@ -46,10 +46,12 @@ def test_an_fbx_upload_is_a_clip_listing_its_animations(live):
         {
             "name": "Take 001",
             "frame_count": 120,
-            "duration": pytest.approx(119 / 24),
+            "duration": pytest.approx(120 / 24),
             "selected": True,
         }
     ]
+    # The frames' cover, as the clip's own duration counts it.
+    assert clip["animations"][0]["duration"] == pytest.approx(clip["duration"])
     # The same animation of the same file, named or not, is the same clip.
     again = live.post("/clips", files={"file": FBX}, data={"animation": "Take 001"})
     assert again.status_code == 200 and again.json()["id"] == clip["id"]

@@ -65,6 +65,7 @@ def test_search_by_clip_is_exact_and_excludes_the_query(fake_client: TestClient)
         "filenames",
         "skeleton_family",
         "distance",
+        "similarity",
     } and first["labels"] == ["even"]
 
 
@@ -138,3 +139,65 @@ def test_descriptors_and_health(fake_client: TestClient) -> None:
     health = fake_client.get("/health").json()
     assert health["status"] == "ok" and health["clips"] == 0
     assert health["indexes"]["posture"] == {"size": 0, "dimension": 3, "version": 1, "missing": 0}
+
+
+# -- issue 24: similarity, collapse=capture, "this file is clip #N" ------------------------
+
+
+def add(client: TestClient, name: str, posture: list[float], kinetic: list[float]) -> int:
+    # The name goes into the bytes too: same vectors, another file.
+    motion = fake_motion(posture, kinetic, name=name)
+    response = client.post("/clips", files={"file": (f"{name}.bvh", motion)})
+    assert response.status_code == 201, response.text
+    clip_id: int = response.json()["id"]
+    return clip_id
+
+
+def test_every_hit_has_a_similarity_that_falls_with_distance(fake_client: TestClient) -> None:
+    ids = library(fake_client)
+    for clip in ids[:3]:
+        hits = fake_client.get("/search", params={"clip": clip, "k": 10}).json()["results"]
+        similarity = [h["similarity"] for h in hits]
+        assert all(0.0 <= s <= 100.0 for s in similarity)
+        assert similarity == sorted(similarity, reverse=True)
+        assert similarity[0] > similarity[-1]
+    same = fake_client.post("/search", files={"file": ("c.bvh", fake_motion([0, 0, 0]))})
+    assert same.json()["results"][0]["similarity"] == 100.0  # nothing is nearer than 0
+
+
+def test_collapse_capture_keeps_one_result_per_capture(fake_client: TestClient) -> None:
+    query = add(fake_client, "q", [0, 0, 0], [0, 0])
+    copy = add(fake_client, "q_copy", [0, 0, 0], [0, 0])
+    a = add(fake_client, "a", [1, 0, 0], [1, 1])
+    a_bvh = add(fake_client, "a_bvh", [1, 0, 0], [1, 1])
+    a_amc = add(fake_client, "a_amc", [1, 0, 0], [1, 1])
+    b = add(fake_client, "b", [2, 0, 0], [5, 5])
+    c = add(fake_client, "c", [3, 0, 0], [5, 5])  # as near as b under kinetic only
+    plain = fake_client.get(f"/search?clip={query}&k=3").json()
+    assert [h["id"] for h in plain["results"]] == [copy, a, a_bvh]
+    assert "others" not in plain["results"][0] and "query_others" not in plain
+    body = fake_client.get(f"/search?clip={query}&k=3&collapse=capture").json()
+    assert [h["id"] for h in body["results"]] == [a, b, c]
+    assert [o["id"] for o in body["results"][0]["others"]] == [a_bvh, a_amc]
+    assert body["results"][0]["others"][0]["distance"] == 1.0
+    assert body["results"][1]["others"] == []
+    assert [o["id"] for o in body["query_others"]] == [copy]
+    # A file: its own capture is a result like any other.
+    uploaded = fake_client.post(
+        "/search?k=2&collapse=capture", files={"file": ("x.bvh", fake_motion([0, 0, 0], [0, 0]))}
+    ).json()
+    assert [h["id"] for h in uploaded["results"]] == [query, a]
+    assert [o["id"] for o in uploaded["results"][0]["others"]] == [copy]
+    bad = fake_client.get(f"/search?clip={query}&collapse=files")
+    assert bad.status_code == 422 and bad.json()["error"] == "invalid_input"
+
+
+def test_searching_with_a_stored_file_says_which_clip_it_is(fake_client: TestClient) -> None:
+    ids = library(fake_client)
+    stored = fake_client.get(f"/clips/{ids[2]}").json()
+    data = fake_motion(POINTS[2], kinetic=[2, 0])  # the very bytes library() uploaded as c2
+    body = fake_client.post("/search?k=1", files={"file": ("any name.bvh", data)}).json()
+    assert body["query"]["stored_clip"] == {"id": ids[2], "name": stored["name"]}
+    assert body["results"][0]["id"] == ids[2] and body["results"][0]["distance"] == 0.0
+    other = fake_client.post("/search?k=1", files={"file": ("n.bvh", fake_motion([9, 9, 9]))})
+    assert other.json()["query"]["stored_clip"] is None

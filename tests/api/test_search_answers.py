@@ -1,7 +1,9 @@
 """Search answers byte for byte: a fixed library, a fixed list of requests, and the answers the
 service gave before search moved from SQL to the in-memory catalogue (issue 23), recorded in
-``tests/fixtures/search-answers.json``. Any change to what a search returns — a hit, a
-distance's last digit, a field's order, a label's spelling, an error's wording — shows here.
+``tests/fixtures/search-answers.json`` (recorded again by main's SQL code when issue 24 added
+licence filters, ``collapse`` and ``similarity``). Any change to what a search returns — a
+hit, a distance's last digit, a field's order, a label's spelling, an error's wording — shows
+here.
 
 The library is written row by row with integer-valued vectors: every distance is then the
 square root of an exact integer sum whatever the order FAISS or BLAS add in, so the recorded
@@ -76,7 +78,11 @@ def build_library(settings: Settings) -> None:
                     skeleton_family=("bandai", "cmu", "mixamo")[number % 3],
                     lead_in_frames=0,
                     labels=labels,
-                    files=tuple(
+                    # Odd clips have no stored file: a moments search from one reads its
+                    # stored windows (the others' files are not written, so not readable).
+                    files=()
+                    if number % 2
+                    else tuple(
                         clip_db.FileRecord(
                             "file" if len(files) == 1 else role, f"{number}-{name}", "0" * 64, 1
                         )
@@ -117,15 +123,24 @@ def requests() -> list[str]:
         "/search?clip=3&k=0",
         "/search?clip=3&descriptor=bogus",
         "/search?clip=x",
+        "/search?clip=3&k=10&licence=CC BY 4.0",
+        "/search?clip=3&k=10&licence=!cc by 4.0",
+        "/search?clip=3&k=10&licence=CC BY 4.0&label=walk",
+        "/search?clip=3&k=10&licence=nobody's",
+        "/search?clip=3&k=10&collapse=capture",
+        "/search?clip=18&k=4&descriptor=posture&collapse=capture&licence=!CC BY 4.0",
     ]
-    paths += [f"/search/moments?clip={clip}" for clip in (1, 5, 11, 30)]
+    paths += [f"/search/moments?clip={clip}" for clip in (1, 5, 11, 31)]
     paths += [
-        "/search/moments?clip=4&k=5&per_clip=1",
-        "/search/moments?clip=4&k=20&label=walk",
+        "/search/moments?clip=3&k=5&per_clip=1",
+        "/search/moments?clip=3&k=20&label=walk",
         "/search/moments?clip=9&start=0&end=1",
         "/search/moments?clip=9&start=0.1&end=2.3",
         "/search/moments?clip=999",
         "/search/moments?clip=9&descriptor=posture",
+        "/search/moments?clip=3&k=8&licence=CC BY 4.0",
+        "/search/moments?clip=3&k=8&licence=!CC BY 4.0&label=happy",
+        "/search/moments?clip=7&k=5&collapse=capture",
     ]
     return paths
 

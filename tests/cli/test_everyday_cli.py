@@ -133,3 +133,64 @@ def test_fill_synthetic_help_says_use_another_data_dir(
     text = " ".join(capsys.readouterr().out.split())
     assert "use a separate --data-dir" in text
     assert "mocap-index delete --label synthetic --yes" in text
+
+
+# -- issue 24: --source / --licence for a whole import; exit codes on a re-run --------------
+
+
+def notes_of(settings: Settings) -> dict[str, tuple[str | None, str | None]]:
+    db = sqlite3.connect(settings.data_dir / "mocap-index.sqlite3")
+    try:
+        return {n: (s, li) for n, s, li in db.execute("SELECT name, source, licence FROM clips")}
+    finally:
+        db.close()
+
+
+def test_import_gives_every_clip_a_source_and_licence_unless_its_row_does(
+    settings: Settings, cmu_folder: Path
+) -> None:
+    argv = ["import", "--no-progress", "--workers", "1", "--data-dir", str(settings.data_dir)]
+    notes = ["--source", " CMU mocap ", "--licence", "CC0"]
+    tsv = ["--labels-tsv", str(cmu_folder / "labels.tsv")]
+    assert main([*argv, *notes, *tsv, str(cmu_folder)]) == 0
+    assert notes_of(settings) == {
+        "02_01": ("CMU mocap", "free for any use"),  # its TSV row's licence wins
+        "05_02": ("CMU mocap", "CC0"),
+    }
+    # A re-run gives duplicates what it brings (US spelling of the flag too).
+    assert main([*argv, "--license", "CC BY 4.0", str(cmu_folder)]) == 0
+    assert notes_of(settings)["05_02"] == ("CMU mocap", "CC BY 4.0")
+
+
+@pytest.fixture
+def folder_with_a_bad_file(tmp_path: Path, fixtures_dir: Path) -> Path:
+    folder = tmp_path / "takes"
+    folder.mkdir()
+    shutil.copy(fixtures_dir / FIXTURE, folder / "good.bvh")
+    (folder / "broken.bvh").write_text("HIERARCHY\nROOT Hips\n{\n")  # cut short
+    (folder / "lonely.amc").write_text(":FULLY-SPECIFIED\n1\nroot 0 0 0 0 0 0\n")  # no .asf
+    return folder
+
+
+def test_a_rerun_over_known_unreadable_files_exits_0(
+    settings: Settings, folder_with_a_bad_file: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = ["import", "--no-progress", "--workers", "1", "--data-dir", str(settings.data_dir)]
+    folder = str(folder_with_a_bad_file)
+    assert main([*argv, folder]) == 1  # first report of the two refusals
+    first = capsys.readouterr().out
+    assert "imported 1" in first and "failed 2 of 3" in first and "refused before" not in first
+    assert main([*argv, folder]) == 0  # nothing new: the same two refusals
+    again = capsys.readouterr().out
+    assert "failed 2 (2 refused before) of 3" in again
+    assert "broken.bvh" in again and "(refused before)" in again
+    assert main([*argv, "--strict", folder]) == 1
+    capsys.readouterr()
+    # Changed bytes are a new failure; a file that imports now is forgotten.
+    (folder_with_a_bad_file / "broken.bvh").write_text("HIERARCHY\nROOT Hip\n{\n")
+    assert main([*argv, folder]) == 1
+    assert "failed 2 (1 refused before)" in capsys.readouterr().out
+    shutil.copy(folder_with_a_bad_file / "good.bvh", folder_with_a_bad_file / "broken.bvh")
+    assert main([*argv, folder]) == 0
+    remembered = (settings.data_dir / "import-refusals.json").read_text()
+    assert "lonely.amc" in remembered and "broken.bvh" not in remembered

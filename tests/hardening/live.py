@@ -45,6 +45,20 @@ def unique_amc(n: int) -> bytes:
     ).encode()
 
 
+def stretched_bvh(frames: int, n: int, text: str = BVH_TEXT) -> bytes:
+    """A real BVH (the CMU fixture, or ``text``) played back and forth to ``frames`` frames;
+    ``n`` moves frame 1's root a little: new content."""
+    head, _, body = text.partition("MOTION")
+    lines = [line for line in body.strip().splitlines() if line.strip()]
+    frame_time, rows = lines[1], lines[2:]
+    order = [*range(len(rows)), *range(len(rows) - 2, 0, -1)]
+    chosen = [rows[order[i % len(order)]] for i in range(frames)]
+    first = chosen[0].split()
+    first[0] = f"{float(first[0]) + n * 1e-4:.4f}"
+    chosen[0] = " ".join(first)
+    return (f"{head}MOTION\nFrames: {frames}\n{frame_time}\n" + "\n".join(chosen) + "\n").encode()
+
+
 def unique_upload(n: int) -> dict[str, tuple[str, bytes]]:
     """Upload fields for clip number ``n``: a BVH, or every third one an ASF + AMC."""
     if n % 3 == 2:
@@ -126,6 +140,40 @@ class LiveServer:
 
     def __exit__(self, *exc: Any) -> None:
         self.stop()
+
+
+def raw_request(
+    server: LiveServer, head: bytes, body_chunks: list[bytes], timeout: float = 10.0
+) -> bytes:
+    """Send a request by hand; returns what the server answered within ``timeout`` seconds
+    (``b""``: nothing). The body may be cut short: the server must answer from the head."""
+    with socket.create_connection(("127.0.0.1", server.port), timeout=timeout) as sock:
+        sock.sendall(head)
+        for chunk in body_chunks:
+            try:
+                sock.sendall(chunk)
+            except OSError:  # the server answered and closed: the rest is refused
+                break
+        answer = b""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                data = sock.recv(65536)
+            except TimeoutError:
+                break
+            if not data:
+                break
+            answer += data
+            head_end = answer.find(b"\r\n\r\n")
+            if head_end >= 0:
+                length = 0
+                for line in answer[:head_end].split(b"\r\n")[1:]:
+                    name, _, value = line.partition(b":")
+                    if name.strip().lower() == b"content-length":
+                        length = int(value)
+                if len(answer) >= head_end + 4 + length:
+                    break
+        return answer
 
 
 def percentiles(values: list[float]) -> dict[str, float]:

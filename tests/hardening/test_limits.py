@@ -4,8 +4,6 @@ chunked body streams in."""
 
 from __future__ import annotations
 
-import socket
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -18,7 +16,7 @@ from app.config import Settings
 from app.main import create_app
 from app.services.describe import MotionDescriber
 from app.services.uploads import Upload
-from tests.hardening.live import LiveServer, unique_upload
+from tests.hardening.live import LiveServer, raw_request, unique_upload
 
 
 def client_with(settings: Settings, **changes: Any) -> TestClient:
@@ -87,7 +85,8 @@ def test_k_and_page_size_limits(settings: Settings) -> None:
 
 
 def test_describe_time_is_checked_between_stages(monkeypatch: pytest.MonkeyPatch) -> None:
-    """A slow parse (simulated clock) is caught before the descriptors are computed."""
+    """A slow parse (simulated clock) is caught before the descriptors are computed (inside
+    the read since the readers look at the deadline themselves, or right after it)."""
     from app.services import describe as describe_module
 
     clock = iter([0.0, 10.0, 10.0, 10.0])
@@ -96,7 +95,7 @@ def test_describe_time_is_checked_between_stages(monkeypatch: pytest.MonkeyPatch
     monkeypatch.setattr(describe_module, "analyse", lambda *a, **k: computed.append(a))
     describer = MotionDescriber(time_limit=5.0)
     upload = Upload.from_files(file=unique_upload(0)["file"])
-    with pytest.raises(describe_module.DescribeTimeout, match="after reading the file"):
+    with pytest.raises(describe_module.DescribeTimeout, match="reading the file"):
         describer.describe(upload, Settings().parse_limits)
     assert computed == []
 
@@ -111,34 +110,6 @@ def small_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveServe
         yield server
 
 
-def raw_request(server: LiveServer, head: bytes, body_chunks: list[bytes]) -> bytes:
-    """Send a request by hand; returns what the server answered (within 10 s)."""
-    with socket.create_connection(("127.0.0.1", server.port), timeout=10) as sock:
-        sock.sendall(head)
-        for chunk in body_chunks:
-            try:
-                sock.sendall(chunk)
-            except OSError:  # the server answered and closed: the rest is refused
-                break
-        answer = b""
-        deadline = time.monotonic() + 10
-        while time.monotonic() < deadline:
-            data = sock.recv(65536)
-            if not data:
-                break
-            answer += data
-            head_end = answer.find(b"\r\n\r\n")
-            if head_end >= 0:
-                length = 0
-                for line in answer[:head_end].split(b"\r\n")[1:]:
-                    name, _, value = line.partition(b":")
-                    if name.strip().lower() == b"content-length":
-                        length = int(value)
-                if len(answer) >= head_end + 4 + length:
-                    break
-        return answer
-
-
 def test_declared_length_over_the_limit_is_refused_before_the_body(
     small_server: LiveServer,
 ) -> None:
@@ -147,11 +118,9 @@ def test_declared_length_over_the_limit_is_refused_before_the_body(
         b"Content-Type: multipart/form-data; boundary=xx\r\n"
         b"Content-Length: 1000000000\r\n\r\n"
     )
-    started = time.monotonic()
     answer = raw_request(small_server, head, [])  # not a byte of the gigabyte is sent
     assert answer.startswith(b"HTTP/1.1 413"), answer[:200]
     assert b"payload_too_large" in answer
-    assert time.monotonic() - started < 5
 
 
 def test_chunked_body_over_the_limit_is_cut_off_while_streaming(small_server: LiveServer) -> None:

@@ -8,6 +8,11 @@ nesting 10,000 deep, a memory bomb...) come from :func:`big_cases` at test time,
 a temporary directory, so the repository stays small.
 
 The generator is deterministic: running it again rewrites the same bytes.
+
+Beside it, ``found.json`` and ``found/`` keep every failure the upload fuzz suite
+(``tests/hardening/test_upload_fuzz.py``) ever found, as it was found: :func:`record_found`
+adds one, nothing rewrites them, and both that suite and this one replay them
+(:func:`load_cases` reads either table).
 """
 
 from __future__ import annotations
@@ -20,11 +25,14 @@ import re
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 HERE = Path(__file__).resolve().parent
 TESTS = HERE.parent
 CORPUS = HERE / "corpus"
 EXPECTED = HERE / "expected.json"
+FOUND = HERE / "found.json"
+FOUND_DIR = HERE / "found"
 FIXTURES = TESTS / "fixtures"
 
 BVH_FIXTURE = FIXTURES / "cmu_mb_02_01_first41.bvh"
@@ -44,9 +52,10 @@ class Case:
     name: str
     why: str
     parts: dict[str, tuple[str, bytes]] = field(repr=False)
-    status: int
+    status: int  # 0: no fixed answer, only the fuzz suite's rules (a fuzzer's find)
     error: str
     detail: str  # a fragment the message must contain
+    xfail: str = ""  # a known bug still open: why (the test is marked xfail, strict)
 
 
 def base_bvh(frames: int = 5) -> str:
@@ -156,11 +165,11 @@ def small_cases() -> list[Case]:
         ),
         Case(
             "no_motion",
-            "a hierarchy and no MOTION block",
+            "a hierarchy and no MOTION block: a rig",
             _bvh("nomotion.bvh", hierarchy),
             422,
-            P,
-            "MOTION",
+            "no_animation",
+            "no MOTION section",
         ),
         Case(
             "truncated_motion",
@@ -199,6 +208,31 @@ def small_cases() -> list[Case]:
             "not finite",
         ),
         Case(
+            "sentinel_1e308",
+            "1e308 (finite) for the root's position in one frame: no pose, and past float32 "
+            "in the descriptors; refused alike by upload and both searches",
+            _bvh("sentinel.bvh", _edit_frame_value(bvh, "1e308", frame=2, column=0)),
+            422,
+            P,
+            "not a pose",
+        ),
+        Case(
+            "sentinel_1e30_last_frame_but_one",
+            "1e30 for the root's height in the frame before the last",
+            _bvh("sentinel30.bvh", _edit_frame_value(bvh, "-1e30", frame=3, column=1)),
+            422,
+            P,
+            "not a pose",
+        ),
+        Case(
+            "frame_time_tiny",
+            "Frame Time: 1e-300 (every step a speed past float32)",
+            _bvh("ttiny.bvh", frame_time("1e-300")),
+            422,
+            P,
+            "absurd",
+        ),
+        Case(
             "not_a_number",
             "a word among the numbers",
             _bvh("word.bvh", _edit_frame_value(bvh, "twelve")),
@@ -214,7 +248,14 @@ def small_cases() -> list[Case]:
             P,
             "not a finite number",
         ),
-        Case("frames_zero", "Frames: 0", _bvh("f0.bvh", frames("0")), 422, P, "without motion"),
+        Case(
+            "frames_zero",
+            "Frames: 0: a rig",
+            _bvh("f0.bvh", frames("0")),
+            422,
+            "no_animation",
+            "rig with no animation",
+        ),
         Case("frames_negative", "Frames: -3", _bvh("fm3.bvh", frames("-3")), 422, P, "at least 1"),
         Case("frames_more", "Frames: 7 of 5", _bvh("f7.bvh", frames("7")), 422, P, "says 7"),
         # Accepted since #10: Frames: is a claim; lines beyond it are ignored with a warning.
@@ -519,19 +560,19 @@ def scene_cases() -> list[Case]:
         ),
         Case(
             "glb_no_skeleton",
-            "an animation but no skin",
-            {"file": ("n.glb", pack_glb(dict(document, skins=[]), binary))},
+            "no skin, and an animation of morph weights only (no node turns or moves)",
+            {"file": ("n.glb", pack_glb(_weights_only(dict(document, skins=[])), binary))},
             422,
             P,
             "no skeleton",
         ),
         Case(
             "glb_no_animation",
-            "a skin but no animation",
+            "a skin but no animation: a rig",
             {"file": ("s.glb", pack_glb(dict(document, animations=[]), binary))},
             422,
-            P,
-            "no animation",
+            "no_animation",
+            "rig with no animation",
         ),
         Case(
             "glb_huge_accessor",
@@ -708,6 +749,34 @@ def big_cases() -> list[Case]:
             "100001 frames",
         ),
         Case(
+            "number_200k_digits_frame",
+            "one frame value of 200,000 digits then a letter (a regex backtracked on it for "
+            "22 minutes with the GIL held)",
+            _bvh("digits.bvh", _edit_frame_value(bvh, "1" * 200_000 + "x")),
+            422,
+            P,
+            "longer than 100 characters",
+        ),
+        Case(
+            "number_30k_digits_offset",
+            "an OFFSET of 30,000 digits then a letter",
+            _bvh(
+                "offset.bvh",
+                bvh.replace("OFFSET 2.59720 -7.13576", "OFFSET " + "1" * 30_000 + "x -7.13576", 1),
+            ),
+            422,
+            P,
+            "longer than 100 characters",
+        ),
+        Case(
+            "number_200k_digits_amc",
+            "an AMC value of 200,000 digits then a letter",
+            _pair(asf, amc.replace("lowerback 7.86573", "lowerback " + "1" * 200_000 + "x", 1)),
+            422,
+            P,
+            "longer than 100 characters",
+        ),
+        Case(
             "amc_10mb_line",
             "an AMC bone line of 10 MB",
             _pair(asf, amc.replace("lowerback 7.86573", "lowerback 7.86573 " + ten_mb, 1)),
@@ -732,6 +801,61 @@ def big_cases() -> list[Case]:
             "more joints",
         ),
     ]
+
+
+def _weights_only(document: dict[str, Any]) -> dict[str, Any]:
+    """``document`` with every animation channel retargeted to morph weights: a skinless
+    file whose channels turn or move no node has no skeleton (an animation without its mesh
+    is the nodes it moves)."""
+    animations = [
+        dict(a, channels=[dict(c, target=dict(c["target"], path="weights")) for c in a["channels"]])
+        for a in document["animations"]
+    ]
+    return dict(document, animations=animations)
+
+
+def load_cases(table: Path) -> list[Case]:
+    """The cases of ``table`` (``expected.json`` or ``found.json``), files read from beside it."""
+    if not table.exists():
+        return []
+    cases = []
+    for name, entry in json.loads(table.read_text()).items():
+        parts = {
+            role: (part["filename"], (table.parent / part["path"]).read_bytes())
+            for role, part in entry["parts"].items()
+        }
+        cases.append(
+            Case(
+                name,
+                entry["why"],
+                parts,
+                entry.get("status", 0),
+                entry.get("error", ""),
+                entry.get("detail", ""),
+                entry.get("xfail", ""),
+            )
+        )
+    return cases
+
+
+def record_found(case: Case, found: str) -> None:
+    """Keep a failure the fuzz suite found: its files in ``found/`` and an entry in
+    ``found.json`` saying what went wrong (commit both; mark a parser bug someone else is
+    fixing with ``"xfail": "<why>"``)."""
+    FOUND_DIR.mkdir(exist_ok=True)
+    table = json.loads(FOUND.read_text()) if FOUND.exists() else {}
+    parts = {}
+    for role, (filename, data) in case.parts.items():
+        stored = f"{case.name}.{role}{Path(filename).suffix or '.bin'}"
+        (FOUND_DIR / stored).write_bytes(data)
+        parts[role] = {"path": f"found/{stored}", "filename": filename}
+    entry: dict[str, object] = {"why": case.why, "found": found, "parts": parts}
+    if case.status:
+        entry.update(status=case.status, error=case.error, detail=case.detail)
+    if case.xfail:
+        entry["xfail"] = case.xfail
+    table[case.name] = entry
+    FOUND.write_text(json.dumps(table, indent=2, ensure_ascii=False) + "\n")
 
 
 def write_corpus() -> None:

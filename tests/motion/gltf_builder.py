@@ -95,21 +95,30 @@ def build_glb(motion: Motion, *, name: str = "clip") -> bytes:
 def two_animation_glb(motion: Motion) -> bytes:
     """``motion`` as a skinned GLB with two animations: "walk" (all of it) and "start" (its
     first 10 frames)."""
-    document, binary = gltf_parts(motion, name="walk")
-    start, start_binary = gltf_parts(motion.slice_frames(0, 10), name="start")
-    shift = len(binary)
-    for view in start["bufferViews"]:
-        view["byteOffset"] += shift
-    base = len(document["accessors"])
-    document["accessors"] += [
-        dict(a, bufferView=a["bufferView"] + len(document["bufferViews"]))
-        for a in start["accessors"]
-    ]
-    document["bufferViews"] += start["bufferViews"]
-    animation = start["animations"][0]
-    for sampler in animation["samplers"]:
-        sampler["input"] += base
-        sampler["output"] += base
-    document["animations"].append(animation)
-    document["buffers"][0]["byteLength"] = shift + len(start_binary)
-    return pack_glb(document, binary + start_binary)
+    return multi_animation_glb({"walk": motion, "start": motion.slice_frames(0, 10)})
+
+
+def multi_animation_glb(animations: dict[str, Motion]) -> bytes:
+    """One skinned GLB holding each motion of ``animations`` (same skeleton) as an animation
+    of that name, in order; the first motion's rest pose is the file's."""
+    (first, motion), *others = animations.items()
+    document, binary = gltf_parts(motion, name=first)
+    for name, other in others:
+        extra, extra_binary = gltf_parts(other, name=name)
+        shift = len(binary)
+        for view in extra["bufferViews"]:
+            view["byteOffset"] += shift
+        base = len(document["accessors"])
+        document["accessors"] += [
+            dict(a, bufferView=a["bufferView"] + len(document["bufferViews"]))
+            for a in extra["accessors"]
+        ]
+        document["bufferViews"] += extra["bufferViews"]
+        animation = extra["animations"][0]
+        for sampler in animation["samplers"]:
+            sampler["input"] += base
+            sampler["output"] += base
+        document["animations"].append(animation)
+        binary += extra_binary
+        document["buffers"][0]["byteLength"] = len(binary)
+    return pack_glb(document, binary)

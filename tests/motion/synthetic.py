@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Sequence
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion, Skeleton
+from app.motion.skeleton_map import rest_pose
 from tests.motion.skeleton_trees import MOTIONBUILDER, skeleton_from_tree
 
 # Rest offsets of a MotionBuilder-style figure (units: cm), standing in a T-pose, facing +z.
@@ -69,3 +74,113 @@ def walker_motion(frames: int = 240, fps: float = 120.0, speed: float = 120.0) -
     local[:, end] = np.eye(3)
     root = np.stack([np.zeros(frames), 90 + 2 * np.sin(2 * phase), speed * t], axis=1)
     return Motion(skeleton, 1.0 / fps, root, local)
+
+
+def walking(skeleton: Skeleton, truth: dict[str, str], frames: int = 60) -> Motion:
+    """``skeleton`` (a rig standing in its rest pose, Y up, facing +z, whose joint frames are
+    the world's in the rest pose) walking forward at 1 Hz: thighs and arms swing, knees and
+    elbows bend forward. ``truth`` names the canonical joints (see
+    :func:`tests.motion.skeleton_trees.synthetic_humanoid`)."""
+    fps = 30.0
+    phase = 2 * np.pi * np.arange(frames) / fps
+    rotvecs = np.zeros((frames, skeleton.joint_count, 3))
+    for side, sign in (("l", 1.0), ("r", -1.0)):
+        rotvecs[:, skeleton.index(truth[f"{side}_hip"]), 0] = -0.4 * sign * np.sin(phase)
+        rotvecs[:, skeleton.index(truth[f"{side}_knee"]), 0] = 0.5 + 0.4 * np.sin(phase + 1.0)
+        rotvecs[:, skeleton.index(truth[f"{side}_shoulder"]), 0] = 0.3 * sign * np.sin(phase)
+        # The forearm turns forward about the vertical: -y for the left arm (along +x).
+        bend = 0.4 + 0.2 * np.sin(phase)
+        rotvecs[:, skeleton.index(truth[f"{side}_elbow"]), 1] = -sign * bend
+    local = Rotation.from_rotvec(rotvecs.reshape(-1, 3)).as_matrix()
+    local = local.reshape(frames, skeleton.joint_count, 3, 3)
+    height = float(np.ptp([p for p in rest_pose(skeleton)[:, 1]]))
+    root = np.stack(
+        [np.zeros(frames), np.full(frames, 0.57 * height), 0.8 * height * phase / (2 * np.pi)],
+        axis=1,
+    )
+    return Motion(skeleton, 1.0 / fps, root, local)
+
+
+def grown(motion: Motion, parents: list[int], offsets: list[np.ndarray]) -> Motion:
+    """``motion`` with joints added under ``parents`` at rest ``offsets``, never moving."""
+    skeleton, count = motion.skeleton, len(parents)
+    grown = Skeleton(
+        (*skeleton.names, *(f"extra{i}" for i in range(count))),
+        np.concatenate([skeleton.parents, parents]),
+        np.concatenate([skeleton.offsets, offsets]),
+        np.concatenate([skeleton.end_site, np.zeros(count, dtype=bool)]),
+    )
+    frames = motion.frame_count
+    rotations = np.concatenate(
+        [motion.local_rotations, np.broadcast_to(np.eye(3), (frames, count, 3, 3))], axis=1
+    )
+    translations = None
+    if motion.local_translations is not None:
+        extra = np.broadcast_to(np.array(offsets), (frames, count, 3))
+        translations = np.concatenate([motion.local_translations, extra], axis=1)
+    return dataclasses.replace(
+        motion, skeleton=grown, local_rotations=rotations, local_translations=translations
+    )
+
+
+def joint_oriented(motion: Motion) -> Motion:
+    """``motion`` as a rig with joint orientation writes it (Maya's "orient joints", many
+    pose-estimation exporters): every joint's frame turned so its first child lies along its
+    x axis, the offsets given in those frames and the rotations turned to match. Forward
+    kinematics gives the same positions; the rest pose of the offsets is no standing figure
+    (each child along its parent's x)."""
+    skeleton = motion.skeleton
+    count = skeleton.joint_count
+    rest = rest_pose(skeleton)
+    turn = np.broadcast_to(np.eye(3), (count, 3, 3)).copy()  # joint frame in the rest pose
+    for j in range(count):
+        children = [c for c in range(count) if skeleton.parents[c] == j]
+        bone = rest[children[0]] - rest[j] if children else np.zeros(3)
+        if np.linalg.norm(bone) > 0:
+            x = bone / np.linalg.norm(bone)
+            helper = np.array([0.0, 0.0, 1.0]) if abs(x[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+            y = np.cross(helper, x)
+            y /= np.linalg.norm(y)
+            turn[j] = np.stack([x, y, np.cross(x, y)], axis=1)
+        elif j > 0:
+            turn[j] = turn[skeleton.parents[j]]
+    parents = np.maximum(skeleton.parents, 0)
+    offsets = np.einsum("jba,jb->ja", turn[parents], rest - rest[parents])
+    offsets[0] = 0.0
+    world = np.zeros_like(motion.local_rotations)
+    for j in range(count):
+        above = world[:, skeleton.parents[j]] if j else np.eye(3)
+        world[:, j] = above @ motion.local_rotations[:, j]
+    oriented_world = world @ turn[None]
+    local = oriented_world.copy()
+    local[:, 1:] = np.swapaxes(oriented_world[:, parents[1:]], -1, -2) @ oriented_world[:, 1:]
+    return dataclasses.replace(
+        motion,
+        skeleton=Skeleton(skeleton.names, skeleton.parents, offsets, skeleton.end_site),
+        local_rotations=local,
+    )
+
+
+def hung_from_root(motion: Motion, names: Sequence[str]) -> Motion:
+    """``motion`` with the joints ``names`` (and what hangs from them) moved to hang from the
+    root, keeping every world position and rotation: a game rig whose foot bones are IK
+    bones under the root, held at the end of the shins by the animation."""
+    skeleton = motion.skeleton
+    world, at = forward_kinematics(motion)
+    moved = [skeleton.index(name) for name in names]
+    parents = skeleton.parents.copy()
+    parents[moved] = 0
+    rest = rest_pose(skeleton)
+    offsets = rest - rest[np.maximum(parents, 0)]
+    offsets[0] = 0.0
+    local = motion.local_rotations.copy()
+    per_frame = np.broadcast_to(offsets, (motion.frame_count, *offsets.shape)).copy()
+    for j in moved:
+        local[:, j] = np.swapaxes(world[:, 0], -1, -2) @ world[:, j]
+        per_frame[:, j] = np.einsum("fba,fb->fa", world[:, 0], at[:, j] - at[:, 0])
+    return dataclasses.replace(
+        motion,
+        skeleton=Skeleton(skeleton.names, parents, offsets, skeleton.end_site),
+        local_rotations=local,
+        local_translations=per_frame,
+    )

@@ -12,9 +12,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from app.errors import LimitExceeded, ParseError
+from app.errors import DescribeTimeout, LimitExceeded, NoAnimation, ParseError
+from app.motion import model as model_module
 from app.motion.formats import DEFAULT_AMC_FRAME_TIME, read_asf_amc, read_bvh
 from app.motion.formats import asf_amc as asf_amc_module
+from app.motion.formats import bvh as bvh_module
 from app.motion.model import Motion, ParseLimits
 from tests.motion.conftest import (
     CMU_AMC_FIXTURE,
@@ -25,6 +27,7 @@ from tests.motion.conftest import (
     fixture_text,
     world_positions,
 )
+from tests.motion.work import Clock, RecordingPattern
 
 # Line numbers matter: the rejection tests below edit these texts by line.
 TINY_ASF = """\
@@ -555,6 +558,13 @@ def test_rejects_bad_amc(amc: str | bytes, line: int | None, message: str) -> No
         assert f"AMC, line {line}:" in str(raised.value)
 
 
+@pytest.mark.parametrize("amc", [":FULLY-SPECIFIED\n:DEGREES\n", "# a comment\n:DEGREES\n#\n"])
+def test_an_amc_without_frames_is_a_rig_without_animation(amc: str) -> None:
+    with pytest.raises(NoAnimation, match="no animation") as raised:
+        read_asf_amc(TINY_ASF, amc)
+    assert raised.value.code == "no_animation" and raised.value.source == "AMC"
+
+
 def test_a_last_frame_cut_short_is_dropped_with_a_warning() -> None:
     # A download cut in the last frame: the frames before it are whole.
     motion = read_asf_amc(TINY_ASF, TINY_AMC[: TINY_AMC.index("knee 0 0")])
@@ -625,17 +635,56 @@ def test_frame_and_value_limits() -> None:
         read_asf_amc(chain_asf(3), shuffled, limits=ParseLimits(max_frames=49))
 
 
-def test_hostile_long_lines_are_rejected_quickly() -> None:
-    import time
-
-    start = time.perf_counter()
+def test_hostile_long_lines_are_refused() -> None:
+    # No timing here (see tests/motion/test_bvh.py and bench/bench_hostile_parse.py).
     with pytest.raises(ParseError):
         read_asf_amc(TINY_ASF, edit(TINY_AMC, M_HIP_1, "hip " + "1 " * 5_000_000))
     with pytest.raises(ParseError):
         read_asf_amc(":units\n" + "mass " * 2_000_000, TINY_AMC)
     with pytest.raises(ParseError):
         read_asf_amc(TINY_ASF, "1\n" + "x" * 10_000_000)
-    assert time.perf_counter() - start < 5.0
+
+
+@pytest.mark.parametrize("where", ["AMC value", "ASF length"])
+def test_a_long_invalid_number_costs_the_same_whatever_its_length(
+    monkeypatch: pytest.MonkeyPatch, where: str
+) -> None:
+    """A long run of digits then a letter, in an AMC value or an ASF number: refused by its
+    length before the number pattern reads it (the pattern once backtracked quadratically)."""
+    recorder = RecordingPattern(bvh_module.NUMBER_RE)
+    monkeypatch.setattr(bvh_module, "NUMBER_RE", recorder)
+    work = []
+    for digits in (20_000, 200_000):
+        recorder.lengths.clear()
+        token = "1" * digits + "x"
+        if where == "AMC value":
+            asf, amc = TINY_ASF, edit(TINY_AMC, M_HIP_1, f"hip 5 {token} 7")
+        else:
+            asf, amc = TINY_ASF.replace("length 2\n", f"length {token}\n", 1), TINY_AMC
+        with pytest.raises(ParseError, match="longer than 100 characters") as raised:
+            read_asf_amc(asf, amc)
+        assert len(str(raised.value)) < 300
+        assert max(recorder.lengths, default=0) <= bvh_module.MAX_NUMBER_TOKEN
+        work.append(sum(recorder.lengths))
+    assert work[0] == work[1]
+
+
+def test_the_line_pass_looks_at_the_clock(monkeypatch: pytest.MonkeyPatch) -> None:
+    """An irregular AMC (bones in another order each frame) is read line by line, looking at
+    the clock every few thousand lines: a deadline stops it inside the walk."""
+    clock = Clock()
+    monkeypatch.setattr(model_module.time, "monotonic", clock)
+    frames = 30_000
+    amc = "\n".join(
+        f"{f}\n" + ("b0 1\nroot 0 0 0 0 0 0" if f % 2 else "root 0 0 0 0 0 0\nb0 1")
+        for f in range(1, frames + 1)
+    )
+    assert read_asf_amc(chain_asf(1), amc, limits=ParseLimits(deadline=1e12)).frame_count == frames
+    assert clock.looks >= 3 * frames // bvh_module.LINES_PER_CLOCK_CHECK
+    clock.looks = 0
+    with pytest.raises(DescribeTimeout):
+        read_asf_amc(chain_asf(1), amc, limits=ParseLimits(deadline=5.0))
+    assert clock.looks == 6  # stopped at the first look past the deadline
 
 
 # ------------------------------------------------------------------------------ fuzzing

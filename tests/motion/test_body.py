@@ -3,7 +3,9 @@ import numpy as np
 from app.motion import transforms
 from app.motion.body import build_body, count_lead_in_frames
 from app.motion.model import Motion
-from tests.motion.synthetic import walker_motion
+from app.motion.skeleton_map import CANONICAL_INDEX
+from tests.motion.skeleton_trees import Humanoid, synthetic_humanoid
+from tests.motion.synthetic import walker_motion, walking
 
 
 def _leaning(motion: Motion, degrees: float) -> Motion:
@@ -84,3 +86,12 @@ def test_implausible_frames_at_the_ends_go_like_lead_in_frames():
     middle = analyse(_sentinel(motion, [20]))
     assert middle.body.frame_count == 40
     assert any("1 frames in the middle look implausible" in w for w in middle.warnings)
+
+
+def test_hips_at_the_pelvis_take_the_sides_from_where_the_legs_part():
+    # Both hip joints sit at the pelvis; the legs separate at the knees.
+    skeleton, truth = synthetic_humanoid(Humanoid(hips_coincide=True))
+    body = build_body(walking(skeleton, truth))
+    assert skeleton.names[body.mapping.joints[CANONICAL_INDEX["l_hip"]]] == truth["l_hip"]
+    lateral = body.pelvis_frames[:, :, 0].mean(axis=0)
+    assert lateral[0] > 0.95  # the left knee is on +x, and so is the subject's left

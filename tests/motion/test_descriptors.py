@@ -15,6 +15,7 @@ from app.motion.descriptors.kinetic import KINETIC_JOINTS, compute_kinetic
 from app.motion.formats import read_asf_amc, read_bvh
 from app.motion.model import Motion
 from app.motion.pipeline import analyse
+from tests.motion.holds import held, held_motion
 from tests.motion.shared import SHARED_DATA, requires_shared_data
 from tests.motion.synthetic import walker_motion
 
@@ -251,3 +252,152 @@ def test_a_one_frame_clip_is_a_pose():
         assert np.all(np.isfinite(vector)), name
     assert np.all(vectors["kinetic"] == 0)
     assert np.any(vectors["posture"][:6] != 0) and np.all(vectors["posture"][6:] == 0)
+
+
+# ------------------------------------------------------------------------------ still stretches
+
+
+def _takes_to_hold() -> list[tuple[str, Motion]]:
+    takes = list(_fixture_motions())
+    if (BANDAI / "dataset-1_walk_normal_001.bvh").is_file():
+        takes.append(("bandai walk", _bvh(BANDAI / "dataset-1_walk_normal_001.bvh")))
+    if (CMU / "asf-amc" / "02" / "02_05.amc").is_file():
+        takes.append(("cmu amc 02_05", _amc("02_05")))
+    return takes
+
+
+def test_the_whole_clip_changes_only_by_its_still_samples():
+    """Inserting N more frames into a still stretch adds N still samples to the clip and
+    changes no other sample (the stretch is already longer than a velocity span, so no
+    sample straddles its edges differently). For the whole-clip vectors "changes nothing but
+    the still part" is then, exactly (to 1e-9): the clip's energy totals are unchanged (the
+    still samples add zero energy), so the parts shares are unchanged; the travel sums are
+    unchanged; and every mean of a per-frame quantity (posture covariances, limb directions
+    and their squares) is the frame-weighted mean of the clip's and the held pose's."""
+    from app.motion.descriptors.kinetic import velocity_span
+    from app.motion.descriptors.motion import motion_blocks
+    from app.motion.spans import whole_clip
+    from app.motion.windows import slice_body
+
+    for name, motion in _takes_to_hold():
+        body = build_body(motion)
+        span = velocity_span(body.frame_time, body.frame_count)
+        at = body.frame_count // 2
+        one = held(body, at, span + 1)
+        more = held(body, at, span + 1 + 25)
+        f1, f2 = one.frame_count, more.frame_count
+        n1, n2 = f1 - span, f2 - span  # velocity samples of the whole clip
+        pose = slice_body(one, at, at + 1)
+        for descriptor in ("kinetic", "posture", "motion"):
+            for b in (one, more):
+                assert np.all(np.isfinite(REGISTRY[descriptor].compute(b))), (name, descriptor)
+        k1, k2 = compute_kinetic(one), compute_kinetic(more)
+        np.testing.assert_allclose(np.expm1(k2) * n2, np.expm1(k1) * n1, rtol=1e-9, atol=1e-12)
+        p1, p2, p0 = (REGISTRY["posture"].compute(b) for b in (one, more, pose))
+        np.testing.assert_allclose(
+            p2[:6] * f2, p1[:6] * f1 + p0[:6] * (f2 - f1), rtol=1e-9, atol=1e-12
+        )
+        squares = [p[6:] ** 2 + p[:6] ** 2 for p in (p1, p2, p0)]
+        np.testing.assert_allclose(
+            squares[1] * f2, squares[0] * f1 + squares[2] * (f2 - f1), rtol=1e-6, atol=1e-12
+        )
+        b1, b2, b0 = (motion_blocks(b, whole_clip(b.frame_count)) for b in (one, more, pose))
+        np.testing.assert_allclose(b2["parts"], b1["parts"], rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(
+            b2["limbs"][0, :30] * f2,
+            b1["limbs"][0, :30] * f1 + b0["limbs"][0, :30] * (f2 - f1),
+            rtol=1e-9,
+            atol=1e-12,
+        )
+        t1, t2 = b1["travel"][0], b2["travel"][0]
+        # mean velocities, turn and speed sum to the same; so do the second moments
+        np.testing.assert_allclose(t2[:4] * n2, t1[:4] * n1, rtol=1e-9, atol=1e-12)
+        second = [np.append(t[4:6] ** 2 + t[:2] ** 2, t[6] ** 2) for t in (t1, t2)]
+        np.testing.assert_allclose(second[1] * n2, second[0] * n1, rtol=1e-6, atol=1e-12)
+        # the net displacement is the same, over a longer time
+        np.testing.assert_allclose(t2[7] * (f2 - 1), t1[7] * (f1 - 1), rtol=1e-9, atol=1e-12)
+
+
+def test_real_takes_with_exact_holds_are_described_and_their_holds_are_still():
+    """Real takes with a pose held for two seconds (an idle, a T-pose lead-out at the end)
+    are described, every clip and window vector finite; the windows inside a hold are
+    still: zero energy."""
+    from app.services.describe import MotionDescriber
+
+    describer = MotionDescriber()
+    for name, motion in _takes_to_hold():
+        hold = round(2.0 / motion.frame_time)
+        for at in (motion.frame_count // 2, motion.frame_count - 1):
+            still = held_motion(motion, at, hold)
+            analysis = analyse(still)
+            for vector in analysis.descriptors.values():
+                assert np.all(np.isfinite(vector)), name
+            windows = describer._windows(analysis.body)
+            for vectors in windows.vectors.values():
+                assert np.all(np.isfinite(vectors)), name
+            body = analysis.body
+            lead = body.lead_in_frames
+            inside = np.array([[at - lead + 1, at - lead + hold]])
+            kinetic = REGISTRY["kinetic"].compute_spans(body, inside)
+            assert np.all(kinetic[:, :-2] == 0), name  # no joint turns
+
+
+@pytest.mark.parametrize("frames", [1, 2, 3])
+def test_one_two_and_three_frame_clips_are_described(frames):
+    """A pose file, or a take cut to two or three frames: every vector finite (the
+    velocity span shrinks to what the clip has), windows included."""
+    from app.services.describe import MotionDescriber
+    from tests.motion.conftest import BANDAI_FIXTURE, CMU_BVH_FIXTURE, fixture_bytes
+
+    for fixture in (BANDAI_FIXTURE, CMU_BVH_FIXTURE):
+        motion = read_bvh(fixture_bytes(fixture)).slice_frames(10, 10 + frames)
+        analysis = analyse(motion)
+        assert analysis.body.frame_count == frames
+        for name, vector in analysis.descriptors.items():
+            assert np.all(np.isfinite(vector)), (fixture, name)
+        windows = MotionDescriber()._windows(analysis.body)
+        assert len(windows.spans) == 1
+        assert np.all(np.isfinite(windows.vectors["motion"]))
+        if frames == 1:
+            assert np.all(analysis.descriptors["kinetic"] == 0)
+
+
+def test_a_take_that_never_moves_is_still_everywhere():
+    """One real pose held for three seconds: zero energy and travel, equal part shares, no
+    spread of the pose, and the same vector for every window."""
+    from app.motion.descriptors.motion import PART_SHARE_FLOOR, motion_blocks
+    from app.motion.spans import whole_clip
+    from tests.motion.conftest import BANDAI_FIXTURE, fixture_bytes
+
+    pose = read_bvh(fixture_bytes(BANDAI_FIXTURE)).slice_frames(20, 21)
+    still = held_motion(pose, 0, 89)
+    analysis = analyse(still)
+    assert np.all(analysis.descriptors["kinetic"] == 0)
+    blocks = motion_blocks(analysis.body, whole_clip(analysis.body.frame_count))
+    np.testing.assert_array_equal(blocks["parts"], np.log(1 / 16 + PART_SHARE_FLOOR))
+    assert np.all(blocks["travel"] == 0) and np.all(blocks["sideways"] == 0)
+    assert np.all(np.abs(analysis.descriptors["posture"][6:]) < 1e-6)
+
+
+@pytest.mark.parametrize(
+    ("folder", "name"),
+    [
+        ("wild-bvh", "smpl-video/romp_dance2.bvh"),
+        ("wild-more", "bvh-misc/HansonZhang-cuhksz_test.bvh"),
+    ],
+)
+def test_real_takes_once_refused_for_degenerate_motion_are_described(folder, name):
+    """Both hold still for a second or more; their still windows once had a mean energy of
+    -1e-17, and 'degenerate motion' refused the upload."""
+    from app.motion.model import ParseLimits
+    from app.services.describe import MotionDescriber
+    from app.services.uploads import Upload
+    from tests.motion.shared import data_folder
+
+    path = data_folder(folder) / name
+    upload = Upload.from_files(file=(path.name, path.read_bytes()))
+    description = MotionDescriber().describe(upload, ParseLimits())
+    assert description.windows is not None
+    for vector in description.vectors.values():
+        assert np.all(np.isfinite(vector))
+    assert np.all(np.isfinite(description.windows.vectors["motion"]))

@@ -9,13 +9,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.errors import LimitExceeded, ParseError
+from app.errors import LimitExceeded, NoAnimation, ParseError
 from app.motion.body import build_body
 from app.motion.formats.fbx import list_fbx_animations, read_fbx
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import ParseLimits
 from tests.conftest import FIXTURES_DIR
 from tests.motion.canonical import check_canonical_body
+from tests.motion.shared import data_folder
 
 FBX = FIXTURES_DIR / "ufbx_maya_human_ik_7400_binary.fbx"
 
@@ -91,3 +92,20 @@ def test_limits_and_unknown_animation(data):
 def test_garbage_is_a_parse_error(junk):
     with pytest.raises(ParseError):
         read_fbx(junk)
+
+
+def test_a_real_rig_without_animation_is_refused_as_a_rig():
+    """A skinned character with no animation stack: a readable rig, refused as such, not as
+    damage."""
+    name = "genea/GenevaModel_v2_Tpose_Final.fbx"
+    with pytest.raises(NoAnimation, match="no animation") as raised:
+        read_fbx((data_folder("fbx-gltf") / name).read_bytes())
+    assert raised.value.code == "no_animation" and "rig with no animation" in raised.value.detail
+
+
+def test_a_real_take_of_one_instant_is_a_one_frame_still():
+    """A take that lasts no time (a bind pose written as a take) is read as its one pose."""
+    name = "unreal-ue4/M-Isonni_SK_Mannequin.FBX"
+    motion = read_fbx((data_folder("wild-more") / name).read_bytes())[0]
+    assert motion.frame_count == 1
+    assert any("single instant" in w for w in motion.notes["warnings"])

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from app.errors import LimitExceeded, ParseError
+from app.errors import LimitExceeded, NoAnimation, ParseError
 from app.motion.body import build_body
 from app.motion.formats import read_bvh
 from app.motion.formats.gltf import list_gltf_animations, read_gltf
@@ -84,12 +84,38 @@ def test_non_finite_numbers_no_skeleton_and_no_animation_are_told_apart(bvh_moti
     values[len(values) // 2] = np.nan
     with pytest.raises(ParseError, match="non-finite"):
         read_gltf(pack_glb(document, values.tobytes()))
-    no_skin = dict(document, skins=[])
+    nothing = dict(document, skins=[], animations=[])
     with pytest.raises(ParseError, match="no skeleton"):
-        read_gltf(pack_glb(no_skin, binary))
+        read_gltf(pack_glb(nothing, binary))
     still = dict(document, animations=[])
-    with pytest.raises(ParseError, match="no animation"):
+    with pytest.raises(NoAnimation, match="rig with no animation"):
         read_gltf(pack_glb(still, binary))
+
+
+def test_a_pose_written_as_a_take_is_a_one_frame_still(bvh_motion):
+    """A zero-length animation (a bind pose written as a take) is the file's motion: one
+    frame, said in the warnings (a file with no animation at all is a rig, above). A take of
+    some length that moves no joint (morph weights only) is a pose held for that long: a
+    still clip, as a BVH of repeated frames."""
+    one_instant = build_glb(bvh_motion.slice_frames(0, 1), name="bind pose")
+    pose = read_gltf(one_instant)[0]
+    assert pose.frame_count == 1
+    assert any("'bind pose' is a single instant" in w for w in pose.notes["warnings"])
+    document, binary = gltf_parts(bvh_motion, name="faces")
+    for channel in document["animations"][0]["channels"]:
+        channel["target"]["path"] = "weights"
+    still = read_gltf(pack_glb(document, binary))[0]
+    assert still.frame_count == bvh_motion.frame_count
+    assert np.ptp(still.local_rotations, axis=0).max() == 0
+
+
+def test_an_animation_without_its_mesh_or_skin_is_the_nodes_it_moves(bvh_motion):
+    # Blender and FBX2glTF export a clip alone: nodes and channels, no skin.
+    document, binary = gltf_parts(bvh_motion)
+    skinned = read_gltf(pack_glb(document, binary))[0]
+    alone = read_gltf(pack_glb(dict(document, skins=[]), binary))[0]
+    assert alone.skeleton.names == skinned.skeleton.names
+    np.testing.assert_allclose(alone.local_rotations, skinned.local_rotations)
 
 
 @pytest.mark.parametrize(
@@ -156,3 +182,14 @@ def test_offsets_summed_are_the_rest_pose_the_file_shows(bvh_motion):
     summed = rest_pose(motion.skeleton)
     for j, name in enumerate(motion.skeleton.names):
         np.testing.assert_allclose(summed[j], shown[name] - rest[0], atol=1e-4, err_msg=name)
+
+
+def test_an_animation_only_file_without_a_skin_is_read_by_its_animated_nodes(bvh_motion):
+    """Clips exported without their character (no skin, no mesh): the nodes the animation
+    moves and what hangs from them are the skeleton, and the motion is the skinned file's."""
+    document, binary = gltf_parts(bvh_motion, name="walk")
+    skinned = read_gltf(pack_glb(document, binary))[0]
+    bare = read_gltf(pack_glb(dict(document, skins=[]), binary))[0]
+    assert bare.skeleton.names == skinned.skeleton.names
+    np.testing.assert_array_equal(bare.local_rotations, skinned.local_rotations)
+    np.testing.assert_array_equal(bare.root_translation, skinned.root_translation)

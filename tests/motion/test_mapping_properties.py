@@ -10,16 +10,26 @@ import pytest
 
 from app.motion import transforms
 from app.motion.formats import read_asf_amc, read_bvh
+from app.motion.formats.bvh_writer import write_bvh
 from app.motion.model import Motion, Skeleton
 from app.motion.pipeline import ClipAnalysis, analyse
+from app.motion.skeleton_map import CANONICAL_INDEX, map_skeleton
 from tests.motion.conftest import (
     BANDAI_FIXTURE,
     CMU_AMC_FIXTURE,
     CMU_ASF_FIXTURE,
     CMU_BVH_FIXTURE,
+    FIXTURES_DIR,
     fixture_bytes,
 )
 from tests.motion.shared import SHARED_DATA, requires_shared_data
+from tests.motion.skeleton_trees import (
+    SHORT_GAME_RIG,
+    Humanoid,
+    skeleton_from_points,
+    synthetic_humanoid,
+)
+from tests.motion.synthetic import grown, walking
 
 FIXTURES = (CMU_BVH_FIXTURE, BANDAI_FIXTURE)
 
@@ -78,7 +88,8 @@ def _with_extra_leaves(motion: Motion, count: int, seed: int = 3) -> Motion:
     lengths = np.linalg.norm(skeleton.offsets, axis=1)
     scale = float(lengths.max())
     movable = [j for j in range(skeleton.joint_count) if not skeleton.end_site[j]]
-    names, parents, offsets = list(skeleton.names), list(skeleton.parents), list(skeleton.offsets)
+    parents: list[int] = []
+    offsets: list[np.ndarray] = []
     for i in range(count):
         kind = i % 3
         if kind == 0:  # a twist bone half-way along a bone
@@ -90,26 +101,74 @@ def _with_extra_leaves(motion: Motion, count: int, seed: int = 3) -> Motion:
             offset = rng.normal(size=3) * 0.02 * scale
         else:  # an IK target or prop under the root, somewhere about the body
             parent, offset = 0, rng.normal(size=3) * scale
-        names.append(f"extra{i}")
         parents.append(parent)
         offsets.append(np.asarray(offset, dtype=float))
-    grown = Skeleton(
-        tuple(names),
-        np.array(parents),
-        np.array(offsets),
-        np.concatenate([skeleton.end_site, np.zeros(count, dtype=bool)]),
-    )
-    frames = motion.frame_count
-    rotations = np.concatenate(
-        [motion.local_rotations, np.broadcast_to(np.eye(3), (frames, count, 3, 3))], axis=1
-    )
-    translations = None
-    if motion.local_translations is not None:
-        extra = np.broadcast_to(np.array(offsets[-count:]), (frames, count, 3))
-        translations = np.concatenate([motion.local_translations, extra], axis=1)
-    return dataclasses.replace(
-        motion, skeleton=grown, local_rotations=rotations, local_translations=translations
-    )
+    return grown(motion, parents, offsets)
+
+
+def _with_small_bones(motion: Motion, count: int, seed: int = 5) -> Motion:
+    """``count`` small extra bones where real rigs carry them (a Bitmoji-like face, Blender
+    finger end bones): chains of one to three bones on the head, the hands and the feet, each
+    chain shorter than the part it hangs from reaches already (so the head top, fingertips
+    and toes stay where they are)."""
+    mapping = analyse(motion).body.mapping
+    assert mapping is not None
+    skeleton = motion.skeleton
+    reach = _reach(skeleton)
+    rng = np.random.default_rng(seed)
+    parts = [
+        int(mapping.joints[CANONICAL_INDEX[f"{side}_{part}"]])
+        for side in ("l", "r")
+        for part in ("wrist", "ankle")
+    ]
+    # A hand without bones gains none (fingers would be a hand, a new hand tip).
+    hangs = [mapping.head_joint] * 6 + [j for j in parts if reach[j] > 0]
+    parents: list[int] = []
+    offsets: list[np.ndarray] = []
+    while len(parents) < count:
+        top = hangs[len(parents) % len(hangs)]
+        bones = int(rng.integers(1, 4))
+        size = 0.3 * max(reach[top], 1e-9) / bones  # the whole chain within 30 % of it
+        parent = top
+        for _ in range(min(bones, count - len(parents))):
+            step = rng.normal(size=3)
+            parents.append(parent)
+            offsets.append(step / np.linalg.norm(step) * size * rng.uniform(0.3, 1.0))
+            parent = skeleton.joint_count + len(parents) - 1
+    return grown(motion, parents, offsets)
+
+
+def _reach(skeleton: Skeleton) -> np.ndarray:
+    """``(J,)`` longest bone path from each joint down to a descendant."""
+    lengths = np.linalg.norm(skeleton.offsets, axis=1)
+    reach = np.zeros(skeleton.joint_count)
+    for j in range(skeleton.joint_count - 1, 0, -1):
+        p = int(skeleton.parents[j])
+        reach[p] = max(reach[p], reach[j] + lengths[j])
+    return reach
+
+
+def _anonymous_walker() -> Motion:
+    skeleton, truth = synthetic_humanoid(Humanoid(names="anon", hand="bone"))
+    return walking(skeleton, truth)
+
+
+@pytest.mark.parametrize(
+    "load",
+    [
+        lambda: _motion(CMU_BVH_FIXTURE),
+        lambda: _motion(BANDAI_FIXTURE),
+        lambda: _renamed(_motion(CMU_BVH_FIXTURE)),
+        _anonymous_walker,
+    ],
+    ids=["cmu", "bandai", "cmu-no-names", "synthetic-no-names"],
+)
+def test_a_rig_with_150_extra_small_leaf_bones_maps_like_the_plain_rig(load):
+    motion = load()
+    plain, busy = analyse(motion), analyse(_with_small_bones(motion, 150))
+    np.testing.assert_array_equal(busy.body.mapping.joints, plain.body.mapping.joints)
+    assert busy.warnings == plain.warnings
+    _same(plain, busy)
 
 
 @pytest.mark.parametrize("fixture", FIXTURES)
@@ -196,3 +255,65 @@ def test_every_part_of_every_bandai_clip_gets_the_clip_s_mapping():
             if part != whole and part[0] != "SkeletonMappingError":
                 changed.append(f"{path.stem} [{first}, {stop})")
     assert not changed, changed
+
+
+def _leaves_as_joints(motion: Motion) -> Motion:
+    """The motion as an FBX or glTF rig holds it: every leaf a joint of its own (a point
+    without a tail), no End Sites."""
+    skeleton = motion.skeleton
+    return dataclasses.replace(
+        motion,
+        skeleton=Skeleton(
+            skeleton.names,
+            skeleton.parents,
+            skeleton.offsets,
+            np.zeros(skeleton.joint_count, dtype=bool),
+        ),
+    )
+
+
+def _vrma() -> Motion:
+    from app.motion.formats.gltf import read_gltf
+
+    return read_gltf((FIXTURES_DIR / "three_vrm_test.vrma").read_bytes())[0]
+
+
+@pytest.mark.parametrize(
+    "load",
+    [lambda: _leaves_as_joints(_motion(CMU_BVH_FIXTURE)), _vrma],
+    ids=["leaf-joints", "vrma"],
+)
+def test_a_bvh_export_maps_like_its_source(load):
+    # The BVH writer closes every leaf joint with a zero-length End Site: a point the rig
+    # already had, which must not move a single canonical joint, nor the sides.
+    motion = load()
+    source = analyse(motion)
+    exported = read_bvh(write_bvh(motion))
+    assert exported.skeleton.joint_count > motion.skeleton.joint_count  # End Sites added
+    again = analyse(exported)
+    names = [motion.skeleton.names[j] for j in source.body.mapping.joints]
+    assert [exported.skeleton.names[j] for j in again.body.mapping.joints] == names
+    assert again.body.mapping.mirrored is source.body.mapping.mirrored is False
+    _same(source, again, atol=1e-6)
+
+
+def _with_end_sites(skeleton: Skeleton) -> Skeleton:
+    """``skeleton`` with a zero-length End Site under every leaf, as the BVH writer adds."""
+    leaves = [j for j in range(skeleton.joint_count) if j not in set(skeleton.parents.tolist())]
+    return Skeleton(
+        (*skeleton.names, *(f"{skeleton.names[j]}_end" for j in leaves)),
+        np.concatenate([skeleton.parents, leaves]),
+        np.concatenate([skeleton.offsets, np.zeros((len(leaves), 3))]),
+        np.concatenate([skeleton.end_site, np.ones(len(leaves), dtype=bool)]),
+    )
+
+
+def test_zero_length_end_sites_change_no_joint_of_a_short_game_rig():
+    # Legs ending in a ball joint reached going down: the zero-length End Site after it once
+    # passed for a foot turning forward, and the legs' joints all moved one down.
+    rig = skeleton_from_points(SHORT_GAME_RIG)
+    plain, closed = map_skeleton(rig), map_skeleton(_with_end_sites(rig))
+    assert [rig.names[j] for j in closed.joints] == [rig.names[j] for j in plain.joints]
+    assert closed.mirrored is plain.mirrored is False
+    assert rig.names[plain.joints[CANONICAL_INDEX["l_hip"]]] == "leg_L_1"
+    assert rig.names[plain.joints[CANONICAL_INDEX["l_ankle"]]] == "leg_L_3"

@@ -1,13 +1,18 @@
 """Mapping by structure on real rigs (tests/fixtures), and refusals of what is not a person."""
 
+import contextlib
 import dataclasses
-from collections.abc import Iterator
+import random
+from collections.abc import Callable, Iterator
+from itertools import product
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
-from app.errors import SkeletonMappingError
-from app.motion.body import _frame_poses
+from app.errors import ParseError, SkeletonMappingError
+from app.motion import transforms
+from app.motion.body import _frame_poses, build_body
 from app.motion.formats import read_asf_amc, read_bvh
 from app.motion.model import Motion, Skeleton
 from app.motion.skeleton_map import (
@@ -19,6 +24,7 @@ from app.motion.skeleton_map import (
     rest_pose,
 )
 from app.motion.skeleton_names import name_hint, name_side, normalise_name
+from tests.motion.canonical import check_canonical_body
 from tests.motion.conftest import (
     BANDAI_FIXTURE,
     CMU_AMC_FIXTURE,
@@ -26,6 +32,8 @@ from tests.motion.conftest import (
     CMU_BVH_FIXTURE,
     fixture_bytes,
 )
+from tests.motion.skeleton_trees import SMPL, Humanoid, skeleton_from_points, synthetic_humanoid
+from tests.motion.synthetic import grown, hung_from_root, joint_oriented, walking
 
 
 def _cmu_bvh() -> Motion:
@@ -321,3 +329,274 @@ def test_bones_and_mirror_tables_are_consistent():
     for i, name in enumerate(CANONICAL_JOINTS):
         other = CANONICAL_JOINTS[MIRROR_INDEX[i]]
         assert other == name or {name[:2], other[:2]} == {"l_", "r_"}
+
+
+def _shapes(count: int, seed: int = 20) -> list[Humanoid]:
+    """``count`` humanoid shapes drawn from every combination of the options game, capture
+    and video-pose rigs show (no clavicle, one to four spine joints, no neck, hand bones or
+    none, no toes, A-pose, hips at the pelvis, twist and face bones, no names)."""
+    options = {
+        "clavicle": (True, False),
+        "spines": (1, 2, 4),
+        "neck": (True, False),
+        "head_end": (True, False),
+        "hand": ("fingers", "bone", "none"),
+        "toes": (True, False),
+        "arm_angle": (0.0, 45.0),
+        "hips_coincide": (False, True),
+        "twist_bones": (False, True),
+        "face_bones": (0, 30),
+        "names": ("unity", "blender", "anon"),
+    }
+    every = [dict(zip(options, values, strict=True)) for values in product(*options.values())]
+    return [Humanoid(**shape) for shape in random.Random(seed).sample(every, count)]
+
+
+def _shape_id(shape: Humanoid) -> str:
+    fields = dataclasses.asdict(shape)
+    return "-".join(f"{k}={v}" for k, v in fields.items() if v != getattr(Humanoid, k))
+
+
+# How the same motion reaches the mapper: as written, with joint orientation in the
+# rotations (each child along its parent's x: the rest pose is no standing figure, as in
+# Maya and pose-estimation exports), Z up, upside down (image coordinates, y down), and
+# joint-oriented along an odd axis.
+_WRITTEN: dict[str, Callable[[Motion], Motion]] = {
+    "plain": lambda motion: motion,
+    "joint-oriented": joint_oriented,
+    "z-up": lambda motion: transforms.change_basis(
+        motion, transforms.rotation_about([1.0, 0.0, 0.0], 90.0)
+    ),
+    "y-down": lambda motion: transforms.change_basis(
+        motion, transforms.rotation_about([1.0, 0.0, 0.0], 180.0)
+    ),
+    "oriented-odd-axis": lambda motion: joint_oriented(
+        transforms.change_basis(motion, transforms.rotation_about([1.0, 2.0, 3.0], 77.0))
+    ),
+}
+
+
+@pytest.mark.parametrize(
+    ("shape", "written"),
+    [(shape, list(_WRITTEN)[i % len(_WRITTEN)]) for i, shape in enumerate(_shapes(80))],
+    ids=lambda value: value if isinstance(value, str) else _shape_id(value),
+)
+def test_humanoids_of_every_shape_map_right_and_look_like_people(shape: Humanoid, written: str):
+    skeleton, truth = synthetic_humanoid(shape)
+    body = build_body(_WRITTEN[written](walking(skeleton, truth)))
+    got = {c: skeleton.names[j] for c, j in zip(CANONICAL_JOINTS, body.mapping.joints, strict=True)}
+    # Without names, chest -> A -> B (a leaf) is a neck and a head or a head and its top: the
+    # head point is B either way; which joint is the neck, the structure cannot say.
+    limbs = [c for c in truth if c not in ("head", "neck")]
+    assert {c: got[c] for c in limbs} == {c: truth[c] for c in limbs}
+    assert body.mapping.mirrored is False
+    # An odd axis leaves no coordinate axis for the world's vertical: upright by medians.
+    check_canonical_body(body, str(shape), upright=written != "oriented-odd-axis" or None)
+
+
+def test_a_rest_pose_without_sides_takes_them_from_the_motion():
+    # Straight legs, no feet and no names: nothing in the rest pose tells left from right.
+    # The motion's bent knees do, in the clip as it is and in its mirror image.
+    skeleton, truth = synthetic_humanoid(Humanoid(names="anon", toes=False, clavicle=False))
+    motion = walking(skeleton, truth)
+    assert map_skeleton(skeleton).warnings == (
+        "left and right could not be told apart; sides are a guess",
+    )
+    for clip in (motion, transforms.reflect(motion, axis=0)):
+        body = build_body(clip)
+        assert body.mapping.sides_open and body.warnings == ()
+        check_canonical_body(body, "anonymous rig", upright=True)
+    # With names, the same mirrored clip is a mirrored capture.
+    named, truth = synthetic_humanoid(Humanoid(toes=False, clavicle=False))
+    body = build_body(transforms.reflect(walking(named, truth), axis=0))
+    assert body.mapping.mirrored is True
+    check_canonical_body(body, "mirrored capture", upright=True)
+
+
+def test_a_rig_of_one_or_two_bones_is_refused_not_a_server_error():
+    # An abstract rig (a bone or two, any axis) has no body proper: a clean 422.
+    for offsets in ([[0, 0, 0], [0, 0, 1.0]], [[0, 0, 0], [0, 1.0, 0], [1.0, 0, 0]]):
+        count = len(offsets)
+        skeleton = Skeleton(
+            tuple(f"b{i}" for i in range(count)),
+            np.arange(-1, count - 1),
+            np.array(offsets, dtype=float),
+            np.zeros(count, dtype=bool),
+        )
+        motion = Motion(
+            skeleton, 1 / 30, np.zeros((3, 3)), np.broadcast_to(np.eye(3), (3, count, 3, 3)).copy()
+        )
+        with pytest.raises(SkeletonMappingError, match="not a whole humanoid"):
+            build_body(motion)
+
+
+def test_any_tree_of_joints_maps_or_is_refused_never_anything_else():
+    # Random trees (1-40 joints; offsets random, along one axis, half zero, huge, tiny or
+    # flat; random rotations, still or not): a mapping or a SkeletonMappingError / ParseError.
+    rng = np.random.default_rng(11)
+    for trial in range(120):
+        count = int(rng.integers(1, 40))
+        parents = np.array([-1] + [int(rng.integers(0, j)) for j in range(1, count)])
+        offsets = rng.normal(size=(count, 3))
+        if trial % 4 == 1:
+            offsets = np.outer(rng.normal(size=count), rng.normal(size=3))
+        elif trial % 4 == 2:
+            offsets *= rng.random((count, 1)) < 0.5
+        elif trial % 4 == 3:
+            offsets *= 10.0 ** rng.integers(-8, 8)
+        offsets[0] = 0.0
+        skeleton = Skeleton(
+            tuple(f"j{i}" for i in range(count)), parents, offsets, np.zeros(count, dtype=bool)
+        )
+        frames = int(rng.integers(1, 12))
+        turns = rng.normal(size=(frames * count, 3)) * rng.choice([0.0, 0.3, 3.0])
+        local = Rotation.from_rotvec(turns).as_matrix().reshape(frames, count, 3, 3)
+        motion = Motion(skeleton, 1 / 30, rng.normal(size=(frames, 3)), local)
+        with contextlib.suppress(ParseError):  # SkeletonMappingError is one
+            build_body(motion)
+
+
+FACE_RIG = """
+root 0 0 0
+  neck 0 0.05 -0.02
+    head 0 0.12 0
+      jaw 0 0.10 0.03
+        chin 0 0.04 0.09
+          chin_end 0 0.02 0.11
+        tongue_1 0 0.08 0.05
+          tongue_2 0 0.082 0.07
+            tongue_3 0 0.083 0.085
+      eye_L 0.032 0.16 0.08
+        eye_L_end 0.032 0.16 0.1
+      eye_R -0.032 0.16 0.08
+        eye_R_end -0.032 0.16 0.1
+      brow_inner_L 0.015 0.185 0.095
+        brow_mid_L 0.035 0.19 0.09
+          brow_outer_L 0.055 0.185 0.075
+      brow_inner_R -0.015 0.185 0.095
+        brow_mid_R -0.035 0.19 0.09
+          brow_outer_R -0.055 0.185 0.075
+      cheek_L 0.05 0.13 0.08
+        cheek_L_end 0.06 0.12 0.07
+      cheek_R -0.05 0.13 0.08
+        cheek_R_end -0.06 0.12 0.07
+      ear_L 0.075 0.15 0
+        ear_L_end 0.08 0.17 -0.01
+      ear_R -0.075 0.15 0
+        ear_R_end -0.08 0.17 -0.01
+"""
+
+
+def test_a_face_rig_is_not_a_person():
+    skeleton = skeleton_from_points(FACE_RIG)
+    rng = np.random.default_rng(4)
+    turns = rng.normal(size=(30 * skeleton.joint_count, 3)) * 0.3
+    local = Rotation.from_rotvec(turns).as_matrix().reshape(30, skeleton.joint_count, 3, 3)
+    with pytest.raises(SkeletonMappingError, match="not a whole humanoid"):
+        build_body(Motion(skeleton, 1 / 30, np.zeros((30, 3)), local))
+
+
+# A creature standing on its front legs, whose tiny "feet" (three-joint claws) hang at the
+# end of long legs and whose head carries two feather chains: the humanoid the shapes allow
+# takes the claws for legs and the feathers for arms.
+CREATURE = """
+chest 0 1 0
+  leg_L 0.15 0.9 0.1
+    shin_L 0.2 0.4 0.15
+      claw_L 0.2 0.05 0.2
+        claw_L_1 0.2 0.02 0.25
+          claw_L_2 0.2 0 0.3
+  leg_R -0.15 0.9 0.1
+    shin_R -0.2 0.4 0.15
+      claw_R -0.2 0.05 0.2
+        claw_R_1 -0.2 0.02 0.25
+          claw_R_2 -0.2 0 0.3
+  neck 0 1.3 0.2
+    skull 0 1.6 0.25
+      crest_L 0.1 1.8 0.2
+        crest_L_1 0.12 1.85 0.2
+          crest_L_2 0.14 1.88 0.2
+      crest_R -0.1 1.8 0.2
+        crest_R_1 -0.12 1.85 0.2
+          crest_R_2 -0.14 1.88 0.2
+      snout 0 1.9 0.3
+"""
+
+
+def test_limbs_hanging_far_from_the_trunk_for_their_length_are_no_person_s():
+    message = _refused(skeleton_from_points(CREATURE))
+    assert "not a" in message
+
+
+def test_many_long_props_do_not_hide_the_limbs():
+    # Seven body-long chains (IK targets, weapons, cloth) hanging from the root outnumber the
+    # first candidates for limb ends; more are looked at before the rig is refused.
+    skeleton, truth = synthetic_humanoid(Humanoid(names="anon"))
+    rng = np.random.default_rng(2)
+    parents: list[int] = []
+    offsets: list[np.ndarray] = []
+    for _ in range(7):
+        way = rng.normal(size=3)
+        parents += [0, skeleton.joint_count + len(parents)]
+        offsets += [way / np.linalg.norm(way) * 0.9, way / np.linalg.norm(way) * 0.6]
+    busy = grown(walking(skeleton, truth), parents, offsets)
+    mapping = build_body(busy).mapping
+    got = {c: busy.skeleton.names[j] for c, j in zip(CANONICAL_JOINTS, mapping.joints, strict=True)}
+    assert {c: got[c] for c in truth if c != "head"} == {c: truth[c] for c in truth if c != "head"}
+
+
+@pytest.mark.parametrize("names", ["blender", "anon"])
+def test_feet_held_by_ik_at_the_end_of_the_shins_are_the_ankles(names: str):
+    # The foot bones hang from the root (Quaternius-style game rigs); the animation keeps
+    # them at the end of the shins. The motion shows it: each stays at one distance from its
+    # knee while the knee bends.
+    skeleton, truth = synthetic_humanoid(Humanoid(names=names))
+    motion = hung_from_root(walking(skeleton, truth), [truth["l_ankle"], truth["r_ankle"]])
+    body = build_body(motion)
+    got = {c: skeleton.names[j] for c, j in zip(CANONICAL_JOINTS, body.mapping.joints, strict=True)}
+    limbs = [c for c in truth if c not in ("head", "neck")]
+    assert {c: got[c] for c in limbs} == {c: truth[c] for c in limbs}
+    assert any("held by IK" in w for w in body.warnings)
+    check_canonical_body(body, "ik feet", upright=True)
+    # A still clip of the same rig shows nothing: the legs end at the knees.
+    with pytest.raises(SkeletonMappingError):
+        build_body(motion.slice_frames(0, 1))
+
+
+def _with_end_sites(skeleton: Skeleton, length: float) -> Skeleton:
+    """``skeleton`` with an End Site ``length`` long beyond every leaf, along its bone."""
+    leaves = [j for j in range(skeleton.joint_count) if j not in set(skeleton.parents.tolist())]
+    ends = [skeleton.offsets[j] / np.linalg.norm(skeleton.offsets[j]) * length for j in leaves]
+    return Skeleton(
+        (*skeleton.names, *(f"{skeleton.names[j]}_end" for j in leaves)),
+        np.concatenate([skeleton.parents, leaves]),
+        np.concatenate([skeleton.offsets, ends]),
+        np.concatenate([skeleton.end_site, np.ones(len(leaves), dtype=bool)]),
+    )
+
+
+@pytest.mark.parametrize("named", [True, False], ids=["smpl-names", "no-names"])
+@pytest.mark.parametrize("end_sites", [False, True], ids=["leaves", "end-sites"])
+def test_smpl_chains_map_collar_shoulder_elbow_wrist_hand(named: bool, end_sites: bool):
+    # collar -> shoulder -> elbow -> wrist -> hand and hip -> knee -> ankle -> foot, with or
+    # without names, with or without End Sites beyond the hands and feet (as SMPL-to-BVH
+    # exporters write them).
+    skeleton = skeleton_from_points(SMPL)
+    if end_sites:
+        skeleton = _with_end_sites(skeleton, 0.05)
+    if not named:
+        skeleton = dataclasses.replace(
+            skeleton, names=tuple(f"J{i}" for i in range(skeleton.joint_count))
+        )
+    mapping = map_skeleton(skeleton)
+    truth = skeleton_from_points(SMPL).names
+    got = {c: truth[j] for c, j in zip(CANONICAL_JOINTS, mapping.joints, strict=True) if j < 24}
+    for side in "LR":
+        s = side.lower()
+        assert got[f"{s}_shoulder"] == f"{side}_Shoulder"
+        assert got[f"{s}_elbow"] == f"{side}_Elbow"
+        assert got[f"{s}_wrist"] == f"{side}_Wrist"
+        assert got[f"{s}_hip"] == f"{side}_Hip"
+        assert got[f"{s}_knee"] == f"{side}_Knee"
+        assert got[f"{s}_ankle"] == f"{side}_Ankle"
+    assert mapping.mirrored is False

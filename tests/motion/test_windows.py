@@ -17,6 +17,7 @@ from tests.motion.conftest import (
     CMU_BVH_FIXTURE,
     fixture_bytes,
 )
+from tests.motion.holds import held
 from tests.motion.shared import SHARED_DATA, requires_shared_data
 
 
@@ -112,3 +113,64 @@ def test_windows_of_a_real_take_match_the_sliced_body() -> None:
         _, start, stop = spans[row].tolist()
         expected = REGISTRY["motion"].compute(slice_body(body, start, stop))
         np.testing.assert_allclose(windows["motion"][row], expected, atol=1e-5, rtol=1e-5)
+
+
+# ------------------------------------------------------------------------------ still stretches
+
+
+def _bodies_with_real_takes() -> list[Body]:
+    bodies = _bodies()
+    bandai = SHARED_DATA / "bandai-ds1" / "data" / "dataset-1_dance-short_normal_001.bvh"
+    if bandai.is_file():
+        bodies.append(build_body(read_bvh(bandai.read_bytes())))
+    return bodies
+
+
+@pytest.mark.parametrize("extra", [1, 5, 37, 240])
+def test_inserting_or_removing_a_still_stretch_changes_no_window_outside_it(extra: int) -> None:
+    """Hold frame ``at`` for ``extra`` more frames. Every window that ends by frame ``at`` is
+    the same window of the longer take, and every window that starts at ``at`` or later is
+    the same window ``extra`` frames later, for every descriptor: equal up to float64
+    rounding, which is 1e-9 relative for means and at most 1e-6 absolute for a standard
+    deviation near 0 (computed from moments, it is the square root of a difference at
+    rounding level; the stored float32 vectors resolve about 1e-7 of their values). Read
+    backwards, removing the stretch changes nothing else either. Windows that hold part of
+    the stretch change, as they should: they describe it."""
+    rng = np.random.default_rng(extra)
+    for body in _bodies_with_real_takes():
+        f = body.frame_count
+        at = f // 2
+        longer = held(body, at, extra)
+        assert longer.frame_count == f + extra
+        starts = rng.integers(0, at, size=8)
+        before = np.stack([starts, np.minimum(at + 1, starts + rng.integers(1, f, 8))], axis=1)
+        starts = rng.integers(at, f, size=8)
+        after = np.stack([starts, np.minimum(f, starts + rng.integers(1, f, 8))], axis=1)
+        spans = np.concatenate([before, after, [[0, at + 1], [at, f]]])
+        moved = spans + np.where(spans[:, :1] >= at, extra, 0)
+        for name, descriptor in REGISTRY.items():
+            original = descriptor.compute_spans(body, spans)
+            again = descriptor.compute_spans(longer, moved)
+            assert np.all(np.isfinite(again)), name
+            np.testing.assert_allclose(again, original, rtol=1e-9, atol=1e-6, err_msg=name)
+
+
+def test_a_window_inside_a_still_stretch_is_still() -> None:
+    """Still is a value, not an error: zero energy, equal part shares, no travel, no spread."""
+    from app.motion.descriptors.motion import PART_SHARE_FLOOR, motion_blocks
+
+    for body in _bodies_with_real_takes():
+        at = body.frame_count // 3
+        longer = held(body, at, 150)
+        inside = np.array([[at + 10, at + 140]])
+        blocks = motion_blocks(longer, inside)
+        assert np.all(blocks["energy"] == 0)
+        np.testing.assert_array_equal(blocks["parts"], np.log(1 / 16 + PART_SHARE_FLOOR))
+        assert np.all(blocks["travel"] == 0) and np.all(blocks["sideways"] == 0)
+        # No spread: a standard deviation from moments is 0 up to the square root of a
+        # rounding-level difference between a constant's mean square and squared mean
+        # (sums over a few thousand frames: sqrt(1e-13), below 1e-6 of a unit direction).
+        assert np.all(np.abs(blocks["limbs"][:, 30:]) < 1e-6)
+        posture = REGISTRY["posture"].compute_spans(longer, inside)[0]
+        assert np.all(np.abs(posture[6:]) < 1e-6) and np.any(posture[:6] != 0)
+        assert np.all(REGISTRY["kinetic"].compute_spans(longer, inside) == 0)

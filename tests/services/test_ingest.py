@@ -235,3 +235,40 @@ def test_reindex_drops_outdated_vectors_it_cannot_recompute(settings: Settings) 
         assert clip_service.clip_vectors(library, bad.id)["posture"].version == 1
     finally:
         library.close()
+
+
+def test_a_duplicate_upload_cannot_take_a_clip_past_the_label_cap(settings: Settings) -> None:
+    from fastapi.testclient import TestClient
+
+    from app.labels import MAX_LABELS
+    from app.main import create_app
+    from tests.hardening.live import unique_upload
+
+    stored = [f"take {n}" for n in range(MAX_LABELS - 5)]
+    more = [f"extra {n}" for n in range(10)]
+    with TestClient(create_app(settings)) as client:
+        clip = client.post("/clips", files=unique_upload(0), data={"labels": stored}).json()
+        again = client.post("/clips", files=unique_upload(0), data={"labels": more})
+        assert again.status_code == 422, again.text
+        detail = again.json()["detail"]
+        assert f"cap of {MAX_LABELS} labels" in detail and f"clip {clip['id']}" in detail
+        assert client.get(f"/clips/{clip['id']}").json()["labels"] == stored
+        # up to the cap is fine
+        within = client.post("/clips", files=unique_upload(0), data={"labels": more[:5]})
+        assert within.status_code == 200, within.text
+        assert len(within.json()["labels"]) == MAX_LABELS
+
+
+def test_a_batch_keeps_going_when_a_duplicate_would_pass_the_label_cap(
+    library: Library,
+) -> None:
+    from app.labels import MAX_LABELS
+
+    stored = [f"take {n}" for n in range(MAX_LABELS - 1)]
+    first = ingest(library, bvh([1, 2, 3], labels=stored)).clip
+    results = ingest_many(
+        library, [bvh([1, 2, 3], labels=["a", "b"]), bvh([4, 5, 6], name="new.bvh")]
+    )
+    assert [r.created for r in results] == [False, True]
+    labels = clip_service.get_clip(library, first.id).labels
+    assert labels == (*stored, "a")

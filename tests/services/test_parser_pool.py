@@ -13,7 +13,7 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from app.errors import ParseError, UnreadableFile
+from app.errors import ParseError, ServiceBusy, UnreadableFile
 from app.motion.formats import read_bvh
 from app.motion.model import ParseLimits
 from app.services.parser_pool import ParserPool
@@ -106,3 +106,21 @@ def test_reader_errors_come_back_as_themselves(pool):
         pool.parse("gltf", b'{"asset": {"version": "2.0"}}', animation=None, limits=LIMITS)
     with pytest.raises(ParseError, match="'Take 001'"):
         pool.parse("fbx", FBX, animation="nope", limits=LIMITS)
+
+
+def test_waiting_for_a_busy_reader_is_bounded():
+    """With every worker taken, the next caller is turned away (503 busy) after
+    ``wait_limit`` instead of queueing without end, and served once one is free again."""
+    pool = ParserPool(1, time_limit=30.0, memory_mb=512, wait_limit=0.5)
+    try:
+        pool.parse("fbx", FBX, animation=None, limits=LIMITS)  # warm
+        taken = pool._borrow()  # the only worker, as a request reading a file holds it
+        started = time.monotonic()
+        with pytest.raises(ServiceBusy, match="MOCAP_PARSER_WORKERS") as refused:
+            pool.parse("fbx", FBX, animation=None, limits=LIMITS)
+        assert 0.4 < time.monotonic() - started < 5.0
+        assert refused.value.retry_after == 1
+        pool._idle.put(taken)
+        assert pool.parse("fbx", FBX, animation=None, limits=LIMITS).motion.frame_count == 120
+    finally:
+        pool.close()

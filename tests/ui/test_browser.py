@@ -9,6 +9,7 @@ Screenshots of every page go to ``test-artifacts/ui/``.
 
 from __future__ import annotations
 
+import base64
 import math
 import os
 import re
@@ -28,7 +29,7 @@ import pytest
 
 from app.motion.body import build_body
 from app.motion.formats import read_bvh
-from app.services.library_map import display_positions
+from app.services.previews import display_positions
 from tests.conftest import REPO_ROOT, shared_data_dir
 
 pytestmark = pytest.mark.slow
@@ -302,6 +303,9 @@ def test_stick_figure_matches_the_api_joint_positions(
     assert response.status_code in (200, 201), response.text
     clip_id = response.json()["id"]
     api = httpx.get(f"{server}/clips/{clip_id}/skeleton", params={"fps": 30}, timeout=60).json()
+    compact = httpx.get(
+        f"{server}/clips/{clip_id}/skeleton", params={"fps": 30, "encoding": "compact"}, timeout=60
+    ).json()
 
     page.goto(f"/#/search?clip={clip_id}")
     page.wait_for_function(
@@ -313,10 +317,14 @@ def test_stick_figure_matches_the_api_joint_positions(
     assert state["clipId"] == clip_id and state["frame"] == frame
     assert state["frameCount"] == api["frame_count"] and state["fps"] == 30
 
-    joints = api["frames"][frame]
+    # The page draws the compact encoding's numbers (float32 pelvis + int16 offsets), which
+    # are the JSON's to 1e-4 body heights.
+    joints = decode_compact(compact)[frame]
+    np.testing.assert_allclose(joints, api["frames"][frame], atol=1.5e-4)
     centre = api["joints"].index(state["centreJoint"])
-    want = project(joints, state["width"], state["height"], state["camera"], centre)
-    np.testing.assert_allclose(np.asarray(state["points"]), want, atol=1e-6)
+    want = project(joints, state["width"], state["height"], state["camera"], state["view"], centre)
+    np.testing.assert_allclose(np.asarray(state["points"]), want, atol=1e-3)
+    joints = api["frames"][frame]
 
     # The API's positions are the motion core's (in body heights, display frame).
     core = build_body(read_bvh(path.read_bytes()))
@@ -352,19 +360,34 @@ def test_stick_figure_matches_the_api_joint_positions(
 
 
 def project(
-    joints: list[list[float]], width: float, height: float, camera: dict[str, float], centre: int
+    joints: Any,
+    width: float,
+    height: float,
+    camera: dict[str, float],
+    view: dict[str, float],
+    centre: int,
 ) -> np.ndarray:
     """The page's projection (figure.js projectFrame), written again from its definition:
     an orthographic camera turned by yaw about the vertical, looking down by pitch,
-    following the centre joint over the floor."""
+    following the centre joint over the floor; `view` gives its scale (px per body height)
+    and the height (body heights, on the screen) at the canvas's bottom edge."""
     p = np.asarray(joints, dtype=float)
     dx = p[:, 0] - p[centre, 0]
     dz = p[:, 2] - p[centre, 2]
     across = dx * math.cos(camera["yaw"]) + dz * math.sin(camera["yaw"])
     depth = -dx * math.sin(camera["yaw"]) + dz * math.cos(camera["yaw"])
     up = p[:, 1] * math.cos(camera["pitch"]) - depth * math.sin(camera["pitch"])
-    scale = height / camera["viewHeight"]
-    return np.stack([width / 2 + across * scale, height * (1 - camera["floor"]) - up * scale], 1)
+    scale = view["scale"]
+    return np.stack([width / 2 + across * scale, height - (up - view["bottom"]) * scale], 1)
+
+
+def decode_compact(body: dict[str, Any]) -> np.ndarray:
+    """``(F, C, 3)`` float32 positions of a ``compact`` skeleton response, as the page has
+    them."""
+    count, joints = body["frame_count"], len(body["joints"])
+    root = np.frombuffer(base64.b64decode(body["root"]), "<f4").reshape(count, 1, 3)
+    offsets = np.frombuffer(base64.b64decode(body["offsets"]), "<i2").reshape(count, joints, 3)
+    return np.asarray(root.astype(np.float64) + offsets * body["offset_unit"], dtype=np.float32)
 
 
 def test_the_page_asks_for_the_api_key(browser: Any, tmp_path: Path) -> None:

@@ -64,9 +64,14 @@ def upload(base: str, files: dict[str, tuple[str, bytes]], **data: Any) -> dict[
 
 
 @contextmanager
-def browsing(browser: Any, base: str) -> Iterator[Any]:  # noqa: F811
+def browsing(
+    browser: Any,  # noqa: F811
+    base: str,
+    viewport: dict[str, int] | None = None,
+) -> Iterator[Any]:
+    """A page on ``base`` (1280 × 900 unless ``viewport``); fails on any script error."""
     context = browser.new_context(
-        viewport={"width": 1280, "height": 900}, base_url=base, accept_downloads=True
+        viewport=viewport or {"width": 1280, "height": 900}, base_url=base, accept_downloads=True
     )
     context.set_default_timeout(TIMEOUT_MS)
     page = context.new_page()
@@ -152,10 +157,14 @@ def test_clip_page(browser: Any, tmp_path: Path) -> None:  # noqa: F811
         expect(controls.get_by_role("button", name="Play")).to_have_attribute(
             "aria-pressed", "false"
         )
-        scrub = controls.get_by_label("Time")
-        scrub.evaluate("e => { e.value = '0.2'; e.dispatchEvent(new Event('input')); }")
+        scrub = controls.get_by_role("slider", name="Time")
+        scrub.focus()  # the keys step the file's own frames: 0.2 s on
+        page.keyboard.press("Home")
+        steps = round(0.2 / clip["frame_time"])
+        for _ in range(steps):
+            page.keyboard.press("ArrowRight")
         readout = controls.locator("output")
-        first = clip["lead_in_frames"] + int(0.2 * (1 / clip["frame_time"]) + 1e-6) + 1
+        first = clip["lead_in_frames"] + steps + 1
         expect(readout).to_contain_text(f"frame {first} / {clip['frame_count']} · 0.20 s")
         screenshot(page, "clip-page")
 

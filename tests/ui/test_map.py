@@ -22,7 +22,7 @@ from app.services.library_map import (
     three_man_from_kinetic,
     three_man_many,
 )
-from tests.conftest import shared_data_dir
+from tests.conftest import SharedData, shared_data_dir
 from tests.services.fakes import fake_motion
 from tests.ui.conftest import upload_bvh
 
@@ -67,13 +67,9 @@ def test_three_man_from_the_stored_kinetic_vector_equals_three_man_of_the_body(
 @pytest.mark.slow
 @pytest.mark.parametrize("files", SHARED_MOTIONS.values(), ids=SHARED_MOTIONS.keys())
 def test_three_man_from_kinetic_on_whole_real_clips(
-    shared_data: Path, files: tuple[str, ...]
+    shared_data: SharedData, files: tuple[str, ...]
 ) -> None:
-    paths = [shared_data / f for f in files]
-    missing = [str(p) for p in paths if not p.is_file()]
-    if missing:
-        pytest.skip(f"not found: {', '.join(missing)}")
-    check_three_man(paths)
+    check_three_man([shared_data(f) for f in files])
 
 
 def test_three_man_from_kinetic_refuses_other_vectors() -> None:

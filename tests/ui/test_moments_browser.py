@@ -4,13 +4,14 @@ plays only those spans, offers the cut file, and a click searches from a moment.
 from __future__ import annotations
 
 import re
+from pathlib import Path
 from typing import Any
 
 import httpx
 
 from tests.api.test_moments import long_take
 from tests.motion.conftest import BANDAI_FIXTURE, fixture_bytes
-from tests.ui.test_browser import browser, page, server  # noqa: F401 - fixtures
+from tests.ui.test_browser import TIMEOUT_MS, browser, page, serve, server  # noqa: F401 - fixtures
 
 
 def test_moment_search_shows_timelines_and_plays_spans(page: Any, server: str) -> None:  # noqa: F811
@@ -95,3 +96,35 @@ def test_dragging_a_span_on_the_clip_page_searches_moments_like_it(
     page.get_by_label("To (s)").fill("1")
     page.get_by_role("button", name="Find moments like this span").click()
     expect(page.locator(".clip-actions .status")).to_contain_text("end must come after")
+
+
+def test_the_moment_download_sends_the_api_key(browser: Any, tmp_path: Path) -> None:  # noqa: F811
+    """With MOCAP_REQUIRE_KEY_FOR_HEAVY a cut needs the key: the Download link fetches the
+    file with the key the page holds (a plain link would get 401)."""
+    from playwright.sync_api import expect
+
+    key = "moments-key-3b9"
+    env = {"MOCAP_API_KEY": key, "MOCAP_REQUIRE_KEY_FOR_HEAVY": "true"}
+    with serve(tmp_path, **env) as base:
+        with httpx.Client(base_url=base, headers={"X-API-Key": key}, timeout=60) as client:
+            take = client.post("/clips", files={"file": ("take.bvh", long_take())}).json()["id"]
+            walk = client.post(
+                "/clips", files={"file": ("walk.bvh", fixture_bytes(BANDAI_FIXTURE))}
+            )
+            assert walk.status_code in (200, 201)
+        context = browser.new_context(base_url=base, accept_downloads=True)
+        context.set_default_timeout(TIMEOUT_MS)
+        try:
+            page = context.new_page()
+            page.goto("/")
+            page.evaluate("key => sessionStorage.setItem('mocap-index.api-key', key)", key)
+            page.goto(f"/#/search?clip={take}&mode=moments&start=0&end=1.3")
+            expect(page.locator("main .status")).to_contain_text("Moments like")
+            link = page.locator(".card.moment").first.locator("a.download")
+            with page.expect_download() as got:
+                link.click()
+            saved = got.value.path()
+            assert Path(saved).read_bytes().startswith(b"HIERARCHY"), Path(saved).read_bytes()[:200]
+            expect(page.locator("main .status")).to_contain_text("Downloaded")
+        finally:
+            context.close()

@@ -21,8 +21,16 @@ direction, units and Euler conventions:
   as ``log(mean v² + 1)``.
 
 Vector: 16 joints x 3 DOFs (``log(mean ω² + 1)``, ω in rad/s) then the two root terms: 50 numbers.
-Compared with the Euclidean distance. :func:`three_man` gives the paper's 3-MAN features
-(total energy, upper/lower ratio, limbs/trunk ratio) for maps of a library.
+Compared with the Euclidean distance.
+
+Still stretches and short clips are not special cases: the paper takes ``log(x + 1)`` "to
+handle the joints of zero energy", so a joint (or a whole body) that does not move has the
+value 0. A clip of one frame has no velocity at all and every value 0; a window whose frames
+are all still has mean energy exactly 0 (the sums are exact over runs of zeros, see
+:mod:`app.motion.spans`), never a rounding residue of either sign.
+
+:func:`three_man` gives the paper's 3-MAN features (total energy, upper/lower ratio,
+limbs/trunk ratio) for maps of a library.
 """
 
 from __future__ import annotations
@@ -143,6 +151,7 @@ class EnergySamples:
             horizontal, vertical = root_velocity(body)
             joints = (omega**2).reshape(len(omega), -1)
             root = np.stack([horizontal**2, vertical**2], axis=1)
+        # Squares: never negative, and exactly 0 over a still stretch (app/motion/spans.py).
         self.joints = RunningMeans(joints)
         self.root = RunningMeans(root)
 

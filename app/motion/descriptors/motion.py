@@ -40,6 +40,22 @@ weights: ``docs/evaluation.md``.
 
 Every number is a mean (or a function of means) of per-frame quantities, so any span of
 frames is described in O(1) after one pass over the clip (:mod:`app.motion.spans`).
+
+Still is a valid value of every block, and every vector is finite by construction (a hold,
+an idle, a motionless finger rig, a one- or two-frame clip):
+
+* means of energies, speeds and squares are exactly 0 over still frames, never a rounding
+  residue of either sign (:mod:`app.motion.spans`); standard deviations are clamped at 0;
+* ``parts`` of a body that does not move at all (total energy exactly 0): every part's share
+  is ``1/16``. A still body says nothing about which part carries the motion, so no part is
+  favoured; the value is the centre of the shares a barely moving body takes, so a still
+  window sits among near-still ones rather than apart from them. Shares are otherwise in
+  ``[0, 1]`` and the floor keeps the logarithm finite;
+* ``travel``: a still body has zero velocities, turning rate and displacement; the heading
+  of a body whose forward axis is vertical (lying, bent over) falls back to its lateral axis
+  turned about the vertical; ``sideways`` divides by the mean speed only through the gate,
+  which is 0 at speed 0;
+* ``limbs``: a segment of zero length (two canonical joints at one point) has direction 0.
 """
 
 from __future__ import annotations
@@ -104,17 +120,18 @@ def limb_directions(body: Body) -> np.ndarray:
 def limb_spans(body: Body, spans: np.ndarray) -> np.ndarray:
     """``(W, 60)`` mean then std over each span's frames of the limb unit directions."""
     directions = limb_directions(body).reshape(body.frame_count, -1)
+    half = directions.shape[1]
     moments = RunningMeans(np.concatenate([directions, directions**2], axis=1)).mean(
         spans[:, 0], spans[:, 1]
     )
-    half = directions.shape[1]
     mean, mean_square = moments[:, :half], moments[:, half:]
     return np.concatenate([mean, std_from_moments(mean, mean_square)], axis=1)
 
 
 def parts_from_energies(joints: np.ndarray) -> np.ndarray:
     """``(W, 16)`` log share of each kinetic joint in the body's kinetic energy, from the
-    ``(W, 16, 3)`` mean energies per joint DOF."""
+    ``(W, 16, 3)`` mean energies per joint DOF (>= 0). A span where nothing moves (total
+    exactly 0) has equal shares, ``1/16`` (see the module docstring)."""
     per_joint = joints.sum(axis=2)
     total = per_joint.sum(axis=1, keepdims=True)
     share = np.where(total > 0, per_joint / np.maximum(total, 1e-300), 1.0 / per_joint.shape[1])

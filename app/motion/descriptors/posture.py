@@ -13,6 +13,13 @@ normalisation gives six numbers ``f(n) = (σxx, σyy, σzz, σxy, σyz, σzx)`` 
 clip's vector is their mean over frames followed by their population standard deviation
 (eq. 3): 12 numbers in units of (body heights)². Compared with the Euclidean distance.
 Mirroring a motion left-to-right flips the sign of σxy and σzx only.
+
+The paper: "where N is the number of frames and f̄ and s̄ are the mean and standard deviation
+of f(n)'s". A still stretch, or a clip of one frame, is no special case: its frames share one
+pose, so f̄ is that pose's covariance and s̄ is exactly 0 (rounding that would make the
+variance a hair negative is clamped to 0, see :func:`~app.motion.spans.std_from_moments`).
+Height is > 0 for every body (:func:`~app.motion.body.build_body` refuses a skeleton of zero
+height), so every number is finite.
 """
 
 from __future__ import annotations

@@ -90,7 +90,10 @@ def read_bvh(data: bytes | str, *, limits: ParseLimits = DEFAULT_LIMITS) -> Moti
     ------
     ParseError, LimitExceeded
     """
-    return parse_bvh(decode_text(data), limits=limits)
+    text = decode_text(data)
+    # ASCII bytes (most files) are read in place by the frame reader: no copy of the frames.
+    raw = bytes(data) if isinstance(data, bytes | bytearray) and data.isascii() else None
+    return parse_bvh(text, limits=limits, raw=raw)
 
 
 def read_asf_amc(

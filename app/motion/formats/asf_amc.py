@@ -52,9 +52,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from app.errors import LimitExceeded, ParseError
+from app.errors import LimitExceeded, NoAnimation, ParseError
 from app.motion.formats.bvh import (
     DEFAULT_LIMITS,
+    LINES_PER_CLOCK_CHECK,
     matrices_from_euler,
     normalise_newlines,
     parse_float,
@@ -67,6 +68,8 @@ __all__ = ["DEFAULT_AMC_FRAME_TIME", "parse_asf_amc"]
 #: Seconds per frame of an AMC file: the CMU database is captured at 120 fps.
 DEFAULT_AMC_FRAME_TIME = 1.0 / 120.0
 
+# An AMC of headers and comments only: the skeleton is a rig with no animation.
+_NO_FRAMES = "the AMC file has no frames: the skeleton has no animation to describe"
 _FRAME_NUMBER_RE = re.compile(r"[+-]?\d{1,12}", re.ASCII)
 _BONE_DOFS = frozenset({"rx", "ry", "rz", "tx", "ty", "tz", "l"})
 _ROOT_DOFS = frozenset({"rx", "ry", "rz", "tx", "ty", "tz"})
@@ -142,6 +145,7 @@ def parse_asf_amc(
     """
     if not (isinstance(frame_time, int | float) and math.isfinite(frame_time) and frame_time > 0):
         raise ParseError(f"frame_time must be a positive number of seconds, not {frame_time!r}")
+    limits.check_time()
     try:
         asf = _parse_asf(_split_lines(asf_text), limits)
         joints = _order_joints(asf, limits)
@@ -159,6 +163,25 @@ def parse_asf_amc(
     if warnings:
         motion.notes["warnings"] = warnings
     return motion
+
+
+def parse_asf_rest(
+    asf_text: str,
+    *,
+    limits: ParseLimits = DEFAULT_LIMITS,
+    frame_time: float = DEFAULT_AMC_FRAME_TIME,
+) -> Motion:
+    """An ASF skeleton alone, as one frame of its rest pose (every degree of freedom 0): a
+    rig to retarget onto. Raises like :func:`parse_asf_amc` (``source="ASF"``)."""
+    try:
+        asf = _parse_asf(_split_lines(asf_text), limits)
+        joints = _order_joints(asf, limits)
+    except ParseError as error:
+        raise error.with_source("ASF") from None
+    layout = _column_layout(asf)
+    columns = sum(count for _, count in layout.values())
+    values = np.zeros((1, columns))
+    return _build_motion(asf, joints, layout, values, asf.angle_unit, frame_time, 1)
 
 
 def _split_lines(text: str) -> list[str]:
@@ -189,6 +212,8 @@ def _parse_asf(lines: list[str], limits: ParseLimits) -> _Asf:
     hierarchy_lines: list[tuple[int, list[str]]] = []
 
     for number, raw in enumerate(lines, start=1):
+        if number % LINES_PER_CLOCK_CHECK == 0:
+            limits.check_time()
         line = raw.strip()
         if not line or line.startswith("#"):
             continue
@@ -480,7 +505,7 @@ def _parse_amc(
     while end > start and not lines[end - 1].strip():
         end -= 1
     if start == end:
-        raise ParseError("the AMC file has no frames")
+        raise NoAnimation(_NO_FRAMES)
     body = lines[start:end]
     body, warnings = _drop_cut_last_frame(body, start + 1, layout)
     column_count = sum(count for _, count in layout.values())
@@ -578,6 +603,7 @@ def _read_regular_amc(
             return None
         if rows.shape != (frame_count,) or not (rows["name"] == name).all():
             return None
+        limits.check_time()  # one C read of one bone's lines per look
         values[:, first : first + count] = rows["values"].reshape(frame_count, count)
     if not np.isfinite(values).all():
         return None
@@ -616,6 +642,8 @@ def _read_amc_lines(
         rows.append(row)
 
     for number, raw in enumerate(body, start=first_line):
+        if number % LINES_PER_CLOCK_CHECK == 0:
+            limits.check_time()
         # maxsplit bounds the work on a hostile long line
         tokens = raw.split(None, most_values + 1)
         if not tokens or tokens[0].startswith("#"):
@@ -668,7 +696,7 @@ def _read_amc_lines(
         for k, token in enumerate(tokens[1:]):
             row[first + k] = parse_float(token, what=f"bone {name!r}", line=number)
     if not frame_line:
-        raise ParseError("the AMC file has no frames", line=first_line)
+        raise NoAnimation(_NO_FRAMES, line=first_line)
     finish_frame()
     return np.array(rows, dtype=np.float64).reshape(len(rows), column_count), first_frame
 

@@ -44,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from app.errors import LimitExceeded, ParseError
+from app.errors import LimitExceeded, NoAnimation, ParseError
 from app.motion.model import Motion, ParseLimits, Skeleton
 
 __all__ = ["DEFAULT_LIMITS", "matrices_from_euler", "normalise_newlines", "parse_bvh"]
@@ -54,12 +54,26 @@ DEFAULT_LIMITS = ParseLimits()
 
 #: Seconds; a frame time longer than this is taken as a broken header, not a slow clip.
 MAX_FRAME_TIME = 10.0
+#: Seconds; a frame time shorter than this (100,000 frames per second) is no capture rate,
+#: and would turn every small step into a speed past float32 in the descriptors.
+MIN_FRAME_TIME = 1e-5
 #: Characters; hierarchy lines are short, a longer one is garbage (keeps token lists small).
 MAX_HIERARCHY_LINE = 65_536
 
+#: Characters; a longer token is not a number any exporter writes (a double round-trips in
+#: 17 significant digits: ``-1.2345678901234567e-308`` is 24 characters), so it is refused by
+#: its length before any pattern or float conversion reads it.
+MAX_NUMBER_TOKEN = 100
+#: Lines a reader walks between two looks at the clock (:meth:`ParseLimits.check_time`).
+LINES_PER_CLOCK_CHECK = 4096
+
 # One number as numpy's text reader accepts it (ASCII digits, no underscores, nan/inf words).
+# Possessive quantifiers: a run of digits once read is never read again, so a failed match
+# costs time linear in the token (a greedy ``\d+\.?\d*`` retried every split of a long run of
+# digits followed by a letter: quadratic, 18 s at 32,000 digits, with the GIL held).
 NUMBER_RE = re.compile(
-    r"[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|nan|inf|infinity)", re.ASCII | re.IGNORECASE
+    r"[+-]?+(?:(?:\d++(?:\.\d*+)?+|\.\d++)(?:[eE][+-]?+\d++)?+|nan|inf|infinity)",
+    re.ASCII | re.IGNORECASE,
 )
 _INTEGER_RE = re.compile(r"\+?\d+", re.ASCII)
 _SIGNED_INTEGER_RE = re.compile(r"[+-]?\d+", re.ASCII)
@@ -96,10 +110,21 @@ def normalise_newlines(text: str) -> str:
     return text
 
 
+def number_problem(token: str) -> str | None:
+    """Why ``token`` is not a number as numpy reads one, or ``None``. Its length is checked
+    first: no pattern ever reads more than :data:`MAX_NUMBER_TOKEN` characters."""
+    if len(token) > MAX_NUMBER_TOKEN:
+        return f"is not a number (longer than {MAX_NUMBER_TOKEN} characters)"
+    if NUMBER_RE.fullmatch(token) is None:
+        return "is not a number"
+    return None
+
+
 def parse_float(token: str, *, what: str, line: int | None) -> float:
     """A finite float from one token, or :class:`ParseError` naming ``what`` and the line."""
-    if NUMBER_RE.fullmatch(token) is None:
-        raise ParseError(f"{what}: {show(token)} is not a number", line=line)
+    problem = number_problem(token)
+    if problem is not None:
+        raise ParseError(f"{what}: {show(token)} {problem}", line=line)
     value = float(token)
     if not math.isfinite(value):
         raise ParseError(f"{what}: {show(token)} is not a finite number", line=line)
@@ -190,17 +215,21 @@ class _Joint:
 
 
 class _Lines:
-    """Iterates the lines of ``text`` from a character position, counting line numbers."""
+    """Iterates the lines of ``text`` from a character position, counting line numbers, and
+    looks at the clock of ``limits`` every :data:`LINES_PER_CLOCK_CHECK` lines."""
 
-    def __init__(self, text: str) -> None:
+    def __init__(self, text: str, limits: ParseLimits = DEFAULT_LIMITS) -> None:
         self.text = text
         self.pos = 0
         self.line = 0  # 1-based number of the line last returned
+        self.limits = limits
 
     def next(self) -> str | None:
         """The next line without its newline, or ``None`` at the end of the text."""
         if self.pos >= len(self.text):
             return None
+        if self.line % LINES_PER_CLOCK_CHECK == 0:
+            self.limits.check_time()
         end = self.text.find("\n", self.pos)
         if end < 0:
             end = len(self.text)
@@ -216,7 +245,9 @@ class _Lines:
         return None
 
 
-def parse_bvh(text: str, *, limits: ParseLimits = DEFAULT_LIMITS) -> Motion:
+def parse_bvh(
+    text: str, *, limits: ParseLimits = DEFAULT_LIMITS, raw: bytes | None = None
+) -> Motion:
     """Read a BVH file already decoded to text.
 
     Parameters
@@ -224,7 +255,11 @@ def parse_bvh(text: str, *, limits: ParseLimits = DEFAULT_LIMITS) -> Motion:
     text:
         The whole file. ``\\r\\n`` and ``\\r`` line ends are accepted.
     limits:
-        Upper bounds on joints, nesting depth, frames and values.
+        Upper bounds on joints, nesting depth, frames and values, and the deadline.
+    raw:
+        The bytes ``text`` was decoded from, when they are ASCII (then ``raw.decode() ==
+        text`` character for byte): the frame block is read from them in place instead of
+        from a copy. Ignored unless its length is the text's.
 
     Returns
     -------
@@ -238,22 +273,37 @@ def parse_bvh(text: str, *, limits: ParseLimits = DEFAULT_LIMITS) -> Motion:
     LimitExceeded
         The file is over one of ``limits``.
     """
-    text = normalise_newlines(text)
-    lines = _Lines(text)
+    limits.check_time()
+    normalised = normalise_newlines(text)
+    if raw is not None and (normalised is not text or len(raw) != len(text)):
+        raw = None  # line ends were rewritten: the bytes are not the text any more
+    text = normalised
+    lines = _Lines(text, limits)
     joints = _HIERARCHIES.read(lines, limits)
-    frame_count, frames_line, frame_time = _read_motion_header(lines)
+    frame_count, frames_line, frame_time = _read_motion_header(lines, len(joints))
 
     channel_count = sum(len(j.channels or ()) for j in joints)
     if channel_count == 0:
         raise ParseError("the hierarchy declares no CHANNELS, so frames hold no data")
     _check_frame_limits(frame_count, channel_count, len(joints), limits)
     values, warnings = _read_frames(
-        text, lines.pos, lines.line + 1, frame_count, frames_line, channel_count
+        text, lines.pos, lines.line + 1, frame_count, frames_line, channel_count, limits, raw
     )
-    motion = _build_motion(joints, values, frame_time)
+    motion = _build_motion(joints, values, frame_time, limits)
     if warnings:
         motion.notes["warnings"] = warnings
     return motion
+
+
+def parse_bvh_rest(text: str, *, limits: ParseLimits = DEFAULT_LIMITS) -> Motion:
+    """The hierarchy of a BVH file as one frame of its rest pose, whatever its MOTION section
+    holds (``Frames: 0`` included): a rig to retarget onto. Raises like :func:`parse_bvh`."""
+    lines = _Lines(normalise_newlines(text))
+    joints = _HIERARCHIES.read(lines, limits)
+    channel_count = sum(len(j.channels or ()) for j in joints)
+    # Zero channels: no rotation, and position channels that read as "no change" from the
+    # OFFSETs (see _positions_are_deltas), so the rest pose is the OFFSETs'.
+    return _build_motion(joints, np.zeros((1, channel_count)), 1.0 / 30.0)
 
 
 # The line that ends the hierarchy (the parser's rule: a line whose only token is MOTION).
@@ -329,6 +379,11 @@ def _read_hierarchy(lines: _Lines, limits: ParseLimits) -> list[_Joint]:
                     f"the hierarchy is truncated: end of file inside {where.name!r} "
                     f"(opened on line {where.line}); missing '}}'",
                     line=number,
+                )
+            if root_closed:  # a whole hierarchy and nothing after it: a rig
+                raise NoAnimation(
+                    f"the file is a rig with no animation: a skeleton of {len(joints)} joints "
+                    "and no MOTION section after it, so there is no motion to describe"
                 )
             raise ParseError("MOTION section missing after the hierarchy", line=number)
         if len(text_line) > MAX_HIERARCHY_LINE:
@@ -509,8 +564,10 @@ def _set_channels(joint: _Joint, arguments: list[str], number: int) -> None:
     joint.channels = channels
 
 
-def _read_motion_header(lines: _Lines) -> tuple[int, int, float]:
-    """Read ``Frames:`` and ``Frame Time:``; returns (frame count, its line, seconds/frame)."""
+def _read_motion_header(lines: _Lines, joint_count: int) -> tuple[int, int, float]:
+    """Read ``Frames:`` and ``Frame Time:``; returns (frame count, its line, seconds/frame).
+
+    ``Frames: 0`` is a rig with no animation (:class:`NoAnimation`), not a damaged file."""
     frames_line = lines.next_nonblank()
     match = None if frames_line is None else _FRAMES_RE.fullmatch(frames_line.strip())
     if frames_line is None or match is None:
@@ -521,8 +578,10 @@ def _read_motion_header(lines: _Lines) -> tuple[int, int, float]:
     # a 10**18 stand-in for absurdly long numbers is caught by the frame limit
     frame_count = int(token) if len(token) <= 18 else (10**18 if token[0] != "-" else -1)
     if frame_count == 0:
-        raise ParseError(
-            "Frames: 0 — a skeleton without motion, nothing to describe", line=lines.line
+        raise NoAnimation(
+            f"Frames: 0 — the file is a rig with no animation (a skeleton of {joint_count} "
+            "joints and no frames), so there is no motion to describe",
+            line=lines.line,
         )
     if frame_count < 0:
         raise ParseError("Frames: must be at least 1", line=lines.line)
@@ -535,6 +594,12 @@ def _read_motion_header(lines: _Lines) -> tuple[int, int, float]:
     frame_time = parse_float(match.group(1).strip(), what="Frame Time", line=lines.line)
     if frame_time <= 0:
         raise ParseError("Frame Time must be greater than 0 seconds", line=lines.line)
+    if frame_time < MIN_FRAME_TIME:
+        raise ParseError(
+            f"Frame Time of {frame_time:g} s is absurd (more than {1 / MIN_FRAME_TIME:,.0f} "
+            "frames per second)",
+            line=lines.line,
+        )
     if frame_time > MAX_FRAME_TIME:
         raise ParseError(
             f"Frame Time of {frame_time:g} s is absurd (more than {MAX_FRAME_TIME:g} s)",
@@ -559,28 +624,42 @@ def _read_frames(
     frame_count: int,
     frames_line: int,
     channel_count: int,
+    limits: ParseLimits = DEFAULT_LIMITS,
+    raw: bytes | None = None,
 ) -> tuple[np.ndarray, list[str]]:
     """The ``(F, C)`` frame values from ``text[start:]`` and warnings about repairs.
 
     Fast path: exactly ``Frames:`` lines of finite numbers, read by a C reader
-    (:func:`_read_spaced_numbers`, else numpy's). Otherwise :func:`_frame_lines` walks the
-    block line by line (see its rules).
+    (:func:`_read_spaced_numbers` from ``raw``, the file's bytes when they are ASCII and
+    ``text`` is their decoding, so offsets agree; else numpy's). Otherwise
+    :func:`_frame_lines` walks the block line by line (see its rules).
     """
-    block = text[start:].rstrip()
+    end = _content_end(text, start)
     # Counting lines first bounds the C reader's work by the header (no max_rows: numpy
     # warns when a blank line meets max_rows) and sends blank or extra lines to the slow pass.
-    if block and block.count("\n") + 1 == frame_count:
-        values = _read_spaced_numbers(block, frame_count, channel_count)
+    if end > start and text.count("\n", start, end) + 1 == frame_count:
+        values = None
+        if raw is not None and end - start >= IN_PLACE_BYTES:  # the file's bytes, in place
+            values = _read_spaced_numbers(raw, start, end, frame_count, channel_count)
+        elif text.isascii():
+            encoded = text[start:end].encode("ascii")
+            values = _read_spaced_numbers(encoded, 0, len(encoded), frame_count, channel_count)
+            del encoded
         if values is None:
             with contextlib.suppress(ValueError):
-                values = np.loadtxt(io.StringIO(block), dtype=np.float64, comments=None, ndmin=2)
+                values = np.loadtxt(
+                    io.StringIO(text[start:end]), dtype=np.float64, comments=None, ndmin=2
+                )
         if (
             values is not None
             and values.shape == (frame_count, channel_count)
             and np.isfinite(values).all()
         ):
             return values, []
-    lines, warnings = _frame_lines(block, first_line, frame_count, frames_line, channel_count)
+    limits.check_time()  # each C reader above reads the block once: bounded by its size
+    lines, warnings = _frame_lines(
+        text[start:end], first_line, frame_count, frames_line, channel_count, limits
+    )
     try:
         values = np.loadtxt(io.StringIO("\n".join(lines)), dtype=np.float64, comments=None, ndmin=2)
     except ValueError as error:  # the line pass is stricter than numpy's reader
@@ -600,21 +679,47 @@ def _read_frames(
     return values, warnings
 
 
+def _content_end(text: str, start: int) -> int:
+    """Index just past the last non-whitespace character of ``text[start:]`` (``start`` if
+    none), found from the end in chunks: trailing whitespace costs its own length, and no
+    copy of the text is made."""
+    end = len(text)
+    while end > start:
+        chunk = text[max(start, end - 4096) : end]
+        kept = len(chunk.rstrip())
+        if kept:
+            return end - len(chunk) + kept
+        end -= len(chunk)
+    return start
+
+
+#: Frame blocks from this size up are read from the file's own bytes, in place; a smaller
+#: one is copied first (a copy this size is under 1 % of one upload's memory budget, and
+#: the copied read is the one measured on the dev sets: bench/README.md).
+IN_PLACE_BYTES = 8 * 1024 * 1024
+
 #: Characters per number (with its space) up to which polars reads the frame block.
 MAX_NUMBER_CHARACTERS = 32
 
 
-def _read_spaced_numbers(block: str, rows: int, columns: int) -> np.ndarray | None:
-    """``(rows, columns)`` numbers of ``block`` by polars' CSV reader, or ``None`` when the
-    block is not ``rows`` lines of ``columns`` ASCII fields separated by single spaces (one
-    space at a line's end is fine) or polars is missing: the caller then uses numpy's.
+def _read_spaced_numbers(
+    data: bytes, start: int, end: int, rows: int, columns: int
+) -> np.ndarray | None:
+    """``(rows, columns)`` numbers of ``data[start:end]`` by polars' CSV reader, or ``None``
+    when that range is not ``rows`` lines of ``columns`` ASCII fields separated by single
+    spaces (one space at a line's end is fine) or polars is missing: the caller then uses
+    numpy's.
+
+    ``data`` is ASCII and ``start`` the first byte of a line; polars skips the lines before it
+    and stops after ``rows`` lines, so the range is read in place, never copied (the caller
+    has checked that it holds exactly ``rows`` lines and only whitespace follows it).
 
     polars parses numbers as numpy does (tested, also the tokens both refuse); quoting is
     off, so no token means more to it than to numpy. ``nan``/``inf`` come back as they are,
     and so do short lines, as ``nan`` (the caller checks). Imported at the first call
     (~0.15 s once per process).
     """
-    if len(block) > rows * columns * MAX_NUMBER_CHARACTERS or not block.isascii():
+    if end - start > rows * columns * MAX_NUMBER_CHARACTERS:
         return None  # numbers this long are not the common layout (nor a hostile line's)
     try:
         import polars
@@ -622,19 +727,20 @@ def _read_spaced_numbers(block: str, rows: int, columns: int) -> np.ndarray | No
         return None
     # polars takes the number of fields from the first line; a space at its end is one more,
     # empty, field (the others may end with one or not).
-    first_end = block.find("\n")
-    first_end = len(block) if first_end < 0 else first_end
-    if first_end == 0:
+    first_end = data.find(b"\n", start, end)
+    first_end = end if first_end < 0 else first_end
+    if first_end == start:
         return None  # nothing, or a blank first line
-    trailing = block[first_end - 1] == " "
+    trailing = data[first_end - 1] == ord(" ")
     try:
         frame = polars.read_csv(
-            block.encode("ascii"),
+            data,
             separator=" ",
             has_header=False,
             quote_char=None,
             schema=_polars_schema(columns + trailing),
-            n_rows=rows + 1,
+            skip_lines=data.count(b"\n", 0, start),
+            n_rows=rows,
         )
     except Exception:
         return None
@@ -644,10 +750,13 @@ def _read_spaced_numbers(block: str, rows: int, columns: int) -> np.ndarray | No
         return None
     if frame.shape != (rows, columns + trailing):
         return None
-    values = frame.to_numpy()  # null (an empty or missing field) -> nan
+    # null (an empty or missing field) -> nan; one row-major copy, the frame then freed
+    values = frame.to_numpy(order="c").astype(np.float64, copy=False)
+    del frame
     if trailing and not np.isnan(values[:, columns]).all():
         return None
-    return np.ascontiguousarray(values[:, :columns], dtype=np.float64)
+    # A view without the empty trailing field: every reader of the table indexes columns.
+    return values[:, :columns]
 
 
 @functools.lru_cache(maxsize=64)
@@ -665,7 +774,12 @@ MAX_TRAILING_LINES = 5
 
 
 def _frame_lines(
-    block: str, first_line: int, frame_count: int, frames_line: int, channel_count: int
+    block: str,
+    first_line: int,
+    frame_count: int,
+    frames_line: int,
+    channel_count: int,
+    limits: ParseLimits = DEFAULT_LIMITS,
 ) -> tuple[list[str], list[str]]:
     """The frame lines to read, and warnings; raises :class:`ParseError` for real damage.
 
@@ -679,6 +793,8 @@ def _frame_lines(
     trailing: list[tuple[int, str]] = []  # (line number, problem) of broken lines at the end
     extra = short_extra = 0
     for number, line in enumerate(block.split("\n"), start=first_line):
+        if number % LINES_PER_CLOCK_CHECK == 0:
+            limits.check_time()
         # maxsplit keeps a hostile 10 MB line from becoming millions of tokens
         tokens = line.split(None, channel_count)
         if not tokens:
@@ -741,8 +857,9 @@ def _frame_line_problem(tokens: list[str], line: str, channel_count: int) -> str
             "the hierarchy declares"
         )
     for column, token in enumerate(tokens, start=1):
-        if NUMBER_RE.fullmatch(token) is None:
-            return f"!value {column} of the frame line, {show(token)}, is not a number"
+        problem = number_problem(token)
+        if problem is not None:
+            return f"!value {column} of the frame line, {show(token)}, {problem}"
         if math.isinf(float(token)):
             return f"!value {column} of the frame line, {show(token)}, is not finite"
     if len(tokens) < channel_count:
@@ -768,8 +885,21 @@ def _fill_missing(values: np.ndarray, missing: np.ndarray) -> np.ndarray:
     return out
 
 
-def _build_motion(joints: list[_Joint], values: np.ndarray, frame_time: float) -> Motion:
-    """Turn joints and the ``(F, C)`` value table into a :class:`Motion`."""
+#: Rotations built per call of :func:`matrices_from_euler`: its temporaries (a few times
+#: 72 bytes per rotation) stay in the CPU cache and never add to an upload's peak memory.
+ROTATIONS_PER_CHUNK = 16_384
+
+
+def _build_motion(
+    joints: list[_Joint],
+    values: np.ndarray,
+    frame_time: float,
+    limits: ParseLimits = DEFAULT_LIMITS,
+) -> Motion:
+    """Turn joints and the ``(F, C)`` value table into a :class:`Motion`.
+
+    The ``(F, J, 3, 3)`` rotations are written in place, a chunk of frames at a time: the
+    only arrays as large as the clip are the value table and the motion's own."""
     frame_count = values.shape[0]
     joint_count = len(joints)
     names = _unique_names(joints)
@@ -800,11 +930,20 @@ def _build_motion(joints: list[_Joint], values: np.ndarray, frame_time: float) -
             group_joints.append(index)
             group_columns.append(rotation_columns)
 
-    rotations = np.zeros((frame_count, joint_count, 3, 3))
-    rotations[..., 0, 0] = rotations[..., 1, 1] = rotations[..., 2, 2] = 1.0
+    rotations = np.empty((frame_count, joint_count, 3, 3))
+    fixed = np.ones(joint_count, dtype=bool)
+    for group_joints, _ in rotation_groups.values():
+        fixed[group_joints] = False
+    rotations[:, fixed] = np.eye(3)  # end sites and joints without rotation channels
     for sequence, (group_joints, group_columns) in rotation_groups.items():
-        angles = np.radians(values[:, np.array(group_columns)])  # (F, G, k)
-        rotations[:, group_joints] = matrices_from_euler(sequence, angles)
+        group = np.array(group_joints, dtype=np.int64)
+        columns = np.array(group_columns, dtype=np.int64)
+        step = max(1, ROTATIONS_PER_CHUNK // len(group))
+        for start in range(0, frame_count, step):
+            stop = min(start + step, frame_count)
+            angles = np.radians(values[start:stop, columns])  # (chunk, G, k)
+            rotations[start:stop, group] = matrices_from_euler(sequence, angles)
+            limits.check_time()
 
     root_translation = np.repeat(offsets[None, 0], frame_count, axis=0)
     local_translations = None
@@ -852,14 +991,16 @@ def _positions_are_deltas(values: np.ndarray, rest: np.ndarray) -> bool:
 def _unique_names(joints: list[_Joint]) -> tuple[str, ...]:
     """Joint names with generated End Site names made unique against every other name."""
     taken = {j.name for j in joints if not j.end_site}
+    tried: dict[str, int] = {}  # base name -> last suffix tried: the search never starts over
     names: list[str] = []
     for joint in joints:
         name = joint.name
         if joint.end_site:
-            suffix = 1
+            suffix = tried.get(joint.name, 1)
             while name in taken:
                 suffix += 1
                 name = f"{joint.name}{suffix}"
+            tried[joint.name] = suffix
             taken.add(name)
         names.append(name)
     return tuple(names)

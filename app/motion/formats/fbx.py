@@ -32,8 +32,12 @@ from app.motion.formats.scene import (
     Animation,
     NodeGraph,
     check_frame_budget,
+    kept_parents,
     motion_from_graph,
+    no_skeleton,
     pick_animation,
+    scene_notes,
+    skeleton_nodes,
     unique_names,
 )
 from app.motion.model import Motion, ParseLimits
@@ -92,7 +96,7 @@ class _Scene:
         for name, (begin, end) in zip(names, self.spans, strict=True):
             span = end - begin if np.isfinite(end - begin) and end >= begin else 0.0
             frames = int(np.floor(span * self.fps + 0.5)) + 1
-            self.animations.append(Animation(name, frames, (frames - 1) / self.fps))
+            self.animations.append(Animation(name, frames, frames / self.fps))
 
 
 def list_fbx_animations(data: bytes, *, limits: ParseLimits = DEFAULT_LIMITS) -> list[Animation]:
@@ -106,8 +110,10 @@ def read_fbx(
     animation: str | None = None,
     limits: ParseLimits = DEFAULT_LIMITS,
     keep: list[Any] | None = None,
+    still: bool = False,
 ) -> tuple[Motion, list[Animation], str]:
-    """Read one animation of an FBX file.
+    """Read one animation of an FBX file (with ``still``, a file with a skeleton and no
+    animation stack gives its rest pose as one frame: a rig).
 
     ``keep``: a list the loaded ufbx scene (with its stacks and ``Anim`` wrappers) is
     appended to, so the caller decides when, or whether, it is freed: freeing them can crash
@@ -121,9 +127,10 @@ def read_fbx(
 
     Raises
     ------
+    NoAnimation
+        A rig: a skeleton without animation, or whose animation is zero-length.
     ParseError
-        Not FBX, damaged, no skeleton, a skeleton without animation, non-finite numbers,
-        an unknown ``animation``.
+        Not FBX, damaged, no skeleton, non-finite numbers, an unknown ``animation``.
     LimitExceeded
         Over ``limits`` (nodes, depth, joints, frames x nodes).
     """
@@ -163,25 +170,32 @@ def read_fbx(
         dtype=bool,
     )
     if not is_bone.any():
-        raise ParseError("the file has no skeleton (no bones or skin clusters)")
-    if not loaded.animations:
-        raise ParseError(
-            f"the file has a skeleton ({int(is_bone.sum())} bones) but no animation: nothing moves"
+        raise no_skeleton(loaded.animations, "no bones or skin clusters")
+    # Only the skeleton's nodes are sampled and counted (meshes, props, other trees are not).
+    kept = skeleton_nodes(parents, is_bone, joinable)
+    if not len(kept):
+        raise no_skeleton(loaded.animations, "no bones or skin clusters")
+    kept_nodes = [nodes[i] for i in kept]
+    rest_t, rest_r, rest_s = _static(kept_nodes)
+    if not loaded.animations and still:  # a rig: its rest pose as one frame
+        loaded.animations = [Animation("", 1, 0.0)]
+        info = loaded.animations[0]
+        translation, rotation, scale = rest_t[None], rest_r[None], rest_s[None]
+    else:
+        chosen = pick_animation(loaded.animations, animation, joints=int(is_bone.sum()))
+        info = loaded.animations[chosen]
+        check_frame_budget(limits, info.frame_count, len(kept))
+        begin = loaded.spans[chosen][0]
+        times = begin + np.arange(info.frame_count) / loaded.fps
+        kept_ids = {node.typed_id: i for i, node in enumerate(kept_nodes)}
+        translation, rotation, scale = _baked(
+            scene, loaded.anims[chosen], kept_ids, times, loaded.fps, rest_t, rest_r, rest_s
         )
-    chosen = pick_animation(loaded.animations, animation)
-    info = loaded.animations[chosen]
-    check_frame_budget(limits, info.frame_count, len(nodes))
-    rest_t, rest_r, rest_s = _static(nodes)
-    begin = loaded.spans[chosen][0]
-    times = begin + np.arange(info.frame_count) / loaded.fps
-    translation, rotation, scale = _baked(
-        scene, loaded.anims[chosen], nodes, node_ids, times, loaded.fps, rest_t, rest_r, rest_s
-    )
     graph = NodeGraph(
-        names=[node.name for node in nodes],
-        parents=parents,
-        is_bone=is_bone,
-        joinable=joinable,
+        names=[node.name for node in kept_nodes],
+        parents=kept_parents(parents, kept),
+        is_bone=is_bone[kept],
+        joinable=joinable[kept],
         rest_translation=rest_t,
         rest_rotation=rest_r,
         rest_scale=rest_s,
@@ -195,7 +209,7 @@ def read_fbx(
         source_format="fbx",
         length_unit="metres",
         limits=limits,
-        notes={"animation": info.name},
+        notes=scene_notes(info),
     )
     return motion, loaded.animations, info.name
 
@@ -214,7 +228,6 @@ def _static(nodes: list[Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def _baked(
     scene: Any,
     anim: Any,
-    nodes: list[Any],
     node_ids: dict[int, int],
     times: np.ndarray,
     fps: float,
@@ -222,8 +235,10 @@ def _baked(
     rest_r: np.ndarray,
     rest_s: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per-frame local transforms ``(F, N, 3)``, ``(F, N, 4)``, ``(F, N, 3)``: nodes the
-    stack animates from ufbx's bake (keys at every frame), the others at rest."""
+    """Per-frame local transforms ``(F, N, 3)``, ``(F, N, 4)``, ``(F, N, 3)`` of the ``N``
+    nodes of ``node_ids`` (``typed_id`` -> index): those the stack animates from ufbx's bake
+    (keys at every frame), the others at rest (a take that animates none of them is a pose
+    held for its length: a still clip, as a BVH of repeated frames is)."""
     import ufbx
 
     frames = len(times)

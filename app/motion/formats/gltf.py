@@ -12,7 +12,9 @@ binary input.
   from the file system or the network; upload a ``.glb``.
 * Skeleton: the joints of every skin, or for a ``.vrma`` the nodes of its
   ``VRMC_vrm_animation`` ``humanBones`` map (named after the human bone, e.g. ``leftUpperArm``),
-  plus the nodes between them (:mod:`app.motion.formats.scene`).
+  or, in a file with neither (an animation exported without its mesh), the nodes its channels
+  turn or move and the plain nodes below them; plus the nodes between them
+  (:mod:`app.motion.formats.scene`).
 * Motion: channels sampled with their interpolation (``LINEAR`` — quaternions slerped —,
   ``STEP``, ``CUBICSPLINE``) at the keyframe rate when the keys are evenly spaced (raised to
   a whole multiple of it of at least 24 fps, so every key is still a frame), else 30 fps.
@@ -35,8 +37,12 @@ from app.motion.formats.scene import (
     Animation,
     NodeGraph,
     check_frame_budget,
+    kept_parents,
     motion_from_graph,
+    no_skeleton,
     pick_animation,
+    scene_notes,
+    skeleton_nodes,
     unique_names,
 )
 from app.motion.model import Motion, ParseLimits
@@ -52,6 +58,8 @@ _COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 
 _DTYPES = {5120: "i1", 5121: "u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}
 _NORMALISE = {5120: 127.0, 5121: 255.0, 5122: 32767.0, 5123: 65535.0}
 _PATHS = {"translation": 3, "rotation": 4, "scale": 3}
+_NOT_JOINT = ("mesh", "camera", "skin")  # node fields that make a node something else
+_NOT_JOINT = ("mesh", "camera", "skin")  # node fields that make a node something else
 UPLOAD_GLB = "upload a .glb (binary glTF) with everything embedded instead"
 
 
@@ -263,6 +271,31 @@ def _human_bones(document: Any) -> dict[int, str]:
     return out
 
 
+def _animated_nodes(document: Any, parents: np.ndarray) -> np.ndarray:
+    """``(N,)`` bool: for a file without skin (an animation exported without its mesh, by
+    Blender or FBX2glTF), the nodes its channels turn or move, and the plain nodes (no mesh,
+    camera or skin) below them, such as a head's end bone."""
+    nodes = document.nodes or []
+    animated = np.zeros(len(nodes), dtype=bool)
+    for animation in document.animations or []:
+        for channel in animation.channels or []:
+            node = getattr(channel.target, "node", None)
+            path = getattr(channel.target, "path", None)
+            if path in ("translation", "rotation") and isinstance(node, int) and node >= 0:
+                animated[node] = node < len(nodes)
+    chosen = animated.copy()
+    for i, node in enumerate(nodes):
+        if chosen[i] or any(getattr(node, key, None) is not None for key in _NOT_JOINT):
+            continue
+        j, steps = int(parents[i]), 0
+        while j >= 0 and steps <= len(nodes):  # (a cycle is refused later, by the caller)
+            if animated[j]:
+                chosen[i] = True
+                break
+            j, steps = int(parents[j]), steps + 1
+    return chosen
+
+
 class _Document:
     def __init__(self, data: bytes, limits: ParseLimits) -> None:
         self.document, blob = _load(data)
@@ -284,7 +317,7 @@ class _Document:
         for name, animation in zip(names, animations, strict=True):
             begin, end, rate = self._timing(animation)
             frames = int(np.floor((end - begin) * rate + 0.5)) + 1
-            self.animations.append(Animation(name, frames, (frames - 1) / rate))
+            self.animations.append(Animation(name, frames, frames / rate))
             self.rates.append(rate)
             self.spans.append((begin, end))
 
@@ -310,8 +343,14 @@ class _Document:
         rate = DEFAULT_FPS
         if every.size > 1:
             steps = np.diff(every)
-            step = float(np.median(steps))
-            if step > 0 and np.all(np.abs(steps - step) <= 1e-3 * step + 1e-6):
+            # the mean spacing of evenly spaced keys: exact where one rounded step is not
+            step = (end - begin) / (every.size - 1)
+            # Key times are float32: ten minutes in, they are only good to 6e-5 s, so the
+            # spacing is judged within a few of their units in the last place as well.
+            slack = (
+                1e-3 * step + 1e-6 + 4 * float(np.spacing(np.float32(max(abs(begin), abs(end)))))
+            )
+            if step > 0 and np.all(np.abs(steps - step) <= slack):
                 key_rate = 1.0 / step
                 if key_rate <= MAX_KEY_FPS:
                     rate = key_rate * max(1, int(np.ceil(MIN_FPS / key_rate - 1e-3)))
@@ -324,11 +363,18 @@ def list_gltf_animations(data: bytes, *, limits: ParseLimits = DEFAULT_LIMITS) -
 
 
 def read_gltf(
-    data: bytes, *, animation: str | None = None, limits: ParseLimits = DEFAULT_LIMITS
+    data: bytes,
+    *,
+    animation: str | None = None,
+    limits: ParseLimits = DEFAULT_LIMITS,
+    still: bool = False,
 ) -> tuple[Motion, list[Animation], str]:
     """Read one animation of a glTF 2.0 / GLB / VRMA file (see the module docstring).
 
-    Returns ``(motion, animations, chosen)`` like :func:`~app.motion.formats.fbx.read_fbx`.
+    Returns ``(motion, animations, chosen)`` and raises like
+    :func:`~app.motion.formats.fbx.read_fbx` (:class:`~app.errors.NoAnimation` for a rig).
+    With ``still``, a file with a skeleton and no animation gives its rest (bind) pose as
+    one frame (a rig), animation name ``""``.
     """
     loaded = _Document(data, limits)
     document = loaded.document
@@ -352,24 +398,31 @@ def read_gltf(
         if 0 <= node < count:
             is_bone[node] = True
     if not is_bone.any():
-        raise ParseError("the file has no skeleton (no skin joints or VRM humanoid bones)")
-    if not loaded.animations:
-        raise ParseError(
-            f"the file has a skeleton ({int(is_bone.sum())} joints) but no animation: nothing moves"
-        )
-    chosen = pick_animation(loaded.animations, animation)
+        is_bone = _animated_nodes(document, parents)
+    if not is_bone.any():
+        raise no_skeleton(loaded.animations, "no skin joints, VRM humanoid bones or animated nodes")
+    if not loaded.animations and still:  # a rig: its rest (bind) pose as one frame
+        loaded.animations = [Animation("", 1, 0.0)]
+        loaded.rates, loaded.spans = [DEFAULT_FPS], [(0.0, 0.0)]
+        document._raw["animations"] = [{}]
+    chosen = pick_animation(loaded.animations, animation, joints=int(is_bone.sum()))
     info = loaded.animations[chosen]
-    check_frame_budget(limits, info.frame_count, count)
-    rest = [_node_transform(node) for node in nodes]
-    rest_t = np.array([r[0] for r in rest])
-    rest_r = np.array([r[1] for r in rest])
-    rest_s = np.array([r[2] for r in rest])
+    joinable = np.ones(count, dtype=bool)
+    # Only the skeleton's nodes are sampled and counted (meshes, props, other trees are not).
+    kept = skeleton_nodes(parents, is_bone, joinable)
+    check_frame_budget(limits, info.frame_count, len(kept))
+    position = np.full(count, -1, dtype=np.int64)  # node -> index among the kept ones
+    position[kept] = np.arange(len(kept))
+    rest = [_node_transform(nodes[i]) for i in kept]
+    rest_t = np.array([r[0] for r in rest]).reshape(-1, 3)
+    rest_r = np.array([r[1] for r in rest]).reshape(-1, 4)
+    rest_s = np.array([r[2] for r in rest]).reshape(-1, 3)
     begin = loaded.spans[chosen][0]
     times = begin + np.arange(info.frame_count) / loaded.rates[chosen]
     tracks = {
-        "translation": np.broadcast_to(rest_t, (len(times), count, 3)).copy(),
-        "rotation": np.broadcast_to(rest_r, (len(times), count, 4)).copy(),
-        "scale": np.broadcast_to(rest_s, (len(times), count, 3)).copy(),
+        "translation": np.broadcast_to(rest_t, (len(times), len(kept), 3)).copy(),
+        "rotation": np.broadcast_to(rest_r, (len(times), len(kept), 4)).copy(),
+        "scale": np.broadcast_to(rest_s, (len(times), len(kept), 3)).copy(),
     }
     gltf_animation = document.animations[chosen]
     samplers = gltf_animation.samplers or []
@@ -379,23 +432,26 @@ def read_gltf(
         node = getattr(target, "node", None)
         if path not in _PATHS or not isinstance(node, int) or not 0 <= node < count:
             continue  # morph weights, pointer extensions, or no node: not the skeleton's
+        if position[node] < 0:
+            continue  # a mesh, a prop, a node of another tree: never part of the skeleton
         if not isinstance(channel.sampler, int) or not 0 <= channel.sampler < len(samplers):
             raise ParseError(f"a channel names sampler {channel.sampler!r}, which does not exist")
         sampler = samplers[channel.sampler]
         keys = loaded.times(sampler.input)
         values = _accessor(document, loaded.buffers, sampler.output)
-        tracks[path][:, node] = _sample_channel(
+        tracks[path][:, position[node]] = _sample_channel(
             keys, values, times, sampler.interpolation or "LINEAR", _PATHS[path], path
         )
+
     names = [node.name or f"node{i}" for i, node in enumerate(nodes)]
     for node, bone in human.items():
         if 0 <= node < count:
             names[node] = bone
     graph = NodeGraph(
-        names=names,
-        parents=parents,
-        is_bone=is_bone,
-        joinable=np.ones(count, dtype=bool),
+        names=[names[i] for i in kept],
+        parents=kept_parents(parents, kept),
+        is_bone=is_bone[kept],
+        joinable=joinable[kept],
         rest_translation=rest_t,
         rest_rotation=rest_r,
         rest_scale=rest_s,
@@ -409,7 +465,7 @@ def read_gltf(
         source_format="gltf",
         length_unit="metres (glTF)",
         limits=limits,
-        notes={"animation": info.name},
+        notes=scene_notes(info),
     )
     return motion, loaded.animations, info.name
 

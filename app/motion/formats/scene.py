@@ -25,36 +25,86 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.errors import LimitExceeded, ParseError
+from app.errors import (
+    LimitExceeded,
+    NoAnimation,
+    ParseError,
+    SkeletonMappingError,
+    UnknownAnimation,
+)
 from app.motion.model import Motion, ParseLimits, Skeleton
 
 
 @dataclass(frozen=True)
 class Animation:
-    """One animation of a file: its name, length in frames at the sampling rate, seconds."""
+    """One animation of a file: its name, length in frames at the sampling rate, and the
+    seconds those frames cover (``frame_count / rate``: a clip's ``duration`` counts so)."""
 
     name: str
     frame_count: int
     duration: float
 
 
-def pick_animation(animations: list[Animation], name: str | None) -> int:
-    """Index of the animation called ``name``, else of the longest (first of equals)."""
+def rig_without_animation(joints: int, why: str) -> NoAnimation:
+    """The error for a file whose skeleton of ``joints`` joints has no motion (``why``)."""
+    return NoAnimation(
+        f"the file is a rig with no animation: a skeleton of {joints} joints and {why}, so "
+        "there is no motion to describe"
+    )
+
+
+def no_skeleton(animations: list[Animation], what: str) -> ParseError:
+    """The error for a file with no skeleton (``what`` says what was looked for). When nothing
+    in it moves either (no animation, or only single instants) it is a static model — a prop,
+    a mesh without bones — which is not a person to map (:class:`SkeletonMappingError`), and
+    the message says there is no animation as well; it is not a rig (no bones to drive)."""
+    if all(a.frame_count <= 1 for a in animations):
+        return SkeletonMappingError(
+            f"not a whole humanoid: the file has no skeleton ({what}) and no animation: a "
+            "static model, nothing moves"
+        )
+    return ParseError(f"the file has no skeleton ({what})")
+
+
+def pick_animation(animations: list[Animation], name: str | None, *, joints: int = 0) -> int:
+    """Index of the animation called ``name``, else of the longest (first of equals).
+
+    A file without animations is a rig with no animation (:class:`NoAnimation`; ``joints``
+    is the skeleton's size, for the message). A zero-length animation (one instant: a pose
+    written as a take) is read as a one-frame still: the file says that pose is its motion,
+    and :func:`scene_notes` says so in the clip's warnings."""
     if not animations:
-        raise ParseError("the file has no animation")
+        raise rig_without_animation(joints, "no animation")
     if name is None:
         longest = max(a.frame_count for a in animations)
-        return next(i for i, a in enumerate(animations) if a.frame_count == longest)
-    for i, animation in enumerate(animations):
-        if animation.name == name:
-            return i
-    listed = ", ".join(repr(a.name) for a in animations[:50])
-    raise ParseError(f"animation: the file has no animation {name!r}; it has {listed}")
+        chosen = next(i for i, a in enumerate(animations) if a.frame_count == longest)
+    else:
+        found = [i for i, animation in enumerate(animations) if animation.name == name]
+        if not found:
+            listed = ", ".join(repr(a.name) for a in animations[:50])
+            raise UnknownAnimation(
+                f"animation: the file has no animation {name!r}; it has {listed}"
+            )
+        chosen = found[0]
+    return chosen
+
+
+def scene_notes(animation: Animation) -> dict[str, object]:
+    """The notes of a motion read from ``animation``: its name, and a warning when it is a
+    single instant (stored as a one-frame still rather than refused as a rig)."""
+    notes: dict[str, object] = {"animation": animation.name}
+    if animation.frame_count <= 1:
+        notes["warnings"] = [
+            f"the animation {animation.name!r} is a single instant: stored as a one-frame still"
+        ]
+    return notes
 
 
 # A child whose offset in its parent's frame moves by more than this fraction of the body's
 # size over the clip is given per-frame offsets (``local_translations``).
 OFFSET_TOLERANCE = 1e-6
+# Node transforms composed per chunk of frames in :func:`motion_from_graph`.
+SCENE_TRANSFORMS_PER_CHUNK = 65_536
 
 
 @dataclass(frozen=True, eq=False)
@@ -111,7 +161,7 @@ def quaternion_matrices(quaternions: np.ndarray) -> np.ndarray:
     return out
 
 
-def _topological(parents: np.ndarray) -> list[int]:
+def topological(parents: np.ndarray) -> list[int]:
     """Node indices with every parent before its children (a cycle raises ParseError)."""
     count = len(parents)
     children: list[list[int]] = [[] for _ in range(count)]
@@ -156,7 +206,7 @@ def compose_world(
     position = np.empty_like(translation, dtype=np.float64)
     # Level by level from the top: every node of a level in one batched product.
     depth = np.zeros(len(parents), dtype=np.int64)
-    for node in _topological(parents):
+    for node in topological(parents):
         if parents[node] >= 0:
             depth[node] = depth[parents[node]] + 1
     for level in range(int(depth.max(initial=0)) + 1):
@@ -257,6 +307,27 @@ def select_joints(parents: np.ndarray, is_bone: np.ndarray, joinable: np.ndarray
     return order
 
 
+def skeleton_nodes(parents: np.ndarray, is_bone: np.ndarray, joinable: np.ndarray) -> np.ndarray:
+    """``(K,)`` sorted indices of the nodes the skeleton needs: its joints
+    (:func:`select_joints`) and all their ancestors. The readers sample these nodes only
+    (meshes, cameras, props and bones of other trees are never sampled or counted), and a
+    graph of them selects the same joints in the same order."""
+    needed: set[int] = set()
+    for joint in select_joints(parents, is_bone, joinable):
+        node = joint
+        while node >= 0 and node not in needed:
+            needed.add(node)
+            node = int(parents[node])
+    return np.array(sorted(needed), dtype=np.int64)
+
+
+def kept_parents(parents: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """``(K,)`` parents of the nodes ``keep`` (closed under ancestors), as indices into it."""
+    remap = np.full(len(parents), -1, dtype=np.int64)
+    remap[keep] = np.arange(len(keep))
+    return np.where(parents[keep] >= 0, remap[np.maximum(parents[keep], 0)], -1)
+
+
 def unique_names(
     names: Sequence[str], *, blank: str = "joint{i}", repeat: str = "{name}_{n}"
 ) -> tuple[str, ...]:
@@ -333,18 +404,15 @@ def motion_from_graph(
             needed.add(node)
             node = int(graph.parents[node])
     keep = np.array(sorted(needed))
-    remap = np.full(len(names), -1)
-    remap[keep] = np.arange(len(keep))
-    parents = np.array([remap[p] if p >= 0 else -1 for p in graph.parents[keep]])
+    parents = kept_parents(graph.parents, keep)
     rest_linear, rest_position = compose_world(
         parents,
         graph.rest_translation[keep],
         graph.rest_rotation[keep],
         graph.rest_scale[keep],
     )
-    linear, position = compose_world(
-        parents, graph.translation[:, keep], graph.rotation[:, keep], graph.scale[:, keep]
-    )
+    remap = np.full(len(names), -1)
+    remap[keep] = np.arange(len(keep))
     columns = remap[np.array(joints)]
     joint_index = {node: j for j, node in enumerate(joints)}
     joint_parents = np.full(len(joints), -1, dtype=np.int64)
@@ -355,9 +423,6 @@ def motion_from_graph(
         joint_parents[j] = joint_index[parent] if parent >= 0 else -1
     rest_world = orthonormal(rest_linear[columns])  # (J, 3, 3)
     rest_at = rest_position[columns]  # (J, 3)
-    world = orthonormal(linear[:, columns])  # (F, J, 3, 3)
-    at = position[:, columns]  # (F, J, 3)
-    check_finite(at, "world position", [names[n] for n in joints], axis=1)
 
     count = len(joints)
     root = joint_parents < 0
@@ -366,13 +431,34 @@ def motion_from_graph(
     # summed down the tree are the rest pose as the file shows it (a standing figure where
     # the file has one, whatever joint orientations its bones carry) and a joint's rotation
     # is how far it turned from there.
-    world = world @ np.swapaxes(rest_world, -1, -2)[None]  # (F, J, 3, 3)
     offsets = rest_at - rest_at[up]
-    parent_t = np.swapaxes(world[:, up], -1, -2)  # (F, J, 3, 3)
-    local_rotations = parent_t @ world
-    local_rotations[:, root] = world[:, root]
-    per_frame = (parent_t @ (at - at[:, up])[..., None])[..., 0]
     offsets[root] = 0.0
+    frames = graph.translation.shape[0]
+    local_rotations = np.empty((frames, count, 3, 3))
+    per_frame = np.empty((frames, count, 3))
+    root_translation = np.empty((frames, 3))
+    joint_names = [names[n] for n in joints]
+    # A chunk of frames at a time: every step is per frame, and the world transforms of the
+    # kept nodes and their temporaries never exist for the whole clip at once.
+    step = max(1, SCENE_TRANSFORMS_PER_CHUNK // max(1, len(keep)))
+    for start in range(0, frames, step):
+        chunk = slice(start, min(start + step, frames))
+        linear, position = compose_world(
+            parents,
+            graph.translation[chunk][:, keep],
+            graph.rotation[chunk][:, keep],
+            graph.scale[chunk][:, keep],
+        )
+        at = position[:, columns]  # (f, J, 3)
+        check_finite(at, "world position", joint_names, axis=1)
+        world = orthonormal(linear[:, columns]) @ np.swapaxes(rest_world, -1, -2)[None]
+        parent_t = np.swapaxes(world[:, up], -1, -2)  # (f, J, 3, 3)
+        local = parent_t @ world
+        local[:, root] = world[:, root]
+        local_rotations[chunk] = local
+        per_frame[chunk] = (parent_t @ (at - at[:, up])[..., None])[..., 0]
+        root_translation[chunk] = at[:, 0]
+        limits.check_time()
     per_frame[:, root] = 0.0
     size = float(np.ptp(rest_at, axis=0).max()) if count > 1 else 0.0
     moved = float(np.abs(per_frame[:, 1:] - offsets[1:]).max()) if count > 1 else 0.0
@@ -386,7 +472,7 @@ def motion_from_graph(
     return Motion(
         skeleton=skeleton,
         frame_time=frame_time,
-        root_translation=np.ascontiguousarray(at[:, 0]),
+        root_translation=root_translation,
         local_rotations=local_rotations,
         local_translations=local_translations,
         source_format=source_format,
@@ -396,10 +482,14 @@ def motion_from_graph(
 
 
 def check_frame_budget(limits: ParseLimits, frames: int, nodes: int) -> None:
-    """LimitExceeded when ``frames`` samples of ``nodes`` node transforms are too many."""
+    """LimitExceeded when ``frames`` frames of the skeleton's ``nodes`` kept nodes (its joints
+    and their ancestors, :func:`skeleton_nodes`: what is sampled and kept) are too many.
+
+    Counted as a BVH's joints are: nine numbers per node and frame, the rotations the clip
+    becomes in the server. The sampling itself runs in a parser worker, bounded by that
+    worker's own memory limit (MOCAP_PARSER_MEMORY_MB)."""
     if frames < 1:
         raise ParseError("the animation has no frames")
-    # A sampled node transform is 10 numbers and its composed world transform 12 more.
-    problem = limits.frame_budget_problem(frames, 22 * nodes, nodes)
+    problem = limits.frame_budget_problem(frames, 0, nodes)
     if problem is not None:
         raise LimitExceeded(problem)

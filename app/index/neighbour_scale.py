@@ -1,0 +1,129 @@
+"""A scale for distances: how similar a search result is, in words an animator can read.
+
+Distances differ by descriptor by two orders of magnitude (posture ~0.03, motion ~0.6,
+kinetic ~2.6 between good matches), so ``distance`` alone says nothing. Each index gets the
+library's *typical neighbour distances*: for a sample of its vectors (up to
+:data:`SAMPLE`, drawn with a fixed seed), the distances to their :data:`NEIGHBOURS` nearest
+others (windows: of other clips — a clip's own overlapping windows are not its neighbours).
+A result's ``similarity`` is the share of those distances that are larger than its own, in
+percent: 97 means the result is nearer than 97 % of the library's typical neighbours, 50 as
+near as a typical neighbour, 0 farther than all of them.
+
+The scale is computed when first asked for (that search waits: 0.2-1.5 s at 12,000 clips
+and 350,000 windows on a loaded 2-core machine, bench/README.md) and again, in a background
+thread while searches go on with the old one, once the index has grown or shrunk by
+:data:`REFRESH_SHARE`: a sorted array per index, so a search pays one ``searchsorted`` over
+its hits.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from app.index.descriptor_index import DescriptorIndex
+
+SAMPLE = 1000  # vectors whose neighbours make the scale
+NEIGHBOURS = 10  # nearest others of each
+REFRESH_SHARE = 0.05  # recompute once the index size moved by this share
+SEED = 24
+IDENTICAL = 1e-6  # distances below this share of a typical vector's length are zero
+
+
+@dataclass(frozen=True)
+class Scale:
+    """Sorted typical neighbour distances ``(M,)`` of an index holding ``size`` vectors."""
+
+    distances: np.ndarray
+    size: int
+
+    def similarity(self, distances: np.ndarray) -> np.ndarray:
+        """Percent ``(N,)`` (one decimal) of the typical distances larger than each of
+        ``distances`` ``(N,)``; 100 for all when the scale is empty (a library of one)."""
+        d = np.asarray(distances, dtype=np.float64)
+        if not self.distances.size:
+            return np.full(d.shape, 100.0)
+        larger = self.distances.size - np.searchsorted(self.distances, d, side="right")
+        return np.round(100.0 * larger / self.distances.size, 1)
+
+
+def _stale(scale: Scale | None, size: int) -> bool:
+    return scale is None or abs(size - scale.size) > REFRESH_SHARE * scale.size
+
+
+def measure(index: DescriptorIndex, group: Callable[[np.ndarray], np.ndarray] | None) -> Scale:
+    """The scale of ``index`` now; ``group`` maps ids ``(N,)`` to what must differ between
+    neighbours (windows: their clip), else only a vector itself is left out."""
+    ids = index.sorted_ids()
+    size = int(ids.size)
+    if size < 2:
+        return Scale(np.empty(0), size)
+    rng = np.random.default_rng(SEED)
+    chosen = ids if size <= SAMPLE else np.sort(rng.choice(ids, SAMPLE, replace=False))
+    held, vectors = index.reconstruct_batch(chosen)
+    chosen = chosen[held]
+    # Windows overlap their clip's neighbours: ask for enough to skip a clip's own.
+    extra = 1 if group is None else 24
+    k = min(size, NEIGHBOURS + extra)
+    squared, found = index.search_many(vectors, k)
+    distances = np.sqrt(np.maximum(squared.astype(np.float64), 0.0))
+    own = chosen[:, None] if group is None else group(chosen)[:, None]
+    other = (found >= 0) & ((found if group is None else group(found)) != own)
+    # An identical vector is the same motion stored twice (one file in two formats, a rig
+    # that never moves), not a neighbour: many of them would make every other distance
+    # look far.
+    other &= distances > IDENTICAL * max(float(np.median(np.linalg.norm(vectors, axis=1))), 1e-12)
+    # The NEIGHBOURS nearest others of each row (rows are sorted nearest first).
+    rank = np.cumsum(other, axis=1)
+    keep = other & (rank <= NEIGHBOURS)
+    return Scale(np.sort(distances[keep]), size)
+
+
+@dataclass
+class NeighbourScales:
+    """The scale of each index, by name, computed when first needed and kept current."""
+
+    _scales: dict[str, Scale] = field(default_factory=dict)
+    _lock: threading.Lock = field(default_factory=threading.Lock)
+    _refreshing: set[str] = field(default_factory=set)
+
+    def of(
+        self,
+        name: str,
+        index: DescriptorIndex,
+        group: Callable[[np.ndarray], np.ndarray] | None = None,
+    ) -> Scale:
+        scale = self._scales.get(name)
+        if scale is not None:
+            if _stale(scale, index.size):
+                self._refresh(name, index, group)
+            return scale
+        with self._lock:  # the first measurement: the others wait for it
+            scale = self._scales.get(name)
+            if scale is None:
+                scale = self._scales[name] = measure(index, group)
+            return scale
+
+    def _refresh(
+        self,
+        name: str,
+        index: DescriptorIndex,
+        group: Callable[[np.ndarray], np.ndarray] | None,
+    ) -> None:
+        """Measure ``name`` again in a thread of its own (one at a time per index)."""
+        with self._lock:
+            if name in self._refreshing:
+                return
+            self._refreshing.add(name)
+
+        def run() -> None:
+            try:
+                self._scales[name] = measure(index, group)
+            finally:
+                with self._lock:
+                    self._refreshing.discard(name)
+
+        threading.Thread(target=run, name=f"scale-{name}", daemon=True).start()

@@ -1,0 +1,457 @@
+"""One humanoid's motion on another's skeleton, through the canonical joints both map to.
+
+The structural mapping (:mod:`app.motion.skeleton_map`) says, for both skeletons, which joint
+is the pelvis, each hip, knee, shoulder... That is all retargeting needs.
+
+**Rotations, aligned by the two reference poses.** Each skeleton has a reference pose: its
+rest pose, or for a rig whose rest pose is not a standing figure the pose the mapper read it
+from. A driven target joint (one per canonical bone: pelvis, spine, chest, neck, head,
+clavicles, upper arms, forearms, hands, thighs, shins, feet, toes where both have them)
+turns as its source joint turned since the source's reference pose::
+
+    G_target(f) = W^T · G_source(f) · Q_source^T · A · Q_target
+
+``Q`` are the joints' world rotations in the reference poses, ``A`` takes the target's
+reference bone onto the source's: first the whole body (``B_source B_target^T`` from the
+two bodies' lateral/up/forward axes), then the smallest rotation bringing the bone's
+direction onto the source bone's. So a T-pose rig driven by an A-pose capture lifts its arms
+to where the capture's are, and since the smallest rotation has no twist about the bone, a
+bone's roll never twists. ``W`` changes world axes from the source's up to the target's
+(Y-up capture on a Z-up rig), a quarter turn or none.
+
+**Directions exact.** Where the source has joints the target lacks between two canonical
+joints (a spine of five against one of three), the transferred rotation alone would point
+the target's bone a little off; a last per-frame swing turns each driven bone (except the
+hand, whose direction depends on the fingers) onto the source bone's world direction.
+
+**Everything else at rest.** Unmapped target joints (fingers, face, twist bones, a static
+root above the pelvis) keep their reference-pose local rotation; offsets are the rig's own,
+so bone lengths are exactly the rig's.
+
+**Root.** The pelvis travels as the source's pelvis, scaled about the world origin by the
+ratio of the legs' bone paths (hip -> knee -> ankle), then moved up or down per frame so that
+the target's lowest foot point is exactly where the source's is (scaled): feet on the
+source's floor, neither sinking nor floating. A pelvis below a static top joint gets the
+travel as per-frame offsets. Nothing holds a planted foot: where the legs' proportions
+differ from the source's, a foot slides a little (docs/export.md has the figures); holding
+it would take leg IK, which bends the limbs away from the source's directions.
+
+A capture with left-handed geometry (``SkeletonMap.mirrored``) is first reflected as the
+describer reflects it, so left stays left.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from app.motion.ground import FOOT_POINTS, body_frame, foot_heights, snap_axis
+from app.motion.kinematics import forward_kinematics
+from app.motion.model import Motion
+from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap
+from app.motion.transforms import reflect
+
+# Canonical bones whose base joint the retarget drives: (base, aim) canonical names.
+# ``None`` aims: the joint's rotation is transferred, its direction not corrected.
+# Canonical chains whose joints the retarget drives, top first: (base, end) canonical names.
+# Joints between the two are driven too when both skeletons have as many there (a spine of
+# three against three); ``None``: the base's rotation is transferred, its direction not
+# corrected (the pelvis, whose children go three ways; the hand, whose direction depends on
+# the fingers, which stay at rest).
+_CHAINS: tuple[tuple[str, str | None], ...] = (
+    ("pelvis", None),
+    ("pelvis", "spine"),
+    ("spine", "chest"),
+    ("chest", "neck"),
+    ("neck", "head"),
+    *(
+        pair
+        for side in ("l", "r")
+        for pair in (
+            ("chest", f"{side}_shoulder"),
+            (f"{side}_shoulder", f"{side}_elbow"),
+            (f"{side}_elbow", f"{side}_wrist"),
+            (f"{side}_wrist", None),
+            ("pelvis", f"{side}_hip"),
+            (f"{side}_hip", f"{side}_knee"),
+            (f"{side}_knee", f"{side}_ankle"),
+            (f"{side}_ankle", f"{side}_toe"),
+        )
+    ),
+)
+_TINY = 1e-9
+
+
+@dataclass(frozen=True)
+class _Driven:
+    """One driven target joint and where its rotation comes from."""
+
+    target: int
+    source: int
+    target_aim: int | None  # target joint the bone points at (None: no direction fix)
+    source_aim: int | None
+    align_like: int | None = None  # target joint whose reference alignment this one shares
+
+
+def swing(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``(..., 3, 3)`` smallest rotations taking directions ``a`` onto ``b`` (``(..., 3)``,
+    any length; the identity where either is zero, a half turn about a perpendicular where
+    they are opposite)."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    na = np.linalg.norm(a, axis=-1, keepdims=True)
+    nb = np.linalg.norm(b, axis=-1, keepdims=True)
+    zero = (na[..., 0] < _TINY) | (nb[..., 0] < _TINY)
+    a = a / np.where(na < _TINY, 1.0, na)
+    b = b / np.where(nb < _TINY, 1.0, nb)
+    axis = np.cross(a, b)
+    cos = np.clip(np.sum(a * b, axis=-1), -1.0, 1.0)
+    sin = np.linalg.norm(axis, axis=-1)
+    opposite = (cos < 0) & (sin < 1e-8)
+    if np.any(opposite):
+        # Any axis perpendicular to a: the coordinate axis least along a, crossed with it.
+        least = np.argmin(np.abs(a), axis=-1)
+        helper = np.eye(3)[least]
+        perpendicular = np.cross(a, helper)
+        perpendicular /= np.linalg.norm(perpendicular, axis=-1, keepdims=True)
+        axis = np.where(opposite[..., None], perpendicular, axis)
+        sin = np.where(opposite, 1.0, sin)
+        # The half turn: rotation angle pi about the unit perpendicular.
+    unit = axis / np.where(sin[..., None] < 1e-15, 1.0, sin[..., None])
+    angle = np.arctan2(np.where(opposite, 0.0, sin), cos)
+    angle = np.where(opposite, np.pi, angle)
+    x, y, z = unit[..., 0], unit[..., 1], unit[..., 2]
+    k = np.zeros((*unit.shape[:-1], 3, 3))
+    k[..., 0, 1], k[..., 0, 2] = -z, y
+    k[..., 1, 0], k[..., 1, 2] = z, -x
+    k[..., 2, 0], k[..., 2, 1] = -y, x
+    s = np.sin(angle)[..., None, None]
+    c = np.cos(angle)[..., None, None]
+    out = np.eye(3) + s * k + (1 - c) * (k @ k)
+    out[zero] = np.eye(3)
+    return out
+
+
+def axis_change(up_from: np.ndarray, up_to: np.ndarray) -> np.ndarray:
+    """``(3, 3)`` the quarter turn (or none, or a half turn) about a coordinate axis taking
+    the signed coordinate axis ``up_from`` onto ``up_to``."""
+    return np.rint(swing(up_from, up_to))
+
+
+def reference_frame(mapping: SkeletonMap) -> int | None:
+    """The frame the mapper read the skeleton from (``None``: the rest pose)."""
+    if mapping.pose.startswith("frame "):
+        try:
+            return int(mapping.pose.split()[1])
+        except (IndexError, ValueError):
+            return 0
+    return None
+
+
+def reference_pose(motion: Motion, mapping: SkeletonMap) -> Motion:
+    """A rig made of ``motion``'s skeleton: one frame holding its reference pose, the rest
+    pose (identity rotations) or, when the mapper read the skeleton from a frame because the
+    rest pose is not a standing figure, that frame's rotations. Per-frame offsets are dropped:
+    a rig's bones are its offsets."""
+    frame = reference_frame(mapping)
+    count = motion.skeleton.joint_count
+    if frame is None or motion.frame_count == 0:
+        rotations = np.broadcast_to(np.eye(3), (1, count, 3, 3)).copy()
+        frame = 0
+    else:
+        frame = min(max(frame, 0), motion.frame_count - 1)
+        rotations = motion.local_rotations[frame : frame + 1].copy()
+    root = (
+        motion.root_translation[frame : frame + 1].copy()
+        if motion.frame_count
+        else motion.skeleton.offsets[None, 0].copy()
+    )
+    return Motion(
+        skeleton=motion.skeleton,
+        frame_time=motion.frame_time,
+        root_translation=root,
+        local_rotations=rotations,
+        source_format=motion.source_format,
+        length_unit=motion.length_unit,
+    )
+
+
+def _path_length(motion: Motion, top: int, bottom: int) -> float:
+    """Summed bone lengths from joint ``bottom`` up to its ancestor ``top``."""
+    parents = motion.skeleton.parents
+    offsets = motion.skeleton.offsets
+    total, j = 0.0, bottom
+    while j != top and j > 0:
+        total += float(np.linalg.norm(offsets[j]))
+        j = int(parents[j])
+    return total
+
+
+def leg_length(motion: Motion, mapping: SkeletonMap) -> float:
+    """Mean bone path hip -> ankle of the two legs, in the skeleton's units."""
+    lengths = [
+        _path_length(
+            motion,
+            int(mapping.joints[CANONICAL_INDEX[f"{s}_hip"]]),
+            int(mapping.joints[CANONICAL_INDEX[f"{s}_ankle"]]),
+        )
+        for s in ("l", "r")
+    ]
+    return float(np.mean(lengths))
+
+
+def _between(parents: np.ndarray, top: int, bottom: int) -> list[int]:
+    """Joints strictly between ``bottom`` and its ancestor ``top``, bottom first."""
+    out, j = [], int(parents[bottom])
+    while j != top and j >= 0:
+        out.append(j)
+        j = int(parents[j])
+    return out if j == top else []
+
+
+def _driven(
+    source: Motion, source_map: SkeletonMap, target: Motion, target_map: SkeletonMap
+) -> list[_Driven]:
+    """The driven target joints, each with its source joint and the joints they aim at (see
+    :data:`_CHAINS`); the head joint is a chain end of its own where the head point is an end
+    effector beyond it. Target-first wins: a joint is driven by the first chain naming it."""
+    s_parents, t_parents = source.skeleton.parents, target.skeleton.parents
+    out: list[_Driven] = []
+    seen: set[int] = set()
+
+    def add(t: int, s: int, t_aim: int | None, s_aim: int | None, like: int | None) -> None:
+        if t in seen or target.skeleton.end_site[t] or source.skeleton.end_site[s]:
+            return
+        if t_aim is not None and (t_aim == t or s_aim == s or s_aim is None):
+            t_aim = s_aim = None
+        seen.add(t)
+        out.append(_Driven(t, s, t_aim, s_aim, like))
+
+    def joints(mapping: SkeletonMap, name: str) -> list[int]:
+        """The canonical joint ``name`` as one or two joints (neck -> head joint -> head)."""
+        j = int(mapping.joints[CANONICAL_INDEX[name]])
+        if name == "head" and 0 <= mapping.head_joint != j:
+            return [mapping.head_joint, j]
+        return [j]
+
+    for base, end in _CHAINS:
+        t_base, s_base = joints(target_map, base)[-1], joints(source_map, base)[-1]
+        if end is None:
+            # The hand turns with the forearm's alignment: its own direction depends on
+            # how the fingers are held, which differs between any two reference poses.
+            like = None
+            if base.endswith("_wrist"):
+                like = int(target_map.joints[CANONICAL_INDEX[base.replace("wrist", "elbow")]])
+            add(t_base, s_base, None, None, like)
+            continue
+        t_stops, s_stops = [t_base, *joints(target_map, end)], [s_base, *joints(source_map, end)]
+        if len(t_stops) != len(s_stops):  # one has a head joint, the other not
+            t_stops, s_stops = [t_stops[0], t_stops[-1]], [s_stops[0], s_stops[-1]]
+        t_path, s_path = [t_stops[0]], [s_stops[0]]
+        for i in range(1, len(t_stops)):
+            t_mid = _between(t_parents, t_stops[i - 1], t_stops[i])[::-1]
+            s_mid = _between(s_parents, s_stops[i - 1], s_stops[i])[::-1]
+            if t_mid and len(t_mid) == len(s_mid):
+                t_path.extend(t_mid)
+                s_path.extend(s_mid)
+            t_path.append(t_stops[i])
+            s_path.append(s_stops[i])
+        for i in range(len(t_path) - 1):
+            add(t_path[i], s_path[i], t_path[i + 1], s_path[i + 1], None)
+    return out
+
+
+def retarget(
+    source: Motion, source_map: SkeletonMap, target: Motion, target_map: SkeletonMap
+) -> Motion:
+    """``source``'s motion on ``target``'s skeleton (see the module docstring).
+
+    Parameters
+    ----------
+    source:
+        The clip (``F`` frames, ``J_s`` joints) and ``source_map`` its mapping.
+    target:
+        The rig: its skeleton and, in frame 0, its reference pose (local rotations; the
+        identity for a rig whose rest pose is a standing figure); ``target_map`` its mapping.
+
+    Returns
+    -------
+    Motion
+        ``F`` frames at the source's rate on ``target.skeleton`` (same names, parents,
+        offsets, end sites), in the target's units and world axes.
+    """
+    if target_map.mirrored:
+        mirrored = retarget(
+            source,
+            source_map,
+            reflect(target, axis=target_map.mirror_axis),
+            _unmirrored(target_map),
+        )
+        return reflect(mirrored, axis=target_map.mirror_axis)
+    if source_map.mirrored:
+        source = reflect(source, axis=source_map.mirror_axis)
+
+    s_rot, s_pos = forward_kinematics(source)  # (F, Js, 3, 3), (F, Js, 3)
+    s_ref = reference_frame(source_map)
+    if s_ref is None:
+        s_ref_rot = np.broadcast_to(np.eye(3), s_rot.shape[1:])
+        _, rest = forward_kinematics(_rest_of(source))
+        s_ref_pos = rest[0]
+    else:
+        s_ref = min(max(s_ref, 0), source.frame_count - 1)
+        s_ref_rot, s_ref_pos = s_rot[s_ref], s_pos[s_ref]
+    t_ref_motion = target.slice_frames(0, 1)
+    t_ref_motion = Motion(
+        skeleton=target.skeleton,
+        frame_time=target.frame_time,
+        root_translation=t_ref_motion.root_translation,
+        local_rotations=t_ref_motion.local_rotations,
+    )
+    t_ref_rot_all, t_ref_pos_all = forward_kinematics(t_ref_motion)
+    t_ref_rot, t_ref_pos = t_ref_rot_all[0], t_ref_pos_all[0]
+
+    s_canon = s_pos[:, source_map.joints]  # (F, C, 3)
+    b_source = body_frame(s_ref_pos[source_map.joints])
+    b_target = body_frame(t_ref_pos[target_map.joints])
+    body = b_source @ b_target.T  # target reference body -> source reference body
+    s_up_vec = s_canon[:, CANONICAL_INDEX["neck"]] - s_canon[:, CANONICAL_INDEX["pelvis"]]
+    s_up = snap_axis(
+        (s_up_vec / np.maximum(np.linalg.norm(s_up_vec, axis=1, keepdims=True), _TINY)).mean(axis=0)
+    )
+    t_up = snap_axis(b_target[:, 1])
+    world = axis_change(t_up, s_up)  # target world axes -> source world axes
+    world_t = world.T
+
+    frames = source.frame_count
+    count = target.skeleton.joint_count
+    parents = target.skeleton.parents
+    driven = _driven(source, source_map, target, target_map)
+    # Constant per driven joint: C = Q_source^T · A · Q_target, so G = W^T · G_source · C.
+    aligned: dict[int, np.ndarray] = {}
+    constants = np.empty((len(driven), 3, 3))
+    for i, d in enumerate(driven):
+        align = aligned.get(d.align_like, body) if d.align_like is not None else body
+        if d.target_aim is not None and d.source_aim is not None:
+            t_bone = t_ref_pos[d.target_aim] - t_ref_pos[d.target]
+            s_bone = s_ref_pos[d.source_aim] - s_ref_pos[d.source]
+            align = swing(body @ t_bone, s_bone) @ body
+        aligned[d.target] = align
+        constants[i] = s_ref_rot[d.source].T @ align @ t_ref_rot[d.target]
+    targets = np.array([d.target for d in driven], dtype=np.int64)
+    sources = np.array([d.source for d in driven], dtype=np.int64)
+    rotation = world_t @ s_rot[:, sources] @ constants  # (F, D, 3, 3)
+    # Directions exact: one swing per frame and driven bone, all at once.
+    fixed = [i for i, d in enumerate(driven) if d.target_aim is not None]
+    if fixed:
+        t_aims = np.array([driven[i].target_aim for i in fixed], dtype=np.int64)
+        s_aims = np.array([driven[i].source_aim for i in fixed], dtype=np.int64)
+        t_bones = t_ref_pos[t_aims] - t_ref_pos[targets[fixed]]  # (K, 3) in the reference
+        local_bones = np.swapaxes(t_ref_rot[targets[fixed]], -1, -2) @ t_bones[:, :, None]
+        now = (rotation[:, fixed] @ local_bones)[..., 0]  # (F, K, 3)
+        wanted = (s_pos[:, s_aims] - s_pos[:, sources[fixed]]) @ world
+        rotation[:, fixed] = swing(now, wanted) @ rotation[:, fixed]
+
+    # Every other joint keeps its reference local rotation: its world rotation is its
+    # nearest driven ancestor's times the (constant) reference rotation between the two.
+    world_rot = np.empty((frames, count, 3, 3))
+    world_rot[:, targets] = rotation
+    anchor = np.full(count, -1, dtype=np.int64)
+    slot = {int(t): i for i, t in enumerate(targets)}
+    for j in range(count):
+        if j in slot:
+            anchor[j] = j
+        elif parents[j] >= 0:
+            anchor[j] = anchor[parents[j]]
+    free = np.array([j for j in range(count) if j not in slot], dtype=np.int64)
+    if len(free):
+        floating = anchor[free] < 0
+        fixed_free, carried = free[floating], free[~floating]
+        world_rot[:, fixed_free] = t_ref_rot[fixed_free]
+        if len(carried):
+            anchors = anchor[carried]
+            between = np.swapaxes(t_ref_rot[anchors], -1, -2) @ t_ref_rot[carried]
+            world_rot[:, carried] = world_rot[:, anchors] @ between
+
+    local = np.empty_like(world_rot)
+    local[:, 0] = world_rot[:, 0]
+    up_index = np.where(parents < 0, 0, parents)
+    local[:, 1:] = np.swapaxes(world_rot[:, up_index[1:]], -1, -2) @ world_rot[:, 1:]
+
+    # The pelvis's path: the source's, scaled by the legs.
+    scale = leg_length(target, target_map) / max(leg_length(source, source_map), _TINY)
+    s_feet = foot_heights(s_canon, s_up)
+    s_pelvis = s_canon[:, CANONICAL_INDEX["pelvis"]]
+    pelvis_at = scale * s_pelvis @ world  # (F, 3)
+    pelvis = int(target_map.joints[CANONICAL_INDEX["pelvis"]])
+    out = _assemble(target, source.frame_time, local, world_rot, pelvis, pelvis_at, t_ref_pos)
+    # Feet on the floor: the lowest foot point where the source's is (scaled), per frame.
+    _, t_pos = forward_kinematics(out, joints=target_map.joints[list(FOOT_POINTS)])
+    t_feet = (t_pos[:, target_map.joints[list(FOOT_POINTS)]] @ t_up).min(axis=1)
+    lift = scale * s_feet - t_feet
+    pelvis_at = pelvis_at + lift[:, None] * t_up
+    return _assemble(target, source.frame_time, local, world_rot, pelvis, pelvis_at, t_ref_pos)
+
+
+def _assemble(
+    target: Motion,
+    frame_time: float,
+    local: np.ndarray,
+    world_rot: np.ndarray,
+    pelvis: int,
+    pelvis_at: np.ndarray,
+    ref_pos: np.ndarray,
+) -> Motion:
+    """The output motion with the pelvis at ``pelvis_at`` ``(F, 3)`` (the top joint's
+    translation, or the pelvis's per-frame offset under a static top joint)."""
+    skeleton = target.skeleton
+    frames = local.shape[0]
+    if pelvis == 0:
+        root = pelvis_at
+        translations = None
+    else:
+        root = np.broadcast_to(ref_pos[0], (frames, 3)).copy()
+        # Joints above the pelvis are at their reference pose: their positions are fixed.
+        parent = int(skeleton.parents[pelvis])
+        translations = np.broadcast_to(skeleton.offsets, (frames, *skeleton.offsets.shape)).copy()
+        translations[:, 0] = root
+        translations[:, pelvis] = (
+            np.swapaxes(world_rot[:, parent], -1, -2) @ (pelvis_at - ref_pos[parent])[:, :, None]
+        )[:, :, 0]
+    return Motion(
+        skeleton=skeleton,
+        frame_time=frame_time,
+        root_translation=root,
+        local_rotations=local,
+        local_translations=translations,
+        source_format=target.source_format,
+        length_unit=target.length_unit,
+        notes={},
+    )
+
+
+def _rest_of(motion: Motion) -> Motion:
+    """A one-frame motion of ``motion``'s rest pose (identity rotations, root at origin)."""
+    count = motion.skeleton.joint_count
+    return Motion(
+        skeleton=motion.skeleton,
+        frame_time=motion.frame_time,
+        root_translation=np.zeros((1, 3)),
+        local_rotations=np.broadcast_to(np.eye(3), (1, count, 3, 3)).copy(),
+    )
+
+
+def _unmirrored(mapping: SkeletonMap) -> SkeletonMap:
+    from dataclasses import replace
+
+    return replace(mapping, mirrored=False)
+
+
+__all__ = [
+    "axis_change",
+    "leg_length",
+    "reference_frame",
+    "reference_pose",
+    "retarget",
+    "swing",
+]

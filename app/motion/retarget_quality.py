@@ -1,0 +1,145 @@
+"""How good a retarget is, measured against its source (the figures docs/export.md reports).
+
+Each measure compares the source clip with its retargeted copy through the canonical joints
+both skeletons map to, in the target's world axes (the source's are turned by the same
+quarter turn the retarget used) and in body heights of each skeleton:
+
+* ``bone_error``: largest difference between a bone's length in any frame and the rig's;
+* ``left_ok``: fraction of frames where the target's left hip and shoulder lie on the
+  same side as the source's;
+* ``feet_error``: largest per-frame difference of the feet's lowest point above the floor;
+* ``slide`` / ``source_slide``: mean horizontal speed of the foot points (ankles, toes)
+  while within 2 % of the floor, body heights per second;
+
+(the source measured at the retarget's scale, the ratio of the legs, in the target's body
+heights: the retarget scales travel and height by that ratio, as the issue asks);
+* ``finite``: no NaN or infinity anywhere;
+* ``direction_ok``: over the limb bones (upper arms, forearms, thighs, shins), the smallest
+  fraction of frames where the bone's world direction is within 5 degrees of the source's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from app.motion.body import body_height
+from app.motion.ground import FOOT_POINTS, canonical_positions, foot_heights, horizontal, up_axis
+from app.motion.kinematics import forward_kinematics
+from app.motion.model import Motion
+from app.motion.retarget import axis_change, leg_length
+from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap
+from app.motion.transforms import reflect
+
+LIMB_BONES = tuple(
+    (f"{s}_{a}", f"{s}_{b}")
+    for s in ("l", "r")
+    for a, b in (("shoulder", "elbow"), ("elbow", "wrist"), ("hip", "knee"), ("knee", "ankle"))
+)
+CONTACT = 0.02  # of body height: a foot point this near the floor is on it
+DIRECTION_DEG = 5.0
+
+
+@dataclass(frozen=True)
+class RetargetQuality:
+    bone_error: float
+    left_ok: float
+    feet_error: float
+    slide: float
+    source_slide: float
+    finite: bool
+    direction_ok: float
+
+    def passes(self) -> bool:
+        """The issue's bar: exact bones, left stays left, feet within 2 %, sliding within
+        the source's plus 1 % per second, finite, limb directions within 5 degrees in 99 %
+        of frames."""
+        return (
+            self.bone_error <= 1e-9
+            and self.left_ok == 1.0
+            and self.feet_error <= 0.02
+            and self.slide <= self.source_slide + 0.01
+            and self.finite
+            and self.direction_ok >= 0.99
+        )
+
+
+def _slide(canonical: np.ndarray, up: np.ndarray, height: float, frame_time: float) -> float:
+    """Mean horizontal speed (body heights / s) of the foot points while on the floor."""
+    feet = canonical[:, list(FOOT_POINTS)]  # (F, 4, 3)
+    heights = feet @ up
+    floor = float(heights.min())
+    on_floor = (heights[1:] - floor < CONTACT * height) & (heights[:-1] - floor < CONTACT * height)
+    speed = np.linalg.norm(horizontal(np.diff(feet, axis=0), up), axis=2) / frame_time
+    if not on_floor.any():
+        return 0.0
+    return float(speed[on_floor].mean() / height)
+
+
+def retarget_quality(
+    source: Motion,
+    source_map: SkeletonMap,
+    result: Motion,
+    result_map: SkeletonMap,
+    *,
+    skip: int = 0,
+) -> RetargetQuality:
+    """Measure ``result`` (a retarget of ``source`` onto a rig mapped as ``result_map``),
+    leaving out the first ``skip`` frames (a converter's rest-pose lead-in, which the
+    descriptors leave out too: its jump into the motion is no foot slide)."""
+    if source_map.mirrored:
+        source = reflect(source, axis=source_map.mirror_axis)
+    if 0 < skip < source.frame_count - 1:
+        source = source.slice_frames(skip)
+        result = result.slice_frames(skip)
+    finite = bool(
+        np.isfinite(result.local_rotations).all() and np.isfinite(result.root_translation).all()
+    )
+    s = canonical_positions(source, source_map)
+    t = canonical_positions(result, result_map)
+    s_up, t_up = up_axis(s), up_axis(t)
+    world = axis_change(t_up, s_up)
+    s = s @ world  # the source in the target's axes
+    t_height = body_height(result, result_map.joints, head_joint=result_map.head_joint)
+
+    _, positions = forward_kinematics(result)
+    parents = result.skeleton.parents
+    lengths = np.linalg.norm(positions[:, 1:] - positions[:, parents[1:]], axis=2)
+    rig = np.linalg.norm(result.skeleton.offsets[1:], axis=1)
+    pelvis = int(result_map.joints[CANONICAL_INDEX["pelvis"]])
+    movable = np.ones(len(rig), dtype=bool)
+    movable[pelvis - 1] = pelvis == 0  # the pelvis's own offset carries the travel
+    bone_error = float(np.abs(lengths[:, movable] - rig[movable]).max(initial=0.0) / t_height)
+
+    def side(points: np.ndarray, name: str) -> np.ndarray:
+        return points[:, CANONICAL_INDEX[f"l_{name}"]] - points[:, CANONICAL_INDEX[f"r_{name}"]]
+
+    agree = np.ones(len(s), dtype=bool)
+    for name in ("hip", "shoulder"):
+        agree &= np.sum(side(s, name) * side(t, name), axis=1) > 0
+    # The retarget scales the source by the legs' ratio: compare in that scale.
+    scale = leg_length(result, result_map) / max(leg_length(source, source_map), 1e-12)
+    s_feet = foot_heights(s, t_up) * scale
+    t_feet = foot_heights(t, t_up)
+    feet_error = float(np.abs((t_feet - t_feet.min()) - (s_feet - s_feet.min())).max() / t_height)
+    worst = 1.0
+    for a, b in LIMB_BONES:
+        sb = s[:, CANONICAL_INDEX[b]] - s[:, CANONICAL_INDEX[a]]
+        tb = t[:, CANONICAL_INDEX[b]] - t[:, CANONICAL_INDEX[a]]
+        cos = np.sum(sb * tb, axis=1) / np.maximum(
+            np.linalg.norm(sb, axis=1) * np.linalg.norm(tb, axis=1), 1e-12
+        )
+        worst = min(worst, float(np.mean(cos >= np.cos(np.radians(DIRECTION_DEG)))))
+    return RetargetQuality(
+        bone_error=bone_error,
+        left_ok=float(agree.mean()),
+        feet_error=feet_error,
+        slide=_slide(t, t_up, t_height, result.frame_time),
+        source_slide=_slide(s * scale, t_up, t_height, source.frame_time),
+        finite=finite,
+        direction_ok=worst,
+    )
+
+
+__all__ = ["LIMB_BONES", "RetargetQuality", "retarget_quality"]

@@ -1,0 +1,504 @@
+"""Stick-figure previews of clips: canonical joints per frame in a display frame.
+
+The display frame
+    A clip is run through the motion core (parse -> :func:`~app.motion.body.build_body`, so
+    converter lead-in frames are dropped as for the descriptors) and its canonical joints are
+    put in a *display frame*: lengths in body heights, y up (the file's vertical axis, see
+    :func:`display_up`), the pelvis's floor point at the first frame at the origin (floor =
+    the 5th percentile over frames of each frame's lowest joint, so a wild frame cannot move
+    it), facing +z at the first frame (x is then the subject's left). Frames are resampled to
+    the requested rate by linear interpolation in time, at most :data:`MAX_SKELETON_FRAMES`
+    of them per response.
+
+Where a stored clip's frames come from
+    Up to :data:`STORE_FPS` frames per second, from the clip's *stored preview*: its whole
+    motion in the display frame at 30 fps (or its own rate when lower), kept as one file per
+    clip content under ``<data dir>/previews/`` (:class:`PreviewStore`). A clip's file is then
+    parsed once for every page that shows it, across restarts and server processes. The
+    folder is a cache (named by the content hash and :func:`preview_version`, so a new motion
+    core makes new files): it can be deleted at any time. Faster rates (the clip page stepping
+    through a 120-fps take frame by frame) read the file again; that motion is kept in memory
+    for the next windows.
+
+Spans (``start``, ``end``)
+    Seconds of the file as uploaded, lead-in frames included, as everywhere in the API (moments,
+    ``GET /clips/{id}/file``). A response covers the frames of the span (at most
+    ``max_frames`` of them), so a page can fetch any part of a take of any length.
+
+Encodings (``encoding``)
+    ``json``: ``frames`` as nested lists ``[frame][joint] = [x, y, z]``, rounded to
+    :data:`DECIMALS` decimals. ``compact``: ``root`` = base64 of little-endian float32
+    ``(F, 3)``, the pelvis per frame; ``offsets`` = base64 of little-endian int16 ``(F, C, 3)``,
+    each joint minus the pelvis in units of :data:`OFFSET_UNIT` body heights (0.1 mm at
+    1.7 m; offsets beyond +-3.27 body heights are clipped). A third of the JSON's size before
+    compression, and decoded by a browser without parsing numbers.
+"""
+
+from __future__ import annotations
+
+import base64
+import gzip
+import hashlib
+import io
+import json
+import logging
+import os
+import threading
+import zipfile
+from dataclasses import dataclass, replace
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from app.db import clips as clip_db
+from app.errors import InvalidInput, NoStoredFile, ParseError
+from app.motion.body import Body, build_body
+from app.motion.model import Motion, ParseLimits
+from app.motion.skeleton_map import CANONICAL_BONES, CANONICAL_INDEX, CANONICAL_JOINTS
+from app.services.clips import stored_upload
+from app.services.describe import read_motion, span_frames
+from app.services.library import Library
+from app.services.lru import LRUCache
+from app.services.parser_pool import ParserPool
+from app.services.uploads import Upload
+
+log = logging.getLogger(__name__)
+
+MAX_SKELETON_FRAMES = 600
+"""Most frames one skeleton response carries; longer spans are truncated (``truncated``)."""
+MIN_FPS, MAX_FPS, DEFAULT_FPS = 0.01, 1000.0, 30.0
+STORE_FPS = 30.0
+"""Rate of the stored previews; requests up to it are answered from them."""
+_RATE_SLACK = 1.001  # files write 1/30 s as 0.0333333: their 30.0003 fps counts as 30
+DECIMALS = 4
+"""``json`` coordinates are rounded to this many decimals of a body height (0.1 mm at 1.7 m)."""
+OFFSET_UNIT = 1e-4
+"""Body heights per step of the ``compact`` encoding's int16 joint offsets."""
+ENCODINGS = ("json", "compact")
+GZIP_LEVEL = 6
+SKELETON_FORMAT_VERSION = 2
+"""Changes whenever the numbers a skeleton response carries change (in ETags and stored
+preview names)."""
+_PELVIS = CANONICAL_INDEX["pelvis"]
+
+
+@dataclass(frozen=True, eq=False)
+class DisplayMotion:
+    """A clip's canonical joints in the display frame.
+
+    ``positions`` are ``(F, C, 3)`` body heights every ``frame_time`` seconds from the first
+    frame after the lead-in; the file itself has ``source_frame_count`` frames after its
+    ``lead_in_frames``, every ``source_frame_time`` seconds (the same numbers for a motion at
+    the file's own rate).
+    """
+
+    positions: np.ndarray
+    frame_time: float
+    lead_in_frames: int
+    source_frame_count: int
+    source_frame_time: float
+
+    @property
+    def duration(self) -> float:
+        return max(0, self.positions.shape[0] - 1) * self.frame_time
+
+
+@dataclass(frozen=True, eq=False)
+class Skeleton:
+    """One skeleton response, already encoded (``body`` is JSON bytes) and, once asked for,
+    gzipped: a search page fetches fifty at once, and compressing each again every time cost
+    more than everything else the request does."""
+
+    body: bytes
+    etag: str
+
+    @cached_property
+    def gzipped(self) -> bytes:
+        return gzip.compress(self.body, compresslevel=GZIP_LEVEL, mtime=0)
+
+
+class PreviewStore:
+    """Stored previews on disk, one ``.npz`` per clip content and preview version.
+
+    A cache of what the clips' files give: a file that is missing, unreadable or cannot be
+    written costs a parse, never an error.
+    """
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+
+    def path(self, content_hash: str, version: str) -> Path:
+        return self.root / content_hash[:2] / f"{content_hash}.{version}.npz"
+
+    def load(self, content_hash: str, version: str) -> DisplayMotion | None:
+        path = self.path(content_hash, version)
+        try:
+            with np.load(path, allow_pickle=False) as stored:
+                positions = np.asarray(stored["positions"])
+                frame_time, source_frame_time, lead_in, source_frames = stored["meta"].tolist()
+        except FileNotFoundError:
+            return None
+        except (OSError, ValueError, KeyError, zipfile.BadZipFile) as error:
+            log.warning("stored preview %s unreadable (%s); reading the clip again", path, error)
+            return None
+        if positions.ndim != 3 or positions.shape[1:] != (len(CANONICAL_JOINTS), 3):
+            return None
+        return DisplayMotion(
+            positions, float(frame_time), int(lead_in), int(source_frames), float(source_frame_time)
+        )
+
+    def save(self, content_hash: str, version: str, display: DisplayMotion) -> None:
+        path = self.path(content_hash, version)
+        meta = [
+            display.frame_time,
+            display.source_frame_time,
+            display.lead_in_frames,
+            display.source_frame_count,
+        ]
+        buffer = io.BytesIO()
+        np.savez(buffer, positions=display.positions, meta=np.asarray(meta, dtype=np.float64))
+        temporary = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            temporary.write_bytes(buffer.getvalue())
+            os.replace(temporary, path)  # readers see the whole file or none
+        except OSError as error:
+            log.warning(
+                "cannot store the preview %s (%s); it is computed again next time", path, error
+            )
+            temporary.unlink(missing_ok=True)
+
+
+def _nbytes(display: DisplayMotion) -> int:
+    return int(display.positions.nbytes)
+
+
+class SkeletonCache:
+    """Per-application caches: the full-rate display motions of the clips a page steps
+    through, stored previews (at :data:`STORE_FPS`), encoded responses — each bounded in
+    number and bytes — and the :class:`PreviewStore` when there is a data directory."""
+
+    def __init__(self, store_root: Path | None = None) -> None:
+        self.motions: LRUCache[tuple[int, str], DisplayMotion] = LRUCache(
+            8, max_weight=256e6, weigh=_nbytes
+        )
+        self.previews: LRUCache[tuple[str, str], DisplayMotion] = LRUCache(
+            1024, max_weight=128e6, weigh=_nbytes
+        )
+        self.responses: LRUCache[tuple[Any, ...], Skeleton] = LRUCache(
+            512, max_weight=64e6, weigh=lambda s: 2 * len(s.body)
+        )
+        self.store = PreviewStore(store_root) if store_root is not None else None
+
+
+def display_up(world_up: np.ndarray) -> np.ndarray:
+    """The coordinate axis nearest to the body's ``world_up``, as a unit vector.
+
+    Mocap files are authored with an axis up. ``Body.world_up`` snaps to an axis only within
+    30 degrees; clips whose body leans more on average (Bandai's dashes and sad side-steps,
+    35-39 degrees) keep a tilted up there, which would make a figure drift upwards as it
+    travels. A picture needs the true vertical, so it always snaps.
+    """
+    vector = np.asarray(world_up, dtype=float)
+    axis = int(np.argmax(np.abs(vector)))
+    up = np.zeros(3)
+    up[axis] = 1.0 if vector[axis] >= 0 else -1.0
+    return up
+
+
+# Percentile over frames of each frame's lowest joint that sets the preview's floor.
+_FLOOR_PERCENTILE = 5.0
+
+
+def display_positions(body: Body) -> np.ndarray:
+    """``(F, C, 3)`` canonical joint positions in the display frame (see module docstring).
+
+    Axes: x = the subject's left at the first frame, y = up (:func:`display_up`), z = the
+    subject's forward at the first frame projected on the floor; a proper rotation of the
+    file's world (no mirroring), then divided by body height.
+    """
+    up = display_up(body.world_up)
+    frame0 = body.pelvis_frames[0]
+
+    def horizontal(v: np.ndarray) -> np.ndarray:
+        return np.asarray(v - np.dot(v, up) * up, dtype=float)
+
+    forward = horizontal(frame0[:, 2])
+    if np.linalg.norm(forward) > 1e-6:
+        z = forward / np.linalg.norm(forward)
+        x = np.cross(up, z)
+    else:  # lying face down or up at the first frame: face by the hips instead
+        left = horizontal(frame0[:, 0])
+        if np.linalg.norm(left) < 1e-6:
+            left = horizontal(np.eye(3)[int(np.argmin(np.abs(up)))])
+        x = left / np.linalg.norm(left)
+        z = np.cross(x, up)
+    basis = np.stack([x, up, z], axis=1)  # columns: display axes in world coordinates
+    pelvis0 = body.positions[0, CANONICAL_INDEX["pelvis"]]
+    # Robust: the lowest point of most frames, so a frame gone wild (a sentinel value kept
+    # in the middle of a clip) cannot lift the figure far above the floor.
+    floor = float(np.percentile((body.positions @ up).min(axis=1), _FLOOR_PERCENTILE))
+    origin = horizontal(pelvis0) + floor * up
+    return np.asarray(((body.positions - origin) @ basis) / body.height)
+
+
+def resample(
+    positions: np.ndarray,
+    frame_time: float,
+    fps: float,
+    max_frames: int,
+    start: float = 0.0,
+    end: float | None = None,
+) -> tuple[np.ndarray, bool]:
+    """Frames at ``fps`` from ``start`` to ``end`` seconds (default: the last frame) by linear
+    interpolation in time, at most ``max_frames`` of them.
+
+    Returns the ``(F', C, 3)`` frames and whether the span was cut short.
+    """
+    count = positions.shape[0]
+    last = (count - 1) * frame_time
+    stop = last if end is None else min(end, last)
+    # Files round their frame time (0.008333 for 1/120 s): a relative slack of 1e-4 keeps
+    # the last frame, and output times within 1/1000 of a source frame take that frame.
+    span = max(0.0, stop - start)
+    wanted = int(np.floor(span * fps * (1 + 1e-4) + 1e-6)) + 1
+    truncated = wanted > max_frames
+    n = min(wanted, max_frames)
+    source = (start + np.arange(n) / fps) / frame_time  # fractional source frame of each
+    nearest = np.round(source)
+    source = np.where(np.abs(source - nearest) < 1e-3, nearest, source)
+    low = np.clip(np.floor(source).astype(np.int64), 0, count - 1)
+    high = np.minimum(low + 1, count - 1)
+    weight = np.clip(source - low, 0.0, 1.0)[:, None, None]
+    return positions[low] * (1.0 - weight) + positions[high] * weight, truncated
+
+
+def extent(positions: np.ndarray) -> dict[str, float]:
+    """How much room ``(F, C, 3)`` frames need around the pelvis, for framing them: the
+    tallest frame (``height``: its highest joint minus its lowest) and the farthest any joint
+    gets from the pelvis over the floor (``reach``), in body heights."""
+    if positions.shape[0] == 0:
+        return {"height": 0.0, "reach": 0.0}
+    heights = positions[..., 1].max(axis=1) - positions[..., 1].min(axis=1)
+    across = positions[..., [0, 2]] - positions[:, _PELVIS, None][..., [0, 2]]
+    return {
+        "height": round(float(heights.max()), DECIMALS),
+        "reach": round(float(np.sqrt((across**2).sum(axis=-1)).max()), DECIMALS),
+    }
+
+
+def read_stored_motion(library: Library, clip: clip_db.ClipRecord) -> Motion:
+    """Parse a stored clip's file(s) again (ParseError if they no longer parse;
+    NoStoredFile for a clip without files)."""
+    if not clip.files:
+        raise NoStoredFile(clip.id, clip.format)
+    upload = stored_upload(library, clip)
+    return read_motion(upload, library.settings.parse_limits, library.parsers).motion
+
+
+def upload_display_motion(
+    upload: Upload, limits: ParseLimits, parsers: ParserPool | None = None
+) -> DisplayMotion:
+    """Parse and map an uploaded (not stored) clip; errors name the uploaded file."""
+    read = read_motion(upload, limits, parsers)
+    try:
+        return display_motion(read.motion)
+    except ParseError as error:
+        part = upload.parts[0]
+        source = f"{part.role} {part.filename!r}"
+        raise type(error)(error.reason, line=error.line, source=source) from None
+
+
+def display_motion(motion: Motion) -> DisplayMotion:
+    """A motion's canonical joints in the display frame at the file's own rate."""
+    body = build_body(motion)
+    positions = display_positions(body)
+    return DisplayMotion(
+        positions, body.frame_time, body.lead_in_frames, positions.shape[0], body.frame_time
+    )
+
+
+def at_store_rate(display: DisplayMotion) -> DisplayMotion:
+    """``display`` at :data:`STORE_FPS` (or its own rate when slower), float32: what a stored
+    preview holds."""
+    if display.frame_time * STORE_FPS * _RATE_SLACK >= 1.0:  # its own rate
+        frame_time, positions = display.frame_time, display.positions
+    else:
+        frame_time = 1.0 / STORE_FPS
+        positions, _ = resample(display.positions, display.frame_time, STORE_FPS, 2**62)
+    return replace(
+        display, positions=np.ascontiguousarray(positions, np.float32), frame_time=frame_time
+    )
+
+
+def preview_version(library: Library) -> str:
+    """Names the stored previews of this motion core: the response format and every
+    descriptor's version (a change to the motion core that moves joints changes those)."""
+    versions = ",".join(f"{n}:{d.version}" for n, d in sorted(library.descriptors.items()))
+    text = f"{SKELETON_FORMAT_VERSION};{versions}"
+    return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+
+def _b64(array: np.ndarray) -> str:
+    return base64.b64encode(np.ascontiguousarray(array).tobytes()).decode("ascii")
+
+
+def _whole(value: float) -> float | int:
+    return int(value) if float(value).is_integer() else value
+
+
+def skeleton_payload(
+    display: DisplayMotion,
+    *,
+    clip_id: int | None,
+    fps: float,
+    max_frames: int,
+    start: float = 0.0,
+    end: float | None = None,
+    encoding: str = "json",
+) -> dict[str, Any]:
+    """The skeleton response (see ``GET /clips/{id}/skeleton``) as plain JSON values;
+    ``start``/``end``: seconds from the first frame after the lead-in."""
+    start = min(max(0.0, start), display.duration)
+    frames, truncated = resample(display.positions, display.frame_time, fps, max_frames, start, end)
+    # The extent covers the span asked for, every stored frame of it (not only those
+    # returned): an overview of a take frames its every pose.
+    span_end = display.duration if end is None else min(end, display.duration)
+    first = int(np.floor(start / display.frame_time + 1e-6))
+    last = int(np.ceil(span_end / display.frame_time - 1e-6))
+    lead_in = display.lead_in_frames * display.source_frame_time
+    body: dict[str, Any] = {
+        "clip_id": clip_id,
+        "fps": _whole(fps),
+        "start": round(lead_in + start, 6),
+        "frame_count": int(frames.shape[0]),
+        "truncated": truncated,
+        "duration": round((frames.shape[0] - 1) / fps, 6),
+        "source_frame_count": int(display.source_frame_count),
+        "source_duration": round(
+            max(0, display.source_frame_count - 1) * display.source_frame_time, 6
+        ),
+        "source_fps": round(1.0 / display.source_frame_time, 6),
+        "lead_in_frames": display.lead_in_frames,
+        "units": "body heights",
+        "joints": list(CANONICAL_JOINTS),
+        "bones": [list(b) for b in CANONICAL_BONES],
+        "extent": extent(display.positions[first : last + 1]),
+        "encoding": encoding,
+    }
+    if encoding == "compact":
+        pelvis = frames[:, _PELVIS]
+        steps = np.round((frames - pelvis[:, None]) / OFFSET_UNIT)
+        body["offset_unit"] = OFFSET_UNIT
+        body["root"] = _b64(pelvis.astype("<f4"))
+        body["offsets"] = _b64(np.clip(steps, -32767, 32767).astype("<i2"))
+    else:
+        body["frames"] = np.round(frames, DECIMALS).tolist()
+    return body
+
+
+def check_skeleton_params(fps: float, max_frames: int, encoding: str = "json") -> None:
+    if not (np.isfinite(fps) and MIN_FPS <= fps <= MAX_FPS):
+        raise InvalidInput(f"fps: must be between {MIN_FPS:g} and {MAX_FPS:g}, got {fps:g}")
+    if not 1 <= max_frames <= MAX_SKELETON_FRAMES:
+        raise InvalidInput(
+            f"max_frames: must be between 1 and {MAX_SKELETON_FRAMES}, got {max_frames}"
+        )
+    if encoding not in ENCODINGS:
+        raise InvalidInput(f"encoding: must be one of {', '.join(ENCODINGS)}, got {encoding!r}")
+
+
+def _full_rate(library: Library, cache: SkeletonCache, clip: clip_db.ClipRecord) -> DisplayMotion:
+    return cache.motions.get_or_compute(
+        (clip.id, clip.content_hash), lambda: display_motion(read_stored_motion(library, clip))
+    )
+
+
+def stored_preview(
+    library: Library, cache: SkeletonCache, clip: clip_db.ClipRecord
+) -> DisplayMotion:
+    """The clip's motion at :data:`STORE_FPS`: from memory, else from the preview store, else
+    read from its file (and stored for next time)."""
+    version = preview_version(library)
+    key = (clip.content_hash, version)
+
+    def load_or_make() -> DisplayMotion:
+        store = cache.store
+        found = store.load(*key) if store is not None else None
+        if found is not None:
+            return found
+        made = at_store_rate(_full_rate(library, cache, clip))
+        if store is not None:
+            store.save(*key, made)
+        return made
+
+    return cache.previews.get_or_compute(key, load_or_make)
+
+
+def clip_skeleton(
+    library: Library,
+    cache: SkeletonCache,
+    clip: clip_db.ClipRecord,
+    fps: float,
+    max_frames: int,
+    *,
+    start: float | None = None,
+    end: float | None = None,
+    encoding: str = "json",
+) -> Skeleton:
+    """The encoded skeleton response of a stored clip (cached); ``start``/``end`` in seconds
+    of the file (lead-in included)."""
+    check_skeleton_params(fps, max_frames, encoding)
+    if not clip.files:
+        raise NoStoredFile(clip.id, clip.format)
+    span: tuple[int, int] | None = None
+    if start is not None or end is not None:
+        span = span_frames(clip.frame_count, clip.frame_time, clip.lead_in_frames, start, end)
+    key = (clip.id, clip.content_hash, fps, max_frames, span, encoding)
+
+    def compute() -> Skeleton:
+        if fps <= STORE_FPS * _RATE_SLACK:
+            display = stored_preview(library, cache, clip)
+        else:
+            display = _full_rate(library, cache, clip)
+        first, last = 0.0, None
+        if span is not None:
+            first = (span[0] - clip.lead_in_frames) * clip.frame_time
+            last = (span[1] - 1 - clip.lead_in_frames) * clip.frame_time
+        payload = skeleton_payload(
+            display,
+            clip_id=clip.id,
+            fps=fps,
+            max_frames=max_frames,
+            start=first,
+            end=last,
+            encoding=encoding,
+        )
+        tag_text = f"{SKELETON_FORMAT_VERSION}:{preview_version(library)}:{key}"
+        tag = hashlib.sha256(tag_text.encode()).hexdigest()[:32]
+        return Skeleton(_encode(payload), f'"{tag}"')
+
+    return cache.responses.get_or_compute(key, compute)
+
+
+def upload_skeleton(
+    upload: Upload,
+    limits: ParseLimits,
+    fps: float,
+    max_frames: int,
+    parsers: ParserPool | None = None,
+    encoding: str = "json",
+) -> bytes:
+    """The encoded skeleton response of an uploaded clip (nothing stored, nothing cached)."""
+    check_skeleton_params(fps, max_frames, encoding)
+    display = upload_display_motion(upload, limits, parsers)
+    payload = skeleton_payload(
+        display, clip_id=None, fps=fps, max_frames=max_frames, encoding=encoding
+    )
+    return _encode(payload)
+
+
+def _encode(payload: dict[str, Any]) -> bytes:
+    return json.dumps(payload, separators=(",", ":"), allow_nan=False).encode()

@@ -1,0 +1,213 @@
+"""Retarget quality and round trip on rigs from the development data (issue 22).
+
+    .venv/bin/python bench/eval_retarget.py [--limit N]     # uses ../shared/data
+
+Every clip of ``../shared/data`` the service accepts (BVH, ASF/AMC, FBX, glTF; the longest
+animation of a file; cut to its first 20 s, ``--seconds``, so the sweep fits an hour on a
+shared machine) is described under ``motion``; then, for each of seven rigs (Mixamo,
+CMU ASF, Bandai, Rokoko, Xsens, SMPL, a 19-joint game character), every clip is retargeted
+onto the rig, written as BVH and read back (what a download and re-upload does), described
+again and looked up among all the clips' vectors (Euclidean, as ``GET /search`` does): the
+round trip holds when the nearest is the source — or, in brackets, its twin: the same
+capture in another format or folder, by file stem (CMU trials as ASF/AMC, MotionBuilder BVH
+and DAZ BVH; the FBX/BVH pairs), which the retargeted copy cannot tell from its source.
+Per rig the retarget quality of :mod:`app.motion.retarget_quality` is summarised. FBX and
+glTF files are read in parser
+worker processes, as the service reads them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from app.discovery import discover
+from app.errors import MocapError
+from app.motion.body import build_body
+from app.motion.formats import read_asf_amc, read_bvh
+from app.motion.formats.asf_amc import parse_asf_rest
+from app.motion.formats.bvh_writer import write_bvh
+from app.motion.kinematics import forward_kinematics
+from app.motion.model import Motion, ParseLimits
+from app.motion.pipeline import analyse
+from app.motion.retarget import reference_pose, retarget
+from app.motion.retarget_quality import RetargetQuality, retarget_quality
+from app.motion.skeleton_map import SkeletonMap, map_skeleton
+from app.services.parser_pool import ParserPool
+from bench.common import machine, shared_data
+
+RIGS = {
+    "Mixamo (Ortiz, BVH)": "wild-bvh/mixamo/ortiz_thankful.bvh",
+    "CMU ASF (subject 01)": "cmu/asf-amc/01/01.asf",
+    "Bandai": "bandai-ds1/data/dataset-1_walk_normal_001.bvh",
+    "Rokoko Newton (FBX)": "fbx-gltf/rokoko/Rokoko_Newton.FBX",
+    "Xsens MVN (BVH)": "wild-bvh/xsens-mvn/jl_motionmatching_tpose.bvh",
+    "SMPL (ROMP, BVH)": "wild-bvh/smpl-video/romp_dance2.bvh",
+    "game: CesiumMan (GLB, 19 joints)": "fbx-gltf/khronos-samples/CesiumMan.glb",
+}
+
+
+@dataclass
+class Clip:
+    name: str
+    motion: Motion
+    mapping: SkeletonMap
+    lead_in: int
+    vector: np.ndarray
+
+
+def read_file(path: Path, pool: ParserPool, *, rig: bool = False) -> Motion:
+    suffix = path.suffix.lower()
+    limits = ParseLimits()
+    if suffix == ".bvh":
+        return read_bvh(path.read_bytes(), limits=limits)
+    if suffix == ".asf":
+        return parse_asf_rest(path.read_text(), limits=limits)
+    kind = "fbx" if suffix == ".fbx" else "gltf"
+    return pool.parse(
+        f"{kind}-rig" if rig else kind, path.read_bytes(), animation=None, limits=limits
+    ).motion
+
+
+def load_clips(pool: ParserPool, limit: int | None, seconds: float) -> list[Clip]:
+    found = discover([shared_data()], scenes=True)
+    clips: list[Clip] = []
+    for source in found.sources[: limit or None]:
+        try:
+            if source.kind == "asf/amc":
+                assert source.skeleton is not None
+                motion = read_asf_amc(source.skeleton.read_bytes(), source.motion.read_bytes())
+            else:
+                motion = read_file(source.motion, pool)
+            keep = max(1, round(seconds / motion.frame_time))
+            if motion.frame_count > keep:
+                motion = motion.slice_frames(0, keep)
+            analysis = analyse(motion, descriptors=["motion"])
+        except (MocapError, ValueError):
+            continue
+        assert analysis.body.mapping is not None
+        clips.append(
+            Clip(
+                source.relative_path,
+                motion,
+                analysis.body.mapping,
+                analysis.lead_in_frames,
+                analysis.descriptors["motion"],
+            )
+        )
+    return clips
+
+
+def load_rig(path: Path, pool: ParserPool) -> tuple[Motion, SkeletonMap]:
+    motion = read_file(path, pool, rig=True)
+    body = build_body(motion)
+    assert body.mapping is not None
+    rig = reference_pose(motion, body.mapping)
+    _, positions = forward_kinematics(rig)
+    return rig, map_skeleton(rig.skeleton, poses=[("frame 0", positions[0])])
+
+
+def capture(name: str) -> str:
+    """The capture a clip is of: its file stem (the CMU trials, the FBX/BVH pairs are one
+    capture in several formats and folders, under one stem)."""
+    return Path(name).stem.lower()
+
+
+def summary(
+    name: str,
+    joints: int,
+    found: list[bool],
+    twin: list[bool],
+    qualities: list[RetargetQuality],
+) -> str:
+    n = len(qualities)
+
+    def share(values: list[bool]) -> str:
+        return f"{100 * np.mean(values):5.1f} %"
+
+    slide_over = [q.slide - q.source_slide for q in qualities]
+    return (
+        f"| {name} | {joints} | {n} | {share(found)} ({share(twin)}) | "
+        f"{max(q.bone_error for q in qualities):.1e} | "
+        f"{share([q.left_ok == 1.0 for q in qualities])} | "
+        f"{share([q.feet_error <= 0.02 for q in qualities])} | "
+        f"{share([s <= 0.01 for s in slide_over])} (median +{np.median(slide_over):.3f}) | "
+        f"{share([q.finite for q in qualities])} | "
+        f"{share([q.direction_ok >= 0.99 for q in qualities])} |"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--limit", type=int, help="only the first N clips (a quick look)")
+    parser.add_argument(
+        "--seconds",
+        type=float,
+        default=20.0,
+        help="clips longer than this are cut to their first SECONDS (library and queries alike)",
+    )
+    parser.add_argument(
+        "--rig", action="append", help="only these rigs (by the start of their name)"
+    )
+    args = parser.parse_args()
+    print(f"machine: {machine()}")
+    pool = ParserPool(1)
+    try:
+        started = time.perf_counter()
+        clips = load_clips(pool, args.limit, args.seconds)
+        vectors = np.stack([c.vector for c in clips])
+        print(f"{len(clips)} clips described in {time.perf_counter() - started:.0f} s")
+        if not args.rig or "Mixamo" in args.rig:
+            print(
+                "| rig | joints | clips | round trip: source is nearest (or a twin: same "
+                "capture in another format) | bones (max error, "
+                "body heights) | left stays left | feet within 2 % | sliding <= source + 1 %/s "
+                "| finite | limb directions within 5 deg in 99 % of frames |"
+            )
+            print("|---|---|---|---|---|---|---|---|---|---|")
+        for rig_name, relative in RIGS.items():
+            if args.rig and not any(rig_name.startswith(r) for r in args.rig):
+                continue
+            rig, rig_map = load_rig(shared_data() / relative, pool)
+            found: list[bool] = []
+            twin: list[bool] = []
+            qualities: list[RetargetQuality] = []
+            failures: list[str] = []
+            for index, clip in enumerate(clips):
+                try:
+                    out = retarget(clip.motion, clip.mapping, rig, rig_map)
+                    again = read_bvh(write_bvh(out))
+                    vector = analyse(again, descriptors=["motion"]).descriptors["motion"]
+                except MocapError as error:
+                    failures.append(f"{clip.name}: {error.detail}")
+                    found.append(False)
+                    twin.append(False)
+                    continue
+                distances = np.linalg.norm(vectors - vector, axis=1)
+                nearest = int(np.argmin(distances))
+                found.append(nearest == index)
+                twin.append(capture(clips[nearest].name) == capture(clip.name))
+                if not twin[-1]:
+                    failures.append(
+                        f"{clip.name} -> {clips[nearest].name} "
+                        f"({distances[index]:.3f} vs {distances[nearest]:.3f})"
+                    )
+                qualities.append(
+                    retarget_quality(clip.motion, clip.mapping, out, rig_map, skip=clip.lead_in)
+                )
+            print(summary(rig_name, rig.skeleton.joint_count, found, twin, qualities), flush=True)
+            for failure in failures:
+                print(f"  failed: {failure}", file=sys.stderr)
+    finally:
+        pool.close()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,215 @@
+"""Retargeting one humanoid's motion onto another's skeleton (app/motion/retarget.py)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from app.motion.body import build_body
+from app.motion.formats import read_asf_amc, read_bvh
+from app.motion.ground import canonical_positions
+from app.motion.kinematics import forward_kinematics
+from app.motion.model import Motion, Skeleton
+from app.motion.retarget import axis_change, reference_pose, retarget, swing
+from app.motion.retarget_quality import LIMB_BONES, retarget_quality
+from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap, map_skeleton
+from app.motion.transforms import change_basis, mirror, rotation_about
+from tests.motion.conftest import (
+    BANDAI_FIXTURE,
+    CMU_AMC_FIXTURE,
+    CMU_ASF_FIXTURE,
+    CMU_BVH_FIXTURE,
+    fixture_bytes,
+)
+from tests.motion.synthetic import walker_motion, walker_skeleton
+
+
+def rig_of(motion: Motion) -> tuple[Motion, SkeletonMap]:
+    body = build_body(motion)
+    assert body.mapping is not None
+    rig = reference_pose(motion, body.mapping)
+    _, positions = forward_kinematics(rig)
+    return rig, map_skeleton(rig.skeleton, poses=[("frame 0", positions[0])])
+
+
+def mapped(motion: Motion) -> SkeletonMap:
+    body = build_body(motion)
+    assert body.mapping is not None
+    return body.mapping
+
+
+def bone_angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Degrees between ``(..., 3)`` directions."""
+    cos = np.sum(a * b, axis=-1) / (np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1))
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+def test_swing_is_the_smallest_rotation_between_two_directions() -> None:
+    rng = np.random.default_rng(3)
+    a, b = rng.normal(size=(200, 3)), rng.normal(size=(200, 3))
+    r = swing(a, b)
+    np.testing.assert_allclose(
+        r @ np.swapaxes(r, 1, 2), np.broadcast_to(np.eye(3), r.shape), atol=1e-12
+    )
+    np.testing.assert_allclose(np.linalg.det(r), 1.0, atol=1e-12)
+    turned = (r @ a[:, :, None])[:, :, 0]
+    np.testing.assert_allclose(bone_angles(turned, b), 0.0, atol=1e-5)  # arccos near 1
+    # Smallest: the rotation angle is the angle between the two directions (no twist).
+    angles = np.degrees(np.linalg.norm(Rotation.from_matrix(r).as_rotvec(), axis=1))
+    np.testing.assert_allclose(angles, bone_angles(a, b), atol=1e-6)
+    opposite = swing(np.array([0.0, 1.0, 0.0]), np.array([0.0, -2.0, 0.0]))
+    np.testing.assert_allclose(opposite @ [0, 1, 0], [0, -1, 0], atol=1e-12)
+    np.testing.assert_allclose(swing(np.zeros(3), np.ones(3)), np.eye(3))
+
+
+def test_axis_change_is_a_quarter_turn_between_coordinate_axes() -> None:
+    y, z = np.array([0.0, 1, 0]), np.array([0.0, 0, 1])
+    turn = axis_change(z, y)
+    np.testing.assert_array_equal(turn @ z, y)
+    np.testing.assert_allclose(np.linalg.det(turn), 1.0)
+    np.testing.assert_array_equal(axis_change(y, y), np.eye(3))
+
+
+def test_onto_its_own_skeleton_the_motion_is_unchanged() -> None:
+    source = read_bvh(fixture_bytes(CMU_BVH_FIXTURE))
+    rig, rig_map = rig_of(source)
+    out = retarget(source, mapped(source), rig, rig_map)
+    assert out.skeleton is rig.skeleton
+    expected = canonical_positions(source, mapped(source))
+    # Every canonical joint where it was; the hands' tips differ: fingers stay at rest.
+    body = [i for i, name in enumerate(CANONICAL_INDEX) if not name.endswith("hand_tip")]
+    np.testing.assert_allclose(
+        canonical_positions(out, rig_map)[:, body], expected[:, body], atol=1e-9 * 170
+    )
+
+
+def _a_pose(skeleton: Skeleton, degrees: float) -> Skeleton:
+    """The same skeleton with its arms lowered by ``degrees`` in the rest pose."""
+    offsets = skeleton.offsets.copy()
+    for side, sign in (("Left", -1.0), ("Right", 1.0)):
+        turn = rotation_about(np.array([0.0, 0.0, 1.0]), sign * degrees)
+        for name in skeleton.names:
+            if name.startswith(side) and any(p in name for p in ("ForeArm", "Hand", "Thumb")):
+                offsets[skeleton.index(name)] = turn @ offsets[skeleton.index(name)]
+    return dataclasses.replace(skeleton, offsets=offsets)
+
+
+def test_a_t_pose_capture_drives_an_a_pose_rig_to_the_same_pose() -> None:
+    source = walker_motion(frames=60)
+    a_pose = _a_pose(walker_skeleton(), 45.0)
+    rig_motion = Motion(
+        a_pose, 1 / 30, np.zeros((1, 3)), np.tile(np.eye(3), (1, a_pose.joint_count, 1, 1))
+    )
+    rig, rig_map = rig_of(rig_motion)
+    out = retarget(source, mapped(source), rig, rig_map)
+    s = canonical_positions(source, mapped(source))
+    t = canonical_positions(out, rig_map)
+    for a, b in LIMB_BONES:
+        sa, sb = s[:, CANONICAL_INDEX[a]], s[:, CANONICAL_INDEX[b]]
+        ta, tb = t[:, CANONICAL_INDEX[a]], t[:, CANONICAL_INDEX[b]]
+        assert bone_angles(sb - sa, tb - ta).max() < 1e-5, (a, b)
+    # The rig's bones keep their lengths, whatever the pose.
+    _, positions = forward_kinematics(out)
+    parents = out.skeleton.parents
+    lengths = np.linalg.norm(positions[:, 1:] - positions[:, parents[1:]], axis=2)
+    np.testing.assert_allclose(
+        lengths[:, 1:],
+        np.broadcast_to(np.linalg.norm(a_pose.offsets[2:], axis=1), lengths[:, 1:].shape),
+        atol=1e-9,
+    )
+
+
+def test_a_forearm_twist_stays_a_twist_about_the_same_bone() -> None:
+    source = walker_motion(frames=10)
+    local = source.local_rotations.copy()
+    local[:] = np.eye(3)
+    forearm = source.skeleton.index("LeftForeArm")
+    along = source.skeleton.offsets[source.skeleton.index("LeftHand")]
+    twist = Rotation.from_rotvec(np.outer(np.linspace(0, 1.2, 10), along / np.linalg.norm(along)))
+    local[:, forearm] = twist.as_matrix()
+    source = dataclasses.replace(source, local_rotations=local)
+    a_pose = _a_pose(walker_skeleton(), 40.0)
+    rig, rig_map = rig_of(
+        Motion(a_pose, 1 / 30, np.zeros((1, 3)), np.tile(np.eye(3), (1, a_pose.joint_count, 1, 1)))
+    )
+    out = retarget(source, mapped(source), rig, rig_map)
+    turned = Rotation.from_matrix(out.local_rotations[:, forearm]).as_rotvec()
+    bone = a_pose.offsets[a_pose.index("LeftHand")]
+    axis = bone / np.linalg.norm(bone)
+    # The forearm only turns about its own (A-pose) direction, by the source's angle.
+    np.testing.assert_allclose(np.cross(turned, axis), 0.0, atol=1e-9)
+    np.testing.assert_allclose(turned @ axis, np.linspace(0, 1.2, 10), atol=1e-9)
+
+
+def test_a_z_up_rig_gets_z_up_motion() -> None:
+    source = read_bvh(fixture_bytes(CMU_BVH_FIXTURE))
+    y_to_z = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])  # +Y -> +Z
+    rig, rig_map = rig_of(change_basis(read_bvh(fixture_bytes(BANDAI_FIXTURE)), y_to_z))
+    out = retarget(source, mapped(source), rig, rig_map)
+    t = canonical_positions(out, rig_map)
+    up = t[:, CANONICAL_INDEX["head"]] - t[:, CANONICAL_INDEX["l_ankle"]]
+    assert np.all(up[:, 2] > 0.8 * np.linalg.norm(up, axis=1))
+    quality = retarget_quality(source, mapped(source), out, rig_map, skip=1)
+    assert quality.direction_ok == 1.0 and quality.left_ok == 1.0
+
+
+@pytest.mark.parametrize(
+    "rig_source",
+    ["bandai", "asf", "cmu-bvh"],
+)
+def test_quality_on_real_rigs(rig_source: str) -> None:
+    source = read_asf_amc(fixture_bytes(CMU_ASF_FIXTURE), fixture_bytes(CMU_AMC_FIXTURE))
+    rigs = {
+        "bandai": lambda: read_bvh(fixture_bytes(BANDAI_FIXTURE)),
+        "asf": lambda: read_asf_amc(fixture_bytes(CMU_ASF_FIXTURE), fixture_bytes(CMU_AMC_FIXTURE)),
+        "cmu-bvh": lambda: read_bvh(fixture_bytes(CMU_BVH_FIXTURE)),
+    }
+    rig, rig_map = rig_of(rigs[rig_source]())
+    out = retarget(source, mapped(source), rig, rig_map)
+    quality = retarget_quality(source, mapped(source), out, rig_map)
+    assert quality.finite
+    assert quality.bone_error < 1e-9
+    assert quality.left_ok == 1.0
+    assert quality.feet_error < 0.02
+    assert quality.direction_ok >= 0.99
+    assert out.skeleton.names == rig.skeleton.names
+    np.testing.assert_array_equal(out.skeleton.offsets, rig.skeleton.offsets)
+
+
+def test_a_mirrored_capture_keeps_left_on_the_left() -> None:
+    source = read_bvh(fixture_bytes(CMU_BVH_FIXTURE))
+    flipped = mirror(source)  # the joints called left now on the right
+    flipped = dataclasses.replace(
+        flipped, skeleton=dataclasses.replace(flipped.skeleton, names=source.skeleton.names)
+    )
+    flipped_map = mapped(flipped)
+    assert flipped_map.mirrored
+    rig, rig_map = rig_of(read_bvh(fixture_bytes(BANDAI_FIXTURE)))
+    out = retarget(flipped, flipped_map, rig, rig_map)
+    quality = retarget_quality(flipped, flipped_map, out, rig_map, skip=1)
+    assert quality.left_ok == 1.0
+    assert not build_body(out).mapping.mirrored  # type: ignore[union-attr]
+
+
+def test_travel_is_scaled_by_the_legs_and_feet_stay_on_the_floor() -> None:
+    source = walker_motion(frames=120)
+    big = dataclasses.replace(walker_skeleton(), offsets=walker_skeleton().offsets * 2.0)
+    rig, rig_map = rig_of(
+        Motion(big, 1 / 30, np.zeros((1, 3)), np.tile(np.eye(3), (1, big.joint_count, 1, 1)))
+    )
+    out = retarget(source, mapped(source), rig, rig_map)
+    s = canonical_positions(source, mapped(source))
+    t = canonical_positions(out, rig_map)
+    pelvis = CANONICAL_INDEX["pelvis"]
+    travel_s = s[-1, pelvis, 2] - s[0, pelvis, 2]
+    travel_t = t[-1, pelvis, 2] - t[0, pelvis, 2]
+    assert travel_t == pytest.approx(2.0 * travel_s, rel=0.02)
+    feet = [CANONICAL_INDEX[n] for n in ("l_ankle", "l_toe", "r_ankle", "r_toe")]
+    np.testing.assert_allclose(
+        t[:, feet, 1].min(axis=1) - t[:, feet, 1].min(),
+        2.0 * (s[:, feet, 1].min(axis=1) - s[:, feet, 1].min()),
+        atol=1e-6,
+    )

@@ -1,0 +1,164 @@
+"""The map at scale: neighbours from a random-projection forest beyond the exact limit, and
+one layout computation per change of the library (single flight; a slow one in the
+background while the last layout is served). ``bench/bench_map.py`` times 100,000 clips.
+
+The layouts are computed from vectors stored in a real SQLite file through the real app
+(``GET /map``); the vectors are chosen by the test (the fake motion core)."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from app.config import Settings
+from app.services import library_map
+from app.services.library_map import (
+    LibraryMap,
+    forest_neighbours,
+    isolation_scores,
+    modified_z_scores,
+)
+from tests.services.fakes import FakeDescriber, fake_motion
+from tests.ui.conftest import ui_app
+
+
+def clustered(n: int, dimension: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    centres = rng.normal(scale=10.0, size=(40, dimension))
+    return centres[rng.integers(0, 40, n)] + rng.normal(size=(n, dimension))
+
+
+def exact_isolation(data: np.ndarray, k: int = 5) -> np.ndarray:
+    """Mean distance to the k nearest others, all pairs (for comparison)."""
+    squared = (data**2).sum(axis=1)
+    d2 = np.maximum(squared[:, None] + squared[None, :] - 2 * data @ data.T, 0)
+    np.fill_diagonal(d2, np.inf)
+    return np.sqrt(np.sort(d2, axis=1)[:, :k]).mean(axis=1)
+
+
+def test_the_forest_finds_nearly_every_nearest_neighbour() -> None:
+    data = clustered(3000, 20, seed=1)
+    far = np.random.default_rng(2).normal(scale=60.0, size=(6, 20))
+    data = np.vstack([data, far])
+    exact = exact_isolation(data)
+    found = np.sqrt(forest_neighbours(data, 5)).mean(axis=1)
+    assert np.all(found >= exact * (1 - 1e-4))  # what is missed only makes a score larger
+    relative = (found - exact) / exact
+    assert np.median(relative) < 0.01 and np.mean(relative < 0.05) > 0.9
+    # The isolated vectors stand out either way; the flags mostly agree.
+    flagged = modified_z_scores(found) > library_map.OUTLIER_Z
+    truly = modified_z_scores(exact) > library_map.OUTLIER_Z
+    assert flagged[-6:].all() and truly[-6:].all()
+    assert (flagged & truly).sum() >= 0.8 * (flagged | truly).sum()
+
+
+def test_isolation_beyond_the_exact_limit_comes_from_the_forest(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    data = clustered(600, 8, seed=3)
+    monkeypatch.setattr(library_map, "EXACT_NEIGHBOURS_UP_TO", 500)
+    scores = isolation_scores(data)
+    np.testing.assert_allclose(scores, np.sqrt(forest_neighbours(data, 5)).mean(axis=1))
+    assert np.median(scores / exact_isolation(data) - 1) < 0.01
+
+
+@pytest.fixture
+def app_client(settings: Settings) -> Iterator[TestClient]:
+    # Six map requests at once from one client: more than the anonymous per-client share.
+    settings = settings.model_copy(update={"max_heavy_requests_per_client": 16})
+    with TestClient(ui_app(settings, FakeDescriber())) as client:
+        yield client
+
+
+def add(client: TestClient, name: str, posture: list[float]) -> int:
+    response = client.post("/clips", files={"file": (f"{name}.bvh", fake_motion(posture))})
+    assert response.status_code == 201, response.text
+    clip_id: int = response.json()["id"]
+    return clip_id
+
+
+class HeldLayouts:
+    """``compute_layout`` counted, and held until released (to force an interleaving)."""
+
+    def __init__(self) -> None:
+        self.calls = 0
+        self.started = threading.Event()
+        self.release = threading.Event()
+        self.release.set()
+        self._real = library_map.compute_layout
+
+    def __call__(self, library: Any, descriptor: str) -> library_map.Layout:
+        self.calls += 1
+        self.started.set()
+        assert self.release.wait(30)
+        return self._real(library, descriptor)
+
+
+def test_one_computation_for_many_requests_and_none_without_a_change(
+    app_client: TestClient, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    for i in range(4):
+        add(app_client, f"c{i}", [i, 0, 0])
+    held = HeldLayouts()
+    held.release.clear()
+    monkeypatch.setattr(library_map, "compute_layout", held)
+    answers: list[Any] = []
+
+    def ask() -> None:
+        answers.append(app_client.get("/map").json())
+
+    askers = [threading.Thread(target=ask) for _ in range(6)]
+    for thread in askers:
+        thread.start()
+    assert held.started.wait(30)
+    held.release.set()
+    for thread in askers:
+        thread.join(60)
+    assert held.calls == 1  # six requests, one computation
+    assert all(answer == answers[0] for answer in answers) and answers[0]["count"] == 4
+    app_client.get("/map")
+    assert held.calls == 1  # nothing changed
+    add(app_client, "c4", [9, 9, 9])
+    after = app_client.get("/map").json()
+    assert held.calls == 2 and after["count"] == 5
+    assert all(clip["pca"] is not None for clip in after["clips"])
+
+
+def test_a_slow_layout_is_recomputed_in_the_background(
+    app_client: TestClient, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    for i in range(4):
+        add(app_client, f"c{i}", [i, 0, 0])
+    held = HeldLayouts()
+    monkeypatch.setattr(library_map, "compute_layout", held)
+    monkeypatch.setattr(library_map, "MAP_WAIT_SECONDS", 0.0)  # every layout counts as slow
+    first = app_client.get("/map").json()
+    assert held.calls == 1 and first["count"] == 4
+    maps: LibraryMap = app_client.app.state.library_map  # type: ignore[attr-defined]
+    maps._layouts["posture"].finished -= 3600  # long ago: may recompute at once
+    held.release.clear()
+    held.started.clear()
+    new = add(app_client, "c4", [9, 9, 9])
+    stale = app_client.get("/map").json()  # answered at once, while the layout is computed
+    assert held.started.wait(30)
+    assert stale == first  # the last answer
+    listed = wait_for_map(app_client, lambda clips: new in clips)
+    assert listed[new]["pca"] is None and listed[new]["outlier"] is False  # not laid out yet
+    held.release.set()
+    placed = wait_for_map(app_client, lambda clips: clips[new]["pca"] is not None)
+    assert len(placed) == 5 and held.calls == 2
+
+
+def wait_for_map(client: TestClient, ready: Any) -> dict[int, dict[str, Any]]:
+    """The map's clips by id once ``ready(clips)`` (answers made in the background)."""
+    for _ in range(600):
+        clips = {clip["id"]: clip for clip in client.get("/map").json()["clips"]}
+        if ready(clips):
+            return clips
+        threading.Event().wait(0.05)
+    raise AssertionError("the map did not catch up within 30 s")
