@@ -44,17 +44,31 @@ TARGET_GROWTH = 500 * 2**20
 PER_CLIP = 1000
 
 
-def ensure_library(data_dir: Path, clips: int) -> None:
+def ensure_library(data_dir: Path, clips: int, sources: list[str]) -> None:
     database = data_dir / "mocap-index.sqlite3"
     if not database.exists():
-        source = str(shared_data() / "bandai-ds1")
-        command = [CLI, "import", "--no-progress", "--data-dir", str(data_dir), source]
-        subprocess.run(command, check=True, env=environment())
+        for source in sources:
+            folder = str(shared_data() / source)
+            command = [CLI, "import", "--no-progress", "--data-dir", str(data_dir), folder]
+            subprocess.run(command, check=True, env=environment())
     with sqlite3.connect(database) as db:
         held = db.execute("SELECT count(*) FROM clips").fetchone()[0]
     if held < clips:
         command = [CLI, "fill-synthetic", "--count", str(clips), "--data-dir", str(data_dir)]
         subprocess.run(command, check=True, env=environment())
+
+
+def library_size(data_dir: Path) -> str:
+    """Clips, hours and windows per length, as the library holds them."""
+    with sqlite3.connect(data_dir / "mocap-index.sqlite3") as db:
+        clips, hours = db.execute(
+            "SELECT count(*), sum(frame_count * frame_time) / 3600 FROM clips"
+        ).fetchone()
+        windows = db.execute(
+            "SELECT length, count(*) FROM clip_windows GROUP BY length ORDER BY length"
+        ).fetchall()
+    shown = ", ".join(f"{count:,} of {length:g} s" for length, count in windows)
+    return f"{clips:,} clips, {hours:.0f} h; windows: {shown}"
 
 
 def long_take(minutes: float) -> tuple[bytes, float]:
@@ -151,14 +165,21 @@ def main() -> int:
     parser.add_argument("--minutes", type=float, default=10.0)
     parser.add_argument("--data-dir", type=Path)
     parser.add_argument("--kill-at-gb", type=float, default=4.0)
+    parser.add_argument(
+        "--source",
+        action="append",
+        help="folder of ../shared/data imported before the synthetic fill (repeatable; "
+        "default bandai-ds1: short clips; cmu: takes of 1-43 s, eight times the windows)",
+    )
     args = parser.parse_args()
+    sources = args.source or ["bandai-ds1"]
     data_dir = args.data_dir or Path(tempfile.gettempdir()) / (
-        f"mocap-bench-long-query-{args.clips}"
+        f"mocap-bench-long-query-{'-'.join(s.replace('/', '_') for s in sources)}-{args.clips}"
     )
     print(f"machine: {machine()}")
-    ensure_library(data_dir, args.clips)
+    ensure_library(data_dir, args.clips, sources)
     take, seconds = long_take(args.minutes)
-    print(f"library: {data_dir} ({args.clips} clips); take: {seconds / 60:.1f} min")
+    print(f"library: {data_dir} ({library_size(data_dir)}); take: {seconds / 60:.1f} min")
     log = data_dir.parent / "mocap-bench-long-query-server.log"
     kill_at = int(args.kill_at_gb * 2**30)
     server = Server(data_dir, log)

@@ -11,9 +11,10 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from app.api.deps import LibraryDep
 from app.api.errors import error_responses
+from app.api.query_check import CheckedQueryRoute
 from app.services.export import Exporter, ExportOptions, export_items, export_zip
 
-router = APIRouter(prefix="/exports", tags=["exports"])
+router = APIRouter(prefix="/exports", tags=["exports"], route_class=CheckedQueryRoute)
 
 
 class ClipSpan(BaseModel):
@@ -71,7 +72,7 @@ class ExportRequest(BaseModel):
             "error: a clip that could not be exported has its reason there and no file).",
             "content": {"application/zip": {}},
         },
-        **error_responses(404, 422, 501, 503),
+        **error_responses(400, 404, 422, 501, 503),
     },
 )
 def create_export(body: ExportRequest, library: LibraryDep) -> StreamingResponse:

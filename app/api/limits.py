@@ -188,7 +188,9 @@ def _content_length(scope: Scope) -> int | None:
 
 
 # The routes that read an upload (UploadDep); tests/api/test_limits_gate.py checks the list.
-UPLOAD_ROUTES = frozenset({"/clips", "/search", "/search/moments", "/skeleton", "/inspect"})
+UPLOAD_ROUTES = frozenset(
+    {"/clips", "/search", "/search/moments", "/skeleton", "/inspect", "/rigs"}
+)
 
 
 class DescribeGate:

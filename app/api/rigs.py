@@ -12,13 +12,14 @@ from app.api.auth import WriteAccess
 from app.api.clips import check_page
 from app.api.deps import LibraryDep, SettingsDep
 from app.api.errors import error_responses
+from app.api.query_check import CheckedQueryRoute
 from app.db.rigs import RigRecord
 from app.errors import InvalidInput, UnsupportedMediaType
 from app.motion.units import unit_name
 from app.services import clips as clip_service
 from app.services import rigs as rig_service
 
-router = APIRouter(prefix="/rigs", tags=["rigs"])
+router = APIRouter(prefix="/rigs", tags=["rigs"], route_class=CheckedQueryRoute)
 
 
 class RigOut(BaseModel):
@@ -77,7 +78,7 @@ class RigPage(BaseModel):
     status_code=status.HTTP_201_CREATED,
     summary="Store a rig",
     dependencies=[WriteAccess],
-    responses=error_responses(401, 403, 404, 413, 415, 422, 503),
+    responses=error_responses(400, 401, 403, 404, 413, 415, 422, 503),
 )
 def create_rig(
     request: Request,

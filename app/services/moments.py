@@ -82,6 +82,7 @@ MAX_PROBES = 16  # query parts that search the window index, at most
 PROBE_COVER = 0.15  # ... until every part is this near one (share of a typical distance)
 FIRST_FETCH = 128  # windows each probe asks for first (twice as many per widening)
 SPAN_CACHE = 32  # described stored spans kept (a page asking again, a span dragged back)
+BLOCK_BYTES = 64 * 2**20  # memory one block of a search's comparisons may take (issue 21)
 
 
 @dataclass(frozen=True, slots=True)
@@ -342,7 +343,7 @@ class _Finder:
                 placed = starts[fresh] - self.parts.offsets[part]
             placed = np.clip(placed, 0.0, durations - spans)
             if not self.whole:
-                distance = self._fits(
+                distance = self._fits_in_blocks(
                     placed,
                     spans,
                     group[window],
@@ -371,7 +372,7 @@ class _Finder:
         held, vectors = self.index.reconstruct_batch(rows.ids[unknown])
         unknown = unknown[held]
         if unknown.size:
-            part, distance = self._nearest_parts(vectors.astype(np.float64))
+            part, distance = self._nearest_parts_in_blocks(vectors)
             self._nearest.add(rows.ids[unknown], np.stack([part, distance], axis=1))
         delta = self._nearest.find(rows.ids)[1][:, 1]
         candidates = np.flatnonzero(seedable & ~np.isnan(delta))
@@ -382,6 +383,54 @@ class _Finder:
         here = delta[candidates]
         lowest = (~has_left | (here <= delta[left])) & (~has_right | (here < delta[right]))
         return candidates[lowest]
+
+    # Bounded work (issue 21): a long query has up to MAX_PARTS parts and the clips near
+    # the hits thousands of windows, so (parts x windows) matrices are built a block at a
+    # time, within BLOCK_BYTES. A window's nearest part and a moment's fit depend on that
+    # window or moment alone: the blocks give the same numbers as one pass.
+
+    def _nearest_parts_in_blocks(self, windows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_nearest_parts` of ``windows`` ``(M, D)`` (float32), a block of windows at
+        a time: a float64 (parts x block) matrix, its mask, and the block in float64."""
+        per_window = len(self.query) * NEAREST_BYTES_PER_PAIR + 8 * windows.shape[1]
+        found = [
+            self._nearest_parts(windows[block].astype(np.float64))
+            for block in _blocks(np.full(len(windows), per_window), BLOCK_BYTES)
+        ]
+        if not found:
+            return np.zeros(0, np.int64), np.zeros(0)
+        return np.concatenate([f[0] for f in found]), np.concatenate([f[1] for f in found])
+
+    def _fits_in_blocks(
+        self,
+        placed: np.ndarray,
+        spans: np.ndarray,
+        group: np.ndarray,
+        starts: np.ndarray,
+        stops: np.ndarray,
+        frame_time: np.ndarray,
+        seeds: np.ndarray,
+        stored: np.ndarray,
+    ) -> np.ndarray:
+        """:meth:`_fits`, a block of moments at a time: a moment compares at most the
+        windows of its clip, each pair gathering a part and a window (float64) and their
+        difference."""
+        clip_windows = np.bincount(group)[group[seeds]]
+        per_pair = FIT_BYTES_PER_PAIR + 3 * 8 * stored.shape[1]
+        fits = [
+            self._fits(
+                placed[block],
+                spans[block],
+                group,
+                starts,
+                stops,
+                frame_time,
+                seeds[block],
+                stored,
+            )
+            for block in _blocks(clip_windows * per_pair, BLOCK_BYTES)
+        ]
+        return np.concatenate(fits) if fits else np.zeros(0)
 
     def _nearest_parts(self, windows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """For each of ``windows`` ``(M, D)``: the first query part nearest to it, and its
@@ -394,7 +443,16 @@ class _Finder:
         squared += (windows**2).sum(axis=1)[None, :]
         lowest = np.sqrt(np.maximum(squared.min(axis=0), 0.0))
         rows, columns = np.nonzero(squared <= ((lowest + 1e-6) ** 2)[None, :])
-        exact = _pair_distances(q[rows], windows[columns])
+        del squared
+        # Ties (a query that repeats itself) can be most pairs: measured a chunk at a time.
+        chunk = max(1, BLOCK_BYTES // (3 * 8 * q.shape[1]))
+        exact = np.concatenate(
+            [
+                _pair_distances(q[rows[i : i + chunk]], windows[columns[i : i + chunk]])
+                for i in range(0, len(rows), chunk)
+            ]
+            or [np.zeros(0)]
+        )
         order = np.lexsort((rows, exact, columns))  # per column: nearest, then first part
         first = order[np.r_[True, columns[order][1:] != columns[order][:-1]]]
         return rows[first], exact[first]
@@ -437,6 +495,27 @@ class _Finder:
         unique = _pair_distances(self.query[pairs // len(stored)], stored[pairs % len(stored)])
         sums = np.bincount(owner, weights=unique[which], minlength=seeds.size)
         return sums / np.maximum(counts, 1)
+
+
+# Bytes per (part, window) pair besides the vectors: for the nearest part, 9 for the matrix
+# and its mask and, when every pair ties (a query repeating itself), about 40 for the tied
+# pairs' indexes, distances and order; about 100 for a fit's index arrays. With room.
+NEAREST_BYTES_PER_PAIR = 64
+FIT_BYTES_PER_PAIR = 128
+
+
+def _blocks(weights: np.ndarray, budget: int) -> list[slice]:
+    """Consecutive slices of items ``weights`` ``(N,)`` (bytes each) weighing at most
+    ``budget`` together, or one item alone when it weighs more."""
+    total = np.cumsum(weights)
+    blocks: list[slice] = []
+    start = 0
+    while start < len(weights):
+        before = int(total[start - 1]) if start else 0
+        stop = max(int(np.searchsorted(total, before + budget, side="right")), start + 1)
+        blocks.append(slice(start, stop))
+        start = stop
+    return blocks
 
 
 def _chosen(

@@ -43,6 +43,7 @@ EXAMPLE_FILES = {
     "query.bvh": "cmu/bvh-daz/02/02_02.bvh",
     "jump.bvh": "cmu/bvh-mb/01/01_01.bvh",
     "character.fbx": "fbx-gltf/pairs-mixamo/ortiz_hiphop.fbx",
+    "my_character.fbx": "fbx-gltf/pairs-mixamo/ortiz_situp_to_idle.fbx",
     "soldier.glb": "wild-more/threejs-examples/danielrmz18_Soldier.glb",
 }
 # Blocks not run here, by their first command.

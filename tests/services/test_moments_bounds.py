@@ -2,10 +2,11 @@
 
 A long take searched at the largest ``k`` placed every moment by comparing each of its
 thousands of parts with every stored window near the moments: several float64 matrices of
-(parts x windows), gigabytes for a ten-minute take (issue 21). Now a search compares at most
-``MAX_PAIRS_PER_SEARCH`` pairs, a block of ``MAX_PAIRS_PER_BLOCK`` at a time, and still
-finds the take itself, placed over all of it. ``bench/bench_long_query.py`` measures the real
-case (a ten-minute take, 10,000 clips) on a live server.
+(parts x windows), gigabytes for a ten-minute take (issue 21). Now a query has at most
+``MAX_PARTS`` parts and its (parts x windows) comparisons are made a block of at most
+``BLOCK_BYTES`` at a time (a query repeating itself ties most pairs: those too), and the
+search still finds the take itself, placed over all of it. ``bench/bench_long_query.py``
+measures the real case (a ten-minute take, 10,000 clips) on a live server.
 
 Real app over HTTP, real SQLite file, real FAISS indexes; the library is real clips (the
 Bandai fixture played back and forth: one walk, so every clip matches the take somewhere) and
@@ -68,24 +69,17 @@ def test_a_long_take_at_the_largest_k_is_placed_within_the_bounds(
 ) -> None:
     settings, take_id = library_dir
     blocks: list[int] = []
-    real = moments._aligned_starts
+    real = moments._blocks
 
-    def counted(
-        library: Any,
-        groups: Any,
-        frame_times: Any,
-        parts: Any,
-        descriptor: str,
-        seconds: float,
-        exclude: Any,
-    ) -> Any:
-        """The real placing, counting the (part, window) pairs each block compares."""
-        name = moments.window_index_name(descriptor, parts.length)
-        near = moments._windows_near(library, name, groups, frame_times, seconds, exclude)
-        blocks.append(len(parts.offsets) * int(near[2].sum()))
-        return real(library, groups, frame_times, parts, descriptor, seconds, exclude)
+    def counted(weights: Any, budget: int) -> list[slice]:
+        """The real blocks, recording the bytes each one weighs."""
+        found = real(weights, budget)
+        blocks.extend(
+            int(weights[block].sum()) if block.stop - block.start > 1 else 0 for block in found
+        )
+        return found
 
-    monkeypatch.setattr(moments, "_aligned_starts", counted)
+    monkeypatch.setattr(moments, "_blocks", counted)
     with TestClient(create_app(settings)) as client:
         tracemalloc.start()
         try:
@@ -98,18 +92,16 @@ def test_a_long_take_at_the_largest_k_is_placed_within_the_bounds(
     (take,) = [moment for moment in results if moment["id"] == take_id]
     assert take["start"] == pytest.approx(0, abs=1.0)
     assert take["end"] == pytest.approx(TAKE_SECONDS, abs=1.0)
-    assert blocks and max(blocks) <= moments.MAX_PAIRS_PER_BLOCK, blocks
-    assert sum(blocks) <= moments.MAX_PAIRS_PER_SEARCH, blocks
+    assert blocks and max(blocks) <= moments.BLOCK_BYTES, blocks
     assert peak < PEAK_LIMIT, f"{peak / 2**20:.0f} MB traced during the search"
 
 
-def test_parts_are_thinned_evenly_keeping_both_ends() -> None:
+def test_blocks_stay_within_the_budget_and_cover_every_item_once() -> None:
     import numpy as np
 
-    parts = moments.Parts(8.0, np.arange(1000) / 30, np.zeros((1000, 3), np.float32))
-    thinned = moments._thinned(parts, 100)
-    assert len(thinned.offsets) == 100
-    assert thinned.offsets[0] == 0 and thinned.offsets[-1] == parts.offsets[-1]
-    steps = np.diff(thinned.offsets)
-    assert steps.max() - steps.min() <= 1 / 30 + 1e-9
-    assert moments._thinned(parts, 2000) is parts
+    weights = np.array([5, 5, 5, 20, 1, 1, 1, 9, 3])
+    found = moments._blocks(weights, 10)
+    assert [i for block in found for i in range(block.start, block.stop)] == list(range(9))
+    for block in found:  # within the budget, or one item heavier than it alone
+        assert weights[block].sum() <= 10 or block.stop - block.start == 1
+    assert moments._blocks(np.zeros(0, np.int64), 10) == []
