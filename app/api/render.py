@@ -5,7 +5,7 @@
 dumping them cost more than the search at a million clips. These functions give the same
 bytes — same fields in the same order, the same float and date formatting (orjson and
 pydantic-core both write the shortest repr and ``Z`` for UTC) — from plain dicts;
-``tests/api/test_render.py`` checks them against the models on random records.
+``tests/api/test_search_answers.py`` checks them against answers the models gave.
 """
 
 from __future__ import annotations

@@ -84,9 +84,13 @@ def relabel_clips(
         raise InvalidInput("add, remove: give a label to add or to remove")
     try:
         with library.writes.begin() as session:
-            return relabel(session, selection, add=add, remove=remove)
+            relabelled = relabel(session, selection, add=add, remove=remove)
     except SQLAlchemyError as exc:
         raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
+    if relabelled.changed:
+        library.sync_indexes()  # searches here filter by the new labels at once
+        library.edits += 1
+    return relabelled
 
 
 def clip_vectors(library: Library, clip_id: int) -> dict[str, vector_db.StoredVector]:

@@ -21,11 +21,13 @@ from hypothesis import settings as hypothesis_settings
 from hypothesis import strategies as st
 
 from app.config import Settings
+from app.db.clip_filters import ClipFilter, selected_ids
 from app.db.clips import AnimationRecord
 from app.db.entries import ClipEntry, clip_entries
 from app.index import catalogue as catalogue_module
 from app.index.catalogue import Catalogue
 from app.labels import label_key
+from app.licences import licence_filter
 from app.services import clips as clip_service
 from app.services.ingest import ingest
 from app.services.library import Library, open_library
@@ -252,6 +254,11 @@ def assert_agrees(library: Library) -> None:
         keys = {label_key(part) for part in label.split(",")}
         want = sorted(i for i, e in stored.items() if keys <= e.label_keys())
         assert library.catalogue.ids_with_labels(label).tolist() == want
+    for licence in ("cc by 4.0", "!CC0", "CC0,studio only", "!cc by 4.0,!studio only"):
+        wanted = licence_filter(licence)
+        with library.reads() as session:
+            want = selected_ids(session, ClipFilter.of(licence=licence))
+        assert library.catalogue.ids_matching("licence", wanted.allows).tolist() == want
 
 
 def upload(n: int, labels: list[str], **fields: str | None) -> Upload:
@@ -270,6 +277,8 @@ library_operations = st.lists(
         st.tuples(st.just("relabel"), st.integers(0, 100), st.lists(st.sampled_from(LABELS))),
         st.tuples(st.just("rename"), st.integers(0, 100), st.text(min_size=1, max_size=12)),
         st.tuples(st.just("licence"), st.integers(0, 100), st.sampled_from(LICENCES)),
+        st.tuples(st.just("bulk"), st.integers(0, 100), st.lists(st.sampled_from(LABELS))),
+        st.tuples(st.just("bulk delete"), st.integers(0, 100), st.none()),
     ),
     min_size=1,
     max_size=14,
@@ -291,10 +300,18 @@ def apply(library: Library, kind: str, n: int, argument: object) -> None:
         clip_service.update_clip(library, stored[n % len(stored)], name=None, labels=labels)
     elif kind == "rename":
         clip_service.update_clip(library, stored[n % len(stored)], name=str(argument), labels=None)
-    else:
+    elif kind == "licence":
         clip_service.update_clip(
             library, stored[n % len(stored)], name=None, labels=None, notes={"licence": argument}
         )
+    elif kind == "bulk":  # POST /clips/labels: the clips of a licence, one label on, one off
+        labels: list[str] = argument  # type: ignore[assignment]
+        chosen = ClipFilter.of(licence=LICENCES[1 + n % (len(LICENCES) - 1)])
+        clip_service.relabel_clips(
+            library, chosen, add=tuple(labels[:1]) or ("new",), remove=tuple(labels[1:2])
+        )
+    else:  # DELETE /clips?label=...
+        clip_service.delete_clips_with(library, ClipFilter.of(label=[LABELS[n % len(LABELS)]]))
 
 
 @pytest.mark.parametrize("backend", ["sqlite", "postgresql"])
@@ -308,10 +325,11 @@ def test_catalogue_agrees_with_the_database_after_random_operations(
     backend: str,
     steps: list[tuple[str, int, object]],
 ) -> None:
-    """Random uploads, repeated uploads, deletes, relabels, renames and licence changes
-    through the services: after each, this process's catalogue and searches show exactly
-    the database's data (at once: the writes apply their own changes); a second replica
-    on the same database agrees after following the feed; so does a library opened anew."""
+    """Random uploads, repeated uploads, deletes, relabels, renames, licence changes, bulk
+    relabels (by licence) and bulk deletes (by label) through the services: after each,
+    this process's catalogue and searches show exactly the database's data (at once: the
+    writes apply their own changes); a second replica on the same database agrees after
+    following the feed; so does a library opened anew."""
     url = request.getfixturevalue("postgres_url") if backend == "postgresql" else None
     data = tmp_path_factory.mktemp("data")
     settings = Settings(data_dir=data, database_url=url, index_refresh_seconds=0)
