@@ -615,7 +615,8 @@ class Catalogue:
         if problem is None:
             return None
         self.replace_all(source.entries(), synced_to=watermark)
-        level = logging.WARNING if len(self) else logging.INFO
+        # An empty one (a new library) is no news: the library says once that it is new.
+        level = logging.WARNING if len(self) else logging.DEBUG
         log.log(level, "rebuilt the catalogue from the database (%d clips): %s", len(self), problem)
         return problem
 

@@ -495,6 +495,14 @@ class Library:
                     )
                     self._refresher.start()
 
+    def refresh_now(self) -> None:
+        """Bring the indexes up to date with the database now, waiting for a sync already
+        under way (``/health``: what it reports includes every change committed before)."""
+        try:
+            self.sync_indexes()
+        except (SQLAlchemyError, sqlite3.Error) as exc:  # the indexes as they are still work
+            log.warning("could not check the database for changed clips: %s", exc)
+
     def _refresh_loop(self, interval: float) -> None:
         watch = _DataVersion(self.engine)
         try:
