@@ -269,13 +269,17 @@ def upload(n: int, labels: list[str], **fields: str | None) -> Upload:
     )
 
 
+# Names every database stores (PostgreSQL's text holds no NUL; what a rename with one
+# answers is not this test's subject).
+NAMES = st.text(st.characters(blacklist_characters="\x00"), min_size=1, max_size=12)
+
 library_operations = st.lists(
     st.one_of(
         st.tuples(st.just("upload"), st.integers(0, 30), st.lists(st.sampled_from(LABELS))),
         st.tuples(st.just("again"), st.integers(0, 30), st.lists(st.sampled_from(LABELS))),
         st.tuples(st.just("delete"), st.integers(0, 100), st.none()),
         st.tuples(st.just("relabel"), st.integers(0, 100), st.lists(st.sampled_from(LABELS))),
-        st.tuples(st.just("rename"), st.integers(0, 100), st.text(min_size=1, max_size=12)),
+        st.tuples(st.just("rename"), st.integers(0, 100), NAMES),
         st.tuples(st.just("licence"), st.integers(0, 100), st.sampled_from(LICENCES)),
         st.tuples(st.just("bulk"), st.integers(0, 100), st.lists(st.sampled_from(LABELS))),
         st.tuples(st.just("bulk delete"), st.integers(0, 100), st.none()),
