@@ -641,6 +641,7 @@ def _open_library(settings: Settings) -> Library:
     # written (and hashed, and fsynced) every second of the run, the window indexes too.
     for index in [*library.indexes.values(), *library.window_indexes.values()]:
         index.autosave = False
+    library.catalogue.autosave = False
     return library
 
 
@@ -999,6 +1000,8 @@ def fill_synthetic(
         if library.window_keys:
             report("building the window indexes")
             library.rebuild_window_indexes()
+        report("building the catalogue")
+        library.rebuild_catalogue()
         with library.reads() as session:
             total = clip_db.count_clips(session)
         return FillResult(need, total, time.perf_counter() - started, _kinds(library))

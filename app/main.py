@@ -64,7 +64,9 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         log_access_policy(settings)
-        library = await run_in_threadpool(open_library, settings, describer=describer)
+        library = await run_in_threadpool(
+            open_library, settings, describer=describer, verify_later=True
+        )
         await run_in_threadpool(remove_orphan_files, library)  # left by a crash mid-write
         await run_in_threadpool(library.load_window_places)  # the moments search's map
         library.start_housekeeping()  # prunes the change feed now and then
@@ -106,9 +108,10 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
     # Reading routes need a key only with MOCAP_REQUIRE_KEY_FOR_READS; /health never does.
     reads = read_dependencies(settings)
     read_errors = error_responses(401, 403) if reads else {}
-    app.include_router(clips.router, dependencies=reads, responses=read_errors)
+    # The search routes first: a request is matched against the routes in this order.
     app.include_router(search.router, dependencies=reads, responses=read_errors)
     app.include_router(moments.router, dependencies=reads, responses=read_errors)
+    app.include_router(clips.router, dependencies=reads, responses=read_errors)
     app.include_router(rigs.router, dependencies=reads, responses=read_errors)
     app.include_router(exports.router, dependencies=reads, responses=read_errors)
     app.include_router(meta.read_router, dependencies=reads, responses=read_errors)

@@ -47,7 +47,7 @@ async def health(request: Request) -> Health:
 
 
 def _health(library: Library) -> Health:
-    library.refresh()
+    library.refresh_now()  # not a hot route: no background refresher's delay
     clips, stored = library.vector_counts()
     indexes = {}
     for name, info in library.descriptors.items():

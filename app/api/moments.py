@@ -8,6 +8,7 @@ import anyio
 from fastapi import APIRouter, Query, Request, Response
 from pydantic import BaseModel, ConfigDict, Field
 
+from app.api import render
 from app.api.deps import (
     ClipIdQuery,
     CollapseQuery,
@@ -18,6 +19,7 @@ from app.api.deps import (
     UploadDep,
 )
 from app.api.errors import error_responses
+from app.api.offload import Offload
 from app.api.query_check import CheckedQueryRoute
 from app.api.schemas import OTHERS_DOC, SIMILARITY_DOC, ClipOut, StoredClipRef
 from app.db import label_filters as label_db
@@ -149,10 +151,10 @@ PerClipQuery = Annotated[
 MomentDescriptorQuery = Annotated[
     str, Query(description="Descriptor with windows to compare with.", examples=["motion"])
 ]
-# A moments search reads the index and a few rows (a few ms of Python), but may describe a
-# span of a stored file: always in a thread, at most two at once (more only fight over the
-# GIL on two cores).
-MOMENT_THREADS = anyio.CapacityLimiter(2)
+# A moments search reads the indexes and the catalogue (a few ms of Python), and may describe
+# a span of a stored file: in a thread unless searches of its kind have been quick
+# (app/api/offload.py), at most two at once (more only fight over the GIL on two cores).
+MOMENTS = Offload(anyio.CapacityLimiter(2))
 
 
 def _body(
@@ -163,19 +165,7 @@ def _body(
     k: int,
     collapsed: bool = False,
 ) -> bytes:
-    stored = query.stored_clip
-    body = MomentSearchResponse(
-        query=MomentQueryOut(
-            clip=None if query.clip is None else ClipOut.of(query.clip),
-            start=query.start,
-            end=query.end,
-            stored_clip=None if stored is None else StoredClipRef(id=stored.id, name=stored.name),
-        ),
-        descriptor=descriptor,
-        k=k,
-        results=[MomentOut.of(m, collapsed=collapsed) for m in moments],
-    )
-    return body.model_dump_json().encode()
+    return render.moment_search(query, descriptor, k, moments, collapsed=collapsed)
 
 
 def _by_clip(
@@ -231,19 +221,12 @@ async def search_moments_by_clip(
     restricts it to the clips kept. `collapse=capture`: one moment per place in a group of
     near-identical clips."""
     library: Library = request.app.state.library
-    body = await anyio.to_thread.run_sync(
-        _by_clip,
-        library,
-        clip,
-        start,
-        end,
-        k,
-        descriptor,
-        label,
-        per_clip,
-        licence,
-        collapse == "capture",
-        limiter=MOMENT_THREADS,
+    capture = collapse == "capture"
+    body = await MOMENTS.run(
+        (descriptor, bool(label) or bool(licence), capture, start is not None or end is not None),
+        lambda: _by_clip(
+            library, clip, start, end, k, descriptor, label, per_clip, licence, capture
+        ),
     )
     return Response(body, media_type="application/json")
 

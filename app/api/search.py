@@ -7,6 +7,7 @@ from typing import Annotated
 import anyio
 from fastapi import APIRouter, Query, Request, Response
 
+from app.api import render
 from app.api.deps import (
     ClipIdQuery,
     CollapseQuery,
@@ -19,11 +20,10 @@ from app.api.deps import (
     UploadDep,
 )
 from app.api.errors import error_responses
+from app.api.offload import Offload
 from app.api.query_check import CheckedQueryRoute
 from app.api.schemas import (
-    ClipOut,
     ClipSearchResponse,
-    OtherFile,
     SearchHit,
     UploadedClipOut,
     UploadSearchResponse,
@@ -57,34 +57,24 @@ async def search_by_clip(
     With `collapse=capture` the clips near-identical to the query are set aside in
     `query_others`."""
     # The hot path (see bench/README.md): no dependency functions (each sync one is a
-    # thread-pool hop), one database snapshot in the service, the body serialised once by
-    # pydantic. A quick search (an IVF index or a small flat one, no label filter, small k:
-    # well under a millisecond) runs right here on the event loop: handing it to a thread
-    # cost more than the search (at 32 clients, 1,000 instead of 1,550 requests/s on two
-    # cores). Anything longer goes to the thread pool, so it never holds up the loop.
+    # thread-pool hop), no SQL (the index and the in-memory catalogue), the body serialised
+    # once by orjson (app/api/render.py). Run on the event loop while searches of its kind
+    # have been quick, in a thread when they have been slow (app/api/offload.py).
     library: Library = request.app.state.library
     if descriptor is None:
         descriptor = library.default_descriptor
     capture = collapse == "capture"
-    if search_service.is_quick(library, descriptor, k, label, licence, capture):
-        body = _search_by_clip(library, clip, descriptor, k, label, licence, capture)
-    else:
-        body = await anyio.to_thread.run_sync(
-            _search_by_clip,
-            library,
-            clip,
-            descriptor,
-            k,
-            label,
-            licence,
-            capture,
-            limiter=SEARCH_THREADS,
-        )
+    # Licence filters narrow the ids like labels: one kind with them.
+    body = await SEARCHES.run(
+        (descriptor, bool(label) or bool(licence), capture, k > QUICK_K),
+        lambda: _search_by_clip(library, clip, descriptor, k, label, licence, capture),
+    )
     return Response(body, media_type="application/json")
 
 
 # Slow searches running at once: more threads than cores only fight over the GIL.
-SEARCH_THREADS = anyio.CapacityLimiter(4)
+SEARCHES = Offload(anyio.CapacityLimiter(4))
+QUICK_K = 100  # more hits than this are searches of another kind (more to show)
 
 
 def _search_by_clip(
@@ -99,14 +89,13 @@ def _search_by_clip(
     answer = search_service.find_by_clip(
         library, clip, descriptor, k, label=label, licence=licence, collapse=collapse
     )
-    body = ClipSearchResponse(
-        query=ClipOut.of(answer.clip),
-        descriptor=descriptor,
-        k=k,
-        results=[SearchHit.of(h, collapsed=collapse) for h in answer.hits],
-        query_others=[OtherFile.of(h) for h in answer.query_others] if collapse else None,
+    return render.clip_search(
+        answer.clip,
+        descriptor,
+        k,
+        answer.hits,
+        query_others=answer.query_others if collapse else None,
     )
-    return body.model_dump_json().encode()
 
 
 @router.post(

@@ -3,7 +3,7 @@
 A :class:`ClipFilter` gathers what ``GET /clips``, ``POST /clips/labels`` and ``DELETE
 /clips`` can select by: ids, labels (all of them, any case: :mod:`app.db.label_filters`), a
 licence filter (:mod:`app.licences`) and the words of a text search. The searches take the
-label and licence filters only, as id arrays (:func:`licence_sql` for their raw SQL path).
+label and licence filters only, from the in-memory catalogue (:mod:`app.index.catalogue`).
 """
 
 from __future__ import annotations
@@ -127,18 +127,3 @@ def selected_ids(executor: Executor, selection: ClipFilter) -> list[int]:
     """Ids (ascending) of the clips ``selection`` keeps."""
     query = select(Clip.id).where(*clip_conditions(executor, selection)).order_by(Clip.id)
     return [int(i) for i in executor.scalars(query)]
-
-
-def licence_sql(licence: LicenceFilter) -> tuple[str, list[str]]:
-    """The ids of the clips ``licence`` allows as SQL text with ``?`` placeholders, and its
-    parameters, for the raw search path (:mod:`app.db.search_reads`)."""
-    where, params = [], []
-    stored = "lower(trim(licence))"
-    if licence.keep:
-        where.append(f"{stored} IN ({', '.join('lower(?)' for _ in licence.keep)})")
-        params += list(licence.keep)
-    if licence.drop:
-        marks = ", ".join("lower(?)" for _ in licence.drop)
-        where.append(f"(licence IS NULL OR {stored} NOT IN ({marks}))")
-        params += list(licence.drop)
-    return "SELECT id FROM clips WHERE " + " AND ".join(where or ["1 = 1"]), params

@@ -6,8 +6,8 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-from sqlalchemy import Connection, Select, exists, func, select
-from sqlalchemy.orm import Session, aliased
+from sqlalchemy import Select, exists, func, select
+from sqlalchemy.orm import aliased
 
 from app.db.models import Clip, ClipLabel
 from app.db.rows import Executor
@@ -22,27 +22,23 @@ the labels (any case); ``None``, ``""`` or ``[]`` = no filter."""
 _COUNT_CAP = 10_000
 
 
-def label_keys(executor: Executor | Any, labels: LabelFilter) -> list[str]:
+def _label_keys(executor: Executor, labels: LabelFilter) -> list[str]:
     """The keys of the labels asked for, the rarest first (each counted up to _COUNT_CAP)."""
     keys = list(dict.fromkeys(label_key(label) for label in label_filter(labels)))
     if len(keys) < 2:
         return keys
-    sql = "SELECT count(*) FROM (SELECT 1 FROM clip_labels WHERE label_key = ? LIMIT ?) AS hits"
-    if not isinstance(executor, Session | Connection):  # the raw search path (DB-API)
-        counts = {k: executor.execute(sql, (k, _COUNT_CAP)).fetchone()[0] for k in keys}
-    else:
-        counts = {
-            k: executor.scalar(
-                select(func.count()).select_from(
-                    select(ClipLabel.clip_id)
-                    .where(ClipLabel.label_key == k)
-                    .limit(_COUNT_CAP)
-                    .subquery()
-                )
+    counts = {
+        k: executor.scalar(
+            select(func.count()).select_from(
+                select(ClipLabel.clip_id)
+                .where(ClipLabel.label_key == k)
+                .limit(_COUNT_CAP)
+                .subquery()
             )
-            for k in keys
-        }
-    return sorted(keys, key=lambda k: counts[k])
+        )
+        for k in keys
+    }
+    return sorted(keys, key=lambda k: counts[k] or 0)
 
 
 def _labelled_ids(keys: Sequence[str]) -> Select[Any]:
@@ -57,23 +53,15 @@ def _labelled_ids(keys: Sequence[str]) -> Select[Any]:
     return query
 
 
-def labelled_sql(keys: Sequence[str]) -> str:
-    """:func:`_labelled_ids` as SQL text for the raw search path (one ``?`` per key)."""
-    return "SELECT l.clip_id FROM clip_labels l WHERE l.label_key = ?" + "".join(
-        " AND EXISTS (SELECT 1 FROM clip_labels o WHERE o.clip_id = l.clip_id AND o.label_key = ?)"
-        for _ in keys[1:]
-    )
-
-
 def label_conditions(executor: Executor, labels: LabelFilter) -> list[Any]:
     """``[Clip.id IN (ids carrying every label)]``, or ``[]`` for no filter."""
-    keys = label_keys(executor, labels)
+    keys = _label_keys(executor, labels)
     return [Clip.id.in_(_labelled_ids(keys))] if keys else []
 
 
 def clip_ids_with_label(session: Executor, label: LabelFilter) -> np.ndarray:
     """``(N,)`` int64 ids of the clips carrying every label of ``label`` (any case)."""
-    keys = label_keys(session, label)
+    keys = _label_keys(session, label)
     if not keys:
         return np.zeros(0, dtype=np.int64)
     query = _labelled_ids(keys).order_by(ClipLabel.clip_id)

@@ -15,7 +15,7 @@ power loss can roll back (bench/README.md measures the difference on the import)
 
 PostgreSQL goes through psycopg 3 (the ``postgres`` extra): a plain ``postgresql://`` URL
 means ``postgresql+psycopg://``. The pool holds at most 20 connections per process (searches
-have their own few, see ``SearchReads``), so a handful of replicas fit in PostgreSQL's default
+read no SQL: they answer from memory), so a handful of replicas fit in PostgreSQL's default
 ``max_connections`` of 100.
 """
 

@@ -55,6 +55,7 @@ from typing import Any, Protocol
 import faiss
 import numpy as np
 
+from app.index.frozen import FrozenIVF
 from app.index.kinds import (
     FLAT,
     IVF,
@@ -165,6 +166,9 @@ class DescriptorIndex:
         self._timer_lock = threading.Lock()
         self._lock = ReadWriteLock()
         self._save_lock = threading.Lock()
+        self._unchecked: tuple[int, str] | None = None  # see read_file(verify=False)
+        self._mapped_inode = -1  # the index file mapped (see _map), and its metadata
+        self._mapped_meta: dict[str, Any] = {}
 
     @property
     def path(self) -> Path:
@@ -180,15 +184,22 @@ class DescriptorIndex:
 
     @property
     def kind(self) -> str:
-        return kind_of(self._index) or FLAT
+        return IVF if isinstance(self._index, FrozenIVF) else kind_of(self._index) or FLAT
+
+    @property
+    def mapped(self) -> bool:
+        """Whether the index is read from its file's pages (shared by every process mapping
+        it; see app/index/frozen.py), not held in memory of its own."""
+        return isinstance(self._index, FrozenIVF)
 
     @property
     def nprobe(self) -> int:
         """Cells an IVF search scans: ``MOCAP_IVF_NPROBE``, else the one calibrated when the
         index was built (0 for a flat index)."""
-        if kind_of(self._index) != IVF:
+        index = self._index.base if isinstance(self._index, FrozenIVF) else self._index
+        if kind_of(index) != IVF:
             return 0
-        return int(self.options.nprobe or self._index.nprobe)
+        return int(self.options.nprobe or index.nprobe)
 
     @property
     def synced_to(self) -> int:
@@ -199,12 +210,18 @@ class DescriptorIndex:
     def unsaved_changes(self) -> int:
         return self._unsaved
 
+    def mark_synced(self, position: int) -> None:
+        """Nothing changed up to feed position ``position``: the index reflects it."""
+        self._synced_to = max(self._synced_to, int(position))
+
     def ids(self) -> np.ndarray:
         """``(N,)`` int64 ids in the index (flat: insertion order; IVF: by cell)."""
         with self._lock.read():
             return self._ids()
 
     def _ids(self) -> np.ndarray:
+        if isinstance(self._index, FrozenIVF):
+            return self._index.ids()
         if self.kind == IVF:
             return ivf_ids(self._index)
         return faiss.vector_to_array(self._index.id_map).astype(np.int64)
@@ -298,6 +315,26 @@ class DescriptorIndex:
             return False
         return True
 
+    def _add_locked(self, ids: np.ndarray, vectors: np.ndarray) -> None:
+        if isinstance(self._index, FrozenIVF):
+            self._index.add(ids, vectors)
+        else:
+            self._index.add_with_ids(vectors, ids)
+
+    def _remove_locked(self, ids: np.ndarray) -> int:
+        if isinstance(self._index, FrozenIVF):
+            return self._index.remove(ids)
+        return int(self._index.remove_ids(selector(self._index, ids)))
+
+    def _held(self, vector_id: int) -> np.ndarray | None:
+        """The vector held under ``vector_id`` (None: not held)."""
+        if isinstance(self._index, FrozenIVF):
+            return self._index.vector(vector_id)
+        try:
+            return np.asarray(self._index.reconstruct(int(vector_id)), np.float32)
+        except RuntimeError:  # not in the index
+            return None
+
     def add(
         self,
         ids: np.ndarray | list[int],
@@ -319,7 +356,7 @@ class DescriptorIndex:
             return
         with self._lock.write():
             if ids_.size:
-                self._index.add_with_ids(array, ids_)
+                self._add_locked(ids_, array)
                 self._note_added(ids_)
                 self._unsaved += int(ids_.size)
                 if self._max_id is not None:
@@ -335,7 +372,7 @@ class DescriptorIndex:
         if ids_.size == 0:
             return 0
         with self._lock.write():
-            removed = int(self._index.remove_ids(selector(self._index, ids_)))
+            removed = self._remove_locked(ids_)
             self._note_removed(ids_)
             self._unsaved += removed
         if removed:
@@ -371,10 +408,7 @@ class DescriptorIndex:
             # for an absent id by raising (~10 us each, ~20 window ids per clip).
             bound = self._id_bound()
             for clip_id in changed_.tolist():
-                try:
-                    held = self._index.reconstruct(clip_id) if clip_id <= bound else None
-                except RuntimeError:  # not in the index
-                    held = None
+                held = self._held(clip_id) if clip_id <= bound else None
                 row = current.get(clip_id)
                 if held is not None and (row is None or not np.array_equal(held, array[row])):
                     remove.add(clip_id)
@@ -382,11 +416,11 @@ class DescriptorIndex:
                     add.append(row)
             if remove:
                 gone = as_ids(sorted(remove))  # kept alive while FAISS reads it
-                self._index.remove_ids(selector(self._index, gone))
+                self._remove_locked(gone)
                 self._note_removed(gone)
             if add:
                 rows = np.asarray(add, dtype=np.int64)
-                self._index.add_with_ids(np.ascontiguousarray(array[rows]), ids_[rows])
+                self._add_locked(ids_[rows], np.ascontiguousarray(array[rows]))
                 self._note_added(ids_[rows])
                 self._max_id = max(bound, int(ids_[rows].max()))
             self._unsaved += len(add) + len(remove)
@@ -414,19 +448,17 @@ class DescriptorIndex:
         q = as_vectors(query, self.dimension)
         if q.shape[0] != 1:
             raise ValueError("search takes one query vector")
-        selector = None
         available = self.size
         if allowed is not None:
             allowed = np.unique(as_ids(allowed))
             if exclude is not None:
                 allowed = allowed[allowed != exclude]
                 exclude = None
-            selector = faiss.IDSelectorBatch(allowed)
             available = min(available, int(allowed.size))
         wanted = min(k + (1 if exclude is not None else 0), available)
         if wanted <= 0:
             return Neighbours(np.empty(0, np.int64), np.empty(0, np.float64))
-        squared, ids = self._search_selected(q, wanted, selector)
+        squared, ids = self._search_selected(q, wanted, allowed)
         keep = ids[0] >= 0  # FAISS pads with -1 when fewer vectors qualify
         if exclude is not None:
             keep &= ids[0] != exclude
@@ -434,11 +466,17 @@ class DescriptorIndex:
         distances = np.sqrt(np.maximum(squared[0][keep][:k].astype(np.float64), 0.0))
         return Neighbours(found, distances)
 
-    def _search_selected(self, q: np.ndarray, wanted: int, selector: Any) -> tuple[Any, Any]:
-        """FAISS's squared distances and ids of the ``wanted`` nearest to ``q`` among the ids
-        ``selector`` lets through (``None``: all; an IVF index then probes every cell)."""
+    def _search_selected(
+        self, q: np.ndarray, wanted: int, allowed: np.ndarray | None
+    ) -> tuple[Any, Any]:
+        """FAISS's squared distances and ids ``(Q, wanted)`` of the ``wanted`` nearest to ``q``
+        ``(Q, D)`` among ``allowed`` (sorted unique ids; ``None``: all; an IVF index then probes
+        every cell)."""
         with self._lock.read():
             index = self._index
+            if isinstance(index, FrozenIVF):
+                return index.search(q, wanted, nprobe=self.nprobe, allowed=allowed)
+            selector = None if allowed is None else faiss.IDSelectorBatch(allowed)
             params: Any = None
             if kind_of(index) == IVF:
                 params = faiss.SearchParametersIVF()
@@ -456,15 +494,13 @@ class DescriptorIndex:
         call (``allowed`` as in :meth:`search`): ``(Q, k)`` Euclidean distances (float64,
         ascending) and ids (int64, -1 past the vectors that qualify)."""
         q = as_vectors(queries, self.dimension)
-        selector = None
         if allowed is not None:
             allowed = np.unique(as_ids(allowed))
-            selector = faiss.IDSelectorBatch(allowed)
         wanted = max(1, min(k, self.size if allowed is None else min(self.size, allowed.size)))
         if q.shape[0] == 0 or self.size == 0 or (allowed is not None and allowed.size == 0):
             empty = np.full((q.shape[0], k), -1, np.int64)
             return np.full((q.shape[0], k), np.inf), empty
-        squared, ids = self._search_selected(q, wanted, selector)
+        squared, ids = self._search_selected(q, wanted, allowed)
         distances = np.full((q.shape[0], k), np.inf)
         found = np.full((q.shape[0], k), -1, np.int64)
         valid = ids >= 0
@@ -478,6 +514,8 @@ class DescriptorIndex:
         """Roughly how many numbers one search compares: every vector for a flat index (or a
         filtered IVF search), the centroids plus ``nprobe`` cells for IVF."""
         index = self._index
+        if isinstance(index, FrozenIVF):
+            return index.scan_cost(self.nprobe, filtered=filtered)
         if kind_of(index) != IVF or filtered:
             return self.size * self.dimension
         nlist = int(index.nlist)
@@ -488,6 +526,8 @@ class DescriptorIndex:
         """``(Q, k)`` squared distances and ids for ``queries`` ``(Q, D)`` (benchmarks)."""
         q = as_vectors(queries, self.dimension)
         with self._lock.read():
+            if isinstance(self._index, FrozenIVF):
+                return self._index.search(q, k, nprobe=self.nprobe)
             params: Any = None
             if self.kind == IVF:
                 params = faiss.SearchParametersIVF()
@@ -498,10 +538,10 @@ class DescriptorIndex:
     def reconstruct(self, clip_id: int) -> np.ndarray:
         """The stored ``(D,)`` float32 vector of ``clip_id`` (``KeyError`` when absent)."""
         with self._lock.read():
-            try:
-                return np.asarray(self._index.reconstruct(int(clip_id)), dtype=np.float32)
-            except RuntimeError:
-                raise KeyError(clip_id) from None
+            held = self._held(clip_id)
+        if held is None:
+            raise KeyError(clip_id)
+        return held
 
     def reconstruct_many(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The stored vectors of those of ``ids`` ``(N,)`` that are held: kept ids ``(M,)``
@@ -509,11 +549,10 @@ class DescriptorIndex:
         kept, vectors = [], []
         with self._lock.read():
             for vector_id in np.asarray(ids, dtype=np.int64).tolist():
-                try:
-                    vectors.append(self._index.reconstruct(int(vector_id)))
-                except RuntimeError:
-                    continue
-                kept.append(vector_id)
+                held = self._held(vector_id)
+                if held is not None:
+                    vectors.append(held)
+                    kept.append(vector_id)
         if not vectors:
             return np.empty(0, np.int64), np.empty((0, self.dimension), np.float32)
         return np.array(kept, np.int64), np.asarray(np.stack(vectors), dtype=np.float32)
@@ -526,6 +565,8 @@ class DescriptorIndex:
         if not ids.size:
             return np.zeros(0, bool), np.empty((0, self.dimension), np.float32)
         with self._lock.read():
+            if isinstance(self._index, FrozenIVF):
+                return self._index.vectors(ids)
             try:
                 return np.ones(ids.size, bool), self._index.reconstruct_batch(ids)
             except RuntimeError:  # one is not held
@@ -536,6 +577,8 @@ class DescriptorIndex:
     def all_vectors(self) -> tuple[np.ndarray, np.ndarray]:
         """Every ``(ids (N,), vectors (N, D))`` held (used to change the index kind)."""
         with self._lock.read():
+            if isinstance(self._index, FrozenIVF):
+                return self._index.all_vectors()
             if self.kind == IVF:
                 invlists = self._index.invlists
                 id_parts, vector_parts = [], []
@@ -577,6 +620,7 @@ class DescriptorIndex:
         )
         kind = kind or self.options.kind_for(int(ids_.size))
         fresh = build_index(ids_, array, kind, self.options, threads=threads)
+        self._drop_unchecked()  # that file is no longer used
         with self._lock.write():
             self._index = fresh
             self._max_id = None
@@ -589,17 +633,31 @@ class DescriptorIndex:
 
     def save(self) -> None:
         """Write the index and its metadata atomically (temp file, then rename), under the
-        directory's exclusive file lock."""
+        directory's exclusive file lock; then map the file (IVF; see app/index/frozen.py)
+        instead of holding a copy, when nothing changed meanwhile."""
         # The save lock keeps two saves in order: the last state serialised is the one written.
         with self._save_lock, directory_lock(self.directory, exclusive=True):
-            tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
+            with self._lock.read():
+                index = self._index
+                count = int(index.ntotal)
+                kind = self.kind
+                nprobe = self.nprobe
+                synced_to = self._synced_to
+                unsaved = self._unsaved
+                if isinstance(index, FrozenIVF) and not index.changed and self._is_mapped_file():
+                    # The file holds these vectors: only the feed position moves on.
+                    self._write_meta(dict(self._mapped_meta, feed_position=synced_to))
+                    self._unsaved = max(0, self._unsaved - unsaved)
+                    return
+                written = index.merged() if isinstance(index, FrozenIVF) else index
+                tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
+                try:
+                    faiss.write_index(written, str(tmp))
+                except BaseException:
+                    tmp.unlink(missing_ok=True)
+                    raise
+            del written
             try:
-                with self._lock.read():
-                    faiss.write_index(self._index, str(tmp))
-                    count = int(self._index.ntotal)
-                    kind = self.kind
-                    synced_to = self._synced_to
-                    unsaved = self._unsaved
                 fd = os.open(tmp, os.O_RDONLY)
                 try:
                     os.fsync(fd)
@@ -610,7 +668,7 @@ class DescriptorIndex:
                     "version": self.version,
                     "dimension": self.dimension,
                     "kind": kind,
-                    "nprobe": self.nprobe,
+                    "nprobe": nprobe,
                     "count": count,
                     "feed_position": synced_to,
                     "sha256": _file_sha256(tmp),
@@ -619,22 +677,50 @@ class DescriptorIndex:
                 os.replace(tmp, self.path)
             finally:
                 tmp.unlink(missing_ok=True)
-            meta_tmp = self.meta_path.with_name(f".{self.meta_path.name}.{os.getpid()}.tmp")
-            try:
-                meta_tmp.write_text(json.dumps(meta, indent=2))
-                os.replace(meta_tmp, self.meta_path)
-            finally:
-                meta_tmp.unlink(missing_ok=True)
+            self._write_meta(meta)
+            mapped = self._map(meta) if kind == IVF and self.options.mmap else None
             with self._lock.write():
+                if mapped is not None and self._index is index and self._unsaved == unsaved:
+                    self._index = mapped  # nothing changed while writing: share the file
+                    self._sorted = None
                 self._unsaved = max(0, self._unsaved - unsaved)
 
-    def read_file(self) -> tuple[Any, dict[str, Any]] | str:
+    def _write_meta(self, meta: dict[str, Any]) -> None:
+        meta_tmp = self.meta_path.with_name(f".{self.meta_path.name}.{os.getpid()}.tmp")
+        try:
+            meta_tmp.write_text(json.dumps(meta, indent=2))
+            os.replace(meta_tmp, self.meta_path)
+        finally:
+            meta_tmp.unlink(missing_ok=True)
+
+    def _map(self, meta: dict[str, Any]) -> FrozenIVF | None:
+        """The index file, mapped (None when it cannot be: the copy in memory stays)."""
+        try:
+            mapped = FrozenIVF.open(str(self.path))
+            self._mapped_inode = os.stat(self.path).st_ino
+        except (OSError, RuntimeError) as exc:
+            log.warning("could not map the %s index file (%s); holding a copy", self.name, exc)
+            return None
+        self._mapped_meta = meta
+        return mapped
+
+    def _is_mapped_file(self) -> bool:
+        """Whether the index file is still the one mapped (not replaced by another process)."""
+        try:
+            return os.stat(self.path).st_ino == self._mapped_inode
+        except OSError:
+            return False
+
+    def read_file(self, *, verify: bool = True) -> tuple[Any, dict[str, Any]] | str:
         """The persisted index and its metadata, or why they cannot be used (file work only:
-        several indexes can be read at once, in threads)."""
+        several indexes can be read at once, in threads). An IVF index is mapped, not read
+        (see app/index/frozen.py); with ``verify=False`` its checksum is checked later, by
+        :meth:`verify_file` (hashing a large file is most of a server's start-up)."""
         with directory_lock(self.directory, exclusive=False):
             try:
                 meta = json.loads(self.meta_path.read_text())
-                digest = _file_sha256(self.path)
+                later = not verify and meta.get("kind") == IVF and self.options.mmap
+                digest = None if later else _file_sha256(self.path)
             except FileNotFoundError as exc:
                 return f"missing {Path(exc.filename).name}"
             except (OSError, ValueError) as exc:
@@ -648,15 +734,25 @@ class DescriptorIndex:
             ):
                 if meta.get(key) != value:
                     return f"{key} is {meta.get(key)!r}, expected {value!r}"
-            if meta.get("sha256") != digest:
+            if digest is not None and meta.get("sha256") != digest:
                 return "index file does not match its checksum"
             try:
-                index: Any = faiss.read_index(str(self.path))
+                if meta.get("kind") == IVF and self.options.mmap:
+                    if digest is None:  # the file now mapped, open until checked (the lock
+                        # keeps another process from replacing it meanwhile)
+                        self._unchecked = (os.open(self.path, os.O_RDONLY), str(meta["sha256"]))
+                    mapped = self._map(meta)
+                    if mapped is None:
+                        return "unreadable index"
+                    index: Any = mapped
+                    plain: Any = mapped.base
+                else:
+                    index = plain = faiss.read_index(str(self.path))
             except RuntimeError as exc:
                 return f"unreadable index: {exc}"
-        if kind_of(index) is None or index.d != self.dimension:
+        if kind_of(plain) is None or plain.d != self.dimension:
             return "index of another kind or dimension"
-        if kind_of(index) == IVF and not has_id_map(index):
+        if kind_of(plain) == IVF and not isinstance(index, FrozenIVF) and not has_id_map(index):
             with_id_map(index)  # a file written before the id map was kept: save it again
             meta["resave"] = True
         if int(index.ntotal) != meta.get("count"):
@@ -664,6 +760,27 @@ class DescriptorIndex:
         if kind_of(index) == FLAT and index.id_map.size() != index.ntotal:
             return "index count disagrees with its id map"
         return index, meta
+
+    def _drop_unchecked(self) -> None:
+        unchecked, self._unchecked = self._unchecked, None
+        if unchecked is not None:
+            os.close(unchecked[0])
+
+    def verify_file(self) -> str | None:
+        """Check the checksum of the file mapped by ``read_file(verify=False)``: why it cannot
+        be used (the caller rebuilds the index), or None."""
+        unchecked, self._unchecked = self._unchecked, None
+        if unchecked is None:
+            return None
+        fd, expected = unchecked
+        try:
+            with os.fdopen(fd, "rb") as stream:
+                digest = hashlib.sha256()
+                while chunk := stream.read(HASH_CHUNK):
+                    digest.update(chunk)
+        except OSError as exc:
+            return f"unreadable index file: {exc}"
+        return None if digest.hexdigest() == expected else "index file does not match its checksum"
 
     def load_or_rebuild(
         self, source: VectorSource, found: tuple[Any, dict[str, Any]] | str | None = None

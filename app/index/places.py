@@ -78,15 +78,22 @@ class WindowPlaces:
         self._places = Places.empty()
         self._changing = threading.Lock()
         self.loaded = False
+        self.changed = False  # since loaded: what the places file lacks
 
     def __len__(self) -> int:
         return len(self._places)
+
+    @property
+    def held(self) -> Places:
+        """Every window held (to save them)."""
+        return self._places
 
     def replace_all(self, places: Places) -> None:
         """Hold exactly ``places`` (as the database has them)."""
         with self._changing:
             self._places = places
             self.loaded = True
+            self.changed = False
 
     def apply_changes(self, clip_ids: np.ndarray, places: Places) -> None:
         """The clips ``clip_ids`` ``(C,)`` changed: their windows are now ``places`` (those
@@ -98,6 +105,7 @@ class WindowPlaces:
         held = self._places
         if not clips.size and not len(places):
             return
+        self.changed = True
         keep = ~np.isin(held.ids >> self._id_bits, clips)
         ids = np.concatenate([held.ids[keep], places.ids])
         starts = np.concatenate([held.starts[keep], places.starts])

@@ -1,18 +1,22 @@
-"""The database's view of what an index holds: the snapshot an index is loaded, checked
-and repaired against (:class:`~app.index.descriptor_index.VectorSource`), for clip indexes
-(one descriptor's vectors, ids = clip ids) and window indexes (one descriptor's windows of one
-length, ids = window ids ``clip id << WINDOW_ID_BITS | ordinal``)."""
+"""The database's view of what an in-memory cache holds: the snapshot it is loaded, checked
+and repaired against (:class:`~app.index.descriptor_index.VectorSource`,
+:class:`~app.index.catalogue.ClipSource`), for clip indexes (one descriptor's vectors, ids =
+clip ids), window indexes (one descriptor's windows of one length, ids = window ids ``clip id
+<< WINDOW_ID_BITS | ordinal``) and the catalogue (every clip's display data)."""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from typing import TYPE_CHECKING
 
 import numpy as np
 from sqlalchemy.orm import Session
 
+from app.db import clips as clip_db
 from app.db import vectors as vector_db
 from app.db import windows as window_db
 from app.db.changes import read_since
+from app.db.entries import ClipEntry, clip_entries
 from app.index.descriptor_index import DescriptorIndex
 from app.index.places import rows_of_clips
 
@@ -106,3 +110,32 @@ def touched_windows(index: DescriptorIndex, clip_ids: np.ndarray, stored: np.nda
     """The window ids to check when the clips ``clip_ids`` changed: those ``index`` holds of
     them and ``stored`` ``(N,)``, those the database holds now."""
     return np.union1d(windows_of_clips(index, clip_ids), stored)
+
+
+class StoredClips:
+    """The clips in the database, read in ``session``, with the change feed position
+    ``watermark`` taken before them: what :meth:`Catalogue.load_or_rebuild` checks the
+    catalogue against."""
+
+    def __init__(self, session: Session, watermark: int) -> None:
+        self._session = session
+        self._watermark = watermark
+
+    def watermark(self) -> int:
+        return self._watermark
+
+    def count(self) -> int:
+        return clip_db.count_clips(self._session)
+
+    def ids(self) -> np.ndarray:
+        return np.asarray(clip_db.all_clip_ids(self._session), np.int64)
+
+    def entries(self) -> Iterator[ClipEntry]:
+        return clip_entries(self._session)
+
+    def changed(self, since: int) -> np.ndarray:
+        rows = read_since(self._session, since)[1]
+        return np.unique(np.fromiter((r.clip_id for r in rows), dtype=np.int64, count=len(rows)))
+
+    def entries_of(self, ids: np.ndarray) -> dict[int, ClipEntry]:
+        return {entry.id: entry for entry in clip_entries(self._session, ids.tolist())}

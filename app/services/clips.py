@@ -10,6 +10,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import PurePosixPath
 
+import numpy as np
 from sqlalchemy.exc import SQLAlchemyError
 
 from app.db import clips as clip_db
@@ -83,9 +84,13 @@ def relabel_clips(
         raise InvalidInput("add, remove: give a label to add or to remove")
     try:
         with library.writes.begin() as session:
-            return relabel(session, selection, add=add, remove=remove)
+            relabelled = relabel(session, selection, add=add, remove=remove)
     except SQLAlchemyError as exc:
         raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
+    if relabelled.changed:
+        library.sync_indexes()  # searches here filter by the new labels at once
+        library.edits += 1
+    return relabelled
 
 
 def clip_vectors(library: Library, clip_id: int) -> dict[str, vector_db.StoredVector]:
@@ -119,6 +124,7 @@ def update_clip(
         raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
     if not found:
         raise NotFound(f"no clip with id {clip_id}")
+    library.sync_indexes()  # searches here show the new name and labels at once
     library.edits += 1
     return get_clip(library, clip_id)
 
@@ -186,6 +192,7 @@ def _tidy_after_delete(library: Library, clip_ids: list[int], shas: list[str]) -
                 exc,
             )
     drop_clip_windows(library, clip_ids)
+    library.catalogue.apply_changes(np.asarray(clip_ids, np.int64), {})
     try:
         # In a write transaction: another process may be committing a clip against one.
         with library.writes.begin() as session:

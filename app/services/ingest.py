@@ -284,6 +284,7 @@ def apply_to_stored(
     except SQLAlchemyError as exc:
         raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
     if changed:
+        library.sync_indexes()  # searches here show the new name and labels at once
         library.edits += 1
     return changed
 

@@ -21,6 +21,7 @@ same feed: a clip's windows come and go with it.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import sqlite3
 import threading
@@ -38,18 +39,26 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from app.config import Settings
 from app.db import clips as clip_db
-from app.db import search_reads as search_db
 from app.db import vectors as vector_db
 from app.db import windows as window_db
-from app.db.changes import ChangeFeed, horizon, prune, pruned_before
+from app.db.changes import ChangeFeed, horizon, prune, pruned_before, read_since
+from app.db.entries import ClipEntry, clip_entries
 from app.db.migrate import upgrade
 from app.db.session import create_db_engine, read_sessions, write_sessions
 from app.errors import DescriptorOutdated, InvalidInput, StorageUnavailable
+from app.index.array_file import read_arrays, write_arrays
+from app.index.catalogue import Catalogue
 from app.index.descriptor_index import DescriptorIndex, IndexSet
 from app.index.kinds import IndexOptions
 from app.index.neighbour_scale import NeighbourScales
 from app.index.places import Places, WindowPlaces
-from app.index.sources import StoredVectors, StoredWindows, touched_windows, windows_of_clips
+from app.index.sources import (
+    StoredClips,
+    StoredVectors,
+    StoredWindows,
+    touched_windows,
+    windows_of_clips,
+)
 from app.motion.descriptors import DEFAULT_DESCRIPTOR
 from app.services.blobs import BlobStore, open_blob_store
 from app.services.describe import (
@@ -64,6 +73,8 @@ from app.services.parser_pool import ParserPool
 
 log = logging.getLogger(__name__)
 
+PLACES_FORMAT = 1  # the layout of a window index's places file
+WINDOW_IVF_FROM = 20_000  # windows from which a window index is IVF (or MOCAP_INDEX_AUTO_...)
 # While a descriptor has outdated vectors, how often a search recounts them.
 OUTDATED_RECOUNT_SECONDS = 5.0
 
@@ -135,6 +146,8 @@ class Library:
     blobs: BlobStore
     indexes: IndexSet
     describer: Describer
+    # What a search shows of each clip (names, labels, ...): searches read no SQL.
+    catalogue: Catalogue
     # Moments search: one index per window descriptor and length, keyed like window_keys.
     window_indexes: IndexSet = field(default_factory=lambda: IndexSet({}))
     window_keys: dict[str, window_db.WindowKey] = field(default_factory=dict)
@@ -146,27 +159,29 @@ class Library:
     # FBX writers' worker processes (Blender; started when the first FBX is asked for).
     exporters: ExportPool | None = None
     write_lock: threading.Lock = field(default_factory=threading.Lock)
-    # Renames, relabels and new notes made by this process (the change feed has clips and
-    # vectors only): caches of names and labels compare it.
+    # Renames, relabels and new notes made by this process: caches of names and labels
+    # compare it (the catalogue follows the change feed, which has them since migration 0010).
     edits: int = 0
     # Each index's typical neighbour distances: the similarity of search results.
     scales: NeighbourScales = field(default_factory=NeighbourScales, repr=False)
-    search_reads: search_db.SearchReads = field(init=False, repr=False)
     _sync_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
-    _checked_at: float = field(default=0.0, repr=False)
+    # Checks the checksums of the files mapped unchecked at start (verify_files).
+    verifier: threading.Thread | None = field(default=None, repr=False)
+    _refresher: threading.Thread | None = field(default=None, repr=False)
+    _stopping: threading.Event = field(default_factory=threading.Event, repr=False)
+    _refresher_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
     # Descriptor -> stored vectors of an older version, and when that was last counted.
     _outdated: dict[str, int] = field(default_factory=dict, repr=False)
     _outdated_at: float = field(default=0.0, repr=False)
     _feed: ChangeFeed = field(init=False, repr=False)
-    _stopping: threading.Event = field(default_factory=threading.Event, repr=False)
 
     def __post_init__(self) -> None:
-        self.search_reads = search_db.SearchReads(self.engine)
         self.window_places = {
             name: WindowPlaces(window_db.WINDOW_ID_BITS) for name in self.window_keys
         }
         # Every index is at least this far along the feed (they were loaded from one snapshot).
-        self._feed = ChangeFeed(min((i.synced_to for i in self.indexes.values()), default=0))
+        positions = [i.synced_to for i in self.indexes.values()] + [self.catalogue.synced_to]
+        self._feed = ChangeFeed(min(positions))
 
     @property
     def descriptors(self) -> Mapping[str, DescriptorInfo]:
@@ -235,6 +250,45 @@ class Library:
                 if self.window_places[name].loaded:
                     self._load_places(session, name)
 
+    def clip_entry(self, clip_id: int) -> ClipEntry | None:
+        """What a search shows of clip ``clip_id``: from the catalogue, or — a clip another
+        process stored since the last look at the feed — from the database."""
+        entry = self.catalogue.get(clip_id)
+        if entry is not None:
+            return entry
+        with self.reads() as session:
+            return next(clip_entries(session, [clip_id]), None)
+
+    def rebuild_catalogue(self) -> None:
+        """Refill the catalogue from the database and save it (after a bulk load that went
+        around the feed's readers, like ``fill-synthetic``)."""
+        with self._sync_lock, self.reads() as session:
+            position = horizon(session)  # before the rows: nothing older is missed
+            self.catalogue.replace_all(clip_entries(session), synced_to=position)
+
+    def verify_files(self) -> list[str]:
+        """Check the checksums left unchecked at start (``open_library(verify_later=True)``);
+        rebuild from the database whatever fails. Returns what was rebuilt."""
+        rebuilt = []
+        for name, index in self.indexes.items():
+            problem = index.verify_file()
+            if problem is not None and not self._stopping.is_set():
+                log.warning("rebuilding the %s index from the database: %s", name, problem)
+                self.rebuild_index(name)
+                rebuilt.append(name)
+        for name, index in self.window_indexes.items():
+            problem = index.verify_file()
+            if problem is not None and not self._stopping.is_set():
+                log.warning("rebuilding the %s index from the database: %s", name, problem)
+                self.rebuild_window_indexes()
+                rebuilt.append(name)
+        problem = self.catalogue.verify_file()
+        if problem is not None and not self._stopping.is_set():
+            log.warning("rebuilding the catalogue from the database: %s", problem)
+            self.rebuild_catalogue()
+            rebuilt.append("catalogue")
+        return rebuilt
+
     def places(self, name: str) -> WindowPlaces:
         """Where the windows of window index ``name`` lie (loaded from the database when
         first asked for; then kept up to date with the index)."""
@@ -254,10 +308,49 @@ class Library:
             self.window_indexes[name].sorted_ids()
 
     def _load_places(self, session: Session, name: str) -> None:
-        # Any later feed position is fine: the clips changed since the indexes' position are
-        # replaced again from the database at the next sync (a clip's windows as a whole).
-        places = Places(*window_db.load_window_places(session, self.window_keys[name]))
-        self.window_places[name].replace_all(places)
+        """From the places file when it can be used (mapped: shared by the server's
+        processes), with the clips changed since it was written read again; else from the
+        database, then saved. Changes after the indexes' feed position are applied again at
+        the next sync (a clip's windows as a whole), so any later state is fine here."""
+        places = self.window_places[name]
+        found = read_arrays(self.settings.index_dir, f"{name}.places", {"format": PLACES_FORMAT})
+        if not isinstance(found, str):
+            arrays, meta = found
+            loaded = Places(arrays["ids"], arrays["starts"], arrays["stops"])
+            position = int(meta.get("feed_position", -1))
+            # A file older than the feed keeps cannot be brought up to date from it.
+            followable = pruned_before(session) <= position <= horizon(session)
+            if len(loaded) == meta.get("count") and followable:
+                changed = read_since(session, position)[1]
+                clips = np.unique(np.fromiter((r.clip_id for r in changed), np.int64))
+                places.replace_all(loaded)
+                if clips.size:
+                    key = self.window_keys[name]
+                    found_rows = window_db.window_places_of_clips(session, key, clips.tolist())
+                    places.apply_changes(clips, Places(*found_rows))
+                if len(places) == self.window_indexes[name].size:
+                    return
+                log.warning(
+                    "the %s places hold %d windows, the index %d: reading them again",
+                    name,
+                    len(places),
+                    self.window_indexes[name].size,
+                )
+        position = horizon(session)  # before the rows: nothing older is missed
+        places.replace_all(Places(*window_db.load_window_places(session, self.window_keys[name])))
+        self._save_places(name, position)
+
+    def _save_places(self, name: str, position: int) -> None:
+        held = self.window_places[name].held
+        try:
+            write_arrays(
+                self.settings.index_dir,
+                f"{name}.places",
+                {"ids": held.ids, "starts": held.starts, "stops": held.stops},
+                {"format": PLACES_FORMAT, "count": len(held), "feed_position": position},
+            )
+        except OSError as exc:
+            log.warning("could not save the %s places (%s); read again at next start", name, exc)
 
     def sync_indexes(self, *, wait: bool = True) -> bool:
         """Apply to the indexes the clips added or deleted since they last looked (by this
@@ -272,6 +365,14 @@ class Library:
                     return True
                 poll = self._feed.poll(session)
                 changed = poll.clip_ids
+                if not changed.size:  # the usual poll: nothing to look up or lock
+                    for index in (*self.indexes.values(), *self.window_indexes.values()):
+                        index.mark_synced(poll.position)
+                    self.catalogue.mark_synced(poll.position)
+                    self._feed.advance(poll)
+                    return True
+                # The catalogue first: a hit an index finds always has its display data.
+                self._sync_catalogue(session, changed, poll.position)
                 for name, info in self.descriptors.items():
                     index = self.indexes[name]
                     ids, vectors = vector_db.load_vectors_of(
@@ -294,6 +395,18 @@ class Library:
             self._sync_lock.release()
         return True
 
+    def _sync_catalogue(self, session: Session, changed: np.ndarray, position: int) -> None:
+        """The catalogue follows the same feed: a changed clip's entry is replaced by what the
+        database holds now (none when it was deleted)."""
+        try:
+            entries = {e.id: e for e in clip_entries(session, changed.tolist())}
+            self.catalogue.apply_changes(changed, entries, synced_to=position)
+        except Exception:
+            log.exception("updating the catalogue failed; rebuilding it")
+            now = horizon(session)
+            self.catalogue.replace_all(clip_entries(session), synced_to=now, persist=False)
+            self.catalogue.try_save()
+
     def _rebuild_all(self, session: Session) -> None:
         """Refill every index from the database and follow the feed from now on (the caller
         holds the sync lock): the change rows this process had not read yet were pruned."""
@@ -302,6 +415,9 @@ class Library:
             "the change feed no longer holds the changes since this process last looked "
             "(away longer than MOCAP_CHANGE_RETENTION_HOURS): rebuilding the indexes"
         )
+        # The catalogue first: a hit an index finds always has its display data.
+        self.catalogue.replace_all(clip_entries(session), synced_to=position, persist=False)
+        self.catalogue.try_save()
         for name, info in self.descriptors.items():
             everything = vector_db.load_vectors(session, info.name, info.version, info.dimension)
             self.indexes[name].replace_all(*everything, synced_to=position, persist=False)
@@ -363,22 +479,58 @@ class Library:
                     self._load_places(session, name)
 
     def refresh(self) -> None:
-        """Bring the indexes up to date with the database when the last check is older than
-        ``MOCAP_INDEX_REFRESH_SECONDS`` (called before searches; cheap when nothing changed)."""
-        now = time.monotonic()
-        if now - self._checked_at < self.settings.index_refresh_seconds:
+        """Keep the indexes up to date with the database, within
+        ``MOCAP_INDEX_REFRESH_SECONDS`` (called before searches). With 0, check now; else a
+        thread of the library checks that often (started here the first time), so no search
+        waits for the database."""
+        interval = self.settings.index_refresh_seconds
+        if interval <= 0:
+            self._check()
             return
-        self._checked_at = now
+        if self._refresher is None:
+            with self._refresher_lock:
+                if self._refresher is None and not self._stopping.is_set():
+                    self._refresher = threading.Thread(
+                        target=self._refresh_loop, args=(interval,), daemon=True
+                    )
+                    self._refresher.start()
+
+    def refresh_now(self) -> None:
+        """Bring the indexes up to date with the database now, waiting for a sync already
+        under way (``/health``: what it reports includes every change committed before)."""
+        try:
+            self.sync_indexes()
+        except (SQLAlchemyError, sqlite3.Error) as exc:  # the indexes as they are still work
+            log.warning("could not check the database for changed clips: %s", exc)
+
+    def _refresh_loop(self, interval: float) -> None:
+        watch = _DataVersion(self.engine)
+        try:
+            while True:
+                if watch.changed():
+                    self._check()
+                if self._stopping.wait(interval):
+                    return
+        finally:
+            watch.close()
+
+    def _check(self) -> None:
         try:
             self.sync_indexes(wait=False)
         except (SQLAlchemyError, sqlite3.Error) as exc:  # the indexes as they are still work
             log.warning("could not check the database for changed clips: %s", exc)
+        except Exception:  # never let the refresher die
+            log.exception("checking the database for changed clips failed")
 
     def save_indexes(self) -> None:
         """Write the indexes that have unsaved changes (large ones are not saved after every
         change; a file that is behind is brought up to date from the database when loaded)."""
         self.indexes.save(only_changed=True)
         self.window_indexes.save(only_changed=True)
+        self.catalogue.flush()
+        for name, places in self.window_places.items():
+            if places.loaded and places.changed:
+                self._save_places(name, self._feed.position)
 
     def vector_counts(self) -> tuple[int, dict[str, int]]:
         """The number of clips and, per descriptor, of current vectors (one snapshot)."""
@@ -395,10 +547,13 @@ class Library:
 
     def close(self) -> None:
         self._stopping.set()
+        if self.verifier is not None:
+            self.verifier.join(timeout=60)
+        if self._refresher is not None:
+            self._refresher.join(timeout=30)
         try:
             self.save_indexes()
         finally:
-            self.search_reads.close()
             self.engine.dispose()
             if self.parsers is not None:
                 self.parsers.close()
@@ -406,10 +561,47 @@ class Library:
                 self.exporters.close()
 
 
+class _DataVersion:
+    """Whether a SQLite database may have changed since last asked: ``PRAGMA data_version``
+    on a connection of its own moves when another connection commits (no file read), so the
+    refresher polls the feed only then — ten times a second a session and two statements
+    cost an idle server a few per cent of a core. Other databases: always maybe."""
+
+    def __init__(self, engine: Engine) -> None:
+        self._connection: sqlite3.Connection | None = None
+        self._seen: int | None = None
+        path = engine.url.database if engine.dialect.name == "sqlite" else None
+        if path:
+            try:
+                self._connection = sqlite3.connect(path, check_same_thread=False)
+            except sqlite3.Error:
+                self._connection = None
+
+    def changed(self) -> bool:
+        if self._connection is None:
+            return True
+        try:
+            version = int(self._connection.execute("PRAGMA data_version").fetchone()[0])
+        except sqlite3.Error:
+            return True
+        changed, self._seen = version != self._seen, version
+        return changed
+
+    def close(self) -> None:
+        if self._connection is not None:
+            self._connection.close()
+
+
 def _open_indexes(
-    settings: Settings, reads: sessionmaker[Session], descriptors: Mapping[str, DescriptorInfo]
-) -> tuple[IndexSet, IndexSet]:
-    """The clip indexes and the window indexes, loaded (or rebuilt) from their files."""
+    settings: Settings,
+    reads: sessionmaker[Session],
+    descriptors: Mapping[str, DescriptorInfo],
+    *,
+    verify: bool = True,
+) -> tuple[IndexSet, IndexSet, Catalogue]:
+    """The clip indexes, the window indexes and the catalogue, loaded (or rebuilt) from their
+    files (``verify=False``: the mapped files' checksums are left to
+    :meth:`Library.verify_files`)."""
     options = index_options(settings)
     indexes = {
         info.name: DescriptorIndex(
@@ -418,15 +610,27 @@ def _open_indexes(
         for info in descriptors.values()
     }
     keys = window_keys(settings, descriptors)
+    # A moments search asks one or two window indexes for ~140 windows each: a flat scan of
+    # the 90,000 8-s windows of 100 hours was a sixth of it. IVF from fewer windows.
+    window_options = dataclasses.replace(
+        options, auto_threshold=min(options.auto_threshold, WINDOW_IVF_FROM)
+    )
     windows = {
-        name: DescriptorIndex(name, key.dimension, key.version, settings.index_dir, options=options)
+        name: DescriptorIndex(
+            name, key.dimension, key.version, settings.index_dir, options=window_options
+        )
         for name, key in keys.items()
     }
+    catalogue = Catalogue(
+        settings.index_dir, autosave_below=options.autosave_below, save_delay=options.save_delay
+    )
     # Reading and checksumming the files (hundreds of MB at a million clips) releases the
     # GIL: all at once, in threads.
     every = [*indexes.values(), *windows.values()]
-    with ThreadPoolExecutor(max_workers=max(1, min(8, len(every)))) as pool:
-        files = dict(zip(every, pool.map(DescriptorIndex.read_file, every), strict=True))
+    with ThreadPoolExecutor(max_workers=max(1, min(8, len(every) + 1))) as pool:
+        listed = pool.submit(catalogue.read_file, verify=verify)
+        files = dict(zip(every, pool.map(lambda i: i.read_file(verify=verify), every), strict=True))
+        catalogue_file = listed.result()
     fresh = all(isinstance(found, str) for found in files.values())  # no index file at all
     with reads() as session:  # one feed position for every index, taken before their vectors
         watermark = horizon(session)
@@ -439,9 +643,11 @@ def _open_indexes(
             index = windows[name]
             found = _followable(files.pop(index), pruned)
             index.load_or_rebuild(StoredWindows(session, key, watermark, index), found)
+        found = _followable(catalogue_file, pruned)
+        catalogue.load_or_rebuild(StoredClips(session, watermark), found)
     if fresh and not any(index.size for index in every):
         log.info("new library: created its %d empty indexes in %s", len(every), settings.index_dir)
-    return IndexSet(indexes), IndexSet(windows)
+    return IndexSet(indexes), IndexSet(windows), catalogue
 
 
 def _followable(found: tuple[Any, dict[str, Any]] | str, pruned: int) -> Any:
@@ -457,8 +663,15 @@ def _followable(found: tuple[Any, dict[str, Any]] | str, pruned: int) -> Any:
     return found
 
 
-def open_library(settings: Settings, *, describer: Describer | None = None) -> Library:
-    """Migrate the database to the newest schema and load (or rebuild) the indexes."""
+def open_library(
+    settings: Settings, *, describer: Describer | None = None, verify_later: bool = False
+) -> Library:
+    """Migrate the database to the newest schema and load (or rebuild) the indexes.
+
+    ``verify_later`` (the server): the large, mapped files are used before their checksums
+    are checked; :meth:`Library.verify_files` checks them in a thread of the library and
+    rebuilds any that fails, so a server answers within seconds of starting at a million
+    clips (hashing them was most of the start)."""
     parsers = ParserPool.from_settings(settings)  # no process until an FBX/glTF arrives
     if describer is None:
         describer = MotionDescriber.from_settings(settings, parsers=parsers)
@@ -473,7 +686,9 @@ def open_library(settings: Settings, *, describer: Describer | None = None) -> L
         raise StorageUnavailable(f"cannot open the database: {exc}") from exc
     reads = read_sessions(engine)
     try:
-        indexes, windows = _open_indexes(settings, reads, describer.descriptors)
+        indexes, windows, catalogue = _open_indexes(
+            settings, reads, describer.descriptors, verify=not verify_later
+        )
         with reads() as session:
             clips = clip_db.count_clips(session)
     except BaseException:
@@ -497,11 +712,17 @@ def open_library(settings: Settings, *, describer: Describer | None = None) -> L
         blobs=open_blob_store(engine, settings.files_dir),
         indexes=indexes,
         describer=describer,
+        catalogue=catalogue,
         window_indexes=windows,
         window_keys=window_keys(settings, describer.descriptors),
         parsers=parsers,
         exporters=ExportPool.from_settings(settings),  # no process until an FBX is asked for
     )
+    if verify_later:
+        library.verifier = threading.Thread(
+            target=library.verify_files, name="verify-files", daemon=True
+        )
+        library.verifier.start()
     for name, outdated in library.count_outdated().items():
         if outdated:
             log.warning(

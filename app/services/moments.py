@@ -57,8 +57,8 @@ import numpy as np
 
 from app.db import clips as clip_db
 from app.db import label_filters as label_db
-from app.db import search_reads as search_db
 from app.db import windows as window_db
+from app.db.entries import ClipEntry
 from app.errors import InvalidInput, MomentsOff, NotFound
 from app.index.places import Places
 from app.licences import LicenceArg, licence_filter
@@ -72,7 +72,7 @@ from app.services.describe import (
     span_frames,
 )
 from app.services.library import Library, window_index_name
-from app.services.search import _unavailable, allowed_clip_ids, capture_rule, check_k
+from app.services.search import allowed_clip_ids, capture_rule, check_k, clip_vector
 from app.services.uploads import SCENE_FORMATS, Upload
 
 MAX_PER_CLIP = 1000
@@ -89,7 +89,7 @@ BLOCK_BYTES = 64 * 2**20  # memory one block of a search's comparisons may take 
 class Moment:
     """A found span ``[start, end)`` in seconds of the clip's file."""
 
-    clip: search_db.ClipName
+    clip: ClipEntry
     format: str
     start: float
     end: float
@@ -103,7 +103,7 @@ class MomentQuery:
     """The query's span in seconds of its file, its clip when it is a stored one, and (an
     upload) the stored clip with the same content, if any."""
 
-    clip: clip_db.ClipRecord | None
+    clip: ClipEntry | None
     start: float
     end: float
     stored_clip: clip_db.ClipRecord | None = None
@@ -247,13 +247,12 @@ class _Finder:
     def __init__(
         self,
         library: Library,
-        db: search_db.SearchSnapshot,
         descriptor: str,
         parts: Parts,
         seconds: float,
         exclude: tuple[int, int, int] | None,
     ) -> None:
-        self.library, self.db, self.seconds, self.exclude = library, db, seconds, exclude
+        self.library, self.seconds, self.exclude = library, seconds, exclude
         self.whole = parts.length == 0  # no parts: the span's vector against short windows
         self.length = min(WINDOW_LENGTHS) if self.whole else parts.length
         self.name = window_index_name(descriptor, self.length)
@@ -268,7 +267,7 @@ class _Finder:
         self.probes, cover = _probes(self.query, PROBE_COVER * typical, MAX_PROBES)
         # Every part lies within this of a probe (a hair more: float noise).
         self.cover = cover * (1 + 1e-6) + 1e-9
-        self.facts: dict[int, tuple[str, float, int]] = {}
+        self.facts: dict[int, tuple[float, int]] = {}  # clip id -> frame time, frame count
         self._probed: tuple[np.ndarray, np.ndarray] | None = None  # distances, ids
         self._nearest = _Known(2)  # window id -> its nearest part, distance
         self._placed = _Known(4)  # seed window id -> clip id, start, end, distance
@@ -295,14 +294,14 @@ class _Finder:
         bits = window_db.WINDOW_ID_BITS
         clips = np.unique(hits >> bits)
         new = [int(c) for c in clips if int(c) not in self.facts]
-        self.facts.update(self.db.frame_times(new))
+        self.facts.update(self.library.catalogue.frames(new))  # no SQL: the catalogue
         clips = np.array([c for c in clips.tolist() if c in self.facts], np.int64)
         if not clips.size:
             return _Candidates.empty()
         rows, offsets = self.places.of_clips(clips)
         group = np.repeat(np.arange(clips.size), np.diff(offsets))
-        frame_time = np.array([self.facts[int(c)][1] for c in clips])[group]
-        frames = np.array([self.facts[int(c)][2] for c in clips])[group]
+        frame_time = np.array([self.facts[int(c)][0] for c in clips])[group]
+        frames = np.array([self.facts[int(c)][1] for c in clips])[group]
         starts, stops = rows.starts * frame_time, rows.stops * frame_time
         # Seconds from each window to the nearest hit of its clip (clips kept far apart).
         apart = 4.0 * (float(np.max(frames * frame_time)) + self.seconds + 1.0)
@@ -550,7 +549,6 @@ def _chosen(
 
 def _search(
     library: Library,
-    db: search_db.SearchSnapshot,
     descriptor: str,
     parts: Parts,
     seconds: float,
@@ -562,7 +560,7 @@ def _search(
 ) -> list[Moment]:
     """The first ``k`` moments of the list (see the module docstring); ``exclude``: (clip
     id, first, stop) frames of the query's own span."""
-    finder = _Finder(library, db, descriptor, parts, seconds, exclude)
+    finder = _Finder(library, descriptor, parts, seconds, exclude)
     allowed = None if allowed_clips is None else finder.places.ids_of_clips(allowed_clips)
     need = 3 * k + 10 if collapse else k
     wanted = min(FIRST_FETCH + need, max(finder.index.size, 1))
@@ -572,19 +570,19 @@ def _search(
     while True:
         hits, reach = finder.probe(wanted, allowed)
         found = finder.moments(hits)
-        frame_of = {c: f[1] for c, f in finder.facts.items()}
+        frame_of = {c: f[0] for c, f in finder.facts.items()}
         chosen = _chosen(found, per_clip, exclude, frame_of)
         sure = reach * (1 - 1e-5) - finder.cover  # FAISS measures in float32
         if np.isinf(reach) or (len(chosen) >= need and found.distances[chosen[need - 1]] < sure):
             break
         wanted = min(wanted * 2, finder.index.size + wanted)
     chosen = chosen[:need]
-    names = db.names([int(found.clips[r]) for r in chosen])
+    names = library.catalogue.get_many(int(found.clips[r]) for r in chosen)
     similarity = finder.scale.similarity(found.distances[chosen]).tolist()
     moments = [
         Moment(
             names[int(found.clips[r])],
-            finder.facts[int(found.clips[r])][0],
+            names[int(found.clips[r])].format,
             _round(float(found.starts[r])),
             _round(float(found.ends[r])),
             float(found.distances[r]),
@@ -645,29 +643,27 @@ def search_moments_by_clip(
         raise NotFound(f"no clip with id {clip_id}")
     info = library.descriptor(descriptor)
     library.refresh()
-    with library.search_reads.snapshot() as db:
-        clip = db.clip(clip_id)
-        if clip is None:
-            raise NotFound(f"no clip with id {clip_id}")
-        first, stop = span_frames(
-            clip.frame_count, clip.frame_time, clip.lead_in_frames, start, end, WINDOW_LENGTHS[0]
-        )
-        seconds = (stop - first) * clip.frame_time
-        stored = _StoredSpan(clip, descriptor, info.version, first, stop)
-        parts = _span_parts(library, db, stored)
-        allowed = allowed_clip_ids(db, label, licence_filter(licence))
-        moments = _search(
-            library,
-            db,
-            descriptor,
-            parts,
-            seconds,
-            k,
-            per_clip,
-            allowed,
-            (clip.id, first, stop),
-            collapse,
-        )
+    clip = library.clip_entry(clip_id)
+    if clip is None:
+        raise NotFound(f"no clip with id {clip_id}")
+    first, stop = span_frames(
+        clip.frame_count, clip.frame_time, clip.lead_in_frames, start, end, WINDOW_LENGTHS[0]
+    )
+    seconds = (stop - first) * clip.frame_time
+    stored = _StoredSpan(clip, descriptor, info.version, first, stop)
+    parts = _span_parts(library, stored)
+    allowed = allowed_clip_ids(library, label, licence_filter(licence))
+    moments = _search(
+        library,
+        descriptor,
+        parts,
+        seconds,
+        k,
+        per_clip,
+        allowed,
+        (clip.id, first, stop),
+        collapse,
+    )
     query = MomentQuery(
         clip,
         _round(start if start is not None else 0.0),
@@ -680,7 +676,7 @@ def search_moments_by_clip(
 class _StoredSpan:
     """Frames ``[first, stop)`` of a stored clip, queried under ``descriptor`` of ``version``."""
 
-    clip: clip_db.ClipRecord
+    clip: ClipEntry
     descriptor: str
     version: int
     first: int
@@ -713,11 +709,11 @@ class _SpanCache:
 _SPANS = _SpanCache(SPAN_CACHE)
 
 
-def _span_parts(library: Library, db: search_db.SearchSnapshot, span: _StoredSpan) -> Parts:
+def _span_parts(library: Library, span: _StoredSpan) -> Parts:
     """The query's parts: described from the clip's stored file at every frame (as an
     upload's are), else — a clip without a file — its stored windows inside the span."""
     clip = span.clip
-    if clip.files and isinstance(library.describer, MotionDescriber):
+    if clip.filenames and isinstance(library.describer, MotionDescriber):
         key: tuple[object, ...] = (id(library), clip.id, clip.content_hash, span.descriptor)
         key = (*key, span.version, span.first, span.stop)
         parts = _SPANS.get(key)
@@ -730,7 +726,7 @@ def _span_parts(library: Library, db: search_db.SearchSnapshot, span: _StoredSpa
     parts = _stored_parts(library, span)
     if parts is not None:
         return parts
-    vector = _stored_span_vector(library, db, span)
+    vector = _stored_span_vector(library, span)
     if vector is None:
         raise InvalidInput(
             f"clip {clip.id} has no stored file to describe a part of ({clip.format} clip); "
@@ -747,26 +743,12 @@ def _parts_of(span: SpanDescription) -> Parts:
     return Parts(span.part_length, offsets, span.parts)
 
 
-def _stored_span_vector(
-    library: Library, db: search_db.SearchSnapshot, span: _StoredSpan
-) -> np.ndarray | None:
+def _stored_span_vector(library: Library, span: _StoredSpan) -> np.ndarray | None:
     """The query vector without reading the file, when the span is the whole clip (the clip's
     vector) or exactly a stored window; else ``None``."""
-    clip, descriptor, version, first, stop = (
-        span.clip,
-        span.descriptor,
-        span.version,
-        span.first,
-        span.stop,
-    )
+    clip, descriptor, first, stop = span.clip, span.descriptor, span.first, span.stop
     if first == clip.lead_in_frames and stop == clip.frame_count:
-        try:
-            return library.indexes[descriptor].reconstruct(clip.id)
-        except KeyError:
-            stored = db.vector(clip.id, descriptor)
-            if stored is None or stored.version != version:
-                raise _unavailable(clip.id, descriptor, version) from None
-            return stored.vector
+        return clip_vector(library, clip.id, descriptor)
     for name, key in library.window_keys.items():
         if key.name != descriptor:
             continue
@@ -798,11 +780,15 @@ def _stored_parts(library: Library, span: _StoredSpan) -> Parts | None:
 
 
 def _described_span(
-    library: Library, clip: clip_db.ClipRecord, descriptor: str, first: int, stop: int
+    library: Library, entry: ClipEntry, descriptor: str, first: int, stop: int
 ) -> SpanDescription:
     """Read the clip's stored file and describe frames ``[first, stop)`` with its parts."""
     describer = library.describer
     assert isinstance(describer, MotionDescriber)
+    with library.reads() as session:  # the files' hashes are not in the catalogue
+        clip = clip_db.get_clip(session, entry.id)
+    if clip is None:  # deleted meanwhile
+        raise NotFound(f"no clip with id {entry.id}")
     return describer.describe_span(
         stored_upload(library, clip),
         library.settings.parse_limits,
@@ -847,20 +833,10 @@ def search_moments_by_upload(
     )
     library.refresh()
     seconds = (span.end_frame - span.start_frame) * span.frame_time
-    with library.search_reads.snapshot() as db:
-        allowed = allowed_clip_ids(db, label, licence_filter(licence))
-        moments = _search(
-            library,
-            db,
-            descriptor,
-            _parts_of(span),
-            seconds,
-            k,
-            per_clip,
-            allowed,
-            None,
-            collapse,
-        )
+    allowed = allowed_clip_ids(library, label, licence_filter(licence))
+    moments = _search(
+        library, descriptor, _parts_of(span), seconds, k, per_clip, allowed, None, collapse
+    )
     if upload.format in SCENE_FORMATS:
         upload = dataclasses.replace(upload, animation=span.animation)
     with library.reads() as session:

@@ -22,7 +22,8 @@ import numpy as np
 
 from app.db import clips as clip_db
 from app.db import label_filters as label_db
-from app.db import search_reads as search_db
+from app.db import vectors as vector_db
+from app.db.entries import ClipEntry
 from app.errors import DescriptorUnavailable, InvalidInput, NotFound
 from app.labels import label_filter
 from app.licences import LicenceArg, LicenceFilter, licence_filter
@@ -37,7 +38,7 @@ MAX_ATTEMPTS = 3
 
 @dataclass(frozen=True, slots=True)
 class Hit:
-    clip: search_db.ClipName  # id, name and labels (a ClipRecord has them too)
+    clip: ClipEntry  # what a result shows of the clip, from the catalogue
     distance: float
     similarity: float = 100.0  # percent of the library's typical neighbour distances larger
     others: tuple[Hit, ...] = ()  # collapse: the near-identical clips this hit stands for
@@ -48,35 +49,9 @@ class ClipAnswer:
     """``GET /search``: the query clip, its hits, and (collapse) its own near-identical
     copies, which are not among the hits."""
 
-    clip: clip_db.ClipRecord
+    clip: ClipEntry
     hits: list[Hit]
     query_others: list[Hit] = field(default_factory=list)
-
-
-QUICK_SCAN = 1_000_000  # numbers compared per query below which a search is "quick"
-QUICK_K = 100
-
-
-def is_quick(
-    library: Library,
-    descriptor: str,
-    k: int,
-    label: label_db.LabelFilter,
-    licence: LicenceArg = None,
-    collapse: bool = False,
-) -> bool:
-    """Whether a search by clip takes well under a millisecond (an unfiltered search that
-    compares at most :data:`QUICK_SCAN` numbers and fetches at most :data:`QUICK_K` rows), so
-    a caller may run it without handing it to a thread. Unknown descriptors count as quick
-    (they fail at once). Never on a database server (PostgreSQL): its rows come over the
-    network, and waiting for them must not hold up the event loop."""
-    if library.engine.dialect.name != "sqlite":
-        return False
-    index = library.indexes.get(descriptor)
-    if index is None:
-        return True
-    filtered = bool(label_filter(label)) or bool(licence_filter(licence))
-    return not filtered and not collapse and k <= QUICK_K and index.scan_cost() <= QUICK_SCAN
 
 
 def check_k(library: Library, k: int) -> None:
@@ -85,12 +60,14 @@ def check_k(library: Library, k: int) -> None:
 
 
 def allowed_clip_ids(
-    db: search_db.SearchSnapshot, label: label_db.LabelFilter, licence: LicenceFilter
+    library: Library, label: label_db.LabelFilter, licence: LicenceFilter
 ) -> np.ndarray | None:
-    """``(N,)`` ids of the clips the label and licence filters keep; ``None``: no filter."""
-    allowed = db.clip_ids_with_label(label) if label_filter(label) else None
+    """``(N,)`` ids of the clips the label and licence filters keep (from the catalogue);
+    ``None``: no filter."""
+    catalogue = library.catalogue
+    allowed = catalogue.ids_with_labels(label) if label_filter(label) else None
     if licence:
-        licensed = db.clip_ids_with_licence(licence)
+        licensed = catalogue.ids_matching("licence", licence.allows)
         allowed = licensed if allowed is None else np.intersect1d(allowed, licensed)
     return allowed
 
@@ -102,7 +79,6 @@ def capture_rule(library: Library) -> CaptureRule:
 
 def _nearest(
     library: Library,
-    db: search_db.SearchSnapshot,
     descriptor: str,
     vector: np.ndarray,
     k: int,
@@ -111,32 +87,33 @@ def _nearest(
     licence: LicenceFilter = LicenceFilter(),  # noqa: B008 - frozen, never changed
     exclude: int | None,
     collapse: bool = False,
-) -> tuple[list[Hit], search_db.ClipName | None, list[Hit]]:
-    """The hits, the name and labels of ``exclude`` (the query clip; fetched with the
-    hits' to save a query), and (collapse) the query clip's near-identical copies."""
+) -> tuple[list[Hit], list[Hit]]:
+    """The hits, read from the index and the catalogue (no SQL), and (collapse) the query
+    clip's near-identical copies."""
     index = library.indexes[descriptor]
-    allowed = allowed_clip_ids(db, label, licence)
+    catalogue = library.catalogue
+    allowed = allowed_clip_ids(library, label, licence)
     also = [] if exclude is None else [exclude]
     rule = capture_rule(library) if collapse else None
     wanted = k if rule is None else 3 * k + 10
     groups: list[list[int]] = []
     for _ in range(MAX_ATTEMPTS + (8 if rule is not None else 0)):
         found = index.search(vector, wanted, allowed=allowed, exclude=exclude)
-        clips = db.names([*found.ids.tolist(), *also])
+        clips = catalogue.get_many(found.ids.tolist())
         # Equal distances in id order: the same answer whatever FAISS's heap did.
         present = sorted(
             (
-                (int(i), float(d))
-                for i, d in zip(found.ids, found.distances, strict=True)
-                if int(i) in clips
+                (i, d)
+                for i, d in zip(found.ids.tolist(), found.distances.tolist(), strict=True)
+                if i in clips
             ),
             key=lambda hit: (hit[1], hit[0]),
         )
         exhausted = len(found) < wanted
         if rule is None:
-            # A clip deleted (by another process) between the index search and the row
-            # lookup is skipped; ask for as many more as went missing, so the answer still
-            # has k hits when the library does.
+            # A clip the index holds but the catalogue not (a sync between the two, which
+            # follow the same feed one after the other) is skipped; ask for as many more as
+            # went missing, so the answer still has k hits when the library does.
             if len(present) >= k or exhausted:
                 break
             wanted += len(found) - len(present)
@@ -152,6 +129,8 @@ def _nearest(
         ):
             break
         wanted *= 2
+    if rule is None:
+        present = present[:k]  # no similarity computed for hits not shown
     scale = library.scales.of(descriptor, index)
     similarity = scale.similarity(np.array([d for _, d in present], np.float64)).tolist()
     hits = [Hit(clips[i], d, s) for (i, d), s in zip(present, similarity, strict=True)]
@@ -166,7 +145,7 @@ def _nearest(
                 continue
             collapsed.append(dataclasses.replace(members[0], others=tuple(members[1:])))
         hits = collapsed
-    return hits[:k], None if exclude is None else clips.get(exclude), query_others
+    return hits[:k], query_others
 
 
 def search_vector(
@@ -185,18 +164,16 @@ def search_vector(
     library.descriptor(descriptor)
     library.require_current(descriptor)
     library.refresh()
-    with library.search_reads.snapshot() as db:
-        return _nearest(
-            library,
-            db,
-            descriptor,
-            vector,
-            k,
-            label=label,
-            licence=licence_filter(licence),
-            exclude=exclude,
-            collapse=collapse,
-        )[0]
+    return _nearest(
+        library,
+        descriptor,
+        vector,
+        k,
+        label=label,
+        licence=licence_filter(licence),
+        exclude=exclude,
+        collapse=collapse,
+    )[0]
 
 
 def _unavailable(clip_id: int, descriptor: str, version: int) -> DescriptorUnavailable:
@@ -204,6 +181,21 @@ def _unavailable(clip_id: int, descriptor: str, version: int) -> DescriptorUnava
         f"clip {clip_id} has no {descriptor!r} vector of version {version} yet; "
         "run `mocap-index reindex`"
     )
+
+
+def clip_vector(library: Library, clip_id: int, descriptor: str) -> np.ndarray:
+    """The stored ``descriptor`` vector ``(D,)`` of clip ``clip_id``: from its index, or
+    (a clip the index does not hold yet) from the database."""
+    try:
+        return library.indexes[descriptor].reconstruct(clip_id)
+    except KeyError:
+        pass
+    info = library.descriptors[descriptor]
+    with library.reads() as session:
+        stored = vector_db.get_vector(session, clip_id, descriptor)
+    if stored is None or stored.version != info.version or stored.vector.size != info.dimension:
+        raise _unavailable(clip_id, descriptor, info.version)
+    return stored.vector
 
 
 def search_by_clip(
@@ -220,9 +212,9 @@ def search_by_clip(
 
 def search_by_clip_id(
     library: Library, clip_id: int, descriptor: str, k: int, *, label: label_db.LabelFilter
-) -> tuple[clip_db.ClipRecord, list[Hit]]:
-    """The stored clip ``clip_id`` and its neighbours (never the clip itself), read from one
-    database snapshot. :class:`NotFound` when there is no such clip."""
+) -> tuple[ClipEntry, list[Hit]]:
+    """The stored clip ``clip_id`` and its neighbours (never the clip itself). :class:`NotFound`
+    when there is no such clip."""
     answer = find_by_clip(library, clip_id, descriptor, k, label=label)
     return answer.clip, answer.hits
 
@@ -238,43 +230,28 @@ def find_by_clip(
     collapse: bool = False,
 ) -> ClipAnswer:
     """``GET /search``: the stored clip ``clip_id`` and its neighbours (never the clip
-    itself), read from one database snapshot. :class:`NotFound` when there is no such
-    clip."""
+    itself), read from the indexes and the catalogue. :class:`NotFound` when there is no
+    such clip."""
     if not 0 < clip_id <= MAX_ID:  # no such id (and the database driver's overflow)
         raise NotFound(f"no clip with id {clip_id}")
-    info = library.descriptor(descriptor)
+    library.descriptor(descriptor)
     check_k(library, k)
     library.require_current(descriptor)
     library.refresh()
-    with library.search_reads.snapshot() as db:
-        clip = db.clip(clip_id, labels=False)
-        if clip is None:
-            raise NotFound(f"no clip with id {clip_id}")
-        try:  # the index holds the clip's current vector: no need to read it
-            vector = library.indexes[descriptor].reconstruct(clip_id)
-        except KeyError:  # not in the index (yet): the database knows
-            stored = db.vector(clip_id, descriptor)
-            if (
-                stored is None
-                or stored.version != info.version
-                or stored.vector.size != info.dimension
-            ):
-                raise _unavailable(clip_id, descriptor, info.version) from None
-            vector = stored.vector
-        hits, named, query_others = _nearest(
-            library,
-            db,
-            descriptor,
-            vector,
-            k,
-            label=label,
-            licence=licence_filter(licence),
-            exclude=clip_id,
-            collapse=collapse,
-        )
-        if named is None:  # deleted meanwhile by another process
-            raise NotFound(f"no clip with id {clip_id}")
-        clip = dataclasses.replace(clip, labels=named.labels)
+    clip = library.clip_entry(clip_id)
+    if clip is None:
+        raise NotFound(f"no clip with id {clip_id}")
+    vector = clip_vector(library, clip_id, descriptor)
+    hits, query_others = _nearest(
+        library,
+        descriptor,
+        vector,
+        k,
+        label=label,
+        licence=licence_filter(licence),
+        exclude=clip_id,
+        collapse=collapse,
+    )
     return ClipAnswer(clip, hits, query_others)
 
 

@@ -369,6 +369,30 @@ def test_moments_off_keeps_no_windows_and_says_so(settings: Settings) -> None:
         assert found.json()["results"]
 
 
+def test_window_places_come_from_their_file_and_catch_up(settings: Settings) -> None:
+    """A server writes where each window lies to a file (mapped, shared by its processes)
+    and reads it back at the next start, with the clips changed while it was down read
+    again from the database."""
+    with TestClient(create_app(settings)) as client:
+        take = upload(client, long_take(), "take.bvh")["id"]
+        upload(client, fixture_bytes(BANDAI_FIXTURE), "walk.bvh")
+    files = sorted(p.name for p in settings.index_dir.glob("windows-*.places.arrays"))
+    assert files, "no places file written"
+    # While no server runs: another writer deletes a clip and stores one.
+    other = open_library(settings)
+    try:
+        from app.services import clips as clip_service
+        from app.services.ingest import ingest
+        from app.services.uploads import Upload
+
+        clip_service.delete_clip(other, take)
+        ingest(other, Upload.from_files(file=("cut.bvh", long_take()[:-200].encode() + b"\n")))
+    finally:
+        other.engine.dispose()  # killed: nothing saved
+    with TestClient(create_app(settings)) as client:
+        assert window_index_sizes(client) == window_rows(settings)  # the places agree too
+
+
 # -- issue 24: licence filters, collapse=capture, "this file is clip #N", similarity ----------
 
 

@@ -1,0 +1,147 @@
+"""Named numpy arrays in one file, memory-mapped when read: how the in-memory caches beside
+the FAISS indexes (the catalogue, the window places) are persisted and shared.
+
+``<stem>.arrays`` holds the arrays one after another (each at a 64-byte boundary);
+``<stem>.json`` beside it records where each lies, its dtype and shape, the file's sha256 and
+whatever the writer adds (the change-feed position the arrays reflect, a format version).
+Writes go to temporary files renamed into place under the directory's exclusive lock
+(:func:`app.index.locks.directory_lock`), so a reader never sees half a file. A read maps the
+file read-only: every process reading it shares one copy of its pages (the page cache), and
+nothing is copied until a process changes what it holds.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import mmap
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from app.index.locks import directory_lock
+
+ALIGN = 64
+HASH_CHUNK = 1 << 22
+
+
+def file_sha256(path: Path) -> str:
+    """sha256 of a file, read in chunks (hashlib releases the GIL: files can be checked in
+    threads side by side)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as stream:
+        while chunk := stream.read(HASH_CHUNK):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def _fsync(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def write_arrays(
+    directory: Path, stem: str, arrays: Mapping[str, np.ndarray], meta: Mapping[str, Any]
+) -> None:
+    """Write ``arrays`` (C-contiguous copies are taken where needed) and ``meta`` as
+    ``<stem>.arrays`` and ``<stem>.json``, atomically, under the directory's lock."""
+    layout: dict[str, dict[str, Any]] = {}
+    with directory_lock(directory, exclusive=True):
+        path = directory / f"{stem}.arrays"
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        try:
+            with open(tmp, "wb") as out:
+                offset = 0
+                for name, array in arrays.items():
+                    data = np.ascontiguousarray(array)
+                    pad = -offset % ALIGN
+                    out.write(b"\0" * pad)
+                    offset += pad
+                    layout[name] = {
+                        "offset": offset,
+                        "dtype": data.dtype.str,
+                        "shape": list(data.shape),
+                    }
+                    out.write(data.data.cast("B"))
+                    offset += data.nbytes
+            _fsync(tmp)
+            described = {**meta, "arrays": layout, "sha256": file_sha256(tmp)}
+            os.replace(tmp, path)
+        finally:
+            tmp.unlink(missing_ok=True)
+        meta_path = directory / f"{stem}.json"
+        meta_tmp = meta_path.with_name(f".{meta_path.name}.{os.getpid()}.tmp")
+        try:
+            meta_tmp.write_text(json.dumps(described, indent=1))
+            os.replace(meta_tmp, meta_path)
+        finally:
+            meta_tmp.unlink(missing_ok=True)
+
+
+def read_arrays(
+    directory: Path, stem: str, expect: Mapping[str, Any], *, verify: bool = True
+) -> tuple[dict[str, np.ndarray], dict[str, Any]] | str:
+    """The arrays of ``<stem>.arrays`` (read-only views of the mapped file) and the metadata,
+    or why they cannot be used: a file missing, unreadable or not matching its checksum, or
+    metadata differing from ``expect`` (a format version, a descriptor). With
+    ``verify=False`` the checksum is left to :func:`verify_arrays` (later, in a thread)."""
+    path = directory / f"{stem}.arrays"
+    with directory_lock(directory, exclusive=False):
+        try:
+            meta = json.loads((directory / f"{stem}.json").read_text())
+            if not isinstance(meta, dict) or not isinstance(meta.get("arrays"), dict):
+                return "unreadable metadata"
+            for key, value in expect.items():
+                if meta.get(key) != value:
+                    return f"{key} is {meta.get(key)!r}, expected {value!r}"
+            if verify and file_sha256(path) != meta.get("sha256"):
+                return f"{path.name} does not match its checksum"
+            with open(path, "rb") as stream:
+                size = os.fstat(stream.fileno()).st_size
+                mapped = mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) if size else None
+        except FileNotFoundError as exc:
+            return f"missing {Path(exc.filename).name}"
+        except (OSError, ValueError) as exc:
+            return f"unreadable {stem} file: {exc}"
+    arrays = {}
+    try:
+        for name, where in meta["arrays"].items():
+            dtype = np.dtype(where["dtype"])
+            shape = tuple(int(n) for n in where["shape"])
+            count = int(np.prod(shape, dtype=np.int64))
+            if count == 0 or mapped is None:
+                arrays[name] = np.zeros(shape, dtype)
+                continue
+            array = np.frombuffer(mapped, dtype, count, int(where["offset"]))
+            arrays[name] = array.reshape(shape)
+    except (KeyError, TypeError, ValueError) as exc:
+        return f"unreadable {stem} metadata: {exc}"
+    return arrays, meta
+
+
+def verify_arrays(arrays: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> str | None:
+    """Check the checksum of arrays read with ``verify=False`` (the mapped file itself, even if
+    another process has replaced the file since): why they cannot be used, or None."""
+    mapped = next(filter(None, (_mapping_of(a) for a in arrays.values())), None)
+    if mapped is None:  # an empty file: nothing mapped
+        return None
+    digest = hashlib.sha256()
+    view = memoryview(mapped)
+    for start in range(0, len(view), HASH_CHUNK):
+        digest.update(view[start : start + HASH_CHUNK])
+    view.release()
+    return None if digest.hexdigest() == meta.get("sha256") else "file does not match its checksum"
+
+
+def _mapping_of(array: np.ndarray) -> mmap.mmap | None:
+    """The file mapping an array of :func:`read_arrays` is a view of, if any."""
+    base: Any = array
+    while base is not None and not isinstance(base, mmap.mmap):
+        base = base.obj if isinstance(base, memoryview) else getattr(base, "base", None)
+    return base

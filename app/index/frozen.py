@@ -1,0 +1,253 @@
+"""An IVF index mapped read-only from its file, and the changes since, in memory.
+
+FAISS maps an index file with ``IO_FLAG_MMAP_IFC``: the inverted lists (the codes and ids,
+nearly all of an index) stay in the file's pages, which every process mapping the file
+shares through the page cache — ``mocap-index serve --workers 2`` holds one copy, not two,
+and starts without reading the lists into memory. Such an index must not change (FAISS
+aborts the process on any write to a mapped list), so a :class:`FrozenIVF` keeps the changes
+made since the file beside it, like the catalogue's overlay:
+
+* ``delta``: vectors added since (a small flat index, exact);
+* ``gone``: ids of the mapped lists that are deleted or replaced (sorted; searches skip them
+  through an id selector).
+
+A search asks both and merges by distance. Where each id of the file lies (its list and
+offset: the *locator*, sorted by id) is read once when the file is mapped, so a vector is found
+without FAISS's id hash table, which would be a private copy in every process (~40 bytes per
+vector). :meth:`merged` gives an ordinary (owned, writable) index of the current vectors, to
+write as the next file.
+
+Shapes: a query is ``(1, D)`` float32; ids ``(N,)`` int64; vectors ``(N, D)`` float32.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+from typing import Any
+
+import faiss
+import numpy as np
+
+from app.index.kinds import empty_flat
+
+LIST_SHIFT = 32  # a place is list << 32 | offset
+
+
+class FrozenIVF:
+    """``base`` (a mapped IVF index) minus ``gone`` plus ``delta`` (see the module
+    docstring)."""
+
+    def __init__(self, base: Any) -> None:
+        self.base = base
+        self.dimension = int(base.d)
+        self.delta = empty_flat(self.dimension)
+        self.gone = np.zeros(0, np.int64)
+        invlists = base.invlists
+        ids, places = [], []
+        for cell in range(base.nlist):
+            size = invlists.list_size(cell)
+            if size:
+                ids.append(faiss.rev_swig_ptr(invlists.get_ids(cell), size).copy())
+                places.append((cell << LIST_SHIFT) + np.arange(size, dtype=np.int64))
+        every = np.concatenate(ids).astype(np.int64) if ids else np.zeros(0, np.int64)
+        order = np.argsort(every, kind="stable")
+        self.base_ids = every[order]  # sorted
+        self.places = np.concatenate(places)[order] if places else np.zeros(0, np.int64)
+        self._codes: np.ndarray | None = None  # see _view_codes
+        self._list_starts = np.zeros(0, np.int64)
+
+    @classmethod
+    def open(cls, path: str) -> FrozenIVF:
+        """Map the IVF index file at ``path`` (its id hash table, if it has one, dropped)."""
+        base = faiss.read_index(path, faiss.IO_FLAG_MMAP_IFC)
+        if base.direct_map.type != faiss.DirectMap.NoMap:  # type: ignore[attr-defined]
+            base.set_direct_map_type(faiss.DirectMap.NoMap)  # type: ignore[attr-defined]
+        frozen = cls(base)
+        frozen._view_codes(os.path.getsize(path))
+        return frozen
+
+    def _view_codes(self, file_size: int) -> None:
+        """For a mapped IVFFlat file, a numpy view of the mapping holding every list's codes
+        (raw float32 vectors) and each list's offset in it, so many vectors are read in one
+        gather instead of one FAISS call each (a moments search reads a hundred or more).
+        Only when every list lies inside one span no longer than the file: the mapping."""
+        base: Any = self.base
+        if not isinstance(base, faiss.IndexIVFFlat) or not self.base_ids.size:
+            return
+        invlists: Any = base.invlists
+        code_size = 4 * self.dimension
+        sizes = np.array([invlists.list_size(c) for c in range(base.nlist)], np.int64)
+        starts = np.array(
+            [int(invlists.get_codes(c)) if sizes[c] else 0 for c in range(base.nlist)], np.int64
+        )
+        used = sizes > 0
+        first = int(starts[used].min())
+        span = int((starts[used] + sizes[used] * code_size).max()) - first
+        if span > file_size:
+            return
+        region = (ctypes.c_uint8 * span).from_address(first)
+        self._codes = np.frombuffer(memoryview(region).cast("B"), np.uint8)
+        self._list_starts = np.where(used, starts - first, -1)
+
+    # -- what it holds ---------------------------------------------------------------------
+
+    @property
+    def ntotal(self) -> int:
+        return int(self.base.ntotal) - int(self.gone.size) + int(self.delta.ntotal)
+
+    @property
+    def changed(self) -> bool:
+        """Whether it differs from its file."""
+        return bool(self.gone.size or self.delta.ntotal)
+
+    def _base_rows(self, ids: np.ndarray) -> np.ndarray:
+        """Rows of the locator holding ``ids`` (-1: not in the file, or gone)."""
+        ids = np.asarray(ids, np.int64)
+        if not self.base_ids.size:
+            return np.full(ids.size, -1, np.int64)
+        at = np.minimum(self.base_ids.searchsorted(ids), self.base_ids.size - 1)
+        found = self.base_ids[at] == ids
+        if self.gone.size:
+            found &= ~np.isin(ids, self.gone)
+        return np.where(found, at, -1)
+
+    def ids(self) -> np.ndarray:
+        """``(N,)`` int64 ids held (sorted)."""
+        kept = self.base_ids
+        if self.gone.size:
+            kept = kept[~np.isin(kept, self.gone, assume_unique=True)]
+        if not self.delta.ntotal:
+            return kept
+        added = faiss.vector_to_array(self.delta.id_map).astype(np.int64)
+        return np.union1d(kept, added)
+
+    def vector(self, vector_id: int) -> np.ndarray | None:
+        """The ``(D,)`` float32 vector held under ``vector_id``, or None."""
+        if self.delta.ntotal:
+            try:
+                return np.asarray(self.delta.reconstruct(int(vector_id)), np.float32)
+            except RuntimeError:
+                pass
+        row = int(self._base_rows(np.array([vector_id]))[0])
+        if row < 0:
+            return None
+        place = int(self.places[row])
+        out = np.empty(self.dimension, np.float32)
+        self.base.reconstruct_from_offset(
+            place >> LIST_SHIFT, place & ((1 << LIST_SHIFT) - 1), faiss.swig_ptr(out)
+        )
+        return out
+
+    def vectors(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Which of ``ids`` ``(M,)`` are held ``(M,)`` bool, and their ``(K, D)`` float32
+        vectors in the order of ``ids``."""
+        ids = np.asarray(ids, np.int64)
+        rows = self._base_rows(ids)
+        from_base = rows >= 0
+        if self._codes is None or self.delta.ntotal:
+            kept, found = [], []
+            for vector_id in ids.tolist():
+                vector = self.vector(vector_id)
+                kept.append(vector is not None)
+                if vector is not None:
+                    found.append(vector)
+            stacked = np.stack(found) if found else np.empty((0, self.dimension), np.float32)
+            return np.array(kept, bool), stacked
+        places = self.places[rows[from_base]]
+        code_size = 4 * self.dimension
+        offsets = (
+            self._list_starts[places >> LIST_SHIFT] + (places & ((1 << LIST_SHIFT) - 1)) * code_size
+        )
+        gathered = self._codes[offsets[:, None] + np.arange(code_size)]
+        return from_base, gathered.view(np.float32).reshape(-1, self.dimension)
+
+    def all_vectors(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every ``(ids (N,), vectors (N, D))`` held."""
+        ids = self.ids()
+        vectors = np.empty((ids.size, self.dimension), np.float32)
+        for row, vector_id in enumerate(ids.tolist()):
+            found = self.vector(vector_id)
+            assert found is not None
+            vectors[row] = found
+        return ids, vectors
+
+    # -- changes ---------------------------------------------------------------------------
+
+    def add(self, ids: np.ndarray, vectors: np.ndarray) -> None:
+        """Add vectors under ids not held yet."""
+        self.delta.add_with_ids(vectors, ids)
+
+    def remove(self, ids: np.ndarray) -> int:
+        """Remove ``ids`` (absent ones ignored); returns how many were held."""
+        removed = 0
+        if self.delta.ntotal:
+            removed += int(self.delta.remove_ids(faiss.IDSelectorBatch(ids)))
+        in_base = ids[self._base_rows(ids) >= 0]
+        if in_base.size:
+            self.gone = np.union1d(self.gone, in_base)
+            removed += int(np.unique(in_base).size)
+        return removed
+
+    # -- searches --------------------------------------------------------------------------
+
+    def search(
+        self, queries: np.ndarray, k: int, *, nprobe: int, allowed: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``(Q, k)`` squared distances and ids of the nearest held vectors to ``queries``
+        ``(Q, D)`` (padded with id -1), among ``allowed`` (sorted unique ids; every cell is
+        then probed) when given."""
+        params = faiss.SearchParametersIVF()
+        keep: list[Any] = []  # selectors FAISS reads must stay alive
+        if allowed is not None:
+            wanted = allowed if not self.gone.size else np.setdiff1d(allowed, self.gone, True)
+            keep.append(wanted)
+            params.sel = faiss.IDSelectorBatch(wanted)
+            params.nprobe = int(self.base.nlist)
+        else:
+            params.nprobe = nprobe
+            if self.gone.size:
+                inner = faiss.IDSelectorBatch(self.gone)
+                keep.append(inner)
+                params.sel = faiss.IDSelectorNot(inner)
+        squared, ids = self.base.search(queries, k, params=params)
+        if not self.delta.ntotal:
+            return squared, ids
+        flat: Any = None
+        if allowed is not None:
+            flat = faiss.SearchParameters()
+            flat.sel = faiss.IDSelectorBatch(allowed)
+        more_squared, more_ids = self.delta.search(queries, k, params=flat)
+        every_squared = np.concatenate([squared, more_squared], axis=1)
+        every_ids = np.concatenate([ids, more_ids], axis=1)
+        # Padding (-1) last; then nearest first, the file's hits before the delta's on ties.
+        rank = np.where(every_ids >= 0, every_squared, np.inf)
+        order = np.argsort(rank, axis=1, kind="stable")[:, :k]
+        return (
+            np.take_along_axis(every_squared, order, axis=1),
+            np.take_along_axis(every_ids, order, axis=1),
+        )
+
+    def scan_cost(self, nprobe: int, *, filtered: bool) -> int:
+        """Numbers one search compares (see DescriptorIndex.scan_cost)."""
+        nlist = int(self.base.nlist)
+        held = int(self.base.ntotal)
+        probed = held if filtered else min(nprobe, nlist) * held // max(nlist, 1)
+        return (nlist + probed + int(self.delta.ntotal)) * self.dimension
+
+    # -- the next file ---------------------------------------------------------------------
+
+    def merged(self) -> Any:
+        """An owned, writable copy of the base with the changes applied."""
+        index = faiss.deserialize_index(faiss.serialize_index(self.base))
+        if self.gone.size:
+            index.remove_ids(faiss.IDSelectorArray(self.gone.size, faiss.swig_ptr(self.gone)))
+        if self.delta.ntotal:
+            ids = faiss.vector_to_array(self.delta.id_map).astype(np.int64)
+            flat: Any = faiss.downcast_index(self.delta.index)
+            count = int(self.delta.ntotal)
+            vectors = faiss.rev_swig_ptr(flat.get_xb(), count * self.dimension)
+            index.add_with_ids(
+                np.asarray(vectors, np.float32).reshape(count, self.dimension).copy(), ids
+            )
+        return index

@@ -1,0 +1,204 @@
+"""A mapped IVF index (app/index/frozen.py) answers exactly as the same index held in memory,
+through adds, removes, re-described vectors, filtered searches, saves and reloads; and it is
+the file's pages, not a copy."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from app.index.descriptor_index import DescriptorIndex
+from app.index.kinds import IVF, IndexOptions
+
+DIMENSION = 6
+COUNT = 4000
+
+
+def vectors_for(ids: np.ndarray, salt: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(int(ids.sum()) + salt)
+    return rng.normal(size=(ids.size, DIMENSION)).astype(np.float32)
+
+
+def pair(tmp_path: Path) -> tuple[DescriptorIndex, DescriptorIndex]:
+    """The same IVF index twice: mapped from its file, and held in memory."""
+    ids = np.arange(1, COUNT + 1, dtype=np.int64) * 3
+    vectors = vectors_for(ids)
+    mapped = DescriptorIndex("posture", DIMENSION, 1, tmp_path / "a", options=IndexOptions("ivf"))
+    mapped.replace_all(ids, vectors, persist=True)
+    (tmp_path / "b").mkdir()
+    for name in ("posture.faiss", "posture.json"):  # the same cells, read into memory
+        shutil.copy(tmp_path / "a" / name, tmp_path / "b" / name)
+    held = DescriptorIndex(
+        "posture", DIMENSION, 1, tmp_path / "b", options=IndexOptions("ivf", mmap=False)
+    )
+    assert held.load_or_rebuild(_Source(ids, vectors)) is None
+    assert mapped.mapped and not held.mapped and held.kind == mapped.kind == IVF
+    return mapped, held
+
+
+class _Source:
+    def __init__(self, ids: np.ndarray, vectors: np.ndarray) -> None:
+        self._ids, self._vectors = ids, vectors
+
+    def watermark(self) -> int:
+        return 0
+
+    def count(self) -> int:
+        return int(self._ids.size)
+
+    def ids(self) -> np.ndarray:
+        return self._ids
+
+    def vectors(self) -> tuple[np.ndarray, np.ndarray]:
+        return self._ids, self._vectors
+
+    def changed(self, since: int) -> np.ndarray:
+        return np.zeros(0, np.int64)
+
+    def vectors_of(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        rows = np.searchsorted(self._ids, ids)
+        return self._ids[rows], self._vectors[rows]
+
+
+def assert_same(mapped: DescriptorIndex, held: DescriptorIndex, probes: np.ndarray) -> None:
+    assert mapped.size == held.size
+    assert np.array_equal(np.sort(mapped.ids()), np.sort(held.ids()))
+    assert np.array_equal(mapped.sorted_ids(), np.sort(held.ids()))
+    rng = np.random.default_rng(5)
+    allowed = np.sort(rng.choice(held.ids(), min(held.size, 50), replace=False))
+    for query in probes:
+        for kwargs in ({}, {"allowed": allowed}):
+            a = mapped.search(query, 10, **kwargs)  # type: ignore[arg-type]
+            b = held.search(query, 10, **kwargs)  # type: ignore[arg-type]
+            assert np.allclose(a.distances, b.distances)
+            assert set(a.ids.tolist()) == set(b.ids.tolist()) or np.allclose(
+                a.distances[-1], b.distances[-1]
+            )
+    some = held.ids()[:: max(1, held.size // 40)]
+    for vector_id in some.tolist():
+        assert np.array_equal(mapped.reconstruct(vector_id), held.reconstruct(vector_id))
+    kept_a, found_a = mapped.reconstruct_batch(np.append(some, -5))
+    kept_b, found_b = held.reconstruct_batch(np.append(some, -5))
+    assert np.array_equal(kept_a, kept_b) and np.array_equal(found_a, found_b)
+    with pytest.raises(KeyError):
+        mapped.reconstruct(-5)
+
+
+@settings(
+    max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    steps=st.lists(
+        st.tuples(
+            st.sampled_from(["add", "remove", "change", "save", "reload"]),
+            st.lists(st.integers(1, COUNT + 300), max_size=40, unique=True),
+        ),
+        max_size=8,
+    )
+)
+def test_mapped_index_answers_like_the_one_in_memory(
+    tmp_path_factory: pytest.TempPathFactory, steps: list[tuple[str, list[int]]]
+) -> None:
+    tmp_path = tmp_path_factory.mktemp("frozen")
+    mapped, held = pair(tmp_path)
+    probes = np.random.default_rng(1).normal(size=(5, DIMENSION)).astype(np.float32)
+    for step, (kind, numbers) in enumerate(steps):
+        ids = np.asarray(numbers, np.int64) * 3
+        present = set(held.ids().tolist())
+        if kind == "add":
+            new = np.array([i for i in ids.tolist() if i not in present], np.int64)
+            for index in (mapped, held):
+                index.add(new, vectors_for(new, step), persist=False)
+        elif kind == "remove":
+            assert mapped.remove(ids, persist=False) == held.remove(ids, persist=False)
+        elif kind == "change":  # re-described, deleted and new clips, as the feed names them
+            current = ids[: ids.size // 2]
+            fresh = vectors_for(current, 100 + step)
+            for index in (mapped, held):
+                index.apply_changes(ids, current, fresh, persist=False)
+        elif kind == "save":
+            mapped.save()
+            assert mapped.mapped
+        else:  # another process: the file, then nothing missed
+            mapped.save()
+            mapped = DescriptorIndex(
+                "posture", DIMENSION, 1, tmp_path / "a", options=IndexOptions("ivf")
+            )
+            found = mapped.read_file()
+            assert not isinstance(found, str), found
+            ids_now, vectors_now = held.all_vectors()
+            order = np.argsort(ids_now)
+            mapped.load_or_rebuild(_Source(ids_now[order], vectors_now[order]), found)
+            assert mapped.mapped
+        assert_same(mapped, held, probes)
+
+
+def test_mapped_index_is_the_files_pages(tmp_path: Path) -> None:
+    mapped, _ = pair(tmp_path)
+    # Mapped lists cannot grow: a change lands beside them, and the file is untouched.
+    before = (tmp_path / "a" / "posture.faiss").read_bytes()
+    mapped.add(np.array([1, 2]), vectors_for(np.array([1, 2])), persist=False)
+    mapped.remove(np.array([3, 6]), persist=False)
+    assert (tmp_path / "a" / "posture.faiss").read_bytes() == before
+    assert mapped.size == COUNT
+    mapped.save()  # a new file with the changes, mapped in turn
+    reopened = DescriptorIndex("posture", DIMENSION, 1, tmp_path / "a", options=IndexOptions("ivf"))
+    found = reopened.read_file()
+    assert not isinstance(found, str)
+    assert found[0].ntotal == COUNT
+    ids, vectors = mapped.all_vectors()
+    reopened.load_or_rebuild(_Source(ids, vectors), found)
+    assert reopened.mapped and not reopened._index.changed  # type: ignore[attr-defined]
+    assert reopened.sorted_ids()[:3].tolist() == [1, 2, 9]
+
+
+def test_server_checks_mapped_files_after_start_and_rebuilds_a_damaged_one(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A server maps its large files unchecked (start-up) and checks them in a thread: a
+    damaged one is rebuilt from the database, and searches answer right."""
+    from app.config import Settings
+    from app.services.ingest import describe, store_many
+    from app.services.library import open_library
+    from app.services.search import search_by_clip_id
+    from app.services.uploads import Upload
+    from tests.services.fakes import FakeDescriber, fake_motion
+
+    settings = Settings(data_dir=tmp_path / "data", index_type="ivf")
+    library = open_library(settings, describer=FakeDescriber())
+    uploads = [
+        Upload.from_files(file=(f"c{n}.bvh", fake_motion([n % 17, n // 17, 0.5])))
+        for n in range(600)
+    ]
+    store_many(library, [describe(library, u) for u in uploads])
+    library.close()
+    open_library(settings, describer=FakeDescriber()).close()  # now IVF, saved and mapped
+    assert json.loads((settings.index_dir / "posture.json").read_text())["kind"] == IVF
+    index_file = settings.index_dir / "posture.faiss"
+    data = bytearray(index_file.read_bytes())
+    data[-5] ^= 0xFF  # a vector's last byte: only the checksum notices
+    index_file.write_bytes(bytes(data))
+    catalogue_file = settings.index_dir / "catalogue.arrays"
+    data = bytearray(catalogue_file.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    catalogue_file.write_bytes(bytes(data))
+    caplog.set_level("WARNING")
+    library = open_library(settings, describer=FakeDescriber(), verify_later=True)
+    try:
+        assert library.indexes["posture"].mapped
+        assert library.verifier is not None  # the check runs in a thread of the library
+        library.verifier.join(timeout=60)
+        assert library.verify_files() == []  # the thread found and rebuilt both already
+        query, hits = search_by_clip_id(library, 1, "posture", 5, label=None)
+        assert query.name == "c0" and {h.clip.name for h in hits[:2]} == {"c17", "c1"}
+        assert len(library.catalogue) == 600
+        assert "rebuilding the posture index" in caplog.text
+        assert "rebuilding the catalogue" in caplog.text
+    finally:
+        library.close()
