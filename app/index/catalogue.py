@@ -10,7 +10,7 @@ filters need no SQL either.
 Like the indexes it is a cache of the database, the source of truth: written to
 ``<index dir>/catalogue.arrays`` (:mod:`app.index.array_file`) with the change-feed position
 it reflects, loaded at start and brought up to date with the clips changed since (inserted,
-deleted, renamed, relabelled: migration 0010 puts updates on the feed), rebuilt from the
+deleted, renamed, relabelled: migration 0009 puts updates on the feed), rebuilt from the
 database when the file is missing, damaged or disagrees with it, and kept current by the same
 feed as the indexes (:meth:`app.services.library.Library.sync_indexes`).
 

@@ -160,7 +160,7 @@ class Library:
     exporters: ExportPool | None = None
     write_lock: threading.Lock = field(default_factory=threading.Lock)
     # Renames, relabels and new notes made by this process: caches of names and labels
-    # compare it (the catalogue follows the change feed, which has them since migration 0010).
+    # compare it (the catalogue follows the change feed, which has them since migration 0009).
     edits: int = 0
     # Each index's typical neighbour distances: the similarity of search results.
     scales: NeighbourScales = field(default_factory=NeighbourScales, repr=False)

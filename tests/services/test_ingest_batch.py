@@ -44,7 +44,7 @@ def test_a_batch_is_stored_in_order_and_searchable_at_once(library: Library) -> 
     assert [r.clip.id for r in results] == list(range(1, 51))
     assert all(r.created for r in results)
     assert library.indexes.sizes() == {"posture": 50, "kinetic": 50}
-    # The feed's next row (SQLite): a row per clip and one per label (migration 0010).
+    # The feed's next row (SQLite): a row per clip and one per label (migration 0009).
     assert library.indexes["posture"].synced_to == 101
     hits = search_vector(library, "posture", np.array([10.2, 0, 0], np.float32), 3)
     assert [h.clip.name for h in hits] == ["c10", "c11", "c9"]
@@ -119,7 +119,7 @@ def test_index_files_of_a_killed_writer_catch_up_at_start(fresh: Settings) -> No
     reopened = open_library(fresh, describer=FakeDescriber())
     try:
         assert reopened.indexes.sizes() == {"posture": 4, "kinetic": 4}
-        # Past the feed's 8 rows (SQLite): each clip's and its label's (migration 0010).
+        # Past the feed's 8 rows (SQLite): each clip's and its label's (migration 0009).
         assert reopened.indexes["posture"].synced_to == 9
     finally:
         reopened.close()
