@@ -120,17 +120,30 @@ def test_a_still_pose_and_one_frame() -> None:
     assert one.shape == (2, 1, 3)
 
 
-def ufbx_curves(path: Path) -> tuple[list[str], list[np.ndarray]]:
-    import ufbx
+# ufbx's Python binding is C code that has crashed the test process reading these files
+# (objects freed under it): it reads them in a process of its own, as the service's own
+# readers do, and sends back the node names and every curve's key values.
+_READ_CURVES = """
+import json, sys
+import ufbx
+scene = ufbx.load_memory(open(sys.argv[1], "rb").read())
+nodes = list(scene.nodes)
+curves = list(scene.anim_curves)
+keys = [list(curve.keyframes) for curve in curves]
+print(json.dumps([sorted(n.name for n in nodes), [[k.value for k in one] for one in keys]]))
+"""
 
-    scene = ufbx.load_memory(path.read_bytes())
-    nodes = list(scene.nodes)  # every object kept referenced: the binding frees them
-    curves = list(scene.anim_curves)
-    keys = [list(curve.keyframes) for curve in curves]
-    values = [np.array([key.value for key in one]) for one in keys]
-    names = sorted(node.name for node in nodes)
-    del keys, curves, nodes, scene
-    return names, values
+
+def ufbx_curves(path: Path) -> tuple[list[str], list[np.ndarray]]:
+    done = subprocess.run(
+        [sys.executable, "-c", _READ_CURVES, str(path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    )
+    names, values = json.loads(done.stdout)
+    return names, [np.array(one, dtype=np.float64) for one in values]
 
 
 def write_both(fixture: str, folder: Path, *extra: str) -> list[str | None]:
