@@ -40,8 +40,16 @@ browser: install
 postgres:
 	-bash scripts/install_postgres.sh
 
+# Two phases: most tests in TEST_WORKERS processes, a test file per process at a time
+# (pytest-xdist; a crashed worker ends the run rather than being replaced); then the
+# hardening and hostile-input tests alone, because they time the service's answers (a
+# /health within 1 s during each request) and must not share the cores with other tests.
+TEST_WORKERS ?= 2
+
 test: lint browser postgres
-	$(BIN)/pytest
+	$(BIN)/pytest -n $(TEST_WORKERS) --dist loadfile --max-worker-restart=0 \
+		--ignore=tests/hardening --ignore=tests/hostile
+	$(BIN)/pytest tests/hardening tests/hostile
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

@@ -26,6 +26,7 @@ Map (:func:`library_map`)
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import threading
@@ -271,6 +272,7 @@ class Layout:
     outliers: np.ndarray  # (N,) bool
     three_man_ids: np.ndarray  # (M,) clips with a current, finite kinetic vector
     three_man: np.ndarray  # (M, 3)
+    inputs: bytes = b""  # digest of the vectors it was computed from
 
 
 def vector_layout(vectors: np.ndarray) -> tuple[Projection, np.ndarray]:
@@ -285,8 +287,10 @@ def three_man_available(library: Library) -> bool:
     return info is not None and info.dimension == KINETIC_DIMENSION
 
 
-def compute_layout(library: Library, descriptor: str) -> Layout:
-    """Read the stored vectors and lay the library out (the slow part of the map)."""
+def compute_layout(library: Library, descriptor: str, last: Layout | None = None) -> Layout:
+    """Read the stored vectors and lay the library out (the slow part of the map); ``last``
+    when it was computed from the same vectors (the feed also moves for renames and
+    relabels, which change no vector)."""
     info = library.descriptor(descriptor)
     kinetic_info = library.descriptors.get(THREE_MAN_DESCRIPTOR)
     with library.reads() as session:
@@ -300,12 +304,18 @@ def compute_layout(library: Library, descriptor: str) -> Layout:
                 )
         else:
             kinetic_ids, kinetic_vectors = np.zeros(0, np.int64), np.zeros((0, 0), np.float32)
+    digest = hashlib.blake2b(digest_size=16)
+    for array in (ids, vectors, kinetic_ids, kinetic_vectors):
+        digest.update(np.ascontiguousarray(array).tobytes())
+    inputs = digest.digest()
+    if last is not None and last.inputs == inputs:
+        return last
     projection, scores = vector_layout(vectors)
     features = three_man_many(kinetic_vectors) if len(kinetic_ids) else np.zeros((0, 3))
     finite = np.all(np.isfinite(features), axis=1)
     return Layout(
         ids, projection, scores, np.asarray(scores > OUTLIER_Z), kinetic_ids[finite],
-        features[finite],
+        features[finite], inputs,
     )  # fmt: skip
 
 
@@ -485,11 +495,12 @@ class LibraryMap:
         """Compute the layout in a thread of its own (the caller holds the lock)."""
         future: Future[_Computed] = Future()
         self._running[descriptor] = future
+        last = self._layouts.get(descriptor)
 
         def compute() -> None:
             started = time.monotonic()
             try:
-                layout = compute_layout(library, descriptor)
+                layout = compute_layout(library, descriptor, last.layout if last else None)
             except BaseException as error:
                 with self._lock:
                     self._running.pop(descriptor, None)

@@ -92,11 +92,13 @@ class HeldLayouts:
         self.release.set()
         self._real = library_map.compute_layout
 
-    def __call__(self, library: Any, descriptor: str) -> library_map.Layout:
+    def __call__(
+        self, library: Any, descriptor: str, last: library_map.Layout | None = None
+    ) -> library_map.Layout:
         self.calls += 1
         self.started.set()
         assert self.release.wait(30)
-        return self._real(library, descriptor)
+        return self._real(library, descriptor, last)
 
 
 def test_one_computation_for_many_requests_and_none_without_a_change(
