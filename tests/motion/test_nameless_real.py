@@ -25,10 +25,6 @@ from tests.conftest import shared_data_dir
 
 DATA = shared_data_dir()
 
-# Why the nameless copy maps otherwise (kinds, found by comparing the two mappings).
-COLLAR = "without names the collar bone, in line with a T-posed arm, is taken for the shoulder"
-KNOWN_GAPS: dict[str, str] = {}
-
 
 def _humans() -> list[Path]:
     """Human BVH files the development tables say are stored as people."""
