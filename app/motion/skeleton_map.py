@@ -1176,6 +1176,12 @@ class _Mapper:
             long_end = tree.lengths[leaf] >= 2 * _HEAD_END_MIN * self.extent
             head_joint = parent if long_end and parent != body.chest else leaf
             how = "structure: top of the spine chain"
+            # The skull carries the face (eyes, jaw): where the chain to the top of the head
+            # first branches above the neck is the head joint, as a named rig's "head" is.
+            above_neck = chain[2 : chain.index(leaf)]
+            skull = next((j for j in above_neck if len(tree.children[j]) > 1), None)
+            if skull is not None:
+                head_joint, how = skull, "structure: where the face branches off the head"
         self.head_joint = head_joint
         tip = self.effector(head_joint, along=body.up)
         if tip is not None:
