@@ -239,9 +239,10 @@ export function openDownload(target) {
         rigStatus.textContent = "Not stored.";
         return;
       }
-      rigStatus.textContent = `Stored as rig #${answer.body.id} “${answer.body.name}”.`;
+      // Said once the new rig is listed and chosen, so the form shows what the line says.
       await loadRigs(answer.body.id);
       saveOptions(chosen());
+      rigStatus.textContent = `Stored as rig #${answer.body.id} “${answer.body.name}”.`;
     } catch (error) {
       rigStatus.textContent = `Not stored: ${error.detail || error.message}`;
     } finally {

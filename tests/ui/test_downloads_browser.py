@@ -104,6 +104,7 @@ def downloaded(browser: Any, tmp_path_factory: pytest.TempPathFactory) -> Iterat
         dialog.get_by_label(re.compile("^Rig file")).set_input_files(str(BANDAI))
         dialog.get_by_role("button", name="Store this rig").click()
         expect(dialog.locator(".rig-upload [role=status]")).to_contain_text("Stored as rig #")
+        expect(rig_select).to_have_value(re.compile(r"^\d+$"))  # the new rig, chosen
         rig_id = int(rig_select.input_value())
         rig = httpx.get(f"{base}/rigs/{rig_id}", timeout=30).json()
         assert rig["name"] == BANDAI.stem
