@@ -49,7 +49,7 @@ from app.api.limits import BodySizeLimit
 from app.config import Settings
 from app.errors import CrossSiteRequest, HostNotAllowed, MocapError, TooManyRequests
 
-# JSON bodies here are a clip's name, labels, source and licence (tens of kilobytes at most);
+# JSON bodies here carry a clip's name, label list, source and licence (tens of kilobytes at most);
 # parsed into Python objects a JSON body takes ~13x its size, so it gets its own small cap.
 MAX_JSON_BODY_BYTES = 1024 * 1024
 
@@ -150,15 +150,15 @@ class AccessTable:
         return cls(literal, templated)
 
     def find(self, method: str, path: str) -> tuple[str, RouteAccess]:
-        """The operation's path template and access; ``("", OPEN)`` when none matches (the
+        """The operation's path pattern and access; ``("", OPEN)`` when none matches (the
         router answers 404 or 405 without reading a body). HEAD is answered by GET routes."""
         method = "GET" if method == "HEAD" else method
         access = self.literal.get((method, path))
         if access is not None:
             return path, access
-        for wanted, pattern, template, access in self.templated:
+        for wanted, pattern, route_path, access in self.templated:
             if wanted == method and pattern.match(path):
-                return template, access
+                return route_path, access
         return "", RouteAccess(Access.OPEN)
 
 
@@ -327,7 +327,7 @@ class RequestGuard:
         self._by_path: dict[tuple[str, str], tuple[str, RouteAccess]] = {}
 
     def access_of(self, scope: Scope) -> tuple[str, RouteAccess]:
-        """The operation's path template and access (cached per method and path)."""
+        """The operation's path pattern and access (cached per method and path)."""
         path: str = scope["path"]
         root = scope.get("root_path", "")
         if root and path.startswith(root):  # served under a prefix (uvicorn --root-path)

@@ -87,7 +87,7 @@ def create_rig(
     file: Annotated[
         UploadFile | None,
         File(
-            description="A character's skeleton: BVH (`.bvh`, `Frames: 0` templates too), "
+            description="A character's skeleton: BVH (`.bvh`, `Frames: 0` skeletons too), "
             "Acclaim skeleton (`.asf`), FBX (`.fbx`), glTF (`.glb`, `.gltf`), VRM (`.vrm`) "
             "or VRM animation (`.vrma`). A file with a mesh and no animation is a rig (its "
             "bind pose is the rest pose); a clip file works too."

@@ -4,7 +4,7 @@ A rig is a skeleton and its reference pose (see :func:`app.motion.retarget.refer
 mapped by the same structural mapper as clips (a skeleton that is not a whole humanoid is
 refused, 422, like a clip). It comes from an uploaded file — BVH, ASF (alone, or as a
 ``.asf`` file), FBX, glTF/GLB, VRM/VRMA: a character with a mesh and no animation is a rig
-(its bind pose is the rest pose), and so is a clip file or a ``Frames: 0`` BVH template —
+(its bind pose is the rest pose), and so is a clip file or a skeleton-only ``Frames: 0`` BVH —
 or from a stored clip. FBX and glTF files are read in the parser pool's workers, under the
 same time and memory limits as a clip upload; BVH and ASF under the same parse limits.
 
