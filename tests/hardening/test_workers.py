@@ -15,6 +15,8 @@ from tests.hardening.live import LiveServer, service_problems, unique_bvh
 
 REFRESH = 0.1
 CLIPS = 6
+# What the README promises: another process's change is found within the refresh + 1 s.
+SETTLE = REFRESH + 1.0
 QUERIES = 12  # each on a new connection: the kernel hands them to either worker
 
 
@@ -62,7 +64,7 @@ def test_two_workers_answer_alike_and_stop_together(tmp_path: Path) -> None:
                 response = client.post("/clips", files={"file": (f"walk_{n}.bvh", unique_bvh(n))})
                 assert response.status_code == 201, response.text
                 ids.append(response.json()["id"])
-        time.sleep(REFRESH + 0.2)
+        time.sleep(SETTLE)
         for n in range(QUERIES):
             query = ids[n % CLIPS]
             found = fresh_get(server.url, "/search", clip=query, k=100)
@@ -74,7 +76,7 @@ def test_two_workers_answer_alike_and_stop_together(tmp_path: Path) -> None:
             assert moments.json()["results"], "no moment found"
         with httpx.Client(base_url=server.url, timeout=30) as client:
             assert client.delete(f"/clips/{ids[0]}").status_code == 204
-        time.sleep(REFRESH + 0.2)
+        time.sleep(SETTLE)
         for _ in range(QUERIES):
             found = fresh_get(server.url, "/search", clip=ids[1], k=100)
             assert {hit["id"] for hit in found.json()["results"]} == set(ids[2:])
