@@ -70,6 +70,8 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
         await run_in_threadpool(remove_orphan_files, library)  # left by a crash mid-write
         await run_in_threadpool(library.load_window_places)  # the moments search's map
         library.start_housekeeping()  # prunes the change feed now and then
+        # Follow other processes' changes from the start, not from this process's first search.
+        await run_in_threadpool(library.refresh)
         app.state.library = library
         try:
             yield

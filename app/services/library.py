@@ -481,8 +481,9 @@ class Library:
     def refresh(self) -> None:
         """Keep the indexes up to date with the database, within
         ``MOCAP_INDEX_REFRESH_SECONDS`` (called before searches). With 0, check now; else a
-        thread of the library checks that often (started here the first time), so no search
-        waits for the database."""
+        thread of the library checks that often (started at the service's start, or here the
+        first time), so no search waits for the database. Starting it checks once first: a
+        process that has not searched yet must not answer from what it loaded at start."""
         interval = self.settings.index_refresh_seconds
         if interval <= 0:
             self._check()
@@ -490,6 +491,7 @@ class Library:
         if self._refresher is None:
             with self._refresher_lock:
                 if self._refresher is None and not self._stopping.is_set():
+                    self._check()
                     self._refresher = threading.Thread(
                         target=self._refresh_loop, args=(interval,), daemon=True
                     )

@@ -156,3 +156,23 @@ def test_a_replica_started_later_catches_up_from_its_saved_index(
         assert indexed(replica) == set(ids[2:]) | set(more)
     finally:
         replica.close()
+
+
+def test_the_first_search_of_a_process_sees_what_another_stored_since_it_opened(
+    settings_on: Settings,
+) -> None:
+    """With a refresh interval (a served process), the thread that follows the feed used to
+    start at the first search and that search answered from the indexes as loaded at start:
+    a worker that had not searched yet missed every clip the other worker had stored."""
+    following = settings_on.model_copy(update={"index_refresh_seconds": 60.0})
+    reader = open_library(following, describer=FakeDescriber())
+    writer = open_library(following, describer=FakeDescriber())
+    try:
+        with writer.writes.begin() as session:
+            ids = clip_db.insert_clips(session, [row(writer, n) for n in range(3)])
+        query = np.zeros(3, dtype=np.float32)
+        hits = search_vector(reader, "posture", query, 10)
+        assert {hit.clip.id for hit in hits} == set(ids)
+    finally:
+        writer.close()
+        reader.close()
