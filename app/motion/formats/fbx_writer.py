@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import os
 import tempfile
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from contextlib import AbstractContextManager, nullcontext
 from typing import Any, Literal
 
@@ -49,11 +49,18 @@ def bpy_available() -> str | None:
     return None
 
 
-def _tails(motion: Motion, rest: np.ndarray) -> np.ndarray:
+def _tails(motion: Motion, rest: np.ndarray, moved: Collection[int] = ()) -> np.ndarray:
     """``(J, 3)`` bone tails: toward the nearest descendant at a distinct position (the first
     child's, else a grandchild's: a joint whose children all sit on it, like a hips joint
     whose hip joints start at its centre, points at its first real bone), else along the
-    parent's bone (a leaf) by a tenth of the body's size or the parent bone's length."""
+    parent's bone (a leaf) by a tenth of the body's size or the parent bone's length.
+
+    A bone with a child in ``moved`` (joints whose offset is animated, like the hips under an
+    extracted root) points across its children instead, as far as possible from every one
+    of them: Blender's FBX importer puts a bone's tail along its rest Y axis at the mean
+    distance of its children and *connects* a child whose head lies there, and a connected
+    bone's animated location is ignored (the child would stay at its first frame's offset).
+    """
     skeleton = motion.skeleton
     count = skeleton.joint_count
     size = float(np.ptp(rest, axis=0).max()) if count > 1 else 1.0
@@ -74,6 +81,8 @@ def _tails(motion: Motion, rest: np.ndarray) -> np.ndarray:
                 break
             queue.extend(children[candidate])
         p = int(skeleton.parents[j])
+        if vector is not None and any(c in moved for c in children[j]):
+            vector = _across(vector, [rest[c] - rest[j] for c in children[j]])
         if vector is not None:
             tails[j] = rest[j] + vector
             direction[j] = vector / np.linalg.norm(vector)
@@ -86,6 +95,16 @@ def _tails(motion: Motion, rest: np.ndarray) -> np.ndarray:
         length = length if length > 1e-6 * size else 0.1 * size
         tails[j] = rest[j] + direction[j] * min(length, 0.1 * size)
     return tails
+
+
+def _across(vector: np.ndarray, offsets: Sequence[np.ndarray]) -> np.ndarray:
+    """``(3,)`` a vector of ``vector``'s length along the axis (forward z, side x, up y, the
+    first on a tie) farthest from the direction of every non-zero one of ``offsets``."""
+    length = float(np.linalg.norm(vector))
+    directions = [o / np.linalg.norm(o) for o in offsets if np.linalg.norm(o) > 1e-9 * length]
+    axes = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    worst = [max((abs(float(a @ d)) for d in directions), default=0.0) for a in axes]
+    return axes[int(np.argmin(worst))] * length
 
 
 def write_fbx(
@@ -149,7 +168,8 @@ def _export(motion: Motion, metres_per_unit: float, name: str, *, keyed: bool) -
     obj.rotation_euler = (np.pi / 2, 0.0, 0.0)  # the motion's Y-up into Blender's Z-up
     bpy.context.view_layer.objects.active = obj
     rest = rest_pose(skeleton) + motion.root_translation[0]
-    tails = _tails(motion, rest)
+    moved = _moved_joints(motion)
+    tails = _tails(motion, rest, moved)
     bpy.ops.object.mode_set(mode="EDIT")
     bones: list[Any] = []
     for j, joint in enumerate(skeleton.names):
@@ -173,10 +193,8 @@ def _export(motion: Motion, metres_per_unit: float, name: str, *, keyed: bool) -
     }
     if motion.local_translations is not None:
         change = motion.local_translations - skeleton.offsets[None]
-        size = float(np.abs(skeleton.offsets).max(initial=0.0)) or 1.0
-        for moved in np.flatnonzero(np.abs(change).max(axis=(0, 2)) > 1e-9 * size).tolist():
-            if moved != 0:
-                locations[moved] = change[:, moved] @ frames_b[moved]
+        for j in moved:
+            locations[j] = change[:, j] @ frames_b[j]
 
     if keyed:
         _key_action(obj, name, skeleton.names, basis, locations)
@@ -207,6 +225,16 @@ def _export(motion: Motion, metres_per_unit: float, name: str, *, keyed: bool) -
             return stream.read()
     finally:
         os.unlink(path)
+
+
+def _moved_joints(motion: Motion) -> set[int]:
+    """The joints below the top one whose offset from their parent is animated."""
+    if motion.local_translations is None:
+        return set()
+    offsets = motion.skeleton.offsets
+    change = motion.local_translations - offsets[None]
+    size = float(np.abs(offsets).max(initial=0.0)) or 1.0
+    return {j for j in np.flatnonzero(np.abs(change).max(axis=(0, 2)) > 1e-9 * size).tolist() if j}
 
 
 def _key_action(
