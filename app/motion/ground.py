@@ -19,6 +19,9 @@ from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap, map_skeleton
 
 SAMPLED_FRAMES = 240  # enough frames to find the up axis of a clip of any length
 
+# Of body height: a foot point this near the floor is on it (the retarget holds such points
+# as the source's move; the quality measure counts their sliding).
+ON_FLOOR = 0.02
 FOOT_POINTS = tuple(CANONICAL_INDEX[f"{s}_{p}"] for s in ("l", "r") for p in ("ankle", "toe"))
 
 

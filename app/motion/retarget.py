@@ -32,9 +32,16 @@ so bone lengths are exactly the rig's.
 ratio of the legs' bone paths (hip -> knee -> ankle), then moved up or down per frame so that
 the target's lowest foot point is exactly where the source's is (scaled): feet on the
 source's floor, neither sinking nor floating. A pelvis below a static top joint gets the
-travel as per-frame offsets. Nothing holds a planted foot: where the legs' proportions
-differ from the source's, a foot slides a little (docs/export.md has the figures); holding
-it would take leg IK, which bends the limbs away from the source's directions.
+travel as per-frame offsets.
+
+**Planted feet.** Where the legs' proportions differ from the source's (a longer shin, wider
+hips), the same directions and the scaled travel move a planted foot over the floor. The
+pelvis's horizontal path is corrected instead of the legs: at each frame where foot points
+(ankles, toes) are on the floor in both (within :data:`ON_FLOOR` of the body height), the path
+takes the mean of how much farther they moved over the floor than the source's (scaled) did
+back, so a foot on the floor moves as the source's moves — not at all when the source's
+stands, a slide where the source slides. Every bone keeps the source's direction; the
+target travels as far as its own legs carry it.
 
 A capture with left-handed geometry (``SkeletonMap.mirrored``) is first reflected as the
 describer reflects it, so left stays left.
@@ -46,7 +53,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.motion.ground import FOOT_POINTS, body_frame, foot_heights, snap_axis
+from app.motion.body import body_height
+from app.motion.ground import FOOT_POINTS, ON_FLOOR, body_frame, foot_heights, snap_axis
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion
 from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap
@@ -390,7 +398,36 @@ def retarget(
     t_feet = (t_pos[:, target_map.joints[list(FOOT_POINTS)]] @ t_up).min(axis=1)
     lift = scale * s_feet - t_feet
     pelvis_at = pelvis_at + lift[:, None] * t_up
+    feet_t = t_pos[:, target_map.joints[list(FOOT_POINTS)]] + lift[:, None, None] * t_up
+    feet_s = scale * s_canon[:, list(FOOT_POINTS)] @ world
+    near = ON_FLOOR * body_height(out, target_map.joints, head_joint=target_map.head_joint)
+    pelvis_at = pelvis_at + planted_feet_offsets(feet_t, feet_s, t_up, near)
     return _assemble(target, source.frame_time, local, world_rot, pelvis, pelvis_at, t_ref_pos)
+
+
+def planted_feet_offsets(
+    feet: np.ndarray, source_feet: np.ndarray, up: np.ndarray, near: float
+) -> np.ndarray:
+    """``(F, 3)`` horizontal offsets to add to the pelvis's path so that the foot points
+    ``feet`` ``(F, P, 3)`` move over the floor as ``source_feet`` ``(F, P, 3)`` (the source's,
+    scaled, in the same axes) do while both are on it: within ``near`` of the lowest any of
+    their own points gets, at both ends of a frame step (a swinging foot that skims the floor
+    in one of them is not planted). A step with planted foot points moves the path back by
+    the mean of their extra horizontal movement; a step with none (in the air) leaves it."""
+
+    def on_floor(points: np.ndarray) -> np.ndarray:
+        heights = points @ up  # (F, P)
+        near_floor = heights - heights.min() < near
+        return near_floor[1:] & near_floor[:-1]
+
+    planted = on_floor(feet) & on_floor(source_feet)  # (F - 1, P)
+    extra = np.diff(feet, axis=0) - np.diff(source_feet, axis=0)  # (F - 1, P, 3)
+    extra = extra - (extra @ up)[..., None] * up
+    count = planted.sum(axis=1)
+    step = -(extra * planted[..., None]).sum(axis=1) / np.maximum(count, 1)[:, None]
+    offsets = np.zeros((feet.shape[0], 3))
+    offsets[1:] = np.cumsum(step, axis=0)
+    return offsets
 
 
 def _assemble(

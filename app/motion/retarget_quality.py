@@ -25,7 +25,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.motion.body import body_height
-from app.motion.ground import FOOT_POINTS, canonical_positions, foot_heights, horizontal, up_axis
+from app.motion.ground import (
+    FOOT_POINTS,
+    ON_FLOOR,
+    canonical_positions,
+    foot_heights,
+    horizontal,
+    up_axis,
+)
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion
 from app.motion.retarget import axis_change, leg_length
@@ -37,7 +44,7 @@ LIMB_BONES = tuple(
     for s in ("l", "r")
     for a, b in (("shoulder", "elbow"), ("elbow", "wrist"), ("hip", "knee"), ("knee", "ankle"))
 )
-CONTACT = 0.02  # of body height: a foot point this near the floor is on it
+CONTACT = ON_FLOOR  # of body height: a foot point this near the floor is on it
 DIRECTION_DEG = 5.0
 
 

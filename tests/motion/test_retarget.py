@@ -10,10 +10,10 @@ from scipy.spatial.transform import Rotation
 
 from app.motion.body import build_body
 from app.motion.formats import read_asf_amc, read_bvh
-from app.motion.ground import canonical_positions
+from app.motion.ground import FOOT_POINTS, ON_FLOOR, canonical_positions
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion, Skeleton
-from app.motion.retarget import axis_change, reference_pose, retarget, swing
+from app.motion.retarget import axis_change, leg_length, reference_pose, retarget, swing
 from app.motion.retarget_quality import LIMB_BONES, retarget_quality
 from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap, map_skeleton
 from app.motion.transforms import change_basis, mirror, rotation_about
@@ -213,3 +213,51 @@ def test_travel_is_scaled_by_the_legs_and_feet_stay_on_the_floor() -> None:
         2.0 * (s[:, feet, 1].min(axis=1) - s[:, feet, 1].min()),
         atol=1e-6,
     )
+
+
+def _long_shins(motion: Motion) -> Motion:
+    """``motion`` with shins half as long again (the ankles' offsets)."""
+    mapping = mapped(motion)
+    offsets = motion.skeleton.offsets.copy()
+    for side in ("l", "r"):
+        offsets[int(mapping.joints[CANONICAL_INDEX[f"{side}_ankle"]])] *= 1.5
+    return dataclasses.replace(
+        motion, skeleton=dataclasses.replace(motion.skeleton, offsets=offsets)
+    )
+
+
+def test_a_planted_foot_does_not_slide_on_legs_of_other_proportions() -> None:
+    """The same capture on its own skeleton with longer shins: the same directions and the
+    travel scaled by the legs used to carry a planted foot over the floor."""
+    source = read_bvh(fixture_bytes(BANDAI_FIXTURE))
+    rig, rig_map = rig_of(_long_shins(read_bvh(fixture_bytes(BANDAI_FIXTURE))))
+    out = retarget(source, mapped(source), rig, rig_map)
+    quality = retarget_quality(source, mapped(source), out, rig_map, skip=1)
+    assert quality.slide <= quality.source_slide + 0.01, (quality.slide, quality.source_slide)
+    assert quality.direction_ok == 1.0 and quality.feet_error < 0.02
+
+
+def test_a_foot_point_planted_alone_moves_exactly_as_the_source_s() -> None:
+    """Onto the CMU subject's proportions: at every frame step where one foot point is on
+    the floor in both clips, it moves over the floor exactly as the source's (scaled)."""
+    source = read_bvh(fixture_bytes(BANDAI_FIXTURE))
+    rig, rig_map = rig_of(
+        read_asf_amc(fixture_bytes(CMU_ASF_FIXTURE), fixture_bytes(CMU_AMC_FIXTURE))
+    )
+    out = retarget(source, mapped(source), rig, rig_map)
+    scale = leg_length(rig, rig_map) / leg_length(source, mapped(source))
+    feet = list(FOOT_POINTS)
+    s = canonical_positions(source, mapped(source))[:, feet] * scale
+    t = canonical_positions(out, rig_map)[:, feet]
+    near = ON_FLOOR * build_body(out).height
+
+    def planted(points: np.ndarray) -> np.ndarray:
+        low = points[..., 1] - points[..., 1].min() < near
+        return low[1:] & low[:-1]
+
+    both = planted(s) & planted(t)
+    alone = both.sum(axis=1) == 1
+    assert alone.sum() >= 5, "the walk has steps with one foot point planted"
+    moved_s = np.diff(s, axis=0)[alone][both[alone]][:, [0, 2]]
+    moved_t = np.diff(t, axis=0)[alone][both[alone]][:, [0, 2]]
+    np.testing.assert_allclose(moved_t, moved_s, atol=1e-9 * build_body(out).height)
