@@ -52,10 +52,8 @@ def plain_search_query(query: bytes) -> dict[str, int | str] | None:
         match = PLAIN_PARAMETER.fullmatch(part)
         if match is None:
             return None
-        if match[1] is not None:
-            name, value = match[1].decode(), int(match[2])
-        else:
-            name, value = "descriptor", match[4].decode()
+        name = (match[1] or match[3]).decode()
+        value: int | str = int(match[2]) if match[1] is not None else match[4].decode()
         if name in values:
             return None
         values[name] = value

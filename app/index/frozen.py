@@ -218,6 +218,7 @@ class FrozenIVF:
         ``(Q, D)`` (padded with id -1), among ``allowed`` (sorted unique ids; every cell is
         then probed) when given."""
         keep: list[Any] = []  # selectors FAISS reads must stay alive
+        params: Any
         if allowed is not None:
             wanted = allowed if not self.gone.size else np.setdiff1d(allowed, self.gone, True)
             keep.append(wanted)
