@@ -27,8 +27,14 @@ server process) this whole-clip benchmark does not measure. ``--descriptor`` (de
    The exact top 10 are found from float32 dot products, then the 50 nearest re-ranked in
    float64.
 
-Targets: median <= 2 ms at 1 connection, >= 1,500 requests/s at 32, recall@10 >= 0.99,
-RSS <= 1.5 GB, start-up < 5 s. Loopback only; every loop is bounded in time.
+``--baseline CHECKOUT`` (e.g. ``/work/main``, with its own ``.venv``) also serves the library
+with that checkout's ``mocap-index`` and measures it in the same rounds, right after this
+checkout's server: a change's effect is then a ratio of one run, not of two runs on a machine
+whose speed moves.
+
+Targets (issue 23, the ones the script checks): >= 50 % of the floor's requests/s at 32
+connections, median <= 0.6 ms at 1 connection, recall@10 >= 0.99, RSS <= 1.5 GB, start-up
+<= 5 s. Loopback only; every loop is bounded in time.
 """
 
 from __future__ import annotations
@@ -265,8 +271,10 @@ class Server:
         self._sampler = threading.Thread(target=self._sample, daemon=True)
         self._sampler.start()
 
+    cli = CLI  # the mocap-index serving (Baseline: another checkout's)
+
     def launch(self, data_dir: Path, out: Any, settings: dict[str, str]) -> subprocess.Popen[bytes]:
-        command = [CLI, "serve", "--data-dir", str(data_dir), "--port", str(self.port)]
+        command = [self.cli, "serve", "--data-dir", str(data_dir), "--port", str(self.port)]
         env = environment(MOCAP_LOG_LEVEL="warning", **settings)
         return subprocess.Popen(command, env=env, stdout=out, stderr=out)
 
@@ -285,6 +293,16 @@ class Server:
         except subprocess.TimeoutExpired:
             self.process.kill()
             self.process.wait()
+
+
+def baseline_server(checkout: Path, data_dir: Path, log: Path, **settings: str) -> Server:
+    """``mocap-index serve`` of another checkout (``--baseline``, e.g. main's, with its own
+    ``.venv``) on the same library: measured in the same rounds as this checkout's."""
+
+    class Baseline(Server):
+        cli = str(checkout / ".venv" / "bin" / "mocap-index")
+
+    return Baseline(data_dir, log, **settings)
 
 
 class Floor(Server):
@@ -391,24 +409,32 @@ def load_runs(
     *,
     duration: int,
     rounds: int,
-) -> tuple[dict[int, list[dict[str, float]]], dict[tuple[int, str], list[dict[str, float]]]]:
+    baseline: Server | None = None,
+) -> tuple[dict[int, list[dict[str, float]]], dict[tuple[int, str, str], list[dict[str, float]]]]:
     """``rounds`` rounds at 1 and at 32 connections, each the floor then every descriptor in
-    turn (so a slow spell of the shared machine hits both): the floor's results by
-    connections, the service's by (connections, descriptor)."""
+    turn (so a slow spell of the shared machine hits both), the ``baseline`` checkout's
+    server right after this one's: the floor's results by connections, the servers' by
+    (connections, descriptor, ``"service"`` or ``"baseline"``)."""
+    servers = (
+        {"service": service} if baseline is None else {"service": service, "baseline": baseline}
+    )
     floors: dict[int, list[dict[str, float]]] = {}
-    searches: dict[tuple[int, str], list[dict[str, float]]] = {}
+    searches: dict[tuple[int, str, str], list[dict[str, float]]] = {}
     wrk(floor.base, 32, 3, clips)  # warm-up
     for descriptor in descriptors:
-        wrk(service.base, 32, 3, clips, descriptor=descriptor)
+        for server in servers.values():
+            wrk(server.base, 32, 3, clips, descriptor=descriptor)
     for connections in (1, 32):
         for _ in range(rounds):
             result = timed_wrk(floor, connections, duration, clips)
             floors.setdefault(connections, []).append(result)
             print(f"  floor         {connections:2d} conn: {summary(result)}")
             for descriptor in descriptors:
-                result = timed_wrk(service, connections, duration, clips, descriptor=descriptor)
-                searches.setdefault((connections, descriptor), []).append(result)
-                print(f"  {descriptor:13s} {connections:2d} conn: {summary(result)}")
+                for role, server in servers.items():
+                    result = timed_wrk(server, connections, duration, clips, descriptor=descriptor)
+                    searches.setdefault((connections, descriptor, role), []).append(result)
+                    name = descriptor if role == "service" else f"{descriptor} (base)"
+                    print(f"  {name:15s} {connections:2d} conn: {summary(result)}")
     return floors, searches
 
 
@@ -435,6 +461,11 @@ def main() -> int:
         "--descriptors", default="motion,posture,kinetic", help="searched under load"
     )
     parser.add_argument("--workers", type=int, default=1, help="server processes")
+    parser.add_argument(
+        "--baseline",
+        type=Path,
+        help="another checkout (with its .venv) whose server is measured in the same rounds",
+    )
     args = parser.parse_args()
     if shutil.which("wrk") is None:
         print("wrk is not installed (apt-get install -y wrk)", file=sys.stderr)
@@ -464,10 +495,20 @@ def main() -> int:
         f"CPU {', '.join(f'{s:.2f}' for s in startup_cpu)} s"
     )
     floor = Floor(args.data_dir, log, MOCAP_WORKERS=str(args.workers))
+    baseline = None
+    if args.baseline is not None:
+        baseline = baseline_server(args.baseline, args.data_dir, log, **settings)
+        print(f"baseline {args.baseline}: started in {baseline.startup:.2f} s")
     try:
         print(f"load average before the load: {os.getloadavg()[0]:.2f}")
         floors, searches = load_runs(
-            server, floor, clips, descriptors, duration=args.duration, rounds=args.rounds
+            server,
+            floor,
+            clips,
+            descriptors,
+            duration=args.duration,
+            rounds=args.rounds,
+            baseline=baseline,
         )
         load_after = os.getloadavg()[0]
         http_recall = check_answers(server.base, args.data_dir, 300, args.seed, descriptors[0])
@@ -482,6 +523,8 @@ def main() -> int:
     finally:
         floor.stop()
         server.stop()
+        if baseline is not None:
+            baseline.stop()
     print(f"load average after the load: {load_after:.2f}")
     floor_rps = {c: statistics.median(r["rps"] for r in runs) for c, runs in floors.items()}
     floor_p50 = {c: statistics.median(r["p50_ms"] for r in runs) for c, runs in floors.items()}
@@ -491,9 +534,20 @@ def main() -> int:
     )
     floor_cpu = statistics.median(r["cpu_ms"] for r in floors[32])
     for descriptor in descriptors:
-        rps = statistics.median(r["rps"] for r in searches[(32, descriptor)])
-        p50 = statistics.median(r["p50_ms"] for r in searches[(1, descriptor)])
-        cpu = statistics.median(r["cpu_ms"] for r in searches[(32, descriptor)])
+        if baseline is not None:
+            base_rps = statistics.median(r["rps"] for r in searches[(32, descriptor, "baseline")])
+            base_p50 = statistics.median(r["p50_ms"] for r in searches[(1, descriptor, "baseline")])
+            base_cpu = statistics.median(
+                r["cpu_ms"] for r in searches[(32, descriptor, "baseline")]
+            )
+            print(
+                f"{descriptor} (baseline {args.baseline}): {base_rps:.0f} requests/s at 32 "
+                f"connections = {base_rps / floor_rps[32]:.0%} of the floor, median "
+                f"{base_p50:.2f} ms at 1; server CPU {base_cpu:.3f} ms per request"
+            )
+        rps = statistics.median(r["rps"] for r in searches[(32, descriptor, "service")])
+        p50 = statistics.median(r["p50_ms"] for r in searches[(1, descriptor, "service")])
+        cpu = statistics.median(r["cpu_ms"] for r in searches[(32, descriptor, "service")])
         ratio = rps / floor_rps[32]
         print(
             f"{descriptor}: {rps:.0f} requests/s at 32 connections = {ratio:.0%} of the floor "

@@ -264,7 +264,19 @@ class _Base:
 
     def entry(self, row: int) -> ClipEntry:
         start, stop = int(self.offsets[row]), int(self.offsets[row + 1])
-        return decode_entry(int(self.ids[row]), self.blob[start:stop].tobytes())
+        return decode_entry(int(self.ids[row]), self.blob.data[start:stop])
+
+    def entries(self, rows: np.ndarray) -> list[ClipEntry]:
+        """The entries of ``rows`` ``(M,)`` (all held): a search's hits, read in one gather
+        of their ids and offsets."""
+        ids = self.ids[rows].tolist()
+        starts = self.offsets[rows].tolist()
+        stops = self.offsets[rows + 1].tolist()
+        blob = self.blob.data
+        return [
+            decode_entry(clip_id, blob[start:stop])
+            for clip_id, start, stop in zip(ids, starts, stops, strict=True)
+        ]
 
     def with_key(self, key: str) -> np.ndarray:
         start, stop = self.key_rows.get(key, (0, 0))
@@ -359,9 +371,9 @@ class Catalogue:
         if wanted:
             base = state.base
             rows = base.rows(np.asarray(wanted, np.int64))
-            for clip_id, row in zip(wanted, rows.tolist(), strict=True):
-                if row >= 0:
-                    found[clip_id] = base.entry(row)
+            held = rows[rows >= 0]
+            for entry in base.entries(held):
+                found[entry.id] = entry
         return found
 
     def frames(self, clip_ids: Iterable[int]) -> dict[int, tuple[float, int]]:

@@ -44,6 +44,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import math
 import os
 import threading
 import time
@@ -196,7 +197,9 @@ class DescriptorIndex:
     def nprobe(self) -> int:
         """Cells an IVF search scans: ``MOCAP_IVF_NPROBE``, else the one calibrated when the
         index was built (0 for a flat index)."""
-        index = self._index.base if isinstance(self._index, FrozenIVF) else self._index
+        index = self._index
+        if isinstance(index, FrozenIVF):
+            return self.options.nprobe or index.base_nprobe
         if kind_of(index) != IVF:
             return 0
         return int(self.options.nprobe or index.nprobe)
@@ -459,12 +462,18 @@ class DescriptorIndex:
         if wanted <= 0:
             return Neighbours(np.empty(0, np.int64), np.empty(0, np.float64))
         squared, ids = self._search_selected(q, wanted, allowed)
-        keep = ids[0] >= 0  # FAISS pads with -1 when fewer vectors qualify
-        if exclude is not None:
-            keep &= ids[0] != exclude
-        found = ids[0][keep][:k].astype(np.int64)
-        distances = np.sqrt(np.maximum(squared[0][keep][:k].astype(np.float64), 0.0))
-        return Neighbours(found, distances)
+        # A dozen numbers: Python's floats and math.sqrt (the same IEEE results as numpy's
+        # float64 square root) cost less than the numpy calls filtering them would.
+        skipped = -1 if exclude is None else exclude  # FAISS pads with -1 past the vectors
+        kept = [
+            (i, s)
+            for i, s in zip(ids[0].tolist(), squared[0].tolist(), strict=True)
+            if i >= 0 and i != skipped
+        ][:k]
+        return Neighbours(
+            np.array([i for i, _ in kept], np.int64),
+            np.array([math.sqrt(max(s, 0.0)) for _, s in kept], np.float64),
+        )
 
     def _search_selected(
         self, q: np.ndarray, wanted: int, allowed: np.ndarray | None

@@ -41,6 +41,10 @@ class FrozenIVF:
     def __init__(self, base: Any) -> None:
         self.base = base
         self.dimension = int(base.d)
+        # The mapped file never changes: what a search asks of it on every call, read once.
+        self.base_total = int(base.ntotal)
+        self.base_nprobe = int(base.nprobe)
+        self._params: dict[int, Any] = {}  # nprobe -> unfiltered search parameters (read-only)
         self.delta = empty_flat(self.dimension)
         self.gone = np.zeros(0, np.int64)
         invlists = base.invlists
@@ -94,7 +98,7 @@ class FrozenIVF:
 
     @property
     def ntotal(self) -> int:
-        return int(self.base.ntotal) - int(self.gone.size) + int(self.delta.ntotal)
+        return self.base_total - int(self.gone.size) + int(self.delta.ntotal)
 
     @property
     def changed(self) -> bool:
@@ -111,6 +115,17 @@ class FrozenIVF:
         if self.gone.size:
             found &= ~np.isin(ids, self.gone)
         return np.where(found, at, -1)
+
+    def _base_row(self, vector_id: int) -> int:
+        """:meth:`_base_rows` of one id (a search's query clip: no arrays built)."""
+        at = int(self.base_ids.searchsorted(vector_id))
+        if at >= self.base_ids.size or int(self.base_ids[at]) != vector_id:
+            return -1
+        if self.gone.size:
+            gone_at = int(self.gone.searchsorted(vector_id))
+            if gone_at < self.gone.size and int(self.gone[gone_at]) == vector_id:
+                return -1
+        return at
 
     def ids(self) -> np.ndarray:
         """``(N,)`` int64 ids held (sorted)."""
@@ -129,10 +144,15 @@ class FrozenIVF:
                 return np.asarray(self.delta.reconstruct(int(vector_id)), np.float32)
             except RuntimeError:
                 pass
-        row = int(self._base_rows(np.array([vector_id]))[0])
+        row = self._base_row(int(vector_id))
         if row < 0:
             return None
         place = int(self.places[row])
+        if self._codes is not None:  # one slice of the mapping, no FAISS call
+            code_size = 4 * self.dimension
+            start = int(self._list_starts[place >> LIST_SHIFT])
+            start += (place & ((1 << LIST_SHIFT) - 1)) * code_size
+            return self._codes[start : start + code_size].view(np.float32).copy()
         out = np.empty(self.dimension, np.float32)
         self.base.reconstruct_from_offset(
             place >> LIST_SHIFT, place & ((1 << LIST_SHIFT) - 1), faiss.swig_ptr(out)
@@ -197,19 +217,26 @@ class FrozenIVF:
         """``(Q, k)`` squared distances and ids of the nearest held vectors to ``queries``
         ``(Q, D)`` (padded with id -1), among ``allowed`` (sorted unique ids; every cell is
         then probed) when given."""
-        params = faiss.SearchParametersIVF()
         keep: list[Any] = []  # selectors FAISS reads must stay alive
+        params: Any
         if allowed is not None:
             wanted = allowed if not self.gone.size else np.setdiff1d(allowed, self.gone, True)
             keep.append(wanted)
+            params = faiss.SearchParametersIVF()
             params.sel = faiss.IDSelectorBatch(wanted)
             params.nprobe = int(self.base.nlist)
-        else:
+        elif self.gone.size:
+            inner = faiss.IDSelectorBatch(self.gone)
+            keep.append(inner)
+            params = faiss.SearchParametersIVF()
             params.nprobe = nprobe
-            if self.gone.size:
-                inner = faiss.IDSelectorBatch(self.gone)
-                keep.append(inner)
-                params.sel = faiss.IDSelectorNot(inner)
+            params.sel = faiss.IDSelectorNot(inner)
+        else:  # the usual search: parameters FAISS only reads, made once per nprobe
+            params = self._params.get(nprobe)
+            if params is None:
+                params = faiss.SearchParametersIVF()
+                params.nprobe = nprobe
+                self._params[nprobe] = params
         squared, ids = self.base.search(queries, k, params=params)
         if not self.delta.ntotal:
             return squared, ids

@@ -66,7 +66,7 @@ def as_vectors(vectors: np.ndarray, dimension: int) -> np.ndarray:
         array = array.reshape(1, -1)
     if array.ndim != 2 or array.shape[1] != dimension:
         raise ValueError(f"expected vectors of shape (N, {dimension}), got {vectors.shape}")
-    if not np.all(np.isfinite(array)):
+    if not np.isfinite(array).all():
         raise ValueError("vectors must be finite")
     return array
 

@@ -132,7 +132,7 @@ def _nearest(
     if rule is None:
         present = present[:k]  # no similarity computed for hits not shown
     scale = library.scales.of(descriptor, index)
-    similarity = scale.similarity(np.array([d for _, d in present], np.float64)).tolist()
+    similarity = scale.similarities([d for _, d in present])
     hits = [Hit(clips[i], d, s) for (i, d), s in zip(present, similarity, strict=True)]
     query_others: list[Hit] = []
     if rule is not None:

@@ -201,3 +201,30 @@ def test_searching_with_a_stored_file_says_which_clip_it_is(fake_client: TestCli
     assert body["results"][0]["id"] == ids[2] and body["results"][0]["distance"] == 0.0
     other = fake_client.post("/search?k=1", files={"file": ("n.bvh", fake_motion([9, 9, 9]))})
     assert other.json()["query"]["stored_clip"] is None
+
+
+def test_a_plain_query_answers_as_fastapi_reads_it(fake_client: TestClient) -> None:
+    """``GET /search`` reads ``clip``/``k``/``descriptor`` written plainly itself (issue 23,
+    app/api/search.py) and leaves any other query to FastAPI: the same query written both
+    ways gets the same status and the same bytes, answers and errors alike."""
+    ids = library(fake_client)
+    missing = max(ids) + 1000
+    same = [
+        (f"clip={ids[0]}&k=3", f"k=03&clip=0{ids[0]}"),
+        (f"clip={ids[2]}&descriptor=kinetic", f"descriptor=kinetic&clip={ids[2]}&label="),
+        (f"clip={ids[1]}", f"clip=%2B{ids[1]}"),
+        (f"clip={missing}&k=2", f"clip=0{missing}&k=2"),  # 404
+        (f"clip={ids[0]}&k=100000", f"clip={ids[0]}&k=0100000"),  # 422: k above the most
+        (f"clip={ids[0]}&descriptor=nope", f"clip={ids[0]}&descriptor=%6Eope"),  # 422
+    ]
+    for plain, other in same:
+        first, second = fake_client.get(f"/search?{plain}"), fake_client.get(f"/search?{other}")
+        assert first.status_code == second.status_code, (plain, first.text, second.text)
+        assert first.content == second.content, (plain, other)
+    # What only FastAPI reads still answers as before: a missing clip, a bad number, an
+    # unknown parameter, a repeated clip (the last one counts).
+    assert fake_client.get("/search?k=3").status_code == 422
+    assert fake_client.get("/search?clip=x").json()["error"] == "invalid_input"
+    assert fake_client.get(f"/search?clip={ids[0]}&kk=3").status_code == 422
+    repeated = fake_client.get(f"/search?clip={ids[0]}&clip={ids[1]}").json()
+    assert repeated["query"]["id"] == ids[1]

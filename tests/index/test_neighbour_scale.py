@@ -62,3 +62,17 @@ def test_scales_follow_the_index_in_the_background(tmp_path: Path) -> None:
         time.sleep(0.05)
     again = scales.of("posture", index)
     assert again.size == 40 and again.distances.min() < first.distances.min()
+
+
+def test_similarities_are_the_numbers_similarity_gives() -> None:
+    """The search's list path gives exactly the numpy path's numbers: random distances, the
+    typical distances themselves (ties), and none larger or smaller than all of them."""
+    rng = np.random.default_rng(5)
+    for size in (1, 7, 16, 80, 1000, 3333):  # 16, 80: halves to round (6.25 %, 1.25 %)
+        typical = np.sort(rng.gamma(2.0, 0.3, size))
+        scale = Scale(typical, size)
+        probes = np.concatenate(
+            [rng.gamma(2.0, 0.3, 500), typical[rng.integers(0, size, 50)], [0.0, 1e9]]
+        )
+        assert scale.similarities(probes.tolist()) == scale.similarity(probes).tolist()
+    assert Scale(np.empty(0), 1).similarities([0.5, 2.0]) == [100.0, 100.0]
