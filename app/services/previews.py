@@ -37,6 +37,7 @@ Encodings (``encoding``)
 from __future__ import annotations
 
 import base64
+import contextlib
 import gzip
 import hashlib
 import io
@@ -157,7 +158,8 @@ class PreviewStore:
             log.warning(
                 "cannot store the preview %s (%s); it is computed again next time", path, error
             )
-            temporary.unlink(missing_ok=True)
+            with contextlib.suppress(OSError):  # e.g. no folder to hold it: nothing to remove
+                temporary.unlink(missing_ok=True)
 
 
 def preview_store(settings: Settings) -> PreviewStore:
