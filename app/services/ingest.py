@@ -1,4 +1,5 @@
-"""Ingest: uploaded bytes -> parse -> describe -> store files -> database commit -> indexes.
+"""Ingest: uploaded bytes -> parse -> describe -> store files -> database commit -> indexes
+-> stored previews.
 
 Order matters. The files are written before the rows that name them, the database commits
 before the indexes change (the database is the source of truth: an index can be rebuilt from
@@ -11,7 +12,9 @@ this one).
 
 :func:`store_many` is the one way clips are stored: a batch of described uploads goes in one
 transaction (a few multi-row INSERTs), then the indexes follow the database
-(:meth:`Library.sync_indexes`: one add per index for the batch). ``POST /clips`` stores a batch
+(:meth:`Library.sync_indexes`: one add per index for the batch), and the previews the
+describer made are written (a cache: one that cannot be written is logged, never an error;
+:mod:`app.services.previews`). ``POST /clips`` stores a batch
 of one (:func:`ingest`); ``mocap-index import`` (:mod:`app.importer`) describes clips in
 worker processes and stores them here in batches; :func:`ingest_many` does both in-process.
 """
