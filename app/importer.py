@@ -7,13 +7,14 @@ Pipeline
     :data:`MIN_ANIMATION_FRAMES` frames becomes a clip named ``<file> · <animation>``; a file
     with none that long gives its longest). Worker processes (one
     per core by default) read, parse and describe the clips, a few per task, and send back
-    only the measurements and vectors. The main process meanwhile opens the library (imports,
-    migration, indexes) in a thread, then stores the described clips in batches through
-    :func:`app.services.ingest.store_many` — the code ``POST /clips`` uses: files, then one
-    transaction per batch, then one index update per batch. Batches are stored one at a time
-    on that same thread while the main loop goes on feeding the workers and reading their
-    outcomes (a worker waits once its outcomes fill the pipe; bench/README.md has the
-    figures).
+    only the measurements, vectors and stored previews (the figure a page draws, made from
+    the body the describer built: ~8 KB a second of motion). The main process meanwhile
+    opens the library (imports, migration, indexes) in a thread, then stores the described
+    clips in batches through :func:`app.services.ingest.store_many` — the code ``POST
+    /clips`` uses: files, then one transaction per batch, then one index update per batch,
+    then the batch's previews. Batches are stored one at a time on that same thread while the
+    main loop goes on feeding the workers and reading their outcomes (a worker waits once its
+    outcomes fill the pipe; bench/README.md has the figures).
 
 Idempotent and resumable
     A clip is identified by its content hash (:func:`app.discovery.content_hash`, the rule

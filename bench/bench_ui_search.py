@@ -12,15 +12,18 @@ For each of ``--queries`` query clips (spread over the library's ids), the page
 navigation until all 51 figures have their frames (or an error): what a user waits for.
 Conditions, each with a freshly started server:
 
-* **first view**: the server just started, nothing cached (this branch: its stored previews
-  removed first, so every clip's file is parsed again);
+* **first view**: the server just started, nothing in memory; on disk the stored previews as
+  the import left them (this branch stores each clip's preview when it stores the clip, so a
+  library imported with it has them all; the baseline's are removed first, as a library it
+  imported has none and every clip's file is parsed when first shown);
 * **again**: the same queries once more on that server (previews in memory);
 * **restarted** (this branch only): a new server process with the stored previews on disk.
 
 With ``--baseline REF`` the same runs are made, back to back, with the code of that git
 revision (``git archive``: its ``app/`` and ``tests/ui/serve.py``), so the figures come with
 a ratio measured on the same machine at the same time. The data directory is only read, but
-for the ``previews/`` cache this branch writes (and the first view removes).
+for its ``previews/`` cache: kept aside at the start and put back before each of this
+branch's runs and at the end, so the runs (and the next) see the previews the import stored.
 """
 
 from __future__ import annotations
@@ -133,20 +136,34 @@ def export(ref: str, into: Path) -> Path:
     return into
 
 
+def put_previews(data: Path, previews: Path | None) -> None:
+    """Make ``data/previews`` a copy of ``previews`` (``None``: no stored preview)."""
+    shutil.rmtree(data / "previews", ignore_errors=True)
+    if previews is not None:
+        shutil.copytree(previews, data / "previews")
+
+
 def run(
-    label: str, source: Path, data: Path, queries: list[int], k: int, stored: bool
+    label: str,
+    source: Path,
+    data: Path,
+    queries: list[int],
+    k: int,
+    stored: Path | None,
 ) -> dict[str, list[float]]:
+    """Time the queries on ``data`` with the code at ``source``; ``stored``: the previews to
+    put in ``data/previews`` first (and the condition *restarted* then measured), or
+    ``None`` to start without any."""
     from playwright.sync_api import sync_playwright
 
     results: dict[str, list[float]] = {}
-    if stored:
-        shutil.rmtree(data / "previews", ignore_errors=True)
+    put_previews(data, stored)
     with sync_playwright() as playwright:
         browser = playwright.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS)
         with server(source, data) as base:
             results["first view"] = [fill_seconds(browser, base, q, k) for q in queries]
             results["again"] = [fill_seconds(browser, base, q, k) for q in queries]
-        if stored:
+        if stored is not None:
             with server(source, data) as base:
                 results["restarted"] = [fill_seconds(browser, base, q, k) for q in queries]
         browser.close()
@@ -170,20 +187,29 @@ def main() -> None:
     with server(ROOT, args.data) as base:
         queries = query_clips(base, args.queries)
     print(f"queries: clips {queries}, k = {args.k}")
-    branch = run("branch", ROOT, args.data, queries, args.k, stored=True)
-    if args.baseline:
-        with tempfile.TemporaryDirectory() as tmp:
-            baseline = run(
-                "baseline",
-                export(args.baseline, Path(tmp)),
-                args.data,
-                queries,
-                args.k,
-                stored=False,
-            )
-        for condition in ("first view", "again"):
-            ratio = statistics.median(branch[condition]) / statistics.median(baseline[condition])
-            print(f"{condition}: branch / baseline = {ratio:.2f}")
+    with tempfile.TemporaryDirectory() as tmp:
+        kept = Path(tmp) / "previews"
+        if (args.data / "previews").is_dir():
+            shutil.copytree(args.data / "previews", kept)
+        else:
+            kept.mkdir()
+        count = sum(1 for _ in kept.rglob("*.npz"))
+        print(f"stored previews in the data directory at the start: {count}")
+        try:
+            branch = run("branch", ROOT, args.data, queries, args.k, stored=kept)
+            if args.baseline:
+                code = Path(tmp) / "baseline"
+                code.mkdir()
+                baseline = run(
+                    "baseline", export(args.baseline, code), args.data, queries, args.k, None
+                )
+                for condition in ("first view", "again"):
+                    ratio = statistics.median(branch[condition]) / statistics.median(
+                        baseline[condition]
+                    )
+                    print(f"{condition}: branch / baseline = {ratio:.2f}")
+        finally:
+            put_previews(args.data, kept)
     print(f"load average after: {os.getloadavg()[0]:.2f}")
 
 

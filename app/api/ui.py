@@ -40,7 +40,6 @@ from app.text import checked_text
 
 STATIC_DIR = Path(__file__).resolve().parent.parent / "static"
 INDEX_HTML = STATIC_DIR / "index.html"
-PREVIEWS_DIR = "previews"  # stored previews, under the data directory (a cache)
 
 # The page loads only its own files: no inline script, no other origin.
 CONTENT_SECURITY_POLICY = (
@@ -396,7 +395,7 @@ def mount_ui(app: FastAPI) -> None:
     if getattr(state, "ui_mounted", False):
         return
     state.ui_mounted = True
-    state.skeleton_cache = previews.SkeletonCache(state.settings.data_dir / PREVIEWS_DIR)
+    state.skeleton_cache = previews.SkeletonCache(previews.preview_store(state.settings).root)
     state.library_map = ui_service.LibraryMap()
     app.add_api_route("/", index_page, methods=["GET"], include_in_schema=False)
     app.router.routes.insert(0, app.router.routes.pop())

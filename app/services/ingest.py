@@ -1,4 +1,5 @@
-"""Ingest: uploaded bytes -> parse -> describe -> store files -> database commit -> indexes.
+"""Ingest: uploaded bytes -> parse -> describe -> store files -> database commit -> indexes
+-> stored previews.
 
 Order matters. The files are written before the rows that name them, the database commits
 before the indexes change (the database is the source of truth: an index can be rebuilt from
@@ -11,7 +12,9 @@ this one).
 
 :func:`store_many` is the one way clips are stored: a batch of described uploads goes in one
 transaction (a few multi-row INSERTs), then the indexes follow the database
-(:meth:`Library.sync_indexes`: one add per index for the batch). ``POST /clips`` stores a batch
+(:meth:`Library.sync_indexes`: one add per index for the batch), and the previews the
+describer made are written (a cache: one that cannot be written is logged, never an error;
+:mod:`app.services.previews`). ``POST /clips`` stores a batch
 of one (:func:`ingest`); ``mocap-index import`` (:mod:`app.importer`) describes clips in
 worker processes and stores them here in batches; :func:`ingest_many` does both in-process.
 """
@@ -34,6 +37,7 @@ from app.errors import InvalidInput, MocapError, StorageUnavailable
 from app.labels import MAX_LABELS, merge_labels
 from app.services.describe import Description
 from app.services.library import Library
+from app.services.previews import save_stored_preview
 from app.services.uploads import Upload, UploadPart
 
 log = logging.getLogger(__name__)
@@ -185,6 +189,7 @@ def store_many(library: Library, items: Sequence[Described]) -> list[IngestResul
         return []
     hashes = [item.upload.content_hash for item in items]
     created: set[str] = set()
+    stored: list[Described] = []
     with library.write_lock:
         for attempt in range(1, MAX_COMMIT_ATTEMPTS + 1):
             with library.reads() as session:
@@ -219,7 +224,7 @@ def store_many(library: Library, items: Sequence[Described]) -> list[IngestResul
             except BaseException:
                 _forget_files(library, written)
                 raise
-            created = set(fresh)
+            created, stored = set(fresh), list(fresh.values())
             # Committed: now the indexes (they take every clip committed so far, from here or
             # from another process).
             library.sync_indexes()
@@ -237,6 +242,7 @@ def store_many(library: Library, items: Sequence[Described]) -> list[IngestResul
         )
         with library.reads() as session:
             clips = clip_db.get_clips(session, by_hash.values())
+    _save_previews(library, stored)
     results = []
     reported: set[str] = set()
     for content_hash in hashes:
@@ -245,6 +251,15 @@ def store_many(library: Library, items: Sequence[Described]) -> list[IngestResul
         clip_id = by_hash[content_hash]
         results.append(IngestResult(clips[clip_id], is_new, clip_id in changed))
     return results
+
+
+def _save_previews(library: Library, stored: Sequence[Described]) -> None:
+    """Store the previews the describer made of clips just committed (outside the write
+    lock: a cache the commit does not wait on), so a page's first view of them reads a
+    small file instead of parsing the clip again (:mod:`app.services.previews`)."""
+    for item in stored:
+        if item.description is not None and item.description.preview is not None:
+            save_stored_preview(library, item.upload.content_hash, item.description.preview)
 
 
 def apply_to_stored(

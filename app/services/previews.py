@@ -3,22 +3,22 @@
 The display frame
     A clip is run through the motion core (parse -> :func:`~app.motion.body.build_body`, so
     converter lead-in frames are dropped as for the descriptors) and its canonical joints are
-    put in a *display frame*: lengths in body heights, y up (the file's vertical axis, see
-    :func:`display_up`), the pelvis's floor point at the first frame at the origin (floor =
-    the 5th percentile over frames of each frame's lowest joint, so a wild frame cannot move
-    it), facing +z at the first frame (x is then the subject's left). Frames are resampled to
-    the requested rate by linear interpolation in time, at most :data:`MAX_SKELETON_FRAMES`
-    of them per response.
+    put in a *display frame* (:mod:`app.motion.display`: body heights, y up, facing +z at
+    the first frame). Frames are resampled to the requested rate by linear interpolation in
+    time, at most :data:`MAX_SKELETON_FRAMES` of them per response.
 
 Where a stored clip's frames come from
-    Up to :data:`STORE_FPS` frames per second, from the clip's *stored preview*: its whole
-    motion in the display frame at 30 fps (or its own rate when lower), kept as one file per
-    clip content under ``<data dir>/previews/`` (:class:`PreviewStore`). A clip's file is then
-    parsed once for every page that shows it, across restarts and server processes. The
-    folder is a cache (named by the content hash and :func:`preview_version`, so a new motion
-    core makes new files): it can be deleted at any time. Faster rates (the clip page stepping
-    through a 120-fps take frame by frame) read the file again; that motion is kept in memory
-    for the next windows.
+    Up to :data:`~app.motion.display.STORE_FPS` frames per second, from the clip's *stored
+    preview*: its whole motion in the display frame at 30 fps (or its own rate when lower),
+    kept as one file per clip content under ``<data dir>/previews/`` (:class:`PreviewStore`).
+    The preview is written when the clip is stored (upload, import, reindex:
+    :func:`save_stored_preview`, from the body the describer built, so the file is parsed
+    once), and made on demand for a clip stored without one. A page's first view of a
+    clip then reads a small file instead of parsing the clip, across restarts and server
+    processes. The folder is a cache (named by the content hash and
+    :func:`preview_version`, so a new motion core makes new files): it can be deleted at any
+    time. Faster rates (the clip page stepping through a 120-fps take frame by frame) read
+    the file again; that motion is kept in memory for the next windows.
 
 Spans (``start``, ``end``)
     Seconds of the file as uploaded, lead-in frames included, as everywhere in the API (moments,
@@ -37,6 +37,7 @@ Encodings (``encoding``)
 from __future__ import annotations
 
 import base64
+import contextlib
 import gzip
 import hashlib
 import io
@@ -45,16 +46,27 @@ import logging
 import os
 import threading
 import zipfile
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from app.config import Settings
 from app.db import clips as clip_db
 from app.errors import InvalidInput, NoStoredFile, ParseError
-from app.motion.body import Body, build_body
+from app.motion.body import build_body
+from app.motion.display import (
+    RATE_SLACK,
+    STORE_FPS,
+    DisplayMotion,
+    at_store_rate,
+    body_display,
+    resample,
+)
+from app.motion.display import display_positions as display_positions
+from app.motion.display import display_up as display_up
 from app.motion.model import Motion, ParseLimits
 from app.motion.skeleton_map import CANONICAL_BONES, CANONICAL_INDEX, CANONICAL_JOINTS
 from app.services.clips import stored_upload
@@ -66,12 +78,11 @@ from app.services.uploads import Upload
 
 log = logging.getLogger(__name__)
 
+PREVIEWS_DIR = "previews"
+"""Stored previews, under the data directory (a cache)."""
 MAX_SKELETON_FRAMES = 600
 """Most frames one skeleton response carries; longer spans are truncated (``truncated``)."""
 MIN_FPS, MAX_FPS, DEFAULT_FPS = 0.01, 1000.0, 30.0
-STORE_FPS = 30.0
-"""Rate of the stored previews; requests up to it are answered from them."""
-_RATE_SLACK = 1.001  # files write 1/30 s as 0.0333333: their 30.0003 fps counts as 30
 DECIMALS = 4
 """``json`` coordinates are rounded to this many decimals of a body height (0.1 mm at 1.7 m)."""
 OFFSET_UNIT = 1e-4
@@ -82,27 +93,6 @@ SKELETON_FORMAT_VERSION = 2
 """Changes whenever the numbers a skeleton response carries change (in ETags and stored
 preview names)."""
 _PELVIS = CANONICAL_INDEX["pelvis"]
-
-
-@dataclass(frozen=True, eq=False)
-class DisplayMotion:
-    """A clip's canonical joints in the display frame.
-
-    ``positions`` are ``(F, C, 3)`` body heights every ``frame_time`` seconds from the first
-    frame after the lead-in; the file itself has ``source_frame_count`` frames after its
-    ``lead_in_frames``, every ``source_frame_time`` seconds (the same numbers for a motion at
-    the file's own rate).
-    """
-
-    positions: np.ndarray
-    frame_time: float
-    lead_in_frames: int
-    source_frame_count: int
-    source_frame_time: float
-
-    @property
-    def duration(self) -> float:
-        return max(0, self.positions.shape[0] - 1) * self.frame_time
 
 
 @dataclass(frozen=True, eq=False)
@@ -168,7 +158,21 @@ class PreviewStore:
             log.warning(
                 "cannot store the preview %s (%s); it is computed again next time", path, error
             )
-            temporary.unlink(missing_ok=True)
+            with contextlib.suppress(OSError):  # e.g. no folder to hold it: nothing to remove
+                temporary.unlink(missing_ok=True)
+
+
+def preview_store(settings: Settings) -> PreviewStore:
+    """The library's stored previews: ``<data dir>/previews/``."""
+    return PreviewStore(settings.data_dir / PREVIEWS_DIR)
+
+
+def save_stored_preview(library: Library, content_hash: str, display: DisplayMotion) -> None:
+    """Store the preview of a clip just stored (``display``: :attr:`Description.preview
+    <app.services.describe.Description.preview>`, made by the describer from the body it
+    built). It never raises: the clip is stored already, and a preview that cannot be
+    written (a full disk, a read-only folder) is logged and made again when first shown."""
+    preview_store(library.settings).save(content_hash, preview_version(library), display)
 
 
 def _nbytes(display: DisplayMotion) -> int:
@@ -191,88 +195,6 @@ class SkeletonCache:
             512, max_weight=64e6, weigh=lambda s: 2 * len(s.body)
         )
         self.store = PreviewStore(store_root) if store_root is not None else None
-
-
-def display_up(world_up: np.ndarray) -> np.ndarray:
-    """The coordinate axis nearest to the body's ``world_up``, as a unit vector.
-
-    Mocap files are authored with an axis up. ``Body.world_up`` snaps to an axis only within
-    30 degrees; clips whose body leans more on average (Bandai's dashes and sad side-steps,
-    35-39 degrees) keep a tilted up there, which would make a figure drift upwards as it
-    travels. A picture needs the true vertical, so it always snaps.
-    """
-    vector = np.asarray(world_up, dtype=float)
-    axis = int(np.argmax(np.abs(vector)))
-    up = np.zeros(3)
-    up[axis] = 1.0 if vector[axis] >= 0 else -1.0
-    return up
-
-
-# Percentile over frames of each frame's lowest joint that sets the preview's floor.
-_FLOOR_PERCENTILE = 5.0
-
-
-def display_positions(body: Body) -> np.ndarray:
-    """``(F, C, 3)`` canonical joint positions in the display frame (see module docstring).
-
-    Axes: x = the subject's left at the first frame, y = up (:func:`display_up`), z = the
-    subject's forward at the first frame projected on the floor; a proper rotation of the
-    file's world (no mirroring), then divided by body height.
-    """
-    up = display_up(body.world_up)
-    frame0 = body.pelvis_frames[0]
-
-    def horizontal(v: np.ndarray) -> np.ndarray:
-        return np.asarray(v - np.dot(v, up) * up, dtype=float)
-
-    forward = horizontal(frame0[:, 2])
-    if np.linalg.norm(forward) > 1e-6:
-        z = forward / np.linalg.norm(forward)
-        x = np.cross(up, z)
-    else:  # lying face down or up at the first frame: face by the hips instead
-        left = horizontal(frame0[:, 0])
-        if np.linalg.norm(left) < 1e-6:
-            left = horizontal(np.eye(3)[int(np.argmin(np.abs(up)))])
-        x = left / np.linalg.norm(left)
-        z = np.cross(x, up)
-    basis = np.stack([x, up, z], axis=1)  # columns: display axes in world coordinates
-    pelvis0 = body.positions[0, CANONICAL_INDEX["pelvis"]]
-    # Robust: the lowest point of most frames, so a frame gone wild (a sentinel value kept
-    # in the middle of a clip) cannot lift the figure far above the floor.
-    floor = float(np.percentile((body.positions @ up).min(axis=1), _FLOOR_PERCENTILE))
-    origin = horizontal(pelvis0) + floor * up
-    return np.asarray(((body.positions - origin) @ basis) / body.height)
-
-
-def resample(
-    positions: np.ndarray,
-    frame_time: float,
-    fps: float,
-    max_frames: int,
-    start: float = 0.0,
-    end: float | None = None,
-) -> tuple[np.ndarray, bool]:
-    """Frames at ``fps`` from ``start`` to ``end`` seconds (default: the last frame) by linear
-    interpolation in time, at most ``max_frames`` of them.
-
-    Returns the ``(F', C, 3)`` frames and whether the span was cut short.
-    """
-    count = positions.shape[0]
-    last = (count - 1) * frame_time
-    stop = last if end is None else min(end, last)
-    # Files round their frame time (0.008333 for 1/120 s): a relative slack of 1e-4 keeps
-    # the last frame, and output times within 1/1000 of a source frame take that frame.
-    span = max(0.0, stop - start)
-    wanted = int(np.floor(span * fps * (1 + 1e-4) + 1e-6)) + 1
-    truncated = wanted > max_frames
-    n = min(wanted, max_frames)
-    source = (start + np.arange(n) / fps) / frame_time  # fractional source frame of each
-    nearest = np.round(source)
-    source = np.where(np.abs(source - nearest) < 1e-3, nearest, source)
-    low = np.clip(np.floor(source).astype(np.int64), 0, count - 1)
-    high = np.minimum(low + 1, count - 1)
-    weight = np.clip(source - low, 0.0, 1.0)[:, None, None]
-    return positions[low] * (1.0 - weight) + positions[high] * weight, truncated
 
 
 def extent(positions: np.ndarray) -> dict[str, float]:
@@ -313,24 +235,7 @@ def upload_display_motion(
 
 def display_motion(motion: Motion) -> DisplayMotion:
     """A motion's canonical joints in the display frame at the file's own rate."""
-    body = build_body(motion)
-    positions = display_positions(body)
-    return DisplayMotion(
-        positions, body.frame_time, body.lead_in_frames, positions.shape[0], body.frame_time
-    )
-
-
-def at_store_rate(display: DisplayMotion) -> DisplayMotion:
-    """``display`` at :data:`STORE_FPS` (or its own rate when slower), float32: what a stored
-    preview holds."""
-    if display.frame_time * STORE_FPS * _RATE_SLACK >= 1.0:  # its own rate
-        frame_time, positions = display.frame_time, display.positions
-    else:
-        frame_time = 1.0 / STORE_FPS
-        positions, _ = resample(display.positions, display.frame_time, STORE_FPS, 2**62)
-    return replace(
-        display, positions=np.ascontiguousarray(positions, np.float32), frame_time=frame_time
-    )
+    return body_display(build_body(motion))
 
 
 def preview_version(library: Library) -> str:
@@ -459,7 +364,7 @@ def clip_skeleton(
     key = (clip.id, clip.content_hash, fps, max_frames, span, encoding)
 
     def compute() -> Skeleton:
-        if fps <= STORE_FPS * _RATE_SLACK:
+        if fps <= STORE_FPS * RATE_SLACK:
             display = stored_preview(library, cache, clip)
         else:
             display = _full_rate(library, cache, clip)

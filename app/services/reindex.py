@@ -21,6 +21,7 @@ from app.services.clips import stored_upload
 from app.services.describe import Description, MotionDescriber
 from app.services.ingest import new_windows
 from app.services.library import Library
+from app.services.previews import save_stored_preview
 from app.services.uploads import Upload
 
 
@@ -34,11 +35,12 @@ class ReindexReport:
 def describe_stored(
     library: Library, upload: Upload, names: list[str], windows: bool
 ) -> Description:
-    """Describe a stored clip under ``names`` (and its windows when ``windows``)."""
+    """Describe a stored clip under ``names`` (and its windows when ``windows``); the motion
+    core's describer also makes its stored preview, from the body it builds anyway."""
     describer = library.describer
     limits = library.settings.parse_limits
-    if windows and isinstance(describer, MotionDescriber):
-        return describer.describe(upload, limits, only=names or None, windows=True)
+    if isinstance(describer, MotionDescriber):
+        return describer.describe(upload, limits, only=names or None, windows=windows, preview=True)
     return describer.describe(upload, limits, only=names)
 
 
@@ -95,6 +97,8 @@ def reindex(
             if with_windows:
                 window_db.put_windows(session, clip_id, new_windows(library, description))
             clip_db.update_clip(session, clip_id, analysis=description.fields)
+        if description.preview is not None:  # a new motion core names new previews
+            save_stored_preview(library, clip.content_hash, description.preview)
         report.recomputed += 1
     with library.write_lock:
         for name in library.descriptors:

@@ -193,7 +193,7 @@ def test_skeletons_are_cached_and_carry_an_etag(
     again = ui_client.get(f"/clips/{clip_id}/skeleton")
     other_rate = ui_client.get(f"/clips/{clip_id}/skeleton", params={"fps": 15})
     assert first.content == again.content and other_rate.status_code == 200
-    assert len(reads) == 1  # parsed once; the other rate reuses the parsed motion
+    assert reads == []  # the preview stored with the clip answers every rate up to 30 fps
     etag = first.headers["etag"]
     assert etag != other_rate.headers["etag"]
     unchanged = ui_client.get(f"/clips/{clip_id}/skeleton", headers={"If-None-Match": etag})
@@ -368,3 +368,43 @@ def test_leaning_clips_stay_on_the_floor(
     assert np.ptp(pelvis[:, 1]) < 0.15  # ...without rising or sinking
     feet = frames[:, [CANONICAL_INDEX["l_toe"], CANONICAL_INDEX["r_toe"]], 1].min(axis=1)
     assert feet.max() < 0.2  # a foot is near the floor in every frame
+
+
+def test_an_uploaded_clip_is_previewed_without_parsing_it_again(
+    ui_client: TestClient, fixtures_dir: Path, settings: Settings, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``POST /clips`` stores the clip's preview (made from the body the describer built):
+    the first view reads it, and it is what parsing the clip again gives."""
+    clip_id = upload_bvh(ui_client, fixtures_dir / CMU_BVH)
+    stored = list((settings.data_dir / previews.PREVIEWS_DIR).rglob("*.npz"))
+    assert len(stored) == 1
+    written = stored[0].stat().st_mtime_ns
+    reads = count_reads(monkeypatch)
+    shown = {
+        encoding: ui_client.get(
+            f"/clips/{clip_id}/skeleton", params={"fps": 15, "encoding": encoding}
+        ).content
+        for encoding in previews.ENCODINGS
+    }
+    cache: previews.SkeletonCache = ui_client.app.state.skeleton_cache  # type: ignore[attr-defined]
+    assert reads == [] and len(cache.motions) == 0  # no clip was parsed
+    assert stored[0].stat().st_mtime_ns == written  # read, not made again
+    stored[0].unlink()
+    with TestClient(ui_app(settings)) as fresh:  # nothing stored: the clip is parsed
+        for encoding, content in shown.items():
+            again = fresh.get(
+                f"/clips/{clip_id}/skeleton", params={"fps": 15, "encoding": encoding}
+            )
+            assert again.content == content
+    assert reads == [1]
+
+
+def test_an_upload_is_stored_when_its_preview_cannot_be(
+    ui_client: TestClient, fixtures_dir: Path, settings: Settings
+) -> None:
+    # A file where the previews folder should be: nothing can be written there, even by root.
+    (settings.data_dir / previews.PREVIEWS_DIR).write_bytes(b"not a folder")
+    clip_id = upload_asf_amc(ui_client, fixtures_dir / CMU_ASF, fixtures_dir / CMU_AMC)
+    assert ui_client.get(f"/clips/{clip_id}").status_code == 200
+    response = ui_client.get(f"/clips/{clip_id}/skeleton")
+    assert response.status_code == 200 and response.json()["frame_count"] > 0
