@@ -45,8 +45,10 @@ facing, naming or extra joints (fingers, face, twist bones, props, IK targets, d
    canonical ``head`` point is the first point of non-zero length on the single chain
    beyond the head joint (an End Site, or a ``HeadTop``-like leaf bone: a BVH converted
    from FBX appends an End Site after that bone, and both files then map the same point)
-   when there is one, else the head joint; ``toe`` likewise beyond the toe joint (else the
-   toe joint, else the farthest point beyond the ankle); ``hand_tip`` is the farthest point
+   when there is one, else the head joint (a leaf *joint* one joint above the arms is
+   the head on its neck, not the top of a head sitting on the shoulders: a person has a
+   neck); ``toe`` likewise beyond the toe joint (else the toe joint, else the farthest
+   point beyond the ankle); ``hand_tip`` is the farthest point
    beyond the wrist, thumbs skipped (the wrist itself on a rig without hand bones).
    :attr:`SkeletonMap.head_joint` keeps the head *joint* for body height.
 4. **Sides.** Left is where bent knees' hinge axes (thigh x shin) point, else ``up x
@@ -1238,7 +1240,10 @@ class _Mapper:
                 leaf = int(tree.parents[leaf])
             parent = int(tree.parents[leaf])
             long_end = tree.lengths[leaf] >= 2 * _HEAD_END_MIN * self.extent
-            head_joint = parent if long_end and parent != body.chest else leaf
+            # A person has a neck: a leaf *joint* (not an End Site) one joint above the arms
+            # is the head on its neck, not the top of a head sitting on the shoulders.
+            on_neck = tree.skeleton.end_site[leaf] or tree.parents[parent] != body.chest
+            head_joint = parent if long_end and parent != body.chest and on_neck else leaf
             how = "structure: top of the spine chain"
             # The skull carries the face (eyes, jaw): where the chain to the top of the head
             # first branches above the neck is the head joint, as a named rig's "head" is.

@@ -673,3 +673,18 @@ def test_the_shoulder_is_where_the_arm_swings_not_a_collar_bone_in_line_with_it(
         "j15",
     ]
     check_canonical_body(body, "collar in line", upright=True)
+
+
+@pytest.mark.parametrize("end_site", [False, True], ids=["leaf joint", "zero-length end site"])
+def test_a_head_leaf_joint_one_joint_above_the_arms_is_the_head_on_its_neck(end_site: bool):
+    # chest -> neck -> head with nothing beyond the head (or a zero-length End Site, which
+    # adds no point): without names, the leaf is the head and the joint below it the neck,
+    # not a head sitting on the shoulders with the leaf for its top.
+    skeleton, truth = synthetic_humanoid(Humanoid(names="anon", head_end=False))
+    if end_site:
+        skeleton = _with_end_sites(skeleton, 0.0)
+    mapping = map_skeleton(skeleton)
+    got = {c: skeleton.names[mapping.joints[CANONICAL_INDEX[c]]] for c in ("neck", "head")}
+    assert got == {"neck": truth["neck"], "head": truth["head"]}
+    assert skeleton.names[mapping.head_joint] == truth["head"]
+    assert "neck derived from the head's parent" not in mapping.warnings
