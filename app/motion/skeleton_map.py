@@ -486,7 +486,12 @@ def _map_known(known: _Known, stream: _Lookahead, frames: int | None = None) -> 
             return rest_result  # the rest pose decided: the same for every clip of the rig
         # The rest pose placed every joint but showed no side, or left limb joints in line
         # to choose among: the clip's frames vote.
-        return _map_pose(known, known.rest, "rest pose", others=partial(stream.after, -1, _POSES))
+        try:
+            return _map_pose(
+                known, known.rest, "rest pose", others=partial(stream.after, -1, _POSES)
+            )
+        except _NotHumanoid:
+            return rest_result  # the frames only choose: what the rest pose found stands
     if not known.choices:
         raise _NotHumanoid(rest_result)  # the tree alone refuses: no pose can help
     read = 0
