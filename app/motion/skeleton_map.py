@@ -823,8 +823,8 @@ def _length(v: np.ndarray) -> float:
 
 
 def _unit_rows(v: np.ndarray) -> np.ndarray:
-    """``(N, 3)`` rows of ``v`` scaled to length 1 (zero rows stay zero)."""
-    n = np.linalg.norm(v, axis=1, keepdims=True)
+    """``(..., 3)`` vectors ``v`` scaled to length 1 (zero vectors stay zero)."""
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
     return np.divide(v, n, out=np.zeros_like(v), where=n > 0)
 
 
@@ -1079,6 +1079,8 @@ class _Mapper:
         # Limb joints in line in the rest pose that the clip's frames would choose among.
         self.limbs_open = False
         self._frames: list[np.ndarray] | None = None
+        self._moving: np.ndarray | None = None
+        self._bent: dict[tuple[int, int, tuple[int, ...]], bool] = {}
 
     # -- small helpers -------------------------------------------------------------------
 
@@ -1117,22 +1119,23 @@ class _Mapper:
         its angle in this pose in some pose of :meth:`motion`: such a joint is a joint of
         the limb, not one inside a bone."""
         a, b = chain[start], chain[end]
-        inner = [
+        inner = tuple(
             chain[i]
             for i in range(start + 1, end)
             if not self.same_place(chain[i], a) and not self.same_place(chain[i], b)
-        ]
+        )
         if not inner:
             return False
-        limit = np.radians(_RIGID_DEG)
-
-        def angles(pose: np.ndarray) -> np.ndarray:
-            into = _unit_rows(pose[inner] - pose[a])
-            out = _unit_rows(pose[b] - pose[inner])
-            return np.arccos(np.clip(np.sum(into * out, axis=1), -1.0, 1.0))
-
-        here = angles(self.pose)
-        return any(bool(np.any(np.abs(angles(pose) - here) > limit)) for pose in self.motion())
+        key = (a, b, inner)
+        if key not in self._bent:
+            if self._moving is None:  # this pose first, then the clip's: (P, J, 3)
+                self._moving = np.stack([self.pose, *self.motion()])
+            at = self._moving
+            into = _unit_rows(at[:, inner] - at[:, [a]])
+            out = _unit_rows(at[:, [b]] - at[:, inner])
+            angles = np.arccos(np.clip(np.sum(into * out, axis=-1), -1.0, 1.0))  # (P, K)
+            self._bent[key] = bool(np.any(np.abs(angles[1:] - angles[0]) > np.radians(_RIGID_DEG)))
+        return self._bent[key]
 
     def put(self, canonical: str, joint: int, how: str) -> None:
         self.found[canonical] = joint
