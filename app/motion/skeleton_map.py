@@ -34,13 +34,21 @@ facing, naming or extra joints (fingers, face, twist bones, props, IK targets, d
    ending at the knees) is mapped, when nothing else maps, with each foot hung from the knee
    it stays at one distance from while the knee bends (:attr:`SkeletonMap.held`). Names
    whole-matched by :mod:`app.motion.skeleton_names` choose among joints when they name one
-   in the chain.
+   in the chain. Where the rest pose leaves joints in one line to choose among (a collar
+   bone in line with a T-posed arm, whose long forearm makes the proportions prefer it; a
+   wrist among a straight hand's joints), the clip's frames decide: a bone does not bend,
+   so a joint that turns inside the upper or lower part of the chosen limb is a joint of
+   the limb (the shoulder below the collar, the wrist above a finger), and the nearest to
+   proportions of the choices with no such joint is taken
+   (:attr:`SkeletonMap.limbs_open`).
 3. **End effectors** (Miura et al.: "end effectors are hereafter regarded as joints"): the
    canonical ``head`` point is the first point of non-zero length on the single chain
    beyond the head joint (an End Site, or a ``HeadTop``-like leaf bone: a BVH converted
    from FBX appends an End Site after that bone, and both files then map the same point)
-   when there is one, else the head joint; ``toe`` likewise beyond the toe joint (else the
-   toe joint, else the farthest point beyond the ankle); ``hand_tip`` is the farthest point
+   when there is one, else the head joint (a leaf *joint* one joint above the arms is
+   the head on its neck, not the top of a head sitting on the shoulders: a person has a
+   neck); ``toe`` likewise beyond the toe joint (else the toe joint, else the farthest
+   point beyond the ankle); ``hand_tip`` is the farthest point
    beyond the wrist, thumbs skipped (the wrist itself on a rig without hand bones).
    :attr:`SkeletonMap.head_joint` keeps the head *joint* for body height.
 4. **Sides.** Left is where bent knees' hinge axes (thigh x shin) point, else ``up x
@@ -185,6 +193,10 @@ _STRAIGHT_FRAME_DEG = 50.0
 _BEND_DEG = 8.0
 # A later limb top must fit the proportions this much better (log ratio) to be taken.
 _PROPORTION_MARGIN = 0.3
+# Degrees a joint inside one limb part may turn over the clip's frames: a bone does not bend
+# (twist and helper joints inside it keep their angle), while a joint of the limb (a collar
+# in line with a T-posed arm, a wrist, a finger) turns tens of degrees in almost any motion.
+_RIGID_DEG = 15.0
 # Upper arm : forearm and thigh : shin (Drillis & Contini's segment table).
 _UPPER_TO_FORE = 1.27
 _THIGH_TO_SHIN = 1.0
@@ -251,6 +263,11 @@ class SkeletonMap:
     sides_open:
         The rest pose shows no side (straight knees, no feet): the clip's frames chose left
         and right, so the mapping is made again for every clip of the rig.
+    limbs_open:
+        The rest pose left a limb's joints to choose among joints in one straight line (a
+        collar bone in line with a T-posed arm, a wrist among the hand's joints): the clip's
+        frames chose (the joints inside one limb part stay in line when it moves), so the
+        mapping is made again for every clip of the rig.
     held:
         ``(joint, limb end, distance)`` for mapped joints that do not hang from the limb
         they end (a foot bone under the root that IK keeps at the end of the shin): in the
@@ -269,6 +286,7 @@ class SkeletonMap:
     mirror_axis: int = 0
     pose: str = "rest pose"
     sides_open: bool = False
+    limbs_open: bool = False
     held: tuple[tuple[int, int, float], ...] = ()
     warnings: tuple[str, ...] = ()
 
@@ -464,10 +482,16 @@ def _map_known(known: _Known, stream: _Lookahead, frames: int | None = None) -> 
     (_NotHumanoid)."""
     rest_result = known.rest_result
     if isinstance(rest_result, SkeletonMap):
-        if not rest_result.sides_open:
+        if not rest_result.sides_open and not rest_result.limbs_open:
             return rest_result  # the rest pose decided: the same for every clip of the rig
-        # The rest pose placed every joint but showed no side: the clip's frames vote.
-        return _map_pose(known, known.rest, "rest pose", others=partial(stream.after, -1, _POSES))
+        # The rest pose placed every joint but showed no side, or left limb joints in line
+        # to choose among: the clip's frames vote.
+        try:
+            return _map_pose(
+                known, known.rest, "rest pose", others=partial(stream.after, -1, _POSES)
+            )
+        except _NotHumanoid:
+            return rest_result  # the frames only choose: what the rest pose found stands
     if not known.choices:
         raise _NotHumanoid(rest_result)  # the tree alone refuses: no pose can help
     read = 0
@@ -736,17 +760,19 @@ class _Limb:
 
 @dataclass(frozen=True)
 class _LimbKind:
-    """A leg or an arm: its three joints, and a person's upper : lower and (what lies beyond
-    its end) : lower length ratios."""
+    """A leg or an arm: its three joints, a person's upper : lower and (what lies beyond its
+    end) : lower length ratios, and the least share of the way from the trunk joint to its
+    end that the limb makes (:meth:`_Mapper.check_share`)."""
 
     what: str
     parts: tuple[str, str, str]
     upper: float
     beyond: float
+    share: float
 
 
-_LEG = _LimbKind("leg", ("hip", "knee", "ankle"), _THIGH_TO_SHIN, _FOOT_TO_SHIN)
-_ARM = _LimbKind("arm", ("shoulder", "elbow", "wrist"), _UPPER_TO_FORE, _HAND_TO_FORE)
+_LEG = _LimbKind("leg", ("hip", "knee", "ankle"), _THIGH_TO_SHIN, _FOOT_TO_SHIN, _LEG_SHARE)
+_ARM = _LimbKind("arm", ("shoulder", "elbow", "wrist"), _UPPER_TO_FORE, _HAND_TO_FORE, _ARM_SHARE)
 
 
 @dataclass
@@ -794,6 +820,12 @@ def _unit(v: np.ndarray) -> np.ndarray:
 def _length(v: np.ndarray) -> float:
     """Euclidean length of the 3-vector ``v`` (what ``np.linalg.norm`` computes)."""
     return math.sqrt(float(v @ v))
+
+
+def _unit_rows(v: np.ndarray) -> np.ndarray:
+    """``(..., 3)`` vectors ``v`` scaled to length 1 (zero vectors stay zero)."""
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return np.divide(v, n, out=np.zeros_like(v), where=n > 0)
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -1044,6 +1076,11 @@ class _Mapper:
         self.warnings: list[str] = []
         # The rest pose showed no side: the clip's frames chose (so it is not kept per rig).
         self.sides_open = False
+        # Limb joints in line in the rest pose that the clip's frames would choose among.
+        self.limbs_open = False
+        self._frames: list[np.ndarray] | None = None
+        self._moving: np.ndarray | None = None
+        self._bent: dict[tuple[int, int, tuple[int, ...]], bool] = {}
 
     # -- small helpers -------------------------------------------------------------------
 
@@ -1065,6 +1102,40 @@ class _Mapper:
             if rank is not None and (best is None or rank < best[0]):
                 best = (rank, i)
         return None if best is None else chain[best[1]]
+
+    def motion(self) -> list[np.ndarray]:
+        """The clip's other poses (``(J, 3)`` each) that show how the limbs move; none when
+        the clip offers none (the rest pose's mapping is then left open for each clip's
+        frames to decide, :attr:`SkeletonMap.limbs_open`)."""
+        if self._frames is None:
+            self._frames = self.others()
+        if not self._frames:
+            self.limbs_open = self.rest
+        return self._frames
+
+    def bends(self, chain: Sequence[int], start: int, end: int) -> bool:
+        """Whether a joint strictly between ``chain[start]`` and ``chain[end]`` (one limb
+        part: upper arm, forearm, thigh, shin) turns by more than :data:`_RIGID_DEG` from
+        its angle in this pose in some pose of :meth:`motion`: such a joint is a joint of
+        the limb, not one inside a bone."""
+        a, b = chain[start], chain[end]
+        inner = tuple(
+            chain[i]
+            for i in range(start + 1, end)
+            if not self.same_place(chain[i], a) and not self.same_place(chain[i], b)
+        )
+        if not inner:
+            return False
+        key = (a, b, inner)
+        if key not in self._bent:
+            if self._moving is None:  # this pose first, then the clip's: (P, J, 3)
+                self._moving = np.stack([self.pose, *self.motion()])
+            at = self._moving
+            into = _unit_rows(at[:, inner] - at[:, [a]])
+            out = _unit_rows(at[:, [b]] - at[:, inner])
+            angles = np.arccos(np.clip(np.sum(into * out, axis=-1), -1.0, 1.0))  # (P, K)
+            self._bent[key] = bool(np.any(np.abs(angles[1:] - angles[0]) > np.radians(_RIGID_DEG)))
+        return self._bent[key]
 
     def put(self, canonical: str, joint: int, how: str) -> None:
         self.found[canonical] = joint
@@ -1115,12 +1186,9 @@ class _Mapper:
                 "the two legs share their hip: no two separate legs below the pelvis"
             )
         arms = [self.map_arm(h) for h in body.hands]
-        for limbs, parts, trunk, share in (
-            (legs, ("hip", "knee", "ankle"), body.pelvis, _LEG_SHARE),
-            (arms, ("shoulder", "elbow", "wrist"), body.chest, _ARM_SHARE),
-        ):
+        for limbs, kind, trunk in ((legs, _LEG, body.pelvis), (arms, _ARM, body.chest)):
             for limb in limbs:
-                self.check_share(limb, parts, trunk, share)
+                self.check_share(limb, kind, trunk)
         mirrored, axis = self.assign_sides(legs, arms)
         joints = np.array([self.found[name] for name in CANONICAL_JOINTS], dtype=np.int64)
         end_sites = tuple(
@@ -1139,27 +1207,33 @@ class _Mapper:
             mirror_axis=axis,
             pose=self.label,
             sides_open=self.sides_open,
+            limbs_open=self.limbs_open,
             warnings=tuple(self.warnings),
         )
 
-    def check_share(
-        self, limb: _Limb, parts: tuple[str, str, str], trunk: int, share: float
-    ) -> None:
-        """A limb (top -> middle -> end, straight lines in the pose) makes at least ``share``
-        of the way from the trunk joint it hangs from to its end: a chain whose top hangs
-        far from the trunk for its length (a creature's fingers, the feathers on its head)
-        is not a person's leg or arm."""
-        at = [self.pose[limb[part]] for part in parts]
+    def check_share(self, limb: _Limb, kind: _LimbKind, trunk: int) -> None:
+        """Raise _NotHumanoid when ``limb`` does not make its share of the way from the trunk
+        joint it hangs from (:meth:`far_from_trunk`)."""
+        problem = self.far_from_trunk(tuple(limb[part] for part in kind.parts), kind, trunk)
+        if problem is not None:
+            raise _NotHumanoid(problem)
+
+    def far_from_trunk(self, joints: tuple[int, ...], kind: _LimbKind, trunk: int) -> str | None:
+        """Why the limb ``joints`` (top, middle, end: straight lines in the pose) is none of a
+        person, or None: a limb makes at least ``kind.share`` of the way from the trunk joint
+        it hangs from to its end; a chain whose top hangs far from the trunk for its length
+        (a creature's fingers, the feathers on its head) is not a person's leg or arm."""
+        at = [self.pose[joint] for joint in joints]
         length = _length(at[1] - at[0]) + _length(at[2] - at[1])
         hang = _length(at[0] - self.pose[trunk])
-        if length < share * (length + hang):
-            what = "leg" if parts[0] == "hip" else "arm"
-            raise _NotHumanoid(
-                f"the {what} {self.tree.names[limb[parts[0]]]!r} .. "
-                f"{self.tree.names[limb[parts[2]]]!r} hangs {hang / max(length, 1e-12):.1f} "
-                f"of its length away from the {'pelvis' if what == 'leg' else 'chest'}: "
-                f"not a {what} of a person"
-            )
+        if length >= kind.share * (length + hang):
+            return None
+        return (
+            f"the {kind.what} {self.tree.names[joints[0]]!r} .. "
+            f"{self.tree.names[joints[2]]!r} hangs {hang / max(length, 1e-12):.1f} "
+            f"of its length away from the {'pelvis' if kind is _LEG else 'chest'}: "
+            f"not a {kind.what} of a person"
+        )
 
     def map_head(self) -> None:
         tree, body = self.tree, self.body
@@ -1174,7 +1248,10 @@ class _Mapper:
                 leaf = int(tree.parents[leaf])
             parent = int(tree.parents[leaf])
             long_end = tree.lengths[leaf] >= 2 * _HEAD_END_MIN * self.extent
-            head_joint = parent if long_end and parent != body.chest else leaf
+            # A person has a neck: a leaf *joint* (not an End Site) one joint above the arms
+            # is the head on its neck, not the top of a head sitting on the shoulders.
+            on_neck = tree.skeleton.end_site[leaf] or tree.parents[parent] != body.chest
+            head_joint = parent if long_end and parent != body.chest and on_neck else leaf
             how = "structure: top of the spine chain"
             # The skull carries the face (eyes, jaw): where the chain to the top of the head
             # first branches above the neck is the head joint, as a named rig's "head" is.
@@ -1254,12 +1331,13 @@ class _Mapper:
         ]
         return inner[int(np.argmin(scores))]
 
-    def upper_and_middle(
-        self, limb: _Limb, above: list[int], parts: tuple[str, str], ratio: float, what: str
-    ) -> None:
+    def upper_and_middle(self, limb: _Limb, above: list[int], kind: _LimbKind) -> None:
         """Put the limb's top joint (hip, shoulder) and middle joint (knee, elbow) on the
         chain ``above`` that ends at the ankle or wrist: by name when both names are there
-        in order, else the straight run's start and its split nearest ``ratio``."""
+        in order, else the straight run's start and its split nearest the ``kind``'s
+        upper : lower ratio (among those whose parts do not bend in the clip's frames, when
+        the frames show which)."""
+        parts, ratio, what = kind.parts[:2], kind.upper, kind.what
         top, middle = (self.named(above[1:-1], part) for part in parts)
         if top is not None and middle is not None and above.index(top) < above.index(middle):
             for part, joint in zip(parts, (top, middle), strict=True):
@@ -1272,7 +1350,7 @@ class _Mapper:
         # A collar bone nearly in line with a T-posed arm passes for straight: among the tops
         # of the straight run and the joints below it, the one whose split comes nearest the
         # limb's proportions wins.
-        best: tuple[float, int, int | None] | None = None
+        options: list[tuple[float, int, int]] = []
         for start in range(straight, end - 1):
             split = self.split(above, start, end, ratio)
             if split is None:
@@ -1280,9 +1358,29 @@ class _Mapper:
             path = self.tree.path
             upper = path[above[split]] - path[above[start]]
             lower = path[above[end]] - path[above[split]]
-            cost = abs(np.log(max(upper, 1e-12) / max(lower, 1e-12)) - np.log(ratio))
-            if best is None or cost < best[0] - _PROPORTION_MARGIN:
-                best = (cost, start, split)
+            options.append(
+                (abs(np.log(max(upper, 1e-12) / max(lower, 1e-12)) - np.log(ratio)), start, split)
+            )
+        if len(options) > 1 and self.motion():
+            # The motion tells what the rest pose cannot: a top joint with a joint inside its
+            # upper part that turns in the clip (the shoulder below a collar bone in line
+            # with it) is no top of the limb; nor is one that leaves a limb too short for its
+            # distance from the trunk (the last finger bones, which never bend inside).
+            rigid = [
+                option
+                for option in options
+                if not self.bends(above, option[1], option[2])
+                and not self.bends(above, option[2], end)
+                and self.far_from_trunk(
+                    (above[option[1]], above[option[2]], above[end]), kind, above[0]
+                )
+                is None
+            ]
+            options = rigid or options
+        best: tuple[float, int, int | None] | None = None
+        for option in options:
+            if best is None or option[0] < best[0] - _PROPORTION_MARGIN:
+                best = option
         # A run too short to hold a middle joint: the limb bends in the rest pose (no T-pose)
         # and its top is the nearest joint above the run.
         for start in range(straight - 1, first - 1, -1):
@@ -1311,25 +1409,39 @@ class _Mapper:
     def best_limb(self, chain: list[int], ends: list[tuple[int, str]], kind: _LimbKind) -> _Limb:
         """The limb along ``chain`` (trunk joint first) ending at the one of ``ends`` (joint,
         how it was found) that leaves room for its top and middle joints and comes nearest
-        a person's proportions (the first on ties); else the first end's _NotHumanoid."""
-        best: tuple[float, _Limb] | None = None
+        a person's proportions (the first on ties); else the first end's _NotHumanoid.
+
+        When that limb bends inside its upper or lower part in the clip's frames (its end
+        on a fingertip: the wrist turns inside the "forearm"), the nearest to proportions
+        of the limbs that do not bend and make their share of the way from the trunk
+        (:meth:`check_share`) is taken instead."""
+        limbs: list[tuple[float, _Limb]] = []
         problem: _NotHumanoid | None = None
         for end, end_how in dict(ends).items():
             limb = _Limb({kind.parts[2]: end}, {kind.parts[2]: end_how})
             try:
-                self.upper_and_middle(
-                    limb, chain[: chain.index(end) + 1], kind.parts[:2], kind.upper, kind.what
-                )
+                self.upper_and_middle(limb, chain[: chain.index(end) + 1], kind)
             except _NotHumanoid as why:
                 problem = problem or why
                 continue
-            cost = self.limb_proportions(limb, kind)
-            if best is None or cost < best[0]:
-                best = (cost, limb)
-        if best is None:
+            limbs.append((self.limb_proportions(limb, kind), limb))
+        if not limbs:
             assert problem is not None
             raise problem
-        return best[1]
+        limbs.sort(key=lambda option: option[0])  # stable: the first on ties
+        best = limbs[0][1]
+        if len(limbs) > 1 and self.motion() and self.limb_bends(chain, best, kind):
+            for _, limb in limbs[1:]:
+                whole = self.far_from_trunk(tuple(limb[p] for p in kind.parts), kind, chain[0])
+                if whole is None and not self.limb_bends(chain, limb, kind):
+                    return limb
+        return best
+
+    def limb_bends(self, chain: list[int], limb: _Limb, kind: _LimbKind) -> bool:
+        """Whether a joint inside the limb's upper or lower part turns in the clip (an end
+        on a fingertip bends at the wrist, a wrist on a finger at the knuckles)."""
+        top, middle, end = (chain.index(limb[part]) for part in kind.parts)
+        return self.bends(chain, top, middle) or self.bends(chain, middle, end)
 
     def limb_proportions(self, limb: _Limb, kind: _LimbKind) -> float:
         """How far a limb's upper : lower : end part lengths (along the bones; the end part

@@ -17,6 +17,7 @@ from app.motion.formats import read_asf_amc, read_bvh
 from app.motion.model import Motion, Skeleton
 from app.motion.skeleton_map import (
     CANONICAL_BONES,
+    CANONICAL_INDEX,
     CANONICAL_JOINTS,
     MIRROR_INDEX,
     SkeletonMap,
@@ -600,3 +601,90 @@ def test_smpl_chains_map_collar_shoulder_elbow_wrist_hand(named: bool, end_sites
         assert got[f"{s}_knee"] == f"{side}_Knee"
         assert got[f"{s}_ankle"] == f"{side}_Ankle"
     assert mapping.mirrored is False
+
+
+# A T-posed rig without usable names whose collar bones lie in line with the arms and whose
+# forearms are longer than the upper arms (as Vicon's and Xsens's are): the rest pose alone
+# prefers the collar for the shoulder. Y up, metres.
+_COLLAR_IN_LINE = """
+j1 0 1.0 0
+  j2 0 1.2 0
+    j3 0 1.4 0
+      j4 0 1.5 0
+        j5 0 1.58 0
+          j6* 0 1.75 0
+      j7 0.03 1.45 0
+        j8 0.18 1.45 0
+          j9 0.44 1.45 0
+            j10 0.72 1.45 0
+              j11* 0.85 1.45 0
+      j12 -0.03 1.45 0
+        j13 -0.18 1.45 0
+          j14 -0.44 1.45 0
+            j15 -0.72 1.45 0
+              j16* -0.85 1.45 0
+  j17 0.1 0.95 0
+    j18 0.1 0.52 0
+      j19 0.1 0.08 0
+        j20 0.1 0.02 0.12
+          j21* 0.1 0.02 0.18
+  j22 -0.1 0.95 0
+    j23 -0.1 0.52 0
+      j24 -0.1 0.08 0
+        j25 -0.1 0.02 0.12
+          j26* -0.1 0.02 0.18
+"""
+
+
+def _arms_swinging(skeleton: Skeleton, frames: int = 60) -> Motion:
+    """``skeleton`` (:data:`_COLLAR_IN_LINE`) lowering and raising its arms at the shoulders
+    (the collar bones stay still), elbows and knees bending."""
+    phase = 2 * np.pi * np.arange(frames) / 30.0
+    rotvecs = np.zeros((frames, skeleton.joint_count, 3))
+    for shoulder, elbow, knee, sign in (("j8", "j9", "j18", 1.0), ("j13", "j14", "j23", -1.0)):
+        rotvecs[:, skeleton.index(shoulder), 2] = -sign * (0.7 + 0.5 * np.sin(phase))
+        rotvecs[:, skeleton.index(elbow), 1] = -sign * (0.4 + 0.2 * np.sin(phase))
+        rotvecs[:, skeleton.index(knee), 0] = 0.5 + 0.4 * np.sin(phase + 1.0)
+    local = Rotation.from_rotvec(rotvecs.reshape(-1, 3)).as_matrix()
+    root = np.stack([np.zeros(frames), np.ones(frames), 0.5 * phase], axis=1)
+    return Motion(skeleton, 1 / 30.0, root, local.reshape(frames, skeleton.joint_count, 3, 3))
+
+
+def test_the_shoulder_is_where_the_arm_swings_not_a_collar_bone_in_line_with_it():
+    skeleton = skeleton_from_points(_COLLAR_IN_LINE)
+    # The rest pose alone cannot tell (clavicle, upper arm and forearm in one line): the
+    # proportions choose, and the clip's frames are left to decide.
+    alone = map_skeleton(skeleton)
+    assert alone.limbs_open
+    assert [skeleton.names[alone.joints[CANONICAL_INDEX[f"{s}_shoulder"]]] for s in "lr"] == [
+        "j7",
+        "j12",
+    ]
+    # In the motion the collar bone keeps its line while the upper arm swings: a joint that
+    # turns inside the "upper arm" is the shoulder.
+    body = build_body(_arms_swinging(skeleton))
+    got = {c: skeleton.names[j] for c, j in zip(CANONICAL_JOINTS, body.mapping.joints, strict=True)}
+    assert [got[f"{s}_{part}"] for part in ("shoulder", "elbow", "wrist") for s in "lr"] == [
+        "j8",
+        "j13",
+        "j9",
+        "j14",
+        "j10",
+        "j15",
+    ]
+    check_canonical_body(body, "collar in line", upright=True)
+
+
+@pytest.mark.parametrize("end_site", [False, True], ids=["leaf joint", "zero-length end site"])
+def test_a_head_leaf_joint_one_joint_above_the_arms_is_the_head_on_its_neck(end_site: bool):
+    # chest -> neck -> head with nothing beyond the head (or a zero-length End Site, which
+    # adds no point): without names, the leaf is the head and the joint below it the neck,
+    # not a head sitting on the shoulders with the leaf for its top.
+    skeleton, truth = synthetic_humanoid(Humanoid(names="anon", head_end=False))
+    if end_site:
+        skeleton = _with_end_sites(skeleton, 0.0)
+    mapping = map_skeleton(skeleton)
+    got = {c: skeleton.names[mapping.joints[CANONICAL_INDEX[c]]] for c in ("neck", "head")}
+    assert got == {"neck": truth["neck"], "head": truth["head"]}
+    assert skeleton.names[mapping.head_joint] == truth["head"]
+    assert "neck derived from the head's parent" not in mapping.warnings
