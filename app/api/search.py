@@ -45,8 +45,8 @@ PLAIN_PARAMETER = re.compile(rb"(clip|k)=([1-9][0-9]{0,17})|(descriptor)=([A-Za-
 
 def plain_search_query(query: bytes) -> dict[str, int | str] | None:
     """The arguments of ``GET /search`` for a plain query (see :data:`PLAIN_PARAMETER`) with a
-    ``clip``; ``None`` for any other (label or licence filters, collapse, encoded or repeated values,
-    a missing clip...), which FastAPI reads."""
+    ``clip``; ``None`` for any other (label or licence filters, collapse, encoded or repeated
+    values, a missing clip...), which FastAPI reads."""
     values: dict[str, int | str] = {}
     for part in query.split(b"&"):
         match = PLAIN_PARAMETER.fullmatch(part)
