@@ -631,6 +631,11 @@ class _Tree:
         count = skeleton.joint_count
         self.lengths = np.linalg.norm(skeleton.offsets, axis=1)
         self.lengths[0] = 0.0
+        # A bone shorter than the mapper's "same place" is no bone: a file that went through
+        # another tool (an FBX export's float rounding) keeps a joint that sat on its parent
+        # a hair away from it, and must map as the original did.
+        extent = float(np.linalg.norm(np.ptp(rest_pose(skeleton), axis=0))) if count else 0.0
+        self.lengths[self.lengths <= COINCIDENT * extent] = 0.0
         # Leaves that add no point of their own (a zero-length End Site, or a chain of them):
         # a BVH writer appends one to every leaf joint of an FBX or glTF rig, and the same
         # rig must map the same with or without them, so the mapper does not see them.

@@ -151,9 +151,11 @@ def _source_motion(source: str, library: object):
 # reads the same file exactly (test_ufbx_reads_the_fbx_export) and Blender reads the BVH-
 # and ASF-sourced files of the same motion right. Strict: the day it reads right, it says so.
 BLENDER_FBX_OFF = {"glb-to-fbx-keep"}
-# The structural mapper maps the ASF spine to another joint once the ASF's End Sites are
-# plain leaf bones (FBX has no End Sites): same geometry, spine `upperback` -> `lowerback`,
-# motion distance 8.5 % of the vector's length. A mapper matter (reported to issue 20).
+# An ASF/AMC clip exported as FBX and read back has the same world positions (within 4e-7 m)
+# and, since joints a hair off their parent count as on it, the same mapping; its `motion`
+# vector is still 8.5 % of its length away, the differences in the z components of the
+# body-frame quantities: something the descriptor reads besides positions and mapping (the
+# FBX's bone frames, or its rest pose) differs. Not explained yet (issue 20).
 MAPPER_OFF = {"asf-amc-to-fbx-keep", "asf-amc-to-fbx-extract"}
 
 
@@ -216,7 +218,7 @@ def test_ufbx_reads_the_fbx_export(exported, case) -> None:
     _known(
         [c for c in CASES if not c[3] and c[2] in ("keep", "extract")],
         MAPPER_OFF,
-        "the mapper and ASF End Sites as leaf bones, see MAPPER_OFF",
+        "the ASF clip read back from FBX describes differently, see MAPPER_OFF",
     ),
     ids=case_id,
 )

@@ -179,6 +179,23 @@ def test_fifty_extra_leaf_joints_change_nothing(fixture: str):
     _same(plain, busy)
 
 
+def test_joints_a_hair_off_their_parent_map_as_joints_on_it():
+    """The CMU ASF spine (``lowerback`` sits on the root) after a round trip through another
+    tool's float rounding (an FBX export read back: 2e-8 of the body's size): the same
+    mapping, not a spine one joint lower."""
+    motion = _cmu_asf()
+    offsets = motion.skeleton.offsets.copy()
+    size = float(np.ptp(offsets.cumsum(axis=0), axis=0).max())
+    on_parent = np.flatnonzero(np.linalg.norm(offsets, axis=1) == 0)[1:]
+    assert len(on_parent), "the fixture has joints on their parents"
+    offsets[on_parent] = 2e-8 * size * np.array([1.0, -0.1, 0.02])
+    rounded = dataclasses.replace(
+        motion, skeleton=dataclasses.replace(motion.skeleton, offsets=offsets)
+    )
+    plain = map_skeleton(motion.skeleton)
+    np.testing.assert_array_equal(map_skeleton(rounded.skeleton).joints, plain.joints)
+
+
 @pytest.mark.parametrize("fixture", FIXTURES)
 def test_z_up_and_inches_change_nothing(fixture: str):
     motion = _motion(fixture)
