@@ -128,15 +128,15 @@ HTTP_METHODS = ("get", "put", "post", "delete", "options", "head", "patch", "tra
 
 @dataclass(frozen=True)
 class AccessTable:
-    """Every operation of the schema: literal paths by name, templated ones by pattern."""
+    """Every operation of the schema: literal paths by name, those with parameters by pattern."""
 
     literal: dict[tuple[str, str], RouteAccess]
-    templated: list[tuple[str, re.Pattern[str], str, RouteAccess]]  # method, pattern, path
+    parametric: list[tuple[str, re.Pattern[str], str, RouteAccess]]  # method, pattern, path
 
     @classmethod
     def of(cls, schema: dict[str, Any]) -> AccessTable:
         literal = {}
-        templated = []
+        parametric = []
         for path, item in schema.get("paths", {}).items():
             for method in HTTP_METHODS:
                 if method not in item:
@@ -144,10 +144,10 @@ class AccessTable:
                 access = operation_access(method.upper(), path, item[method])
                 if "{" in path:
                     pattern = re.compile(re.sub(r"\\\{[^/]*?\\\}", "[^/]+", re.escape(path)) + "$")
-                    templated.append((method.upper(), pattern, path, access))
+                    parametric.append((method.upper(), pattern, path, access))
                 else:
                     literal[method.upper(), path] = access
-        return cls(literal, templated)
+        return cls(literal, parametric)
 
     def find(self, method: str, path: str) -> tuple[str, RouteAccess]:
         """The operation's path pattern and access; ``("", OPEN)`` when none matches (the
@@ -156,7 +156,7 @@ class AccessTable:
         access = self.literal.get((method, path))
         if access is not None:
             return path, access
-        for wanted, pattern, route_path, access in self.templated:
+        for wanted, pattern, route_path, access in self.parametric:
             if wanted == method and pattern.match(path):
                 return route_path, access
         return "", RouteAccess(Access.OPEN)
