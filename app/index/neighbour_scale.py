@@ -42,19 +42,10 @@ class Scale:
     distances: np.ndarray
     size: int
 
-    def similarity(self, distances: np.ndarray) -> np.ndarray:
-        """Percent ``(N,)`` (one decimal) of the typical distances larger than each of
-        ``distances`` ``(N,)``; 100 for all when the scale is empty (a library of one)."""
-        d = np.asarray(distances, dtype=np.float64)
-        if not self.distances.size:
-            return np.full(d.shape, 100.0)
-        larger = self.distances.size - np.searchsorted(self.distances, d, side="right")
-        return np.round(100.0 * larger / self.distances.size, 1)
-
     def similarities(self, distances: list[float]) -> list[float]:
-        """:meth:`similarity` of a search's dozen hits, in Python floats: the same numbers
-        (``bisect_right`` is ``searchsorted(side="right")``; ``np.round(x, 1)`` is
-        ``rint(x * 10) / 10``), without the numpy calls that cost more than the work."""
+        """Percent (one decimal, halves to even) of the typical distances larger than each of
+        ``distances``; 100 for all when the scale is empty (a library of one). In Python
+        floats: for a search's dozen hits numpy's calls cost more than the work."""
         typical = self._typical
         size = len(typical)
         if not size:

@@ -578,7 +578,7 @@ def _search(
         wanted = min(wanted * 2, finder.index.size + wanted)
     chosen = chosen[:need]
     names = library.catalogue.get_many(int(found.clips[r]) for r in chosen)
-    similarity = finder.scale.similarity(found.distances[chosen]).tolist()
+    similarity = finder.scale.similarities(found.distances[chosen].tolist())
     moments = [
         Moment(
             names[int(found.clips[r])],
