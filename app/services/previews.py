@@ -65,8 +65,6 @@ from app.motion.display import (
     body_display,
     resample,
 )
-from app.motion.display import display_positions as display_positions
-from app.motion.display import display_up as display_up
 from app.motion.model import Motion, ParseLimits
 from app.motion.skeleton_map import CANONICAL_BONES, CANONICAL_INDEX, CANONICAL_JOINTS
 from app.services.clips import stored_upload

@@ -28,8 +28,8 @@ import numpy as np
 import pytest
 
 from app.motion.body import build_body
+from app.motion.display import display_positions
 from app.motion.formats import read_bvh
-from app.services.previews import display_positions
 from tests.conftest import REPO_ROOT, shared_data_dir
 
 pytestmark = pytest.mark.slow

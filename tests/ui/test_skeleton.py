@@ -12,6 +12,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.config import Settings
+from app.motion import display
 from app.motion.body import build_body
 from app.motion.formats import read_asf_amc, read_bvh
 from app.motion.skeleton_map import CANONICAL_BONES, CANONICAL_INDEX, CANONICAL_JOINTS
@@ -75,7 +76,7 @@ def test_skeleton_is_the_motion_cores_joints_in_a_display_frame(
     # ...and it walks forward.
     assert frames[-1, pelvis, 2] > frames[0, pelvis, 2]
     # Exactly the service's own transform, rounded to 4 decimals.
-    np.testing.assert_array_equal(frames, np.round(previews.display_positions(core), 4))
+    np.testing.assert_array_equal(frames, np.round(display.display_positions(core), 4))
 
 
 def test_frames_are_resampled_to_the_requested_rate(
@@ -134,7 +135,7 @@ def test_asf_amc_clip_has_a_skeleton_like_its_bvh_twin(
     assert np.median(np.abs(a - b)) < 0.03
     asf = (fixtures_dir / CMU_ASF).read_bytes()
     core = build_body(read_asf_amc(asf, (fixtures_dir / CMU_AMC).read_bytes()))
-    np.testing.assert_array_equal(a, np.round(previews.display_positions(core), 4))
+    np.testing.assert_array_equal(a, np.round(display.display_positions(core), 4))
 
 
 @pytest.mark.parametrize(
@@ -342,12 +343,12 @@ def test_skeleton_of_a_whole_cmu_clip(ui_client: TestClient, shared_data: Shared
     assert body["frame_count"] == int(np.floor((core.frame_count - 1) / 4)) + 1
     # The file's frame time is 0.008333 s, not 1/120: output frames drift off the source's
     # over the clip (by 1% of a frame at frame 250) and are interpolated between two.
-    np.testing.assert_allclose(frames_of(body), previews.display_positions(core)[::4], atol=1e-3)
+    np.testing.assert_allclose(frames_of(body), display.display_positions(core)[::4], atol=1e-3)
 
 
 def test_display_up_is_the_nearest_axis() -> None:
-    np.testing.assert_array_equal(previews.display_up(np.array([0.45, 0.78, 0.43])), [0, 1, 0])
-    np.testing.assert_array_equal(previews.display_up(np.array([0.1, -0.2, -0.9])), [0, 0, -1])
+    np.testing.assert_array_equal(display.display_up(np.array([0.45, 0.78, 0.43])), [0, 1, 0])
+    np.testing.assert_array_equal(display.display_up(np.array([0.1, -0.2, -0.9])), [0, 0, -1])
 
 
 @pytest.mark.slow
