@@ -193,6 +193,10 @@ def clip_vector(library: Library, clip_id: int, descriptor: str) -> np.ndarray:
     info = library.descriptors[descriptor]
     with library.reads() as session:
         stored = vector_db.get_vector(session, clip_id, descriptor)
+        # A clip deleted by another request between the catalogue's look-up and this read
+        # is gone (404), not waiting for a reindex (409).
+        if stored is None and clip_db.get_clip(session, clip_id) is None:
+            raise NotFound(f"no clip with id {clip_id}")
     if stored is None or stored.version != info.version or stored.vector.size != info.dimension:
         raise _unavailable(clip_id, descriptor, info.version)
     return stored.vector
