@@ -13,11 +13,13 @@ $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 
 # Reinstall whenever the dependencies change. The `fbx` extra (bpy, ~1 GB: Blender's FBX
-# exporter for format=fbx) comes second and may fail where no wheel exists for this platform:
-# then format=fbx answers 501 (fbx_unavailable) and the FBX tests skip, except in CI.
+# exporter for format=fbx) may fail where no wheel exists for this platform: then everything
+# else is installed, format=fbx answers 501 (fbx_unavailable) and the FBX tests skip, except
+# in CI. --no-compile: Python compiles a module when it is first imported; compiling every
+# file of bpy's and the other packages at install took 40 % of a fresh install's CPU.
+PIP_INSTALL = $(BIN)/python -m pip install --quiet --no-compile
 $(INSTALLED): pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e '.[dev]'
-	-$(BIN)/python -m pip install --quiet -e '.[dev,fbx]'
+	$(PIP_INSTALL) -e '.[dev,fbx]' || $(PIP_INSTALL) -e '.[dev]'
 	touch $@
 
 install: $(INSTALLED)
