@@ -23,9 +23,12 @@ CELLS = 200
 
 @pytest.fixture
 def small_graphs(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Graphs for indexes of a test's size (the service tries them from 1,000 cells)."""
+    """Graphs tried for indexes of a test's size (the service tries them from 1,000 cells,
+    when the scan of the centroids is not already quick)."""
     monkeypatch.setattr(cells_module, "GRAPH_MIN_CELLS", 100)
     monkeypatch.setattr(frozen_module, "GRAPH_MIN_CELLS", 100)
+    monkeypatch.setattr(cells_module, "CROWDED", float("inf"))
+    monkeypatch.setattr(cells_module, "QUICK_SCAN", 0.0)
 
 
 def clustered(rng: np.random.Generator, count: int) -> np.ndarray:
@@ -87,6 +90,18 @@ def test_a_graph_no_faster_than_the_scan_is_not_kept(
     frozen = FrozenIVF.open(str(index_file[0]))
     frozen.build_cells()
     assert frozen.cells is None
+
+
+def test_a_quick_scan_or_a_crowded_graph_is_not_tried(
+    index_file: tuple[Path, np.ndarray, np.ndarray], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(cells_module, "KEEP_BELOW", float("inf"))
+    for name, value in (("QUICK_SCAN", 1.0), ("CROWDED", 0.0)):
+        with monkeypatch.context() as patch:
+            patch.setattr(cells_module, name, value)
+            frozen = FrozenIVF.open(str(index_file[0]))
+            frozen.build_cells()
+            assert frozen.cells is None, name
 
 
 def test_too_few_cells_build_no_graph(tmp_path: Path) -> None:
