@@ -10,7 +10,9 @@ Two kinds of index, chosen per descriptor by :class:`IndexOptions` (``MOCAP_INDE
     and a query scans the ``nprobe`` nearest cells only. Distances are exact; the neighbour
     set is approximate (recall@10 against exact search is measured by ``bench/bench_search.py``
     and ``tests/index/test_descriptor_index.py``). A search restricted to some ids (a label
-    filter) probes every cell, so it stays exact.
+    filter) probes every cell, so it stays exact. With many cells the nearest ones may be
+    found through a graph over the centroids instead of a scan of them, where that measures
+    faster and finds the same cells (:mod:`app.index.cells`).
 
 ``auto`` (the default) keeps ``flat`` below ``auto_threshold`` vectors and builds ``ivf`` when
 an index is (re)built at or above it; a loaded ``ivf`` index stays ``ivf`` down to half the

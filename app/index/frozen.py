@@ -24,11 +24,13 @@ from __future__ import annotations
 
 import ctypes
 import os
+import threading
 from typing import Any
 
 import faiss
 import numpy as np
 
+from app.index.cells import GRAPH_MIN_CELLS, SAMPLES, CellGraph
 from app.index.kinds import empty_flat
 
 LIST_SHIFT = 32  # a place is list << 32 | offset
@@ -60,6 +62,11 @@ class FrozenIVF:
         self.places = np.concatenate(places)[order] if places else np.zeros(0, np.int64)
         self._codes: np.ndarray | None = None  # see _view_codes
         self._list_starts = np.zeros(0, np.int64)
+        # The cells' graph (app/index/cells.py): built in a thread at the first search, the
+        # centroids scanned until it is there.
+        self.cells: CellGraph | None = None
+        self._cells_started = int(base.nlist) < GRAPH_MIN_CELLS  # True: none to build
+        self._cells_lock = threading.Lock()
 
     @classmethod
     def open(cls, path: str) -> FrozenIVF:
@@ -237,7 +244,29 @@ class FrozenIVF:
                 params = faiss.SearchParametersIVF()
                 params.nprobe = nprobe
                 self._params[nprobe] = params
-        squared, ids = self.base.search(queries, k, params=params)
+        cells = self.cells if allowed is None else None  # a filtered search probes all
+        if cells is not None and cells.nprobe == nprobe:
+            # FAISS's own search after its scan of the centroids (the Python wrapper of
+            # search_preassigned takes no parameters)
+            to_cells, nearest = cells.nearest(queries)
+            count = int(queries.shape[0])
+            squared = np.empty((count, k), np.float32)
+            ids = np.empty((count, k), np.int64)
+            self.base.search_preassigned_c(
+                count,
+                faiss.swig_ptr(queries),
+                k,
+                faiss.swig_ptr(nearest),
+                faiss.swig_ptr(to_cells),
+                faiss.swig_ptr(squared),
+                faiss.swig_ptr(ids),
+                False,
+                params,
+            )
+        else:
+            if not self._cells_started and allowed is None:
+                self._start_cells(nprobe)
+            squared, ids = self.base.search(queries, k, params=params)
         if not self.delta.ntotal:
             return squared, ids
         flat: Any = None
@@ -254,6 +283,27 @@ class FrozenIVF:
             np.take_along_axis(every_squared, order, axis=1),
             np.take_along_axis(every_ids, order, axis=1),
         )
+
+    def _start_cells(self, nprobe: int) -> None:
+        """Build the cells' graph in a thread (once): the first search does not wait."""
+        with self._cells_lock:
+            if self._cells_started:
+                return
+            self._cells_started = True
+        threading.Thread(
+            target=self.build_cells, args=(nprobe,), name="cell-graph", daemon=True
+        ).start()
+
+    def build_cells(self, nprobe: int | None = None) -> None:
+        """Build the cells' graph now for searches of ``nprobe`` cells (default: the file's
+        calibrated number); see app/index/cells.py: none when it is not worth having."""
+        self._cells_started = True
+        if int(self.base.nlist) < GRAPH_MIN_CELLS:
+            return
+        rng = np.random.default_rng(0)
+        sample = np.sort(rng.choice(self.base_ids, min(SAMPLES, self.base_ids.size), False))
+        _, samples = self.vectors(sample)
+        self.cells = CellGraph.of(self.base, nprobe or self.base_nprobe, samples)
 
     def scan_cost(self, nprobe: int, *, filtered: bool) -> int:
         """Numbers one search compares (see DescriptorIndex.scan_cost)."""

@@ -1,0 +1,137 @@
+"""The cells of an IVF search found through a graph over the centroids (app/index/cells.py):
+kept only when it finds the cells a scan finds, and then the answers are the scan's, bit for
+bit; filtered searches still probe every cell."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from app.index import cells as cells_module
+from app.index import frozen as frozen_module
+from app.index.descriptor_index import DescriptorIndex
+from app.index.frozen import FrozenIVF
+from app.index.kinds import IndexOptions
+
+DIMENSION = 16
+COUNT = 12_000
+CELLS = 200
+
+
+@pytest.fixture
+def small_graphs(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Graphs tried for indexes of a test's size (the service tries them from 1,000 cells,
+    when the scan of the centroids is not already quick)."""
+    monkeypatch.setattr(cells_module, "GRAPH_MIN_CELLS", 100)
+    monkeypatch.setattr(frozen_module, "GRAPH_MIN_CELLS", 100)
+    monkeypatch.setattr(cells_module, "CROWDED", float("inf"))
+    monkeypatch.setattr(cells_module, "QUICK_SCAN", 0.0)
+
+
+def clustered(rng: np.random.Generator, count: int) -> np.ndarray:
+    """``(count, DIMENSION)`` vectors around 300 centres, as descriptors of similar clips lie."""
+    centres = rng.normal(size=(300, DIMENSION)) * 3
+    return (centres[rng.integers(0, 300, count)] + rng.normal(size=(count, DIMENSION))).astype(
+        np.float32
+    )
+
+
+@pytest.fixture
+def index_file(tmp_path: Path, small_graphs: None) -> tuple[Path, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(7)
+    ids = np.arange(1, COUNT + 1, dtype=np.int64) * 2
+    vectors = clustered(rng, COUNT)
+    index = DescriptorIndex(
+        "motion", DIMENSION, 1, tmp_path, options=IndexOptions("ivf", nlist=CELLS)
+    )
+    index.replace_all(ids, vectors, persist=True)
+    assert index.mapped
+    return index.path, ids, vectors
+
+
+def without_graph(path: Path) -> FrozenIVF:
+    frozen = FrozenIVF.open(str(path))
+    frozen._cells_started = True  # never builds one
+    return frozen
+
+
+def test_a_kept_graph_gives_the_scans_answers_bit_for_bit(
+    index_file: tuple[Path, np.ndarray, np.ndarray], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path, _ids, vectors = index_file
+    monkeypatch.setattr(cells_module, "KEEP_BELOW", float("inf"))  # kept when the cells agree
+    graph = FrozenIVF.open(str(path))
+    graph.build_cells()
+    assert graph.cells is not None and graph.cells.count == CELLS
+    scan = without_graph(path)
+    nprobe = graph.base_nprobe
+    rng = np.random.default_rng(3)
+    queries = np.concatenate([vectors[rng.choice(COUNT, 150, replace=False)], clustered(rng, 150)])
+    for query in queries:
+        q = query.reshape(1, -1)
+        found = graph.search(q, 11, nprobe=nprobe)
+        expected = scan.search(q, 11, nprobe=nprobe)
+        assert np.array_equal(found[1], expected[1])
+        assert np.array_equal(found[0], expected[0])  # the same float32 distances
+    # Another number of cells than the graph was checked for: the scan's way.
+    assert np.array_equal(
+        graph.search(queries[:1], 11, nprobe=nprobe + 1)[1],
+        scan.search(queries[:1], 11, nprobe=nprobe + 1)[1],
+    )
+
+
+def test_a_graph_no_faster_than_the_scan_is_not_kept(
+    index_file: tuple[Path, np.ndarray, np.ndarray], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(cells_module, "KEEP_BELOW", 0.0)
+    frozen = FrozenIVF.open(str(index_file[0]))
+    frozen.build_cells()
+    assert frozen.cells is None
+
+
+def test_a_quick_scan_or_a_crowded_graph_is_not_tried(
+    index_file: tuple[Path, np.ndarray, np.ndarray], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(cells_module, "KEEP_BELOW", float("inf"))
+    for name, value in (("QUICK_SCAN", 1.0), ("CROWDED", 0.0)):
+        with monkeypatch.context() as patch:
+            patch.setattr(cells_module, name, value)
+            frozen = FrozenIVF.open(str(index_file[0]))
+            frozen.build_cells()
+            assert frozen.cells is None, name
+
+
+def test_too_few_cells_build_no_graph(tmp_path: Path) -> None:
+    rng = np.random.default_rng(1)
+    ids = np.arange(1, COUNT + 1, dtype=np.int64)
+    index = DescriptorIndex(
+        "motion", DIMENSION, 1, tmp_path, options=IndexOptions("ivf", nlist=CELLS)
+    )
+    index.replace_all(ids, clustered(rng, COUNT), persist=True)
+    frozen = FrozenIVF.open(str(index.path))
+    frozen.build_cells()
+    assert frozen.cells is None  # 200 cells: scanned
+
+
+def test_the_first_search_builds_the_graph_meanwhile_and_filters_still_probe_every_cell(
+    index_file: tuple[Path, np.ndarray, np.ndarray], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path, ids, vectors = index_file
+    monkeypatch.setattr(cells_module, "KEEP_BELOW", float("inf"))
+    frozen = FrozenIVF.open(str(path))
+    query = vectors[:1]
+    first = frozen.search(query, 10, nprobe=frozen.base_nprobe)  # answered by the scan
+    deadline = time.monotonic() + 60
+    while frozen.cells is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert frozen.cells is not None
+    assert np.array_equal(frozen.search(query, 10, nprobe=frozen.base_nprobe)[1], first[1])
+    # A filtered search is exact: every allowed vector is considered, whatever its cell.
+    allowed = np.sort(ids[np.random.default_rng(2).choice(COUNT, 500, replace=False)])
+    _squared, found = frozen.search(query, 10, nprobe=frozen.base_nprobe, allowed=allowed)
+    rows = np.searchsorted(ids, allowed)
+    exact = ((vectors[rows] - query) ** 2).sum(axis=1)
+    assert set(found[0].tolist()) == set(allowed[np.argsort(exact, kind="stable")[:10]].tolist())
