@@ -1463,6 +1463,18 @@ class _Mapper:
             return cost + abs(math.log(beyond / lower / kind.beyond))
         return cost + math.log(2.0)
 
+    def doubles_back(self, chain: list[int], i: int) -> bool:
+        """Whether the leaf ``chain[i]`` turns back up (within 45 degrees of the spine's
+        direction) from a bone that came down: a toe tip points forward, so such an end
+        point (a writer's fixed End Site offset on a foot that points down in the rest pose)
+        is not where the foot goes, however little it rises."""
+        if i < 2 or self.tree.children[chain[i]]:
+            return False
+        step = self.pose[chain[i]] - self.pose[chain[i - 1]]
+        came = self.pose[chain[i - 1]] - self.pose[chain[i - 2]]
+        up = self.body.up
+        return float(step @ up) > _EFFECTOR_COS * _length(step) and float(came @ up) < 0
+
     def map_leg(self, foot: int) -> _Limb:
         tree, pose, up = self.tree, self.pose, self.body.up
         chain = tree.chain(self.body.pelvis, foot)
@@ -1470,7 +1482,9 @@ class _Mapper:
         # nowhere in particular (SMPL exports), not the foot.
         heights = pose[chain] @ up
         sole = len(chain) - 1
-        while sole > 1 and heights[sole] > heights.min() + 0.03 * self.extent:
+        while sole > 1 and (
+            heights[sole] > heights.min() + 0.03 * self.extent or self.doubles_back(chain, sole)
+        ):
             sole -= 1
         foot = chain[sole]
         chain = chain[: sole + 1]
