@@ -186,6 +186,9 @@ _BENT_KNEE = np.sin(np.radians(10))  # a knee bent this much shows its hinge axi
 _MIN_LEG = 0.15  # a leg chain is at least this long
 _MIN_ARM = 0.15  # an arm chain is at least this long
 _HEAD_END_MIN = 0.005  # an end effector is at least this far from its joint
+# Relative difference under which an End Site's length copies its parent bone's (a tail an
+# exporter invented, not a measured point): float32 rounding of the two is under 1e-6.
+_TAIL_COPY = 1e-4
 # Degrees: bones of a straight limb in the rest pose (frame poses bend at knee and elbow).
 _STRAIGHT_REST_DEG = 12.0
 _STRAIGHT_FRAME_DEG = 50.0
@@ -636,6 +639,18 @@ class _Tree:
         # a hair away from it, and must map as the original did.
         extent = float(np.linalg.norm(np.ptp(rest_pose(skeleton), axis=0))) if count else 0.0
         self.lengths[self.lengths <= COINCIDENT * extent] = 0.0
+        # An End Site exactly as long as the bone it ends is a tail a writer invented for a
+        # leaf *joint* (Blender gives a leaf bone its parent's length and exports that tail
+        # as the End Site): the joint is the point, as in the FBX or glTF the rig came from,
+        # and a measured End Site (a head top, a fingertip) is never that exact a copy.
+        parent_lengths = self.lengths[np.maximum(skeleton.parents, 0)]
+        invented = (
+            skeleton.end_site
+            & (skeleton.parents > 0)
+            & (parent_lengths > 0)
+            & (np.abs(self.lengths - parent_lengths) <= _TAIL_COPY * parent_lengths)
+        )
+        self.lengths[invented] = 0.0
         # Leaves that add no point of their own (a zero-length End Site, or a chain of them):
         # a BVH writer appends one to every leaf joint of an FBX or glTF rig, and the same
         # rig must map the same with or without them, so the mapper does not see them.
@@ -775,6 +790,9 @@ class _LimbKind:
     beyond: float
     share: float
 
+
+# How a wrist found where the fingers part begins.
+_FINGERS_BRANCH = "structure: where the fingers"
 
 _LEG = _LimbKind("leg", ("hip", "knee", "ankle"), _THIGH_TO_SHIN, _FOOT_TO_SHIN, _LEG_SHARE)
 _ARM = _LimbKind("arm", ("shoulder", "elbow", "wrist"), _UPPER_TO_FORE, _HAND_TO_FORE, _ARM_SHARE)
@@ -1433,7 +1451,27 @@ class _Mapper:
         if not limbs:
             assert problem is not None
             raise problem
+        if kind is _ARM:
+            # An arm makes its share of the way from the chest (:meth:`check_share`): a
+            # wrist whose arm does not (three finger bones of the hand taken for the arm) is
+            # not the wrist. (A leg keeps its one verdict: a creature's toes are no legs.)
+            sharing = [
+                option
+                for option in limbs
+                if self.far_from_trunk(tuple(option[1][p] for p in kind.parts), kind, chain[0])
+                is None
+            ]
+            limbs = sharing or limbs
         limbs.sort(key=lambda option: option[0])  # stable: the first on ties
+        # Where the fingers branch is the hand's own structure, the other ends only a count
+        # of joints from the chain's end: a branching wrist stands unless another end's
+        # proportions are clearly nearer a person's (a twist bone may branch, too).
+        branching = [
+            option for option in limbs if option[1].how[kind.parts[2]].startswith(_FINGERS_BRANCH)
+        ]
+        if branching and branching[0][0] <= limbs[0][0] + _PROPORTION_MARGIN:
+            limbs.remove(branching[0])
+            limbs.insert(0, branching[0])
         best = limbs[0][1]
         if len(limbs) > 1 and self.motion() and self.limb_bends(chain, best, kind):
             for _, limb in limbs[1:]:
@@ -1474,6 +1512,25 @@ class _Mapper:
         came = self.pose[chain[i - 1]] - self.pose[chain[i - 2]]
         up = self.body.up
         return float(step @ up) > _EFFECTOR_COS * _length(step) and float(came @ up) < 0
+
+    def best_ankle(self, chain: list[int], ankles: list[tuple[int, str]]) -> _Limb:
+        """The leg along ``chain`` ending at the best of ``ankles`` (:meth:`best_limb`); a
+        joint above the turn of the foot (the last of two geometric choices) only when its
+        leg's proportions are clearly nearer a person's (:data:`_PROPORTION_MARGIN`)."""
+        if len(ankles) != 2 or not ankles[1][1].startswith("geometry: above the ball"):
+            return self.best_limb(chain, ankles, _LEG)
+        options = []
+        for ankle in ankles:
+            try:
+                limb = self.best_limb(chain, [ankle], _LEG)
+            except _NotHumanoid:
+                continue
+            options.append((self.limb_proportions(limb, _LEG), limb))
+        if not options:
+            return self.best_limb(chain, ankles[:1], _LEG)  # the turn's own reason
+        if len(options) == 2 and options[1][0] < options[0][0] - _PROPORTION_MARGIN:
+            return options[1][1]
+        return options[0][1]
 
     def map_leg(self, foot: int) -> _Limb:
         tree, pose, up = self.tree, self.pose, self.body.up
@@ -1520,6 +1577,24 @@ class _Mapper:
                     "geometry: where the foot turns forward",
                 )
             ]
+            # A foot that points down in the rest pose (a Blender A-pose, feet extended)
+            # turns forward only at the ball, where the toes start: the joint above the turn
+            # is then the ankle, when the leg's proportions say so clearly.
+            above = next(
+                (
+                    i
+                    for i in range(turned - 1, 0, -1)
+                    if not self.same_place(chain[i], chain[turned])
+                ),
+                None,
+            )
+            if above is not None:
+                ankles.append(
+                    (
+                        self.deepest_coincident(chain[above], chain),
+                        "geometry: above the ball of a foot pointing down",
+                    )
+                )
         else:
             # The foot never turns in this pose (it points down, or there is none): the leg's
             # last joints, the one whose thigh, shin and foot come nearest human proportions.
@@ -1537,7 +1612,7 @@ class _Mapper:
                 )
                 for i in range(last, max(last - 3, 0), -1)
             ]
-        limb = self.best_limb(chain, ankles, _LEG)
+        limb = self.best_ankle(chain, ankles)
         ankle = limb["ankle"]
         ankle_i = chain.index(ankle)
         result, how = limb.joints, limb.how
@@ -1551,6 +1626,10 @@ class _Mapper:
         forward = _unit(forward - (forward @ up) * up)
         if toe_joint is not None:
             tip = self.effector(toe_joint, along=forward if _length(forward) else None)
+            if tip is None:
+                # A foot pointing down (a frame at toe-off, a rest pose with feet extended):
+                # the toe tip continues the foot's own line, ankle to toe joint.
+                tip = self.effector(toe_joint, along=_unit(pose[toe_joint] - pose[ankle]))
             if tip is not None:
                 result["toe"], how["toe"] = tip, "end effector beyond the toe joint"
             else:
@@ -1572,13 +1651,13 @@ class _Mapper:
             # rig without hand bones, glTF and FBX joints being points without tails): the
             # one whose arm comes nearest human proportions.
             wrists = [
-                (j, "structure: where the fingers branch")
+                (j, f"{_FINGERS_BRANCH} branch")
                 for j in chain[-2:0:-1]
                 if sum(1 for c in tree.children[j] if tree.lengths[c] > 0 or tree.children[c]) >= 2
             ]
             # Fingers may also start from sibling joints at one place (a palm bone per finger).
             wrists += [
-                (j, "structure: where the fingers start together")
+                (j, f"{_FINGERS_BRANCH} start together")
                 for j in chain[-2:1:-1]
                 if tree.children[j]
                 and any(
