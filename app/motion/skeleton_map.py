@@ -1284,6 +1284,11 @@ class _Mapper:
                 head_joint, how = skull, "structure: where the face branches off the head"
         self.head_joint = head_joint
         tip = self.effector(head_joint, along=body.up)
+        if tip is None and head_joint != body.chest:
+            # A head bowed or tilted against the spine (a frame, not a standing rest pose):
+            # the top of the head continues the neck's own line.
+            neck_line = self.pose[head_joint] - self.pose[int(tree.parents[head_joint])]
+            tip = self.effector(head_joint, along=_unit(neck_line))
         if tip is not None:
             self.put("head", tip, "end effector beyond the head joint")
         else:
