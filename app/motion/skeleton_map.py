@@ -7,7 +7,8 @@ figure, as in rigs that bake joint orientation into rotations) whatever the up a
 facing, naming or extra joints (fingers, face, twist bones, props, IK targets, dummies).
 
 0. **Points, not joints.** Leaves that add no point (zero-length End Sites, which a BVH
-   writer appends to every leaf joint of an FBX or glTF rig) are not seen at all.
+   writer appends to every leaf joint of an FBX or glTF rig) are not seen at all; nor is an
+   End Site exactly as long as its bone (a tail Blender invents for a leaf joint).
 1. **Extremities.** Leaves at least two bones below the root (thigh and shin, upper arm and
    forearm: a hip may sit at the pelvis itself) and far apart along bones are found
    greedily (the farthest leaf from the ones already chosen, up to :data:`_CANDIDATES`);
@@ -19,15 +20,19 @@ facing, naming or extra joints (fingers, face, twist bones, props, IK targets, d
    costs are left/right chain-length differences and names that contradict a role (an arm
    chain whose joints are called leg names).
 2. **Chains.** Along each limb chain: the ankle is where the chain turns forward (the
-   rest of the chain drops little for its length), else named, else the one of the leg's
-   last joints nearest human proportions (a foot that points down); the hip and shoulder
+   rest of the chain drops little for its length; or the joint above that turn when a foot
+   pointing down turns only at the ball and the leg's proportions say so clearly; a leaf
+   turning back up from a foot coming down is no toe), else named, else the one of the
+   leg's last joints nearest human proportions (a foot that points down); the hip and shoulder
    start the straight run ending at the ankle or wrist (or the joint above it when the run
    leaves no room for a middle joint, or the joint at the trunk's own place when hips sit at
    the pelvis); the knee and elbow split that run (a rest-pose bend decides when there is
    one, otherwise the split nearest human proportions); the wrist is named, or else, among
    where the fingers branch (a joint with several, or sibling palm joints at one place), the
    two joints before the hand's end and the arm's last joint (a rig without hand bones), the
-   one whose upper arm, forearm and hand come nearest human proportions; the ankle likewise
+   one whose upper arm, forearm and hand come nearest human proportions (where the fingers
+   branch standing unless another is clearly nearer, and never a wrist whose arm would not
+   make its share of the way from the chest); the ankle likewise
    when the foot does not turn forward; two legs never share their hip, and each limb makes
    most of the way from the trunk to its end (a creature's claws hanging at the end of its
    legs are no person's legs). A game rig whose feet are IK bones under the root (legs
