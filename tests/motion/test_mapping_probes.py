@@ -21,11 +21,13 @@ from scipy.spatial.transform import Rotation
 
 from app.errors import MocapError
 from app.motion import transforms
+from app.motion.descriptors import REGISTRY
 from app.motion.formats import read_bvh
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion, Skeleton
 from app.motion.pipeline import describable_body
 from app.motion.skeleton_map import CANONICAL_INDEX
+from app.motion.windows import describe_windows
 from tests.motion.conftest import BANDAI_FIXTURE, CMU_BVH_FIXTURE, fixture_bytes
 from tests.motion.holds import held_motion
 from tests.motion.test_nameless_real import FILES
@@ -303,3 +305,34 @@ def test_human_dev_rigs_under_another_rest_pose(probe: str) -> None:
     same = sum(v is None for v in outcomes.values())
     print(f"{probe}: {same} of {len(outcomes)} map alike")
     assert same >= RECORDED[probe], {k: v for k, v in outcomes.items() if v}
+
+
+@pytest.mark.parametrize("fixture", [CMU_BVH_FIXTURE, BANDAI_FIXTURE])
+@pytest.mark.parametrize("extra", [1, 37, 240])
+def test_a_still_stretch_written_into_the_file_changes_nothing_but_the_still_part(
+    fixture: str, extra: int
+) -> None:
+    """The held frames go through everything a file goes through (the mapping from the
+    frames the mapper reads, the lead-in, the body's frame, the height), not only the
+    descriptors: the mapping is the same and every window that ends by the held frame, or
+    starts at it or later (``extra`` frames later in the longer take), is the same window."""
+    motion = read_bvh(fixture_bytes(fixture))
+    at = motion.frame_count // 2
+    body = describable_body(motion)
+    longer = describable_body(held_motion(motion, at, extra))
+    assert body.mapping is not None and longer.mapping is not None
+    np.testing.assert_array_equal(longer.mapping.joints, body.mapping.joints)
+    assert longer.lead_in_frames == body.lead_in_frames
+    at -= body.lead_in_frames  # body frames
+    frames = body.frame_count
+    spans = np.array(
+        [[0, s, e] for s, e in [(0, at + 1), (max(0, at - 10), at + 1), (at, frames)]]
+        + [[0, s, min(frames, s + 12)] for s in range(at, frames - 1, 7)]
+    )
+    moved = spans.copy()
+    moved[:, 1:] += np.where(spans[:, 1:2] >= at, extra, 0)
+    names = list(REGISTRY)
+    original = describe_windows(body, spans, names)
+    again = describe_windows(longer, moved, names)
+    for name in names:
+        np.testing.assert_allclose(again[name], original[name], rtol=1e-5, atol=1e-5, err_msg=name)
