@@ -1109,6 +1109,8 @@ class _Mapper:
         self._frames: list[np.ndarray] | None = None
         self._moving: np.ndarray | None = None
         self._bent: dict[tuple[int, int, tuple[int, ...]], bool] = {}
+        # Half the distance between the hip joints (0 until the legs are mapped).
+        self.hip_half_gap = 0.0
 
     # -- small helpers -------------------------------------------------------------------
 
@@ -1165,6 +1167,11 @@ class _Mapper:
             self._bent[key] = bool(np.any(np.abs(angles[1:] - angles[0]) > np.radians(_RIGID_DEG)))
         return self._bent[key]
 
+    def off_midline(self, joint: int) -> float:
+        """How far ``joint`` lies from the spine's line (through the pelvis, along up)."""
+        step = self.pose[joint] - self.pose[self.body.pelvis]
+        return _length(step - (step @ self.body.up) * self.body.up)
+
     def put(self, canonical: str, joint: int, how: str) -> None:
         self.found[canonical] = joint
         self.how[canonical] = how
@@ -1213,6 +1220,7 @@ class _Mapper:
             raise _NotHumanoid(
                 "the two legs share their hip: no two separate legs below the pelvis"
             )
+        self.hip_half_gap = 0.5 * _length(self.pose[legs[0]["hip"]] - self.pose[legs[1]["hip"]])
         arms = [self.map_arm(h) for h in body.hands]
         for limbs, kind, trunk in ((legs, _LEG, body.pelvis), (arms, _ARM, body.chest)):
             for limb in limbs:
@@ -1394,6 +1402,16 @@ class _Mapper:
             options.append(
                 (abs(np.log(max(upper, 1e-12) / max(lower, 1e-12)) - np.log(ratio)), start, split)
             )
+        if kind is _ARM and len(options) > 1:
+            # A person's shoulders sit wider apart than the hip joints (0.26 against about
+            # 0.1-0.2 of the height): a top joint nearer the spine's line than a hip is to
+            # the pelvis is where a collar bone starts, not the shoulder.
+            wide = [
+                option
+                for option in options
+                if self.off_midline(above[option[1]]) >= self.hip_half_gap
+            ]
+            options = wide or options
         if len(options) > 1 and self.motion():
             # The motion tells what the rest pose cannot: a top joint with a joint inside its
             # upper part that turns in the clip (the shoulder below a collar bone in line
