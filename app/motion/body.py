@@ -307,6 +307,10 @@ def body_height(
     return float(np.mean(legs)) + path_length("pelvis", "head")
 
 
+# Frame-to-frame turns below this (radians) are a held pose: arccos of a rounded 1 is ~2e-8.
+_STILL_RADIANS = 1e-6
+
+
 def count_lead_in_frames(motion: Motion) -> int:
     """Number of converter-added frames at the start of ``motion``.
 
@@ -314,8 +318,9 @@ def count_lead_in_frames(motion: Motion) -> int:
     into the motion; DAZ a T-pose that blends into the motion over about four frames. Both
     show as a first frame near the rest pose (mean local rotation of the non-root joints
     within 5 degrees of the identity) followed by frame-to-frame pose changes far above the
-    clip's median. Such leading frames are dropped while the change stays above twice the
-    median, for at most 0.1 s and never more than half of the clip.
+    median of the clip's moving frames (frames held still do not count: a long hold would
+    make every move look like a jump). Such leading frames are dropped while the change stays
+    above twice that median, for at most 0.1 s and never more than half of the clip.
     """
     frames = motion.frame_count
     if frames < 4:
@@ -326,7 +331,11 @@ def count_lead_in_frames(motion: Motion) -> int:
     if mean_angle0 > _REST_MEAN_ANGLE_DEG:
         return 0
     change = _pose_change(local)
-    threshold = _BLEND_SPEED_FACTOR * max(float(np.median(change)), 1e-6)
+    # What moving looks like in this clip: frames held exactly still (an idle, a hold) are
+    # no evidence of it, and a long hold must not make every move look like a jump.
+    moving = change[change > _STILL_RADIANS]
+    typical = float(np.median(moving)) if len(moving) else 0.0
+    threshold = _BLEND_SPEED_FACTOR * max(typical, _STILL_RADIANS)
     limit = min(frames // 2, max(1, round(_MAX_BLEND_SECONDS / motion.frame_time)))
     lead_in = 0
     while lead_in < limit and change[lead_in] > threshold:

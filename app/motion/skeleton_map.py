@@ -7,7 +7,8 @@ figure, as in rigs that bake joint orientation into rotations) whatever the up a
 facing, naming or extra joints (fingers, face, twist bones, props, IK targets, dummies).
 
 0. **Points, not joints.** Leaves that add no point (zero-length End Sites, which a BVH
-   writer appends to every leaf joint of an FBX or glTF rig) are not seen at all.
+   writer appends to every leaf joint of an FBX or glTF rig) are not seen at all; nor is an
+   End Site exactly as long as its bone (a tail Blender invents for a leaf joint).
 1. **Extremities.** Leaves at least two bones below the root (thigh and shin, upper arm and
    forearm: a hip may sit at the pelvis itself) and far apart along bones are found
    greedily (the farthest leaf from the ones already chosen, up to :data:`_CANDIDATES`);
@@ -19,15 +20,19 @@ facing, naming or extra joints (fingers, face, twist bones, props, IK targets, d
    costs are left/right chain-length differences and names that contradict a role (an arm
    chain whose joints are called leg names).
 2. **Chains.** Along each limb chain: the ankle is where the chain turns forward (the
-   rest of the chain drops little for its length), else named, else the one of the leg's
-   last joints nearest human proportions (a foot that points down); the hip and shoulder
+   rest of the chain drops little for its length; or the joint above that turn when a foot
+   pointing down turns only at the ball and the leg's proportions say so clearly; a leaf
+   turning back up from a foot coming down is no toe), else named, else the one of the
+   leg's last joints nearest human proportions (a foot that points down); the hip and shoulder
    start the straight run ending at the ankle or wrist (or the joint above it when the run
    leaves no room for a middle joint, or the joint at the trunk's own place when hips sit at
    the pelvis); the knee and elbow split that run (a rest-pose bend decides when there is
    one, otherwise the split nearest human proportions); the wrist is named, or else, among
    where the fingers branch (a joint with several, or sibling palm joints at one place), the
    two joints before the hand's end and the arm's last joint (a rig without hand bones), the
-   one whose upper arm, forearm and hand come nearest human proportions; the ankle likewise
+   one whose upper arm, forearm and hand come nearest human proportions (where the fingers
+   branch standing unless another is clearly nearer, and never a wrist whose arm would not
+   make its share of the way from the chest); the ankle likewise
    when the foot does not turn forward; two legs never share their hip, and each limb makes
    most of the way from the trunk to its end (a creature's claws hanging at the end of its
    legs are no person's legs). A game rig whose feet are IK bones under the root (legs
@@ -186,6 +191,9 @@ _BENT_KNEE = np.sin(np.radians(10))  # a knee bent this much shows its hinge axi
 _MIN_LEG = 0.15  # a leg chain is at least this long
 _MIN_ARM = 0.15  # an arm chain is at least this long
 _HEAD_END_MIN = 0.005  # an end effector is at least this far from its joint
+# Relative difference under which an End Site's length copies its parent bone's (a tail an
+# exporter invented, not a measured point): float32 rounding of the two is under 1e-6.
+_TAIL_COPY = 1e-4
 # Degrees: bones of a straight limb in the rest pose (frame poses bend at knee and elbow).
 _STRAIGHT_REST_DEG = 12.0
 _STRAIGHT_FRAME_DEG = 50.0
@@ -636,6 +644,18 @@ class _Tree:
         # a hair away from it, and must map as the original did.
         extent = float(np.linalg.norm(np.ptp(rest_pose(skeleton), axis=0))) if count else 0.0
         self.lengths[self.lengths <= COINCIDENT * extent] = 0.0
+        # An End Site exactly as long as the bone it ends is a tail a writer invented for a
+        # leaf *joint* (Blender gives a leaf bone its parent's length and exports that tail
+        # as the End Site): the joint is the point, as in the FBX or glTF the rig came from,
+        # and a measured End Site (a head top, a fingertip) is never that exact a copy.
+        parent_lengths = self.lengths[np.maximum(skeleton.parents, 0)]
+        invented = (
+            skeleton.end_site
+            & (skeleton.parents > 0)
+            & (parent_lengths > 0)
+            & (np.abs(self.lengths - parent_lengths) <= _TAIL_COPY * parent_lengths)
+        )
+        self.lengths[invented] = 0.0
         # Leaves that add no point of their own (a zero-length End Site, or a chain of them):
         # a BVH writer appends one to every leaf joint of an FBX or glTF rig, and the same
         # rig must map the same with or without them, so the mapper does not see them.
@@ -775,6 +795,9 @@ class _LimbKind:
     beyond: float
     share: float
 
+
+# How a wrist found where the fingers part begins.
+_FINGERS_BRANCH = "structure: where the fingers"
 
 _LEG = _LimbKind("leg", ("hip", "knee", "ankle"), _THIGH_TO_SHIN, _FOOT_TO_SHIN, _LEG_SHARE)
 _ARM = _LimbKind("arm", ("shoulder", "elbow", "wrist"), _UPPER_TO_FORE, _HAND_TO_FORE, _ARM_SHARE)
@@ -1086,6 +1109,8 @@ class _Mapper:
         self._frames: list[np.ndarray] | None = None
         self._moving: np.ndarray | None = None
         self._bent: dict[tuple[int, int, tuple[int, ...]], bool] = {}
+        # Half the distance between the hip joints (0 until the legs are mapped).
+        self.hip_half_gap = 0.0
 
     # -- small helpers -------------------------------------------------------------------
 
@@ -1142,6 +1167,11 @@ class _Mapper:
             self._bent[key] = bool(np.any(np.abs(angles[1:] - angles[0]) > np.radians(_RIGID_DEG)))
         return self._bent[key]
 
+    def off_midline(self, joint: int) -> float:
+        """How far ``joint`` lies from the spine's line (through the pelvis, along up)."""
+        step = self.pose[joint] - self.pose[self.body.pelvis]
+        return _length(step - (step @ self.body.up) * self.body.up)
+
     def put(self, canonical: str, joint: int, how: str) -> None:
         self.found[canonical] = joint
         self.how[canonical] = how
@@ -1190,6 +1220,7 @@ class _Mapper:
             raise _NotHumanoid(
                 "the two legs share their hip: no two separate legs below the pelvis"
             )
+        self.hip_half_gap = 0.5 * _length(self.pose[legs[0]["hip"]] - self.pose[legs[1]["hip"]])
         arms = [self.map_arm(h) for h in body.hands]
         for limbs, kind, trunk in ((legs, _LEG, body.pelvis), (arms, _ARM, body.chest)):
             for limb in limbs:
@@ -1266,6 +1297,11 @@ class _Mapper:
                 head_joint, how = skull, "structure: where the face branches off the head"
         self.head_joint = head_joint
         tip = self.effector(head_joint, along=body.up)
+        if tip is None and head_joint != body.chest:
+            # A head bowed or tilted against the spine (a frame, not a standing rest pose):
+            # the top of the head continues the neck's own line.
+            neck_line = self.pose[head_joint] - self.pose[int(tree.parents[head_joint])]
+            tip = self.effector(head_joint, along=_unit(neck_line))
         if tip is not None:
             self.put("head", tip, "end effector beyond the head joint")
         else:
@@ -1366,6 +1402,16 @@ class _Mapper:
             options.append(
                 (abs(np.log(max(upper, 1e-12) / max(lower, 1e-12)) - np.log(ratio)), start, split)
             )
+        if kind is _ARM and len(options) > 1:
+            # A person's shoulders sit wider apart than the hip joints (0.26 against about
+            # 0.1-0.2 of the height): a top joint nearer the spine's line than a hip is to
+            # the pelvis is where a collar bone starts, not the shoulder.
+            wide = [
+                option
+                for option in options
+                if self.off_midline(above[option[1]]) >= self.hip_half_gap
+            ]
+            options = wide or options
         if len(options) > 1 and self.motion():
             # The motion tells what the rest pose cannot: a top joint with a joint inside its
             # upper part that turns in the clip (the shoulder below a collar bone in line
@@ -1433,7 +1479,27 @@ class _Mapper:
         if not limbs:
             assert problem is not None
             raise problem
+        if kind is _ARM:
+            # An arm makes its share of the way from the chest (:meth:`check_share`): a
+            # wrist whose arm does not (three finger bones of the hand taken for the arm) is
+            # not the wrist. (A leg keeps its one verdict: a creature's toes are no legs.)
+            sharing = [
+                option
+                for option in limbs
+                if self.far_from_trunk(tuple(option[1][p] for p in kind.parts), kind, chain[0])
+                is None
+            ]
+            limbs = sharing or limbs
         limbs.sort(key=lambda option: option[0])  # stable: the first on ties
+        # Where the fingers branch is the hand's own structure, the other ends only a count
+        # of joints from the chain's end: a branching wrist stands unless another end's
+        # proportions are clearly nearer a person's (a twist bone may branch, too).
+        branching = [
+            option for option in limbs if option[1].how[kind.parts[2]].startswith(_FINGERS_BRANCH)
+        ]
+        if branching and branching[0][0] <= limbs[0][0] + _PROPORTION_MARGIN:
+            limbs.remove(branching[0])
+            limbs.insert(0, branching[0])
         best = limbs[0][1]
         if len(limbs) > 1 and self.motion() and self.limb_bends(chain, best, kind):
             for _, limb in limbs[1:]:
@@ -1463,6 +1529,37 @@ class _Mapper:
             return cost + abs(math.log(beyond / lower / kind.beyond))
         return cost + math.log(2.0)
 
+    def doubles_back(self, chain: list[int], i: int) -> bool:
+        """Whether the leaf ``chain[i]`` turns back up (within 45 degrees of the spine's
+        direction) from a bone that came down: a toe tip points forward, so such an end
+        point (a writer's fixed End Site offset on a foot that points down in the rest pose)
+        is not where the foot goes, however little it rises."""
+        if i < 2 or self.tree.children[chain[i]]:
+            return False
+        step = self.pose[chain[i]] - self.pose[chain[i - 1]]
+        came = self.pose[chain[i - 1]] - self.pose[chain[i - 2]]
+        up = self.body.up
+        return float(step @ up) > _EFFECTOR_COS * _length(step) and float(came @ up) < 0
+
+    def best_ankle(self, chain: list[int], ankles: list[tuple[int, str]]) -> _Limb:
+        """The leg along ``chain`` ending at the best of ``ankles`` (:meth:`best_limb`); a
+        joint above the turn of the foot (the last of two geometric choices) only when its
+        leg's proportions are clearly nearer a person's (:data:`_PROPORTION_MARGIN`)."""
+        if len(ankles) != 2 or not ankles[1][1].startswith("geometry: above the ball"):
+            return self.best_limb(chain, ankles, _LEG)
+        options = []
+        for ankle in ankles:
+            try:
+                limb = self.best_limb(chain, [ankle], _LEG)
+            except _NotHumanoid:
+                continue
+            options.append((self.limb_proportions(limb, _LEG), limb))
+        if not options:
+            return self.best_limb(chain, ankles[:1], _LEG)  # the turn's own reason
+        if len(options) == 2 and options[1][0] < options[0][0] - _PROPORTION_MARGIN:
+            return options[1][1]
+        return options[0][1]
+
     def map_leg(self, foot: int) -> _Limb:
         tree, pose, up = self.tree, self.pose, self.body.up
         chain = tree.chain(self.body.pelvis, foot)
@@ -1470,7 +1567,9 @@ class _Mapper:
         # nowhere in particular (SMPL exports), not the foot.
         heights = pose[chain] @ up
         sole = len(chain) - 1
-        while sole > 1 and heights[sole] > heights.min() + 0.03 * self.extent:
+        while sole > 1 and (
+            heights[sole] > heights.min() + 0.03 * self.extent or self.doubles_back(chain, sole)
+        ):
             sole -= 1
         foot = chain[sole]
         chain = chain[: sole + 1]
@@ -1506,6 +1605,24 @@ class _Mapper:
                     "geometry: where the foot turns forward",
                 )
             ]
+            # A foot that points down in the rest pose (a Blender A-pose, feet extended)
+            # turns forward only at the ball, where the toes start: the joint above the turn
+            # is then the ankle, when the leg's proportions say so clearly.
+            above = next(
+                (
+                    i
+                    for i in range(turned - 1, 0, -1)
+                    if not self.same_place(chain[i], chain[turned])
+                ),
+                None,
+            )
+            if above is not None:
+                ankles.append(
+                    (
+                        self.deepest_coincident(chain[above], chain),
+                        "geometry: above the ball of a foot pointing down",
+                    )
+                )
         else:
             # The foot never turns in this pose (it points down, or there is none): the leg's
             # last joints, the one whose thigh, shin and foot come nearest human proportions.
@@ -1523,7 +1640,7 @@ class _Mapper:
                 )
                 for i in range(last, max(last - 3, 0), -1)
             ]
-        limb = self.best_limb(chain, ankles, _LEG)
+        limb = self.best_ankle(chain, ankles)
         ankle = limb["ankle"]
         ankle_i = chain.index(ankle)
         result, how = limb.joints, limb.how
@@ -1537,6 +1654,10 @@ class _Mapper:
         forward = _unit(forward - (forward @ up) * up)
         if toe_joint is not None:
             tip = self.effector(toe_joint, along=forward if _length(forward) else None)
+            if tip is None:
+                # A foot pointing down (a frame at toe-off, a rest pose with feet extended):
+                # the toe tip continues the foot's own line, ankle to toe joint.
+                tip = self.effector(toe_joint, along=_unit(pose[toe_joint] - pose[ankle]))
             if tip is not None:
                 result["toe"], how["toe"] = tip, "end effector beyond the toe joint"
             else:
@@ -1558,13 +1679,13 @@ class _Mapper:
             # rig without hand bones, glTF and FBX joints being points without tails): the
             # one whose arm comes nearest human proportions.
             wrists = [
-                (j, "structure: where the fingers branch")
+                (j, f"{_FINGERS_BRANCH} branch")
                 for j in chain[-2:0:-1]
                 if sum(1 for c in tree.children[j] if tree.lengths[c] > 0 or tree.children[c]) >= 2
             ]
             # Fingers may also start from sibling joints at one place (a palm bone per finger).
             wrists += [
-                (j, "structure: where the fingers start together")
+                (j, f"{_FINGERS_BRANCH} start together")
                 for j in chain[-2:1:-1]
                 if tree.children[j]
                 and any(

@@ -651,9 +651,12 @@ def _arms_swinging(skeleton: Skeleton, frames: int = 60) -> Motion:
 
 
 def test_the_shoulder_is_where_the_arm_swings_not_a_collar_bone_in_line_with_it():
-    skeleton = skeleton_from_points(_COLLAR_IN_LINE)
-    # The rest pose alone cannot tell (clavicle, upper arm and forearm in one line): the
-    # proportions choose, and the clip's frames are left to decide.
+    # Collar roots wider than the hips (0.12 from the spine's line, the hips 0.1): in the
+    # rest pose the line of clavicle, upper arm and forearm leaves the proportions to
+    # choose, and the clip's frames are left to decide.
+    skeleton = skeleton_from_points(
+        _COLLAR_IN_LINE.replace("j7 0.03", "j7 0.12").replace("j12 -0.03", "j12 -0.12")
+    )
     alone = map_skeleton(skeleton)
     assert alone.limbs_open
     assert [skeleton.names[alone.joints[CANONICAL_INDEX[f"{s}_shoulder"]]] for s in "lr"] == [
@@ -673,6 +676,16 @@ def test_the_shoulder_is_where_the_arm_swings_not_a_collar_bone_in_line_with_it(
         "j15",
     ]
     check_canonical_body(body, "collar in line", upright=True)
+
+
+def test_a_shoulder_sits_wider_than_the_hips_a_collar_root_does_not():
+    # Collar roots near the spine (0.03 from its line, the hips 0.1): the rest pose alone
+    # tells the shoulder, whatever the proportions say, and the frames agree.
+    skeleton = skeleton_from_points(_COLLAR_IN_LINE)
+    for mapping in (map_skeleton(skeleton), build_body(_arms_swinging(skeleton)).mapping):
+        assert mapping is not None
+        tops = [skeleton.names[mapping.joints[CANONICAL_INDEX[f"{s}_shoulder"]]] for s in "lr"]
+        assert tops == ["j8", "j13"]
 
 
 @pytest.mark.parametrize("end_site", [False, True], ids=["leaf joint", "zero-length end site"])
