@@ -19,6 +19,16 @@ to where the capture's are, and since the smallest rotation has no twist about t
 bone's roll never twists. ``W`` changes world axes from the source's up to the target's
 (Y-up capture on a Z-up rig), a quarter turn or none.
 
+**Head and hand.** The head joint turns as the source's head joint does, whatever lies
+beyond either (a head-top end effector on one rig, nothing on the other): a chain's end is
+only aimed at, and before this the head of such a pair stayed at rest on its neck, so the
+re-uploaded clip's head had no motion at all (``kinetic``'s head DOFs 0). Its reference
+alignment takes its up (head joint -> top of the head, or neck -> head) onto the source
+head's. The hand's orientation is carried by the palm — the first joint past the wrist
+where the fingers branch, or the joint the hand tip hangs from — which is driven by the
+source's palm, so a rig that bends the hand below its wrist joint (wrist -> hand ->
+fingers) passes that bend on.
+
 **Directions exact.** Where the source has joints the target lacks between two canonical
 joints (a spine of five against one of three), the transferred rotation alone would point
 the target's bone a little off; a last per-frame swing turns each driven bone (except the
@@ -49,14 +59,14 @@ describer reflects it, so left stays left.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from app.motion.body import body_height
 from app.motion.ground import FOOT_POINTS, ON_FLOOR, body_frame, foot_heights, snap_axis
 from app.motion.kinematics import forward_kinematics
-from app.motion.model import Motion
+from app.motion.model import Motion, Skeleton
 from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap
 from app.motion.transforms import reflect
 
@@ -100,6 +110,9 @@ class _Driven:
     target_aim: int | None  # target joint the bone points at (None: no direction fix)
     source_aim: int | None
     align_like: int | None = None  # target joint whose reference alignment this one shares
+    # Bones (target from, to, source from, to) aligned in the reference poses, for a joint
+    # whose direction is not fixed per frame (the head: its up onto the source head's up).
+    align_bones: tuple[int, int, int, int] | None = None
 
 
 def swing(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -218,6 +231,19 @@ def _between(parents: np.ndarray, top: int, bottom: int) -> list[int]:
     return out if j == top else []
 
 
+def _palm(skeleton: Skeleton, wrist: int, tip: int) -> int:
+    """The joint that carries the hand's orientation: on the path from ``wrist`` to the hand
+    tip, the first joint where the hand branches (into fingers), else the joint the tip hangs
+    from (the wrist itself when there is nothing between)."""
+    if tip == wrist:
+        return wrist
+    path = [wrist, *_between(skeleton.parents, wrist, tip)[::-1], tip]
+    for joint in path[:-1]:
+        if len(skeleton.children(joint)) > 1:
+            return joint
+    return path[-2]
+
+
 def _driven(
     source: Motion, source_map: SkeletonMap, target: Motion, target_map: SkeletonMap
 ) -> list[_Driven]:
@@ -251,11 +277,23 @@ def _driven(
             like = None
             if base.endswith("_wrist"):
                 like = int(target_map.joints[CANONICAL_INDEX[base.replace("wrist", "elbow")]])
+                # The palm (where the fingers branch) carries the hand's orientation; a rig
+                # may turn the hand there rather than at the wrist (wrist -> hand -> fingers).
+                tip = CANONICAL_INDEX[base.replace("wrist", "hand_tip")]
+                add(
+                    _palm(target.skeleton, t_base, int(target_map.joints[tip])),
+                    _palm(source.skeleton, s_base, int(source_map.joints[tip])),
+                    None,
+                    None,
+                    like,
+                )
             add(t_base, s_base, None, None, like)
             continue
         t_stops, s_stops = [t_base, *joints(target_map, end)], [s_base, *joints(source_map, end)]
-        if len(t_stops) != len(s_stops):  # one has a head joint, the other not
-            t_stops, s_stops = [t_stops[0], t_stops[-1]], [s_stops[0], s_stops[-1]]
+        if len(t_stops) != len(s_stops):
+            # One has a head joint with an end effector beyond it, the other a head joint
+            # only: the joints pair up (the neck aims at the head joint).
+            t_stops, s_stops = t_stops[:2], s_stops[:2]
         t_path, s_path = [t_stops[0]], [s_stops[0]]
         for i in range(1, len(t_stops)):
             t_mid = _between(t_parents, t_stops[i - 1], t_stops[i])[::-1]
@@ -267,6 +305,19 @@ def _driven(
             s_path.append(s_stops[i])
         for i in range(len(t_path) - 1):
             add(t_path[i], s_path[i], t_path[i + 1], s_path[i + 1], None)
+    # The head joint turns as the other's head joint does (a chain's end is only aimed at,
+    # and a head joint with no end effector beyond it ends the chain): it carries the face,
+    # whatever points lie beyond it. Its reference alignment takes its up (head joint -> top
+    # of the head, or neck -> head where nothing lies beyond) onto the source head's up.
+    t_head, s_head = joints(target_map, "head"), joints(source_map, "head")
+    t_neck = int(target_map.joints[CANONICAL_INDEX["neck"]])
+    s_neck = int(source_map.joints[CANONICAL_INDEX["neck"]])
+    t_up = (t_head[0], t_head[1]) if len(t_head) > 1 else (t_neck, t_head[0])
+    s_up = (s_head[0], s_head[1]) if len(s_head) > 1 else (s_neck, s_head[0])
+    before = len(out)
+    add(t_head[0], s_head[0], None, None, t_neck)
+    if len(out) > before:
+        out[-1] = replace(out[-1], align_bones=(*t_up, *s_up))
     return out
 
 
@@ -340,6 +391,11 @@ def retarget(
     constants = np.empty((len(driven), 3, 3))
     for i, d in enumerate(driven):
         align = aligned.get(d.align_like, body) if d.align_like is not None else body
+        if d.align_bones is not None:
+            t_from, t_to, s_from, s_to = d.align_bones
+            t_bone = t_ref_pos[t_to] - t_ref_pos[t_from]
+            s_bone = s_ref_pos[s_to] - s_ref_pos[s_from]
+            align = swing(body @ t_bone, s_bone) @ body
         if d.target_aim is not None and d.source_aim is not None:
             t_bone = t_ref_pos[d.target_aim] - t_ref_pos[d.target]
             s_bone = s_ref_pos[d.source_aim] - s_ref_pos[d.source]
@@ -479,8 +535,6 @@ def _rest_of(motion: Motion) -> Motion:
 
 
 def _unmirrored(mapping: SkeletonMap) -> SkeletonMap:
-    from dataclasses import replace
-
     return replace(mapping, mirrored=False)
 
 
