@@ -448,17 +448,78 @@ def retarget(
     s_pelvis = s_canon[:, CANONICAL_INDEX["pelvis"]]
     pelvis_at = scale * s_pelvis @ world  # (F, 3)
     pelvis = int(target_map.joints[CANONICAL_INDEX["pelvis"]])
-    out = _assemble(target, source.frame_time, local, world_rot, pelvis, pelvis_at, t_ref_pos)
-    # Feet on the floor: the lowest foot point where the source's is (scaled), per frame.
-    _, t_pos = forward_kinematics(out, joints=target_map.joints[list(FOOT_POINTS)])
-    t_feet = (t_pos[:, target_map.joints[list(FOOT_POINTS)]] @ t_up).min(axis=1)
-    lift = scale * s_feet - t_feet
-    pelvis_at = pelvis_at + lift[:, None] * t_up
-    feet_t = t_pos[:, target_map.joints[list(FOOT_POINTS)]] + lift[:, None, None] * t_up
+    feet = target_map.joints[list(FOOT_POINTS)]
     feet_s = scale * s_canon[:, list(FOOT_POINTS)] @ world
-    near = ON_FLOOR * body_height(out, target_map.joints, head_joint=target_map.head_joint)
-    pelvis_at = pelvis_at + planted_feet_offsets(feet_t, feet_s, t_up, near)
+    near = ON_FLOOR * body_height(target, target_map.joints, head_joint=target_map.head_joint)
+
+    def on_source_floor() -> tuple[Motion, np.ndarray]:
+        """The motion with the pelvis moved up or down so that the lowest foot point is
+        where the source's is (scaled), and ``(F, P, 3)`` its foot points."""
+        out = _assemble(target, source.frame_time, local, world_rot, pelvis, pelvis_at, t_ref_pos)
+        _, t_pos = forward_kinematics(out, joints=feet)
+        lift = scale * s_feet - (t_pos[:, feet] @ t_up).min(axis=1)
+        return out, lift
+
+    out, lift = on_source_floor()
+    pelvis_at = pelvis_at + lift[:, None] * t_up
+    # A swinging foot clears the floor as the source's does (a long foot points its toe lower).
+    out = _assemble(target, source.frame_time, local, world_rot, pelvis, pelvis_at, t_ref_pos)
+    if _clear_swinging_toes(out, target_map, local, feet_s, t_up, near):
+        out, lift = on_source_floor()
+        pelvis_at = pelvis_at + lift[:, None] * t_up
+    out = _assemble(target, source.frame_time, local, world_rot, pelvis, pelvis_at, t_ref_pos)
+    _, t_pos = forward_kinematics(out, joints=feet)
+    pelvis_at = pelvis_at + planted_feet_offsets(t_pos[:, feet], feet_s, t_up, near)
     return _assemble(target, source.frame_time, local, world_rot, pelvis, pelvis_at, t_ref_pos)
+
+
+def _clear_swinging_toes(
+    motion: Motion,
+    mapping: SkeletonMap,
+    local: np.ndarray,
+    source_feet: np.ndarray,
+    up: np.ndarray,
+    near: float,
+) -> bool:
+    """Pitch each foot up about its ankle (``local`` ``(F, J, 3, 3)`` changed in place)
+    at frames where the source's toe is off the floor (``near`` or more above the lowest any
+    source foot point gets) but the target's toe is lower than the source's: on a foot
+    longer for its leg than the source's (a toe tip against a ball of the foot), the same
+    foot direction puts the toe of a swinging foot on the floor, where it skims. The toe is
+    raised to the source toe's height (or as near as the foot reaches); the foot keeps its
+    heading. ``source_feet`` ``(F, P, 3)`` are the source's foot points (scaled, target axes,
+    :data:`FOOT_POINTS` order) at the target's heights. Returns whether anything changed."""
+    parents = motion.skeleton.parents
+    source_floor = float((source_feet @ up).min())
+    changed = False
+    for side in ("l", "r"):
+        ankle = int(mapping.joints[CANONICAL_INDEX[f"{side}_ankle"]])
+        toe = int(mapping.joints[CANONICAL_INDEX[f"{side}_toe"]])
+        if ankle == toe or (not _between(parents, ankle, toe) and parents[toe] != ankle):
+            continue
+        rot, pos = forward_kinematics(motion, joints=np.array([ankle, toe, parents[ankle]]))
+        wanted = source_feet[:, FOOT_POINTS.index(CANONICAL_INDEX[f"{side}_toe"])] @ up
+        bone = pos[:, toe] - pos[:, ankle]  # (F, 3)
+        length = np.linalg.norm(bone, axis=1)
+        flat = bone - (bone @ up)[:, None] * up
+        flat_length = np.linalg.norm(flat, axis=1)
+        low = (
+            (wanted - source_floor >= near)
+            & (pos[:, toe] @ up < wanted)
+            & (flat_length > 1e-6 * np.maximum(length, _TINY))
+        )
+        if not low.any():
+            continue
+        rise = np.clip((wanted[low] - pos[low, ankle] @ up) / length[low], -1.0, 1.0)
+        heading = flat[low] / flat_length[low, None]
+        raised = length[low, None] * (
+            np.sqrt(1.0 - rise**2)[:, None] * heading + rise[:, None] * up
+        )
+        turn = swing(bone[low], raised)  # about the horizontal axis across the foot
+        above = rot[low, parents[ankle]]
+        local[low, ankle] = np.swapaxes(above, -1, -2) @ turn @ above @ local[low, ankle]
+        changed = True
+    return changed
 
 
 def planted_feet_offsets(
