@@ -11,10 +11,10 @@ again and looked up among all the clips' vectors (Euclidean, as ``GET /search`` 
 round trip holds when the nearest is the source — or, in brackets, its twin: the same
 capture in another format or folder, by file stem (CMU trials as ASF/AMC, MotionBuilder BVH
 and DAZ BVH; the FBX/BVH pairs), which the retargeted copy cannot tell from its source.
-A third figure counts a tie as found: the nearest clip is no nearer than the source, which
-happens only when that clip's vector is the source's (the same motion stored twice under
-other names, or rigs holding one rest pose); the count of such clips is printed first, the
-ceiling no retarget can pass.
+A third figure also counts a tie as found (besides a twin): the nearest clip is no nearer
+than the source, which happens only when that clip's vector is the source's (the same
+motion stored twice under other names, or rigs holding one rest pose); the count of such
+clips is printed first, the ceiling no retarget can pass.
 Per rig the retarget quality of :mod:`app.motion.retarget_quality` is summarised. FBX and
 glTF files are read in parser
 worker processes, as the service reads them.
@@ -139,7 +139,7 @@ def summary(
 
     slide_over = [q.slide - q.source_slide for q in qualities]
     return (
-        f"| {name} | {joints} | {n} | {share(found)} ({share(twin)}; tied {share(tied)}) | "
+        f"| {name} | {joints} | {n} | {share(found)} ({share(twin)}; or tied {share(tied)}) | "
         f"{max(q.bone_error for q in qualities):.1e} | "
         f"{share([q.left_ok == 1.0 for q in qualities])} | "
         f"{share([q.feet_error <= 0.02 for q in qualities])} | "
@@ -207,8 +207,9 @@ def main() -> None:
                 distances = np.linalg.norm(vectors - vector, axis=1)
                 nearest = int(np.argmin(distances))
                 found.append(nearest == index)
-                tied.append(distances[index] <= distances[nearest] * (1 + 1e-9))
                 twin.append(capture(clips[nearest].name) == capture(clip.name))
+                tie = distances[index] <= distances[nearest] * (1 + 1e-9)
+                tied.append(twin[-1] or tie)
                 if not twin[-1]:
                     failures.append(
                         f"{clip.name} -> {clips[nearest].name} "
