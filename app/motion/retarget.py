@@ -53,6 +53,11 @@ back, so a foot on the floor moves as the source's moves — not at all when the
 stands, a slide where the source slides. Every bone keeps the source's direction; the
 target travels as far as its own legs carry it.
 
+**Swinging feet clear the floor.** A foot long for its leg (a toe tip where the source has
+the ball of its foot) points its toe lower than the source's when it swings toe-down; where
+the source's toe is off the floor and the target's is lower, the foot is pitched up about
+the ankle until the toe is as high as the source's (then the pelvis goes back on the floor).
+
 A capture with left-handed geometry (``SkeletonMap.mirrored``) is first reflected as the
 describer reflects it, so left stays left.
 """
