@@ -11,6 +11,10 @@ again and looked up among all the clips' vectors (Euclidean, as ``GET /search`` 
 round trip holds when the nearest is the source — or, in brackets, its twin: the same
 capture in another format or folder, by file stem (CMU trials as ASF/AMC, MotionBuilder BVH
 and DAZ BVH; the FBX/BVH pairs), which the retargeted copy cannot tell from its source.
+A third figure also counts a tie as found (besides a twin): the nearest clip is no nearer
+than the source, which happens only when that clip's vector is the source's (the same
+motion stored twice under other names, or rigs holding one rest pose); the count of such
+clips is printed first, the ceiling no retarget can pass.
 Per rig the retarget quality of :mod:`app.motion.retarget_quality` is summarised. FBX and
 glTF files are read in parser
 worker processes, as the service reads them.
@@ -125,6 +129,7 @@ def summary(
     joints: int,
     found: list[bool],
     twin: list[bool],
+    tied: list[bool],
     qualities: list[RetargetQuality],
 ) -> str:
     n = len(qualities)
@@ -134,7 +139,7 @@ def summary(
 
     slide_over = [q.slide - q.source_slide for q in qualities]
     return (
-        f"| {name} | {joints} | {n} | {share(found)} ({share(twin)}) | "
+        f"| {name} | {joints} | {n} | {share(found)} ({share(twin)}; or tied {share(tied)}) | "
         f"{max(q.bone_error for q in qualities):.1e} | "
         f"{share([q.left_ok == 1.0 for q in qualities])} | "
         f"{share([q.feet_error <= 0.02 for q in qualities])} | "
@@ -164,10 +169,17 @@ def main() -> None:
         clips = load_clips(pool, args.limit, args.seconds)
         vectors = np.stack([c.vector for c in clips])
         print(f"{len(clips)} clips described in {time.perf_counter() - started:.0f} s")
+        apart = np.linalg.norm(vectors[:, None] - vectors[None], axis=2)
+        np.fill_diagonal(apart, np.inf)
+        identical = apart.min(axis=1) <= 1e-6 * np.linalg.norm(vectors, axis=1)
+        print(
+            f"{int(identical.sum())} clips share their `motion` vector with another clip "
+            "(no re-upload can be nearer to them than to it)"
+        )
         if not args.rig or "Mixamo" in args.rig:
             print(
                 "| rig | joints | clips | round trip: source is nearest (or a twin: same "
-                "capture in another format) | bones (max error, "
+                "capture in another format; or tied with an identical clip) | bones (max error, "
                 "body heights) | left stays left | feet within 2 % | sliding <= source + 1 %/s "
                 "| finite | limb directions within 5 deg in 99 % of frames |"
             )
@@ -178,6 +190,7 @@ def main() -> None:
             rig, rig_map = load_rig(shared_data() / relative, pool)
             found: list[bool] = []
             twin: list[bool] = []
+            tied: list[bool] = []
             qualities: list[RetargetQuality] = []
             failures: list[str] = []
             for index, clip in enumerate(clips):
@@ -189,11 +202,14 @@ def main() -> None:
                     failures.append(f"{clip.name}: {error.detail}")
                     found.append(False)
                     twin.append(False)
+                    tied.append(False)
                     continue
                 distances = np.linalg.norm(vectors - vector, axis=1)
                 nearest = int(np.argmin(distances))
                 found.append(nearest == index)
                 twin.append(capture(clips[nearest].name) == capture(clip.name))
+                tie = distances[index] <= distances[nearest] * (1 + 1e-9)
+                tied.append(twin[-1] or tie)
                 if not twin[-1]:
                     failures.append(
                         f"{clip.name} -> {clips[nearest].name} "
@@ -202,7 +218,10 @@ def main() -> None:
                 qualities.append(
                     retarget_quality(clip.motion, clip.mapping, out, rig_map, skip=clip.lead_in)
                 )
-            print(summary(rig_name, rig.skeleton.joint_count, found, twin, qualities), flush=True)
+            print(
+                summary(rig_name, rig.skeleton.joint_count, found, twin, tied, qualities),
+                flush=True,
+            )
             for failure in failures:
                 print(f"  failed: {failure}", file=sys.stderr)
     finally:

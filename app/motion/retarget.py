@@ -19,6 +19,16 @@ to where the capture's are, and since the smallest rotation has no twist about t
 bone's roll never twists. ``W`` changes world axes from the source's up to the target's
 (Y-up capture on a Z-up rig), a quarter turn or none.
 
+**Head and hand.** The head joint turns as the source's head joint does, whatever lies
+beyond either (a head-top end effector on one rig, nothing on the other): a chain's end is
+only aimed at, and before this the head of such a pair stayed at rest on its neck, so the
+re-uploaded clip's head had no motion at all (``kinetic``'s head DOFs 0). Its reference
+alignment takes its up (head joint -> top of the head, or neck -> head) onto the source
+head's. The hand's orientation is carried by the palm — the first joint past the wrist
+where the fingers branch, or the joint the hand tip hangs from — which is driven by the
+source's palm, so a rig that bends the hand below its wrist joint (wrist -> hand ->
+fingers) passes that bend on.
+
 **Directions exact.** Where the source has joints the target lacks between two canonical
 joints (a spine of five against one of three), the transferred rotation alone would point
 the target's bone a little off; a last per-frame swing turns each driven bone (except the
@@ -43,20 +53,25 @@ back, so a foot on the floor moves as the source's moves — not at all when the
 stands, a slide where the source slides. Every bone keeps the source's direction; the
 target travels as far as its own legs carry it.
 
+**Swinging feet clear the floor.** A foot long for its leg (a toe tip where the source has
+the ball of its foot) points its toe lower than the source's when it swings toe-down; where
+the source's toe is off the floor and the target's is lower, the foot is pitched up about
+the ankle until the toe is as high as the source's (then the pelvis goes back on the floor).
+
 A capture with left-handed geometry (``SkeletonMap.mirrored``) is first reflected as the
 describer reflects it, so left stays left.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from app.motion.body import body_height
 from app.motion.ground import FOOT_POINTS, ON_FLOOR, body_frame, foot_heights, snap_axis
 from app.motion.kinematics import forward_kinematics
-from app.motion.model import Motion
+from app.motion.model import Motion, Skeleton
 from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap
 from app.motion.transforms import reflect
 
@@ -100,6 +115,9 @@ class _Driven:
     target_aim: int | None  # target joint the bone points at (None: no direction fix)
     source_aim: int | None
     align_like: int | None = None  # target joint whose reference alignment this one shares
+    # Bones (target from, to, source from, to) aligned in the reference poses, for a joint
+    # whose direction is not fixed per frame (the head: its up onto the source head's up).
+    align_bones: tuple[int, int, int, int] | None = None
 
 
 def swing(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -218,6 +236,19 @@ def _between(parents: np.ndarray, top: int, bottom: int) -> list[int]:
     return out if j == top else []
 
 
+def _palm(skeleton: Skeleton, wrist: int, tip: int) -> int:
+    """The joint that carries the hand's orientation: on the path from ``wrist`` to the hand
+    tip, the first joint where the hand branches (into fingers), else the joint the tip hangs
+    from (the wrist itself when there is nothing between)."""
+    if tip == wrist:
+        return wrist
+    path = [wrist, *_between(skeleton.parents, wrist, tip)[::-1], tip]
+    for joint in path[:-1]:
+        if len(skeleton.children(joint)) > 1:
+            return joint
+    return path[-2]
+
+
 def _driven(
     source: Motion, source_map: SkeletonMap, target: Motion, target_map: SkeletonMap
 ) -> list[_Driven]:
@@ -251,11 +282,23 @@ def _driven(
             like = None
             if base.endswith("_wrist"):
                 like = int(target_map.joints[CANONICAL_INDEX[base.replace("wrist", "elbow")]])
+                # The palm (where the fingers branch) carries the hand's orientation; a rig
+                # may turn the hand there rather than at the wrist (wrist -> hand -> fingers).
+                tip = CANONICAL_INDEX[base.replace("wrist", "hand_tip")]
+                add(
+                    _palm(target.skeleton, t_base, int(target_map.joints[tip])),
+                    _palm(source.skeleton, s_base, int(source_map.joints[tip])),
+                    None,
+                    None,
+                    like,
+                )
             add(t_base, s_base, None, None, like)
             continue
         t_stops, s_stops = [t_base, *joints(target_map, end)], [s_base, *joints(source_map, end)]
-        if len(t_stops) != len(s_stops):  # one has a head joint, the other not
-            t_stops, s_stops = [t_stops[0], t_stops[-1]], [s_stops[0], s_stops[-1]]
+        if len(t_stops) != len(s_stops):
+            # One has a head joint with an end effector beyond it, the other a head joint
+            # only: the joints pair up (the neck aims at the head joint).
+            t_stops, s_stops = t_stops[:2], s_stops[:2]
         t_path, s_path = [t_stops[0]], [s_stops[0]]
         for i in range(1, len(t_stops)):
             t_mid = _between(t_parents, t_stops[i - 1], t_stops[i])[::-1]
@@ -267,6 +310,19 @@ def _driven(
             s_path.append(s_stops[i])
         for i in range(len(t_path) - 1):
             add(t_path[i], s_path[i], t_path[i + 1], s_path[i + 1], None)
+    # The head joint turns as the other's head joint does (a chain's end is only aimed at,
+    # and a head joint with no end effector beyond it ends the chain): it carries the face,
+    # whatever points lie beyond it. Its reference alignment takes its up (head joint -> top
+    # of the head, or neck -> head where nothing lies beyond) onto the source head's up.
+    t_head, s_head = joints(target_map, "head"), joints(source_map, "head")
+    t_neck = int(target_map.joints[CANONICAL_INDEX["neck"]])
+    s_neck = int(source_map.joints[CANONICAL_INDEX["neck"]])
+    t_up = (t_head[0], t_head[1]) if len(t_head) > 1 else (t_neck, t_head[0])
+    s_up = (s_head[0], s_head[1]) if len(s_head) > 1 else (s_neck, s_head[0])
+    before = len(out)
+    add(t_head[0], s_head[0], None, None, t_neck)
+    if len(out) > before:
+        out[-1] = replace(out[-1], align_bones=(*t_up, *s_up))
     return out
 
 
@@ -340,6 +396,11 @@ def retarget(
     constants = np.empty((len(driven), 3, 3))
     for i, d in enumerate(driven):
         align = aligned.get(d.align_like, body) if d.align_like is not None else body
+        if d.align_bones is not None:
+            t_from, t_to, s_from, s_to = d.align_bones
+            t_bone = t_ref_pos[t_to] - t_ref_pos[t_from]
+            s_bone = s_ref_pos[s_to] - s_ref_pos[s_from]
+            align = swing(body @ t_bone, s_bone) @ body
         if d.target_aim is not None and d.source_aim is not None:
             t_bone = t_ref_pos[d.target_aim] - t_ref_pos[d.target]
             s_bone = s_ref_pos[d.source_aim] - s_ref_pos[d.source]
@@ -392,17 +453,78 @@ def retarget(
     s_pelvis = s_canon[:, CANONICAL_INDEX["pelvis"]]
     pelvis_at = scale * s_pelvis @ world  # (F, 3)
     pelvis = int(target_map.joints[CANONICAL_INDEX["pelvis"]])
-    out = _assemble(target, source.frame_time, local, world_rot, pelvis, pelvis_at, t_ref_pos)
-    # Feet on the floor: the lowest foot point where the source's is (scaled), per frame.
-    _, t_pos = forward_kinematics(out, joints=target_map.joints[list(FOOT_POINTS)])
-    t_feet = (t_pos[:, target_map.joints[list(FOOT_POINTS)]] @ t_up).min(axis=1)
-    lift = scale * s_feet - t_feet
-    pelvis_at = pelvis_at + lift[:, None] * t_up
-    feet_t = t_pos[:, target_map.joints[list(FOOT_POINTS)]] + lift[:, None, None] * t_up
+    feet = target_map.joints[list(FOOT_POINTS)]
     feet_s = scale * s_canon[:, list(FOOT_POINTS)] @ world
-    near = ON_FLOOR * body_height(out, target_map.joints, head_joint=target_map.head_joint)
-    pelvis_at = pelvis_at + planted_feet_offsets(feet_t, feet_s, t_up, near)
+    near = ON_FLOOR * body_height(target, target_map.joints, head_joint=target_map.head_joint)
+
+    def on_source_floor() -> tuple[Motion, np.ndarray]:
+        """The motion with the pelvis moved up or down so that the lowest foot point is
+        where the source's is (scaled), and ``(F, P, 3)`` its foot points."""
+        out = _assemble(target, source.frame_time, local, world_rot, pelvis, pelvis_at, t_ref_pos)
+        _, t_pos = forward_kinematics(out, joints=feet)
+        lift = scale * s_feet - (t_pos[:, feet] @ t_up).min(axis=1)
+        return out, lift
+
+    out, lift = on_source_floor()
+    pelvis_at = pelvis_at + lift[:, None] * t_up
+    # A swinging foot clears the floor as the source's does (a long foot points its toe lower).
+    out = _assemble(target, source.frame_time, local, world_rot, pelvis, pelvis_at, t_ref_pos)
+    if _clear_swinging_toes(out, target_map, local, feet_s, t_up, near):
+        out, lift = on_source_floor()
+        pelvis_at = pelvis_at + lift[:, None] * t_up
+    out = _assemble(target, source.frame_time, local, world_rot, pelvis, pelvis_at, t_ref_pos)
+    _, t_pos = forward_kinematics(out, joints=feet)
+    pelvis_at = pelvis_at + planted_feet_offsets(t_pos[:, feet], feet_s, t_up, near)
     return _assemble(target, source.frame_time, local, world_rot, pelvis, pelvis_at, t_ref_pos)
+
+
+def _clear_swinging_toes(
+    motion: Motion,
+    mapping: SkeletonMap,
+    local: np.ndarray,
+    source_feet: np.ndarray,
+    up: np.ndarray,
+    near: float,
+) -> bool:
+    """Pitch each foot up about its ankle (``local`` ``(F, J, 3, 3)`` changed in place)
+    at frames where the source's toe is off the floor (``near`` or more above the lowest any
+    source foot point gets) but the target's toe is lower than the source's: on a foot
+    longer for its leg than the source's (a toe tip against a ball of the foot), the same
+    foot direction puts the toe of a swinging foot on the floor, where it skims. The toe is
+    raised to the source toe's height (or as near as the foot reaches); the foot keeps its
+    heading. ``source_feet`` ``(F, P, 3)`` are the source's foot points (scaled, target axes,
+    :data:`FOOT_POINTS` order) at the target's heights. Returns whether anything changed."""
+    parents = motion.skeleton.parents
+    source_floor = float((source_feet @ up).min())
+    changed = False
+    for side in ("l", "r"):
+        ankle = int(mapping.joints[CANONICAL_INDEX[f"{side}_ankle"]])
+        toe = int(mapping.joints[CANONICAL_INDEX[f"{side}_toe"]])
+        if ankle == toe or (not _between(parents, ankle, toe) and parents[toe] != ankle):
+            continue
+        rot, pos = forward_kinematics(motion, joints=np.array([ankle, toe, parents[ankle]]))
+        wanted = source_feet[:, FOOT_POINTS.index(CANONICAL_INDEX[f"{side}_toe"])] @ up
+        bone = pos[:, toe] - pos[:, ankle]  # (F, 3)
+        length = np.linalg.norm(bone, axis=1)
+        flat = bone - (bone @ up)[:, None] * up
+        flat_length = np.linalg.norm(flat, axis=1)
+        low = (
+            (wanted - source_floor >= near)
+            & (pos[:, toe] @ up < wanted)
+            & (flat_length > 1e-6 * np.maximum(length, _TINY))
+        )
+        if not low.any():
+            continue
+        rise = np.clip((wanted[low] - pos[low, ankle] @ up) / length[low], -1.0, 1.0)
+        heading = flat[low] / flat_length[low, None]
+        raised = length[low, None] * (
+            np.sqrt(1.0 - rise**2)[:, None] * heading + rise[:, None] * up
+        )
+        turn = swing(bone[low], raised)  # about the horizontal axis across the foot
+        above = rot[low, parents[ankle]]
+        local[low, ankle] = np.swapaxes(above, -1, -2) @ turn @ above @ local[low, ankle]
+        changed = True
+    return changed
 
 
 def planted_feet_offsets(
@@ -479,8 +601,6 @@ def _rest_of(motion: Motion) -> Motion:
 
 
 def _unmirrored(mapping: SkeletonMap) -> SkeletonMap:
-    from dataclasses import replace
-
     return replace(mapping, mirrored=False)
 
 

@@ -36,6 +36,9 @@ NEAR_IDENTICAL: dict[tuple[str, int], float] = {
     ("posture", 2): 0.015,
     ("kinetic", 2): 0.25,
     ("motion", 2): 0.25,
+    # Version 3 measures travel in leg lengths: the same twins lie closer (CMU ASF/AMC vs
+    # MotionBuilder BVH, FBX/BVH pairs: at most 0.064, was 0.241), the threshold holds.
+    ("motion", 3): 0.25,
 }
 IDENTICAL = 1e-6  # share of a vector's length: other descriptors
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from functools import cache
 from pathlib import Path
 
@@ -401,3 +402,25 @@ def test_real_takes_once_refused_for_degenerate_motion_are_described(folder, nam
     for vector in description.vectors.values():
         assert np.all(np.isfinite(vector))
     assert np.all(np.isfinite(description.windows.vectors["motion"]))
+
+
+def test_motion_measures_travel_in_leg_lengths() -> None:
+    """A longer trunk (spine, neck, head twice as long) changes the body height but not the
+    legs: the same walk travels as far per leg length, so ``travel`` and ``sideways`` and
+    the energy block's root terms are unchanged (version 3; in body heights they were not)."""
+    from app.motion.descriptors.motion import motion_blocks
+    from app.motion.spans import whole_clip
+
+    walk = walker_motion()
+    offsets = walk.skeleton.offsets.copy()
+    for name in ("Spine", "Spine1", "Neck", "Neck1", "Head", "Head_end"):
+        offsets[walk.skeleton.index(name)] *= 2.0
+    tall = dataclasses.replace(walk, skeleton=dataclasses.replace(walk.skeleton, offsets=offsets))
+    short_body, tall_body = build_body(walk), build_body(tall)
+    assert tall_body.height > 1.2 * short_body.height
+    blocks = [motion_blocks(b, whole_clip(b.frame_count)) for b in (short_body, tall_body)]
+    np.testing.assert_allclose(blocks[0]["travel"], blocks[1]["travel"], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(blocks[0]["sideways"], blocks[1]["sideways"], atol=1e-12)
+    np.testing.assert_allclose(
+        blocks[0]["energy"][:, -2:], blocks[1]["energy"][:, -2:], rtol=1e-9, atol=1e-12
+    )

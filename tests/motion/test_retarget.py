@@ -9,6 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from app.motion.body import build_body
+from app.motion.descriptors.kinetic import KINETIC_JOINTS, mean_energies
 from app.motion.formats import read_asf_amc, read_bvh
 from app.motion.ground import FOOT_POINTS, ON_FLOOR, canonical_positions
 from app.motion.kinematics import forward_kinematics
@@ -261,3 +262,21 @@ def test_a_foot_point_planted_alone_moves_exactly_as_the_source_s() -> None:
     moved_s = np.diff(s, axis=0)[alone][both[alone]][:, [0, 2]]
     moved_t = np.diff(t, axis=0)[alone][both[alone]][:, [0, 2]]
     np.testing.assert_allclose(moved_t, moved_s, atol=1e-9 * build_body(out).height)
+
+
+@pytest.mark.parametrize("rig_source", ["asf", "cmu-bvh"])
+def test_the_head_turns_as_the_source_s_head_whatever_lies_beyond_it(rig_source: str) -> None:
+    """Bandai's head is a joint with nothing beyond it; the CMU rigs' head joint has the top
+    of the head beyond it. The head joint used to be only aimed at, never turned: its energy
+    (the ``kinetic`` head DOFs, relative to the neck) was 0 on the rig."""
+    source = read_bvh(fixture_bytes(BANDAI_FIXTURE))
+    rigs = {
+        "asf": lambda: read_asf_amc(fixture_bytes(CMU_ASF_FIXTURE), fixture_bytes(CMU_AMC_FIXTURE)),
+        "cmu-bvh": lambda: read_bvh(fixture_bytes(CMU_BVH_FIXTURE)),
+    }
+    rig, rig_map = rig_of(rigs[rig_source]())
+    out = retarget(source, mapped(source), rig, rig_map)
+    head = KINETIC_JOINTS.index("head")
+    source_head = mean_energies(build_body(source))[0][head].sum()  # its three DOFs summed
+    assert source_head > 0.05
+    assert mean_energies(build_body(out))[0][head].sum() == pytest.approx(source_head, rel=1e-6)

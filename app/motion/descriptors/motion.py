@@ -22,14 +22,20 @@ in the pelvis-fixed body frame of :mod:`app.motion.body` (x = left, y = up, z = 
     forward and lateral velocity (signed: walking back or to the left is negative forward /
     positive lateral), mean signed turning rate (rad/s, positive = turning left), mean
     horizontal speed, std of forward and lateral velocity, rms vertical velocity and the
-    net displacement per second — velocities in body heights per second.
+    net displacement per second — velocities in *leg lengths* per second (hip -> knee ->
+    ankle). How far a step carries a body is set by its legs (gaits of different sizes are
+    compared by speed over leg length, the Froude number's length), not by its trunk and
+    head, whose share of the height differs between characters: a clip retargeted onto a
+    short-legged cartoon rig travels as far as that rig's legs carry it, and in body heights
+    it would look a slower walk. The energy block's two root terms are in leg lengths per
+    second too (the ``kinetic`` descriptor itself keeps the paper's body heights).
 ``sideways`` (1 number)
     The sideways part of the direction of travel: mean lateral velocity divided by mean
-    horizontal speed, times ``s² / (s² + 0.2²)`` for mean speed ``s`` in body heights per
+    horizontal speed, times ``s² / (s² + 0.3²)`` for mean speed ``s`` in leg lengths per
     second. It tells walking to the side from walking ahead whatever the speed (which is
-    the style's), and fades out below 0.2 body heights per second, where a clip stands
-    rather than travels and the direction of a drift means nothing. Forward vs backward is
-    already in the signed forward velocity.
+    the style's), and fades out below 0.3 leg lengths (about 0.2 body heights) per second,
+    where a clip stands rather than travels and the direction of a drift means nothing.
+    Forward vs backward is already in the signed forward velocity.
 
 Each block is divided by a fixed scale (the square root of the block's summed per-dimension
 variance over the reference corpus — Bandai dataset 1 and the CMU clips of ``../shared/data``
@@ -91,17 +97,17 @@ SIDEWAYS_DIMENSION = 1
 
 # Energy shares below this are noise, not a part that moves.
 PART_SHARE_FLOOR = 1e-4
-# Below this mean horizontal speed (body heights/s) a clip stands rather than travels.
-TRAVEL_SPEED = 0.2
+# Below this mean horizontal speed (leg lengths/s) a clip stands rather than travels.
+TRAVEL_SPEED = 0.3
 
 # Frozen block scales (reference corpus, see module docstring) and block weights.
-# Scales: `bench/motion_scales.py` on Bandai dataset 1 + CMU (263 clips; version 2).
+# Scales: `bench/motion_scales.py` on Bandai dataset 1 + CMU (263 clips; version 3).
 BLOCK_SCALES = {
     "limbs": 1.39,
-    "energy": 3.98,
+    "energy": 4.03,
     "parts": 5.71,
-    "travel": 1.31,
-    "sideways": 0.14,
+    "travel": 2.08,
+    "sideways": 0.142,
 }
 # Weights: energy and travel count fully; limb directions, the block most affected by how a
 # converter poses a skeleton, at half weight; the two style-independent blocks (parts,
@@ -153,6 +159,27 @@ def heading_frames(body: Body) -> tuple[np.ndarray, np.ndarray]:
     return forward, left
 
 
+def leg_length(body: Body) -> float:
+    """Length of the legs in file units: hip -> knee -> ankle, the two sides averaged (the
+    median over frames; the bones are rigid). A body whose legs have no length (a rig whose
+    leg joints coincide) falls back to its height."""
+    legs = np.mean(
+        [
+            np.linalg.norm(body.joint(f"{s}_knee") - body.joint(f"{s}_hip"), axis=1)
+            + np.linalg.norm(body.joint(f"{s}_ankle") - body.joint(f"{s}_knee"), axis=1)
+            for s in "lr"
+        ],
+        axis=0,
+    )
+    length = float(np.median(legs)) if len(legs) else 0.0
+    return length if length > 1e-3 * body.height else body.height
+
+
+def body_leg_length(body: Body) -> float:
+    """:func:`leg_length`, computed once per body."""
+    return body.memo("motion.leg_length", lambda: leg_length(body))
+
+
 class TravelSamples:
     """Per-sample root motion in the heading frame; sample ``i`` spans frames ``i .. i+h``
     with ``h`` the kinetic velocity span."""
@@ -161,7 +188,7 @@ class TravelSamples:
         self.span = energy_samples(body).span
         self.frame_time = body.frame_time
         self.up = body.world_up
-        self.pelvis = body.joint("pelvis") / body.height
+        self.pelvis = body.joint("pelvis") / body_leg_length(body)
         h = self.span
         if body.frame_count < 2:
             samples = np.zeros((0, 7))
@@ -238,6 +265,7 @@ def motion_blocks(body: Body, spans: np.ndarray) -> dict[str, np.ndarray]:
     """Each block's raw ``(W, block dimension)`` values, before scales and weights."""
     travel = travel_spans(body, spans)
     joints, root = energy_samples(body).mean_energies(spans)  # energy and parts share them
+    root = root * (body.height / body_leg_length(body)) ** 2  # (body heights/s)² -> (legs/s)²
     return {
         "limbs": limb_spans(body, spans),
         "energy": kinetic_from_energies(joints, root),
@@ -263,7 +291,7 @@ DESCRIPTOR = Descriptor(
     + PARTS_DIMENSION
     + TRAVEL_DIMENSION
     + SIDEWAYS_DIMENSION,
-    version=2,
+    version=3,
     description="The best all-round choice (the default): what the body does — where the "
     "limbs point, which parts move and how hard, and how the body travels (ahead, back, to "
     "the side, turning). Finds the same action across actors, styles and skeletons.",

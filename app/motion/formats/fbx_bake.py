@@ -16,9 +16,10 @@ XYZ Euler angles (each frame's the solution nearest the previous frame's, as the
 simplification, the animation stack): the file is still written by Blender's exporter.
 
 It takes over only the scene it expects — one armature object and its bones, nothing else,
-one key per frame — and first checks the posed scene's current frame against the exporter's
-own transforms; it refuses anything else (another Blender version composing bones
-otherwise), and the writer then exports again with the exporter's own bake, slow but right.
+one key per frame — and first checks the scene, posed at rest (the static transforms the
+file gets), against the exporter's own rest transforms; it refuses anything else (another
+Blender version composing bones otherwise), and the writer then exports again with the
+exporter's own bake, slow but right.
 Its values are double precision where Blender's are single: they agree to Blender's
 rounding (a few 1e-4 cm on a bone's offset once a minute's walk has taken the root tens of
 metres away, where Blender's armature-space matrices lose digits).
@@ -112,7 +113,6 @@ def _bake(
     correction = settings.bone_correction_matrix
     fix = np.eye(3) if correction is None else np.array(correction)[:3, :3]
     unfix = fix.T
-    current = int(scene_data.scene.frame_current) - int(f_start)
     rest = np.empty((len(objects), 4, 4))  # each object's parent-relative rest (bones)
     joints = np.zeros(len(objects), dtype=np.intp)  # each bone's joint (0 for the armature)
     static: list[int] = []  # the armature object: not animated itself
@@ -140,16 +140,12 @@ def _bake(
             moved = locations[int(joints[n])] @ unfix.T  # (F, 3) C^-1 t
             location[n] += moved @ rest[n, :3, :3].T
     linear[static] = rest[static, None, :3, :3]
-    if 0 <= current < frames:
-        for n, ob_obj in enumerate(objects):
-            posed = np.array(ob_obj.fbx_object_matrix(scene_data))
-            scale = max(1.0, float(np.abs(posed).max()))
-            error = max(
-                np.abs(linear[n, current] - posed[:3, :3]).max(),
-                np.abs(location[n, current] - posed[:3, 3]).max(),
-            )
-            if error > MATCH_TOLERANCE * scale:
-                return f"{ob_obj.name!r} posed otherwise than its keys say"
+    # The scene is posed at rest (identity keys): each object's transform must be its rest.
+    for n, ob_obj in enumerate(objects):
+        posed = np.array(ob_obj.fbx_object_matrix(scene_data))
+        scale = max(1.0, float(np.abs(posed).max()))
+        if np.abs(rest[n, :3] - posed[:3]).max() > MATCH_TOLERANCE * scale:
+            return f"{ob_obj.name!r} posed otherwise than at rest"
     # Blender's mat4_to_loc_rot_size: the columns' lengths, negated with the rotation when
     # the matrix mirrors.
     size = np.sqrt(np.einsum("...ij,...ij->...j", linear, linear))  # (N, F, 3)
@@ -158,8 +154,11 @@ def _bake(
     del mirrors
     rotation = linear
     rotation /= size[..., None, :]  # in place: the linear part is not needed any more
-    previous = np.array([tuple(ob_obj.fbx_object_tx(scene_data)[1]) for ob_obj in objects])
-    euler = compatible_eulers(rotation, previous)
+    # The first frame's Euler angles as Blender's to_euler gives them alone (the solution
+    # with the smaller angles), as when the exporter bakes a scene whose static transforms
+    # are that frame's; each next frame's nearest the previous.
+    first = compatible_eulers(rotation[:, :1], np.zeros((len(objects), 3)))[:, 0]
+    euler = compatible_eulers(rotation, first)
     return {ob_obj: (location[n], euler[n], size[n]) for n, ob_obj in enumerate(objects)}
 
 

@@ -147,8 +147,7 @@ def write_fbx(
 
 def _export(motion: Motion, metres_per_unit: float, name: str, *, keyed: bool) -> bytes | None:
     """One export from an empty scene: the motion keyed as an action (``keyed``) or posed at
-    its first frame with the bake computed in numpy; ``None`` when the numpy bake refused
-    the scene."""
+    rest with the bake computed in numpy; ``None`` when the numpy bake refused the scene."""
     import bpy
 
     skeleton = motion.skeleton
@@ -199,16 +198,16 @@ def _export(motion: Motion, metres_per_unit: float, name: str, *, keyed: bool) -
     if keyed:
         _key_action(obj, name, skeleton.names, basis, locations)
     else:
-        # The first frame's pose: the static transforms the exporter writes, and what the
-        # numpy bake checks itself against.
-        first = quaternions(basis[:1])[0][:, [3, 0, 1, 2]]  # (J, 4) Blender's (w, x, y, z)
-        for j, joint in enumerate(skeleton.names):
+        # The rest pose: the static transforms the exporter writes (a reader takes them for
+        # the skeleton's rest pose, where the skeleton's shape and body axes are read; the
+        # first frame's pose there tilted the body frame of a re-upload by its trunk's lean),
+        # and what the numpy bake checks itself against (identity keys).
+        for joint in skeleton.names:
             pose_bone = obj.pose.bones[joint]
             pose_bone.rotation_mode = "QUATERNION"
-            pose_bone.rotation_quaternion = tuple(first[j])
-            if j in locations:
-                pose_bone.location = tuple(locations[j][0])
-    scene.frame_set(0)  # the static transforms the exporter writes: the first frame's
+            pose_bone.rotation_quaternion = (1.0, 0.0, 0.0, 0.0)
+            pose_bone.location = (0.0, 0.0, 0.0)
+    scene.frame_set(0)
     baking: AbstractContextManager[BakeOutcome | None] = (
         nullcontext() if keyed else numpy_bake(skeleton.names, basis, locations)
     )
