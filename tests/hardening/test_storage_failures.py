@@ -148,7 +148,10 @@ def test_files_directory_gone(app_client: TestClient, settings: Settings) -> Non
     assert_intact(app_client, settings, first)
 
 
-def break_index_directory(settings: Settings) -> None:
+def break_index_directory(settings: Settings, client: TestClient) -> None:
+    # The indexes' delayed save (a second after a change) would write into the folder while
+    # it is being removed ("Directory not empty"): save now, nothing is left pending.
+    client.app.state.library.save_indexes()  # type: ignore[attr-defined]
     shutil.rmtree(settings.index_dir)
     settings.index_dir.write_bytes(b"not a directory")
 
@@ -166,7 +169,7 @@ def test_delete_when_the_indexes_cannot_be_saved(settings: Settings) -> None:
     with TestClient(create_app(settings), raise_server_exceptions=False) as client:
         first = store_first_clip(client)
         second = client.post("/clips", files=unique_upload(1)).json()
-        break_index_directory(settings)
+        break_index_directory(settings, client)
         assert client.delete(f"/clips/{first['id']}").status_code == 204
         assert client.get(f"/clips/{first['id']}").status_code == 404
         assert service_problems(client) == []  # type: ignore[arg-type]
@@ -177,7 +180,7 @@ def test_delete_when_the_indexes_cannot_be_saved(settings: Settings) -> None:
 def test_upload_when_the_indexes_cannot_be_saved(settings: Settings) -> None:
     with TestClient(create_app(settings), raise_server_exceptions=False) as client:
         store_first_clip(client)
-        break_index_directory(settings)
+        break_index_directory(settings, client)
         uploaded = client.post("/clips", files=unique_upload(1))
         assert uploaded.status_code != 500, uploaded.text
         problems = service_problems(client)  # type: ignore[arg-type]
