@@ -457,25 +457,25 @@ def retarget(
     feet_s = scale * s_canon[:, list(FOOT_POINTS)] @ world
     near = ON_FLOOR * body_height(target, target_map.joints, head_joint=target_map.head_joint)
 
-    def on_source_floor() -> tuple[Motion, np.ndarray]:
-        """The motion with the pelvis moved up or down so that the lowest foot point is
-        where the source's is (scaled), and ``(F, P, 3)`` its foot points."""
-        out = _assemble(target, source.frame_time, local, world_rot, pelvis, pelvis_at, t_ref_pos)
+    def assemble(pelvis_at: np.ndarray) -> Motion:
+        return _assemble(target, source.frame_time, local, world_rot, pelvis, pelvis_at, t_ref_pos)
+
+    def on_source_floor(out: Motion) -> tuple[np.ndarray, np.ndarray]:
+        """``(F,)`` how far to move ``out``'s pelvis up so that its lowest foot point is
+        where the source's is (scaled), and ``(F, P, 3)`` its foot points moved so (the
+        pelvis's translation carries every joint below it: no second kinematics pass)."""
         _, t_pos = forward_kinematics(out, joints=feet)
         lift = scale * s_feet - (t_pos[:, feet] @ t_up).min(axis=1)
-        return out, lift
+        return lift, t_pos[:, feet] + lift[:, None, None] * t_up
 
-    out, lift = on_source_floor()
+    lift, feet_t = on_source_floor(assemble(pelvis_at))
     pelvis_at = pelvis_at + lift[:, None] * t_up
     # A swinging foot clears the floor as the source's does (a long foot points its toe lower).
-    out = _assemble(target, source.frame_time, local, world_rot, pelvis, pelvis_at, t_ref_pos)
-    if _clear_swinging_toes(out, target_map, local, feet_s, t_up, near):
-        out, lift = on_source_floor()
+    if _clear_swinging_toes(assemble(pelvis_at), target_map, local, feet_s, t_up, near):
+        lift, feet_t = on_source_floor(assemble(pelvis_at))
         pelvis_at = pelvis_at + lift[:, None] * t_up
-    out = _assemble(target, source.frame_time, local, world_rot, pelvis, pelvis_at, t_ref_pos)
-    _, t_pos = forward_kinematics(out, joints=feet)
-    pelvis_at = pelvis_at + planted_feet_offsets(t_pos[:, feet], feet_s, t_up, near)
-    return _assemble(target, source.frame_time, local, world_rot, pelvis, pelvis_at, t_ref_pos)
+    pelvis_at = pelvis_at + planted_feet_offsets(feet_t, feet_s, t_up, near)
+    return assemble(pelvis_at)
 
 
 def _clear_swinging_toes(
