@@ -151,11 +151,6 @@ def _source_motion(source: str, library: object):
 # reads the same file exactly (test_ufbx_reads_the_fbx_export) and Blender reads the BVH-
 # and ASF-sourced files of the same motion right. Strict: the day it reads right, it says so.
 BLENDER_FBX_OFF = {"glb-to-fbx-keep"}
-# Fixed: an ASF/AMC clip exported as FBX and read back had the same world positions and
-# mapping but a `motion` vector 8.5 % of its length away: the FBX's static transforms were
-# the first frame's pose, which a reader takes for the rest pose, where the body axes are
-# found (the trunk's lean in frame 0 tilted them by 10 degrees). They are the rest now.
-MAPPER_OFF: set[str] = set()
 
 
 def _known(cases: list[tuple], off: set[str], reason: str) -> list:
@@ -214,11 +209,9 @@ def test_ufbx_reads_the_fbx_export(exported, case) -> None:
 
 @pytest.mark.parametrize(
     "case",
-    _known(
-        [c for c in CASES if not c[3] and c[2] in ("keep", "extract")],
-        MAPPER_OFF,
-        "the ASF clip read back from FBX describes differently, see MAPPER_OFF",
-    ),
+    # (An ASF/AMC clip's FBX once sat 8.5 % away: its static transforms held the first
+    # frame's pose, which a reader takes for the rest pose. They are the rest now.)
+    [c for c in CASES if not c[3] and c[2] in ("keep", "extract")],
     ids=case_id,
 )
 def test_an_export_uploaded_again_finds_its_source(exported, case) -> None:
