@@ -14,13 +14,12 @@ from fastapi.middleware.cors import CORSMiddleware
 from fastapi_offline import FastAPIOffline
 from starlette.concurrency import run_in_threadpool
 
-from app.api import clips, exports, meta, moments, rigs, search
+from app.api import clips, exports, meta, moments, rigs, search, ui
 from app.api.auth import API_KEY_HEADER, log_access_policy, read_dependencies
 from app.api.compression import add_compression
 from app.api.errors import error_responses, install_error_handlers
-from app.api.guard import RequestGuard, document_access
+from app.api.guard import AccessTable, RequestGuard, document_access, shared_access_table
 from app.api.limits import BodySizeLimit, DescribeGate, Slots
-from app.api.ui import mount_ui
 from app.config import Settings
 from app.services.clips import remove_orphan_files
 from app.services.describe import Describer
@@ -37,6 +36,26 @@ to a stored clip, `POST /search` those nearest to an uploaded file; `GET` / `POS
 
 Every error answers `{"error": "<code>", "detail": "<message>"}`.
 """
+
+
+# The search routes first: a request is matched against the routes in this order.
+READING_ROUTERS = (
+    search.router,
+    moments.router,
+    clips.router,
+    rigs.router,
+    exports.router,
+    meta.read_router,
+)
+# Every router an app of create_app has; its routes never depend on the settings.
+ROUTERS = (*READING_ROUTERS, meta.router, ui.router)
+
+
+def access_table(app: FastAPI) -> AccessTable:
+    """The guard's table for ``app``: shared by the apps create_app builds (their routes are
+    the same; building one's schema takes 0.3-1 s), unless routes were added to one after."""
+    routes_key = (tuple(id(router) for router in ROUTERS), len(app.router.routes))
+    return shared_access_table(routes_key, app.openapi)
 
 
 def _version() -> str:
@@ -98,7 +117,7 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
 
     # Outside the size limit (and inside CORS, so refusals carry its headers): Host, Origin,
     # API key and per-client limits are checked on the request's head, before its body.
-    app.add_middleware(RequestGuard, settings=settings, schema=lambda: app.openapi())
+    app.add_middleware(RequestGuard, settings=settings, access_table=lambda: access_table(app))
     if settings.cors_origins:  # CORS is off unless origins are configured
         app.add_middleware(
             CORSMiddleware,
@@ -110,14 +129,9 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
     # Reading routes need a key only with MOCAP_REQUIRE_KEY_FOR_READS; /health never does.
     reads = read_dependencies(settings)
     read_errors = error_responses(401, 403) if reads else {}
-    # The search routes first: a request is matched against the routes in this order.
-    app.include_router(search.router, dependencies=reads, responses=read_errors)
-    app.include_router(moments.router, dependencies=reads, responses=read_errors)
-    app.include_router(clips.router, dependencies=reads, responses=read_errors)
-    app.include_router(rigs.router, dependencies=reads, responses=read_errors)
-    app.include_router(exports.router, dependencies=reads, responses=read_errors)
-    app.include_router(meta.read_router, dependencies=reads, responses=read_errors)
+    for router in READING_ROUTERS:
+        app.include_router(router, dependencies=reads, responses=read_errors)
     app.include_router(meta.router)
-    mount_ui(app)  # the web UI at /, /static/*, and the routes it reads (skeletons, map)
+    ui.mount_ui(app)  # the web UI at /, /static/*, and the routes it reads (skeletons, map)
     document_access(app, settings)
     return app

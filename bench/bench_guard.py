@@ -32,7 +32,7 @@ sys.path.insert(0, str(ROOT))
 
 from fastapi.testclient import TestClient  # (after the path is set)
 
-from app.api.guard import RequestGuard
+from app.api.guard import AccessTable, RequestGuard
 from app.config import Settings
 from app.main import create_app
 from tests.hardening.live import unique_upload
@@ -113,7 +113,9 @@ def measure(args: argparse.Namespace, settings: Settings) -> int:
             for name, app in order:
                 count = args.requests // args.rounds
                 times[name].append(asyncio.run(per_request(app, count)))
-        alone = RequestGuard(nothing, settings=settings, schema=guarded.openapi)
+        alone = RequestGuard(
+            nothing, settings=settings, access_table=lambda: AccessTable.of(guarded.openapi())
+        )
         for _ in range(args.rounds):
             times.setdefault("guard alone", []).append(
                 asyncio.run(per_request(alone, args.requests))
