@@ -123,12 +123,13 @@ def test_labels_from_a_regex_a_tsv_and_the_command_line(
 
 
 def test_unusable_label_rules_stop_before_any_work(
-    folder: Path, settings: Settings, capsys: pytest.CaptureFixture[str]
+    folder: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    argv = ["import", "--data-dir", str(settings.data_dir), str(folder)]
+    data_dir = tmp_path / "no-library-yet"
+    argv = ["import", "--data-dir", str(data_dir), str(folder)]
     assert main([*argv, "--labels-regex", "(no named group)"]) == 1
     assert "no named group" in capsys.readouterr().err
-    assert not (settings.data_dir / "mocap-index.sqlite3").exists()
+    assert not (data_dir / "mocap-index.sqlite3").exists()
 
 
 def test_same_content_twice_in_one_run_is_stored_once(

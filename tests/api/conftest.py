@@ -14,6 +14,7 @@ from sqlalchemy import create_engine, select
 from app.config import Settings
 from app.db.models import Blob
 from app.main import create_app
+from tests.conftest import new_sqlite_settings
 from tests.services.fakes import FakeDescriber
 
 
@@ -24,7 +25,7 @@ def settings(request: pytest.FixtureRequest, tmp_path: Path) -> Settings:
     if request.param == "postgresql":
         url = request.getfixturevalue("postgres_url")
         return Settings(data_dir=tmp_path / "data", database_url=url)
-    return Settings(data_dir=tmp_path / "data")
+    return new_sqlite_settings(tmp_path / "data", request.getfixturevalue("migrated_sqlite_file"))
 
 
 def stored_blobs(settings: Settings) -> list[str]:

@@ -24,6 +24,13 @@ from tests.postgres import Cluster
 TABLES = {"clips", "clip_files", "clip_labels", "clip_descriptors", "clip_changes", "blobs"}
 
 
+@pytest.fixture
+def settings(tmp_path: Path) -> Settings:
+    """A data directory without a database (not the usual copy of a migrated one): these
+    tests migrate from nothing, step by step."""
+    return Settings(data_dir=tmp_path / "data")
+
+
 @pytest.fixture(params=["sqlite", "postgresql"])
 def empty_url(request: pytest.FixtureRequest, settings: Settings) -> str:
     """The URL of a database without any table, on each backend."""
