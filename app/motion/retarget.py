@@ -69,9 +69,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from app.motion.body import body_height
-from app.motion.ground import FOOT_POINTS, ON_FLOOR, body_frame, foot_heights, snap_axis
+from app.motion.ground import FOOT_POINTS, ON_FLOOR, body_frame, snap_axis
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion, Skeleton
+from app.motion.retarget_feet import hold_planted_feet
 from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap
 from app.motion.transforms import reflect
 
@@ -327,7 +328,12 @@ def _driven(
 
 
 def retarget(
-    source: Motion, source_map: SkeletonMap, target: Motion, target_map: SkeletonMap
+    source: Motion,
+    source_map: SkeletonMap,
+    target: Motion,
+    target_map: SkeletonMap,
+    *,
+    hold_feet: bool = True,
 ) -> Motion:
     """``source``'s motion on ``target``'s skeleton (see the module docstring).
 
@@ -351,6 +357,7 @@ def retarget(
             source_map,
             reflect(target, axis=target_map.mirror_axis),
             _unmirrored(target_map),
+            hold_feet=hold_feet,
         )
         return reflect(mirrored, axis=target_map.mirror_axis)
     if source_map.mirrored:
@@ -449,7 +456,6 @@ def retarget(
 
     # The pelvis's path: the source's, scaled by the legs.
     scale = leg_length(target, target_map) / max(leg_length(source, source_map), _TINY)
-    s_feet = foot_heights(s_canon, s_up)
     s_pelvis = s_canon[:, CANONICAL_INDEX["pelvis"]]
     pelvis_at = scale * s_pelvis @ world  # (F, 3)
     pelvis = int(target_map.joints[CANONICAL_INDEX["pelvis"]])
@@ -460,22 +466,42 @@ def retarget(
     def assemble(pelvis_at: np.ndarray) -> Motion:
         return _assemble(target, source.frame_time, local, world_rot, pelvis, pelvis_at, t_ref_pos)
 
-    def on_source_floor(out: Motion) -> tuple[np.ndarray, np.ndarray]:
-        """``(F,)`` how far to move ``out``'s pelvis up so that its lowest foot point is
-        where the source's is (scaled), and ``(F, P, 3)`` its foot points moved so (the
-        pelvis's translation carries every joint below it: no second kinematics pass)."""
-        _, t_pos = forward_kinematics(out, joints=feet)
-        lift = scale * s_feet - (t_pos[:, feet] @ t_up).min(axis=1)
-        return lift, t_pos[:, feet] + lift[:, None, None] * t_up
+    def foot_points(out: Motion) -> np.ndarray:
+        """``(F, P, 3)`` the foot points of ``out``."""
+        return forward_kinematics(out, joints=feet)[1][:, feet]
 
-    lift, feet_t = on_source_floor(assemble(pelvis_at))
+    def onto(points: np.ndarray, stance: np.ndarray) -> np.ndarray:
+        """``(F,)`` how far to move the pelvis up so that the lowest of the foot points
+        ``points`` ``(F, P, 3)`` marked in ``stance`` ``(F, P)`` is where the source's
+        lowest of them is (the pelvis's translation carries every joint below it)."""
+        lowest = np.where(stance, points @ t_up, np.inf).min(axis=1)
+        return np.where(stance, s_heights, np.inf).min(axis=1) - lowest
+
+    # The standing foot sets the body's height: the target's foot points that are on the
+    # floor in the source (within ``near`` of its floor) are put where the source's are, so
+    # a swinging foot lower on the rig (a longer shin, a long foot's toe tip) does not lift
+    # the standing one off the floor; the swinging toe is then raised (below). At frames
+    # with no point on the floor (a jump) the lowest points match.
+    s_heights = feet_s @ t_up  # (F, P)
+    stance = s_heights - s_heights.min() < near
+    stance[~stance.any(axis=1)] = True
+    feet_t = foot_points(assemble(pelvis_at))
+    lift = onto(feet_t, stance)
     pelvis_at = pelvis_at + lift[:, None] * t_up
+    feet_t = feet_t + lift[:, None, None] * t_up
     # A swinging foot clears the floor as the source's does (a long foot points its toe lower).
     if _clear_swinging_toes(assemble(pelvis_at), target_map, local, feet_s, t_up, near):
-        lift, feet_t = on_source_floor(assemble(pelvis_at))
-        pelvis_at = pelvis_at + lift[:, None] * t_up
+        feet_t = foot_points(assemble(pelvis_at))
+    # Then the lowest point is the source's lowest (feet neither sinking nor floating): this
+    # moves only frames where a swinging foot could not clear the floor, or a jump's.
+    lift = onto(feet_t, np.ones_like(stance))
+    pelvis_at = pelvis_at + lift[:, None] * t_up
+    feet_t = feet_t + lift[:, None, None] * t_up
     pelvis_at = pelvis_at + planted_feet_offsets(feet_t, feet_s, t_up, near)
-    return assemble(pelvis_at)
+    out = assemble(pelvis_at)
+    if hold_feet:
+        hold_planted_feet(out, target_map, feet_s, t_up, near, near / ON_FLOOR)
+    return out
 
 
 def _clear_swinging_toes(
