@@ -500,7 +500,13 @@ def retarget(
     pelvis_at = pelvis_at + planted_feet_offsets(feet_t, feet_s, t_up, near)
     out = assemble(pelvis_at)
     if hold_feet:
-        hold_planted_feet(out, target_map, feet_s, t_up, near, near / ON_FLOOR)
+        held = hold_planted_feet(out, target_map, feet_s, t_up, near, near / ON_FLOOR)
+        if held is not None:
+            # A leg turned about its hip raises or lowers its foot a little: the standing
+            # foot goes back onto the floor, and nothing sinks below the source's lowest.
+            lift = onto(held, stance)
+            lift = lift + onto(held + lift[:, None, None] * t_up, np.ones_like(stance))
+            out = assemble(pelvis_at + lift[:, None] * t_up)
     return out
 
 

@@ -137,7 +137,7 @@ def hold_planted_feet(
     up: np.ndarray,
     near: float,
     height: float,
-) -> bool:
+) -> np.ndarray | None:
     """Hold each planted foot of ``motion`` (the retarget; its ``local_rotations`` are
     changed in place) where the source's stands (see the module docstring).
 
@@ -153,12 +153,12 @@ def hold_planted_feet(
 
     Returns
     -------
-    bool
-        Whether any frame changed.
+    ``(F, 4, 3)`` the target's foot points after the hold (in ``source_feet``'s order; a
+    turned leg moves its ankle a little up or down), or ``None`` when nothing changed.
     """
     frames = motion.frame_count
     if frames < 3:
-        return False
+        return None
     parents = motion.skeleton.parents
     legs = []
     for side in ("l", "r"):
@@ -169,15 +169,18 @@ def hold_planted_feet(
         if hip > 0 and len({hip, knee, ankle}) == 3:
             legs.append((side, hip, ankle, toe))
     if not legs:
-        return False
+        return None
     rotations, positions = forward_kinematics(
         motion, joints=[j for _, *joints in legs for j in joints]
     )
     planted = planted_steps(source_feet, up, near, SLOW * height * motion.frame_time)
     blend_frames = max(1, round(BLEND / motion.frame_time))
     local = motion.local_rotations
+    feet = np.stack(
+        [positions[:, j] for _, _, ankle, toe in legs for j in (ankle, toe)], axis=1
+    )  # (F, 2 per leg, 3)
     changed = False
-    for side, hip, ankle, toe in legs:
+    for leg_index, (side, hip, ankle, toe) in enumerate(legs):
         a_index, t_index = (0, 1) if side == "l" else (2, 3)
         on_toe = planted[:, t_index] & (toe != ankle)
         steps = on_toe | planted[:, a_index]
@@ -205,8 +208,13 @@ def hold_planted_feet(
         ankle_parent = turn @ rotations[moved, parents[ankle]]
         local[moved, hip] = np.swapaxes(rotations[moved, parents[hip]], -1, -2) @ hip_world
         local[moved, ankle] = np.swapaxes(ankle_parent, -1, -2) @ rotations[moved, ankle]
+        # The foot moves with its ankle (it keeps its orientation).
+        shift = (turn @ leg[:, :, None])[:, :, 0] - leg
+        feet[moved, 2 * leg_index : 2 * leg_index + 2] += shift[:, None]
         changed = True
-    return changed
+    if not changed or len(legs) < 2:
+        return None
+    return feet
 
 
 __all__ = [
