@@ -428,10 +428,9 @@ def retarget(
         wanted = (s_pos[:, s_aims] - s_pos[:, sources[fixed]]) @ world
         rotation[:, fixed] = swing(now, wanted) @ rotation[:, fixed]
 
-    # Every other joint keeps its reference local rotation: its world rotation is its
-    # nearest driven ancestor's times the (constant) reference rotation between the two.
-    world_rot = np.empty((frames, count, 3, 3))
-    world_rot[:, targets] = rotation
+    # Every other joint keeps its reference local rotation (its world rotation is its
+    # nearest driven ancestor's times the constant reference rotation between the two), so
+    # only the driven joints' local rotations change per frame.
     anchor = np.full(count, -1, dtype=np.int64)
     slot = {int(t): i for i, t in enumerate(targets)}
     for j in range(count):
@@ -439,32 +438,44 @@ def retarget(
             anchor[j] = j
         elif parents[j] >= 0:
             anchor[j] = anchor[parents[j]]
-    free = np.array([j for j in range(count) if j not in slot], dtype=np.int64)
-    if len(free):
-        floating = anchor[free] < 0
-        fixed_free, carried = free[floating], free[~floating]
-        world_rot[:, fixed_free] = t_ref_rot[fixed_free]
-        if len(carried):
-            anchors = anchor[carried]
-            between = np.swapaxes(t_ref_rot[anchors], -1, -2) @ t_ref_rot[carried]
-            world_rot[:, carried] = world_rot[:, anchors] @ between
-
-    local = np.empty_like(world_rot)
-    local[:, 0] = world_rot[:, 0]
     up_index = np.where(parents < 0, 0, parents)
-    local[:, 1:] = np.swapaxes(world_rot[:, up_index[1:]], -1, -2) @ world_rot[:, 1:]
+    ref_local = np.swapaxes(t_ref_rot[up_index], -1, -2) @ t_ref_rot
+    ref_local[0] = t_ref_rot[0]
+    local = np.empty((frames, count, 3, 3))
+    local[:] = ref_local
+
+    def world_of(joints: np.ndarray) -> np.ndarray:
+        """``(F, K, 3, 3)`` world rotations of target ``joints`` ``(K,)``."""
+        out = np.empty((frames, len(joints), 3, 3))
+        out[:] = t_ref_rot[joints]  # joints above every driven one stay at the reference
+        carried = anchor[joints] >= 0
+        if carried.any():
+            anchors = anchor[joints[carried]]
+            between = np.swapaxes(t_ref_rot[anchors], -1, -2) @ t_ref_rot[joints[carried]]
+            out[:, carried] = rotation[:, [slot[int(a)] for a in anchors]] @ between
+        return out
+
+    has_parent = parents[targets] >= 0
+    driven_local = np.empty_like(rotation)
+    driven_local[:, ~has_parent] = rotation[:, ~has_parent]
+    if has_parent.any():
+        above = world_of(parents[targets[has_parent]])
+        driven_local[:, has_parent] = np.swapaxes(above, -1, -2) @ rotation[:, has_parent]
+    local[:, targets] = driven_local
+    pelvis = int(target_map.joints[CANONICAL_INDEX["pelvis"]])
+    # A pelvis below a static top joint: the world rotation its per-frame offset is in.
+    above_pelvis = None if pelvis <= 0 else world_of(parents[[pelvis]])[:, 0]
 
     # The pelvis's path: the source's, scaled by the legs.
     scale = leg_length(target, target_map) / max(leg_length(source, source_map), _TINY)
     s_pelvis = s_canon[:, CANONICAL_INDEX["pelvis"]]
     pelvis_at = scale * s_pelvis @ world  # (F, 3)
-    pelvis = int(target_map.joints[CANONICAL_INDEX["pelvis"]])
     feet = target_map.joints[list(FOOT_POINTS)]
     feet_s = scale * s_canon[:, list(FOOT_POINTS)] @ world
     near = ON_FLOOR * body_height(target, target_map.joints, head_joint=target_map.head_joint)
 
     def assemble(pelvis_at: np.ndarray) -> Motion:
-        return _assemble(target, source.frame_time, local, world_rot, pelvis, pelvis_at, t_ref_pos)
+        return _assemble(target, source.frame_time, local, above_pelvis, pelvis, pelvis_at, t_ref_pos)
 
     def foot_points(out: Motion) -> np.ndarray:
         """``(F, P, 3)`` the foot points of ``out``."""
@@ -588,7 +599,7 @@ def _assemble(
     target: Motion,
     frame_time: float,
     local: np.ndarray,
-    world_rot: np.ndarray,
+    above_pelvis: np.ndarray | None,
     pelvis: int,
     pelvis_at: np.ndarray,
     ref_pos: np.ndarray,
@@ -603,11 +614,12 @@ def _assemble(
     else:
         root = np.broadcast_to(ref_pos[0], (frames, 3)).copy()
         # Joints above the pelvis are at their reference pose: their positions are fixed.
+        assert above_pelvis is not None  # the pelvis's parent's world rotation, (F, 3, 3)
         parent = int(skeleton.parents[pelvis])
         translations = np.broadcast_to(skeleton.offsets, (frames, *skeleton.offsets.shape)).copy()
         translations[:, 0] = root
         translations[:, pelvis] = (
-            np.swapaxes(world_rot[:, parent], -1, -2) @ (pelvis_at - ref_pos[parent])[:, :, None]
+            np.swapaxes(above_pelvis, -1, -2) @ (pelvis_at - ref_pos[parent])[:, :, None]
         )[:, :, 0]
     return Motion(
         skeleton=skeleton,
