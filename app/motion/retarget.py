@@ -64,6 +64,7 @@ describer reflects it, so left stays left.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -72,7 +73,7 @@ from app.motion.body import body_height
 from app.motion.ground import FOOT_POINTS, ON_FLOOR, body_frame, snap_axis
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion, Skeleton
-from app.motion.retarget_feet import hold_planted_feet
+from app.motion.retarget_feet import Pose, hold_planted_feet
 from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap
 from app.motion.transforms import reflect
 
@@ -475,11 +476,21 @@ def retarget(
     near = ON_FLOOR * body_height(target, target_map.joints, head_joint=target_map.head_joint)
 
     def assemble(pelvis_at: np.ndarray) -> Motion:
-        return _assemble(target, source.frame_time, local, above_pelvis, pelvis, pelvis_at, t_ref_pos)
+        return _assemble(
+            target, source.frame_time, local, above_pelvis, pelvis, pelvis_at, t_ref_pos
+        )
 
-    def foot_points(out: Motion) -> np.ndarray:
-        """``(F, P, 3)`` the foot points of ``out``."""
-        return forward_kinematics(out, joints=feet)[1][:, feet]
+    pelvis_rot = world_of(np.array([pelvis]))[:, 0]
+
+    def legs(joints: Sequence[int], at: np.ndarray) -> Pose:
+        """World rotations and positions of the target's ``joints`` (below the pelvis) for
+        the current ``local`` rotations, with the pelvis at ``at`` ``(F, 3)``."""
+        return _below(parents, target.skeleton.offsets, local, pelvis, pelvis_rot, at, joints)
+
+    def foot_points(at: np.ndarray) -> np.ndarray:
+        """``(F, P, 3)`` the foot points with the pelvis at ``at``."""
+        positions = legs([int(j) for j in feet], at)[1]
+        return np.stack([positions[int(j)] for j in feet], axis=1)
 
     def onto(points: np.ndarray, stance: np.ndarray) -> np.ndarray:
         """``(F,)`` how far to move the pelvis up so that the lowest of the foot points
@@ -496,34 +507,46 @@ def retarget(
     s_heights = feet_s @ t_up  # (F, P)
     stance = s_heights - s_heights.min() < near
     stance[~stance.any(axis=1)] = True
-    feet_t = foot_points(assemble(pelvis_at))
+    feet_t = foot_points(pelvis_at)
     lift = onto(feet_t, stance)
     pelvis_at = pelvis_at + lift[:, None] * t_up
     feet_t = feet_t + lift[:, None, None] * t_up
     # A swinging foot clears the floor as the source's does (a long foot points its toe lower).
-    if _clear_swinging_toes(assemble(pelvis_at), target_map, local, feet_s, t_up, near):
-        feet_t = foot_points(assemble(pelvis_at))
+    if _clear_swinging_toes(
+        lambda joints: legs(joints, pelvis_at), target_map, parents, local, feet_s, t_up, near
+    ):
+        feet_t = foot_points(pelvis_at)
     # Then the lowest point is the source's lowest (feet neither sinking nor floating): this
     # moves only frames where a swinging foot could not clear the floor, or a jump's.
     lift = onto(feet_t, np.ones_like(stance))
     pelvis_at = pelvis_at + lift[:, None] * t_up
     feet_t = feet_t + lift[:, None, None] * t_up
     pelvis_at = pelvis_at + planted_feet_offsets(feet_t, feet_s, t_up, near)
-    out = assemble(pelvis_at)
     if hold_feet:
-        held = hold_planted_feet(out, target_map, feet_s, t_up, near, near / ON_FLOOR)
+        held = hold_planted_feet(
+            lambda joints: legs(joints, pelvis_at),
+            target_map,
+            parents,
+            local,
+            source.frame_time,
+            feet_s,
+            t_up,
+            near,
+            near / ON_FLOOR,
+        )
         if held is not None:
             # A leg turned about its hip raises or lowers its foot a little: the standing
             # foot goes back onto the floor, and nothing sinks below the source's lowest.
             lift = onto(held, stance)
             lift = lift + onto(held + lift[:, None, None] * t_up, np.ones_like(stance))
-            out = assemble(pelvis_at + lift[:, None] * t_up)
-    return out
+            pelvis_at = pelvis_at + lift[:, None] * t_up
+    return assemble(pelvis_at)
 
 
 def _clear_swinging_toes(
-    motion: Motion,
+    kinematics: Callable[[Sequence[int]], Pose],
     mapping: SkeletonMap,
+    parents: np.ndarray,
     local: np.ndarray,
     source_feet: np.ndarray,
     up: np.ndarray,
@@ -535,9 +558,10 @@ def _clear_swinging_toes(
     longer for its leg than the source's (a toe tip against a ball of the foot), the same
     foot direction puts the toe of a swinging foot on the floor, where it skims. The toe is
     raised to the source toe's height (or as near as the foot reaches); the foot keeps its
-    heading. ``source_feet`` ``(F, P, 3)`` are the source's foot points (scaled, target axes,
-    :data:`FOOT_POINTS` order) at the target's heights. Returns whether anything changed."""
-    parents = motion.skeleton.parents
+    heading. ``kinematics`` gives the legs' joints' world rotations and positions for the
+    current ``local``; ``source_feet`` ``(F, P, 3)`` are the source's foot points (scaled,
+    target axes, :data:`FOOT_POINTS` order) at the target's heights. Returns whether
+    anything changed."""
     source_floor = float((source_feet @ up).min())
     changed = False
     for side in ("l", "r"):
@@ -545,29 +569,58 @@ def _clear_swinging_toes(
         toe = int(mapping.joints[CANONICAL_INDEX[f"{side}_toe"]])
         if ankle == toe or (not _between(parents, ankle, toe) and parents[toe] != ankle):
             continue
-        rot, pos = forward_kinematics(motion, joints=np.array([ankle, toe, parents[ankle]]))
+        rot, pos = kinematics([ankle, toe, int(parents[ankle])])
         wanted = source_feet[:, FOOT_POINTS.index(CANONICAL_INDEX[f"{side}_toe"])] @ up
-        bone = pos[:, toe] - pos[:, ankle]  # (F, 3)
+        bone = pos[toe] - pos[ankle]  # (F, 3)
         length = np.linalg.norm(bone, axis=1)
         flat = bone - (bone @ up)[:, None] * up
         flat_length = np.linalg.norm(flat, axis=1)
         low = (
             (wanted - source_floor >= near)
-            & (pos[:, toe] @ up < wanted)
+            & (pos[toe] @ up < wanted)
             & (flat_length > 1e-6 * np.maximum(length, _TINY))
         )
         if not low.any():
             continue
-        rise = np.clip((wanted[low] - pos[low, ankle] @ up) / length[low], -1.0, 1.0)
+        rise = np.clip((wanted[low] - pos[ankle][low] @ up) / length[low], -1.0, 1.0)
         heading = flat[low] / flat_length[low, None]
         raised = length[low, None] * (
             np.sqrt(1.0 - rise**2)[:, None] * heading + rise[:, None] * up
         )
         turn = swing(bone[low], raised)  # about the horizontal axis across the foot
-        above = rot[low, parents[ankle]]
+        above = rot[int(parents[ankle])][low]
         local[low, ankle] = np.swapaxes(above, -1, -2) @ turn @ above @ local[low, ankle]
         changed = True
     return changed
+
+
+def _below(
+    parents: np.ndarray,
+    offsets: np.ndarray,
+    local: np.ndarray,
+    top: int,
+    top_rotation: np.ndarray,
+    top_position: np.ndarray,
+    joints: Sequence[int],
+) -> Pose:
+    """Forward kinematics of the joints between ``top`` and ``joints`` (all below it), from
+    ``top``'s world rotation ``(F, 3, 3)`` and position ``(F, 3)``: world rotations
+    ``(F, 3, 3)`` and positions ``(F, 3)`` by joint. Only these few joints are computed
+    (a leg's, against a rig of 70 joints with fingers)."""
+    needed: set[int] = set()
+    for start in joints:
+        j = int(start)
+        while j != top and j not in needed:
+            if j < 0:
+                raise ValueError(f"joint {start} is not below joint {top}")
+            needed.add(j)
+            j = int(parents[j])
+    rotations, positions = {top: top_rotation}, {top: top_position}
+    for j in sorted(needed):  # parents before children
+        parent = int(parents[j])
+        rotations[j] = rotations[parent] @ local[:, j]
+        positions[j] = positions[parent] + rotations[parent] @ offsets[j]
+    return rotations, positions
 
 
 def planted_feet_offsets(

@@ -35,16 +35,19 @@ angle only and lifts the ankle by under 0.3 % of the leg at the limit.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
+
 import numpy as np
 
-from app.motion.kinematics import forward_kinematics
-from app.motion.model import Motion
 from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap
 
 SLOW = 0.5  # body heights per second: a foot point on the floor slower than this is planted
 BLEND = 0.1  # seconds over which a hold fades in before a contact and out after it
 MAX_TURN = 4.5  # degrees: the most a hold turns a leg (the quality bar allows 5)
 _TINY = 1e-12
+
+# World rotations (F, 3, 3) and positions (F, 3) of a few joints, by joint.
+Pose = tuple[dict[int, np.ndarray], dict[int, np.ndarray]]
 _FAR = np.iinfo(np.int64).max // 4
 
 
@@ -131,18 +134,26 @@ def hold_corrections(extra: np.ndarray, planted: np.ndarray, blend_frames: int) 
 
 
 def hold_planted_feet(
-    motion: Motion,
+    kinematics: Callable[[Sequence[int]], Pose],
     mapping: SkeletonMap,
+    parents: np.ndarray,
+    local: np.ndarray,
+    frame_time: float,
     source_feet: np.ndarray,
     up: np.ndarray,
     near: float,
     height: float,
 ) -> np.ndarray | None:
-    """Hold each planted foot of ``motion`` (the retarget; its ``local_rotations`` are
-    changed in place) where the source's stands (see the module docstring).
+    """Hold each planted foot of the retarget where the source's stands (see the module
+    docstring), changing its ``local`` rotations ``(F, J, 3, 3)`` in place.
 
     Parameters
     ----------
+    kinematics:
+        World rotations ``(F, 3, 3)`` and positions ``(F, 3)`` of the given joints (and
+        those between them and the pelvis), by joint, for the current ``local``.
+    mapping, parents:
+        The target skeleton's mapping and parent indices.
     source_feet:
         ``(F, 4, 3)`` the source's foot points, scaled, in the target's axes, in
         :data:`~app.motion.ground.FOOT_POINTS` order (left ankle, left toe, right ankle,
@@ -156,10 +167,9 @@ def hold_planted_feet(
     ``(F, 4, 3)`` the target's foot points after the hold (in ``source_feet``'s order; a
     turned leg moves its ankle a little up or down), or ``None`` when nothing changed.
     """
-    frames = motion.frame_count
+    frames = local.shape[0]
     if frames < 3:
         return None
-    parents = motion.skeleton.parents
     legs = []
     for side in ("l", "r"):
         hip, knee, ankle, toe = (
@@ -168,17 +178,14 @@ def hold_planted_feet(
         )
         if hip > 0 and len({hip, knee, ankle}) == 3:
             legs.append((side, hip, ankle, toe))
-    if not legs:
+    if len(legs) < 2:
         return None
-    rotations, positions = forward_kinematics(
-        motion, joints=[j for _, *joints in legs for j in joints]
+    rotations, positions = kinematics(
+        [j for _, hip, ankle, toe in legs for j in (hip, ankle, toe, parents[hip], parents[ankle])]
     )
-    planted = planted_steps(source_feet, up, near, SLOW * height * motion.frame_time)
-    blend_frames = max(1, round(BLEND / motion.frame_time))
-    local = motion.local_rotations
-    feet = np.stack(
-        [positions[:, j] for _, _, ankle, toe in legs for j in (ankle, toe)], axis=1
-    )  # (F, 2 per leg, 3)
+    planted = planted_steps(source_feet, up, near, SLOW * height * frame_time)
+    blend_frames = max(1, round(BLEND / frame_time))
+    feet = np.stack([positions[j] for _, _, ankle, toe in legs for j in (ankle, toe)], axis=1)
     changed = False
     for leg_index, (side, hip, ankle, toe) in enumerate(legs):
         a_index, t_index = (0, 1) if side == "l" else (2, 3)
@@ -189,9 +196,7 @@ def hold_planted_feet(
         # Per step the pivot's motion: the toe where it is planted, else the ankle.
         point = np.where(on_toe[:, None], t_index, a_index)
         own = np.where(
-            on_toe[:, None],
-            np.diff(positions[:, toe], axis=0),
-            np.diff(positions[:, ankle], axis=0),
+            on_toe[:, None], np.diff(positions[toe], axis=0), np.diff(positions[ankle], axis=0)
         )
         source_step = np.take_along_axis(np.diff(source_feet, axis=0), point[:, :, None], axis=1)
         extra = source_step[:, 0] - own
@@ -200,19 +205,18 @@ def hold_planted_feet(
         moved = np.flatnonzero(np.linalg.norm(correction, axis=1) > 1e-9 * height)
         if not len(moved):
             continue
-        at_hip = positions[moved, hip]
-        leg = positions[moved, ankle] - at_hip
+        leg = positions[ankle][moved] - positions[hip][moved]
         turn = turn_toward(leg, leg + correction[moved], np.radians(MAX_TURN))
         # The hip turns the leg; the foot keeps its world orientation.
-        hip_world = turn @ rotations[moved, hip]
-        ankle_parent = turn @ rotations[moved, parents[ankle]]
-        local[moved, hip] = np.swapaxes(rotations[moved, parents[hip]], -1, -2) @ hip_world
-        local[moved, ankle] = np.swapaxes(ankle_parent, -1, -2) @ rotations[moved, ankle]
+        hip_world = turn @ rotations[hip][moved]
+        ankle_parent = turn @ rotations[int(parents[ankle])][moved]
+        local[moved, hip] = np.swapaxes(rotations[int(parents[hip])][moved], -1, -2) @ hip_world
+        local[moved, ankle] = np.swapaxes(ankle_parent, -1, -2) @ rotations[ankle][moved]
         # The foot moves with its ankle (it keeps its orientation).
         shift = (turn @ leg[:, :, None])[:, :, 0] - leg
         feet[moved, 2 * leg_index : 2 * leg_index + 2] += shift[:, None]
         changed = True
-    if not changed or len(legs) < 2:
+    if not changed:
         return None
     return feet
 
@@ -221,6 +225,7 @@ __all__ = [
     "BLEND",
     "MAX_TURN",
     "SLOW",
+    "Pose",
     "hold_corrections",
     "hold_planted_feet",
     "planted_steps",
