@@ -149,14 +149,20 @@ def swing(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     unit = axis / np.where(sin[..., None] < 1e-15, 1.0, sin[..., None])
     angle = np.arctan2(np.where(opposite, 0.0, sin), cos)
     angle = np.where(opposite, np.pi, angle)
+    # Rodrigues, I + s K + (1 - c) K^2 with K^2 = u u^T - |u|^2 I, entry by entry (no
+    # per-rotation matrix product).
+    s, versed = np.sin(angle), 1.0 - np.cos(angle)
     x, y, z = unit[..., 0], unit[..., 1], unit[..., 2]
-    k = np.zeros((*unit.shape[:-1], 3, 3))
-    k[..., 0, 1], k[..., 0, 2] = -z, y
-    k[..., 1, 0], k[..., 1, 2] = z, -x
-    k[..., 2, 0], k[..., 2, 1] = -y, x
-    s = np.sin(angle)[..., None, None]
-    c = np.cos(angle)[..., None, None]
-    out = np.eye(3) + s * k + (1 - c) * (k @ k)
+    out = versed[..., None, None] * (unit[..., :, None] * unit[..., None, :])
+    diagonal = 1.0 - versed * np.sum(unit * unit, axis=-1)
+    for i in range(3):
+        out[..., i, i] += diagonal
+    out[..., 0, 1] -= s * z
+    out[..., 0, 2] += s * y
+    out[..., 1, 0] += s * z
+    out[..., 1, 2] -= s * x
+    out[..., 2, 0] -= s * y
+    out[..., 2, 1] += s * x
     out[zero] = np.eye(3)
     return out
 
@@ -364,7 +370,14 @@ def retarget(
     if source_map.mirrored:
         source = reflect(source, axis=source_map.mirror_axis)
 
-    s_rot, s_pos = forward_kinematics(source)  # (F, Js, 3, 3), (F, Js, 3)
+    driven = _driven(source, source_map, target, target_map)
+    # Only the source joints the retarget reads: driven, aimed at, canonical.
+    s_needed = {int(j) for j in source_map.joints}
+    for d in driven:
+        s_needed.update(j for j in (d.source, d.source_aim) if j is not None)
+        if d.align_bones is not None:
+            s_needed.update(d.align_bones[2:])
+    s_rot, s_pos = forward_kinematics(source, joints=sorted(s_needed))  # (F, Js, 3, 3), (F, Js, 3)
     s_ref = reference_frame(source_map)
     if s_ref is None:
         s_ref_rot = np.broadcast_to(np.eye(3), s_rot.shape[1:])
@@ -398,7 +411,6 @@ def retarget(
     frames = source.frame_count
     count = target.skeleton.joint_count
     parents = target.skeleton.parents
-    driven = _driven(source, source_map, target, target_map)
     # Constant per driven joint: C = Q_source^T · A · Q_target, so G = W^T · G_source · C.
     aligned: dict[int, np.ndarray] = {}
     constants = np.empty((len(driven), 3, 3))
@@ -417,7 +429,9 @@ def retarget(
         constants[i] = s_ref_rot[d.source].T @ align @ t_ref_rot[d.target]
     targets = np.array([d.target for d in driven], dtype=np.int64)
     sources = np.array([d.source for d in driven], dtype=np.int64)
-    rotation = world_t @ s_rot[:, sources] @ constants  # (F, D, 3, 3)
+    rotation = s_rot[:, sources] @ constants  # (F, D, 3, 3)
+    if not np.array_equal(world_t, np.eye(3)):  # a quarter turn between the up axes
+        rotation = world_t @ rotation
     # Directions exact: one swing per frame and driven bone, all at once.
     fixed = [i for i, d in enumerate(driven) if d.target_aim is not None]
     if fixed:
@@ -448,12 +462,15 @@ def retarget(
     def world_of(joints: np.ndarray) -> np.ndarray:
         """``(F, K, 3, 3)`` world rotations of target ``joints`` ``(K,)``."""
         out = np.empty((frames, len(joints), 3, 3))
-        out[:] = t_ref_rot[joints]  # joints above every driven one stay at the reference
-        carried = anchor[joints] >= 0
+        is_driven = np.array([int(j) in slot for j in joints], dtype=bool)
+        carried = (anchor[joints] >= 0) & ~is_driven
+        floating = anchor[joints] < 0  # above every driven joint: at the reference
+        out[:, is_driven] = rotation[:, [slot[int(j)] for j in joints[is_driven]]]
         if carried.any():
             anchors = anchor[joints[carried]]
             between = np.swapaxes(t_ref_rot[anchors], -1, -2) @ t_ref_rot[joints[carried]]
             out[:, carried] = rotation[:, [slot[int(a)] for a in anchors]] @ between
+        out[:, floating] = t_ref_rot[joints[floating]]
         return out
 
     has_parent = parents[targets] >= 0
