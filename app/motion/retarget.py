@@ -153,8 +153,9 @@ def swing(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     # per-rotation matrix product).
     s, versed = np.sin(angle), 1.0 - np.cos(angle)
     x, y, z = unit[..., 0], unit[..., 1], unit[..., 2]
-    out = versed[..., None, None] * (unit[..., :, None] * unit[..., None, :])
-    diagonal = 1.0 - versed * np.sum(unit * unit, axis=-1)
+    scaled = versed[..., None] * unit
+    out = scaled[..., :, None] * unit[..., None, :]
+    diagonal = 1.0 - np.sum(scaled * unit, axis=-1)
     for i in range(3):
         out[..., i, i] += diagonal
     out[..., 0, 1] -= s * z
