@@ -474,13 +474,20 @@ def retarget(
         out[:, floating] = t_ref_rot[joints[floating]]
         return out
 
-    has_parent = parents[targets] >= 0
-    driven_local = np.empty_like(rotation)
-    driven_local[:, ~has_parent] = rotation[:, ~has_parent]
-    if has_parent.any():
-        above = world_of(parents[targets[has_parent]])
-        driven_local[:, has_parent] = np.swapaxes(above, -1, -2) @ rotation[:, has_parent]
-    local[:, targets] = driven_local
+    # A driven joint's local rotation: its parent's world rotation (a driven parent's as it
+    # is, no copy) undone.
+    up_slot = np.array([slot.get(int(parents[t]), -1) for t in targets], dtype=np.int64)
+    by_driven = up_slot >= 0
+    other = ~by_driven & (parents[targets] >= 0)
+    top = parents[targets] < 0
+    local[:, targets[top]] = rotation[:, top]
+    if by_driven.any():
+        local[:, targets[by_driven]] = (
+            np.swapaxes(rotation[:, up_slot[by_driven]], -1, -2) @ rotation[:, by_driven]
+        )
+    if other.any():
+        above = world_of(parents[targets[other]])
+        local[:, targets[other]] = np.swapaxes(above, -1, -2) @ rotation[:, other]
     pelvis = int(target_map.joints[CANONICAL_INDEX["pelvis"]])
     # A pelvis below a static top joint: the world rotation its per-frame offset is in.
     above_pelvis = None if pelvis <= 0 else world_of(parents[[pelvis]])[:, 0]
