@@ -507,10 +507,41 @@ def retarget(
 
     pelvis_rot = world_of(np.array([pelvis]))[:, 0]
 
+    # The legs' joints the feet's passes read (hips, ankles, toes and the hips' and ankles'
+    # parents): their kinematics, with the pelvis at the origin, computed once, and again
+    # only after a pass changes a leg's rotations.
+    leg_joints = sorted(
+        {
+            int(j)
+            for side in ("l", "r")
+            for name in ("hip", "ankle", "toe")
+            for j in (
+                target_map.joints[CANONICAL_INDEX[f"{side}_{name}"]],
+                parents[target_map.joints[CANONICAL_INDEX[f"{side}_{name}"]]],
+            )
+            if j >= 0
+        }
+    )
+    origin = np.zeros((frames, 3))
+    posed: list[Pose] = []
+
+    def refresh() -> None:
+        try:
+            pose = _below(
+                parents, target.skeleton.offsets, local, pelvis, pelvis_rot, origin, leg_joints
+            )
+        except ValueError:  # a leg joint not below the pelvis: the whole rig's kinematics
+            rot, pos = forward_kinematics(assemble(origin), joints=leg_joints)
+            pose = ({j: rot[:, j] for j in leg_joints}, {j: pos[:, j] for j in leg_joints})
+        posed[:] = [pose]
+
     def legs(joints: Sequence[int], at: np.ndarray) -> Pose:
-        """World rotations and positions of the target's ``joints`` (below the pelvis) for
-        the current ``local`` rotations, with the pelvis at ``at`` ``(F, 3)``."""
-        return _below(parents, target.skeleton.offsets, local, pelvis, pelvis_rot, at, joints)
+        """World rotations and positions of the target's ``joints`` (legs' joints) for the
+        current ``local`` rotations, with the pelvis at ``at`` ``(F, 3)``."""
+        rotations, positions = posed[0]
+        return rotations, {int(j): positions[int(j)] + at for j in joints}
+
+    refresh()
 
     def foot_points(at: np.ndarray) -> np.ndarray:
         """``(F, P, 3)`` the foot points with the pelvis at ``at``."""
@@ -540,6 +571,7 @@ def retarget(
     if _clear_swinging_toes(
         lambda joints: legs(joints, pelvis_at), target_map, parents, local, feet_s, t_up, near
     ):
+        refresh()
         feet_t = foot_points(pelvis_at)
     # Then the lowest point is the source's lowest (feet neither sinking nor floating): this
     # moves only frames where a swinging foot could not clear the floor, or a jump's.
