@@ -40,8 +40,11 @@ so bone lengths are exactly the rig's.
 
 **Root.** The pelvis travels as the source's pelvis, scaled about the world origin by the
 ratio of the legs' bone paths (hip -> knee -> ankle), then moved up or down per frame so that
-the target's lowest foot point is exactly where the source's is (scaled): feet on the
-source's floor, neither sinking nor floating. A pelvis below a static top joint gets the
+the target's foot points that are on the floor in the source (the standing foot) are where
+the source's are (scaled), and nothing is below the source's lowest point: feet on the
+source's floor, neither sinking nor floating, and a swinging foot that is lower on the rig
+(a longer shin) does not lift the standing one off the floor. At frames with no point on
+the floor (a jump) the lowest points match. A pelvis below a static top joint gets the
 travel as per-frame offsets.
 
 **Planted feet.** Where the legs' proportions differ from the source's (a longer shin, wider
@@ -52,6 +55,11 @@ takes the mean of how much farther they moved over the floor than the source's (
 back, so a foot on the floor moves as the source's moves — not at all when the source's
 stands, a slide where the source slides. Every bone keeps the source's direction; the
 target travels as far as its own legs carry it.
+
+What the pelvis cannot hold (two points down that disagree: both feet, or the heel and
+toe of a long foot) the legs take up: each planted foot (contact from the source) is held
+where the source's stands by turning its leg about the hip, by at most a few degrees so
+limb directions stay within the quality bar (:mod:`app.motion.retarget_feet`).
 
 **Swinging feet clear the floor.** A foot long for its leg (a toe tip where the source has
 the ball of its foot) points its toe lower than the source's when it swings toe-down; where
