@@ -360,6 +360,9 @@ def retarget(
     target:
         The rig: its skeleton and, in frame 0, its reference pose (local rotations; the
         identity for a rig whose rest pose is a standing figure); ``target_map`` its mapping.
+    hold_feet:
+        Whether the legs hold planted feet (:mod:`app.motion.retarget_feet`); off, only the
+        pelvis's path does.
 
     Returns
     -------
