@@ -40,8 +40,11 @@ so bone lengths are exactly the rig's.
 
 **Root.** The pelvis travels as the source's pelvis, scaled about the world origin by the
 ratio of the legs' bone paths (hip -> knee -> ankle), then moved up or down per frame so that
-the target's lowest foot point is exactly where the source's is (scaled): feet on the
-source's floor, neither sinking nor floating. A pelvis below a static top joint gets the
+the target's foot points that are on the floor in the source (the standing foot) are where
+the source's are (scaled), and nothing is below the source's lowest point: feet on the
+source's floor, neither sinking nor floating, and a swinging foot that is lower on the rig
+(a longer shin) does not lift the standing one off the floor. At frames with no point on
+the floor (a jump) the lowest points match. A pelvis below a static top joint gets the
 travel as per-frame offsets.
 
 **Planted feet.** Where the legs' proportions differ from the source's (a longer shin, wider
@@ -52,6 +55,11 @@ takes the mean of how much farther they moved over the floor than the source's (
 back, so a foot on the floor moves as the source's moves — not at all when the source's
 stands, a slide where the source slides. Every bone keeps the source's direction; the
 target travels as far as its own legs carry it.
+
+What the pelvis cannot hold (two points down that disagree: both feet, or the heel and
+toe of a long foot) the legs take up: each planted foot (contact from the source) is held
+where the source's stands by turning its leg about the hip, by at most a few degrees so
+limb directions stay within the quality bar (:mod:`app.motion.retarget_feet`).
 
 **Swinging feet clear the floor.** A foot long for its leg (a toe tip where the source has
 the ball of its foot) points its toe lower than the source's when it swings toe-down; where
@@ -64,14 +72,16 @@ describer reflects it, so left stays left.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from app.motion.body import body_height
-from app.motion.ground import FOOT_POINTS, ON_FLOOR, body_frame, foot_heights, snap_axis
+from app.motion.ground import FOOT_POINTS, ON_FLOOR, body_frame, snap_axis
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion, Skeleton
+from app.motion.retarget_feet import Pose, hold_planted_feet
 from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap
 from app.motion.transforms import reflect
 
@@ -147,14 +157,21 @@ def swing(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     unit = axis / np.where(sin[..., None] < 1e-15, 1.0, sin[..., None])
     angle = np.arctan2(np.where(opposite, 0.0, sin), cos)
     angle = np.where(opposite, np.pi, angle)
+    # Rodrigues, I + s K + (1 - c) K^2 with K^2 = u u^T - |u|^2 I, entry by entry (no
+    # per-rotation matrix product).
+    s, versed = np.sin(angle), 1.0 - np.cos(angle)
     x, y, z = unit[..., 0], unit[..., 1], unit[..., 2]
-    k = np.zeros((*unit.shape[:-1], 3, 3))
-    k[..., 0, 1], k[..., 0, 2] = -z, y
-    k[..., 1, 0], k[..., 1, 2] = z, -x
-    k[..., 2, 0], k[..., 2, 1] = -y, x
-    s = np.sin(angle)[..., None, None]
-    c = np.cos(angle)[..., None, None]
-    out = np.eye(3) + s * k + (1 - c) * (k @ k)
+    scaled = versed[..., None] * unit
+    out = scaled[..., :, None] * unit[..., None, :]
+    diagonal = 1.0 - np.sum(scaled * unit, axis=-1)
+    for i in range(3):
+        out[..., i, i] += diagonal
+    out[..., 0, 1] -= s * z
+    out[..., 0, 2] += s * y
+    out[..., 1, 0] += s * z
+    out[..., 1, 2] -= s * x
+    out[..., 2, 0] -= s * y
+    out[..., 2, 1] += s * x
     out[zero] = np.eye(3)
     return out
 
@@ -327,7 +344,12 @@ def _driven(
 
 
 def retarget(
-    source: Motion, source_map: SkeletonMap, target: Motion, target_map: SkeletonMap
+    source: Motion,
+    source_map: SkeletonMap,
+    target: Motion,
+    target_map: SkeletonMap,
+    *,
+    hold_feet: bool = True,
 ) -> Motion:
     """``source``'s motion on ``target``'s skeleton (see the module docstring).
 
@@ -338,6 +360,9 @@ def retarget(
     target:
         The rig: its skeleton and, in frame 0, its reference pose (local rotations; the
         identity for a rig whose rest pose is a standing figure); ``target_map`` its mapping.
+    hold_feet:
+        Whether the legs hold planted feet (:mod:`app.motion.retarget_feet`); off, only the
+        pelvis's path does.
 
     Returns
     -------
@@ -351,12 +376,20 @@ def retarget(
             source_map,
             reflect(target, axis=target_map.mirror_axis),
             _unmirrored(target_map),
+            hold_feet=hold_feet,
         )
         return reflect(mirrored, axis=target_map.mirror_axis)
     if source_map.mirrored:
         source = reflect(source, axis=source_map.mirror_axis)
 
-    s_rot, s_pos = forward_kinematics(source)  # (F, Js, 3, 3), (F, Js, 3)
+    driven = _driven(source, source_map, target, target_map)
+    # Only the source joints the retarget reads: driven, aimed at, canonical.
+    s_needed = {int(j) for j in source_map.joints}
+    for d in driven:
+        s_needed.update(j for j in (d.source, d.source_aim) if j is not None)
+        if d.align_bones is not None:
+            s_needed.update(d.align_bones[2:])
+    s_rot, s_pos = forward_kinematics(source, joints=sorted(s_needed))  # (F, Js, 3, 3), (F, Js, 3)
     s_ref = reference_frame(source_map)
     if s_ref is None:
         s_ref_rot = np.broadcast_to(np.eye(3), s_rot.shape[1:])
@@ -390,7 +423,6 @@ def retarget(
     frames = source.frame_count
     count = target.skeleton.joint_count
     parents = target.skeleton.parents
-    driven = _driven(source, source_map, target, target_map)
     # Constant per driven joint: C = Q_source^T · A · Q_target, so G = W^T · G_source · C.
     aligned: dict[int, np.ndarray] = {}
     constants = np.empty((len(driven), 3, 3))
@@ -409,7 +441,9 @@ def retarget(
         constants[i] = s_ref_rot[d.source].T @ align @ t_ref_rot[d.target]
     targets = np.array([d.target for d in driven], dtype=np.int64)
     sources = np.array([d.source for d in driven], dtype=np.int64)
-    rotation = world_t @ s_rot[:, sources] @ constants  # (F, D, 3, 3)
+    rotation = s_rot[:, sources] @ constants  # (F, D, 3, 3)
+    if not np.array_equal(world_t, np.eye(3)):  # a quarter turn between the up axes
+        rotation = world_t @ rotation
     # Directions exact: one swing per frame and driven bone, all at once.
     fixed = [i for i, d in enumerate(driven) if d.target_aim is not None]
     if fixed:
@@ -421,10 +455,9 @@ def retarget(
         wanted = (s_pos[:, s_aims] - s_pos[:, sources[fixed]]) @ world
         rotation[:, fixed] = swing(now, wanted) @ rotation[:, fixed]
 
-    # Every other joint keeps its reference local rotation: its world rotation is its
-    # nearest driven ancestor's times the (constant) reference rotation between the two.
-    world_rot = np.empty((frames, count, 3, 3))
-    world_rot[:, targets] = rotation
+    # Every other joint keeps its reference local rotation (its world rotation is its
+    # nearest driven ancestor's times the constant reference rotation between the two), so
+    # only the driven joints' local rotations change per frame.
     anchor = np.full(count, -1, dtype=np.int64)
     slot = {int(t): i for i, t in enumerate(targets)}
     for j in range(count):
@@ -432,55 +465,156 @@ def retarget(
             anchor[j] = j
         elif parents[j] >= 0:
             anchor[j] = anchor[parents[j]]
-    free = np.array([j for j in range(count) if j not in slot], dtype=np.int64)
-    if len(free):
-        floating = anchor[free] < 0
-        fixed_free, carried = free[floating], free[~floating]
-        world_rot[:, fixed_free] = t_ref_rot[fixed_free]
-        if len(carried):
-            anchors = anchor[carried]
-            between = np.swapaxes(t_ref_rot[anchors], -1, -2) @ t_ref_rot[carried]
-            world_rot[:, carried] = world_rot[:, anchors] @ between
-
-    local = np.empty_like(world_rot)
-    local[:, 0] = world_rot[:, 0]
     up_index = np.where(parents < 0, 0, parents)
-    local[:, 1:] = np.swapaxes(world_rot[:, up_index[1:]], -1, -2) @ world_rot[:, 1:]
+    ref_local = np.swapaxes(t_ref_rot[up_index], -1, -2) @ t_ref_rot
+    ref_local[0] = t_ref_rot[0]
+    local = np.empty((frames, count, 3, 3))
+    local[:] = ref_local
+
+    def world_of(joints: np.ndarray) -> np.ndarray:
+        """``(F, K, 3, 3)`` world rotations of target ``joints`` ``(K,)``."""
+        out = np.empty((frames, len(joints), 3, 3))
+        is_driven = np.array([int(j) in slot for j in joints], dtype=bool)
+        carried = (anchor[joints] >= 0) & ~is_driven
+        floating = anchor[joints] < 0  # above every driven joint: at the reference
+        out[:, is_driven] = rotation[:, [slot[int(j)] for j in joints[is_driven]]]
+        if carried.any():
+            anchors = anchor[joints[carried]]
+            between = np.swapaxes(t_ref_rot[anchors], -1, -2) @ t_ref_rot[joints[carried]]
+            out[:, carried] = rotation[:, [slot[int(a)] for a in anchors]] @ between
+        out[:, floating] = t_ref_rot[joints[floating]]
+        return out
+
+    # A driven joint's local rotation: its parent's world rotation (a driven parent's as it
+    # is, no copy) undone.
+    up_slot = np.array([slot.get(int(parents[t]), -1) for t in targets], dtype=np.int64)
+    by_driven = up_slot >= 0
+    other = ~by_driven & (parents[targets] >= 0)
+    top = parents[targets] < 0
+    local[:, targets[top]] = rotation[:, top]
+    if by_driven.any():
+        local[:, targets[by_driven]] = (
+            np.swapaxes(rotation[:, up_slot[by_driven]], -1, -2) @ rotation[:, by_driven]
+        )
+    if other.any():
+        above = world_of(parents[targets[other]])
+        local[:, targets[other]] = np.swapaxes(above, -1, -2) @ rotation[:, other]
+    pelvis = int(target_map.joints[CANONICAL_INDEX["pelvis"]])
+    # A pelvis below a static top joint: the world rotation its per-frame offset is in.
+    above_pelvis = None if pelvis <= 0 else world_of(parents[[pelvis]])[:, 0]
 
     # The pelvis's path: the source's, scaled by the legs.
     scale = leg_length(target, target_map) / max(leg_length(source, source_map), _TINY)
-    s_feet = foot_heights(s_canon, s_up)
     s_pelvis = s_canon[:, CANONICAL_INDEX["pelvis"]]
     pelvis_at = scale * s_pelvis @ world  # (F, 3)
-    pelvis = int(target_map.joints[CANONICAL_INDEX["pelvis"]])
     feet = target_map.joints[list(FOOT_POINTS)]
     feet_s = scale * s_canon[:, list(FOOT_POINTS)] @ world
     near = ON_FLOOR * body_height(target, target_map.joints, head_joint=target_map.head_joint)
 
     def assemble(pelvis_at: np.ndarray) -> Motion:
-        return _assemble(target, source.frame_time, local, world_rot, pelvis, pelvis_at, t_ref_pos)
+        return _assemble(
+            target, source.frame_time, local, above_pelvis, pelvis, pelvis_at, t_ref_pos
+        )
 
-    def on_source_floor(out: Motion) -> tuple[np.ndarray, np.ndarray]:
-        """``(F,)`` how far to move ``out``'s pelvis up so that its lowest foot point is
-        where the source's is (scaled), and ``(F, P, 3)`` its foot points moved so (the
-        pelvis's translation carries every joint below it: no second kinematics pass)."""
-        _, t_pos = forward_kinematics(out, joints=feet)
-        lift = scale * s_feet - (t_pos[:, feet] @ t_up).min(axis=1)
-        return lift, t_pos[:, feet] + lift[:, None, None] * t_up
+    pelvis_rot = world_of(np.array([pelvis]))[:, 0]
 
-    lift, feet_t = on_source_floor(assemble(pelvis_at))
+    # The legs' joints the feet's passes read (hips, ankles, toes and the hips' and ankles'
+    # parents): their kinematics, with the pelvis at the origin, computed once, and again
+    # only after a pass changes a leg's rotations.
+    leg_joints = sorted(
+        {
+            int(j)
+            for side in ("l", "r")
+            for name in ("hip", "ankle", "toe")
+            for j in (
+                target_map.joints[CANONICAL_INDEX[f"{side}_{name}"]],
+                parents[target_map.joints[CANONICAL_INDEX[f"{side}_{name}"]]],
+            )
+            if j >= 0
+        }
+    )
+    origin = np.zeros((frames, 3))
+    posed: list[Pose] = []
+
+    def refresh() -> None:
+        try:
+            pose = _below(
+                parents, target.skeleton.offsets, local, pelvis, pelvis_rot, origin, leg_joints
+            )
+        except ValueError:  # a leg joint not below the pelvis: the whole rig's kinematics
+            rot, pos = forward_kinematics(assemble(origin), joints=leg_joints)
+            pose = ({j: rot[:, j] for j in leg_joints}, {j: pos[:, j] for j in leg_joints})
+        posed[:] = [pose]
+
+    def legs(joints: Sequence[int], at: np.ndarray) -> Pose:
+        """World rotations and positions of the target's ``joints`` (legs' joints) for the
+        current ``local`` rotations, with the pelvis at ``at`` ``(F, 3)``."""
+        rotations, positions = posed[0]
+        return rotations, {int(j): positions[int(j)] + at for j in joints}
+
+    refresh()
+
+    def foot_points(at: np.ndarray) -> np.ndarray:
+        """``(F, P, 3)`` the foot points with the pelvis at ``at``."""
+        positions = legs([int(j) for j in feet], at)[1]
+        return np.stack([positions[int(j)] for j in feet], axis=1)
+
+    def onto(points: np.ndarray, stance: np.ndarray) -> np.ndarray:
+        """``(F,)`` how far to move the pelvis up so that the lowest of the foot points
+        ``points`` ``(F, P, 3)`` marked in ``stance`` ``(F, P)`` is where the source's
+        lowest of them is (the pelvis's translation carries every joint below it)."""
+        lowest = np.where(stance, points @ t_up, np.inf).min(axis=1)
+        return np.where(stance, s_heights, np.inf).min(axis=1) - lowest
+
+    # The standing foot sets the body's height: the target's foot points that are on the
+    # floor in the source (within ``near`` of its floor) are put where the source's are, so
+    # a swinging foot lower on the rig (a longer shin, a long foot's toe tip) does not lift
+    # the standing one off the floor; the swinging toe is then raised (below). At frames
+    # with no point on the floor (a jump) the lowest points match.
+    s_heights = feet_s @ t_up  # (F, P)
+    stance = s_heights - s_heights.min() < near
+    stance[~stance.any(axis=1)] = True
+    feet_t = foot_points(pelvis_at)
+    lift = onto(feet_t, stance)
     pelvis_at = pelvis_at + lift[:, None] * t_up
+    feet_t = feet_t + lift[:, None, None] * t_up
     # A swinging foot clears the floor as the source's does (a long foot points its toe lower).
-    if _clear_swinging_toes(assemble(pelvis_at), target_map, local, feet_s, t_up, near):
-        lift, feet_t = on_source_floor(assemble(pelvis_at))
-        pelvis_at = pelvis_at + lift[:, None] * t_up
+    if _clear_swinging_toes(
+        lambda joints: legs(joints, pelvis_at), target_map, parents, local, feet_s, t_up, near
+    ):
+        refresh()
+        feet_t = foot_points(pelvis_at)
+    # Then the lowest point is the source's lowest (feet neither sinking nor floating): this
+    # moves only frames where a swinging foot could not clear the floor, or a jump's.
+    lift = onto(feet_t, np.ones_like(stance))
+    pelvis_at = pelvis_at + lift[:, None] * t_up
+    feet_t = feet_t + lift[:, None, None] * t_up
     pelvis_at = pelvis_at + planted_feet_offsets(feet_t, feet_s, t_up, near)
+    if hold_feet:
+        held = hold_planted_feet(
+            lambda joints: legs(joints, pelvis_at),
+            target_map,
+            parents,
+            local,
+            source.frame_time,
+            feet_s,
+            t_up,
+            near,
+            near / ON_FLOOR,
+        )
+        if held is not None:
+            # A leg turned about its hip raises or lowers its foot a little: the standing
+            # foot goes back onto the floor, and nothing sinks below the source's lowest.
+            lift = onto(held, stance)
+            lift = lift + onto(held + lift[:, None, None] * t_up, np.ones_like(stance))
+            pelvis_at = pelvis_at + lift[:, None] * t_up
     return assemble(pelvis_at)
 
 
 def _clear_swinging_toes(
-    motion: Motion,
+    kinematics: Callable[[Sequence[int]], Pose],
     mapping: SkeletonMap,
+    parents: np.ndarray,
     local: np.ndarray,
     source_feet: np.ndarray,
     up: np.ndarray,
@@ -492,9 +626,10 @@ def _clear_swinging_toes(
     longer for its leg than the source's (a toe tip against a ball of the foot), the same
     foot direction puts the toe of a swinging foot on the floor, where it skims. The toe is
     raised to the source toe's height (or as near as the foot reaches); the foot keeps its
-    heading. ``source_feet`` ``(F, P, 3)`` are the source's foot points (scaled, target axes,
-    :data:`FOOT_POINTS` order) at the target's heights. Returns whether anything changed."""
-    parents = motion.skeleton.parents
+    heading. ``kinematics`` gives the legs' joints' world rotations and positions for the
+    current ``local``; ``source_feet`` ``(F, P, 3)`` are the source's foot points (scaled,
+    target axes, :data:`FOOT_POINTS` order) at the target's heights. Returns whether
+    anything changed."""
     source_floor = float((source_feet @ up).min())
     changed = False
     for side in ("l", "r"):
@@ -502,29 +637,58 @@ def _clear_swinging_toes(
         toe = int(mapping.joints[CANONICAL_INDEX[f"{side}_toe"]])
         if ankle == toe or (not _between(parents, ankle, toe) and parents[toe] != ankle):
             continue
-        rot, pos = forward_kinematics(motion, joints=np.array([ankle, toe, parents[ankle]]))
+        rot, pos = kinematics([ankle, toe, int(parents[ankle])])
         wanted = source_feet[:, FOOT_POINTS.index(CANONICAL_INDEX[f"{side}_toe"])] @ up
-        bone = pos[:, toe] - pos[:, ankle]  # (F, 3)
+        bone = pos[toe] - pos[ankle]  # (F, 3)
         length = np.linalg.norm(bone, axis=1)
         flat = bone - (bone @ up)[:, None] * up
         flat_length = np.linalg.norm(flat, axis=1)
         low = (
             (wanted - source_floor >= near)
-            & (pos[:, toe] @ up < wanted)
+            & (pos[toe] @ up < wanted)
             & (flat_length > 1e-6 * np.maximum(length, _TINY))
         )
         if not low.any():
             continue
-        rise = np.clip((wanted[low] - pos[low, ankle] @ up) / length[low], -1.0, 1.0)
+        rise = np.clip((wanted[low] - pos[ankle][low] @ up) / length[low], -1.0, 1.0)
         heading = flat[low] / flat_length[low, None]
         raised = length[low, None] * (
             np.sqrt(1.0 - rise**2)[:, None] * heading + rise[:, None] * up
         )
         turn = swing(bone[low], raised)  # about the horizontal axis across the foot
-        above = rot[low, parents[ankle]]
+        above = rot[int(parents[ankle])][low]
         local[low, ankle] = np.swapaxes(above, -1, -2) @ turn @ above @ local[low, ankle]
         changed = True
     return changed
+
+
+def _below(
+    parents: np.ndarray,
+    offsets: np.ndarray,
+    local: np.ndarray,
+    top: int,
+    top_rotation: np.ndarray,
+    top_position: np.ndarray,
+    joints: Sequence[int],
+) -> Pose:
+    """Forward kinematics of the joints between ``top`` and ``joints`` (all below it), from
+    ``top``'s world rotation ``(F, 3, 3)`` and position ``(F, 3)``: world rotations
+    ``(F, 3, 3)`` and positions ``(F, 3)`` by joint. Only these few joints are computed
+    (a leg's, against a rig of 70 joints with fingers)."""
+    needed: set[int] = set()
+    for start in joints:
+        j = int(start)
+        while j != top and j not in needed:
+            if j < 0:
+                raise ValueError(f"joint {start} is not below joint {top}")
+            needed.add(j)
+            j = int(parents[j])
+    rotations, positions = {top: top_rotation}, {top: top_position}
+    for j in sorted(needed):  # parents before children
+        parent = int(parents[j])
+        rotations[j] = rotations[parent] @ local[:, j]
+        positions[j] = positions[parent] + rotations[parent] @ offsets[j]
+    return rotations, positions
 
 
 def planted_feet_offsets(
@@ -556,7 +720,7 @@ def _assemble(
     target: Motion,
     frame_time: float,
     local: np.ndarray,
-    world_rot: np.ndarray,
+    above_pelvis: np.ndarray | None,
     pelvis: int,
     pelvis_at: np.ndarray,
     ref_pos: np.ndarray,
@@ -571,11 +735,12 @@ def _assemble(
     else:
         root = np.broadcast_to(ref_pos[0], (frames, 3)).copy()
         # Joints above the pelvis are at their reference pose: their positions are fixed.
+        assert above_pelvis is not None  # the pelvis's parent's world rotation, (F, 3, 3)
         parent = int(skeleton.parents[pelvis])
         translations = np.broadcast_to(skeleton.offsets, (frames, *skeleton.offsets.shape)).copy()
         translations[:, 0] = root
         translations[:, pelvis] = (
-            np.swapaxes(world_rot[:, parent], -1, -2) @ (pelvis_at - ref_pos[parent])[:, :, None]
+            np.swapaxes(above_pelvis, -1, -2) @ (pelvis_at - ref_pos[parent])[:, :, None]
         )[:, :, 0]
     return Motion(
         skeleton=skeleton,

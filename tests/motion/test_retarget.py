@@ -240,12 +240,14 @@ def test_a_planted_foot_does_not_slide_on_legs_of_other_proportions() -> None:
 
 def test_a_foot_point_planted_alone_moves_exactly_as_the_source_s() -> None:
     """Onto the CMU subject's proportions: at every frame step where one foot point is on
-    the floor in both clips, it moves over the floor exactly as the source's (scaled)."""
+    the floor in both clips, the pelvis's path makes it move over the floor exactly as the
+    source's (scaled). (The legs' hold after it, off here, turns a leg about its hip, which
+    moves the foot by its correction only to within 1e-4 of the height per step.)"""
     source = read_bvh(fixture_bytes(BANDAI_FIXTURE))
     rig, rig_map = rig_of(
         read_asf_amc(fixture_bytes(CMU_ASF_FIXTURE), fixture_bytes(CMU_AMC_FIXTURE))
     )
-    out = retarget(source, mapped(source), rig, rig_map)
+    out = retarget(source, mapped(source), rig, rig_map, hold_feet=False)
     scale = leg_length(rig, rig_map) / leg_length(source, mapped(source))
     feet = list(FOOT_POINTS)
     s = canonical_positions(source, mapped(source))[:, feet] * scale
