@@ -50,6 +50,7 @@ CHROMIUM_ARGS = [
 BVH = Path("cmu/bvh-mb/02/02_01.bvh")
 ASF, AMC = Path("cmu/asf-amc/02/02.asf"), Path("cmu/asf-amc/02/02_01.amc")
 TIMEOUT_MS = 20_000
+START_SECONDS = 90  # for a UI server to answer /health
 
 
 def _missing(reason: str) -> None:
@@ -106,7 +107,10 @@ def serve(data_dir: Path, **env_vars: str) -> Iterator[str]:
     )
     base = f"http://127.0.0.1:{port}"
     try:
-        deadline = time.monotonic() + 30
+        # Starting is importing the app and opening the library: ~5 s on a quiet machine,
+        # over 30 s with the machine's two cores shared by a dozen processes. Not a verdict
+        # on the service (its start-up is measured under bench/).
+        deadline = time.monotonic() + START_SECONDS
         while True:
             if process.poll() is not None:
                 log.flush()
@@ -117,7 +121,7 @@ def serve(data_dir: Path, **env_vars: str) -> Iterator[str]:
             except httpx.HTTPError:
                 pass
             if time.monotonic() > deadline:
-                pytest.fail("the server did not answer /health within 30 s")
+                pytest.fail(f"the server did not answer /health within {START_SECONDS} s")
             time.sleep(0.2)
         yield base
     finally:
