@@ -17,6 +17,15 @@ without FAISS's id hash table, which would be a private copy in every process (~
 vector). :meth:`merged` gives an ordinary (owned, writable) index of the current vectors, to
 write as the next file.
 
+**Compressed lists** (``IndexIVFScalarQuantizer``, 8 bits a number, the vectors padded to a
+multiple of 8: the window indexes of a large library, ``MOCAP_WINDOW_CODES``): the lists
+hold a quarter of the bytes, but their distances are approximate and their vectors lossy.
+The exact vectors then come with the index (``exact``, ``(N, D)`` float32 in the locator's
+order — by id — mapped from a file written beside the index): a search asks the lists for
+:data:`RERANK` times the neighbours wanted and ranks them by their exact distances, and a
+vector read is an exact row. A search touches the pages of its candidates' rows only, so the
+server's memory is the codes' quarter plus what the searches read.
+
 Shapes: a query is ``(1, D)`` float32; ids ``(N,)`` int64; vectors ``(N, D)`` float32.
 """
 
@@ -31,18 +40,28 @@ import faiss
 import numpy as np
 
 from app.index.cells import GRAPH_MIN_CELLS, SAMPLES, CellGraph
-from app.index.kinds import empty_flat
+from app.index.kinds import SQ8, codes_of, empty_flat, padded
 
 LIST_SHIFT = 32  # a place is list << 32 | offset
+# Candidates a compressed search takes from its lists per neighbour wanted, then ranks by
+# their exact distances: at 100 hours of 1-s windows (1.2 M, 135-D padded to 136, nprobe 12
+# and 24) twice as many gave the same 276 nearest as the float32 lists, once as many 5 % fewer.
+RERANK = 2
 
 
 class FrozenIVF:
     """``base`` (a mapped IVF index) minus ``gone`` plus ``delta`` (see the module
     docstring)."""
 
-    def __init__(self, base: Any) -> None:
+    def __init__(self, base: Any, exact: np.ndarray | None = None) -> None:
         self.base = base
-        self.dimension = int(base.d)
+        self.mapped_from: str | None = None  # the file the base is mapped from (see open)
+        # Compressed lists: the exact vectors (by id) beside them, queries padded to base.d.
+        self.exact = exact
+        self.width = int(base.d)
+        self.dimension = int(exact.shape[1]) if exact is not None else self.width
+        if codes_of(base) == SQ8 and (exact is None or exact.shape[0] != int(base.ntotal)):
+            raise ValueError("an index of compressed lists needs its exact vectors")
         # The mapped file never changes: what a search asks of it on every call, read once.
         self.base_total = int(base.ntotal)
         self.base_nprobe = int(base.nprobe)
@@ -70,12 +89,14 @@ class FrozenIVF:
         self._cells_lock = threading.Lock()
 
     @classmethod
-    def open(cls, path: str) -> FrozenIVF:
-        """Map the IVF index file at ``path`` (its id hash table, if it has one, dropped)."""
+    def open(cls, path: str, exact: np.ndarray | None = None) -> FrozenIVF:
+        """Map the IVF index file at ``path`` (its id hash table, if it has one, dropped);
+        ``exact``: its vectors by id, for compressed lists (see the module docstring)."""
         base = faiss.read_index(path, faiss.IO_FLAG_MMAP_IFC)
         if base.direct_map.type != faiss.DirectMap.NoMap:  # type: ignore[attr-defined]
             base.set_direct_map_type(faiss.DirectMap.NoMap)  # type: ignore[attr-defined]
-        frozen = cls(base)
+        frozen = cls(base, exact)
+        frozen.mapped_from = path
         frozen._view_codes(os.path.getsize(path))
         return frozen
 
@@ -171,6 +192,8 @@ class FrozenIVF:
         row = self._base_row(int(vector_id))
         if row < 0:
             return None
+        if self.exact is not None:
+            return np.array(self.exact[row], np.float32)
         place = int(self.places[row])
         if self._codes is not None:  # one slice of the mapping, no FAISS call
             code_size = 4 * self.dimension
@@ -189,6 +212,8 @@ class FrozenIVF:
         ids = np.asarray(ids, np.int64)
         rows = self._base_rows(ids)
         from_base = rows >= 0
+        if self.exact is not None and not self.delta.ntotal:
+            return from_base, np.array(self.exact[rows[from_base]], np.float32)
         if self._codes is None or self.delta.ntotal:
             kept, found = [], []
             for vector_id in ids.tolist():
@@ -209,8 +234,17 @@ class FrozenIVF:
         return from_base, gathered.view(np.float32).reshape(-1, self.dimension)
 
     def all_vectors(self) -> tuple[np.ndarray, np.ndarray]:
-        """Every ``(ids (N,), vectors (N, D))`` held."""
+        """Every ``(ids (N,), vectors (N, D))`` held (ids ascending)."""
         ids = self.ids()
+        if self.exact is not None:  # rows of the file's order, then the delta's one by one
+            rows = self._base_rows(ids)
+            vectors = np.empty((ids.size, self.dimension), np.float32)
+            vectors[rows >= 0] = self.exact[rows[rows >= 0]]
+            for at in np.flatnonzero(rows < 0).tolist():
+                vectors[at] = self.delta.reconstruct(int(ids[at]))
+            return ids, vectors
+        if not self.delta.ntotal and self._rows is not None:  # one gather of the codes
+            return ids, self.vectors(ids)[1]
         vectors = np.empty((ids.size, self.dimension), np.float32)
         for row, vector_id in enumerate(ids.tolist()):
             found = self.vector(vector_id)
@@ -243,6 +277,12 @@ class FrozenIVF:
         """``(Q, k)`` squared distances and ids of the nearest held vectors to ``queries``
         ``(Q, D)`` (padded with id -1), among ``allowed`` (sorted unique ids; every cell is
         then probed) when given."""
+        fetch = k
+        if self.exact is not None:  # compressed lists: candidates, ranked exactly below
+            fetch = max(1, min(k * RERANK, self.base_total))
+            queries = np.ascontiguousarray(queries, np.float32)
+        exact_queries = queries
+        queries = padded(queries, self.width)
         keep: list[Any] = []  # selectors FAISS reads must stay alive
         params: Any
         if allowed is not None:
@@ -269,12 +309,12 @@ class FrozenIVF:
             # search_preassigned takes no parameters)
             to_cells, nearest = cells.nearest(queries)
             count = int(queries.shape[0])
-            squared = np.empty((count, k), np.float32)
-            ids = np.empty((count, k), np.int64)
+            squared = np.empty((count, fetch), np.float32)
+            ids = np.empty((count, fetch), np.int64)
             self.base.search_preassigned_c(
                 count,
                 faiss.swig_ptr(queries),
-                k,
+                fetch,
                 faiss.swig_ptr(nearest),
                 faiss.swig_ptr(to_cells),
                 faiss.swig_ptr(squared),
@@ -285,7 +325,10 @@ class FrozenIVF:
         else:
             if not self._cells_started and allowed is None:
                 self._start_cells(nprobe)
-            squared, ids = self.base.search(queries, k, params=params)
+            squared, ids = self.base.search(queries, fetch, params=params)
+        if self.exact is not None:
+            squared, ids = self._ranked(exact_queries, ids, k)
+        queries = exact_queries
         if not self.delta.ntotal:
             return squared, ids
         flat: Any = None
@@ -302,6 +345,35 @@ class FrozenIVF:
             np.take_along_axis(every_squared, order, axis=1),
             np.take_along_axis(every_ids, order, axis=1),
         )
+
+    def _ranked(
+        self, queries: np.ndarray, candidates: np.ndarray, k: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The ``k`` nearest of each query's ``candidates`` ``(Q, C)`` (ids of the file, -1
+        padding) by their exact squared distances: ``(Q, k)`` float32 and ids (-1 padded)."""
+        count = candidates.shape[0]
+        squared = np.full((count, k), np.inf, np.float32)
+        ids = np.full((count, k), -1, np.int64)
+        assert self.exact is not None
+        for row in range(count):
+            found = candidates[row][candidates[row] >= 0]
+            if not found.size:
+                continue
+            # FAISS's own kernel: the numbers an IVFFlat scan of these vectors gives
+            vectors = np.ascontiguousarray(self.exact[self._base_rows(found)], np.float32)
+            query = np.ascontiguousarray(queries[row], np.float32)
+            distances = np.empty(found.size, np.float32)
+            faiss.fvec_L2sqr_ny(  # type: ignore[attr-defined]
+                faiss.swig_ptr(distances),
+                faiss.swig_ptr(query),
+                faiss.swig_ptr(vectors),
+                self.dimension,
+                found.size,
+            )
+            order = np.argsort(distances, kind="stable")[:k]
+            squared[row, : order.size] = distances[order]
+            ids[row, : order.size] = found[order]
+        return squared, ids
 
     def _start_cells(self, nprobe: int) -> None:
         """Build the cells' graph in a thread (once): the first search does not wait."""
@@ -322,6 +394,7 @@ class FrozenIVF:
         rng = np.random.default_rng(0)
         sample = np.sort(rng.choice(self.base_ids, min(SAMPLES, self.base_ids.size), False))
         _, samples = self.vectors(sample)
+        samples = padded(samples, self.width)
         self.cells = CellGraph.of(self.base, nprobe or self.base_nprobe, samples)
 
     def scan_cost(self, nprobe: int, *, filtered: bool) -> int:
@@ -343,7 +416,6 @@ class FrozenIVF:
             flat: Any = faiss.downcast_index(self.delta.index)
             count = int(self.delta.ntotal)
             vectors = faiss.rev_swig_ptr(flat.get_xb(), count * self.dimension)
-            index.add_with_ids(
-                np.asarray(vectors, np.float32).reshape(count, self.dimension).copy(), ids
-            )
+            vectors = np.asarray(vectors, np.float32).reshape(count, self.dimension)
+            index.add_with_ids(padded(vectors, self.width), ids)
         return index
