@@ -203,11 +203,6 @@ class DescriptorIndex:
         return codes_of(index.base if isinstance(index, FrozenIVF) else index)
 
     @property
-    def exact_path(self) -> Path:
-        """The exact vectors of an index of compressed lists (an array file, by id)."""
-        return self.directory / f"{self.name}.exact.arrays"
-
-    @property
     def mapped(self) -> bool:
         """Whether the index is read from its file's pages (shared by every process mapping
         it; see app/index/frozen.py), not held in memory of its own."""
@@ -650,7 +645,8 @@ class DescriptorIndex:
         kind = kind or self.options.kind_for(int(ids_.size))
         fresh = build_index(ids_, array, kind, self.options, threads=threads)
         if kind_of(fresh) == IVF and codes_of(fresh) == SQ8:  # its exact vectors beside it
-            fresh = FrozenIVF(fresh, array[np.argsort(ids_, kind="stable")])
+            order = np.argsort(ids_, kind="stable")
+            fresh = FrozenIVF(fresh, array[order], ids_[order])
         self._drop_unchecked()  # that file is no longer used
         with self._lock.write():
             self._index = fresh
@@ -686,6 +682,9 @@ class DescriptorIndex:
                     self._unsaved = max(0, self._unsaved - unsaved)
                     return
                 written = index.merged() if isinstance(index, FrozenIVF) else index
+                if isinstance(index, FrozenIVF) and index.exact is not None:
+                    # a copy, mapped once written: no id hash table for FAISS to rebuild
+                    written.set_direct_map_type(faiss.DirectMap.NoMap)  # type: ignore[attr-defined]
                 exact = (
                     index.all_vectors()
                     if isinstance(index, FrozenIVF) and index.exact is not None
@@ -749,34 +748,39 @@ class DescriptorIndex:
         exact vectors are only read that way)."""
         return self.options.mmap or meta.get("codes") == SQ8
 
-    def _read_exact(self, meta: dict[str, Any], *, verify: bool) -> np.ndarray | str:
-        """The ``(N, D)`` exact vectors of the index file of ``meta`` (mapped), or why they
-        cannot be used: missing, damaged, or written with another index file."""
+    def _read_exact(
+        self, meta: dict[str, Any], *, verify: bool
+    ) -> tuple[np.ndarray, np.ndarray] | str:
+        """The sorted ids ``(N,)`` and ``(N, D)`` exact vectors of the index file of ``meta``
+        (mapped), or why they cannot be used: missing, damaged, or written with another index
+        file."""
         expect = {"format": EXACT_FORMAT, "index_sha256": meta.get("sha256")}
         found = read_arrays(self.directory, f"{self.name}.exact", expect, verify=verify, lock=False)
         if isinstance(found, str):
             return found
         arrays, exact_meta = found
-        vectors = arrays.get("vectors")
+        ids, vectors = arrays.get("ids"), arrays.get("vectors")
         if vectors is None or vectors.ndim != 2 or vectors.shape[1] != self.dimension:
             return "exact vectors of another shape"
+        if ids is None or ids.shape != (vectors.shape[0],) or ids.dtype != np.int64:
+            return "exact vectors without their ids"
         if not verify:
             self._unchecked_exact = (arrays, exact_meta)
-        return vectors
+        return ids, vectors
 
     def _map(self, meta: dict[str, Any], *, verify_exact: bool = True) -> FrozenIVF | None:
         """The index file, mapped (None when it cannot be: the copy in memory stays), with
         its exact vectors when its lists are compressed (the caller holds the directory's
         lock; their checksum is checked later when ``verify_exact`` is False)."""
         try:
-            exact: np.ndarray | None = None
+            exact: tuple[np.ndarray, np.ndarray] | tuple[None, None] = (None, None)
             if meta.get("codes") == SQ8:
                 found = self._read_exact(meta, verify=verify_exact)
                 if isinstance(found, str):
                     log.warning("the %s index's exact vectors: %s", self.name, found)
                     return None
                 exact = found
-            mapped = FrozenIVF.open(str(self.path), exact)
+            mapped = FrozenIVF.open(str(self.path), exact[1], exact[0])
             self._mapped_inode = os.stat(self.path).st_ino
         except (OSError, RuntimeError) as exc:
             log.warning("could not map the %s index file (%s); holding a copy", self.name, exc)
