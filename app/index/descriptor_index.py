@@ -847,6 +847,7 @@ class DescriptorIndex:
         return index, meta
 
     def _drop_unchecked(self) -> None:
+        self._unchecked_exact = None
         unchecked, self._unchecked = self._unchecked, None
         if unchecked is not None:
             os.close(unchecked[0])
