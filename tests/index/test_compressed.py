@@ -12,34 +12,11 @@ import pytest
 
 from app.index.descriptor_index import DescriptorIndex
 from app.index.kinds import FLAT, IVF, SQ8, IndexOptions
+from tests.index.test_frozen import _Source  # the database's view, of given vectors
 
 DIMENSION = 13  # padded to 16 in the lists
 COUNT = 3000
 K = 40
-
-
-class _Source:
-    def __init__(self, ids: np.ndarray, vectors: np.ndarray) -> None:
-        self._ids, self._vectors = ids, vectors
-
-    def watermark(self) -> int:
-        return 0
-
-    def count(self) -> int:
-        return int(self._ids.size)
-
-    def ids(self) -> np.ndarray:
-        return self._ids
-
-    def vectors(self) -> tuple[np.ndarray, np.ndarray]:
-        return self._ids, self._vectors
-
-    def changed(self, since: int) -> np.ndarray:
-        return np.zeros(0, np.int64)
-
-    def vectors_of(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        keep = np.isin(self._ids, ids)
-        return self._ids[keep], self._vectors[keep]
 
 
 def library(seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
