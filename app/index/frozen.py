@@ -40,13 +40,9 @@ import faiss
 import numpy as np
 
 from app.index.cells import GRAPH_MIN_CELLS, SAMPLES, CellGraph
-from app.index.kinds import SQ8, codes_of, empty_flat, padded
+from app.index.kinds import RERANK, SQ8, codes_of, empty_flat, padded
 
 LIST_SHIFT = 32  # a place is list << 32 | offset
-# Candidates a compressed search takes from its lists per neighbour wanted, then ranks by
-# their exact distances: at 100 hours of 1-s windows (1.2 M, 135-D padded to 136, nprobe 12
-# and 24) twice as many gave the same 276 nearest as the float32 lists, once as many 5 % fewer.
-RERANK = 2
 
 
 def _locator(base: Any) -> tuple[np.ndarray, np.ndarray]:

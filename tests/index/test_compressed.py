@@ -132,3 +132,23 @@ def test_switching_codes_rebuilds_the_lists_from_the_vectors(tmp_path: Path) -> 
     switched.load_or_rebuild(_Source(ids, vectors))
     assert switched.codes == SQ8 and switched.mapped
     assert_same_answers(switched, flat(ids, vectors, tmp_path / "flat"))
+
+
+def test_cells_to_scan_are_calibrated_on_re_ranked_candidates(tmp_path: Path) -> None:
+    # Near-copies of the same motion (windows of similar takes): 8-bit codes cannot order
+    # them, their exact vectors can. Calibrated on the codes alone, every cell was scanned.
+    rng = np.random.default_rng(6)
+    centres = rng.normal(size=(300, DIMENSION)).astype(np.float32)
+    vectors = np.repeat(centres, 20, axis=0) + rng.normal(0, 1e-3, (6000, DIMENSION)).astype(
+        np.float32
+    )
+    ids = np.arange(1, 6001, dtype=np.int64)
+    scanned = {}
+    for codes in ("float32", SQ8):
+        index = DescriptorIndex(
+            f"windows-{codes}", DIMENSION, 1, tmp_path, options=IndexOptions(IVF, codes=codes)
+        )
+        index.replace_all(ids, vectors)
+        scanned[codes] = index.nprobe
+        cells = index._index.base.nlist  # type: ignore[attr-defined]
+    assert scanned[SQ8] <= 2 * scanned["float32"] < cells
