@@ -490,7 +490,8 @@ def recall(args: argparse.Namespace) -> int:
 
     print(f"machine: {machine()}")
     faiss.omp_set_num_threads(1)
-    settings = Settings(data_dir=args.data_dir, log_level="warning", window_codes="sq8")
+    given = {"window_codes": args.window_codes}  # as the files are: no rebuild
+    settings = Settings(data_dir=args.data_dir, log_level="warning", **given)
     library = open_library(settings)
     rng = np.random.default_rng(0)
     wanted = (FIRST_FETCH + 10) * PROBE_AHEAD  # a first probe's search at k = 10
@@ -588,6 +589,7 @@ def main() -> int:
     four.add_argument("--queries", type=int, default=200)
     four.add_argument("--against", type=Path, help="the same library with float32 lists")
     four.add_argument("--clips", type=int, default=100, help="moments queries compared")
+    four.add_argument("--window-codes", default="sq8", help="MOCAP_WINDOW_CODES of --data-dir")
     args = parser.parse_args()
     run = {"exact": exact, "styles": styles, "scale": scale, "recall": recall}[args.command]
     return run(args)
