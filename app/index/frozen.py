@@ -368,24 +368,28 @@ class FrozenIVF:
         squared = np.full((count, k), np.inf, np.float32)
         ids = np.full((count, k), -1, np.int64)
         assert self.exact is not None
+        valid = candidates >= 0
+        # Every candidate's row at once (one binary search), gathered in one copy.
+        rows = self._base_rows(candidates[valid])
+        vectors = np.ascontiguousarray(self.exact[rows], np.float32)
+        distances = np.empty(rows.size, np.float32)
+        ends = np.cumsum(valid.sum(axis=1))
         for row in range(count):
-            found = candidates[row][candidates[row] >= 0]
-            if not found.size:
+            first, stop = (int(ends[row - 1]) if row else 0), int(ends[row])
+            if stop == first:
                 continue
             # FAISS's own kernel: the numbers an IVFFlat scan of these vectors gives
-            vectors = np.ascontiguousarray(self.exact[self._base_rows(found)], np.float32)
             query = np.ascontiguousarray(queries[row], np.float32)
-            distances = np.empty(found.size, np.float32)
             faiss.fvec_L2sqr_ny(  # type: ignore[attr-defined]
-                faiss.swig_ptr(distances),
+                faiss.swig_ptr(distances[first:stop]),
                 faiss.swig_ptr(query),
-                faiss.swig_ptr(vectors),
+                faiss.swig_ptr(vectors[first:stop]),
                 self.dimension,
-                found.size,
+                stop - first,
             )
-            order = np.argsort(distances, kind="stable")[:k]
-            squared[row, : order.size] = distances[order]
-            ids[row, : order.size] = found[order]
+            order = np.argsort(distances[first:stop], kind="stable")[:k]
+            squared[row, : order.size] = distances[first:stop][order]
+            ids[row, : order.size] = candidates[row][valid[row]][order]
         return squared, ids
 
     def _start_cells(self, nprobe: int) -> None:
