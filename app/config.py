@@ -296,6 +296,16 @@ class Settings(BaseSettings):
             "from there when an index is built or loaded."
         ),
     )
+    window_codes: str = Field(
+        default="sq8",
+        pattern="^(sq8|float32)$",
+        description=(
+            "What the IVF window indexes of moments search hold of each window: `sq8` (8 "
+            "bits a number, a quarter of the memory; the candidates re-ranked by their exact "
+            "vectors, kept in a mapped file beside the index) or `float32`. Changing it "
+            "rebuilds the window indexes from their vectors at the next start."
+        ),
+    )
     index_auto_threshold: int = Field(
         default=100_000,
         gt=0,

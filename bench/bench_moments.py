@@ -5,6 +5,7 @@ Run from the repository root::
     .venv/bin/python bench/bench_moments.py exact [--spans 500] [--seed 0]
     .venv/bin/python bench/bench_moments.py styles [--seed 0]
     .venv/bin/python bench/bench_moments.py scale [--hours 100] [--data-dir DIR]
+    .venv/bin/python bench/bench_moments.py recall --data-dir DIR [--against FLOAT32_COPY]
 
 ``exact``
     Imports Bandai dataset 1, the CMU ASF/AMC trials and their MotionBuilder BVH twins of
@@ -23,6 +24,11 @@ Run from the repository root::
     70 % of the queries whose action appears in another style's take). Also printed: IoU >=
     0.3 / 0.7, and the whole-clip baselines — the whole take as the moment, and the 1-NN
     action accuracy of whole clips of other styles under the same descriptor.
+``recall``
+    Recall of the compressed window indexes' candidate search (``MOCAP_WINDOW_CODES=sq8``:
+    8-bit lists, candidates re-ranked by their exact vectors) against exact search, and
+    (``--against`` a copy of the library with float32 lists) how many moments answers are
+    identical.
 ``scale``
     Fills ``DIR`` (default ``$TMPDIR/mocap-bench-moments-100h``) with ``--hours`` of motion
     windows: Bandai dataset 1 imported, then ``mocap-index fill-synthetic`` clips (each a
@@ -73,8 +79,8 @@ def iou(a: tuple[float, float], b: tuple[float, float]) -> float:
     return inter / union if union > 0 else 0.0
 
 
-def fresh_library(tmp: Path, sources: list[Path]) -> Library:
-    settings = Settings(data_dir=tmp / "data", log_level="warning")
+def fresh_library(tmp: Path, sources: list[Path], **settings_given: str) -> Library:
+    settings = Settings(data_dir=tmp / "data", log_level="warning", **settings_given)
     started = time.perf_counter()
     report = run_import(settings, sources)
     print(
@@ -115,7 +121,10 @@ def exact(args: argparse.Namespace) -> int:
     times: dict[str, list[float]] = {"file": [], "clip": []}
     misses: list[tuple[object, ...]] = []
     with tempfile.TemporaryDirectory(prefix="mocap-bench-moments-") as tmp:
-        library = fresh_library(Path(tmp), sources)
+        given = {"index_type": args.index_type, "window_codes": args.window_codes}
+        library = fresh_library(Path(tmp), sources, **given)
+        kinds = {n: f"{i.kind}/{i.codes}" for n, i in library.window_indexes.items()}
+        print(f"window indexes: {kinds}")
         try:
             with library.reads() as session:
                 stored = clip_db.get_clips(session, clip_db.all_clip_ids(session)).values()
@@ -411,10 +420,17 @@ def scale(args: argparse.Namespace) -> int:
     )
     log = data_dir.parent / "mocap-bench-moments-server.log"
     workers = str(args.workers or os.cpu_count() or 1)
+    # GET /search/moments is a heavy route: without an API key one client may have 4 in
+    # progress (MOCAP_MAX_HEAVY_REQUESTS_PER_CLIENT), and wrk's 32 connections are one client.
+    settings = {
+        "MOCAP_WORKERS": workers,
+        "MOCAP_MAX_HEAVY_REQUESTS_PER_CLIENT": "64",
+        "MOCAP_WINDOW_CODES": args.window_codes,
+    }
     print(f"server: {workers} worker processes (--workers)")
     startups, startup_cpu = [], []
     for _ in range(3):
-        server = Server(data_dir, log, MOCAP_WORKERS=workers)
+        server = Server(data_dir, log, **settings)
         startups.append(server.startup)
         startup_cpu.append(server.startup_cpu)
         server.stop()
@@ -423,7 +439,7 @@ def scale(args: argparse.Namespace) -> int:
         f"{', '.join(f'{s:.2f}' for s in startups)} (target 5 s); CPU "
         f"{', '.join(f'{s:.2f}' for s in startup_cpu)} s, all processes"
     )
-    server = Server(data_dir, log, MOCAP_WORKERS=workers)
+    server = Server(data_dir, log, **settings)
     floor = Floor(data_dir, log, MOCAP_WORKERS=workers)
     options = {"path": "/search/moments", "descriptor": DESCRIPTOR}
     runs: dict[tuple[str, int], list[dict[str, float]]] = {}
@@ -463,12 +479,96 @@ def scale(args: argparse.Namespace) -> int:
     return 0 if ok else 1
 
 
+def recall(args: argparse.Namespace) -> int:
+    """Recall of each compressed window index's candidate search (what a moments probe asks:
+    its nearest few hundred windows, re-ranked) against exact search over the same vectors;
+    then, with ``--against``, how many whole-clip moments answers (k = 10) are identical to
+    those of the same library with float32 lists."""
+    import faiss
+
+    from app.services.moments import FIRST_FETCH, PROBE_AHEAD
+
+    print(f"machine: {machine()}")
+    faiss.omp_set_num_threads(1)
+    given = {"window_codes": args.window_codes}  # as the files are: no rebuild
+    settings = Settings(data_dir=args.data_dir, log_level="warning", **given)
+    library = open_library(settings)
+    rng = np.random.default_rng(0)
+    wanted = (FIRST_FETCH + 10) * PROBE_AHEAD  # a first probe's search at k = 10
+    try:
+        for name, index in library.window_indexes.items():
+            ids, vectors = index.all_vectors()
+            rows = rng.choice(ids.size, min(args.queries, ids.size), replace=False)
+            noise = rng.normal(0, 0.01, (rows.size, vectors.shape[1])).astype(np.float32)
+            queries = vectors[rows] + noise  # a query part is near, not on, a stored window
+            started = time.process_time()
+            _, found = index.search_batch(queries, wanted)
+            took = (time.process_time() - started) / rows.size
+            _, truth = faiss.knn(queries, vectors, wanted)
+            truth_ids = ids[truth]
+            share = [
+                len(set(a.tolist()) & set(b.tolist())) / wanted
+                for a, b in zip(found, truth_ids, strict=True)
+            ]
+            top = [
+                len(set(a[:10].tolist()) & set(b[:10].tolist())) / 10
+                for a, b in zip(found, truth_ids, strict=True)
+            ]
+            print(
+                f"{name}: {index.kind}/{index.codes}, {index.size} windows, nprobe "
+                f"{index.nprobe}: recall@{wanted} {np.mean(share):.4f}, recall@10 "
+                f"{np.mean(top):.4f} against exact search ({rows.size} queries, "
+                f"{took * 1e3:.2f} ms CPU each)"
+            )
+        if args.against is not None:
+            other = open_library(
+                Settings(data_dir=args.against, log_level="warning", window_codes="float32")
+            )
+            try:
+                with library.reads() as session:
+                    top_id = max(clip_db.all_clip_ids(session))
+                same = 0
+                clips = rng.integers(1, top_id + 1, args.clips)
+                for clip in clips.tolist():
+                    answers = [
+                        [
+                            (m.clip.id, m.start, m.end, m.distance)
+                            for m in search_moments_by_clip(
+                                lib,
+                                clip,
+                                DESCRIPTOR,
+                                start=None,
+                                end=None,
+                                k=10,
+                                per_clip=3,
+                                label=None,
+                            )[1]
+                        ]
+                        for lib in (library, other)
+                    ]
+                    same += answers[0] == answers[1]
+                print(
+                    f"moments (whole clip, k = 10) identical to the float32 lists' for "
+                    f"{same}/{clips.size} random clips"
+                )
+            finally:
+                other.close()
+    finally:
+        library.close()
+    print(f"load average after: {os.getloadavg()[0]:.2f}")
+    return 0
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     commands = parser.add_subparsers(dest="command", required=True)
     one = commands.add_parser("exact", help="random spans find their source span")
     one.add_argument("--spans", type=int, default=500)
     one.add_argument("--seed", type=int, default=0)
+    one.add_argument(
+        "--index-type", default="auto", help="MOCAP_INDEX_TYPE (ivf: IVF window indexes)"
+    )
+    one.add_argument("--window-codes", default="sq8", help="MOCAP_WINDOW_CODES")
     two = commands.add_parser("styles", help="localisation across Bandai styles")
     two.add_argument("--seed", type=int, default=0)
     three = commands.add_parser("scale", help="moment search with 100 hours of windows")
@@ -481,8 +581,17 @@ def main() -> int:
     three.add_argument("--duration", type=int, default=15, help="seconds per wrk run")
     three.add_argument("--rounds", type=int, default=2, help="wrk runs of each, interleaved")
     three.add_argument("--workers", type=int, help="server processes (default: one per core)")
+    three.add_argument(
+        "--window-codes", default="sq8", help="MOCAP_WINDOW_CODES (the library's files follow)"
+    )
+    four = commands.add_parser("recall", help="compressed window search against exact search")
+    four.add_argument("--data-dir", type=Path, required=True)
+    four.add_argument("--queries", type=int, default=200)
+    four.add_argument("--against", type=Path, help="the same library with float32 lists")
+    four.add_argument("--clips", type=int, default=100, help="moments queries compared")
+    four.add_argument("--window-codes", default="sq8", help="MOCAP_WINDOW_CODES of --data-dir")
     args = parser.parse_args()
-    run = {"exact": exact, "styles": styles, "scale": scale}[args.command]
+    run = {"exact": exact, "styles": styles, "scale": scale, "recall": recall}[args.command]
     return run(args)
 
 

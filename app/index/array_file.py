@@ -12,6 +12,7 @@ nothing is copied until a process changes what it holds.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import mmap
@@ -47,12 +48,18 @@ def _fsync(path: Path) -> None:
 
 
 def write_arrays(
-    directory: Path, stem: str, arrays: Mapping[str, np.ndarray], meta: Mapping[str, Any]
+    directory: Path,
+    stem: str,
+    arrays: Mapping[str, np.ndarray],
+    meta: Mapping[str, Any],
+    *,
+    lock: bool = True,
 ) -> None:
     """Write ``arrays`` (C-contiguous copies are taken where needed) and ``meta`` as
-    ``<stem>.arrays`` and ``<stem>.json``, atomically, under the directory's lock."""
+    ``<stem>.arrays`` and ``<stem>.json``, atomically, under the directory's lock (``lock=
+    False``: the caller holds it)."""
     layout: dict[str, dict[str, Any]] = {}
-    with directory_lock(directory, exclusive=True):
+    with directory_lock(directory, exclusive=True) if lock else contextlib.nullcontext():
         path = directory / f"{stem}.arrays"
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
         try:
@@ -85,14 +92,20 @@ def write_arrays(
 
 
 def read_arrays(
-    directory: Path, stem: str, expect: Mapping[str, Any], *, verify: bool = True
+    directory: Path,
+    stem: str,
+    expect: Mapping[str, Any],
+    *,
+    verify: bool = True,
+    lock: bool = True,
 ) -> tuple[dict[str, np.ndarray], dict[str, Any]] | str:
     """The arrays of ``<stem>.arrays`` (read-only views of the mapped file) and the metadata,
     or why they cannot be used: a file missing, unreadable or not matching its checksum, or
     metadata differing from ``expect`` (a format version, a descriptor). With
-    ``verify=False`` the checksum is left to :func:`verify_arrays` (later, in a thread)."""
+    ``verify=False`` the checksum is left to :func:`verify_arrays` (later, in a thread);
+    ``lock=False``: the caller holds the directory's lock."""
     path = directory / f"{stem}.arrays"
-    with directory_lock(directory, exclusive=False):
+    with directory_lock(directory, exclusive=False) if lock else contextlib.nullcontext():
         try:
             meta = json.loads((directory / f"{stem}.json").read_text())
             if not isinstance(meta, dict) or not isinstance(meta.get("arrays"), dict):

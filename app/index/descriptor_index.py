@@ -58,18 +58,23 @@ from typing import Any, Protocol
 import faiss
 import numpy as np
 
+from app.index.array_file import read_arrays, verify_arrays, write_arrays
 from app.index.frozen import FrozenIVF
 from app.index.kinds import (
     FLAT,
+    FLOAT32,
     IVF,
+    SQ8,
     IndexOptions,
     as_ids,
     as_vectors,
     build_index,
+    codes_of,
     empty_flat,
     has_id_map,
     ivf_ids,
     kind_of,
+    padded_width,
     selector,
     with_id_map,
 )
@@ -78,6 +83,7 @@ from app.index.locks import ReadWriteLock, directory_lock
 log = logging.getLogger(__name__)
 
 HASH_CHUNK = 1 << 22
+EXACT_FORMAT = 1  # the layout of an index's exact vectors file (compressed lists)
 
 
 class VectorSource(Protocol):
@@ -170,6 +176,7 @@ class DescriptorIndex:
         self._lock = ReadWriteLock()
         self._save_lock = threading.Lock()
         self._unchecked: tuple[int, str] | None = None  # see read_file(verify=False)
+        self._unchecked_exact: tuple[Any, Any] | None = None  # ... its exact vectors
         self._mapped_inode = -1  # the index file mapped (see _map), and its metadata
         self._mapped_meta: dict[str, Any] = {}
 
@@ -190,10 +197,16 @@ class DescriptorIndex:
         return IVF if isinstance(self._index, FrozenIVF) else kind_of(self._index) or FLAT
 
     @property
+    def codes(self) -> str:
+        """What an IVF index's lists hold (``float32`` or ``sq8``; see app/index/kinds.py)."""
+        index = self._index
+        return codes_of(index.base if isinstance(index, FrozenIVF) else index)
+
+    @property
     def mapped(self) -> bool:
         """Whether the index is read from its file's pages (shared by every process mapping
         it; see app/index/frozen.py), not held in memory of its own."""
-        return isinstance(self._index, FrozenIVF)
+        return isinstance(self._index, FrozenIVF) and self._index.mapped_from is not None
 
     @property
     def nprobe(self) -> int:
@@ -631,6 +644,9 @@ class DescriptorIndex:
         )
         kind = kind or self.options.kind_for(int(ids_.size))
         fresh = build_index(ids_, array, kind, self.options, threads=threads)
+        if kind_of(fresh) == IVF and codes_of(fresh) == SQ8:  # its exact vectors beside it
+            order = np.argsort(ids_, kind="stable")
+            fresh = FrozenIVF(fresh, array[order], ids_[order])
         self._drop_unchecked()  # that file is no longer used
         with self._lock.write():
             self._index = fresh
@@ -655,12 +671,25 @@ class DescriptorIndex:
                 nprobe = self.nprobe
                 synced_to = self._synced_to
                 unsaved = self._unsaved
-                if isinstance(index, FrozenIVF) and not index.changed and self._is_mapped_file():
+                if (
+                    isinstance(index, FrozenIVF)
+                    and index.mapped_from is not None
+                    and not index.changed
+                    and self._is_mapped_file()
+                ):
                     # The file holds these vectors: only the feed position moves on.
                     self._write_meta(dict(self._mapped_meta, feed_position=synced_to))
                     self._unsaved = max(0, self._unsaved - unsaved)
                     return
                 written = index.merged() if isinstance(index, FrozenIVF) else index
+                if isinstance(index, FrozenIVF) and index.exact is not None:
+                    # a copy, mapped once written: no id hash table for FAISS to rebuild
+                    written.set_direct_map_type(faiss.DirectMap.NoMap)  # type: ignore[attr-defined]
+                exact = (
+                    index.all_vectors()
+                    if isinstance(index, FrozenIVF) and index.exact is not None
+                    else None
+                )
                 tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
                 try:
                     faiss.write_index(written, str(tmp))
@@ -679,17 +708,27 @@ class DescriptorIndex:
                     "version": self.version,
                     "dimension": self.dimension,
                     "kind": kind,
+                    "codes": FLOAT32 if exact is None else SQ8,
                     "nprobe": nprobe,
                     "count": count,
                     "feed_position": synced_to,
                     "sha256": _file_sha256(tmp),
                     "saved_at": time.time(),
                 }
+                if exact is not None:  # first: an index file never lacks its exact vectors
+                    write_arrays(
+                        self.directory,
+                        f"{self.name}.exact",
+                        {"ids": exact[0], "vectors": exact[1]},
+                        {"format": EXACT_FORMAT, "index_sha256": meta["sha256"]},
+                        lock=False,
+                    )
+                    del exact
                 os.replace(tmp, self.path)
             finally:
                 tmp.unlink(missing_ok=True)
             self._write_meta(meta)
-            mapped = self._map(meta) if kind == IVF and self.options.mmap else None
+            mapped = self._map(meta) if kind == IVF and self._maps(meta) else None
             with self._lock.write():
                 if mapped is not None and self._index is index and self._unsaved == unsaved:
                     self._index = mapped  # nothing changed while writing: share the file
@@ -704,10 +743,44 @@ class DescriptorIndex:
         finally:
             meta_tmp.unlink(missing_ok=True)
 
-    def _map(self, meta: dict[str, Any]) -> FrozenIVF | None:
-        """The index file, mapped (None when it cannot be: the copy in memory stays)."""
+    def _maps(self, meta: dict[str, Any]) -> bool:
+        """Whether an IVF file of ``meta`` is mapped (compressed lists always are: their
+        exact vectors are only read that way)."""
+        return self.options.mmap or meta.get("codes") == SQ8
+
+    def _read_exact(
+        self, meta: dict[str, Any], *, verify: bool
+    ) -> tuple[np.ndarray, np.ndarray] | str:
+        """The sorted ids ``(N,)`` and ``(N, D)`` exact vectors of the index file of ``meta``
+        (mapped), or why they cannot be used: missing, damaged, or written with another index
+        file."""
+        expect = {"format": EXACT_FORMAT, "index_sha256": meta.get("sha256")}
+        found = read_arrays(self.directory, f"{self.name}.exact", expect, verify=verify, lock=False)
+        if isinstance(found, str):
+            return found
+        arrays, exact_meta = found
+        ids, vectors = arrays.get("ids"), arrays.get("vectors")
+        if vectors is None or vectors.ndim != 2 or vectors.shape[1] != self.dimension:
+            return "exact vectors of another shape"
+        if ids is None or ids.shape != (vectors.shape[0],) or ids.dtype != np.int64:
+            return "exact vectors without their ids"
+        if not verify:
+            self._unchecked_exact = (arrays, exact_meta)
+        return ids, vectors
+
+    def _map(self, meta: dict[str, Any], *, verify_exact: bool = True) -> FrozenIVF | None:
+        """The index file, mapped (None when it cannot be: the copy in memory stays), with
+        its exact vectors when its lists are compressed (the caller holds the directory's
+        lock; their checksum is checked later when ``verify_exact`` is False)."""
         try:
-            mapped = FrozenIVF.open(str(self.path))
+            exact: tuple[np.ndarray, np.ndarray] | tuple[None, None] = (None, None)
+            if meta.get("codes") == SQ8:
+                found = self._read_exact(meta, verify=verify_exact)
+                if isinstance(found, str):
+                    log.warning("the %s index's exact vectors: %s", self.name, found)
+                    return None
+                exact = found
+            mapped = FrozenIVF.open(str(self.path), exact[1], exact[0])
             self._mapped_inode = os.stat(self.path).st_ino
         except (OSError, RuntimeError) as exc:
             log.warning("could not map the %s index file (%s); holding a copy", self.name, exc)
@@ -730,7 +803,7 @@ class DescriptorIndex:
         with directory_lock(self.directory, exclusive=False):
             try:
                 meta = json.loads(self.meta_path.read_text())
-                later = not verify and meta.get("kind") == IVF and self.options.mmap
+                later = not verify and meta.get("kind") == IVF and self._maps(meta)
                 digest = None if later else _file_sha256(self.path)
             except FileNotFoundError as exc:
                 return f"missing {Path(exc.filename).name}"
@@ -748,11 +821,11 @@ class DescriptorIndex:
             if digest is not None and meta.get("sha256") != digest:
                 return "index file does not match its checksum"
             try:
-                if meta.get("kind") == IVF and self.options.mmap:
+                if meta.get("kind") == IVF and self._maps(meta):
                     if digest is None:  # the file now mapped, open until checked (the lock
                         # keeps another process from replacing it meanwhile)
                         self._unchecked = (os.open(self.path, os.O_RDONLY), str(meta["sha256"]))
-                    mapped = self._map(meta)
+                    mapped = self._map(meta, verify_exact=digest is not None)
                     if mapped is None:
                         return "unreadable index"
                     index: Any = mapped
@@ -761,7 +834,8 @@ class DescriptorIndex:
                     index = plain = faiss.read_index(str(self.path))
             except RuntimeError as exc:
                 return f"unreadable index: {exc}"
-        if kind_of(plain) is None or plain.d != self.dimension:
+        width = padded_width(self.dimension) if codes_of(plain) == SQ8 else self.dimension
+        if kind_of(plain) is None or plain.d != width:
             return "index of another kind or dimension"
         if kind_of(plain) == IVF and not isinstance(index, FrozenIVF) and not has_id_map(index):
             with_id_map(index)  # a file written before the id map was kept: save it again
@@ -773,6 +847,7 @@ class DescriptorIndex:
         return index, meta
 
     def _drop_unchecked(self) -> None:
+        self._unchecked_exact = None
         unchecked, self._unchecked = self._unchecked, None
         if unchecked is not None:
             os.close(unchecked[0])
@@ -781,6 +856,11 @@ class DescriptorIndex:
         """Check the checksum of the file mapped by ``read_file(verify=False)``: why it cannot
         be used (the caller rebuilds the index), or None."""
         unchecked, self._unchecked = self._unchecked, None
+        exact, self._unchecked_exact = self._unchecked_exact, None
+        if exact is not None and (problem := verify_arrays(*exact)) is not None:
+            if unchecked is not None:
+                os.close(unchecked[0])
+            return f"exact vectors: {problem}"
         if unchecked is None:
             return None
         fd, expected = unchecked
@@ -841,7 +921,7 @@ class DescriptorIndex:
                 return repaired
             changed = True
         desired = self.options.kind_for(self.size, self.kind)
-        if desired != self.kind:
+        if desired != self.kind or (desired == IVF and self.codes != self.options.codes):
             ids, vectors = self.all_vectors()
             log.info("building a %s index for %s (%d vectors)", desired, self.name, ids.size)
             self.replace_all(ids, vectors, persist=False, synced_to=self._synced_to, kind=desired)

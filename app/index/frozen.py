@@ -17,6 +17,15 @@ without FAISS's id hash table, which would be a private copy in every process (~
 vector). :meth:`merged` gives an ordinary (owned, writable) index of the current vectors, to
 write as the next file.
 
+**Compressed lists** (``IndexIVFScalarQuantizer``, 8 bits a number, the vectors padded to a
+multiple of 8: the window indexes of a large library, ``MOCAP_WINDOW_CODES``): the lists
+hold a quarter of the bytes, but their distances are approximate and their vectors lossy.
+The exact vectors then come with the index (``exact``, ``(N, D)`` float32 in the locator's
+order — by id — mapped from a file written beside the index): a search asks the lists for
+:data:`RERANK` times the neighbours wanted and ranks them by their exact distances, and a
+vector read is an exact row. A search touches the pages of its candidates' rows only, so the
+server's memory is the codes' quarter plus what the searches read.
+
 Shapes: a query is ``(1, D)`` float32; ids ``(N,)`` int64; vectors ``(N, D)`` float32.
 """
 
@@ -31,36 +40,57 @@ import faiss
 import numpy as np
 
 from app.index.cells import GRAPH_MIN_CELLS, SAMPLES, CellGraph
-from app.index.kinds import empty_flat
+from app.index.kinds import RERANK, SQ8, codes_of, empty_flat, padded
 
 LIST_SHIFT = 32  # a place is list << 32 | offset
+
+
+def _locator(base: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Every id of the IVF index ``base`` ``(N,)`` sorted, and where it lies ``(N,)`` (list
+    << LIST_SHIFT | offset)."""
+    invlists = base.invlists
+    ids, places = [], []
+    for cell in range(base.nlist):
+        size = invlists.list_size(cell)
+        if size:
+            ids.append(faiss.rev_swig_ptr(invlists.get_ids(cell), size).copy())
+            places.append((cell << LIST_SHIFT) + np.arange(size, dtype=np.int64))
+    every = np.concatenate(ids).astype(np.int64) if ids else np.zeros(0, np.int64)
+    order = np.argsort(every, kind="stable")
+    return every[order], np.concatenate(places)[order] if places else np.zeros(0, np.int64)
 
 
 class FrozenIVF:
     """``base`` (a mapped IVF index) minus ``gone`` plus ``delta`` (see the module
     docstring)."""
 
-    def __init__(self, base: Any) -> None:
+    def __init__(
+        self, base: Any, exact: np.ndarray | None = None, exact_ids: np.ndarray | None = None
+    ) -> None:
         self.base = base
-        self.dimension = int(base.d)
+        self.mapped_from: str | None = None  # the file the base is mapped from (see open)
+        # Compressed lists: the exact vectors beside them, by id (``exact_ids``, sorted: the
+        # file's ids), queries padded to base.d.
+        self.exact = exact
+        self.width = int(base.d)
+        self.dimension = int(exact.shape[1]) if exact is not None else self.width
+        if codes_of(base) == SQ8 and (exact is None or exact.shape[0] != int(base.ntotal)):
+            raise ValueError("an index of compressed lists needs its exact vectors")
         # The mapped file never changes: what a search asks of it on every call, read once.
         self.base_total = int(base.ntotal)
         self.base_nprobe = int(base.nprobe)
         self._params: dict[int, Any] = {}  # nprobe -> unfiltered search parameters (read-only)
         self.delta = empty_flat(self.dimension)
         self.gone = np.zeros(0, np.int64)
-        invlists = base.invlists
-        ids, places = [], []
-        for cell in range(base.nlist):
-            size = invlists.list_size(cell)
-            if size:
-                ids.append(faiss.rev_swig_ptr(invlists.get_ids(cell), size).copy())
-                places.append((cell << LIST_SHIFT) + np.arange(size, dtype=np.int64))
-        every = np.concatenate(ids).astype(np.int64) if ids else np.zeros(0, np.int64)
-        order = np.argsort(every, kind="stable")
-        self.base_ids = every[order]  # sorted
-        self.places = np.concatenate(places)[order] if places else np.zeros(0, np.int64)
+        if exact is not None and exact_ids is not None and exact_ids.size == self.base_total:
+            # Vectors are read from the exact rows: the ids are the whole locator (no pass
+            # over the lists and no sort at start: ~1 s a worker at 100 hours of windows).
+            self.base_ids = exact_ids
+            self.places = np.zeros(0, np.int64)
+        else:
+            self.base_ids, self.places = _locator(base)
         self._codes: np.ndarray | None = None  # see _view_codes
+        self._rows: np.ndarray | None = None  # ... and _view_rows
         self._list_starts = np.zeros(0, np.int64)
         # The cells' graph (app/index/cells.py): built in a thread at the first search, the
         # centroids scanned until it is there.
@@ -69,12 +99,17 @@ class FrozenIVF:
         self._cells_lock = threading.Lock()
 
     @classmethod
-    def open(cls, path: str) -> FrozenIVF:
-        """Map the IVF index file at ``path`` (its id hash table, if it has one, dropped)."""
+    def open(
+        cls, path: str, exact: np.ndarray | None = None, exact_ids: np.ndarray | None = None
+    ) -> FrozenIVF:
+        """Map the IVF index file at ``path`` (its id hash table, if it has one, dropped);
+        ``exact``, ``exact_ids``: its vectors by id, for compressed lists (see the module
+        docstring)."""
         base = faiss.read_index(path, faiss.IO_FLAG_MMAP_IFC)
         if base.direct_map.type != faiss.DirectMap.NoMap:  # type: ignore[attr-defined]
             base.set_direct_map_type(faiss.DirectMap.NoMap)  # type: ignore[attr-defined]
-        frozen = cls(base)
+        frozen = cls(base, exact, exact_ids)
+        frozen.mapped_from = path
         frozen._view_codes(os.path.getsize(path))
         return frozen
 
@@ -100,6 +135,22 @@ class FrozenIVF:
         region = (ctypes.c_uint8 * span).from_address(first)
         self._codes = np.frombuffer(memoryview(region).cast("B"), np.uint8)
         self._list_starts = np.where(used, starts - first, -1)
+        self._view_rows(first, starts[used] - first)
+
+    def _view_rows(self, first: int, list_starts: np.ndarray) -> None:
+        """When every list starts a whole number of floats after the first (``list_starts``:
+        their byte offsets from ``first``), the codes as overlapping ``(R, D)`` float32 rows,
+        one starting at every float: a gather of vectors then copies whole rows (``rows[byte
+        offset // 4]``) instead of indexing each byte (a moments search reads thousands of
+        windows; 2-4 times faster at 100 hours of windows)."""
+        assert self._codes is not None
+        floats = self._codes.size // 4
+        if np.any(list_starts % 4) or floats < self.dimension:  # unaligned to memory is fine
+            return
+        as_floats = self._codes[: floats * 4].view(np.float32)
+        self._rows = np.lib.stride_tricks.as_strided(
+            as_floats, (floats - self.dimension + 1, self.dimension), (4, 4), writeable=False
+        )
 
     # -- what it holds ---------------------------------------------------------------------
 
@@ -154,6 +205,8 @@ class FrozenIVF:
         row = self._base_row(int(vector_id))
         if row < 0:
             return None
+        if self.exact is not None:
+            return np.array(self.exact[row], np.float32)
         place = int(self.places[row])
         if self._codes is not None:  # one slice of the mapping, no FAISS call
             code_size = 4 * self.dimension
@@ -172,6 +225,8 @@ class FrozenIVF:
         ids = np.asarray(ids, np.int64)
         rows = self._base_rows(ids)
         from_base = rows >= 0
+        if self.exact is not None and not self.delta.ntotal:
+            return from_base, np.array(self.exact[rows[from_base]], np.float32)
         if self._codes is None or self.delta.ntotal:
             kept, found = [], []
             for vector_id in ids.tolist():
@@ -186,12 +241,23 @@ class FrozenIVF:
         offsets = (
             self._list_starts[places >> LIST_SHIFT] + (places & ((1 << LIST_SHIFT) - 1)) * code_size
         )
+        if self._rows is not None:
+            return from_base, self._rows[offsets // 4]
         gathered = self._codes[offsets[:, None] + np.arange(code_size)]
         return from_base, gathered.view(np.float32).reshape(-1, self.dimension)
 
     def all_vectors(self) -> tuple[np.ndarray, np.ndarray]:
-        """Every ``(ids (N,), vectors (N, D))`` held."""
+        """Every ``(ids (N,), vectors (N, D))`` held (ids ascending)."""
         ids = self.ids()
+        if self.exact is not None:  # rows of the file's order, then the delta's one by one
+            rows = self._base_rows(ids)
+            vectors = np.empty((ids.size, self.dimension), np.float32)
+            vectors[rows >= 0] = self.exact[rows[rows >= 0]]
+            for at in np.flatnonzero(rows < 0).tolist():
+                vectors[at] = self.delta.reconstruct(int(ids[at]))
+            return ids, vectors
+        if not self.delta.ntotal and self._rows is not None:  # one gather of the codes
+            return ids, self.vectors(ids)[1]
         vectors = np.empty((ids.size, self.dimension), np.float32)
         for row, vector_id in enumerate(ids.tolist()):
             found = self.vector(vector_id)
@@ -224,6 +290,12 @@ class FrozenIVF:
         """``(Q, k)`` squared distances and ids of the nearest held vectors to ``queries``
         ``(Q, D)`` (padded with id -1), among ``allowed`` (sorted unique ids; every cell is
         then probed) when given."""
+        fetch = k
+        if self.exact is not None:  # compressed lists: candidates, ranked exactly below
+            fetch = max(1, min(k * RERANK, self.base_total))
+            queries = np.ascontiguousarray(queries, np.float32)
+        exact_queries = queries
+        queries = padded(queries, self.width)
         keep: list[Any] = []  # selectors FAISS reads must stay alive
         params: Any
         if allowed is not None:
@@ -250,12 +322,12 @@ class FrozenIVF:
             # search_preassigned takes no parameters)
             to_cells, nearest = cells.nearest(queries)
             count = int(queries.shape[0])
-            squared = np.empty((count, k), np.float32)
-            ids = np.empty((count, k), np.int64)
+            squared = np.empty((count, fetch), np.float32)
+            ids = np.empty((count, fetch), np.int64)
             self.base.search_preassigned_c(
                 count,
                 faiss.swig_ptr(queries),
-                k,
+                fetch,
                 faiss.swig_ptr(nearest),
                 faiss.swig_ptr(to_cells),
                 faiss.swig_ptr(squared),
@@ -266,7 +338,10 @@ class FrozenIVF:
         else:
             if not self._cells_started and allowed is None:
                 self._start_cells(nprobe)
-            squared, ids = self.base.search(queries, k, params=params)
+            squared, ids = self.base.search(queries, fetch, params=params)
+        if self.exact is not None:
+            squared, ids = self._ranked(exact_queries, ids, k)
+        queries = exact_queries
         if not self.delta.ntotal:
             return squared, ids
         flat: Any = None
@@ -283,6 +358,39 @@ class FrozenIVF:
             np.take_along_axis(every_squared, order, axis=1),
             np.take_along_axis(every_ids, order, axis=1),
         )
+
+    def _ranked(
+        self, queries: np.ndarray, candidates: np.ndarray, k: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The ``k`` nearest of each query's ``candidates`` ``(Q, C)`` (ids of the file, -1
+        padding) by their exact squared distances: ``(Q, k)`` float32 and ids (-1 padded)."""
+        count = candidates.shape[0]
+        squared = np.full((count, k), np.inf, np.float32)
+        ids = np.full((count, k), -1, np.int64)
+        assert self.exact is not None
+        valid = candidates >= 0
+        # Every candidate's row at once (one binary search), gathered in one copy.
+        rows = self._base_rows(candidates[valid])
+        vectors = np.ascontiguousarray(self.exact[rows], np.float32)
+        distances = np.empty(rows.size, np.float32)
+        ends = np.cumsum(valid.sum(axis=1))
+        for row in range(count):
+            first, stop = (int(ends[row - 1]) if row else 0), int(ends[row])
+            if stop == first:
+                continue
+            # FAISS's own kernel: the numbers an IVFFlat scan of these vectors gives
+            query = np.ascontiguousarray(queries[row], np.float32)
+            faiss.fvec_L2sqr_ny(  # type: ignore[attr-defined]
+                faiss.swig_ptr(distances[first:stop]),
+                faiss.swig_ptr(query),
+                faiss.swig_ptr(vectors[first:stop]),
+                self.dimension,
+                stop - first,
+            )
+            order = np.argsort(distances[first:stop], kind="stable")[:k]
+            squared[row, : order.size] = distances[first:stop][order]
+            ids[row, : order.size] = candidates[row][valid[row]][order]
+        return squared, ids
 
     def _start_cells(self, nprobe: int) -> None:
         """Build the cells' graph in a thread (once): the first search does not wait."""
@@ -303,6 +411,7 @@ class FrozenIVF:
         rng = np.random.default_rng(0)
         sample = np.sort(rng.choice(self.base_ids, min(SAMPLES, self.base_ids.size), False))
         _, samples = self.vectors(sample)
+        samples = padded(samples, self.width)
         self.cells = CellGraph.of(self.base, nprobe or self.base_nprobe, samples)
 
     def scan_cost(self, nprobe: int, *, filtered: bool) -> int:
@@ -324,7 +433,6 @@ class FrozenIVF:
             flat: Any = faiss.downcast_index(self.delta.index)
             count = int(self.delta.ntotal)
             vectors = faiss.rev_swig_ptr(flat.get_xb(), count * self.dimension)
-            index.add_with_ids(
-                np.asarray(vectors, np.float32).reshape(count, self.dimension).copy(), ids
-            )
+            vectors = np.asarray(vectors, np.float32).reshape(count, self.dimension)
+            index.add_with_ids(padded(vectors, self.width), ids)
         return index

@@ -615,7 +615,9 @@ def _open_indexes(
     # A moments search asks one or two window indexes for ~140 windows each: a flat scan of
     # the 90,000 8-s windows of 100 hours was a sixth of it. IVF from fewer windows.
     window_options = dataclasses.replace(
-        options, auto_threshold=min(options.auto_threshold, WINDOW_IVF_FROM)
+        options,
+        auto_threshold=min(options.auto_threshold, WINDOW_IVF_FROM),
+        codes=settings.window_codes,
     )
     windows = {
         name: DescriptorIndex(

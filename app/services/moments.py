@@ -523,10 +523,12 @@ def _chosen(
     per_clip: int,
     exclude: tuple[int, int, int] | None,
     frame_of: dict[int, float],
+    most: int,
 ) -> list[int]:
-    """Rows of ``found`` in the list's order: nearest first (then clip id, then start), at
-    most ``per_clip`` of a clip, none overlapping a nearer one of its clip or the query's own
-    span."""
+    """The first ``most`` rows of ``found`` in the list's order: nearest first (then clip
+    id, then start), at most ``per_clip`` of a clip, none overlapping a nearer one of its
+    clip or the query's own span. Whether a row is chosen depends on the nearer rows only,
+    so the walk stops at ``most`` (a round places thousands of moments for ten)."""
     order = np.lexsort((found.starts, found.clips, found.distances))
     chosen: list[int] = []
     of_clip: dict[int, list[tuple[float, float]]] = {}
@@ -544,6 +546,8 @@ def _chosen(
         if len(spans) < per_clip and all(end <= a + 1e-9 or b <= start + 1e-9 for a, b in spans):
             spans.append((start, end))
             chosen.append(row)
+            if len(chosen) == most:
+                break
     return chosen
 
 
@@ -571,7 +575,7 @@ def _search(
         hits, reach = finder.probe(wanted, allowed)
         found = finder.moments(hits)
         frame_of = {c: f[0] for c, f in finder.facts.items()}
-        chosen = _chosen(found, per_clip, exclude, frame_of)
+        chosen = _chosen(found, per_clip, exclude, frame_of, need)
         sure = reach * (1 - 1e-5) - finder.cover  # FAISS measures in float32
         if np.isinf(reach) or (len(chosen) >= need and found.distances[chosen[need - 1]] < sure):
             break

@@ -202,3 +202,18 @@ def test_server_checks_mapped_files_after_start_and_rebuilds_a_damaged_one(
         assert "rebuilding the catalogue" in caplog.text
     finally:
         library.close()
+
+
+def test_vectors_gathered_as_float_rows_are_the_stored_ones(tmp_path: Path) -> None:
+    mapped, held = pair(tmp_path)
+    frozen = mapped._index  # type: ignore[attr-defined]
+    assert frozen._rows is not None  # the codes seen as float rows (see FrozenIVF._view_rows)
+    rng = np.random.default_rng(5)
+    ids = rng.choice(np.arange(1, 3 * COUNT + 10), 700, replace=False).astype(np.int64)
+    found, vectors = mapped.reconstruct_batch(ids)
+    expected_found, expected = held.reconstruct_batch(ids)
+    assert 0 < found.sum() < ids.size
+    assert np.array_equal(found, expected_found) and np.array_equal(vectors, expected)
+    rows, frozen._rows = frozen._rows, None  # the bytewise gather gives the same
+    assert np.array_equal(mapped.reconstruct_batch(ids)[1], vectors)
+    frozen._rows = rows
