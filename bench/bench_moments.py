@@ -568,7 +568,7 @@ def main() -> int:
     one.add_argument(
         "--index-type", default="auto", help="MOCAP_INDEX_TYPE (ivf: IVF window indexes)"
     )
-    one.add_argument("--window-codes", default="sq8", help="MOCAP_WINDOW_CODES")
+    one.add_argument("--window-codes", default="float32", help="MOCAP_WINDOW_CODES")
     two = commands.add_parser("styles", help="localisation across Bandai styles")
     two.add_argument("--seed", type=int, default=0)
     three = commands.add_parser("scale", help="moment search with 100 hours of windows")
@@ -582,7 +582,9 @@ def main() -> int:
     three.add_argument("--rounds", type=int, default=2, help="wrk runs of each, interleaved")
     three.add_argument("--workers", type=int, help="server processes (default: one per core)")
     three.add_argument(
-        "--window-codes", default="sq8", help="MOCAP_WINDOW_CODES (the library's files follow)"
+        "--window-codes",
+        default="float32",
+        help="MOCAP_WINDOW_CODES (the library's files follow)",
     )
     four = commands.add_parser("recall", help="compressed window search against exact search")
     four.add_argument("--data-dir", type=Path, required=True)
