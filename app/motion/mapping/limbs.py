@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.motion.mapping.hypotheses import _NotHumanoid
-from app.motion.mapping.state import _EFFECTOR_COS, _MapperState
+from app.motion.mapping.state import _EFFECTOR_COS, _Limb, _MapperState
 from app.motion.mapping.tree import _farthest_descendant, _is_thumb
 from app.motion.mapping.vectors import _length, _unit
 
@@ -30,6 +30,11 @@ _HAND_TO_FORE = 0.74
 _ANKLE_TURN_DEG = 25.0
 # Foot (ankle to toe tip) : shin, same table (0.152 and 0.246 of height).
 _FOOT_TO_SHIN = 0.62
+# Left and right limbs of a pair are one length: their upper (lower) parts differ by at most
+# this ``|log|`` ratio. People differ by a few per cent side to side; the rigs of the dev data
+# by at most 0.09 (mocap solvers, a 3ds Max capture), an asymmetric robot 0.13. A limb taken
+# one joint too high or low changes a part by a bone: a collar, a hand (0.4 and more).
+_ALIKE = 0.15
 # The share of a limb (top, middle and end joints, in straight lines) in the way from the
 # trunk joint it hangs from to its end. A person's hip sits half a hip width (~0.1 of the
 # height) from the pelvis, against a leg of ~0.49: 0.83; the shortest-legged cartoon of the
@@ -38,17 +43,6 @@ _FOOT_TO_SHIN = 0.62
 # point: 0.55 to 0.83 in the dev data; under a third, the arm is shorter than half that way.
 _LEG_SHARE = 0.5
 _ARM_SHARE = 1 / 3
-
-
-@dataclass
-class _Limb:
-    """One arm or leg: part (``hip``, ``knee``...) -> source joint, and how each was found."""
-
-    joints: dict[str, int]
-    how: dict[str, str]
-
-    def __getitem__(self, part: str) -> int:
-        return self.joints[part]
 
 
 @dataclass(frozen=True)
@@ -230,7 +224,13 @@ class _LimbRules(_MapperState):
         limb.how[parts[0]] = f"geometry: top of the straight {what}"
         limb.how[parts[1]] = f"geometry: middle of the {what}"
 
-    def best_limb(self, chain: list[int], ends: list[tuple[int, str]], kind: _LimbKind) -> _Limb:
+    def best_limb(
+        self,
+        chain: list[int],
+        ends: list[tuple[int, str]],
+        kind: _LimbKind,
+        seen: list[tuple[float, _Limb]] | None = None,
+    ) -> _Limb:
         """The limb along ``chain`` (trunk joint first) ending at the one of ``ends`` (joint,
         how it was found) that leaves room for its top and middle joints and comes nearest
         a person's proportions (the first on ties); else the first end's _NotHumanoid.
@@ -264,6 +264,8 @@ class _LimbRules(_MapperState):
             ]
             limbs = sharing or limbs
         limbs.sort(key=lambda option: option[0])  # stable: the first on ties
+        if seen is not None:
+            seen.extend(limbs)
         # Where the fingers branch is the hand's own structure, the other ends only a count
         # of joints from the chain's end: a branching wrist stands unless another end's
         # proportions are clearly nearer a person's (a twist bone may branch, too).
@@ -475,9 +477,61 @@ class _LimbRules(_MapperState):
                 for i in range(last - 1, max(last - 3, 1), -1)
             ]
             wrists.append((chain[last], "structure: the arm's end, no hand"))
-        limb = self.best_limb(chain, wrists, _ARM)
-        wrist = limb["wrist"]
-        result, how = limb.joints, limb.how
-        result["hand_tip"] = _farthest_descendant(tree, wrist, skip=_is_thumb)
+        options: list[tuple[float, _Limb]] = []
+        limb = self.best_limb(chain, wrists, _ARM, options)
+        self.arm_options[hand] = (chain, options)
+        return self.with_hand_tip(limb)
+
+    def with_hand_tip(self, limb: _Limb) -> _Limb:
+        """``limb`` (an arm) with its hand tip: the farthest point beyond the wrist."""
+        result, how = dict(limb.joints), dict(limb.how)
+        result["hand_tip"] = _farthest_descendant(self.tree, limb["wrist"], skip=_is_thumb)
         how["hand_tip"] = "derived: farthest point beyond the wrist"
         return _Limb(result, how)
+
+    def part_lengths(self, limb: _Limb, kind: _LimbKind) -> tuple[float, float]:
+        """The limb's upper and lower part lengths along the bones (thigh and shin, upper
+        arm and forearm)."""
+        path = self.tree.path
+        top, middle, end = (limb[part] for part in kind.parts)
+        return float(path[middle] - path[top]), float(path[end] - path[middle])
+
+    def unlike(self, a: _Limb, b: _Limb, kind: _LimbKind) -> float:
+        """How far two limbs of a pair are from one length: the largest ``|log|`` ratio of
+        their upper and of their lower parts."""
+        return max(
+            abs(math.log(max(x, 1e-12) / max(y, 1e-12)))
+            for x, y in zip(self.part_lengths(a, kind), self.part_lengths(b, kind), strict=True)
+        )
+
+    def alike_arms(self, arms: list[_Limb], hands: tuple[int, int]) -> list[_Limb]:
+        """The two arms, each found on its own, made a pair: a person's left and right
+        upper arms (forearms) are one length, so when the two found differ by more than
+        :data:`_ALIKE` and one arm's other choices hold one as long as the arm found on the
+        other side (part for part), that one is taken — the cheapest in proportions over the
+        pair when several are. An arm found a joint too high on one side (the collar taken for
+        the shoulder) or too low (its end on a fingertip) is set right by the other side; two
+        arms found alike, or no alike choice, stay as they are."""
+        if self.unlike(arms[0], arms[1], _ARM) <= _ALIKE:
+            return arms
+        best: tuple[float, int, _Limb] | None = None
+        for keep in (0, 1):
+            other = 1 - keep
+            chain, options = self.arm_options[hands[other]]
+            kept_cost = self.limb_proportions(arms[keep], _ARM)
+            for cost, option in options:
+                if option.joints == {p: arms[other][p] for p in _ARM.parts}:
+                    continue
+                if self.unlike(arms[keep], option, _ARM) > _ALIKE:
+                    continue
+                if self.motion() and self.limb_bends(chain, option, _ARM):
+                    continue  # the frames show a joint inside it: no arm
+                if best is None or cost + kept_cost < best[0]:
+                    best = (cost + kept_cost, other, option)
+        if best is None:
+            return arms
+        _, other, option = best
+        how = {part: f"{option.how[part]} (as long as the other arm)" for part in _ARM.parts}
+        paired = list(arms)
+        paired[other] = self.with_hand_tip(_Limb(dict(option.joints), how))
+        return paired

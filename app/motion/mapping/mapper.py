@@ -63,7 +63,7 @@ class _Mapper(_LimbRules, _SideRules):
                 "the two legs share their hip: no two separate legs below the pelvis"
             )
         self.hip_half_gap = 0.5 * _length(self.pose[legs[0]["hip"]] - self.pose[legs[1]["hip"]])
-        arms = [self.map_arm(h) for h in body.hands]
+        arms = self.alike_arms([self.map_arm(h) for h in body.hands], body.hands)
         for limbs, kind, trunk in ((legs, _LEG, body.pelvis), (arms, _ARM, body.chest)):
             for limb in limbs:
                 self.check_share(limb, kind, trunk)

@@ -6,8 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from app.motion.mapping.canonical import SIDES
-from app.motion.mapping.limbs import _Limb
-from app.motion.mapping.state import _MapperState
+from app.motion.mapping.state import _Limb, _MapperState
 from app.motion.mapping.tree import COINCIDENT
 from app.motion.mapping.vectors import _cross, _length, _unit
 

@@ -4,6 +4,7 @@ questions every rule asks (same place, names, how the clip's frames move a limb)
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -20,6 +21,17 @@ _HEAD_END_MIN = 0.005  # an end effector is at least this far from its joint
 # (twist and helper joints inside it keep their angle), while a joint of the limb (a collar
 # in line with a T-posed arm, a wrist, a finger) turns tens of degrees in almost any motion.
 _RIGID_DEG = 15.0
+
+
+@dataclass
+class _Limb:
+    """One arm or leg: part (``hip``, ``knee``...) -> source joint, and how each was found."""
+
+    joints: dict[str, int]
+    how: dict[str, str]
+
+    def __getitem__(self, part: str) -> int:
+        return self.joints[part]
 
 
 class _MapperState:
@@ -52,6 +64,8 @@ class _MapperState:
         self._frames: list[np.ndarray] | None = None
         self._moving: np.ndarray | None = None
         self._bent: dict[tuple[int, int, tuple[int, ...]], bool] = {}
+        # Hand leaf -> (chain from the chest, the arm choices best_limb chose among).
+        self.arm_options: dict[int, tuple[list[int], list[tuple[float, _Limb]]]] = {}
         # Half the distance between the hip joints (0 until the legs are mapped).
         self.hip_half_gap = 0.0
 
