@@ -90,7 +90,15 @@ def _structure(tree: _Tree, count: int) -> _Known:
         if chest in hands:
             continue
         others = [c for c in candidates if c not in hands]
-        heads = [h for h in others if h != chest and tree.is_ancestor(chest, h)]
+        # The neck leaves the trunk at the arms' branch point, apart from both arms: a leaf
+        # on an arm's own chain (a finger of that hand) is no head.
+        heads = [
+            h
+            for h in others
+            if h != chest
+            and tree.is_ancestor(chest, h)
+            and all(tree.lca(h, hand) == chest for hand in hands)
+        ]
         lower = [c for c in others if not tree.is_ancestor(chest, c)]
         if not heads:
             continue
@@ -142,6 +150,8 @@ def _first_misfit(tree: _Tree, candidates: list[int]) -> str | None:
                     return "one leg hangs from the other"
                 if not _pairs_alike(tree, chest, hands, hips, feet):  # type: ignore[arg-type]
                     return _NOT_ALIKE
+                if any(tree.lca(head, hand) != chest for hand in hands):
+                    return "the head hangs from an arm"
     return None
 
 
