@@ -263,6 +263,17 @@ class _LimbRules(_MapperState):
                 is None
             ]
             limbs = sharing or limbs
+            # Shoulders sit nearer the spine's line than an arm is long (half the shoulder
+            # breadth, 0.13 of the height, against 0.33 for upper arm and forearm): an arm
+            # whose top lies farther out than its own length has an elbow for its shoulder.
+            path = self.tree.path
+            narrow = [
+                option
+                for option in limbs
+                if self.off_midline(option[1][kind.parts[0]])
+                < path[option[1][kind.parts[2]]] - path[option[1][kind.parts[0]]]
+            ]
+            limbs = narrow or limbs
         limbs.sort(key=lambda option: option[0])  # stable: the first on ties
         if seen is not None:
             seen.extend(limbs)
