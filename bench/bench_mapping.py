@@ -21,9 +21,9 @@ import time
 from pathlib import Path
 
 from app.errors import MocapError, SkeletonMappingError
-from app.motion import skeleton_map
 from app.motion.body import _frame_poses
 from app.motion.formats import read_bvh
+from app.motion.mapping import skeleton as skeleton_map
 from app.motion.model import Motion
 
 

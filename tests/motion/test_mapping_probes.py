@@ -133,6 +133,13 @@ def without(motion: Motion, joint: int) -> Motion:
         offsets[child] = offsets[joint] + offsets[child]
         parents[child] = parents[joint]
     keep = [j for j in range(len(parents)) if j != joint]
+    return kept(motion, keep, (parents, offsets, rotations, translations, names, end_site))
+
+
+def kept(motion: Motion, keep: list[int], arrays: tuple) -> Motion:
+    """The motion of the joints ``keep`` of ``arrays`` (as :func:`_arrays` gives them, maybe
+    changed; each kept joint's parent kept too), written parents first."""
+    parents, offsets, rotations, translations, names, end_site = arrays
     index = {old: new for new, old in enumerate(keep)}
     return _rebuilt(
         motion,

@@ -1,0 +1,262 @@
+"""Which leaves are head, hands and feet: the choices the tree allows (kept per skeleton)
+and the ones a pose shows as a standing humanoid."""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from app.motion.mapping.canonical import SkeletonMap
+from app.motion.mapping.tree import COINCIDENT, _extremity_candidates, _Tree
+from app.motion.mapping.vectors import _length, _unit
+
+# The shorter limb of a pair is at least this fraction of the longer one's bone path.
+_LIMB_PARTNER = 0.6
+# Fractions of the pose's extent (its bounding-box diagonal, about body height).
+_MIN_LEG = 0.15  # a leg chain is at least this long
+_MIN_ARM = 0.15  # an arm chain is at least this long
+# Feet lie below the pelvis by at least this fraction of the leg chain's length.
+_LEG_DROP_RATIO = 0.5
+# cos of the smallest angle between the spine and the legs of a standing biped (120 deg).
+_LEGS_OPPOSITE_SPINE = -0.5
+
+
+class _NotHumanoid(Exception):
+    """Why one pose does not show a humanoid (turned into SkeletonMappingError at the end)."""
+
+
+# A structurally valid choice: (head, hands, feet, chest, pelvis, leg and arm lengths along
+# the bones, cost terms from the names in the order they are added).
+_Choice = tuple[
+    int, tuple[int, int], tuple[int, int], int, int, list[float], list[float], tuple[float, ...]
+]
+
+
+@dataclass
+class _Known:
+    """What one skeleton's structure decides, whatever the pose: kept per skeleton."""
+
+    tree: _Tree
+    candidates: list[int]
+    # Head/hands/feet choices that pass the structural checks, in the order they are tried.
+    choices: list[_Choice]
+    # Why the other choices fail, and how far the best got, for the message when no choice
+    # passes the geometry.
+    reason: str
+    progress: int
+    rest: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    rest_result: SkeletonMap | str = ""
+
+
+@dataclass
+class _Body:
+    """One hypothesis: which leaves are head, hands and feet, and what follows from it."""
+
+    head: int
+    hands: tuple[int, int]
+    feet: tuple[int, int]
+    chest: int
+    pelvis: int
+    up: np.ndarray
+    cost: float
+
+
+def _structure(tree: _Tree, count: int) -> _Known:
+    """Every head/hands/feet choice among up to ``count`` candidate leaves that the tree
+    allows, and the best reason a rejected one gave (for the error message)."""
+    candidates = _extremity_candidates(tree, count)
+    found = ", ".join(tree.names[c] for c in candidates)
+    if len(candidates) < 5:
+        reason = (
+            f"found only {len(candidates)} limb ends ({found}) where a body has five (head, "
+            "two hands, two feet): missing legs, arms or head"
+        )
+    else:
+        reason = (
+            f"found {len(candidates)} limb ends ({found}) but missing a pelvis with two legs "
+            "going down and a spine going up to a head between two arms"
+        )
+    # Enumerated by hands first, so that a pair whose branch point carries no head, or the
+    # feet below it, cuts every choice with them at once; kept in the order of the plain
+    # enumeration (five candidates, a head among them, two feet among the rest), which
+    # breaks ties between equally cheap choices.
+    order = {c: i for i, c in enumerate(candidates)}
+    keyed: list[tuple[tuple[int, ...], _Choice]] = []
+    alike_failed = False
+    for hands in itertools.combinations(candidates, 2):
+        chest = tree.lca(*hands)
+        if chest in hands:
+            continue
+        others = [c for c in candidates if c not in hands]
+        # The neck leaves the trunk at the arms' branch point, apart from both arms: a leaf
+        # on an arm's own chain (a finger of that hand) is no head.
+        heads = [
+            h
+            for h in others
+            if h != chest
+            and tree.is_ancestor(chest, h)
+            and all(tree.lca(h, hand) == chest for hand in hands)
+        ]
+        lower = [c for c in others if not tree.is_ancestor(chest, c)]
+        if not heads:
+            continue
+        for feet in itertools.combinations(lower, 2):
+            hips = tree.lca(*feet)
+            if hips in feet:
+                continue
+            if not _pairs_alike(tree, chest, hands, hips, feet):
+                alike_failed = True
+                continue
+            for head in heads:
+                five = sorted((head, *hands, *feet), key=order.__getitem__)
+                rest = [c for c in five if c != head]
+                key = (
+                    *(order[c] for c in five),
+                    five.index(head),
+                    rest.index(feet[0]),
+                    rest.index(feet[1]),
+                )
+                keyed.append((key, _choice(tree, head, hands, feet, chest, hips)))
+    choices = [choice for _, choice in sorted(keyed, key=lambda item: item[0])]
+    best_partial = -1
+    if alike_failed:
+        best_partial, reason = 1, _NOT_ALIKE
+    else:
+        first = _first_misfit(tree, candidates)
+        if first is not None:
+            best_partial, reason = 0, first
+    return _Known(tree, candidates, choices, reason, best_partial)
+
+
+_NOT_ALIKE = "no two limbs of a pair alike: missing legs or arms"
+
+
+def _first_misfit(tree: _Tree, candidates: list[int]) -> str | None:
+    """Why the first choice (in the plain enumeration) that the tree refuses is refused."""
+    for five in itertools.combinations(candidates, 5):
+        for head in five:
+            rest = [c for c in five if c != head]
+            for feet in itertools.combinations(rest, 2):
+                hands = tuple(c for c in rest if c not in feet)
+                chest = tree.lca(*hands)
+                if chest in hands or not tree.is_ancestor(chest, head) or head == chest:
+                    return "no joint carries two arms and a head"
+                if any(tree.is_ancestor(chest, f) for f in feet):
+                    return "the legs hang from the arms' branch point"
+                hips = tree.lca(*feet)
+                if hips in feet:
+                    return "one leg hangs from the other"
+                if not _pairs_alike(tree, chest, hands, hips, feet):  # type: ignore[arg-type]
+                    return _NOT_ALIKE
+                if any(tree.lca(head, hand) != chest for hand in hands):
+                    return "the head hangs from an arm"
+    return None
+
+
+def _pairs_alike(
+    tree: _Tree, chest: int, hands: tuple[int, int], hips: int, feet: tuple[int, int]
+) -> bool:
+    """A limb has at least two bones of its own (thigh and shin, upper arm and forearm) and
+    its partner is about as long: not a twist bone beside the other leg's knee."""
+    for top, ends in ((hips, feet), (chest, hands)):
+        own = [tree.bones[e] - tree.bones[top] for e in ends]
+        reach = [tree.path[e] - tree.path[top] for e in ends]
+        if min(own) < 2 or min(reach) < _LIMB_PARTNER * max(reach):
+            return False
+    return True
+
+
+def _choice(
+    tree: _Tree,
+    head: int,
+    hands: tuple[int, int],
+    feet: tuple[int, int],
+    chest: int,
+    hips: int,
+) -> _Choice:
+    """A structurally valid choice with its lengths and name costs (see :data:`_Choice`)."""
+    pelvis = tree.lca(hips, chest)
+    leg_lengths = [float(tree.path[f] - tree.path[pelvis]) for f in feet]
+    arm_lengths = [float(tree.path[h] - tree.path[chest]) for h in hands]
+    cost: list[float] = []
+    roles: list[tuple[str, tuple[int, ...], int]] = [
+        ("arm", hands, chest),
+        ("leg", feet, pelvis),
+        ("head", (head,), chest),
+    ]
+    for role, ends, top in roles:
+        for end in ends:
+            words = tree.role_words(tree.chain(top, end)[1:])
+            if words and role not in words:
+                cost.append(3.0)
+            elif role in words:
+                cost.append(-0.5)
+    return (head, hands, feet, chest, pelvis, leg_lengths, arm_lengths, tuple(cost))
+
+
+def _hypotheses(known: _Known, pose: np.ndarray, extent: float) -> tuple[list[_Body], str]:
+    """Every valid head/hands/feet choice in ``pose``, and the best reason a rejected one
+    gave (for the error message)."""
+    valid: list[_Body] = []
+    reason, best_partial = known.reason, known.progress
+    for choice in known.choices:
+        body, why, progress = _check_pose(known.tree, pose, extent, *choice)
+        if body is not None:
+            valid.append(body)
+        elif progress > best_partial:
+            best_partial, reason = progress, why
+    return valid, reason
+
+
+def _check_pose(
+    tree: _Tree,
+    pose: np.ndarray,
+    extent: float,
+    head: int,
+    hands: tuple[int, int],
+    feet: tuple[int, int],
+    chest: int,
+    pelvis: int,
+    leg_lengths: list[float],
+    arm_lengths: list[float],
+    name_cost: tuple[float, ...],
+) -> tuple[_Body | None, str, int]:
+    """The geometric half: a hypothesis if the choice is a humanoid in ``pose``, else (None,
+    why, how far it got)."""
+    spine = pose[chest] - pose[pelvis]
+    if _length(spine) < COINCIDENT * extent:
+        spine = pose[head] - pose[pelvis]
+    up = _unit(spine)
+    if not _length(up) > 0:
+        return None, "the spine has no length", 1
+    drops = [float((pose[pelvis] - pose[f]) @ up) for f in feet]
+    legs = [_unit(pose[f] - pose[pelvis]) for f in feet]
+    leg_dir = _unit(legs[0] + legs[1])
+    if min(leg_lengths) < _MIN_LEG * extent:
+        return None, "no two legs reach down from the pelvis: missing legs", 2
+    if float(leg_dir @ up) > _LEGS_OPPOSITE_SPINE:
+        names = ", ".join(tree.names[j] for j in (*feet, *hands))
+        return (
+            None,
+            "the spine is horizontal with the limbs hanging down "
+            f"({names}): a four-legged animal, not a humanoid",
+            3,
+        )
+    if min(d / length for d, length in zip(drops, leg_lengths, strict=True)) < _LEG_DROP_RATIO:
+        return None, "no two legs reach down from the pelvis: missing legs", 2
+    if float((pose[head] - pose[chest]) @ up) <= 0:
+        return None, "no head above the arms: missing head", 2
+    if min(arm_lengths) < _MIN_ARM * extent:
+        return None, "no two arms branch off the spine: missing arms", 2
+    cost = abs(leg_lengths[0] - leg_lengths[1]) / max(leg_lengths) + abs(
+        arm_lengths[0] - arm_lengths[1]
+    ) / max(arm_lengths)
+    for term in name_cost:  # added one by one, as the names were read
+        cost += term
+    # Prefer the highest head and the longest limbs among otherwise equal choices (a leaf at
+    # the knee is a marker joint, not the foot).
+    cost -= 0.1 * float((pose[head] - pose[pelvis]) @ up) / extent
+    cost -= 0.5 * (sum(leg_lengths) + sum(arm_lengths)) / extent
+    return _Body(head, hands, feet, chest, pelvis, up, cost), "", 4

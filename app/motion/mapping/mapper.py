@@ -1,0 +1,144 @@
+"""One pose's mapping: every canonical joint placed once head, hands and feet are chosen."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from app.motion.mapping.canonical import CANONICAL_JOINTS, SkeletonMap, detect_family
+from app.motion.mapping.hypotheses import _hypotheses, _Known, _NotHumanoid
+from app.motion.mapping.limbs import _ARM, _LEG, _LimbRules
+from app.motion.mapping.sides import _SideRules
+from app.motion.mapping.state import _HEAD_END_MIN
+from app.motion.mapping.vectors import _length, _unit
+
+# Head/hands/feet choices walked, cheapest first, before giving up on a pose.
+_TRIED_CHOICES = 12
+
+
+def _map_pose(
+    known: _Known,
+    pose: np.ndarray,
+    label: str,
+    others: Callable[[], list[np.ndarray]] = list,
+) -> SkeletonMap:
+    """The mapping ``pose`` shows (``others``: more poses of the clip, which vote on the
+    sides with it)."""
+    tree = known.tree
+    extent = float(np.linalg.norm(np.ptp(pose[tree.body_joints], axis=0)))
+    if not extent > 0:
+        raise _NotHumanoid("every joint of the pose is at one point: no shape to map")
+    valid, reason = _hypotheses(known, pose, extent)
+    if not valid:
+        raise _NotHumanoid(f"not a whole humanoid: {reason}")
+    # The cheapest choice whose limbs have knees and elbows (an IK target hanging from the
+    # root may pass for a leg until its chain is walked).
+    first: _NotHumanoid | None = None
+    for body in sorted(valid, key=lambda b: b.cost)[:_TRIED_CHOICES]:
+        try:
+            return _Mapper(tree, pose, extent, body, label, others).run()
+        except _NotHumanoid as problem:
+            first = first or problem
+    assert first is not None
+    raise first
+
+
+class _Mapper(_LimbRules, _SideRules):
+    """Places every canonical joint once head, hands and feet are known."""
+
+    def run(self) -> SkeletonMap:
+        tree, body = self.tree, self.body
+        self.put("pelvis", body.pelvis, "structure: where the legs and the spine meet")
+        self.put("chest", body.chest, "structure: where the arms branch off the spine")
+        self.derived.append("chest")
+        self.map_head()
+        self.map_spine()
+        legs = [self.map_leg(f) for f in body.feet]
+        # Each leg is its own chain from the hip down: a hip at or above the point where the
+        # two leg chains part is one limb forking (fingers of one hand), not two legs.
+        fork = tree.lca(*body.feet)
+        if any(leg["hip"] == fork or not tree.is_ancestor(fork, leg["hip"]) for leg in legs):
+            raise _NotHumanoid(
+                "the two legs share their hip: no two separate legs below the pelvis"
+            )
+        self.hip_half_gap = 0.5 * _length(self.pose[legs[0]["hip"]] - self.pose[legs[1]["hip"]])
+        arms = self.alike_arms([self.map_arm(h) for h in body.hands], body.hands)
+        for limbs, kind, trunk in ((legs, _LEG, body.pelvis), (arms, _ARM, body.chest)):
+            for limb in limbs:
+                self.check_share(limb, kind, trunk)
+        mirrored, axis = self.assign_sides(legs, arms)
+        joints = np.array([self.found[name] for name in CANONICAL_JOINTS], dtype=np.int64)
+        end_sites = tuple(
+            name
+            for name in CANONICAL_JOINTS
+            if self.how[name].startswith("end effector") or tree.skeleton.end_site[self.found[name]]
+        )
+        return SkeletonMap(
+            joints=joints,
+            family=detect_family(tree.names),
+            derived=tuple(self.derived),
+            end_sites=end_sites,
+            head_joint=self.head_joint,
+            how=self.how,
+            mirrored=mirrored,
+            mirror_axis=axis,
+            pose=self.label,
+            sides_open=self.sides_open,
+            limbs_open=self.limbs_open,
+            warnings=tuple(self.warnings),
+        )
+
+    def map_head(self) -> None:
+        tree, body = self.tree, self.body
+        chain = tree.chain(body.chest, body.head)
+        named = self.named(chain[1:], "head")
+        if named is not None:
+            head_joint, how = named, "name"
+        else:
+            # The leaf itself, or its parent when the last bone is a skull-long end effector.
+            leaf = body.head
+            while tree.lengths[leaf] == 0 and tree.parents[leaf] != body.chest:
+                leaf = int(tree.parents[leaf])
+            parent = int(tree.parents[leaf])
+            long_end = tree.lengths[leaf] >= 2 * _HEAD_END_MIN * self.extent
+            # A person has a neck: a leaf *joint* (not an End Site) one joint above the arms
+            # is the head on its neck, not the top of a head sitting on the shoulders.
+            on_neck = tree.skeleton.end_site[leaf] or tree.parents[parent] != body.chest
+            head_joint = parent if long_end and parent != body.chest and on_neck else leaf
+            how = "structure: top of the spine chain"
+            # The skull carries the face (eyes, jaw): where the chain to the top of the head
+            # first branches above the neck is the head joint, as a named rig's "head" is.
+            above_neck = chain[2 : chain.index(leaf)]
+            skull = next((j for j in above_neck if len(tree.children[j]) > 1), None)
+            if skull is not None:
+                head_joint, how = skull, "structure: where the face branches off the head"
+        self.head_joint = head_joint
+        tip = self.effector(head_joint, along=body.up)
+        if tip is None and head_joint != body.chest:
+            # A head bowed or tilted against the spine (a frame, not a standing rest pose):
+            # the top of the head continues the neck's own line.
+            neck_line = self.pose[head_joint] - self.pose[int(tree.parents[head_joint])]
+            tip = self.effector(head_joint, along=_unit(neck_line))
+        if tip is not None:
+            self.put("head", tip, "end effector beyond the head joint")
+        else:
+            self.put("head", head_joint, how)
+        between = chain[1 : chain.index(head_joint)]
+        neck = self.named(between, "neck")
+        if neck is not None:
+            self.put("neck", neck, "name")
+        elif between:
+            self.put("neck", between[0], "structure: first joint above the arms")
+        else:
+            self.put("neck", body.chest, "derived: the head's parent")
+            self.derived.append("neck")
+            self.warnings.append("neck derived from the head's parent")
+
+    def map_spine(self) -> None:
+        chain = self.tree.chain(self.body.pelvis, self.found["neck"])
+        spine = next((j for j in chain[1:] if self.tree.lengths[j] > 0), self.body.chest)
+        if not self.tree.is_ancestor(spine, self.body.chest):
+            spine = self.body.chest
+        self.put("spine", spine, "structure: first bone above the pelvis")
+        self.derived.append("spine")
