@@ -4,6 +4,7 @@ the locations of the real motion files (small ones in tests/fixtures, the big se
 
 from __future__ import annotations
 
+import collections
 import os
 import shutil
 from collections.abc import Iterator
@@ -146,10 +147,11 @@ def postgres_url(postgres_cluster: postgres.Cluster) -> str:
 
 
 # Scheduling only: pytest-xdist (``--dist loadfile``) hands whole files to its workers in
-# collection order, so a long file collected last kept one worker busy while the others had
-# nothing left (the first phase's last 5 % of tests took 3 of its 10 minutes). The longest
-# files go first, by the worker-seconds of ``--durations=0`` runs, then the other browser
-# files; the order inside a file, and of every other file, is unchanged.
+# the order it is given them (``--no-loadscope-reorder``: its own order, most tests first,
+# left a long file of few tests, the OpenAPI fuzz or a browser file, for the end while the
+# other workers had nothing left). The longest files go first, by the worker-seconds of
+# ``--durations=0`` runs, then the other browser files, then the rest by their number of
+# tests (xdist's own order); the order inside a file is unchanged.
 LONGEST_FILES_FIRST = (
     "tests/api/test_everyday.py",
     "tests/services/test_describe.py",
@@ -166,10 +168,15 @@ LONGEST_FILES_FIRST = (
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    def rank(item: pytest.Item) -> int:
+    def file_of(item: pytest.Item) -> str:
+        return item.nodeid.split("::", 1)[0]
+
+    tests_in = collections.Counter(file_of(item) for item in items)
+
+    def rank(item: pytest.Item) -> tuple[int, int]:
         for place, prefix in enumerate(LONGEST_FILES_FIRST):
             if item.nodeid.startswith(prefix):
-                return place
-        return len(LONGEST_FILES_FIRST)
+                return place, 0
+        return len(LONGEST_FILES_FIRST), -tests_in[file_of(item)]
 
-    items.sort(key=rank)  # stable
+    items.sort(key=rank)  # stable: a file's tests stay together and in order
