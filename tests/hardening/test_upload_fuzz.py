@@ -427,7 +427,7 @@ def fuzz_one_source(
     )
     @given(case=fuzz_cases(choices=(source,)))
     def one(case: FuzzCase) -> None:
-        if time.monotonic() > deadline and seen.get(case.source):
+        if time.monotonic() > deadline and seen.get(case.source) and not failures:
             # Ends the run: returning would let hypothesis draw its remaining examples,
             # each a damaged file (35-110 s of drawing after a 60-s budget).
             raise BudgetSpent
@@ -437,12 +437,15 @@ def fuzz_one_source(
             found = "; ".join(problems)[:1000]
             why = f"upload fuzz: {case.source}, {'; '.join(case.damage)}"[:500]
             make_corpus.record_found(Case(case.name, why, case.parts, 0, "", ""), found)
-            raise AssertionError(
-                f"{found}\nkept as {case.name} in tests/hostile/found.json: commit it"
-            )
+            failures.append(f"{found}\nkept as {case.name} in tests/hostile/found.json: commit it")
+            raise AssertionError(failures[0])
 
+    # A failure is kept aside: hypothesis replays a failing example, and a replay past the
+    # budget must fail again, not end the run as spent.
+    failures: list[str] = []
     with contextlib.suppress(BudgetSpent):
         one()
+    assert not failures, failures[0]
 
 
 def test_damaged_uploads_keep_every_rule(server: LiveServer, client: httpx.Client) -> None:
