@@ -444,7 +444,7 @@ def _configure_fill(parser: argparse.ArgumentParser) -> None:
     configure=_configure_fill,
 )
 def _fill_synthetic(args: argparse.Namespace, settings: Settings) -> int:
-    from app.importer import fill_synthetic
+    from app.services.synthetic import fill_synthetic
 
     if args.count < 0:
         print("mocap-index: --count must not be negative", file=sys.stderr)

@@ -214,7 +214,7 @@ def test_every_animation_of_a_scene_file_is_a_clip_and_a_rerun_skips_them(
 
 
 def test_the_import_saves_no_index_before_the_run_ends(settings: Settings) -> None:
-    from app.importer import _open_library
+    from app.importer.run import _open_library
 
     library = _open_library(settings)
     try:
@@ -231,16 +231,17 @@ def test_the_workers_outcomes_are_read_while_a_batch_is_stored(
     """A worker waits once its outcomes fill the pipe, so an import that stopped reading
     them while it stored a batch left the cores idle: the first batch's store is held here
     until every clip has been described and read."""
-    from app import importer
+    from app.importer import run as importer_run
+    from app.importer.workers import Outcome
     from app.services import ingest
     from tests.cli.test_import_process import unique_copies
 
     total = 200
     unique_copies(fixtures_dir / BVH_FIXTURES[0], tmp_path / "clips", total)
     received: list[int] = []
-    receive = importer._Run.receive
+    receive = importer_run._Run.receive
 
-    def counting_receive(run: importer._Run, number: int, outcome: importer.Outcome) -> None:
+    def counting_receive(run: importer_run._Run, number: int, outcome: Outcome) -> None:
         received.append(number)
         receive(run, number, outcome)
 
@@ -256,7 +257,7 @@ def test_the_workers_outcomes_are_read_while_a_batch_is_stored(
             first_store.append((before, len(received) - before))
         return store_many(library, items)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(importer._Run, "receive", counting_receive)
+    monkeypatch.setattr(importer_run._Run, "receive", counting_receive)
     monkeypatch.setattr(ingest, "store_many", held_store_many)
     report = run_import(settings, [tmp_path / "clips"], workers=1, batch_size=16)
     assert len(report.imported) == total and not report.failed

@@ -23,9 +23,9 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.config import Settings
-from app.importer import fill_synthetic
 from app.main import create_app
 from app.services import moments
+from app.services.synthetic import fill_synthetic
 from tests.conftest import FIXTURES_DIR
 from tests.hardening.live import stretched_bvh
 
