@@ -87,7 +87,7 @@ def main() -> int:
 
     for owner, name, stage in (
         (bvh._HIERARCHIES, "read", "parse: hierarchy (remembered per rig)"),
-        (bvh, "_read_frames", "parse: frame block"),
+        (bvh, "read_frames", "parse: frame block"),
         (bvh, "_build_motion", "parse: Motion (Euler -> matrices)"),
         (body_module, "map_skeleton", "body: skeleton mapping"),
         (body_module, "forward_kinematics", "body: forward kinematics"),

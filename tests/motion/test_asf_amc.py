@@ -16,7 +16,7 @@ from app.errors import DescribeTimeout, LimitExceeded, NoAnimation, ParseError
 from app.motion import model as model_module
 from app.motion.formats import DEFAULT_AMC_FRAME_TIME, read_asf_amc, read_bvh
 from app.motion.formats import asf_amc as asf_amc_module
-from app.motion.formats import bvh as bvh_module
+from app.motion.formats import text as text_module
 from app.motion.model import Motion, ParseLimits
 from tests.motion.conftest import (
     CMU_AMC_FIXTURE,
@@ -651,8 +651,8 @@ def test_a_long_invalid_number_costs_the_same_whatever_its_length(
 ) -> None:
     """A long run of digits then a letter, in an AMC value or an ASF number: refused by its
     length before the number pattern reads it (the pattern once backtracked quadratically)."""
-    recorder = RecordingPattern(bvh_module.NUMBER_RE)
-    monkeypatch.setattr(bvh_module, "NUMBER_RE", recorder)
+    recorder = RecordingPattern(text_module.NUMBER_RE)
+    monkeypatch.setattr(text_module, "NUMBER_RE", recorder)
     work = []
     for digits in (20_000, 200_000):
         recorder.lengths.clear()
@@ -664,7 +664,7 @@ def test_a_long_invalid_number_costs_the_same_whatever_its_length(
         with pytest.raises(ParseError, match="longer than 100 characters") as raised:
             read_asf_amc(asf, amc)
         assert len(str(raised.value)) < 300
-        assert max(recorder.lengths, default=0) <= bvh_module.MAX_NUMBER_TOKEN
+        assert max(recorder.lengths, default=0) <= text_module.MAX_NUMBER_TOKEN
         work.append(sum(recorder.lengths))
     assert work[0] == work[1]
 
@@ -680,7 +680,7 @@ def test_the_line_pass_looks_at_the_clock(monkeypatch: pytest.MonkeyPatch) -> No
         for f in range(1, frames + 1)
     )
     assert read_asf_amc(chain_asf(1), amc, limits=ParseLimits(deadline=1e12)).frame_count == frames
-    assert clock.looks >= 3 * frames // bvh_module.LINES_PER_CLOCK_CHECK
+    assert clock.looks >= 3 * frames // text_module.LINES_PER_CLOCK_CHECK
     clock.looks = 0
     with pytest.raises(DescribeTimeout):
         read_asf_amc(chain_asf(1), amc, limits=ParseLimits(deadline=5.0))

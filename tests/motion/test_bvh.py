@@ -18,6 +18,7 @@ from app.errors import DescribeTimeout, LimitExceeded, NoAnimation, ParseError
 from app.motion import model as model_module
 from app.motion.formats import bvh as bvh_module
 from app.motion.formats import read_bvh
+from app.motion.formats import text as text_module
 from app.motion.formats.bvh import matrices_from_euler
 from app.motion.model import Motion, ParseLimits
 from tests.motion.conftest import (
@@ -662,7 +663,7 @@ def test_frame_limit_is_checked_before_reading_frames(monkeypatch: pytest.Monkey
     def never(*args: object, **kwargs: object) -> None:
         raise AssertionError("the frames were read although the header is over the limit")
 
-    monkeypatch.setattr(bvh_module, "_read_frames", never)
+    monkeypatch.setattr(bvh_module, "read_frames", never)
     with pytest.raises(LimitExceeded, match="frames"):
         read_bvh(edit(TINY, L_FRAMES, "Frames: 1000000000000"))
     with pytest.raises(LimitExceeded, match="frames"):
@@ -703,7 +704,7 @@ def test_ten_megabyte_lines_elsewhere() -> None:
     _refused("x" * 10_000_000, "not a BVH")
     _refused(
         edit(TINY, L_FRAME_TIME, "Frame Time: " + "1" * 10_000_000),
-        f"longer than {bvh_module.MAX_NUMBER_TOKEN} characters",
+        f"longer than {text_module.MAX_NUMBER_TOKEN} characters",
     )
 
 
@@ -726,8 +727,8 @@ def test_a_long_invalid_number_costs_the_same_whatever_its_length(
     minutes at 200,000). A token is refused by its length before any pattern reads it: the
     pattern's work is the same at 20,000 and 200,000 digits, and never more than
     MAX_NUMBER_TOKEN characters a token."""
-    recorder = RecordingPattern(bvh_module.NUMBER_RE)
-    monkeypatch.setattr(bvh_module, "NUMBER_RE", recorder)
+    recorder = RecordingPattern(text_module.NUMBER_RE)
+    monkeypatch.setattr(text_module, "NUMBER_RE", recorder)
     read_bvh(TINY)  # its hierarchy is remembered from here on, as for the first size
     work = []
     # a hierarchy line is refused past 65,536 characters: 200,000 digits would not reach it
@@ -735,9 +736,9 @@ def test_a_long_invalid_number_costs_the_same_whatever_its_length(
         recorder.lengths.clear()
         token = shape.format(digits="1" * digits)
         error = _refused(_NUMBER_PLACES[place](token), "not a number")
-        assert f"longer than {bvh_module.MAX_NUMBER_TOKEN} characters" in str(error)
+        assert f"longer than {text_module.MAX_NUMBER_TOKEN} characters" in str(error)
         assert len(str(error)) < 300  # the token is not echoed whole
-        assert max(recorder.lengths, default=0) <= bvh_module.MAX_NUMBER_TOKEN
+        assert max(recorder.lengths, default=0) <= text_module.MAX_NUMBER_TOKEN
         work.append(sum(recorder.lengths))
     assert work[0] == work[1]
 
@@ -754,12 +755,12 @@ def test_the_number_pattern_is_linear_and_reads_numbers_as_before() -> None:
     tokens = ["1.", ".5", "1e5", "1.e5", "-1.5E-3", "+.5e+2", "NaN", "-Infinity", "1.5e", "."]
     tokens += ["".join(rng.choice(alphabet) for _ in range(rng.randint(1, 8))) for _ in range(5000)]
     for token in tokens:
-        assert (bvh_module.NUMBER_RE.fullmatch(token) is None) == (
+        assert (text_module.NUMBER_RE.fullmatch(token) is None) == (
             greedy.fullmatch(token) is None
         ), token
     # A match that fails at the end of a million digits is found to fail (in milliseconds;
     # the greedy pattern would need hours, so a regression here hangs rather than passes).
-    assert bvh_module.NUMBER_RE.fullmatch("1" * 1_000_000 + "x") is None
+    assert text_module.NUMBER_RE.fullmatch("1" * 1_000_000 + "x") is None
 
 
 def test_a_read_past_its_deadline_stops_with_describe_timeout() -> None:
@@ -777,7 +778,7 @@ def test_the_reader_looks_at_the_clock_while_it_walks_a_long_frame_block(
     text = TINY + "1 91 2 0 0 0 0 0 90\n" * 300_000
     motion = read_bvh(text, limits=ParseLimits(deadline=1e12))
     assert motion.frame_count == 2
-    assert clock.looks >= 300_000 // bvh_module.LINES_PER_CLOCK_CHECK
+    assert clock.looks >= 300_000 // text_module.LINES_PER_CLOCK_CHECK
     clock.looks = 0
     with pytest.raises(DescribeTimeout):
         read_bvh(text, limits=ParseLimits(deadline=10.0))
@@ -1004,23 +1005,25 @@ def test_a_hierarchy_read_before_is_reused_and_frames_are_still_read() -> None:
 
 @pytest.mark.parametrize("name", [BANDAI_FIXTURE, CMU_BVH_FIXTURE])
 def test_both_frame_readers_give_the_same_bits(name: str, monkeypatch: pytest.MonkeyPatch) -> None:
-    from app.motion.formats import bvh
+    from app.motion.formats import bvh_frames
 
     text = fixture_text(name)
     fast_reads: list[bool] = []
-    polars_reader = bvh._read_spaced_numbers
+    polars_reader = bvh_frames.read_spaced_numbers
 
     def counted(*args: object) -> object:
         values = polars_reader(*args)  # type: ignore[arg-type]
         fast_reads.append(values is not None)
         return values
 
-    monkeypatch.setattr(bvh, "_read_spaced_numbers", counted)
+    monkeypatch.setattr(bvh_frames, "read_spaced_numbers", counted)
     fast = read_bvh(text)
-    monkeypatch.setattr(bvh, "IN_PLACE_BYTES", 0)  # as for a long take: from the file's bytes
+    monkeypatch.setattr(
+        bvh_frames, "IN_PLACE_BYTES", 0
+    )  # as for a long take: from the file's bytes
     in_place = read_bvh(text.encode())
     assert fast_reads == [True, True]  # polars read the block (else numpy is compared with itself)
-    monkeypatch.setattr(bvh, "_read_spaced_numbers", lambda *args: None)  # numpy's reader
+    monkeypatch.setattr(bvh_frames, "read_spaced_numbers", lambda *args: None)  # numpy's reader
     slow = read_bvh(text)
     for motion in (fast, in_place):
         assert motion.local_rotations.tobytes() == slow.local_rotations.tobytes()
@@ -1052,13 +1055,13 @@ def test_polars_reads_numbers_as_numpy_does(lines: list[tuple[list[str], str, st
     goes to numpy (None) or to the caller's line-by-line pass (not finite)."""
     import io
 
-    from app.motion.formats.bvh import _read_spaced_numbers
+    from app.motion.formats.bvh_frames import read_spaced_numbers
 
     block = "\n".join(gap.join(tokens) + end for tokens, gap, end in lines).rstrip()
     # read in place from the middle of a larger buffer, as from a whole file
     head = "HIERARCHY\n{ }\nFrame Time: 1\n"
     data = (head + block + "\n\n").encode("ascii")
-    got = _read_spaced_numbers(data, len(head), len(head) + len(block), len(lines), 3)
+    got = read_spaced_numbers(data, len(head), len(head) + len(block), len(lines), 3)
     if got is None or not np.isfinite(got).all():
         return
     expected = np.loadtxt(io.StringIO(block), dtype=np.float64, comments=None, ndmin=2)

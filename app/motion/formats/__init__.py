@@ -17,7 +17,8 @@ from __future__ import annotations
 
 from app.errors import ParseError
 from app.motion.formats.asf_amc import DEFAULT_AMC_FRAME_TIME, parse_asf_amc
-from app.motion.formats.bvh import DEFAULT_LIMITS, parse_bvh
+from app.motion.formats.bvh import parse_bvh
+from app.motion.formats.text import DEFAULT_LIMITS
 from app.motion.model import Motion, ParseLimits
 
 __all__ = ["DEFAULT_AMC_FRAME_TIME", "decode_text", "read_asf_amc", "read_bvh"]

@@ -53,10 +53,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from app.errors import LimitExceeded, NoAnimation, ParseError
-from app.motion.formats.bvh import (
+from app.motion.formats.bvh import matrices_from_euler
+from app.motion.formats.text import (
     DEFAULT_LIMITS,
     LINES_PER_CLOCK_CHECK,
-    matrices_from_euler,
     normalise_newlines,
     parse_float,
     show,

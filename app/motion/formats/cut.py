@@ -15,7 +15,7 @@ from __future__ import annotations
 import re
 
 from app.errors import ParseError
-from app.motion.formats.bvh import normalise_newlines
+from app.motion.formats.text import normalise_newlines
 
 _FRAME_NUMBER_RE = re.compile(r"\d+")
 

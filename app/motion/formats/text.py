@@ -1,0 +1,69 @@
+"""What the text formats (BVH, ASF/AMC) share: numbers read as numpy reads them, refused by
+their length before any pattern reads them; line ends; messages that quote a token without
+echoing a hostile one whole."""
+
+from __future__ import annotations
+
+import math
+import re
+
+from app.errors import ParseError
+from app.motion.model import ParseLimits
+
+#: The limits used when a caller gives none (see :class:`ParseLimits` for the numbers).
+DEFAULT_LIMITS = ParseLimits()
+
+#: Characters; a longer token is not a number any exporter writes (a double round-trips in
+#: 17 significant digits: ``-1.2345678901234567e-308`` is 24 characters), so it is refused by
+#: its length before any pattern or float conversion reads it.
+MAX_NUMBER_TOKEN = 100
+#: Lines a reader walks between two looks at the clock (:meth:`ParseLimits.check_time`).
+LINES_PER_CLOCK_CHECK = 4096
+
+# One number as numpy's text reader accepts it (ASCII digits, no underscores, nan/inf words).
+# Possessive quantifiers: a run of digits once read is never read again, so a failed match
+# costs time linear in the token (a greedy ``\d+\.?\d*`` retried every split of a long run of
+# digits followed by a letter: quadratic, 18 s at 32,000 digits, with the GIL held).
+NUMBER_RE = re.compile(
+    r"[+-]?+(?:(?:\d++(?:\.\d*+)?+|\.\d++)(?:[eE][+-]?+\d++)?+|nan|inf|infinity)",
+    re.ASCII | re.IGNORECASE,
+)
+
+
+def show(token: str, limit: int = 40) -> str:
+    """``repr`` of a token from a file, shortened so a hostile token cannot flood a message."""
+    if len(token) > limit:
+        return repr(token[:limit]) + "..."
+    return repr(token)
+
+
+def normalise_newlines(text: str) -> str:
+    """``text`` with lone ``\\r`` line ends turned into ``\\n``.
+
+    CRLF files are left alone (copying megabytes costs milliseconds): every reader here
+    splits lines on ``\\n`` and treats a trailing ``\\r`` as whitespace.
+    """
+    if "\r" in text and text.count("\r") != text.count("\r\n"):
+        return text.replace("\r\n", "\n").replace("\r", "\n")
+    return text
+
+
+def number_problem(token: str) -> str | None:
+    """Why ``token`` is not a number as numpy reads one, or ``None``. Its length is checked
+    first: no pattern ever reads more than :data:`MAX_NUMBER_TOKEN` characters."""
+    if len(token) > MAX_NUMBER_TOKEN:
+        return f"is not a number (longer than {MAX_NUMBER_TOKEN} characters)"
+    if NUMBER_RE.fullmatch(token) is None:
+        return "is not a number"
+    return None
+
+
+def parse_float(token: str, *, what: str, line: int | None) -> float:
+    """A finite float from one token, or :class:`ParseError` naming ``what`` and the line."""
+    problem = number_problem(token)
+    if problem is not None:
+        raise ParseError(f"{what}: {show(token)} {problem}", line=line)
+    value = float(token)
+    if not math.isfinite(value):
+        raise ParseError(f"{what}: {show(token)} is not a finite number", line=line)
+    return value
