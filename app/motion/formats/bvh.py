@@ -23,12 +23,12 @@ What the numbers mean
 Parsing strategy
 ----------------
 The hierarchy is read line by line with an explicit stack (no recursion, so nesting depth is
-bounded only by :class:`~app.motion.model.ParseLimits`). The frame block is read by one call
-of a C text reader: polars' CSV reader for the common layout (one space between numbers;
-twice as fast as numpy's, whose float conversion is most of a clip's parse), else numpy's;
-only when that fails or the counts disagree does a slower Python pass walk the block line
-by line to name the exact offending line. Both readers round every number correctly, so
-they give the same bits.
+bounded only by :class:`~app.motion.model.ParseLimits`). The frame block
+(:mod:`app.motion.formats.bvh_frames`) is read by one call of a C text reader: polars' CSV
+reader for the common layout (one space between numbers; twice as fast as numpy's, whose
+float conversion is most of a clip's parse), else numpy's; only when that fails or the
+counts disagree does a slower Python pass walk the block line by line to name the exact
+offending line. Both readers round every number correctly, so they give the same bits.
 """
 
 from __future__ import annotations

@@ -8,6 +8,8 @@ trailer) and to name the exact offending line otherwise. Both readers round ever
 correctly, so they give the same bits.
 """
 
+from __future__ import annotations
+
 import contextlib
 import functools
 import io
