@@ -437,6 +437,14 @@ def update_clip(
     return True
 
 
+def content_hashes(session: Session, clip_ids: Sequence[int]) -> list[str]:
+    """The content hashes of the clips ``clip_ids`` (those that exist)."""
+    hashes: list[str] = []
+    for chunk in chunks(sorted({int(i) for i in clip_ids})):
+        hashes.extend(session.scalars(select(Clip.content_hash).where(Clip.id.in_(chunk))))
+    return hashes
+
+
 def delete_clip(session: Session, clip_id: int) -> list[str] | None:
     """Delete a clip (files, labels and vectors cascade); returns its files' sha256s, or
     ``None`` when there was no such clip."""

@@ -24,6 +24,7 @@ from app.motion.formats.bvh_writer import write_bvh
 from app.motion.formats.cut import cut_amc, cut_bvh
 from app.services.describe import read_motion, span_frames
 from app.services.library import Library, drop_clip_windows
+from app.services.preview_store import preview_store
 from app.services.uploads import ASF_AMC, BVH, Upload
 
 log = logging.getLogger(__name__)
@@ -135,12 +136,13 @@ def delete_clip(library: Library, clip_id: int) -> None:
     with library.write_lock:
         try:
             with library.writes.begin() as session:
+                hashes = clip_db.content_hashes(session, [clip_id])
                 shas = clip_db.delete_clip(session, clip_id)
         except SQLAlchemyError as exc:
             raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
         if shas is None:
             raise NotFound(f"no clip with id {clip_id}")
-        _tidy_after_delete(library, [clip_id], shas)
+        _tidy_after_delete(library, [clip_id], shas, hashes)
 
 
 def _deletion(selection: ClipFilter | label_db.LabelFilter) -> ClipFilter:
@@ -168,17 +170,21 @@ def delete_clips_with(library: Library, selection: ClipFilter | label_db.LabelFi
         try:
             with library.writes.begin() as session:
                 ids = selected_ids(session, chosen)
+                hashes = clip_db.content_hashes(session, ids)
                 shas = clip_db.delete_clips(session, ids)
         except SQLAlchemyError as exc:
             raise StorageUnavailable(f"cannot write to the database: {exc}") from exc
         if ids:
-            _tidy_after_delete(library, ids, shas)
+            _tidy_after_delete(library, ids, shas, hashes)
     return len(ids)
 
 
-def _tidy_after_delete(library: Library, clip_ids: list[int], shas: list[str]) -> None:
-    """Committed: the clips are gone. Drop them from the indexes and remove the files no clip
-    uses; a failure here (a full disk, say) must not report the delete as failed."""
+def _tidy_after_delete(
+    library: Library, clip_ids: list[int], shas: list[str], content_hashes: list[str]
+) -> None:
+    """Committed: the clips are gone. Drop them from the indexes, remove the files no clip
+    uses and the clips' stored previews; a failure here (a full disk, say) must not report
+    the delete as failed."""
     what = f"clip {clip_ids[0]}" if len(clip_ids) == 1 else f"{len(clip_ids)} clips"
     for name, index in library.indexes.items():
         try:
@@ -204,6 +210,10 @@ def _tidy_after_delete(library: Library, clip_ids: list[int], shas: list[str]) -
             what,
             exc,
         )
+    try:
+        preview_store(library.settings).remove(content_hashes)
+    except OSError as exc:
+        log.warning("%s deleted, but its stored previews could not be removed (%s)", what, exc)
 
 
 def stored_upload(library: Library, clip: clip_db.ClipRecord) -> Upload:

@@ -37,15 +37,10 @@ Encodings (``encoding``)
 from __future__ import annotations
 
 import base64
-import contextlib
 import gzip
 import hashlib
-import io
 import json
 import logging
-import os
-import threading
-import zipfile
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -53,7 +48,6 @@ from typing import Any
 
 import numpy as np
 
-from app.config import Settings
 from app.db import clips as clip_db
 from app.errors import InvalidInput, NoStoredFile, ParseError
 from app.motion.body import build_body
@@ -72,12 +66,11 @@ from app.services.describe import read_motion, span_frames
 from app.services.library import Library
 from app.services.lru import LRUCache
 from app.services.parser_pool import ParserPool
+from app.services.preview_store import PreviewStore, preview_store
 from app.services.uploads import Upload
 
 log = logging.getLogger(__name__)
 
-PREVIEWS_DIR = "previews"
-"""Stored previews, under the data directory (a cache)."""
 MAX_SKELETON_FRAMES = 600
 """Most frames one skeleton response carries; longer spans are truncated (``truncated``)."""
 MIN_FPS, MAX_FPS, DEFAULT_FPS = 0.01, 1000.0, 30.0
@@ -105,64 +98,6 @@ class Skeleton:
     @cached_property
     def gzipped(self) -> bytes:
         return gzip.compress(self.body, compresslevel=GZIP_LEVEL, mtime=0)
-
-
-class PreviewStore:
-    """Stored previews on disk, one ``.npz`` per clip content and preview version.
-
-    A cache of what the clips' files give: a file that is missing, unreadable or cannot be
-    written costs a parse, never an error.
-    """
-
-    def __init__(self, root: Path) -> None:
-        self.root = root
-
-    def path(self, content_hash: str, version: str) -> Path:
-        return self.root / content_hash[:2] / f"{content_hash}.{version}.npz"
-
-    def load(self, content_hash: str, version: str) -> DisplayMotion | None:
-        path = self.path(content_hash, version)
-        try:
-            with np.load(path, allow_pickle=False) as stored:
-                positions = np.asarray(stored["positions"])
-                frame_time, source_frame_time, lead_in, source_frames = stored["meta"].tolist()
-        except FileNotFoundError:
-            return None
-        except (OSError, ValueError, KeyError, zipfile.BadZipFile) as error:
-            log.warning("stored preview %s unreadable (%s); reading the clip again", path, error)
-            return None
-        if positions.ndim != 3 or positions.shape[1:] != (len(CANONICAL_JOINTS), 3):
-            return None
-        return DisplayMotion(
-            positions, float(frame_time), int(lead_in), int(source_frames), float(source_frame_time)
-        )
-
-    def save(self, content_hash: str, version: str, display: DisplayMotion) -> None:
-        path = self.path(content_hash, version)
-        meta = [
-            display.frame_time,
-            display.source_frame_time,
-            display.lead_in_frames,
-            display.source_frame_count,
-        ]
-        buffer = io.BytesIO()
-        np.savez(buffer, positions=display.positions, meta=np.asarray(meta, dtype=np.float64))
-        temporary = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            temporary.write_bytes(buffer.getvalue())
-            os.replace(temporary, path)  # readers see the whole file or none
-        except OSError as error:
-            log.warning(
-                "cannot store the preview %s (%s); it is computed again next time", path, error
-            )
-            with contextlib.suppress(OSError):  # e.g. no folder to hold it: nothing to remove
-                temporary.unlink(missing_ok=True)
-
-
-def preview_store(settings: Settings) -> PreviewStore:
-    """The library's stored previews: ``<data dir>/previews/``."""
-    return PreviewStore(settings.data_dir / PREVIEWS_DIR)
 
 
 def save_stored_preview(library: Library, content_hash: str, display: DisplayMotion) -> None:

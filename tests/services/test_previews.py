@@ -18,6 +18,7 @@ from app.db import clips as clip_db
 from app.services import previews
 from app.services.ingest import ingest
 from app.services.library import Library, open_library
+from app.services.preview_store import PREVIEWS_DIR
 from app.services.reindex import reindex
 from app.services.uploads import Upload
 from tests.conftest import FIXTURES_DIR
@@ -81,7 +82,7 @@ def test_a_preview_that_cannot_be_written_does_not_fail_the_clip(
 ) -> None:
     # A file where the folder should be: no preview can be written, whoever runs the tests
     # (file permissions do not stop root).
-    (settings.data_dir / previews.PREVIEWS_DIR).write_bytes(b"not a folder")
+    (settings.data_dir / PREVIEWS_DIR).write_bytes(b"not a folder")
     upload = Upload.from_files(
         skeleton=(CMU_ASF, (FIXTURES_DIR / CMU_ASF).read_bytes()),
         motion=(CMU_AMC, (FIXTURES_DIR / CMU_AMC).read_bytes()),
@@ -92,7 +93,7 @@ def test_a_preview_that_cannot_be_written_does_not_fail_the_clip(
     assert "cannot store the preview" in caplog.text
     assert not stored_file(library, result.clip).exists()
     # ...and the clip is previewed on demand, as before (the cache is not needed).
-    cache = previews.SkeletonCache(settings.data_dir / previews.PREVIEWS_DIR)
+    cache = previews.SkeletonCache(settings.data_dir / PREVIEWS_DIR)
     shown = previews.stored_preview(library, cache, result.clip)
     assert_same(shown, made_on_demand(library, result.clip))
 
@@ -124,7 +125,7 @@ def test_reindex_stores_the_previews_again(library: Library, settings: Settings)
     """A reindex parses the clips again: the previews of the (new) motion core come with it."""
     upload = Upload.from_files(file=(CMU_BVH, (FIXTURES_DIR / CMU_BVH).read_bytes()))
     clip = ingest(library, upload).clip
-    shutil.rmtree(settings.data_dir / previews.PREVIEWS_DIR)
+    shutil.rmtree(settings.data_dir / PREVIEWS_DIR)
     report = reindex(library, everything=True)
     assert report.recomputed == 1 and not report.failed
     store = previews.preview_store(settings)

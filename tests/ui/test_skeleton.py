@@ -18,6 +18,7 @@ from app.motion.formats import read_asf_amc, read_bvh
 from app.motion.skeleton_map import CANONICAL_BONES, CANONICAL_INDEX, CANONICAL_JOINTS
 from app.services import previews
 from app.services.lru import LRUCache
+from app.services.preview_store import PREVIEWS_DIR
 from tests.api.test_moments import long_take
 from tests.conftest import SharedData
 from tests.ui.conftest import ui_app, upload_asf_amc, upload_bvh
@@ -377,7 +378,7 @@ def test_an_uploaded_clip_is_previewed_without_parsing_it_again(
     """``POST /clips`` stores the clip's preview (made from the body the describer built):
     the first view reads it, and it is what parsing the clip again gives."""
     clip_id = upload_bvh(ui_client, fixtures_dir / CMU_BVH)
-    stored = list((settings.data_dir / previews.PREVIEWS_DIR).rglob("*.npz"))
+    stored = list((settings.data_dir / PREVIEWS_DIR).rglob("*.npz"))
     assert len(stored) == 1
     written = stored[0].stat().st_mtime_ns
     reads = count_reads(monkeypatch)
@@ -404,7 +405,7 @@ def test_an_upload_is_stored_when_its_preview_cannot_be(
     ui_client: TestClient, fixtures_dir: Path, settings: Settings
 ) -> None:
     # A file where the previews folder should be: nothing can be written there, even by root.
-    (settings.data_dir / previews.PREVIEWS_DIR).write_bytes(b"not a folder")
+    (settings.data_dir / PREVIEWS_DIR).write_bytes(b"not a folder")
     clip_id = upload_asf_amc(ui_client, fixtures_dir / CMU_ASF, fixtures_dir / CMU_AMC)
     assert ui_client.get(f"/clips/{clip_id}").status_code == 200
     response = ui_client.get(f"/clips/{clip_id}/skeleton")
