@@ -22,6 +22,7 @@ skeleton's structure and rest-pose geometry leave open, and to name sides.
 
 from __future__ import annotations
 
+import functools
 import re
 import unicodedata
 from dataclasses import dataclass
@@ -35,8 +36,29 @@ _SEPARATORS = re.compile(r"[\s_\-.:|]+")
 # the clavicle, 腕 the upper arm, 足 the thigh, つま先 the toe.
 SIDED_PARTS: dict[str, tuple[str, ...]] = {
     "clavicle": ("clavicle", "collar", "shoulder", "肩"),
-    "shoulder": ("arm", "upperarm", "uparm", "shldr", "humerus", "shoulder", "bicep", "腕"),
-    "elbow": ("forearm", "lowerarm", "lowarm", "loarm", "elbow", "radius", "ulna", "ひじ", "肘"),
+    "shoulder": (
+        "arm",
+        "upperarm",
+        "uparm",
+        "uarm",  # OptiTrack Motive: LUArm (below LShoulder, its clavicle)
+        "shldr",
+        "humerus",
+        "shoulder",
+        "bicep",
+        "腕",
+    ),
+    "elbow": (
+        "forearm",
+        "lowerarm",
+        "lowarm",
+        "loarm",
+        "elbow",
+        "radius",
+        "ulna",
+        "farm",  # OptiTrack Motive: LFArm
+        "ひじ",
+        "肘",
+    ),
     "wrist": ("wrist", "hand", "手首"),
     "hip": ("upleg", "upperleg", "thigh", "femur", "hip", "uleg", "足"),
     "knee": (
@@ -156,81 +178,52 @@ def normalise_name(name: str) -> str:
     return _SEPARATORS.sub("", lowered)
 
 
-def _kind(c: str) -> str:
-    if not c.isalnum():  # separators and punctuation
-        return " "
-    if c.isdecimal():
-        return "0"
-    if c.isupper():
-        return "A"
-    if c.islower():
-        return "a"
-    return "字"  # a letter of a script without case (kana, kanji)
+# A word: a run of capitals before a capitalised word (``LHip`` -> ``L``), a capitalised or
+# lower-case word, a run of capitals, a number, or a run of letters of a script without
+# ASCII case (kana, kanji).
+_WORD = re.compile(r"[A-Z]+(?=[A-Z][a-z])|[A-Z]?[a-z]+|[A-Z]+|[0-9]+|[^\W\d_A-Za-z]+")
 
 
 def words(name: str) -> list[str]:
-    """``name`` split into lower-case words (see the module docstring), in one pass."""
-    text = unicodedata.normalize("NFKC", name)
-    out: list[str] = []
-    start = 0
-    kinds = [_kind(c) for c in text]
-    for i in range(1, len(text) + 1):
-        if i < len(text):
-            before, here = kinds[i - 1], kinds[i]
-            split = (
-                here != before
-                and not (before == "A" and here == "a")  # "Left": a capital starts a word
-            ) or (
-                # The last capital of a run followed by lower case starts the next word.
-                before == "A" and here == "A" and i + 1 < len(text) and kinds[i + 1] == "a"
-            )
-            if not split:
-                continue
-        word = text[start:i]
-        if kinds[start] != " ":
-            out.append(word.lower())
-        start = i
+    """``name`` split into lower-case words (see the module docstring)."""
+    return [w.lower() for w in _WORD.findall(unicodedata.normalize("NFKC", name))]
+
+
+def _part_words(all_words: list[str]) -> list[str]:
+    """The words that may name a part: numbers and neutral words dropped."""
+    return [w for w in all_words if not w.isdecimal() and w not in NEUTRAL_WORDS]
+
+
+def _index(table: dict[str, tuple[str, ...]]) -> dict[str, dict[str, int]]:
+    """Base word -> part -> rank, for one lookup per reading."""
+    out: dict[str, dict[str, int]] = {}
+    for part, bases in table.items():
+        for rank, base in enumerate(bases):
+            out.setdefault(base, {}).setdefault(part, rank)
     return out
 
 
-def _tokens(name: str) -> list[str]:
-    """The words of ``name`` that may name a part: numbers and neutral words dropped."""
-    return [w for w in words(name) if not w.isdecimal() and w not in NEUTRAL_WORDS]
-
-
-def _base_parts(base: str, table: dict[str, tuple[str, ...]]) -> dict[str, int]:
-    return {part: bases.index(base) for part, bases in table.items() if base in bases}
+_SIDED_INDEX = _index(SIDED_PARTS)
+_UNSIDED_INDEX = _index(UNSIDED_PARTS)
+_SIDE_LENGTHS = sorted({len(word) for word in _SIDE_WORDS}, reverse=True)
 
 
 def _split_side(compact: str) -> list[tuple[str, str]]:
-    """Every (side, base) reading of ``compact`` with a side word at one end."""
+    """Every (side, base) reading of ``compact`` with a side word at one end (the longest
+    side word first)."""
     readings = []
-    for word, side in _SIDE_WORDS.items():
-        if compact.startswith(word) and len(compact) > len(word):
-            readings.append((side, compact[len(word) :]))
-        if compact.endswith(word) and len(compact) > len(word):
-            readings.append((side, compact[: -len(word)]))
+    for size in _SIDE_LENGTHS:
+        if len(compact) > size:
+            if compact[:size] in _SIDE_WORDS:
+                readings.append((_SIDE_WORDS[compact[:size]], compact[size:]))
+            if compact[-size:] in _SIDE_WORDS:
+                readings.append((_SIDE_WORDS[compact[-size:]], compact[:-size]))
     return readings
 
 
 def name_hint(name: str) -> NameHint:
     """The side and body parts ``name`` names (empty when it names none)."""
-    all_words = words(name)
-    if any(w in NOT_THE_JOINT for w in all_words):
-        return NameHint(None, {})
-    tokens = [w for w in all_words if not w.isdecimal() and w not in NEUTRAL_WORDS]
-    # Longest tail of tokens first: leading tokens are tool prefixes only when the rest is a
-    # known name on its own.
-    for start in range(max(len(tokens) - _MAX_WORDS, 0), len(tokens)):
-        compact = "".join(tokens[start:])
-        for side, base in _split_side(compact):
-            parts = _base_parts(base, SIDED_PARTS)
-            if parts:
-                return NameHint(side, parts)
-        parts = _base_parts(compact, UNSIDED_PARTS)
-        if parts:
-            return NameHint(None, parts)
-    return NameHint(None, {})
+    return _read(name)[0] if len(name) <= _CACHED_LENGTH else _hint(words(name))
 
 
 def name_side(name: str) -> str | None:
@@ -239,11 +232,46 @@ def name_side(name: str) -> str | None:
     ``lfemur``, ``LeftFooBar``, ``foo.L``, ``Bip01 R Bar``, ``lShldrTwist``, ``左ダミー``: a side
     word standing at either end of the name or as a word of its own.
     """
-    tokens = _tokens(name)
+    if len(name) <= _CACHED_LENGTH:
+        return _read(name)[1]
+    all_words = words(name)
+    return _side(all_words, _hint(all_words))
+
+
+# Rigs repeat the same few hundred names; every rig's first clip reads all of its names.
+_CACHED_LENGTH = 200
+
+
+@functools.lru_cache(maxsize=4096)
+def _read(name: str) -> tuple[NameHint, str | None]:
+    all_words = words(name)
+    hint = _hint(all_words)
+    return hint, _side(all_words, hint)
+
+
+def _hint(all_words: list[str]) -> NameHint:
+    if any(w in NOT_THE_JOINT for w in all_words):
+        return NameHint(None, {})
+    tokens = _part_words(all_words)
+    # Longest tail of tokens first: leading tokens are tool prefixes only when the rest is a
+    # known name on its own.
+    for start in range(max(len(tokens) - _MAX_WORDS, 0), len(tokens)):
+        compact = "".join(tokens[start:])
+        for side, base in _split_side(compact):
+            parts = _SIDED_INDEX.get(base)
+            if parts:
+                return NameHint(side, dict(parts))
+        parts = _UNSIDED_INDEX.get(compact)
+        if parts:
+            return NameHint(None, dict(parts))
+    return NameHint(None, {})
+
+
+def _side(all_words: list[str], hint: NameHint) -> str | None:
+    tokens = _part_words(all_words)
     for token in tokens:
         if token in _SIDE_WORDS:
             return _SIDE_WORDS[token]
-    hint = name_hint(name)
     if hint.side is not None:
         return hint.side
     compact = "".join(tokens)

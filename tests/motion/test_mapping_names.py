@@ -602,7 +602,7 @@ RECORDED: dict[str, int] = {
     "character creator": 66,
     "second life": 66,  # 56 before (held out)
     "source engine": 66,
-    "optitrack": 56,
+    "optitrack": 66,  # 56 held out; 66 once Motive's UArm/FArm were added
     "mirrored biped": 66,
     "mirrored unreal": 66,
     "mirrored mmd": 66,  # 0 before: 左/右 were no side words
