@@ -499,6 +499,51 @@ def renamed(motion: Motion, convention: Convention, *, swap_sides: bool = False)
     )
 
 
+def with_helpers(motion: Motion) -> Motion:
+    """``motion`` renamed as Rigify names it, with the helper bones a Rigify export that keeps
+    every bone adds: beside each shoulder, elbow, hip and knee, an ``ORG-`` copy of the bone
+    and an ``MCH-`` mechanism bone (short leaves pointing back along the bone above, no
+    motion of their own; appended, so the rig's own joints keep their indices)."""
+    named = renamed(motion, _rigify)
+    skeleton = named.skeleton
+    parents, offsets = list(skeleton.parents), list(skeleton.offsets)
+    names, end_site = list(skeleton.names), list(skeleton.end_site)
+    frames = named.frame_count
+    helpers = [
+        j
+        for j, (role, _, _, _) in enumerate(roles(motion))
+        if role in ("shoulder", "elbow", "hip", "knee")
+    ]
+    for j in helpers:
+        for prefix, share in (("ORG-", -0.3), ("MCH-", -0.15)):
+            parents.append(j)
+            offsets.append(share * np.asarray(skeleton.offsets[j]))
+            names.append(prefix + names[j].removeprefix("DEF-"))
+            end_site.append(False)
+    extra = len(parents) - skeleton.joint_count
+    rotations = np.concatenate(
+        [named.local_rotations, np.broadcast_to(np.eye(3), (frames, extra, 3, 3))], axis=1
+    )
+    translations = named.local_translations
+    if translations is not None:
+        added = np.asarray(offsets[skeleton.joint_count :])
+        translations = np.concatenate(
+            [translations, np.broadcast_to(added, (frames, *added.shape))], axis=1
+        )
+    return dataclasses.replace(
+        named,
+        skeleton=dataclasses.replace(
+            skeleton,
+            names=tuple(names),
+            parents=np.array(parents),
+            offsets=np.array(offsets),
+            end_site=np.array(end_site),
+        ),
+        local_rotations=np.ascontiguousarray(rotations),
+        local_translations=None if translations is None else np.ascontiguousarray(translations),
+    )
+
+
 def shuffled_names(motion: Motion, seed: int = 0) -> Motion:
     """``motion`` with its own names shuffled among its joints (names that lie)."""
     names = list(motion.skeleton.names)
@@ -553,6 +598,8 @@ def outcome(motion: Motion, name: str) -> str | None:
             if not np.array_equal(_joints(nameless(motion))[0], joints):
                 return None  # no worse than nameless either way
             copy = shuffled_names(motion)
+        elif name == "rigify with ORG/MCH helpers":
+            copy = with_helpers(motion)
         elif name.startswith("mirrored "):
             copy = renamed(motion, CONVENTIONS[name.split(" ", 1)[1]], swap_sides=True)
             joints = joints[_SWAP]
@@ -571,7 +618,12 @@ def outcome(motion: Motion, name: str) -> str | None:
     return None
 
 
-NAMES = (*CONVENTIONS, *(f"mirrored {c}" for c in MIRRORED), "shuffled")
+NAMES = (
+    *CONVENTIONS,
+    "rigify with ORG/MCH helpers",
+    *(f"mirrored {c}" for c in MIRRORED),
+    "shuffled",
+)
 
 
 # Namings a fixture does not survive yet.
@@ -603,6 +655,7 @@ RECORDED: dict[str, int] = {
     "second life": 66,  # 56 before (held out)
     "source engine": 66,
     "optitrack": 66,  # 56 held out; 66 once Motive's UArm/FArm were added
+    "rigify with ORG/MCH helpers": 66,
     "mirrored biped": 66,
     "mirrored unreal": 66,
     "mirrored mmd": 66,  # 0 before: 左/右 were no side words
