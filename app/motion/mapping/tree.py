@@ -12,6 +12,7 @@ from app.motion.model import Skeleton
 from app.motion.skeleton_names import (
     ARM_PARTS,
     LEG_PARTS,
+    SIDED_PARTS,
     NameHint,
     name_hint,
     name_side,
@@ -22,6 +23,9 @@ from app.motion.skeleton_names import (
 _MIN_LIMB_BONES = 2
 # Fractions of the pose's extent (its bounding-box diagonal, about body height).
 COINCIDENT = 1e-4  # joints closer than this share a position
+# Joints whose names the tree contradicts (:func:`contradicted_names`) from which a rig's
+# names are not read at all: no named dev rig has one; one odd name alone is tolerated.
+_LYING_NAMES = 2
 # Relative difference under which an End Site's length copies its parent bone's (a tail an
 # exporter invented, not a measured point): float32 rounding of the two is under 1e-6.
 _TAIL_COPY = 1e-4
@@ -92,8 +96,18 @@ class _Tree:
         for j in range(count - 1, 0, -1):
             p = int(self.parents[j])
             self.reach[p] = max(self.reach[p], self.reach[j] + self.lengths[j])
-        self.hints: list[NameHint] = [name_hint(n) for n in skeleton.names]
-        self.sides: list[str | None] = [name_side(n) for n in skeleton.names]
+        hints = [name_hint(n) for n in skeleton.names]
+        # Names the tree contradicts in more than one place lie (shuffled, or a rig renamed
+        # wrongly): the rig is mapped as if it had none, never worse than without names.
+        self.names_trusted = contradicted_names(skeleton.parents, hints) < _LYING_NAMES
+        self.hints: list[NameHint] = (
+            _chain_hints(skeleton.parents, hints)
+            if self.names_trusted
+            else [NameHint(None, {})] * count
+        )
+        self.sides: list[str | None] = (
+            [name_side(n) for n in skeleton.names] if self.names_trusted else [None] * count
+        )
         # The hypotheses ask the same few pairs thousands of times.
         self._lca: dict[tuple[int, int], int] = {}
         self._ancestor: dict[tuple[int, int], bool] = {}
@@ -170,6 +184,71 @@ class _Tree:
         return words
 
 
+def _chain_hints(parents: np.ndarray, hints: list[NameHint]) -> list[NameHint]:
+    """``hints`` without the part a joint's name shares with an ancestor's that names it as
+    well or better: two joints of one chain are not both the ankle (SMPL's ``L_Ankle`` above
+    ``L_Foot``, Kinect's ``WristLeft`` above ``HandLeft``: the lower one is the bone beyond
+    the joint), and a twist or bend segment below its limb bone (``upperleg02``,
+    ``DEF-forearm.L.001``) is not the joint either."""
+    above: list[dict[str, int]] = []  # part -> best rank among a joint's ancestors
+    out = []
+    for j, hint in enumerate(hints):
+        p = int(parents[j])
+        inherited = above[p] if p >= 0 else {}
+        kept = {
+            part: rank
+            for part, rank in hint.parts.items()
+            if part not in SIDED_PARTS or inherited.get(part, rank + 1) > rank
+        }
+        out.append(hint if len(kept) == len(hint.parts) else NameHint(hint.side, kept))
+        sided = {part: rank for part, rank in hint.parts.items() if part in SIDED_PARTS}
+        if sided:
+            inherited = dict(inherited)
+            for part, rank in sided.items():
+                inherited[part] = min(rank, inherited.get(part, rank))
+        above.append(inherited)
+    return out
+
+
+# Stage of each limb part from the trunk outwards: a name of a later stage above one of an
+# earlier stage of the same kind of limb (a "hand" above an "elbow") contradicts the tree.
+_STAGES = {
+    **{part: ("arm", i) for i, part in enumerate(("clavicle", "shoulder", "elbow", "wrist"))},
+    **{part: ("leg", i) for i, part in enumerate(("hip", "knee", "ankle", "toe"))},
+}
+
+
+def contradicted_names(parents: np.ndarray, hints: list[NameHint]) -> int:
+    """How many joints' names the tree contradicts: a limb part below a part of the other
+    kind of limb (a leg below an arm), below a later part of its own limb (an elbow below a
+    hand), below the other side's limb, or the head, neck or pelvis below a limb part. A
+    person's parts come in this order along the bones whatever the exporter calls them;
+    names shuffled among the joints break it everywhere."""
+    # Per joint, the limb parts named above it: (kind, earliest stage, side) of each.
+    above: list[tuple[tuple[str, int, str | None], ...]] = []
+    count = 0
+    for j, hint in enumerate(hints):
+        p = int(parents[j])
+        inherited = above[p] if p >= 0 else ()
+        mine = [_STAGES[part] for part in hint.parts if part in _STAGES]
+        if inherited and hint.parts:
+            if not mine:  # head, neck, pelvis below a limb
+                count += 1
+            else:
+                kind = mine[0][0]
+                latest = max(stage for _, stage in mine)
+                if any(
+                    k != kind or stage > latest or (side and hint.side and side != hint.side)
+                    for k, stage, side in inherited
+                ):
+                    count += 1
+        if mine:
+            entry = (mine[0][0], min(stage for _, stage in mine), hint.side)
+            inherited = (*inherited, entry) if entry not in inherited else inherited
+        above.append(inherited)
+    return count
+
+
 def _extremity_candidates(tree: _Tree, count: int = 8) -> list[int]:
     """Up to ``count`` leaves, each the farthest (along bones) from those before.
 
@@ -197,6 +276,8 @@ def _is_thumb(name: str) -> bool:
 
 def _farthest_descendant(tree: _Tree, start: int, skip: Callable[[str], bool] | None = None) -> int:
     """Descendant of ``start`` (inclusive) with the longest bone path from it."""
+    if not tree.names_trusted:
+        skip = None  # a thumb's name, among names that lie, says nothing either
     best, best_distance = start, 0.0
     stack = [(start, 0.0)]
     while stack:
