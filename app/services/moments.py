@@ -216,6 +216,15 @@ class _Known:
         self.ids, self.values = ids[order], values[order]
 
 
+def _members(values: np.ndarray, keys: np.ndarray) -> np.ndarray:
+    """Which of ``values`` ``(N,)`` are among ``keys`` ``(M,)`` (sorted, unique): ``(N,)``
+    bool (``np.isin`` without its sort)."""
+    if not keys.size:
+        return np.zeros(values.size, bool)
+    at = np.minimum(np.searchsorted(keys, values), keys.size - 1)
+    return keys[at] == values
+
+
 def _to_nearest(keys: np.ndarray, marks: np.ndarray) -> np.ndarray:
     """For each of ``keys`` ``(N,)``, how far the nearest of ``marks`` ``(M,)`` (M >= 1) is."""
     marks = np.sort(marks)
@@ -267,7 +276,7 @@ class _Finder:
         self.probes, cover = _probes(self.query, PROBE_COVER * typical, MAX_PROBES)
         # Every part lies within this of a probe (a hair more: float noise).
         self.cover = cover * (1 + 1e-6) + 1e-9
-        self.facts: dict[int, tuple[float, int]] = {}  # clip id -> frame time, frame count
+        self.facts = _Known(2)  # clip id -> frame time, frame count
         self._probed: tuple[np.ndarray, np.ndarray] | None = None  # distances, ids
         self._nearest = _Known(2)  # window id -> its nearest part, distance
         self._placed = _Known(4)  # seed window id -> clip id, start, end, distance
@@ -293,27 +302,33 @@ class _Finder:
         its clip), with their distances."""
         bits = window_db.WINDOW_ID_BITS
         clips = np.unique(hits >> bits)
-        new = [int(c) for c in clips if int(c) not in self.facts]
-        self.facts.update(self.library.catalogue.frames(new))  # no SQL: the catalogue
-        clips = np.array([c for c in clips.tolist() if c in self.facts], np.int64)
+        held, facts = self.facts.find(clips)
+        if not held.all():  # no SQL: the catalogue (clips deleted meanwhile are not there)
+            found = self.library.catalogue.frames(clips[~held].tolist())
+            if found:
+                self.facts.add(
+                    np.fromiter(found, np.int64, len(found)), np.array(list(found.values()))
+                )
+            held, facts = self.facts.find(clips)
+            clips, facts = clips[held], facts[held]
         if not clips.size:
             return _Candidates.empty()
         rows, offsets = self.places.of_clips(clips)
         group = np.repeat(np.arange(clips.size), np.diff(offsets))
-        frame_time = np.array([self.facts[int(c)][0] for c in clips])[group]
-        frames = np.array([self.facts[int(c)][1] for c in clips])[group]
+        frame_time = facts[:, 0][group]
+        frames = facts[:, 1][group]
         starts, stops = rows.starts * frame_time, rows.stops * frame_time
         # Seconds from each window to the nearest hit of its clip (clips kept far apart).
         apart = 4.0 * (float(np.max(frames * frame_time)) + self.seconds + 1.0)
         keys = group * apart + starts
-        marked = np.isin(rows.ids, hits)
+        marked = _members(rows.ids, hits)
         if not marked.any():  # their clips deleted meanwhile
             return _Candidates.empty()
         to_hit = _to_nearest(keys, keys[marked])
         slack = float(frame_time.max())
         seed_reach = max(self.seconds - self.length, 0.0) + slack
         if self.whole:  # the hits themselves, centred on their window
-            seeds = np.flatnonzero(np.isin(rows.ids, hits))
+            seeds = np.flatnonzero(marked)
         else:
             seeds = self._local_minima(
                 rows, group, to_hit <= seed_reach + self.length + slack, to_hit <= seed_reach
@@ -574,7 +589,10 @@ def _search(
     while True:
         hits, reach = finder.probe(wanted, allowed)
         found = finder.moments(hits)
-        frame_of = {c: f[0] for c, f in finder.facts.items()}
+        frame_of = {}
+        if exclude is not None:
+            held, facts = finder.facts.find(np.array([exclude[0]], np.int64))
+            frame_of = {exclude[0]: float(facts[0, 0])} if held[0] else {}
         chosen = _chosen(found, per_clip, exclude, frame_of, need)
         sure = reach * (1 - 1e-5) - finder.cover  # FAISS measures in float32
         if np.isinf(reach) or (len(chosen) >= need and found.distances[chosen[need - 1]] < sure):
