@@ -175,9 +175,7 @@ class FrozenIVF:
         found = self.base_ids[at] == ids
         if not found.all():  # not where a run of consecutive ids puts them: searched for
             missed = np.flatnonzero(~found)
-            at[missed] = np.minimum(
-                self.base_ids.searchsorted(ids[missed]), self.base_ids.size - 1
-            )
+            at[missed] = np.minimum(self.base_ids.searchsorted(ids[missed]), self.base_ids.size - 1)
             found[missed] = self.base_ids[at[missed]] == ids[missed]
         if self.gone.size:
             found &= ~np.isin(ids, self.gone)

@@ -80,7 +80,7 @@ MAX_PARTS = 2048  # query parts at most: one per frame up to this many
 PROBE_AHEAD = 2  # a probe search asks for this many times the windows a round needs
 MAX_PROBES = 16  # query parts that search the window index, at most
 PROBE_COVER = 0.15  # ... until every part is this near one (share of a typical distance)
-FIRST_FETCH = 128  # windows each probe asks for first (twice as many per widening)
+FIRST_FETCH = 256  # windows each probe asks for first (twice as many per widening)
 SPAN_CACHE = 32  # described stored spans kept (a page asking again, a span dragged back)
 BLOCK_BYTES = 64 * 2**20  # memory one block of a search's comparisons may take (issue 21)
 
@@ -280,6 +280,8 @@ class _Finder:
         self._probed: tuple[np.ndarray, np.ndarray] | None = None  # distances, ids
         self._nearest = _Known(2)  # window id -> its nearest part, distance
         self._placed = _Known(4)  # seed window id -> clip id, start, end, distance
+        self._hits = np.zeros(0, np.int64)  # the hits placed so far (see found)
+        self._found = _Candidates.empty()  # ... and their clips' moments
 
     def probe(self, wanted: int, allowed: np.ndarray | None) -> tuple[np.ndarray, float]:
         """The window ids the probes found (each its ``wanted`` nearest) and how far their
@@ -296,6 +298,25 @@ class _Finder:
         full = ids[:, -1] >= 0
         reach = float(distances[full, -1].min()) if full.any() else np.inf
         return np.unique(ids[ids >= 0]), reach
+
+    def found(self, hits: np.ndarray) -> _Candidates:
+        """:meth:`moments` of ``hits`` (sorted, unique; a superset of the last call's), with
+        only the clips holding new hits placed again: a clip's moments depend on its own
+        hits alone (a wider round adds hits to a few of the clips it had)."""
+        bits = window_db.WINDOW_ID_BITS
+        new = hits[~_members(hits, self._hits)]
+        changed = np.unique(new >> bits)
+        kept = self._found
+        keep = ~_members(kept.clips, changed)
+        placed = self.moments(hits[_members(hits >> bits, changed)])
+        self._hits = hits
+        self._found = _Candidates(
+            np.concatenate([kept.clips[keep], placed.clips]),
+            np.concatenate([kept.starts[keep], placed.starts]),
+            np.concatenate([kept.ends[keep], placed.ends]),
+            np.concatenate([kept.distances[keep], placed.distances]),
+        )
+        return self._found
 
     def moments(self, hits: np.ndarray) -> _Candidates:
         """The moments placed by the seeds near the hits (within a query's length of one, in
@@ -588,7 +609,7 @@ def _search(
         wanted += int(np.count_nonzero((own.starts < exclude[2]) & (own.stops > exclude[1])))
     while True:
         hits, reach = finder.probe(wanted, allowed)
-        found = finder.moments(hits)
+        found = finder.found(hits)
         frame_of = {}
         if exclude is not None:
             held, facts = finder.facts.find(np.array([exclude[0]], np.int64))
