@@ -325,10 +325,10 @@ class _Finder:
         clips = np.unique(hits >> bits)
         held, facts = self.facts.find(clips)
         if not held.all():  # no SQL: the catalogue (clips deleted meanwhile are not there)
-            found = self.library.catalogue.frames(clips[~held].tolist())
-            if found:
+            listed = self.library.catalogue.frames(clips[~held].tolist())
+            if listed:
                 self.facts.add(
-                    np.fromiter(found, np.int64, len(found)), np.array(list(found.values()))
+                    np.fromiter(listed, np.int64, len(listed)), np.array(list(listed.values()))
                 )
             held, facts = self.facts.find(clips)
             clips, facts = clips[held], facts[held]
