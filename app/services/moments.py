@@ -82,6 +82,7 @@ MAX_PROBES = 16  # query parts that search the window index, at most
 PROBE_COVER = 0.15  # ... until every part is this near one (share of a typical distance)
 FIRST_FETCH = 256  # windows each probe asks for first (twice as many per widening)
 SPAN_CACHE = 32  # described stored spans kept (a page asking again, a span dragged back)
+DIRECT_PARTS = 8  # a query of this many parts at most measures every (part, window) pair
 BLOCK_BYTES = 64 * 2**20  # memory one block of a search's comparisons may take (issue 21)
 
 
@@ -173,7 +174,11 @@ def _pair_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Row-wise distances ``(N,)`` of ``a`` and ``b`` ``(N, D)``, from the differences: the
     same number for the same pair whatever else a search computed (the expanded form
     through a matrix product loses the last digits near zero, and depends on the batch)."""
-    difference = a - b
+    return _pair_distances_of(a - b)
+
+
+def _pair_distances_of(difference: np.ndarray) -> np.ndarray:
+    """Row lengths ``(N,)`` of differences ``(N, D)`` (see :func:`_pair_distances`)."""
     return np.sqrt(np.einsum("ij,ij->i", difference, difference))
 
 
@@ -429,6 +434,8 @@ class _Finder:
         """:meth:`_nearest_parts` of ``windows`` ``(M, D)`` (float32), a block of windows at
         a time: a float64 (parts x block) matrix, its mask, and the block in float64."""
         per_window = len(self.query) * NEAREST_BYTES_PER_PAIR + 8 * windows.shape[1]
+        if len(self.query) <= DIRECT_PARTS:  # ... and every pair's difference
+            per_window += len(self.query) * 8 * windows.shape[1]
         found = [
             self._nearest_parts(windows[block].astype(np.float64))
             for block in _blocks(np.full(len(windows), per_window), BLOCK_BYTES)
@@ -473,6 +480,12 @@ class _Finder:
         distance (exact: the parts near the expanded form's minimum are measured again from
         their differences)."""
         q = self.query
+        if len(q) <= DIRECT_PARTS:  # few parts: every pair from its difference at once
+            count = len(windows)
+            difference = (q[:, None, :] - windows[None, :, :]).reshape(-1, q.shape[1])
+            every = _pair_distances_of(difference).reshape(len(q), count)
+            nearest = every.argmin(axis=0)  # the first part on ties
+            return nearest, every[nearest, np.arange(count)]
         squared = q @ windows.T  # (J, M), turned in place into squared distances
         squared *= -2.0
         squared += (q**2).sum(axis=1)[:, None]
