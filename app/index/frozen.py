@@ -12,7 +12,8 @@ made since the file beside it, like the catalogue's overlay:
   through an id selector).
 
 A search asks both and merges by distance. Where each id of the file lies (its list and
-offset: the *locator*, sorted by id) is read once when the file is mapped, so a vector is found
+offset: the *locator*, sorted by id) is read once when the file is mapped — and kept in a
+file beside it for the next start, see :func:`_stored_locator` — so a vector is found
 without FAISS's id hash table, which would be a private copy in every process (~40 bytes per
 vector). :meth:`merged` gives an ordinary (owned, writable) index of the current vectors, to
 write as the next file.
