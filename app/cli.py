@@ -76,8 +76,6 @@ def _configure_serve(parser: argparse.ArgumentParser) -> None:
 def _serve(args: argparse.Namespace, settings: Settings) -> int:
     import uvicorn
 
-    from app.main import create_app
-
     # An unspecified address is reachable locally as localhost; IPv6 needs brackets.
     host = {"0.0.0.0": "localhost", "::": "localhost", "": "localhost"}.get(
         settings.host, settings.host
@@ -92,6 +90,8 @@ def _serve(args: argparse.Namespace, settings: Settings) -> int:
     print(f"mocap-index: web UI at {base}/", file=sys.stderr)
     print(f"mocap-index: API docs at {base}/docs", file=sys.stderr)
     if settings.workers == 1:
+        from app.main import create_app  # not in a parent of workers: they import it
+
         uvicorn.run(
             create_app(settings),
             host=settings.host,

@@ -4,7 +4,7 @@ Run from the repository root::
 
     .venv/bin/python bench/bench_moments.py exact [--spans 500] [--seed 0]
     .venv/bin/python bench/bench_moments.py styles [--seed 0]
-    .venv/bin/python bench/bench_moments.py scale [--hours 100] [--data-dir DIR]
+    .venv/bin/python bench/bench_moments.py scale [--hours 100] [--data-dir DIR] [--baseline DIR]
     .venv/bin/python bench/bench_moments.py recall --data-dir DIR [--against FLOAT32_COPY]
 
 ``exact``
@@ -37,7 +37,9 @@ Run from the repository root::
     (the whole clip as the query) at 1 and 32 connections, alternating with the HTTP floor
     (``bench/floor_app.py``, same uvicorn and worker count) over ``--rounds`` rounds, with the
     server's CPU time per request and its peak memory (VmRSS summed over its processes, and
-    PSS). The server runs ``--workers`` processes (default: one per core). Targets (issue
+    PSS). ``--baseline CHECKOUT`` starts and serves another checkout (with its own
+    ``.venv``) on the same library in the same rounds and prints the ratios. The server runs
+    ``--workers`` processes (default: one per core). Targets (issue
     23, at 100 h): start-up <= 5 s; >= 50 % more requests/s than before the issue at 32
     connections (or >= 25 % of the floor); median <= 10 ms. Needs ``wrk``.
 """
@@ -377,7 +379,7 @@ def scale(args: argparse.Namespace) -> int:
     import sqlite3
     import subprocess
 
-    from bench_search import CLI, Floor, Server, environment, summary, timed_wrk
+    from bench_search import CLI, Floor, Server, baseline_server, environment, summary, timed_wrk
 
     data_dir: Path = args.data_dir
     database = data_dir / "mocap-index.sqlite3"
@@ -428,35 +430,48 @@ def scale(args: argparse.Namespace) -> int:
         "MOCAP_WINDOW_CODES": args.window_codes,
     }
     print(f"server: {workers} worker processes (--workers)")
-    startups, startup_cpu = [], []
-    for _ in range(3):
-        server = Server(data_dir, log, **settings)
-        startups.append(server.startup)
-        startup_cpu.append(server.startup_cpu)
-        server.stop()
-    print(
-        f"start-up: median {statistics.median(startups):.2f} s of "
-        f"{', '.join(f'{s:.2f}' for s in startups)} (target 5 s); CPU "
-        f"{', '.join(f'{s:.2f}' for s in startup_cpu)} s, all processes"
-    )
-    server = Server(data_dir, log, **settings)
+
+    def start(name: str) -> Server:
+        if name == "baseline":
+            return baseline_server(args.baseline, data_dir, log, **settings)
+        return Server(data_dir, log, **settings)
+
+    served = ["moments"] + (["baseline"] if args.baseline is not None else [])
+    startups: dict[str, list[float]] = {name: [] for name in served}
+    startup_cpu: dict[str, list[float]] = {name: [] for name in served}
+    print(f"load average before the starts: {os.getloadavg()[0]:.2f}")
+    for _ in range(3):  # interleaved: a slow spell of the machine hits both
+        for name in served:
+            started = start(name)
+            startups[name].append(started.startup)
+            startup_cpu[name].append(started.startup_cpu)
+            started.stop()
+    for name in served:
+        print(
+            f"start-up ({name}): median {statistics.median(startups[name]):.2f} s of "
+            f"{', '.join(f'{s:.2f}' for s in startups[name])} (target 5 s); CPU "
+            f"{', '.join(f'{s:.2f}' for s in startup_cpu[name])} s, all processes"
+        )
+    servers = {name: start(name) for name in served}
     floor = Floor(data_dir, log, MOCAP_WORKERS=workers)
     options = {"path": "/search/moments", "descriptor": DESCRIPTOR}
     runs: dict[tuple[str, int], list[dict[str, float]]] = {}
     try:
         print(f"load average before the load: {os.getloadavg()[0]:.2f}")
-        timed_wrk(server, 32, 5, top, **options)  # warm-up
+        for target in servers.values():
+            timed_wrk(target, 32, 5, top, **options)  # warm-up
         timed_wrk(floor, 32, 3, top, **options)
         for connections in (1, 32):
             for _ in range(args.rounds):
-                for name, target in (("floor", floor), ("moments", server)):
+                for name, target in (("floor", floor), *servers.items()):
                     result = timed_wrk(target, connections, args.duration, top, **options)
                     runs.setdefault((name, connections), []).append(result)
                     print(f"  {name:8s} {connections:2d} conn: {summary(result)}")
         load_after = os.getloadavg()[0]
     finally:
         floor.stop()
-        server.stop()
+        for target in servers.values():
+            target.stop()
 
     def median(name: str, connections: int, field: str) -> float:
         return statistics.median(r[field] for r in runs[(name, connections)])
@@ -469,13 +484,27 @@ def scale(args: argparse.Namespace) -> int:
         f"({floor_rps:.0f}); median {p50:.1f} ms at 1 connection (target 10); server CPU "
         f"{cpu:.2f} ms per request, floor {floor_cpu:.3f}"
     )
-    print(
-        f"server memory, peak: VmRSS {server.peak_rss / 2**30:.2f} GiB summed over its "
-        f"processes, PSS {server.peak_pss / 2**30:.2f} GiB"
-    )
+    if "baseline" in servers:
+        base_rps, base_p50 = median("baseline", 32, "rps"), median("baseline", 1, "p50_ms")
+        print(
+            f"baseline {args.baseline}: {base_rps:.0f} requests/s at 32 connections = "
+            f"{base_rps / floor_rps:.0%} of the floor; median {base_p50:.1f} ms at 1 "
+            f"connection; server CPU {median('baseline', 32, 'cpu_ms'):.2f} ms per request "
+            f"(32 conn), {median('baseline', 1, 'cpu_ms'):.2f} (1 conn); this checkout "
+            f"{median('moments', 1, 'cpu_ms'):.2f} (1 conn)"
+        )
+        print(
+            f"requests/s at 32 connections: {rps / base_rps:.2f} x the baseline's (target "
+            f"1.5, or 25 % of the floor: {0.25 * floor_rps:.0f}/s, whichever is lower)"
+        )
+    for name, target in servers.items():
+        print(
+            f"server memory ({name}), peak: VmRSS {target.peak_rss / 2**30:.2f} GiB summed "
+            f"over its processes, PSS {target.peak_pss / 2**30:.2f} GiB"
+        )
     print(f"load average after: {load_after:.2f}")
     bad = sum(r["bad"] for rs in runs.values() for r in rs)
-    ok = p50 <= 10 and statistics.median(startups) <= 5 and bad == 0
+    ok = p50 <= 10 and statistics.median(startups["moments"]) <= 5 and bad == 0
     return 0 if ok else 1
 
 
@@ -581,6 +610,12 @@ def main() -> int:
     three.add_argument("--duration", type=int, default=15, help="seconds per wrk run")
     three.add_argument("--rounds", type=int, default=2, help="wrk runs of each, interleaved")
     three.add_argument("--workers", type=int, help="server processes (default: one per core)")
+    three.add_argument(
+        "--baseline",
+        type=Path,
+        help="another checkout (e.g. main's, with its own .venv) served on the same library "
+        "and measured in the same rounds",
+    )
     three.add_argument(
         "--window-codes",
         default="float32",

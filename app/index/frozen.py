@@ -12,7 +12,8 @@ made since the file beside it, like the catalogue's overlay:
   through an id selector).
 
 A search asks both and merges by distance. Where each id of the file lies (its list and
-offset: the *locator*, sorted by id) is read once when the file is mapped, so a vector is found
+offset: the *locator*, sorted by id) is read once when the file is mapped — and kept in a
+file beside it for the next start, see :func:`_stored_locator` — so a vector is found
 without FAISS's id hash table, which would be a private copy in every process (~40 bytes per
 vector). :meth:`merged` gives an ordinary (owned, writable) index of the current vectors, to
 write as the next file.
@@ -31,18 +32,70 @@ Shapes: a query is ``(1, D)`` float32; ids ``(N,)`` int64; vectors ``(N, D)`` fl
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import os
 import threading
+from pathlib import Path
 from typing import Any
 
 import faiss
 import numpy as np
 
+from app.index.array_file import read_arrays, write_arrays
 from app.index.cells import GRAPH_MIN_CELLS, SAMPLES, CellGraph
 from app.index.kinds import RERANK, SQ8, codes_of, empty_flat, padded
 
 LIST_SHIFT = 32  # a place is list << 32 | offset
+LOCATOR_FORMAT = 1  # of the <index>.locator files (see _stored_locator)
+LOCATOR_CHECKS = 64  # places of a stored locator checked against the lists when it is read
+BUCKET_BITS = 20  # ids sharing their bits above these are looked up from one table entry
+MAX_BUCKETS = 1 << 22  # ... a table of at most this many entries (32 MB)
+
+
+def _stored_locator(path: str, base: Any) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_locator` of the index file at ``path`` (mapped as ``base``), read from
+    ``<stem>.locator.arrays`` beside it when that file was written from this very index file
+    (its inode, size and modification time; its own checksum; a sample of its places
+    checked against the lists), else computed and written there for the next start: the
+    pass over the lists and the sort of a million ids are most of opening a window index
+    (~0.8 s a worker at 100 hours). The caller holds the directory's lock (shared: the index
+    file does not change meanwhile; the locator file is replaced atomically)."""
+    directory, stem = Path(path).parent, f"{Path(path).stem}.locator"
+    info = os.stat(path)
+    stamp = {"format": LOCATOR_FORMAT, "index_file": [info.st_ino, info.st_size, info.st_mtime_ns]}
+    found = read_arrays(directory, stem, stamp, lock=False)
+    if not isinstance(found, str):
+        ids, places = found[0].get("ids"), found[0].get("places")
+        if (
+            ids is not None
+            and places is not None
+            and ids.shape == places.shape == (int(base.ntotal),)
+            and _places_hold(base, ids, places)
+        ):
+            return ids, places
+    ids, places = _locator(base)
+    with contextlib.suppress(OSError):  # a read-only directory: computed at the next start
+        write_arrays(directory, stem, {"ids": ids, "places": places}, stamp, lock=False)
+    return ids, places
+
+
+def _places_hold(base: Any, ids: np.ndarray, places: np.ndarray) -> bool:
+    """Whether a sample of ``places`` (list << LIST_SHIFT | offset) hold their ``ids`` in the
+    lists of ``base``, and ``ids`` ascend."""
+    if not ids.size:
+        return True
+    if ids.size > 1 and not bool(np.all(ids[1:] > ids[:-1])):
+        return False
+    invlists = base.invlists
+    offset_mask = (1 << LIST_SHIFT) - 1
+    for row in np.linspace(0, ids.size - 1, min(LOCATOR_CHECKS, ids.size)).astype(np.int64):
+        cell, offset = int(places[row]) >> LIST_SHIFT, int(places[row]) & offset_mask
+        if not 0 <= cell < base.nlist or offset >= invlists.list_size(cell):
+            return False
+        if int(invlists.get_single_id(cell, offset)) != int(ids[row]):
+            return False
+    return True
 
 
 def _locator(base: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -65,7 +118,11 @@ class FrozenIVF:
     docstring)."""
 
     def __init__(
-        self, base: Any, exact: np.ndarray | None = None, exact_ids: np.ndarray | None = None
+        self,
+        base: Any,
+        exact: np.ndarray | None = None,
+        exact_ids: np.ndarray | None = None,
+        locator: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> None:
         self.base = base
         self.mapped_from: str | None = None  # the file the base is mapped from (see open)
@@ -88,8 +145,9 @@ class FrozenIVF:
             self.base_ids = exact_ids
             self.places = np.zeros(0, np.int64)
         else:
-            self.base_ids, self.places = _locator(base)
+            self.base_ids, self.places = locator if locator is not None else _locator(base)
         self._codes: np.ndarray | None = None  # see _view_codes
+        self._buckets: np.ndarray | None = None  # see _guessed_rows
         self._rows: np.ndarray | None = None  # ... and _view_rows
         self._list_starts = np.zeros(0, np.int64)
         # The cells' graph (app/index/cells.py): built in a thread at the first search, the
@@ -108,7 +166,9 @@ class FrozenIVF:
         base = faiss.read_index(path, faiss.IO_FLAG_MMAP_IFC)
         if base.direct_map.type != faiss.DirectMap.NoMap:  # type: ignore[attr-defined]
             base.set_direct_map_type(faiss.DirectMap.NoMap)  # type: ignore[attr-defined]
-        frozen = cls(base, exact, exact_ids)
+        stored = exact is not None and exact_ids is not None and exact_ids.size == base.ntotal
+        locator = None if stored else _stored_locator(path, base)
+        frozen = cls(base, exact, exact_ids, locator)
         frozen.mapped_from = path
         frozen._view_codes(os.path.getsize(path))
         return frozen
@@ -168,11 +228,35 @@ class FrozenIVF:
         ids = np.asarray(ids, np.int64)
         if not self.base_ids.size:
             return np.full(ids.size, -1, np.int64)
-        at = np.minimum(self.base_ids.searchsorted(ids), self.base_ids.size - 1)
+        at = self._guessed_rows(ids)
         found = self.base_ids[at] == ids
+        if not found.all():  # not where a run of consecutive ids puts them: searched for
+            missed = np.flatnonzero(~found)
+            at[missed] = np.minimum(self.base_ids.searchsorted(ids[missed]), self.base_ids.size - 1)
+            found[missed] = self.base_ids[at[missed]] == ids[missed]
         if self.gone.size:
             found &= ~np.isin(ids, self.gone)
         return np.where(found, at, -1)
+
+    def _guessed_rows(self, ids: np.ndarray) -> np.ndarray:
+        """Where ``ids`` ``(M,)`` would lie in the locator if the ids of their bucket (ids
+        sharing their bits above :data:`BUCKET_BITS`) ran without gaps from the bucket's
+        first: ``(M,)`` rows, to check. Window ids (``clip << 20 | ordinal``) do within a
+        clip, so a vector is found with two reads instead of a binary search over a million
+        ids (~20 reads far apart: a moments search looks up thousands)."""
+        if self._buckets is None:
+            buckets = (int(self.base_ids[-1]) >> BUCKET_BITS) + 2
+            if buckets > MAX_BUCKETS:  # ids too sparse for a table: the binary search
+                self._buckets = np.zeros(0, np.int64)
+            else:
+                edges = np.arange(buckets, dtype=np.int64) << BUCKET_BITS
+                self._buckets = self.base_ids.searchsorted(edges)
+        last = self.base_ids.size - 1
+        if not self._buckets.size:
+            return np.minimum(self.base_ids.searchsorted(ids), last)
+        bucket = np.clip(ids >> BUCKET_BITS, 0, self._buckets.size - 2)
+        first = np.minimum(self._buckets[bucket], last)
+        return np.clip(first + (ids - self.base_ids[first]), 0, last)
 
     def _base_row(self, vector_id: int) -> int:
         """:meth:`_base_rows` of one id (a search's query clip: no arrays built)."""

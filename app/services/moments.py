@@ -80,8 +80,9 @@ MAX_PARTS = 2048  # query parts at most: one per frame up to this many
 PROBE_AHEAD = 2  # a probe search asks for this many times the windows a round needs
 MAX_PROBES = 16  # query parts that search the window index, at most
 PROBE_COVER = 0.15  # ... until every part is this near one (share of a typical distance)
-FIRST_FETCH = 128  # windows each probe asks for first (twice as many per widening)
+FIRST_FETCH = 256  # windows each probe asks for first (twice as many per widening)
 SPAN_CACHE = 32  # described stored spans kept (a page asking again, a span dragged back)
+DIRECT_PARTS = 8  # a query of this many parts at most measures every (part, window) pair
 BLOCK_BYTES = 64 * 2**20  # memory one block of a search's comparisons may take (issue 21)
 
 
@@ -173,7 +174,11 @@ def _pair_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Row-wise distances ``(N,)`` of ``a`` and ``b`` ``(N, D)``, from the differences: the
     same number for the same pair whatever else a search computed (the expanded form
     through a matrix product loses the last digits near zero, and depends on the batch)."""
-    difference = a - b
+    return _pair_distances_of(a - b)
+
+
+def _pair_distances_of(difference: np.ndarray) -> np.ndarray:
+    """Row lengths ``(N,)`` of differences ``(N, D)`` (see :func:`_pair_distances`)."""
     return np.sqrt(np.einsum("ij,ij->i", difference, difference))
 
 
@@ -214,6 +219,15 @@ class _Known:
         values = np.concatenate([self.values, values])
         order = np.argsort(ids, kind="stable")
         self.ids, self.values = ids[order], values[order]
+
+
+def _members(values: np.ndarray, keys: np.ndarray) -> np.ndarray:
+    """Which of ``values`` ``(N,)`` are among ``keys`` ``(M,)`` (sorted, unique): ``(N,)``
+    bool (``np.isin`` without its sort)."""
+    if not keys.size:
+        return np.zeros(values.size, bool)
+    at = np.minimum(np.searchsorted(keys, values), keys.size - 1)
+    return keys[at] == values
 
 
 def _to_nearest(keys: np.ndarray, marks: np.ndarray) -> np.ndarray:
@@ -267,10 +281,12 @@ class _Finder:
         self.probes, cover = _probes(self.query, PROBE_COVER * typical, MAX_PROBES)
         # Every part lies within this of a probe (a hair more: float noise).
         self.cover = cover * (1 + 1e-6) + 1e-9
-        self.facts: dict[int, tuple[float, int]] = {}  # clip id -> frame time, frame count
+        self.facts = _Known(2)  # clip id -> frame time, frame count
         self._probed: tuple[np.ndarray, np.ndarray] | None = None  # distances, ids
         self._nearest = _Known(2)  # window id -> its nearest part, distance
         self._placed = _Known(4)  # seed window id -> clip id, start, end, distance
+        self._hits = np.zeros(0, np.int64)  # the hits placed so far (see found)
+        self._found = _Candidates.empty()  # ... and their clips' moments
 
     def probe(self, wanted: int, allowed: np.ndarray | None) -> tuple[np.ndarray, float]:
         """The window ids the probes found (each its ``wanted`` nearest) and how far their
@@ -288,32 +304,57 @@ class _Finder:
         reach = float(distances[full, -1].min()) if full.any() else np.inf
         return np.unique(ids[ids >= 0]), reach
 
+    def found(self, hits: np.ndarray) -> _Candidates:
+        """:meth:`moments` of ``hits`` (sorted, unique; a superset of the last call's), with
+        only the clips holding new hits placed again: a clip's moments depend on its own
+        hits alone (a wider round adds hits to a few of the clips it had)."""
+        bits = window_db.WINDOW_ID_BITS
+        new = hits[~_members(hits, self._hits)]
+        changed = np.unique(new >> bits)
+        kept = self._found
+        keep = ~_members(kept.clips, changed)
+        placed = self.moments(hits[_members(hits >> bits, changed)])
+        self._hits = hits
+        self._found = _Candidates(
+            np.concatenate([kept.clips[keep], placed.clips]),
+            np.concatenate([kept.starts[keep], placed.starts]),
+            np.concatenate([kept.ends[keep], placed.ends]),
+            np.concatenate([kept.distances[keep], placed.distances]),
+        )
+        return self._found
+
     def moments(self, hits: np.ndarray) -> _Candidates:
         """The moments placed by the seeds near the hits (within a query's length of one, in
         its clip), with their distances."""
         bits = window_db.WINDOW_ID_BITS
         clips = np.unique(hits >> bits)
-        new = [int(c) for c in clips if int(c) not in self.facts]
-        self.facts.update(self.library.catalogue.frames(new))  # no SQL: the catalogue
-        clips = np.array([c for c in clips.tolist() if c in self.facts], np.int64)
+        held, facts = self.facts.find(clips)
+        if not held.all():  # no SQL: the catalogue (clips deleted meanwhile are not there)
+            listed = self.library.catalogue.frames(clips[~held].tolist())
+            if listed:
+                self.facts.add(
+                    np.fromiter(listed, np.int64, len(listed)), np.array(list(listed.values()))
+                )
+            held, facts = self.facts.find(clips)
+            clips, facts = clips[held], facts[held]
         if not clips.size:
             return _Candidates.empty()
         rows, offsets = self.places.of_clips(clips)
         group = np.repeat(np.arange(clips.size), np.diff(offsets))
-        frame_time = np.array([self.facts[int(c)][0] for c in clips])[group]
-        frames = np.array([self.facts[int(c)][1] for c in clips])[group]
+        frame_time = facts[:, 0][group]
+        frames = facts[:, 1][group]
         starts, stops = rows.starts * frame_time, rows.stops * frame_time
         # Seconds from each window to the nearest hit of its clip (clips kept far apart).
         apart = 4.0 * (float(np.max(frames * frame_time)) + self.seconds + 1.0)
         keys = group * apart + starts
-        marked = np.isin(rows.ids, hits)
+        marked = _members(rows.ids, hits)
         if not marked.any():  # their clips deleted meanwhile
             return _Candidates.empty()
         to_hit = _to_nearest(keys, keys[marked])
         slack = float(frame_time.max())
         seed_reach = max(self.seconds - self.length, 0.0) + slack
         if self.whole:  # the hits themselves, centred on their window
-            seeds = np.flatnonzero(np.isin(rows.ids, hits))
+            seeds = np.flatnonzero(marked)
         else:
             seeds = self._local_minima(
                 rows, group, to_hit <= seed_reach + self.length + slack, to_hit <= seed_reach
@@ -393,6 +434,8 @@ class _Finder:
         """:meth:`_nearest_parts` of ``windows`` ``(M, D)`` (float32), a block of windows at
         a time: a float64 (parts x block) matrix, its mask, and the block in float64."""
         per_window = len(self.query) * NEAREST_BYTES_PER_PAIR + 8 * windows.shape[1]
+        if len(self.query) <= DIRECT_PARTS:  # ... and every pair's difference
+            per_window += len(self.query) * 8 * windows.shape[1]
         found = [
             self._nearest_parts(windows[block].astype(np.float64))
             for block in _blocks(np.full(len(windows), per_window), BLOCK_BYTES)
@@ -437,6 +480,12 @@ class _Finder:
         distance (exact: the parts near the expanded form's minimum are measured again from
         their differences)."""
         q = self.query
+        if len(q) <= DIRECT_PARTS:  # few parts: every pair from its difference at once
+            count = len(windows)
+            difference = (q[:, None, :] - windows[None, :, :]).reshape(-1, q.shape[1])
+            every = _pair_distances_of(difference).reshape(len(q), count)
+            nearest = every.argmin(axis=0)  # the first part on ties
+            return nearest, every[nearest, np.arange(count)]
         squared = q @ windows.T  # (J, M), turned in place into squared distances
         squared *= -2.0
         squared += (q**2).sum(axis=1)[:, None]
@@ -573,8 +622,11 @@ def _search(
         wanted += int(np.count_nonzero((own.starts < exclude[2]) & (own.stops > exclude[1])))
     while True:
         hits, reach = finder.probe(wanted, allowed)
-        found = finder.moments(hits)
-        frame_of = {c: f[0] for c, f in finder.facts.items()}
+        found = finder.found(hits)
+        frame_of = {}
+        if exclude is not None:
+            held, facts = finder.facts.find(np.array([exclude[0]], np.int64))
+            frame_of = {exclude[0]: float(facts[0, 0])} if held[0] else {}
         chosen = _chosen(found, per_clip, exclude, frame_of, need)
         sure = reach * (1 - 1e-5) - finder.cover  # FAISS measures in float32
         if np.isinf(reach) or (len(chosen) >= need and found.distances[chosen[need - 1]] < sure):
