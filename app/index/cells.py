@@ -64,6 +64,7 @@ class CellGraph:
         graph.add(array)
         self.graph = graph
         self.count = int(array.shape[0])
+        self.dimension = int(array.shape[1])
         # FAISS only reads the parameters: one object for every search
         self._params: Any = faiss.SearchParametersHNSW()  # type: ignore[attr-defined]
         self._params.efSearch = effort(nprobe)
@@ -100,7 +101,22 @@ class CellGraph:
     def nearest(self, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(Q, nprobe)`` squared distances to and numbers of the cells nearest each of
         ``queries`` ``(Q, D)``, nearest first."""
-        distances, cells = self.graph.search(queries, self.nprobe, params=self._params)
+        # FAISS's own call without its Python wrapper's checks (the graph's dimension is the
+        # index's; a search asks for a dozen cells once per request)
+        queries = np.ascontiguousarray(queries, np.float32)
+        count, dimension = queries.shape
+        if dimension != self.dimension:  # native code reads D floats a query, unchecked
+            raise ValueError(f"queries of {dimension} numbers for a {self.dimension}-D graph")
+        distances = np.empty((count, self.nprobe), np.float32)
+        cells = np.empty((count, self.nprobe), np.int64)
+        self.graph.search_c(
+            count,
+            faiss.swig_ptr(queries),
+            self.nprobe,
+            faiss.swig_ptr(distances),
+            faiss.swig_ptr(cells),
+            self._params,
+        )
         return distances, cells
 
 
