@@ -22,12 +22,14 @@ from scipy.spatial.transform import Rotation
 
 from app.errors import MocapError
 from app.motion.formats import read_bvh
-from app.motion.ground import sample_frames
+from app.motion.ground import map_clip, sample_frames
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion
 from app.motion.skeleton_map import CANONICAL_INDEX
 from tests.motion.conftest import BANDAI_FIXTURE, CMU_BVH_FIXTURE, fixture_bytes
 from tests.motion.test_mapping_probes import _named_mapping, frame_as_rest
+from tests.motion.skeleton_trees import Humanoid, synthetic_humanoid
+from tests.motion.synthetic import walking
 from tests.motion.test_nameless_real import FILES
 
 # Turns about the body's lateral axis (degrees; positive leans the trunk forward, negative
@@ -216,3 +218,28 @@ def test_human_dev_rigs_in_a_take_that_never_stands() -> None:
         if same < RECORDED[probe]:
             failed[probe] = {k: v for k, v in files.items() if v}
     assert not failed, failed
+
+
+SHAPES = [
+    Humanoid(),
+    Humanoid(names="anon"),
+    Humanoid(names="anon", clavicle=False, spines=1, neck=False, toes=False, hand="none"),
+    Humanoid(names="anon", hips_coincide=True, hand="bone"),
+    Humanoid(names="anon", arm_angle=45.0, twist_bones=True, face_bones=8),
+]
+
+
+@pytest.mark.parametrize("shape", SHAPES, ids=lambda s: f"{s.names}-{s.clavicle}-{s.spines}")
+def test_synthetic_rigs_map_alike_in_a_take_that_never_stands(shape: Humanoid) -> None:
+    """Synthetic humanoids of several shapes (without names too) walking, then seated,
+    crouched and lying with their first frame written as the rest pose: the same joints as
+    the standing take, never mirrored, with a warning that no pose stood."""
+    skeleton, truth = synthetic_humanoid(shape)
+    motion = walking(skeleton, truth)
+    named = _named_mapping(motion)
+    assert named[0][CANONICAL_INDEX["l_knee"]] == truth["l_knee"]
+    for posture in POSTURES:
+        probed = frame_as_rest(posed(motion, named[0], posture))
+        assert standing_frames(probed, named[0]).mean() < 0.1, posture
+        assert _outcome(named, probed) is None, posture
+        assert any("no pose shows a standing figure" in w for w in map_clip(probed).warnings)

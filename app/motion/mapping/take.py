@@ -4,11 +4,14 @@ feet that the most poses of the take show as a person whose knees may bend.
 
 A standing figure has its feet below the pelvis, the legs opposite the spine. A person who
 sits, crouches, kneels, lies with the knees drawn up or crawls bends at the hips and the
-knees, and the thighs then point anywhere; what stays is the lower leg: below the knee the
-leg still goes down, away from the head, along the trunk (the shins of a seated or crouching
-person hang under the knees, a kneeling or crawling person's shins lie behind them, pointing
-where the pelvis is from the chest). A four-legged animal's lower legs hang across its spine,
-as its whole legs do (:data:`_LOWER_LEGS_OPPOSITE_SPINE`). One pose can still mislead (a leg
+knees, and the thighs then point anywhere; what stays is the lower leg: below the knee a
+leg that carries the body still goes down, away from the head, along the trunk (the shins of
+a seated or crouching person hang under the knees, a kneeling or crawling person's shins lie
+behind them, pointing where the pelvis is from the chest), and the other leg, stretched out
+or kicking, does not point back up to the head. A four-legged animal's lower legs hang
+across its spine, as its whole legs do (:data:`_LOWER_LEG_OPPOSITE_SPINE`). The bone
+lengths, the same in every pose, must be a person's: arms at least half as long as the legs
+(:data:`_ARM_TO_LEG`). One pose can still mislead (a leg
 kicking out, a tumble), so the take votes: the choice read so in the most poses, at least half
 of them, is the body, mapped from the first pose that shows it, with a warning.
 """
@@ -33,9 +36,14 @@ from app.motion.mapping.mapper import _TRIED_CHOICES, _Mapper
 from app.motion.mapping.tree import COINCIDENT, _Tree
 from app.motion.mapping.vectors import _length, _unit
 
-# cos of the smallest angle between the spine and the lower legs (120 degrees, as for whole
-# legs in a standing figure: hypotheses._LEGS_OPPOSITE_SPINE).
-_LOWER_LEGS_OPPOSITE_SPINE = -0.5
+# cos of the smallest angle between the spine and a lower leg that carries the body (120
+# degrees, as for whole legs in a standing figure: hypotheses._LEGS_OPPOSITE_SPINE); the
+# other may be stretched out or kick, but not point back up towards the head.
+_LOWER_LEG_OPPOSITE_SPINE = -0.5
+# A person's arm, collar to fingertip, is about 0.75 of the leg, hip to toe tip, along the
+# bones (0.1 + 0.44 against 0.1 + 0.53 + 0.1 of the height, Drillis & Contini); under half,
+# the "arms" are face bones or fingers and the "legs" arms.
+_ARM_TO_LEG = 0.5
 # The lower leg starts at the last joint of the leg chain within this fraction of its bone
 # path from the pelvis: a person's knee sits at (hip offset 0.1 + thigh 0.245) / (that + shin
 # 0.246 + foot 0.152) = 0.46 of the way to the toes (Drillis & Contini), at 0.38 with the hip
@@ -64,13 +72,13 @@ def _check_bent(tree: _Tree, pose: np.ndarray, extent: float, choice: _Choice) -
         return None
     if min(leg_lengths) < _MIN_LEG * extent or min(arm_lengths) < _MIN_ARM * extent:
         return None
-    lower = np.zeros(3)
-    for foot in feet:
-        step = _unit(pose[foot] - pose[_lower_leg_top(tree, pelvis, foot)])
-        if not float(step @ up) < 0:
-            return None  # a foot above its knee: that leg is no support
-        lower += step
-    if float(_unit(lower) @ up) > _LOWER_LEGS_OPPOSITE_SPINE:
+    if min(arm_lengths) < _ARM_TO_LEG * max(leg_lengths):
+        return None
+    # How far each lower leg points along the spine (-1: straight down the trunk).
+    lower = sorted(
+        float(_unit(pose[foot] - pose[_lower_leg_top(tree, pelvis, foot)]) @ up) for foot in feet
+    )
+    if lower[0] > _LOWER_LEG_OPPOSITE_SPINE or not lower[1] < 0:
         return None
     if float((pose[head] - pose[chest]) @ up) <= 0:
         return None
