@@ -92,19 +92,17 @@ def _bent_take(
     skeleton: Skeleton, stream: _Lookahead, problem: SkeletonMappingError
 ) -> SkeletonMap:
     """The body the take shows bent at the hips and knees when no pose shows it standing
-    (:func:`~app.motion.mapping.take.map_take`), with the limb ends of the first search and
-    then more; else ``problem``, the standing search's reason."""
-    for count in (_CANDIDATES, _MORE_CANDIDATES):
-        known = _known(skeleton, count)
-        if not known.choices:
-            continue
-        try:
-            return map_take(known, [("rest pose, bent", known.rest), *stream.labelled(_POSES)])
-        except _NotHumanoid:
-            pass
-        if len(known.candidates) < count:
-            break
-    raise problem
+    (:func:`~app.motion.mapping.take.map_take`); else ``problem``, the standing search's
+    reason. Only the first limb ends are read: a pose that does not stand tells less, and
+    more candidates (feathers, face bones, a creature's head parts) offer more readings that
+    look like a bent person."""
+    known = _known(skeleton, _CANDIDATES)
+    if not known.choices:
+        raise problem
+    try:
+        return map_take(known, [("rest pose, bent", known.rest), *stream.labelled(_POSES)])
+    except _NotHumanoid:
+        raise problem from None
 
 
 def _map_tree(skeleton: Skeleton, stream: _Lookahead) -> SkeletonMap:

@@ -19,6 +19,7 @@ of them, is the body, mapped from the first pose that shows it, with a warning.
 from __future__ import annotations
 
 import dataclasses
+import math
 from functools import partial
 
 import numpy as np
@@ -32,6 +33,7 @@ from app.motion.mapping.hypotheses import (
     _Known,
     _NotHumanoid,
 )
+from app.motion.mapping.limbs import _ALIKE
 from app.motion.mapping.mapper import _TRIED_CHOICES, _Mapper
 from app.motion.mapping.tree import COINCIDENT, _Tree
 from app.motion.mapping.vectors import _length, _unit
@@ -49,16 +51,45 @@ _ARM_TO_LEG = 0.5
 # 0.246 + foot 0.152) = 0.46 of the way to the toes (Drillis & Contini), at 0.38 with the hip
 # at the pelvis, and the ankle at 0.78; a twist joint inside the thigh only starts it higher.
 _KNEE_SHARE = 0.55
+_ANKLE_SHARE = 0.85
+# The six signed coordinate axes, one of which is the world's up.
+_AXES = np.vstack([np.eye(3), -np.eye(3)])
+# Of the leg's bone path: a foot this near the body's lowest point along up rests on what
+# the body stands on, or swings just above it in a step (a walk's swing foot: ~0.2); a lying
+# body's feet lie no farther below its pelvis.
+_FOOT_ON_FLOOR = 0.25
+# cos of the largest angle between an upright trunk and the world's up (35 degrees): a seated,
+# kneeling or crouching person keeps the trunk over the seat or the feet, leaning less (a
+# creature whose raised head passes for a chest leans 45 degrees and more)...
+_UPRIGHT = 0.82
+# ...and of the smallest between a lying trunk and up (60 degrees).
+_LEVEL = 0.5
 # Of the poses read, the share that must show the chosen body.
 _TAKE_MAJORITY = 0.5
 
 
-def _lower_leg_top(tree: _Tree, pelvis: int, foot: int) -> int:
-    """The knee, or a joint above it: the last joint of the leg chain within
-    :data:`_KNEE_SHARE` of its bone path."""
+def _lower_leg(tree: _Tree, pelvis: int, foot: int) -> tuple[int, int]:
+    """The knee (or a joint above it) and the ankle (or the foot's end on a leg without a
+    foot): the last joints of the leg chain within :data:`_KNEE_SHARE` and
+    :data:`_ANKLE_SHARE` of its bone path."""
     chain = tree.chain(pelvis, foot)
     total = tree.path[foot] - tree.path[pelvis]
-    return [j for j in chain if tree.path[j] - tree.path[pelvis] <= _KNEE_SHARE * total][-1]
+    share = [(tree.path[j] - tree.path[pelvis]) / total for j in chain]
+    knee = [j for j, s in zip(chain, share, strict=True) if s <= _KNEE_SHARE][-1]
+    ankle = [j for j, s in zip(chain, share, strict=True) if s <= _ANKLE_SHARE][-1]
+    return knee, foot if ankle == knee else ankle
+
+
+def _mirror_legs(tree: _Tree, pelvis: int, feet: tuple[int, int]) -> bool:
+    """Whether the two legs are one leg and its mirror image, bone for bone (within
+    :data:`_ALIKE`): a person's are; a tail or a creature's other limb beside a leg is not."""
+    bones = [
+        [float(tree.lengths[j]) for j in tree.chain(pelvis, foot)[1:] if tree.lengths[j] > 0]
+        for foot in feet
+    ]
+    return len(bones[0]) == len(bones[1]) and all(
+        abs(math.log(a / b)) <= _ALIKE for a, b in zip(*bones, strict=True)
+    )
 
 
 def _check_bent(tree: _Tree, pose: np.ndarray, extent: float, choice: _Choice) -> _Body | None:
@@ -72,11 +103,12 @@ def _check_bent(tree: _Tree, pose: np.ndarray, extent: float, choice: _Choice) -
         return None
     if min(leg_lengths) < _MIN_LEG * extent or min(arm_lengths) < _MIN_ARM * extent:
         return None
-    if min(arm_lengths) < _ARM_TO_LEG * max(leg_lengths):
+    if min(arm_lengths) < _ARM_TO_LEG * max(leg_lengths) or not _mirror_legs(tree, pelvis, feet):
         return None
     # How far each lower leg points along the spine (-1: straight down the trunk).
     lower = sorted(
-        float(_unit(pose[foot] - pose[_lower_leg_top(tree, pelvis, foot)]) @ up) for foot in feet
+        float(_unit(pose[ankle] - pose[knee]) @ up)
+        for knee, ankle in (_lower_leg(tree, pelvis, foot) for foot in feet)
     )
     if lower[0] > _LOWER_LEG_OPPOSITE_SPINE or not lower[1] < 0:
         return None
@@ -89,6 +121,33 @@ def _check_bent(tree: _Tree, pose: np.ndarray, extent: float, choice: _Choice) -
         cost += term
     cost -= 0.5 * (sum(leg_lengths) + sum(arm_lengths)) / extent
     return _Body(head, hands, feet, chest, pelvis, up, cost)
+
+
+def _stands_in_the_world(tree: _Tree, poses: list[np.ndarray], choice: _Choice) -> bool:
+    """Whether ``choice``, read in ``poses`` (``(J, 3)`` each), is a person and not a
+    four-legged animal, by the world's vertical: the signed coordinate axis (files are
+    authored with one up) along which both feet are the body's lowest points in the most
+    poses (they rest on what the body stands, sits or lies on, or swing a little above
+    it). A person's trunk is upright along it (seated, crouching, kneeling), or lies with
+    the feet not hanging below the pelvis (lying down); an animal's spine is level with its
+    legs hanging below it."""
+    _, _, feet, chest, pelvis, leg_lengths, _, _ = choice
+    at = np.stack(poses)  # (P, J, 3)
+    near = _FOOT_ON_FLOOR * min(leg_lengths)
+    heights = at[:, tree.body_joints] @ _AXES.T  # (P, B, 6)
+    lowest = heights.min(axis=1)  # (P, 6)
+    on_floor = np.ones(lowest.shape, dtype=bool)
+    for foot in feet:
+        on_floor &= at[:, foot] @ _AXES.T <= lowest + near
+    counts = on_floor.sum(axis=0)  # (6,)
+    if counts.max() < _TAKE_MAJORITY * len(poses):
+        return False
+    up = _AXES[int(np.argmax(counts))]
+    spine = at[:, chest] - at[:, pelvis]
+    rise = (spine @ up) / np.maximum(np.linalg.norm(spine, axis=1), 1e-300)  # (P,)
+    hang = (at[:, [pelvis]] - at[:, list(feet)]) @ up  # (P, 2)
+    person = (rise >= _UPRIGHT) | ((np.abs(rise) < _LEVEL) & (hang.max(axis=1) <= near))
+    return bool(person.sum() >= _TAKE_MAJORITY * len(poses))
 
 
 def map_take(known: _Known, poses: list[tuple[str, np.ndarray]]) -> SkeletonMap:
@@ -106,8 +165,13 @@ def map_take(known: _Known, poses: list[tuple[str, np.ndarray]]) -> SkeletonMap:
             if body is not None:
                 shown.setdefault(number, []).append((index, body, extent))
     need = _TAKE_MAJORITY * len(poses)
+    at = [pose for _, pose in poses]
     ranked = sorted(
-        (number for number, seen in shown.items() if len(seen) >= need),
+        (
+            number
+            for number, seen in shown.items()
+            if len(seen) >= need and _stands_in_the_world(tree, at, known.choices[number])
+        ),
         key=lambda number: (-len(shown[number]), sum(b.cost for _, b, _ in shown[number])),
     )
     problem = _NotHumanoid("no pose of the take shows a person, standing or bent")
