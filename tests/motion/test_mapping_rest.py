@@ -27,9 +27,9 @@ from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion
 from app.motion.skeleton_map import CANONICAL_INDEX
 from tests.motion.conftest import BANDAI_FIXTURE, CMU_BVH_FIXTURE, fixture_bytes
-from tests.motion.test_mapping_probes import _named_mapping, frame_as_rest
 from tests.motion.skeleton_trees import Humanoid, synthetic_humanoid
 from tests.motion.synthetic import walking
+from tests.motion.test_mapping_probes import _named_mapping, frame_as_rest
 from tests.motion.test_nameless_real import FILES
 
 # Turns about the body's lateral axis (degrees; positive leans the trunk forward, negative
