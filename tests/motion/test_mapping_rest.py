@@ -33,15 +33,16 @@ from tests.motion.test_mapping_probes import _named_mapping, frame_as_rest
 from tests.motion.test_nameless_real import FILES
 
 # Turns about the body's lateral axis (degrees; positive leans the trunk forward, negative
-# lifts a thigh forward), applied in order at each canonical joint, in every frame.
+# lifts a thigh forward), applied in order at each canonical joint, in every frame, on top of
+# the clip's own (so a knee turn leaves room for the clip's knee bend below 180 degrees).
 POSTURES: dict[str, tuple[tuple[str, float], ...]] = {
     "seated": (("l_hip", -95.0), ("r_hip", -95.0), ("l_knee", 85.0), ("r_knee", 85.0)),
     "crouched": (
         ("spine", 30.0),
-        ("l_hip", -120.0),
-        ("r_hip", -120.0),
-        ("l_knee", 140.0),
-        ("r_knee", 140.0),
+        ("l_hip", -110.0),
+        ("r_hip", -110.0),
+        ("l_knee", 100.0),
+        ("r_knee", 100.0),
     ),
     "lying, knees up": (
         ("pelvis", -90.0),
