@@ -93,9 +93,7 @@ def _bent_take(
 ) -> SkeletonMap:
     """The body the take shows bent at the hips and knees when no pose shows it standing
     (:func:`~app.motion.mapping.take.map_take`); else ``problem``, the standing search's
-    reason. Only the first limb ends are read: a pose that does not stand tells less, and
-    more candidates (feathers, face bones, a creature's head parts) offer more readings that
-    look like a bent person."""
+    reason (only the first limb ends are read: see :mod:`~app.motion.mapping.take`)."""
     known = _known(skeleton, _CANDIDATES)
     if not known.choices:
         raise problem

@@ -1,19 +1,36 @@
 """A body read from a take in which no pose is a standing figure (a seated, crouched or
 lying take; a pose estimator's first frame for rest pose): the choice of head, hands and
-feet that the most poses of the take show as a person whose knees may bend.
+feet that most poses of the take show as a person bent at the hips and knees.
 
-A standing figure has its feet below the pelvis, the legs opposite the spine. A person who
-sits, crouches, kneels, lies with the knees drawn up or crawls bends at the hips and the
-knees, and the thighs then point anywhere; what stays is the lower leg: below the knee a
-leg that carries the body still goes down, away from the head, along the trunk (the shins of
-a seated or crouching person hang under the knees, a kneeling or crawling person's shins lie
-behind them, pointing where the pelvis is from the chest), and the other leg, stretched out
-or kicking, does not point back up to the head. A four-legged animal's lower legs hang
-across its spine, as its whole legs do (:data:`_LOWER_LEG_OPPOSITE_SPINE`). The bone
-lengths, the same in every pose, must be a person's: arms at least half as long as the legs
-(:data:`_ARM_TO_LEG`). One pose can still mislead (a leg
-kicking out, a tumble), so the take votes: the choice read so in the most poses, at least half
-of them, is the body, mapped from the first pose that shows it, with a warning.
+Reached only when the rest pose and every frame offered fail the standing search (and IK-held
+feet do not help), so nothing the standing search maps changes. Three readings, each with
+its reason in the body:
+
+* **The pose, bent.** A person who sits, crouches, kneels, lies with the knees drawn up or
+  crawls bends at the hips and the knees, and the thighs then point anywhere; what stays is
+  the lower leg: below the knee a leg that carries the body goes down the trunk, away from
+  the head (a seated or crouching person's shins hang under the knees, a kneeling one's lie
+  behind them), and the other leg, stretched out or kicking, does not point back up to the
+  head (:data:`_LOWER_LEG_OPPOSITE_SPINE`). Knee and ankle are found by where a person's lie
+  along the leg's bones (:data:`_KNEE_SHARE`).
+* **The bones, in every pose.** The legs are one leg and its mirror image, bone for bone (a
+  tail or another limb beside a leg is not), and the arms at least half as long as the legs
+  (:data:`_ARM_TO_LEG`: face bones or fingers taken for arms are not).
+* **The world, over the take.** A bent person and a four-legged animal look alike in the
+  body's own frame (a fox's shins slant back down its spine as a crouching person's do); the
+  world tells them apart. Files are authored with a coordinate axis up, and along it both
+  feet are the body's lowest points in most poses (they rest on what the body stands, sits
+  or lies on): along such an axis a person's trunk is upright (a seated, kneeling or
+  crouching person keeps it over the seat or the feet) or lies level with the feet no lower
+  than the pelvis (lying down), while an animal's spine is level with its legs hanging
+  below it (:func:`_stands_in_the_world`).
+
+One pose can mislead (a leg kicking out, a tumble), so the take votes: the choice read so in
+the most poses, at least half of them, is the body, mapped from the first pose that shows it,
+with a warning. Only the first limb ends of the standing search are read: a pose that does
+not stand tells less, and more candidates (feathers, a creature's head parts) offer more
+readings that look like a bent person. What is left is the tie the take cannot break: a
+person crawling through a whole take looks like an animal walking, and stays refused.
 """
 
 from __future__ import annotations
