@@ -27,6 +27,7 @@ from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion
 from app.motion.skeleton_map import CANONICAL_INDEX
 from tests.motion.conftest import BANDAI_FIXTURE, CMU_BVH_FIXTURE, fixture_bytes
+from tests.motion.holds import frames_at
 from tests.motion.skeleton_trees import Humanoid, synthetic_humanoid
 from tests.motion.synthetic import walking
 from tests.motion.test_mapping_probes import _named_mapping, frame_as_rest
@@ -119,24 +120,13 @@ def standing_frames(motion: Motion, names: tuple[str, ...]) -> np.ndarray:
     return standing & (np.sum(legs * up, axis=1) <= -0.5)
 
 
-def _frames(motion: Motion, keep: np.ndarray) -> Motion:
-    return dataclasses.replace(
-        motion,
-        root_translation=motion.root_translation[keep],
-        local_rotations=motion.local_rotations[keep],
-        local_translations=None
-        if motion.local_translations is None
-        else motion.local_translations[keep],
-    )
-
-
 def rest_probes(motion: Motion) -> dict[str, Motion]:
     """Name -> the rig written with no standing figure in its rest pose or its frames."""
     names, _ = _named_mapping(motion)
     probes = {
         f"{posture} take": frame_as_rest(posed(motion, names, posture)) for posture in POSTURES
     }
-    seated_start = _frames(posed(motion, names, "seated"), np.array([0]))
+    seated_start = frames_at(posed(motion, names, "seated"), np.array([0]))
     first = motion.local_rotations.copy()
     first[0] = seated_start.local_rotations[0]
     probes["seated first frame as rest"] = frame_as_rest(
@@ -144,7 +134,7 @@ def rest_probes(motion: Motion) -> dict[str, Motion]:
     )
     lying = ~standing_frames(motion, names)
     if lying.any() and not lying.all():
-        probes["its frames that do not stand"] = frame_as_rest(_frames(motion, lying))
+        probes["its frames that do not stand"] = frame_as_rest(frames_at(motion, lying))
     return probes
 
 
@@ -191,7 +181,7 @@ def _dev_outcomes() -> dict[str, dict[str, str | None]]:
     """Probe -> dev file -> None when the probed copy maps like the file, else how not."""
     found: dict[str, dict[str, str | None]] = {probe: {} for probe in PROBES}
     for path in FILES:
-        # The mapper reads a dozen frames: a few hundred spread over the clip keep it quick.
+        # The mapper reads a dozen frames: 120 spread over the clip keep the probes quick.
         motion = sample_frames(read_bvh(path.read_bytes()), 120)
         named = _named_mapping(motion)
         for probe, probed in rest_probes(motion).items():
