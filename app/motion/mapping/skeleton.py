@@ -1,5 +1,6 @@
 """The public entry: :func:`map_skeleton`, trying the rest pose, then the clip's frames, then
-limb ends held by IK; what one rig's structure decides is kept per skeleton."""
+limb ends held by IK, then the take read as a person bent at the hips and knees (no pose
+standing); what one rig's structure decides is kept per skeleton."""
 
 from __future__ import annotations
 
