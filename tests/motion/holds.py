@@ -29,7 +29,11 @@ def held(body: Body, at: int, extra: int) -> Body:
 
 def held_motion(motion: Motion, at: int, extra: int) -> Motion:
     """``motion`` with frame ``at`` held ``extra`` frames longer."""
-    index = _held_index(motion.frame_count, at, extra)
+    return frames_at(motion, _held_index(motion.frame_count, at, extra))
+
+
+def frames_at(motion: Motion, index: np.ndarray) -> Motion:
+    """``motion`` made of its frames ``index`` (``(F',)`` int or ``(F,)`` bool), in order."""
     return dataclasses.replace(
         motion,
         root_translation=motion.root_translation[index],

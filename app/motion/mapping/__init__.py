@@ -67,6 +67,12 @@ facing, naming or extra joints (fingers, face, twist bones, props, IK targets, d
    searched with — gets the same sides. A standing rest pose that shows no side (straight
    knees, no feet) lets the clip's frames vote likewise (:attr:`SkeletonMap.sides_open`).
 
+When neither the rest pose nor any frame offered shows a standing figure (a seated, crouched
+or lying take, a pose estimator's first frame taken for rest), the take is read once more as
+a person bent at the hips and knees: lower legs going down the trunk, mirror-image legs, and
+the world's up (the coordinate axis along which both feet rest) showing the trunk upright or
+lying, not a spine level over hanging legs (:mod:`.take`); such a mapping carries a warning.
+
 What the tree alone decides (the candidate limb ends, the choices it allows) and, when the
 rest pose shows a standing figure, the whole mapping are kept per skeleton: every clip of a
 rig after the first is mapped without redoing them.
@@ -78,7 +84,8 @@ missing.
 Modules, by responsibility: :mod:`.canonical` (the canonical joints, :class:`SkeletonMap`),
 :mod:`.tree` (the skeleton's tree, candidate limb ends), :mod:`.hypotheses` (head, hands and
 feet: step 1), :mod:`.state`, :mod:`.limbs` and :mod:`.sides` (steps 2-4 for one hypothesis),
-:mod:`.mapper` (one pose's mapping), :mod:`.held` (limb ends held by IK) and :mod:`.skeleton`
+:mod:`.mapper` (one pose's mapping), :mod:`.held` (limb ends held by IK), :mod:`.take` (a
+take that never stands) and :mod:`.skeleton`
 (:func:`map_skeleton`: rest pose, then frames, kept per skeleton). Callers import the public
 names from :mod:`app.motion.skeleton_map`.
 """

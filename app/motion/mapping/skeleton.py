@@ -1,5 +1,6 @@
 """The public entry: :func:`map_skeleton`, trying the rest pose, then the clip's frames, then
-limb ends held by IK; what one rig's structure decides is kept per skeleton."""
+limb ends held by IK, then the take read as a person bent at the hips and knees (no pose
+standing); what one rig's structure decides is kept per skeleton."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from app.motion.mapping.canonical import SkeletonMap, rest_pose
 from app.motion.mapping.held import _held_ends, _rehung
 from app.motion.mapping.hypotheses import _Known, _NotHumanoid, _structure
 from app.motion.mapping.mapper import _map_pose
+from app.motion.mapping.take import map_take
 from app.motion.mapping.tree import _Tree
 from app.motion.model import Skeleton
 
@@ -55,17 +57,15 @@ def map_skeleton(skeleton: Skeleton, poses: Iterable[tuple[str, np.ndarray]] = (
     # each hung from the limb it moves with.
     known = _known(skeleton, _CANDIDATES)
     held = _held_ends(known.tree, stream.after(-1, _POSES))
-    if not held:
-        raise problem
-    rehung = _rehung(skeleton, known.rest, held)
+    rehung = _rehung(skeleton, known.rest, held) if held else None
     if rehung is None:
-        raise problem
+        return _bent_take(skeleton, stream, problem)
     order, virtual = rehung
     moved = _Lookahead((label, pose[order]) for label, pose in stream)
     try:
         mapping = _map_tree(virtual, moved)
     except _NotHumanoid:
-        raise problem from None
+        return _bent_take(skeleton, stream, problem)
     joints = order[mapping.joints]
     ends = ", ".join(
         f"{skeleton.names[joint]!r} with {skeleton.names[leaf]!r}"
@@ -87,6 +87,21 @@ def map_skeleton(skeleton: Skeleton, poses: Iterable[tuple[str, np.ndarray]] = (
         ),
         warnings=(*mapping.warnings, f"limb ends held by IK, not by their limbs: {ends}"),
     )
+
+
+def _bent_take(
+    skeleton: Skeleton, stream: _Lookahead, problem: SkeletonMappingError
+) -> SkeletonMap:
+    """The body the take shows bent at the hips and knees when no pose shows it standing
+    (:func:`~app.motion.mapping.take.map_take`); else ``problem``, the standing search's
+    reason (only the first limb ends are read: see :mod:`~app.motion.mapping.take`)."""
+    known = _known(skeleton, _CANDIDATES)
+    if not known.choices:
+        raise problem
+    try:
+        return map_take(known, [("rest pose, bent", known.rest), *stream.labelled(_POSES)])
+    except _NotHumanoid:
+        raise problem from None
 
 
 def _map_tree(skeleton: Skeleton, stream: _Lookahead) -> SkeletonMap:
@@ -177,6 +192,11 @@ class _Lookahead:
     def after(self, index: int, count: int) -> list[np.ndarray]:
         self._reach(index + 1 + count)
         return [pose for _, pose in self._read[index + 1 : index + 1 + count]]
+
+    def labelled(self, count: int) -> list[tuple[str, np.ndarray]]:
+        """The first ``count`` poses with their labels."""
+        self._reach(count)
+        return self._read[:count]
 
 
 _KNOWN: OrderedDict[bytes, _Known] = OrderedDict()

@@ -1,0 +1,219 @@
+"""A body read from a take in which no pose is a standing figure (a seated, crouched or
+lying take; a pose estimator's first frame for rest pose): the choice of head, hands and
+feet that most poses of the take show as a person bent at the hips and knees.
+
+Reached only when the rest pose and every frame offered fail the standing search (and IK-held
+feet do not help), so nothing the standing search maps changes. Three readings, each with
+its reason in the body:
+
+* **The pose, bent.** A person who sits, crouches, kneels, lies with the knees drawn up or
+  crawls bends at the hips and the knees, and the thighs then point anywhere; what stays is
+  the lower leg: below the knee a leg that carries the body goes down the trunk, away from
+  the head (a seated or crouching person's shins hang under the knees, a kneeling one's lie
+  behind them), and the other leg, stretched out or kicking, does not point back up to the
+  head (:data:`_LOWER_LEG_OPPOSITE_SPINE`). Knee and ankle are found by where a person's lie
+  along the leg's bones (:data:`_KNEE_SHARE`).
+* **The bones, in every pose.** The legs are one leg and its mirror image, bone for bone (a
+  tail or another limb beside a leg is not), and the arms at least half as long as the legs
+  (:data:`_ARM_TO_LEG`: face bones or fingers taken for arms are not).
+* **The world, over the take.** A bent person and a four-legged animal look alike in the
+  body's own frame (a fox's shins slant back down its spine as a crouching person's do); the
+  world tells them apart. Files are authored with a coordinate axis up, and along it both
+  feet are the body's lowest points in most poses (they rest on what the body stands, sits
+  or lies on): along such an axis a person's trunk is upright (a seated, kneeling or
+  crouching person keeps it over the seat or the feet) or lies level with the feet no lower
+  than the pelvis (lying down), while an animal's spine is level with its legs hanging
+  below it (:func:`_stands_in_the_world`).
+
+One pose can mislead (a leg kicking out, a tumble), so the take votes: the choice read so in
+the most poses, at least half of them, is the body, mapped from the first pose that shows it,
+with a warning. Only the first limb ends of the standing search are read: a pose that does
+not stand tells less, and more candidates (feathers, a creature's head parts) offer more
+readings that look like a bent person. What is left is the tie the take cannot break: a
+person crawling through a whole take looks like an animal walking, and stays refused.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from functools import partial
+
+import numpy as np
+
+from app.motion.mapping.canonical import SkeletonMap
+from app.motion.mapping.hypotheses import (
+    _MIN_ARM,
+    _MIN_LEG,
+    _Body,
+    _Choice,
+    _Known,
+    _NotHumanoid,
+)
+from app.motion.mapping.limbs import _ALIKE
+from app.motion.mapping.mapper import _TRIED_CHOICES, _Mapper
+from app.motion.mapping.tree import COINCIDENT, _Tree
+from app.motion.mapping.vectors import _length, _unit
+
+# cos of the smallest angle between the spine and a lower leg that carries the body (120
+# degrees, as for whole legs in a standing figure: hypotheses._LEGS_OPPOSITE_SPINE); the
+# other may be stretched out or kick, but not point back up towards the head.
+_LOWER_LEG_OPPOSITE_SPINE = -0.5
+# A person's arm, collar to fingertip, is about 0.75 of the leg, hip to toe tip, along the
+# bones (0.1 + 0.44 against 0.1 + 0.53 + 0.1 of the height, Drillis & Contini); under half,
+# the "arms" are face bones or fingers and the "legs" arms.
+_ARM_TO_LEG = 0.5
+# Where a person's knee and ankle lie along the leg's bones from the pelvis, as shares of
+# the way to the toes: (hip offset 0.1 + thigh 0.245) / (that + shin 0.246 + foot 0.152) =
+# 0.46 and 0.79 (Drillis & Contini); the joint nearest each is taken for it.
+_KNEE_SHARE = 0.46
+_ANKLE_SHARE = 0.79
+# The six signed coordinate axes, one of which is the world's up.
+_AXES = np.vstack([np.eye(3), -np.eye(3)])
+# Of the leg's bone path: a foot this near the body's lowest point along up rests on what
+# the body stands on, or swings just above it in a step (a walk's swing foot: ~0.2); a lying
+# body's feet lie no farther below its pelvis.
+_FOOT_ON_FLOOR = 0.25
+# cos of the largest angle between an upright trunk and the world's up (35 degrees): a seated,
+# kneeling or crouching person keeps the trunk over the seat or the feet, leaning less (a
+# creature whose raised head passes for a chest leans 45 degrees and more)...
+_UPRIGHT = 0.82
+# ...and of the smallest between a lying trunk and up (60 degrees).
+_LEVEL = 0.5
+# Of the poses read, the share that must show the chosen body.
+_TAKE_MAJORITY = 0.5
+
+
+def _lower_leg(tree: _Tree, pelvis: int, foot: int) -> tuple[int, int]:
+    """The knee and the ankle, by where they lie along the leg's bones: the joints of the
+    leg chain nearest :data:`_KNEE_SHARE` and :data:`_ANKLE_SHARE` of its bone path from
+    the pelvis (the foot's end when the ankle is the knee: a leg without a foot)."""
+    chain = tree.chain(pelvis, foot)[1:]
+    total = tree.path[foot] - tree.path[pelvis]
+    share = np.array([(tree.path[j] - tree.path[pelvis]) / total for j in chain])
+    knee = chain[int(np.argmin(np.abs(share - _KNEE_SHARE)))]
+    ankle = chain[int(np.argmin(np.abs(share - _ANKLE_SHARE)))]
+    return knee, foot if ankle == knee else ankle
+
+
+def _mirror_legs(tree: _Tree, pelvis: int, feet: tuple[int, int]) -> bool:
+    """Whether the two legs are one leg and its mirror image, bone for bone (within
+    :data:`_ALIKE`): a person's are; a tail or a creature's other limb beside a leg is not."""
+    bones = [
+        [float(tree.lengths[j]) for j in tree.chain(pelvis, foot)[1:] if tree.lengths[j] > 0]
+        for foot in feet
+    ]
+    return len(bones[0]) == len(bones[1]) and all(
+        abs(math.log(a / b)) <= _ALIKE for a, b in zip(*bones, strict=True)
+    )
+
+
+def _check_bent(tree: _Tree, pose: np.ndarray, extent: float, choice: _Choice) -> _Body | None:
+    """``choice`` as a person whose hips and knees may bend in ``pose``, else None."""
+    head, hands, feet, chest, pelvis, leg_lengths, arm_lengths, name_cost = choice
+    spine = pose[chest] - pose[pelvis]
+    if _length(spine) < COINCIDENT * extent:
+        spine = pose[head] - pose[pelvis]
+    up = _unit(spine)
+    if not _length(up) > 0:
+        return None
+    if min(leg_lengths) < _MIN_LEG * extent or min(arm_lengths) < _MIN_ARM * extent:
+        return None
+    if min(arm_lengths) < _ARM_TO_LEG * max(leg_lengths) or not _mirror_legs(tree, pelvis, feet):
+        return None
+    # How far each lower leg points along the spine (-1: straight down the trunk).
+    lower = sorted(
+        float(_unit(pose[ankle] - pose[knee]) @ up)
+        for knee, ankle in (_lower_leg(tree, pelvis, foot) for foot in feet)
+    )
+    if lower[0] > _LOWER_LEG_OPPOSITE_SPINE or not lower[1] < 0:
+        return None
+    if float((pose[head] - pose[chest]) @ up) <= 0:
+        return None
+    cost = abs(leg_lengths[0] - leg_lengths[1]) / max(leg_lengths) + abs(
+        arm_lengths[0] - arm_lengths[1]
+    ) / max(arm_lengths)
+    for term in name_cost:
+        cost += term
+    cost -= 0.5 * (sum(leg_lengths) + sum(arm_lengths)) / extent
+    return _Body(head, hands, feet, chest, pelvis, up, cost)
+
+
+def _stands_in_the_world(tree: _Tree, poses: list[np.ndarray], choice: _Choice) -> bool:
+    """Whether ``choice``, read in ``poses`` (``(J, 3)`` each), is a person and not a
+    four-legged animal, by the world's vertical: the signed coordinate axis (files are
+    authored with one up) along which both feet are the body's lowest points in most
+    poses (they rest on what the body stands, sits or lies on, or swing a little above
+    it). A person's trunk is upright along it (seated, crouching, kneeling), or lies with
+    the feet not hanging below the pelvis (lying down); an animal's spine is level with its
+    legs hanging below it."""
+    _, _, feet, chest, pelvis, leg_lengths, _, _ = choice
+    at = np.stack(poses)  # (P, J, 3)
+    near = _FOOT_ON_FLOOR * min(leg_lengths)
+    heights = at[:, tree.body_joints] @ _AXES.T  # (P, B, 6)
+    lowest = heights.min(axis=1)  # (P, 6)
+    # (Of the body's extent along the axis too: along a narrow body's side, every point is
+    # near the lowest.)
+    rest_on = np.minimum(near, _FOOT_ON_FLOOR * (heights.max(axis=1) - lowest))
+    on_floor = np.ones(lowest.shape, dtype=bool)
+    for foot in feet:
+        on_floor &= at[:, foot] @ _AXES.T <= lowest + rest_on
+    spine = at[:, chest] - at[:, pelvis]
+    spine /= np.maximum(np.linalg.norm(spine, axis=1, keepdims=True), 1e-300)
+    need = _TAKE_MAJORITY * len(poses)
+    # Every axis along which the feet rest in most poses: a seated person's feet are also
+    # the most forward points, a lying person's maybe the farthest from the head.
+    for axis in np.flatnonzero(on_floor.sum(axis=0) >= need):
+        up = _AXES[axis]
+        rise = spine @ up  # (P,)
+        hang = (at[:, [pelvis]] - at[:, list(feet)]) @ up  # (P, 2)
+        person = (rise >= _UPRIGHT) | ((np.abs(rise) < _LEVEL) & (hang.max(axis=1) <= near))
+        if person.sum() >= need:
+            return True
+    return False
+
+
+def map_take(known: _Known, poses: list[tuple[str, np.ndarray]]) -> SkeletonMap:
+    """The body most of ``poses`` (``(label, (J, 3))``: the rest pose and the frames read)
+    show as a person with bent hips and knees (see the module docstring); else _NotHumanoid.
+    """
+    tree = known.tree
+    shown: dict[int, list[tuple[int, _Body, float]]] = {}
+    for index, (_, pose) in enumerate(poses):
+        extent = float(np.linalg.norm(np.ptp(pose[tree.body_joints], axis=0)))
+        if not extent > 0:
+            continue
+        for number, choice in enumerate(known.choices):
+            body = _check_bent(tree, pose, extent, choice)
+            if body is not None:
+                shown.setdefault(number, []).append((index, body, extent))
+    need = _TAKE_MAJORITY * len(poses)
+    at = [pose for _, pose in poses]
+    ranked = sorted(
+        (
+            number
+            for number, seen in shown.items()
+            if len(seen) >= need and _stands_in_the_world(tree, at, known.choices[number])
+        ),
+        key=lambda number: (-len(shown[number]), sum(b.cost for _, b, _ in shown[number])),
+    )
+    problem = _NotHumanoid("no pose of the take shows a person, standing or bent")
+    for number in ranked[:_TRIED_CHOICES]:
+        for index, body, extent in shown[number]:
+            label, pose = poses[index]
+            others = [p for i, (_, p) in enumerate(poses) if i != index]
+            try:
+                mapping = _Mapper(tree, pose, extent, body, label, partial(list, others)).run()
+            except _NotHumanoid as why:
+                problem = why
+                continue
+            where = "the rest pose" if label.startswith("rest pose") else label
+            return dataclasses.replace(
+                mapping,
+                warnings=(
+                    *mapping.warnings,
+                    "no pose shows a standing figure: the body was read from "
+                    f"{where}, bent at the hips and knees (seated, crouching or lying)",
+                ),
+            )
+    raise problem
