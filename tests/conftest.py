@@ -161,6 +161,7 @@ LONGEST_FILES_FIRST = (
     "tests/ui/test_pages_browser.py",
     "tests/api/test_errors.py",
     "tests/motion/test_mapping_probes.py",
+    "tests/motion/test_mapping_rest.py",
     "tests/motion/test_mapping_names.py",
     "tests/api/test_readme.py",
     "tests/hardening/test_crash_import.py",
