@@ -165,6 +165,7 @@ LONGEST_FILES_FIRST = (
     "tests/motion/test_mapping_names.py",
     "tests/api/test_readme.py",
     "tests/hardening/test_crash_import.py",
+    "tests/hardening/test_replicas.py",
     "tests/ui/",
 )
 
