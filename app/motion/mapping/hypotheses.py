@@ -210,6 +210,28 @@ def _hypotheses(known: _Known, pose: np.ndarray, extent: float) -> tuple[list[_B
     return valid, reason
 
 
+def trunk_up(pose: np.ndarray, extent: float, head: int, chest: int, pelvis: int) -> np.ndarray:
+    """``(3,)`` the unit direction pelvis -> chest in ``pose`` (pelvis -> head when the two
+    coincide); of zero length when the trunk has none."""
+    spine = pose[chest] - pose[pelvis]
+    if _length(spine) < COINCIDENT * extent:
+        spine = pose[head] - pose[pelvis]
+    return _unit(spine)
+
+
+def pair_cost(
+    leg_lengths: list[float], arm_lengths: list[float], name_cost: tuple[float, ...]
+) -> float:
+    """A choice's cost before the pose's own terms: how unlike its two legs and its two arms
+    are, plus what the names say (added one by one, as the names were read)."""
+    cost = abs(leg_lengths[0] - leg_lengths[1]) / max(leg_lengths) + abs(
+        arm_lengths[0] - arm_lengths[1]
+    ) / max(arm_lengths)
+    for term in name_cost:
+        cost += term
+    return cost
+
+
 def _check_pose(
     tree: _Tree,
     pose: np.ndarray,
@@ -225,10 +247,7 @@ def _check_pose(
 ) -> tuple[_Body | None, str, int]:
     """The geometric half: a hypothesis if the choice is a humanoid in ``pose``, else (None,
     why, how far it got)."""
-    spine = pose[chest] - pose[pelvis]
-    if _length(spine) < COINCIDENT * extent:
-        spine = pose[head] - pose[pelvis]
-    up = _unit(spine)
+    up = trunk_up(pose, extent, head, chest, pelvis)
     if not _length(up) > 0:
         return None, "the spine has no length", 1
     drops = [float((pose[pelvis] - pose[f]) @ up) for f in feet]
@@ -250,11 +269,7 @@ def _check_pose(
         return None, "no head above the arms: missing head", 2
     if min(arm_lengths) < _MIN_ARM * extent:
         return None, "no two arms branch off the spine: missing arms", 2
-    cost = abs(leg_lengths[0] - leg_lengths[1]) / max(leg_lengths) + abs(
-        arm_lengths[0] - arm_lengths[1]
-    ) / max(arm_lengths)
-    for term in name_cost:  # added one by one, as the names were read
-        cost += term
+    cost = pair_cost(leg_lengths, arm_lengths, name_cost)
     # Prefer the highest head and the longest limbs among otherwise equal choices (a leaf at
     # the knee is a marker joint, not the foot).
     cost -= 0.1 * float((pose[head] - pose[pelvis]) @ up) / extent

@@ -49,10 +49,12 @@ from app.motion.mapping.hypotheses import (
     _Choice,
     _Known,
     _NotHumanoid,
+    pair_cost,
+    trunk_up,
 )
 from app.motion.mapping.limbs import _ALIKE
 from app.motion.mapping.mapper import _TRIED_CHOICES, _Mapper
-from app.motion.mapping.tree import COINCIDENT, _Tree
+from app.motion.mapping.tree import _Tree
 from app.motion.mapping.vectors import _length, _unit
 
 # cos of the smallest angle between the spine and a lower leg that carries the body (120
@@ -111,10 +113,7 @@ def _mirror_legs(tree: _Tree, pelvis: int, feet: tuple[int, int]) -> bool:
 def _check_bent(tree: _Tree, pose: np.ndarray, extent: float, choice: _Choice) -> _Body | None:
     """``choice`` as a person whose hips and knees may bend in ``pose``, else None."""
     head, hands, feet, chest, pelvis, leg_lengths, arm_lengths, name_cost = choice
-    spine = pose[chest] - pose[pelvis]
-    if _length(spine) < COINCIDENT * extent:
-        spine = pose[head] - pose[pelvis]
-    up = _unit(spine)
+    up = trunk_up(pose, extent, head, chest, pelvis)
     if not _length(up) > 0:
         return None
     if min(leg_lengths) < _MIN_LEG * extent or min(arm_lengths) < _MIN_ARM * extent:
@@ -130,11 +129,7 @@ def _check_bent(tree: _Tree, pose: np.ndarray, extent: float, choice: _Choice) -
         return None
     if float((pose[head] - pose[chest]) @ up) <= 0:
         return None
-    cost = abs(leg_lengths[0] - leg_lengths[1]) / max(leg_lengths) + abs(
-        arm_lengths[0] - arm_lengths[1]
-    ) / max(arm_lengths)
-    for term in name_cost:
-        cost += term
+    cost = pair_cost(leg_lengths, arm_lengths, name_cost)
     cost -= 0.5 * (sum(leg_lengths) + sum(arm_lengths)) / extent
     return _Body(head, hands, feet, chest, pelvis, up, cost)
 
