@@ -7,7 +7,7 @@ Run from the repository root::
     .venv/bin/python bench/bench_crowd.py [--seconds 60] [--no-postgres]
 
 The same clients and checks as ``tests/hardening/test_load.py`` (which runs them for
-``MOCAP_CROWD_SECONDS``, 20 s in CI): afterwards the clip count over the API, every index's
+``MOCAP_CROWD_SECONDS``, 12 s in CI): afterwards the clip count over the API, every index's
 count in ``/health``, the stored files and the database agree, and every acknowledged upload
 not deleted is there, with its last labels, and found by a search. Prints each operation's
 count, rate and latency percentiles, and any problem (exit status 1 then).

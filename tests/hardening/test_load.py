@@ -221,7 +221,7 @@ def test_concurrent_uploads_and_searches(tmp_path: Path) -> None:
 # -- the crowd: every operation at once, on one server and on two replicas -------------------
 
 # Read at import: the tests' fixture clears MOCAP_* variables before each test.
-CROWD_SECONDS = float(os.environ.get("MOCAP_CROWD_SECONDS", "20"))
+CROWD_SECONDS = float(os.environ.get("MOCAP_CROWD_SECONDS", "12"))
 CROWD_REPORT = os.environ.get("MOCAP_CROWD_REPORT")
 CROWD_CLIENTS = 8
 # operation -> weight (out of 100)

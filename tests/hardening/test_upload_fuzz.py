@@ -17,8 +17,8 @@ API key) and to one of ``POST /search``, ``POST /search/moments`` or ``POST /ske
 * store nothing when refused: the clip count, every index and the stored files unchanged (an
   accepted upload is deleted again).
 
-Budget: ``MOCAP_FUZZ_SECONDS`` (default 60 s of fuzzing, the whole module about 2 minutes in
-CI), at most ``MOCAP_UPLOAD_FUZZ_EXAMPLES`` examples; CI draws the same examples every run
+Budget: ``MOCAP_FUZZ_SECONDS`` (default 40 s of fuzzing, the whole module about 1.5 minutes
+in CI), at most ``MOCAP_UPLOAD_FUZZ_EXAMPLES`` examples; CI draws the same examples every run
 (hypothesis ``derandomize``), ``MOCAP_FUZZ_RANDOM=1`` draws new ones (docs/hardening.md
 records long runs). A failing input is written to ``tests/hostile/found/`` with an entry in
 ``found.json`` (:func:`tests.hostile.make_corpus.record_found`) before the test fails: commit
@@ -54,7 +54,7 @@ from tests.hostile.make_corpus import Case
 from tests.motion.gltf_builder import gltf_parts, pack_glb
 
 KEY = "upload-fuzz-key-81c"
-SECONDS = float(os.environ.get("MOCAP_FUZZ_SECONDS", "60"))
+SECONDS = float(os.environ.get("MOCAP_FUZZ_SECONDS", "40"))
 EXAMPLES = int(os.environ.get("MOCAP_UPLOAD_FUZZ_EXAMPLES", "2000"))
 RANDOM = os.environ.get("MOCAP_FUZZ_RANDOM") == "1"
 LIMIT_SECONDS = 10  # the server's describe and parser time limits here
