@@ -90,8 +90,8 @@ def test_the_probe_leaves_the_other_joints_where_they_were() -> None:
 
 
 # Human dev BVH files whose nameless, one-hand-bare copy maps like the named rig, at least
-# (a ratchet: raise it as the mapper improves).
-RECORDED = 47
+# (a ratchet: raise it as the mapper improves; 47 before the fourth pass's MakeHuman rules).
+RECORDED = 57
 
 
 def _ratchet(check: Callable[[Motion], str | None], recorded: int, what: str) -> None:
@@ -194,8 +194,9 @@ def test_a_nameless_rig_with_big_hands_maps_like_the_named_rig(fixture: str) -> 
 
 
 # Human dev BVH files whose nameless copy with hands twice as long maps like the named rig,
-# at least (a ratchet; 47 before shoulders were kept nearer the spine than an arm is long).
-RECORDED_BIG_HANDS = 50
+# at least (a ratchet; 47 before shoulders were kept nearer the spine than an arm is long, 50
+# before the fourth pass's MakeHuman rules).
+RECORDED_BIG_HANDS = 60
 
 
 @pytest.mark.skipif(not FILES, reason="no wild-bvh or wild-more in ../shared/data")
