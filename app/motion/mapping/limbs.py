@@ -25,6 +25,11 @@ _ANKLE_TURN_DEG = 25.0
 _ALIKE = 0.15
 # How a wrist found where the fingers part begins.
 _FINGERS_BRANCH = "structure: where the fingers"
+# How a wrist found where a hand of one chain begins.
+_ONE_CHAIN = "structure: where a hand of one chain starts"
+# Bones from the arms' branch point to the wrist, at least: upper arm, forearm and the first
+# bone off the spine (a collar, or the upper arm itself).
+_WRIST_DEPTH = 3
 
 
 class _LimbRules(_RunRules):
@@ -200,7 +205,9 @@ class _LimbRules(_RunRules):
         # of joints from the chain's end: a branching wrist stands unless another end's
         # proportions are clearly nearer a person's (a twist bone may branch, too).
         branching = [
-            option for option in limbs if option[1].how[kind.parts[2]].startswith(_FINGERS_BRANCH)
+            option
+            for option in limbs
+            if option[1].how[kind.parts[2]].startswith((_FINGERS_BRANCH, _ONE_CHAIN))
         ]
         if branching and branching[0][0] <= limbs[0][0] + _PROPORTION_MARGIN:
             limbs.remove(branching[0])
@@ -401,6 +408,11 @@ class _LimbRules(_RunRules):
             last = len(chain) - 1
             while last > 1 and tree.lengths[chain[last]] == 0:
                 last -= 1
+            if not wrists:
+                # Nothing branches: the hand (if any) is one chain of bones.
+                one_chain = self.one_chain_wrist(chain, last)
+                if one_chain is not None:
+                    wrists.append((chain[one_chain], _ONE_CHAIN))
             # (Two before it: a hand bone closed by an End Site, as SMPL exports write it.)
             wrists += [
                 (chain[i], "structure: the joint before the hand's end")
@@ -411,6 +423,28 @@ class _LimbRules(_RunRules):
         limb = self.best_limb(chain, wrists, _ARM, options)
         self.arm_options[hand] = (chain, options)
         return self.with_hand_tip(limb)
+
+    def one_chain_wrist(self, chain: list[int], last: int) -> int | None:
+        """Index in ``chain`` (the arms' branch point to the hand's end, ``chain[last]``
+        its last bone's end) of the wrist of a hand that is one chain of bones (a single
+        finger, as some exports keep), or None.
+
+        A hand (wrist to fingertip, 0.108 of the height) is shorter than the upper arm
+        (0.186), while forearm and hand together (0.254) are longer than any bone above the
+        elbow (upper arm, collar): the wrist is the highest joint at least
+        :data:`_WRIST_DEPTH` bones below the branch point whose reach (the chain below it)
+        is no longer than the longest bone above its parent, with at least two bones below
+        it (a hand of one chain; the joint above a single hand bone, or an arm's end with no
+        hand, is no such wrist)."""
+        tree = self.tree
+        longest = 0.0  # the longest bone above chain[i]'s parent
+        bones = 0  # bones of non-zero length from the branch point to chain[i]
+        for i in range(1, last - 1):
+            bones += bool(tree.lengths[chain[i]] > 0)
+            if bones >= _WRIST_DEPTH and 0 < tree.reach[chain[i]] <= longest:
+                return i
+            longest = max(longest, float(tree.lengths[chain[i]]))
+        return None
 
     def with_hand_tip(self, limb: _Limb) -> _Limb:
         """``limb`` (an arm) with its hand tip: the farthest point beyond the wrist."""

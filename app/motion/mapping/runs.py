@@ -97,17 +97,20 @@ class _RunRules(_MapperState):
             )
             for i in inner
         ]
-        # A knee bends between comparable parts: a bend that leaves the thigh less than half
-        # or more than twice the shin is a short bone's angle (a rig's first thigh bone), not
-        # the knee. (Not for arms: an arm's end is one of several candidates judged by the
-        # proportions its split gives, and a finger's bend kept as its "elbow" is what makes
-        # a candidate on a fingertip lose; legs end where the foot turns, found before.)
+        # A knee bends between comparable parts: in a rest pose, a bend that leaves the thigh
+        # less than half or more than twice the shin is a short bone's angle (a rig's first
+        # thigh bone), not the knee. In a frame the knee bends as it will, and a bend there
+        # tells a leg from a chain that is none. Not for arms: an arm's end is one of several
+        # candidates judged by the proportions its split gives, and a finger's bend kept as
+        # its "elbow" is what makes a candidate on a fingertip lose (legs end where the foot
+        # turns, found before).
         bends = []
         for i, score in zip(inner, scores, strict=True):
             a = _unit(pose[chain[i]] - pose[chain[start]])
             b = _unit(pose[chain[end]] - pose[chain[i]])
-            comparable = kind is _ARM or score <= _COMPARABLE
-            bends.append(np.degrees(np.arccos(np.clip(a @ b, -1.0, 1.0))) if comparable else 0.0)
+            bend = float(np.degrees(np.arccos(np.clip(a @ b, -1.0, 1.0))))
+            knee = kind is _ARM or not self.rest or score <= _COMPARABLE
+            bends.append(bend if knee else 0.0)
         if max(bends) > _BEND_DEG:
             return inner[int(np.argmax(bends))]
         return inner[int(np.argmin(scores))]
