@@ -100,6 +100,10 @@ class _LimbRules(_RunRules):
                 for option in options
                 if self.off_midline(above[option[1]]) >= self.hip_half_gap
             ]
+            if not wide and self.motion():
+                # Arms raised along the spine leave every top near its line: the shoulder is
+                # wide of it in some pose of the clip, where the collar's root never is.
+                wide = [option for option in options if self.wide_in_motion(above[option[1]])]
             options = wide or options
         if len(options) > 1 and self.motion():
             # The motion tells what the rest pose cannot: a top joint with a joint inside its
@@ -147,6 +151,16 @@ class _LimbRules(_RunRules):
         limb.joints[parts[1]] = self.deepest_coincident(above[split], above)
         limb.how[parts[0]] = f"geometry: top of the straight {what}"
         limb.how[parts[1]] = f"geometry: middle of the {what}"
+
+    def wide_in_motion(self, joint: int) -> bool:
+        """Whether ``joint`` lies as far from the spine's line as a hip from the pelvis in
+        some pose of :meth:`motion` (the spine's line through the pelvis, along up)."""
+        up, pelvis = self.body.up, self.body.pelvis
+        for pose in self.motion():
+            step = pose[joint] - pose[pelvis]
+            if _length(step - (step @ up) * up) >= self.hip_half_gap:
+                return True
+        return False
 
     def best_limb(
         self,
