@@ -650,7 +650,7 @@ RECORDED: dict[str, int] = {
     "smpl": 66,  # 59 likewise
     "mmd": 66,  # 56 before the MMD/VRM standard names
     "vroid": 66,
-    "blender numbered": 56,  # names that say nothing: the nameless count
+    "blender numbered": 66,  # names that say nothing: the nameless count (56 before pass 4)
     "character creator": 66,
     "second life": 66,  # 56 before (held out)
     "source engine": 66,

@@ -26,9 +26,13 @@ facing, naming or extra joints (fingers, face, twist bones, props, IK targets, d
    leg's last joints nearest human proportions (a foot that points down); the hip and shoulder
    start the straight run ending at the ankle or wrist (or the joint above it when the run
    leaves no room for a middle joint, or the joint at the trunk's own place when hips sit at
-   the pelvis); the knee and elbow split that run (a rest-pose bend decides when there is
-   one, otherwise the split nearest human proportions); the wrist is named, or else, among
-   where the fingers branch (a joint with several, or sibling palm joints at one place), the
+   the pelvis; a leg's run goes on up through a bone turning forward or back but not outward,
+   and an arm's run lying farther from the spine's line than it is long is the forearm alone,
+   its top the elbow); the knee and elbow split that run (a rest-pose bend decides when there
+   is one, for a knee only between comparable parts, otherwise the split nearest human
+   proportions); the wrist is named, or else, among
+   where the fingers branch (a joint with several, or sibling palm joints at one place; when
+   nothing branches, the highest joint whose reach is no longer than a bone above it), the
    two joints before the hand's end and the arm's last joint (a rig without hand bones), the
    one whose upper arm, forearm and hand come nearest human proportions (where the fingers
    branch standing unless another is clearly nearer, and never a wrist whose arm would not
@@ -83,7 +87,8 @@ missing.
 
 Modules, by responsibility: :mod:`.canonical` (the canonical joints, :class:`SkeletonMap`),
 :mod:`.tree` (the skeleton's tree, candidate limb ends), :mod:`.hypotheses` (head, hands and
-feet: step 1), :mod:`.state`, :mod:`.limbs` and :mod:`.sides` (steps 2-4 for one hypothesis),
+feet: step 1), :mod:`.state`, :mod:`.runs` (a limb's straight runs), :mod:`.limbs` and
+:mod:`.sides` (steps 2-4 for one hypothesis),
 :mod:`.mapper` (one pose's mapping), :mod:`.held` (limb ends held by IK), :mod:`.take` (a
 take that never stands) and :mod:`.skeleton`
 (:func:`map_skeleton`: rest pose, then frames, kept per skeleton). Callers import the public

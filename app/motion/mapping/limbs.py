@@ -5,67 +5,34 @@ the rest pose leaves joints in one line)."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
 from app.motion.mapping.hypotheses import _NotHumanoid
-from app.motion.mapping.state import _EFFECTOR_COS, _Limb, _MapperState
+from app.motion.mapping.runs import _ARM, _LEG, _LimbKind, _RunRules
+from app.motion.mapping.state import _EFFECTOR_COS, _Limb
 from app.motion.mapping.tree import _farthest_descendant, _is_thumb
 from app.motion.mapping.vectors import _length, _unit
 
-# Degrees: bones of a straight limb in the rest pose (frame poses bend at knee and elbow).
-_STRAIGHT_REST_DEG = 12.0
-_STRAIGHT_FRAME_DEG = 50.0
-# A joint bends a straight-looking limb when its chain turns by more than this, degrees.
-_BEND_DEG = 8.0
 # A later limb top must fit the proportions this much better (log ratio) to be taken.
 _PROPORTION_MARGIN = 0.3
-# Upper arm : forearm and thigh : shin (Drillis & Contini's segment table).
-_UPPER_TO_FORE = 1.27
-_THIGH_TO_SHIN = 1.0
-# Hand (wrist to fingertip) : forearm, same table (0.108 and 0.146 of height).
-_HAND_TO_FORE = 0.74
 # The foot turns away from the shin by at least this much at the ankle, degrees.
 _ANKLE_TURN_DEG = 25.0
-# Foot (ankle to toe tip) : shin, same table (0.152 and 0.246 of height).
-_FOOT_TO_SHIN = 0.62
 # Left and right limbs of a pair are one length: their upper (lower) parts differ by at most
 # this ``|log|`` ratio. People differ by a few per cent side to side; the rigs of the dev data
 # by at most 0.09 (mocap solvers, a 3ds Max capture), an asymmetric robot 0.13. A limb taken
 # one joint too high or low changes a part by a bone: a collar, a hand (0.4 and more).
 _ALIKE = 0.15
-# The share of a limb (top, middle and end joints, in straight lines) in the way from the
-# trunk joint it hangs from to its end. A person's hip sits half a hip width (~0.1 of the
-# height) from the pelvis, against a leg of ~0.49: 0.83; the shortest-legged cartoon of the
-# dev data (Mixamo's Mousey) 0.69; a leg shorter than its hip's distance from the pelvis
-# (under 0.5) is not one. An arm hangs a clavicle and some spine from the arms' branch
-# point: 0.55 to 0.83 in the dev data; under a third, the arm is shorter than half that way.
-_LEG_SHARE = 0.5
-_ARM_SHARE = 1 / 3
-
-
-@dataclass(frozen=True)
-class _LimbKind:
-    """A leg or an arm: its three joints, a person's upper : lower and (what lies beyond its
-    end) : lower length ratios, and the least share of the way from the trunk joint to its
-    end that the limb makes (:meth:`_Mapper.check_share`)."""
-
-    what: str
-    parts: tuple[str, str, str]
-    upper: float
-    beyond: float
-    share: float
-
-
 # How a wrist found where the fingers part begins.
 _FINGERS_BRANCH = "structure: where the fingers"
+# How a wrist found where a hand of one chain begins.
+_ONE_CHAIN = "structure: where a hand of one chain starts"
+# Bones from the arms' branch point to the wrist, at least: upper arm, forearm and the first
+# bone off the spine (a collar, or the upper arm itself).
+_WRIST_DEPTH = 3
 
-_LEG = _LimbKind("leg", ("hip", "knee", "ankle"), _THIGH_TO_SHIN, _FOOT_TO_SHIN, _LEG_SHARE)
-_ARM = _LimbKind("arm", ("shoulder", "elbow", "wrist"), _UPPER_TO_FORE, _HAND_TO_FORE, _ARM_SHARE)
 
-
-class _LimbRules(_MapperState):
+class _LimbRules(_RunRules):
     """Places the joints of one leg or arm."""
 
     def check_share(self, limb: _Limb, kind: _LimbKind, trunk: int) -> None:
@@ -92,53 +59,6 @@ class _LimbRules(_MapperState):
             f"not a {kind.what} of a person"
         )
 
-    def straight_run_start(self, chain: list[int], end: int) -> int:
-        """Index in ``chain`` where the straight run of bones ending at ``chain[end]`` starts."""
-        limit = np.cos(np.radians(_STRAIGHT_REST_DEG if self.rest else _STRAIGHT_FRAME_DEG))
-        start = end - 1
-        while start > 1:
-            candidate = start - 1
-            whole = _unit(self.pose[chain[end]] - self.pose[chain[candidate]])
-            segment = _unit(self.pose[chain[start]] - self.pose[chain[candidate]])
-            if _length(segment) == 0:
-                start = candidate
-                continue
-            if float(segment @ whole) < limit:
-                break
-            start = candidate
-        return start
-
-    def split(self, chain: list[int], start: int, end: int, ratio: float) -> int | None:
-        """Index of the middle joint (knee, elbow) between ``chain[start]`` and ``chain[end]``."""
-        pose = self.pose
-        inner = [
-            i
-            for i in range(start + 1, end)
-            if not self.same_place(chain[i], chain[start])
-            and not self.same_place(chain[i], chain[end])
-        ]
-        if not inner:
-            return None
-        bends = []
-        for i in inner:
-            a = _unit(pose[chain[i]] - pose[chain[start]])
-            b = _unit(pose[chain[end]] - pose[chain[i]])
-            bends.append(np.degrees(np.arccos(np.clip(a @ b, -1.0, 1.0))))
-        if max(bends) > _BEND_DEG:
-            return inner[int(np.argmax(bends))]
-        distance = self.tree.path
-        scores = [
-            abs(
-                np.log(
-                    max(distance[chain[i]] - distance[chain[start]], 1e-12)
-                    / max(distance[chain[end]] - distance[chain[i]], 1e-12)
-                )
-                - np.log(ratio)
-            )
-            for i in inner
-        ]
-        return inner[int(np.argmin(scores))]
-
     def upper_and_middle(self, limb: _Limb, above: list[int], kind: _LimbKind) -> None:
         """Put the limb's top joint (hip, shoulder) and middle joint (knee, elbow) on the
         chain ``above`` that ends at the ankle or wrist: by name when both names are there
@@ -155,12 +75,14 @@ class _LimbRules(_MapperState):
         # The top joint is never at the trunk joint's own place (a zero-length clavicle).
         first = next((i for i in range(1, end) if not self.same_place(above[i], above[0])), 1)
         straight = max(self.straight_run_start(above, end), first)
+        if kind is _LEG:
+            straight = self.thigh_top(above, straight, end, first)
         # A collar bone nearly in line with a T-posed arm passes for straight: among the tops
         # of the straight run and the joints below it, the one whose split comes nearest the
         # limb's proportions wins.
         options: list[tuple[float, int, int]] = []
         for start in range(straight, end - 1):
-            split = self.split(above, start, end, ratio)
+            split = self.split(above, start, end, kind)
             if split is None:
                 continue
             path = self.tree.path
@@ -178,6 +100,10 @@ class _LimbRules(_MapperState):
                 for option in options
                 if self.off_midline(above[option[1]]) >= self.hip_half_gap
             ]
+            if not wide and self.motion():
+                # Arms raised along the spine leave every top near its line: the shoulder is
+                # wide of it in some pose of the clip, where the collar's root never is.
+                wide = [option for option in options if self.wide_in_motion(above[option[1]])]
             options = wide or options
         if len(options) > 1 and self.motion():
             # The motion tells what the rest pose cannot: a top joint with a joint inside its
@@ -199,18 +125,20 @@ class _LimbRules(_MapperState):
         for option in options:
             if best is None or option[0] < best[0] - _PROPORTION_MARGIN:
                 best = option
+        if kind is _ARM and best is not None and straight > first:
+            best = self.forearm_only(above, best, straight) or best
         # A run too short to hold a middle joint: the limb bends in the rest pose (no T-pose)
         # and its top is the nearest joint above the run.
         for start in range(straight - 1, first - 1, -1):
             if best is not None:
                 break
-            split = self.split(above, start, end, ratio)
+            split = self.split(above, start, end, kind)
             if split is not None:
                 best = (0.0, start, split)
         if best is None and first > 1:
             # Nothing below the trunk's place fits: the top joint sits there itself (hip
             # joints at the pelvis, the legs parting only at the knees).
-            split = self.split(above, first - 1, end, ratio)
+            split = self.split(above, first - 1, end, kind)
             if split is not None:
                 best = (0.0, first - 1, split)
         start, split = (straight, None) if best is None else best[1:]
@@ -223,6 +151,16 @@ class _LimbRules(_MapperState):
         limb.joints[parts[1]] = self.deepest_coincident(above[split], above)
         limb.how[parts[0]] = f"geometry: top of the straight {what}"
         limb.how[parts[1]] = f"geometry: middle of the {what}"
+
+    def wide_in_motion(self, joint: int) -> bool:
+        """Whether ``joint`` lies as far from the spine's line as a hip from the pelvis in
+        some pose of :meth:`motion` (the spine's line through the pelvis, along up)."""
+        up, pelvis = self.body.up, self.body.pelvis
+        for pose in self.motion():
+            step = pose[joint] - pose[pelvis]
+            if _length(step - (step @ up) * up) >= self.hip_half_gap:
+                return True
+        return False
 
     def best_limb(
         self,
@@ -281,7 +219,9 @@ class _LimbRules(_MapperState):
         # of joints from the chain's end: a branching wrist stands unless another end's
         # proportions are clearly nearer a person's (a twist bone may branch, too).
         branching = [
-            option for option in limbs if option[1].how[kind.parts[2]].startswith(_FINGERS_BRANCH)
+            option
+            for option in limbs
+            if option[1].how[kind.parts[2]].startswith((_FINGERS_BRANCH, _ONE_CHAIN))
         ]
         if branching and branching[0][0] <= limbs[0][0] + _PROPORTION_MARGIN:
             limbs.remove(branching[0])
@@ -482,6 +422,11 @@ class _LimbRules(_MapperState):
             last = len(chain) - 1
             while last > 1 and tree.lengths[chain[last]] == 0:
                 last -= 1
+            if not wrists:
+                # Nothing branches: the hand (if any) is one chain of bones.
+                one_chain = self.one_chain_wrist(chain, last)
+                if one_chain is not None:
+                    wrists.append((chain[one_chain], _ONE_CHAIN))
             # (Two before it: a hand bone closed by an End Site, as SMPL exports write it.)
             wrists += [
                 (chain[i], "structure: the joint before the hand's end")
@@ -492,6 +437,28 @@ class _LimbRules(_MapperState):
         limb = self.best_limb(chain, wrists, _ARM, options)
         self.arm_options[hand] = (chain, options)
         return self.with_hand_tip(limb)
+
+    def one_chain_wrist(self, chain: list[int], last: int) -> int | None:
+        """Index in ``chain`` (the arms' branch point to the hand's end, ``chain[last]``
+        its last bone's end) of the wrist of a hand that is one chain of bones (a single
+        finger, as some exports keep), or None.
+
+        A hand (wrist to fingertip, 0.108 of the height) is shorter than the upper arm
+        (0.186), while forearm and hand together (0.254) are longer than any bone above the
+        elbow (upper arm, collar): the wrist is the highest joint at least
+        :data:`_WRIST_DEPTH` bones below the branch point whose reach (the chain below it)
+        is no longer than the longest bone above its parent, with at least two bones below
+        it (a hand of one chain; the joint above a single hand bone, or an arm's end with no
+        hand, is no such wrist)."""
+        tree = self.tree
+        longest = 0.0  # the longest bone above chain[i]'s parent
+        bones = 0  # bones of non-zero length from the branch point to chain[i]
+        for i in range(1, last - 1):
+            bones += bool(tree.lengths[chain[i]] > 0)
+            if bones >= _WRIST_DEPTH and 0 < tree.reach[chain[i]] <= longest:
+                return i
+            longest = max(longest, float(tree.lengths[chain[i]]))
+        return None
 
     def with_hand_tip(self, limb: _Limb) -> _Limb:
         """``limb`` (an arm) with its hand tip: the farthest point beyond the wrist."""
