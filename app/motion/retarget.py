@@ -113,6 +113,14 @@ _CHAINS: tuple[tuple[str, str | None], ...] = (
         )
     ),
 )
+# The limbs' long bones: one rigid bone in the body however many pieces a rig splits it
+# into (twist joints), so it turns as one (:func:`_turn_split_limbs`). The spine's pieces are
+# a chain that bends by design and keep their own directions.
+_LIMB_BONES = frozenset(
+    (f"{side}_{top}", f"{side}_{end}")
+    for side in ("l", "r")
+    for top, end in (("shoulder", "elbow"), ("elbow", "wrist"), ("hip", "knee"), ("knee", "ankle"))
+)
 _TINY = 1e-9
 
 
@@ -132,7 +140,7 @@ class _Driven:
 
 @dataclass(frozen=True)
 class _Limb:
-    """A canonical bone both skeletons split into as many pieces (twist joints), whose
+    """A limb bone both skeletons split into as many pieces (twist joints), whose
     pieces are driven one by one: ``pieces`` the target joints from the bone's base, down to
     the target joint ``end``; ``source_base`` -> ``source_end`` the source's bone."""
 
@@ -284,7 +292,7 @@ def _driven(
     """The driven target joints, each with its source joint and the joints they aim at (see
     :data:`_CHAINS`); the head joint is a chain end of its own where the head point is an end
     effector beyond it. Target-first wins: a joint is driven by the first chain naming it.
-    Also the canonical bones both split into as many pieces, driven piece by piece."""
+    Also the limb bones both split into as many pieces, driven piece by piece."""
     s_parents, t_parents = source.skeleton.parents, target.skeleton.parents
     out: list[_Driven] = []
     limbs: list[_Limb] = []
@@ -335,9 +343,10 @@ def _driven(
             t_mid = _between(t_parents, t_stops[i - 1], t_stops[i])[::-1]
             s_mid = _between(s_parents, s_stops[i - 1], s_stops[i])[::-1]
             if t_mid and len(t_mid) == len(s_mid):
-                limbs.append(
-                    _Limb((t_stops[i - 1], *t_mid), t_stops[i], s_stops[i - 1], s_stops[i])
-                )
+                if (base, end) in _LIMB_BONES:
+                    limbs.append(
+                        _Limb((t_stops[i - 1], *t_mid), t_stops[i], s_stops[i - 1], s_stops[i])
+                    )
                 t_path.extend(t_mid)
                 s_path.extend(s_mid)
             t_path.append(t_stops[i])
