@@ -33,6 +33,8 @@ fingers) passes that bend on.
 joints (a spine of five against one of three), the transferred rotation alone would point
 the target's bone a little off; a last per-frame swing turns each driven bone (except the
 hand, whose direction depends on the fingers) onto the source bone's world direction.
+A limb bone both split into as many pieces (twist joints at other points) then turns as one,
+so the bone from mapped joint to mapped joint points as the source's (:func:`_turn_split_limbs`).
 
 **Everything else at rest.** Unmapped target joints (fingers, face, twist bones, a static
 root above the pelvis) keep their reference-pose local rotation; offsets are the rig's own,
