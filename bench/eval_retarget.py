@@ -46,6 +46,7 @@ from app.motion.retarget_quality import RetargetQuality, retarget_quality
 from app.motion.skeleton_map import SkeletonMap, map_skeleton
 from app.services.parser_pool import ParserPool
 from bench.common import machine, shared_data
+from bench.rig_variants import Draft, unseen_variants
 
 RIGS = {
     "Mixamo (Ortiz, BVH)": "wild-bvh/mixamo/ortiz_thankful.bvh",
@@ -228,5 +229,138 @@ def main() -> None:
         pool.close()
 
 
+# --- `generalise`: rigs from exporters we have not seen ----------------------------------
+
+# Varied clips retargeted onto every rig: a walk, a run (ASF/AMC), hip-hop (Mixamo), a dance
+# from video (SMPL), a cartwheel, a standing jump, and a MakeHuman pose, whose limbs are
+# split in two (upperarm01/02...) at other points than a split rig's.
+GENERALISE_CLIPS = (
+    "bandai-ds1/data/dataset-1_walk_normal_001.bvh",
+    "cmu/asf-amc/02/02_03.amc",
+    "wild-bvh/mixamo/granny_hiphop_noprefix.bvh",
+    "wild-bvh/smpl-video/romp_dance2.bvh",
+    "wild-more/sfu-cmu-mix/emretanirgan_Cartwheel.bvh",
+    "wild-more/sfu-cmu-mix/emretanirgan_jump_from_stand_.bvh",
+    "wild-bvh/makehuman/fight01.bvh",
+)
+BARS = ("bones", "left", "feet", "sliding", "finite", "directions", "all")
+
+
+def distinct_rigs(pool: ParserPool) -> list[tuple[str, Motion, SkeletonMap]]:
+    """Every distinct humanoid rig of the development data (first file of each skeleton:
+    same joint names, hierarchy and bone lengths), as ``load_rig`` reads it."""
+    found = discover([shared_data()], scenes=True)
+    seen: set[tuple[object, ...]] = set()
+    out = []
+    for source in found.sources:
+        path = source.skeleton if source.kind == "asf/amc" else source.motion
+        assert path is not None
+        try:
+            rig, rig_map = load_rig(path, pool)
+        except (MocapError, ValueError, AssertionError):
+            continue  # not a humanoid (an animal, a prop), or a file the service refuses
+        skeleton = rig.skeleton
+        lengths = np.linalg.norm(skeleton.offsets, axis=1)
+        key = (
+            skeleton.names,
+            skeleton.parents.tobytes(),
+            np.round(lengths / max(float(lengths.max()), 1e-12), 3).tobytes(),
+        )
+        if key not in seen:
+            seen.add(key)
+            out.append((source.relative_path, rig, rig_map))
+    return out
+
+
+def generalise(argv: list[str]) -> None:
+    """Retarget :data:`GENERALISE_CLIPS` onto every distinct rig and its
+    :data:`VARIANTS`; print, per kind of rig, the share of pairs passing each bar."""
+    parser = argparse.ArgumentParser(prog="eval_retarget.py generalise")
+    parser.add_argument("--seconds", type=float, default=8.0, help="clips cut to this")
+    parser.add_argument("--rigs", type=int, help="only the first N distinct rigs")
+    parser.add_argument("--failures", action="store_true", help="list failing pairs (stderr)")
+    args = parser.parse_args(argv)
+    print(f"machine: {machine()}")
+    started = time.perf_counter()
+    pool = ParserPool(1)
+    try:
+        clips = []
+        for relative in GENERALISE_CLIPS:
+            path = shared_data() / relative
+            if path.suffix == ".amc":
+                asf = next(path.parent.glob("*.asf"))
+                motion = read_asf_amc(asf.read_bytes(), path.read_bytes())
+            else:
+                motion = read_file(path, pool)
+            keep = max(1, round(args.seconds / motion.frame_time))
+            motion = motion.slice_frames(0, min(keep, motion.frame_count))
+            analysis = analyse(motion, descriptors=["motion"])
+            assert analysis.body.mapping is not None
+            clips.append((relative, motion, analysis.body.mapping, analysis.lead_in_frames))
+        rigs = distinct_rigs(pool)[: args.rigs or None]
+    finally:
+        pool.close()
+    print(
+        f"{len(clips)} clips, {len(rigs)} distinct rigs read in "
+        f"{time.perf_counter() - started:.0f} s"
+    )
+    passed: dict[str, list[list[bool]]] = {}
+    unmapped: dict[str, int] = {}
+    for index, (name, rig, rig_map) in enumerate(rigs):
+        candidates: list[tuple[str, Draft | None]] = [("as read", None)]
+        candidates += unseen_variants(rig, rig_map, seed=index)
+        for kind, draft in candidates:
+            try:
+                target, target_map = (rig, rig_map) if draft is None else draft.rig()
+            except MocapError:
+                unmapped[kind] = unmapped.get(kind, 0) + 1
+                continue
+            for clip_name, motion, mapping, lead_in in clips:
+                try:
+                    out = retarget(motion, mapping, target, target_map)
+                    q = retarget_quality(motion, mapping, out, target_map, skip=lead_in)
+                    bars = [
+                        q.bone_error <= 1e-9,
+                        q.left_ok == 1.0,
+                        q.feet_error <= 0.02,
+                        q.slide <= q.source_slide + 0.01,
+                        q.finite,
+                        q.direction_ok >= 0.99,
+                    ]
+                except (MocapError, ValueError) as error:
+                    bars = [False] * 6
+                    q = error  # type: ignore[assignment]
+                bars.append(all(bars))
+                passed.setdefault(kind, []).append(bars)
+                if args.failures and not bars[-1]:
+                    print(f"  {kind} | {name} | {clip_name}: {q}", file=sys.stderr)
+        print(
+            f"  rig {index + 1}/{len(rigs)} done, {time.perf_counter() - started:.0f} s",
+            file=sys.stderr,
+            flush=True,
+        )
+    print("| rig | pairs | not mapped (rigs) | " + " | ".join(BARS) + " |")
+    print("|---|---|---|" + "---|" * len(BARS))
+    every: list[list[bool]] = []
+    for kind, rows in passed.items():
+        every.extend(rows if kind != "as read" else [])
+        share = np.mean(np.array(rows, dtype=float), axis=0) * 100
+        print(
+            f"| {kind} | {len(rows)} | {unmapped.get(kind, 0)} | "
+            + " | ".join(f"{s:.1f} %" for s in share)
+            + " |"
+        )
+    share = np.mean(np.array(every, dtype=float), axis=0) * 100
+    print(
+        f"| every variant | {len(every)} | {sum(v for k, v in unmapped.items())} | "
+        + " | ".join(f"{s:.1f} %" for s in share)
+        + " |"
+    )
+    print(f"{time.perf_counter() - started:.0f} s in all; machine: {machine()}")
+
+
 if __name__ == "__main__":
-    main()
+    if sys.argv[1:2] == ["generalise"]:
+        generalise(sys.argv[2:])
+    else:
+        main()

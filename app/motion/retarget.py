@@ -33,6 +33,8 @@ fingers) passes that bend on.
 joints (a spine of five against one of three), the transferred rotation alone would point
 the target's bone a little off; a last per-frame swing turns each driven bone (except the
 hand, whose direction depends on the fingers) onto the source bone's world direction.
+A limb bone both split into as many pieces (twist joints at other points) then turns as one,
+so the bone from mapped joint to mapped joint points as the source's (:func:`_turn_split_limbs`).
 
 **Everything else at rest.** Unmapped target joints (fingers, face, twist bones, a static
 root above the pelvis) keep their reference-pose local rotation; offsets are the rig's own,
@@ -113,6 +115,14 @@ _CHAINS: tuple[tuple[str, str | None], ...] = (
         )
     ),
 )
+# The limbs' long bones: one rigid bone in the body however many pieces a rig splits it
+# into (twist joints), so it turns as one (:func:`_turn_split_limbs`). The spine's pieces are
+# a chain that bends by design and keep their own directions.
+_LIMB_BONES = frozenset(
+    (f"{side}_{top}", f"{side}_{end}")
+    for side in ("l", "r")
+    for top, end in (("shoulder", "elbow"), ("elbow", "wrist"), ("hip", "knee"), ("knee", "ankle"))
+)
 _TINY = 1e-9
 
 
@@ -128,6 +138,18 @@ class _Driven:
     # Bones (target from, to, source from, to) aligned in the reference poses, for a joint
     # whose direction is not fixed per frame (the head: its up onto the source head's up).
     align_bones: tuple[int, int, int, int] | None = None
+
+
+@dataclass(frozen=True)
+class _Limb:
+    """A limb bone both skeletons split into as many pieces (twist joints), whose
+    pieces are driven one by one: ``pieces`` the target joints from the bone's base, down to
+    the target joint ``end``; ``source_base`` -> ``source_end`` the source's bone."""
+
+    pieces: tuple[int, ...]
+    end: int
+    source_base: int
+    source_end: int
 
 
 def swing(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -268,12 +290,14 @@ def _palm(skeleton: Skeleton, wrist: int, tip: int) -> int:
 
 def _driven(
     source: Motion, source_map: SkeletonMap, target: Motion, target_map: SkeletonMap
-) -> list[_Driven]:
+) -> tuple[list[_Driven], list[_Limb]]:
     """The driven target joints, each with its source joint and the joints they aim at (see
     :data:`_CHAINS`); the head joint is a chain end of its own where the head point is an end
-    effector beyond it. Target-first wins: a joint is driven by the first chain naming it."""
+    effector beyond it. Target-first wins: a joint is driven by the first chain naming it.
+    Also the limb bones both split into as many pieces, driven piece by piece."""
     s_parents, t_parents = source.skeleton.parents, target.skeleton.parents
     out: list[_Driven] = []
+    limbs: list[_Limb] = []
     seen: set[int] = set()
 
     def add(t: int, s: int, t_aim: int | None, s_aim: int | None, like: int | None) -> None:
@@ -321,6 +345,10 @@ def _driven(
             t_mid = _between(t_parents, t_stops[i - 1], t_stops[i])[::-1]
             s_mid = _between(s_parents, s_stops[i - 1], s_stops[i])[::-1]
             if t_mid and len(t_mid) == len(s_mid):
+                if (base, end) in _LIMB_BONES:
+                    limbs.append(
+                        _Limb((t_stops[i - 1], *t_mid), t_stops[i], s_stops[i - 1], s_stops[i])
+                    )
                 t_path.extend(t_mid)
                 s_path.extend(s_mid)
             t_path.append(t_stops[i])
@@ -340,7 +368,7 @@ def _driven(
     add(t_head[0], s_head[0], None, None, t_neck)
     if len(out) > before:
         out[-1] = replace(out[-1], align_bones=(*t_up, *s_up))
-    return out
+    return out, limbs
 
 
 def retarget(
@@ -382,7 +410,7 @@ def retarget(
     if source_map.mirrored:
         source = reflect(source, axis=source_map.mirror_axis)
 
-    driven = _driven(source, source_map, target, target_map)
+    driven, limbs = _driven(source, source_map, target, target_map)
     # Only the source joints the retarget reads: driven, aimed at, canonical.
     s_needed = {int(j) for j in source_map.joints}
     for d in driven:
@@ -454,6 +482,7 @@ def retarget(
         now = (rotation[:, fixed] @ local_bones)[..., 0]  # (F, K, 3)
         wanted = (s_pos[:, s_aims] - s_pos[:, sources[fixed]]) @ world
         rotation[:, fixed] = swing(now, wanted) @ rotation[:, fixed]
+    _turn_split_limbs(limbs, driven, rotation, t_ref_rot, t_ref_pos, s_pos, world)
 
     # Every other joint keeps its reference local rotation (its world rotation is its
     # nearest driven ancestor's times the constant reference rotation between the two), so
@@ -609,6 +638,39 @@ def retarget(
             lift = lift + onto(held + lift[:, None, None] * t_up, np.ones_like(stance))
             pelvis_at = pelvis_at + lift[:, None] * t_up
     return assemble(pelvis_at)
+
+
+def _turn_split_limbs(
+    limbs: Sequence[_Limb],
+    driven: Sequence[_Driven],
+    rotation: np.ndarray,
+    t_ref_rot: np.ndarray,
+    t_ref_pos: np.ndarray,
+    s_pos: np.ndarray,
+    world: np.ndarray,
+) -> None:
+    """Turn each split limb bone's pieces together (``rotation`` ``(F, D, 3, 3)``, the driven
+    joints' world rotations, changed in place) so the bone, base to end, points as the
+    source's does. Each piece points as its source piece, but where the source's pieces are
+    bent against each other (a twist joint that also bends, a rest pose not in line), pieces
+    split at other points than the source's add up to another direction: a thigh split at a
+    quarter against a source's split at a fifth and bent 20 degrees points 8 degrees off.
+    One turn for the whole bone keeps the bend between its pieces. ``t_ref_rot``
+    ``(J, 3, 3)`` and ``t_ref_pos`` ``(J, 3)`` are the target's reference pose, ``s_pos``
+    ``(F, J_s, 3)`` the source's positions, ``world`` the source-to-target axes change."""
+    slot = {d.target: i for i, d in enumerate(driven)}
+    for limb in limbs:
+        if any(p not in slot or driven[slot[p]].target_aim is None for p in limb.pieces):
+            continue  # a piece driven by another chain (none of the limbs' are)
+        ends = [*limb.pieces[1:], limb.end]
+        bone = np.zeros((rotation.shape[0], 3))
+        for piece, end in zip(limb.pieces, ends, strict=True):
+            local = t_ref_rot[piece].T @ (t_ref_pos[end] - t_ref_pos[piece])
+            bone += rotation[:, slot[piece]] @ local
+        wanted = (s_pos[:, limb.source_end] - s_pos[:, limb.source_base]) @ world
+        turn = swing(bone, wanted)  # (F, 3, 3)
+        for piece in limb.pieces:
+            rotation[:, slot[piece]] = turn @ rotation[:, slot[piece]]
 
 
 def _clear_swinging_toes(
