@@ -490,6 +490,26 @@ class DescriptorIndex:
             np.array([math.sqrt(max(s, 0.0)) for _, s in kept], np.float64),
         )
 
+    def nearest(self, query: np.ndarray, k: int, *, exclude: int) -> list[tuple[int, float]]:
+        """:meth:`search` of a stored vector ``query`` ``(D,)`` float32 without filters, as
+        ``(id, Euclidean distance)`` pairs, nearest first, ``exclude`` (the query clip)
+        left out: the same hits and the same numbers, without the arrays around them (the
+        plain ``GET /search``, app/services/search.py)."""
+        wanted = min(k + 1, self.size)
+        if wanted <= 0:
+            return []
+        q = np.ascontiguousarray(query, np.float32).reshape(1, -1)
+        if q.shape[1] != self.dimension:
+            raise ValueError(f"expected a vector of {self.dimension} numbers, got {query.shape}")
+        squared, ids = self._search_selected(q, wanted, None)
+        sqrt = math.sqrt
+        found = [
+            (i, sqrt(max(s, 0.0)))  # as search()
+            for i, s in zip(ids[0].tolist(), squared[0].tolist(), strict=True)
+            if i >= 0 and i != exclude  # FAISS pads with -1 past the vectors
+        ]
+        return found[:k]
+
     def _search_selected(
         self, q: np.ndarray, wanted: int, allowed: np.ndarray | None
     ) -> tuple[Any, Any]:
