@@ -414,7 +414,7 @@ class Catalogue:
         state = self._state
         if clip_id in state.overlay:
             return state.overlay[clip_id]
-        row = state.base.row(clip_id)
+        row = state.base.row_of(clip_id)
         return None if row < 0 else state.base.entry(row)
 
     def get_many(self, clip_ids: Iterable[int]) -> dict[int, ClipEntry]:
