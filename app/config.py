@@ -297,9 +297,11 @@ class Settings(BaseSettings):
         ),
     )
     window_codes: str = Field(
-        # float32 by default: on the FAISS build the package index ships (no AVX2 kernels)
-        # sq8 measured no faster and, with its exact vectors mapped, no smaller in memory at
-        # 100 h, and switching converts a large library's window indexes at start (bench/README).
+        # float32 by default: sq8 measured no faster (on the FAISS build the package index
+        # ships, which picks its kernels at run time, AVX2 among them:
+        # faiss.get_compile_options() is "OPTIMIZE DD AVX2") and, with its exact vectors
+        # mapped, no smaller in memory at 100 h; switching converts a large library's window
+        # indexes at start (bench/README).
         default="float32",
         pattern="^(sq8|float32)$",
         description=(

@@ -108,6 +108,9 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
     app.state.settings = settings
     install_error_handlers(app)
     app.state.describe_slots = Slots.for_describes(settings)
+    # Innermost: a plain GET /search is answered before FastAPI's routing (app/api/search.py);
+    # every layer added below still runs for it.
+    app.add_middleware(search.PlainSearches, enabled=not read_dependencies(settings))
     # Inside the size limit: a body over it is refused before the gate counts it.
     app.add_middleware(
         DescribeGate, slots=app.state.describe_slots, max_bytes=settings.max_upload_bytes

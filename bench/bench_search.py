@@ -272,10 +272,13 @@ class Server:
         self._sampler.start()
 
     cli = CLI  # the mocap-index serving (Baseline: another checkout's)
+    checkout = ROOT  # ... and the code it serves
 
     def launch(self, data_dir: Path, out: Any, settings: dict[str, str]) -> subprocess.Popen[bytes]:
         command = [self.cli, "serve", "--data-dir", str(data_dir), "--port", str(self.port)]
-        env = environment(MOCAP_LOG_LEVEL="warning", **settings)
+        # The checkout's own code first on the path: a .venv may be an editable install of
+        # another checkout (two worktrees sharing one environment).
+        env = environment(MOCAP_LOG_LEVEL="warning", PYTHONPATH=str(self.checkout), **settings)
         return subprocess.Popen(command, env=env, stdout=out, stderr=out)
 
     def _sample(self) -> None:
@@ -301,6 +304,8 @@ def baseline_server(checkout: Path, data_dir: Path, log: Path, **settings: str) 
 
     class Baseline(Server):
         cli = str(checkout / ".venv" / "bin" / "mocap-index")
+
+    Baseline.checkout = checkout
 
     return Baseline(data_dir, log, **settings)
 

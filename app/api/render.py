@@ -19,7 +19,7 @@ from app.db.entries import ClipEntry
 
 if TYPE_CHECKING:
     from app.services.moments import Moment, MomentQuery
-    from app.services.search import Hit
+    from app.services.search import Hit, PlainAnswer
 
 OPTIONS = orjson.OPT_UTC_Z
 
@@ -107,6 +107,28 @@ def clip_search(
     }
     if query_others is not None:
         body["query_others"] = [other_out(other) for other in query_others]
+    return orjson.dumps(body, option=OPTIONS)
+
+
+def plain_clip_search(answer: PlainAnswer, descriptor: str, k: int) -> bytes:
+    """:func:`clip_search` of a search without collapse, from its hits' headings
+    (:func:`app.services.search.find_plain`): the same bytes."""
+    results = [
+        {
+            "id": clip_id,
+            "name": heading[0],
+            "labels": heading[4],
+            "format": heading[1],
+            "filenames": heading[2],
+            "skeleton_family": heading[3],
+            "distance": distance,
+            "similarity": similarity,
+        }
+        for clip_id, heading, distance, similarity in zip(
+            answer.ids, answer.headings, answer.distances, answer.similarities, strict=True
+        )
+    ]
+    body = {"query": clip_out(answer.clip), "descriptor": descriptor, "k": k, "results": results}
     return orjson.dumps(body, option=OPTIONS)
 
 

@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import re
-from collections.abc import Callable, Coroutine
-from typing import Annotated, Any
+from typing import Annotated
 
 import anyio
 from fastapi import APIRouter, Query, Request, Response
+from starlette.types import ASGIApp, Receive, Scope, Send
 
 from app.api import render
-from app.api.auth import read_dependencies
 from app.api.deps import (
     ClipIdQuery,
     CollapseQuery,
@@ -31,7 +30,7 @@ from app.api.schemas import (
     UploadedClipOut,
     UploadSearchResponse,
 )
-from app.errors import InvalidInput
+from app.errors import InvalidInput, MocapError
 from app.services import search as search_service
 from app.services.library import Library
 
@@ -60,29 +59,67 @@ def plain_search_query(query: bytes) -> dict[str, int | str] | None:
     return values if "clip" in values else None
 
 
-class PlainSearchRoute(CheckedQueryRoute):
-    """``GET /search`` reads a plain query (:func:`plain_search_query`: what nearly every
-    search sends) itself and calls the route's function: FastAPI's reading of the query
-    parameters cost a fifth of a search's CPU at a million clips (bench/README.md). Any other
-    query goes FastAPI's way, so every answer and every error is the one FastAPI gives; so
-    does every request when the route has dependencies — its own, or the reading routers'
-    key check (``MOCAP_REQUIRE_KEY_FOR_READS``, :func:`app.api.auth.read_dependencies`,
-    which ``create_app`` gives this router)."""
+class PlainSearches:
+    """The innermost ASGI layer (``create_app`` adds it first): a plain ``GET /search``
+    (:func:`plain_search_query`: what nearly every search sends) is answered here by the
+    route's own search (:func:`plain_search_body`), skipping FastAPI's routing, query reading
+    and exception layers, which cost as much CPU as the rest of the request at a million
+    clips (bench/README.md). The layers outside it — the request guard (host, API key,
+    per-client limits), CORS, compression, size limits — run as for any request. Every
+    other request, and a plain one whose search raises (a missing clip, a bad ``k`` or
+    descriptor: the answer is an error), goes to FastAPI unchanged, so every error, the
+    OpenAPI document and the route itself stay FastAPI's. ``enabled`` is False when reads
+    need a key (``MOCAP_REQUIRE_KEY_FOR_READS``: the key check is a route dependency)."""
 
-    def get_route_handler(self) -> Callable[[Request], Coroutine[Any, Any, Response]]:
-        handler = super().get_route_handler()
-        if self.dependant.dependencies:
-            return handler
-        endpoint = self.endpoint
+    def __init__(self, app: ASGIApp, *, enabled: bool = True) -> None:
+        self.app = app
+        self.enabled = enabled
 
-        async def plain(request: Request) -> Response:
-            values = plain_search_query(request.scope.get("query_string", b""))
-            if values is None or read_dependencies(request.app.state.settings):
-                return await handler(request)
-            response: Response = await endpoint(request, **values)
-            return response
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if (
+            not self.enabled
+            or scope["type"] != "http"
+            or scope["path"] != "/search"
+            or scope["method"] != "GET"
+        ):
+            await self.app(scope, receive, send)
+            return
+        values = plain_search_query(scope["query_string"])
+        library = getattr(scope["app"].state, "library", None)
+        if values is None or library is None:
+            await self.app(scope, receive, send)
+            return
+        try:
+            body = await plain_search_body(library, **values)  # type: ignore[arg-type]
+        except MocapError:  # FastAPI answers it (its error, its bytes)
+            await self.app(scope, receive, send)
+            return
+        # The headers Response(body, media_type="application/json") sends, in its order.
+        headers = [(b"content-length", str(len(body)).encode()), JSON_TYPE]
+        await send({"type": "http.response.start", "status": 200, "headers": headers})
+        await send({"type": "http.response.body", "body": body})
 
-        return plain
+
+JSON_TYPE = (b"content-type", b"application/json")
+
+
+async def plain_search_body(
+    library: Library, clip: int, k: int = 10, descriptor: str | None = None
+) -> bytes:
+    """The body of ``GET /search`` for a query without filters or collapse (a search's
+    errors raised as :class:`MocapError`)."""
+    if descriptor is None:
+        descriptor = library.default_descriptor
+    name = descriptor
+    return await SEARCHES.run(
+        (name, False, False, k > QUICK_K),  # the route's kind of search (see search_by_clip)
+        lambda: _plain_search(library, clip, name, k),
+    )
+
+
+def _plain_search(library: Library, clip: int, descriptor: str, k: int) -> bytes:
+    answer = search_service.find_plain(library, clip, descriptor, k)
+    return render.plain_clip_search(answer, descriptor, k)
 
 
 async def search_by_clip(
@@ -116,14 +153,13 @@ async def search_by_clip(
     return Response(body, media_type="application/json")
 
 
-router.add_api_route(  # router.get() with this route's own class
+router.add_api_route(
     "",
     search_by_clip,
     methods=["GET"],
     summary="Clips similar to a stored clip",
     response_model=ClipSearchResponse,
     responses=error_responses(404, 409, 422, 503),
-    route_class_override=PlainSearchRoute,
 )
 
 

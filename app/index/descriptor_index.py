@@ -43,6 +43,7 @@ int64 ids.
 
 from __future__ import annotations
 
+import ctypes
 import hashlib
 import json
 import logging
@@ -134,6 +135,24 @@ def _file_sha256(path: Path) -> str:
         while chunk := stream.read(HASH_CHUNK):
             digest.update(chunk)
     return digest.hexdigest()
+
+
+def _return_freed_memory() -> None:
+    """Give the heap's free pages back to the system (glibc's ``malloc_trim``): mapping an
+    index file reads and sorts its ids (the locator) in temporary arrays, whose pages would
+    otherwise stay in each server process's resident memory, private to it."""
+    if _LIBC is not None:
+        _LIBC.malloc_trim(0)
+
+
+def _libc() -> Any:
+    try:
+        return ctypes.CDLL("libc.so.6")  # glibc; elsewhere nothing is trimmed
+    except OSError:
+        return None
+
+
+_LIBC = _libc()
 
 
 class DescriptorIndex:
@@ -250,8 +269,13 @@ class DescriptorIndex:
         at that size): finding a clip's windows is then a binary search. Do not modify it."""
         with self._lock.read():
             held = self._sorted
+            index = self._index
         if held is not None:
             return held
+        if isinstance(index, FrozenIVF) and not index.changed:
+            # The mapped file's ids are sorted already: no private copy of them (8 MB an
+            # index at a million clips, in every worker process).
+            return index.base_ids
         with self._lock.write():
             if self._sorted is None:
                 self._sorted = np.sort(self._ids())
@@ -489,6 +513,26 @@ class DescriptorIndex:
             np.array([i for i, _ in kept], np.int64),
             np.array([math.sqrt(max(s, 0.0)) for _, s in kept], np.float64),
         )
+
+    def nearest(self, query: np.ndarray, k: int, *, exclude: int) -> list[tuple[int, float]]:
+        """:meth:`search` of a stored vector ``query`` ``(D,)`` float32 without filters, as
+        ``(id, Euclidean distance)`` pairs, nearest first, ``exclude`` (the query clip)
+        left out: the same hits and the same numbers, without the arrays around them (the
+        plain ``GET /search``, app/services/search.py)."""
+        wanted = min(k + 1, self.size)
+        if wanted <= 0:
+            return []
+        q = np.ascontiguousarray(query, np.float32).reshape(1, -1)
+        if q.shape[1] != self.dimension:
+            raise ValueError(f"expected a vector of {self.dimension} numbers, got {query.shape}")
+        squared, ids = self._search_selected(q, wanted, None)
+        sqrt = math.sqrt
+        found = [
+            (i, sqrt(max(s, 0.0)))  # as search()
+            for i, s in zip(ids[0].tolist(), squared[0].tolist(), strict=True)
+            if i >= 0 and i != exclude  # FAISS pads with -1 past the vectors
+        ]
+        return found[:k]
 
     def _search_selected(
         self, q: np.ndarray, wanted: int, allowed: np.ndarray | None
@@ -786,6 +830,7 @@ class DescriptorIndex:
             log.warning("could not map the %s index file (%s); holding a copy", self.name, exc)
             return None
         self._mapped_meta = meta
+        _return_freed_memory()
         return mapped
 
     def _is_mapped_file(self) -> bool:

@@ -16,7 +16,9 @@ of a query clip are set aside (:attr:`ClipAnswer.query_others`).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -257,6 +259,60 @@ def find_by_clip(
         collapse=collapse,
     )
     return ClipAnswer(clip, hits, query_others)
+
+
+@dataclass(frozen=True, slots=True)
+class PlainAnswer:
+    """A search without filters or collapse (:func:`find_plain`): the query clip, and for
+    each hit, nearest first, its id, distance, similarity and heading — the fields a hit
+    shows, ``[name, format, filenames, skeleton_family, labels, ...]``
+    (:meth:`app.index.catalogue.Catalogue.headings`)."""
+
+    clip: ClipEntry
+    ids: list[int]
+    distances: list[float]
+    similarities: list[float]
+    headings: list[Sequence[Any]]
+
+
+def find_plain(library: Library, clip_id: int, descriptor: str, k: int) -> PlainAnswer:
+    """:func:`find_by_clip` without label, licence or collapse — what nearly every search
+    asks — with the same hits, errors and checks, and less per-request work: the neighbours
+    as Python numbers (:meth:`DescriptorIndex.nearest`), the hits' headings instead of
+    their whole entries."""
+    if not 0 < clip_id <= MAX_ID:  # no such id (and the database driver's overflow)
+        raise NotFound(f"no clip with id {clip_id}")
+    library.descriptor(descriptor)
+    check_k(library, k)
+    library.require_current(descriptor)
+    library.refresh()
+    clip = library.clip_entry(clip_id)
+    if clip is None:
+        raise NotFound(f"no clip with id {clip_id}")
+    vector = clip_vector(library, clip_id, descriptor)
+    index = library.indexes[descriptor]
+    catalogue = library.catalogue
+    wanted = k
+    for _ in range(MAX_ATTEMPTS):
+        found = index.nearest(vector, wanted, exclude=clip_id)
+        headings = catalogue.headings([i for i, _ in found])
+        # Equal distances in id order, as _nearest; a clip the catalogue does not hold yet is
+        # skipped and as many more asked for (see _nearest).
+        present = sorted(
+            ((i, d) for i, d in found if i in headings), key=lambda hit: (hit[1], hit[0])
+        )
+        if len(present) >= k or len(found) < wanted:
+            break
+        wanted += len(found) - len(present)
+    present = present[:k]
+    distances = [d for _, d in present]
+    return PlainAnswer(
+        clip,
+        [i for i, _ in present],
+        distances,
+        library.scales.of(descriptor, index).similarities(distances),
+        [headings[i] for i, _ in present],
+    )
 
 
 def search_by_upload(

@@ -1,0 +1,112 @@
+"""A plain ``GET /search`` is answered before FastAPI's routing (``PlainSearches``,
+app/api/search.py; issue 23): the same status, headers and bytes as FastAPI's route gives,
+and every other request — errors included — still FastAPI's."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from fastapi.testclient import TestClient
+from starlette.types import ASGIApp, Receive, Scope, Send
+
+from app.config import Settings
+from app.main import create_app
+from tests.api.test_search import library
+from tests.conftest import new_sqlite_settings
+from tests.services.fakes import FakeDescriber, fake_motion
+
+
+class Routed:
+    """The app, remembering whether FastAPI's router answered each request (it puts the
+    route's endpoint in the request's scope)."""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+        self.scopes: list[dict[str, Any]] = []
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] == "http":
+            self.scopes.append(scope)
+        await self.app(scope, receive, send)
+
+    def last_by_router(self) -> bool:
+        return "endpoint" in self.scopes[-1]
+
+
+def client_of(settings: Settings) -> tuple[TestClient, Routed]:
+    routed = Routed(create_app(settings, describer=FakeDescriber()))
+    return TestClient(routed), routed
+
+
+@pytest.fixture
+def served(tmp_path: Path, migrated_sqlite_file: Path) -> Iterator[tuple[TestClient, Routed]]:
+    client, routed = client_of(new_sqlite_settings(tmp_path / "data", migrated_sqlite_file))
+    with client:
+        yield client, routed
+
+
+def test_a_plain_search_answers_as_the_route_does(served: tuple[TestClient, Routed]) -> None:
+    client, routed = served
+    ids = library(client)
+    # The same query, written plainly and (leading zeros) for FastAPI to read.
+    for plain, routed_query in [
+        (f"clip={ids[0]}&k=3", f"clip=0{ids[0]}&k=3"),
+        (f"clip={ids[2]}&descriptor=kinetic", f"clip=0{ids[2]}&descriptor=kinetic"),
+        (f"k=10&clip={ids[5]}", f"k=010&clip={ids[5]}"),
+    ]:
+        first = client.get(f"/search?{plain}")
+        assert not routed.last_by_router(), plain
+        second = client.get(f"/search?{routed_query}")
+        assert routed.last_by_router(), routed_query
+        assert first.status_code == second.status_code == 200
+        assert first.headers.items() == second.headers.items()
+        assert first.content == second.content
+    # Larger answers are compressed for a client that asks, by the same layer.
+    many = {"Accept-Encoding": "gzip"}
+    first = client.get(f"/search?clip={ids[0]}&k=5", headers=many)
+    second = client.get(f"/search?clip=0{ids[0]}&k=5", headers=many)
+    assert first.headers.items() == second.headers.items()
+    assert first.content == second.content
+
+
+def test_errors_and_other_queries_are_fastapis(served: tuple[TestClient, Routed]) -> None:
+    client, routed = served
+    ids = library(client)
+    # A plain query whose search fails is answered by the route: FastAPI's error, its bytes.
+    for query, status in [
+        (f"clip={max(ids) + 1000}", 404),
+        (f"clip={ids[0]}&k=100000", 422),
+        (f"clip={ids[0]}&descriptor=nope", 422),
+    ]:
+        response = client.get(f"/search?{query}")
+        assert response.status_code == status and routed.last_by_router(), query
+        assert set(response.json()) == {"error", "detail"}
+    for other in [f"clip={ids[0]}&label=even", f"clip={ids[0]}&kk=3", "k=3", "clip=x"]:
+        client.get(f"/search?{other}")
+        assert routed.last_by_router(), other
+    assert client.head(f"/search?clip={ids[0]}").status_code == 405  # as FastAPI routes it
+    assert client.get(f"/search/?clip={ids[0]}", follow_redirects=False).status_code == 307
+
+
+def test_reads_needing_a_key_go_through_the_route(
+    tmp_path: Path, migrated_sqlite_file: Path
+) -> None:
+    settings = new_sqlite_settings(tmp_path / "data", migrated_sqlite_file)
+    settings = settings.model_copy(update={"api_key": "k3y-one", "require_key_for_reads": True})
+    client, routed = client_of(settings)
+    with client:
+        key = {"X-API-Key": "k3y-one"}
+        ids = [
+            client.post("/clips", files={"file": (f"c{i}.bvh", fake(i))}, headers=key).json()["id"]
+            for i in range(3)
+        ]
+        assert client.get(f"/search?clip={ids[0]}").status_code == 401
+        answer = client.get(f"/search?clip={ids[0]}&k=2", headers=key)
+        assert answer.status_code == 200 and routed.last_by_router()
+
+
+def fake(number: int) -> bytes:
+    return fake_motion([number, 0, 0], kinetic=[number, 0])
