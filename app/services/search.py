@@ -225,6 +225,24 @@ def search_by_clip_id(
     return answer.clip, answer.hits
 
 
+def _query_clip(
+    library: Library, clip_id: int, descriptor: str, k: int
+) -> tuple[ClipEntry, np.ndarray]:
+    """The checks every search by a stored clip makes, then the clip and its ``descriptor``
+    vector, shape ``(dims,)``. :class:`NotFound` when there is no such clip."""
+    if not 0 < clip_id <= MAX_ID:  # no such id (and the database driver's overflow)
+        raise NotFound(f"no clip with id {clip_id}")
+    library.descriptor(descriptor)
+    check_k(library, k)
+    library.require_current(descriptor)
+    library.refresh()
+    clip = library.clip_entry(clip_id)
+    if clip is None:
+        raise NotFound(f"no clip with id {clip_id}")
+    vector = clip_vector(library, clip_id, descriptor)
+    return clip, vector
+
+
 def find_by_clip(
     library: Library,
     clip_id: int,
@@ -238,16 +256,7 @@ def find_by_clip(
     """``GET /search``: the stored clip ``clip_id`` and its neighbours (never the clip
     itself), read from the indexes and the catalogue. :class:`NotFound` when there is no
     such clip."""
-    if not 0 < clip_id <= MAX_ID:  # no such id (and the database driver's overflow)
-        raise NotFound(f"no clip with id {clip_id}")
-    library.descriptor(descriptor)
-    check_k(library, k)
-    library.require_current(descriptor)
-    library.refresh()
-    clip = library.clip_entry(clip_id)
-    if clip is None:
-        raise NotFound(f"no clip with id {clip_id}")
-    vector = clip_vector(library, clip_id, descriptor)
+    clip, vector = _query_clip(library, clip_id, descriptor, k)
     hits, query_others = _nearest(
         library,
         descriptor,
@@ -280,16 +289,7 @@ def find_plain(library: Library, clip_id: int, descriptor: str, k: int) -> Plain
     asks — with the same hits, errors and checks, and less per-request work: the neighbours
     as Python numbers (:meth:`DescriptorIndex.nearest`), the hits' headings instead of
     their whole entries."""
-    if not 0 < clip_id <= MAX_ID:  # no such id (and the database driver's overflow)
-        raise NotFound(f"no clip with id {clip_id}")
-    library.descriptor(descriptor)
-    check_k(library, k)
-    library.require_current(descriptor)
-    library.refresh()
-    clip = library.clip_entry(clip_id)
-    if clip is None:
-        raise NotFound(f"no clip with id {clip_id}")
-    vector = clip_vector(library, clip_id, descriptor)
+    clip, vector = _query_clip(library, clip_id, descriptor, k)
     index = library.indexes[descriptor]
     catalogue = library.catalogue
     wanted = k
