@@ -208,7 +208,7 @@ RECORDED: dict[str, tuple[int, int]] = {
     "b: rest pose lying": (66, 66),
     "b: middle frame as rest": (58, 52),
     "c: one frame": (66, 66),
-    "c: one frame, it as rest": (54, 50),
+    "c: one frame, it as rest": (55, 51),
     "c: one frame, random axes": (57, 23),
     "c: two frames, first as rest": (56, 52),
     "c: two frames, random axes": (57, 23),
