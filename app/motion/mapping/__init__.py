@@ -69,7 +69,9 @@ facing, naming or extra joints (fingers, face, twist bones, props, IK targets, d
    read from the hips and shoulders only (knees and hands cross in a side step or a slash)
    and several frames vote, so every clip of a rig — and every part of a clip, cut out and
    searched with — gets the same sides. A standing rest pose that shows no side (straight
-   knees, no feet) lets the clip's frames vote likewise (:attr:`SkeletonMap.sides_open`).
+   knees, no feet), or shows it by bent knees (a person at rest stands on straight knees:
+   such a rest pose is a pose of the take), lets the clip's frames vote likewise
+   (:attr:`SkeletonMap.sides_open`).
 
 When neither the rest pose nor any frame offered shows a standing figure (a seated, crouched
 or lying take, a pose estimator's first frame taken for rest), the take is read once more as

@@ -122,7 +122,8 @@ class SkeletonMap:
     pose:
         Which pose the geometry was read from: ``"rest pose"`` or ``"frame N"``.
     sides_open:
-        The rest pose shows no side (straight knees, no feet): the clip's frames chose left
+        The rest pose shows no side (straight knees, no feet), or shows it only by bent
+        knees (a pose of the take written as the rest pose): the clip's frames chose left
         and right, so the mapping is made again for every clip of the rig.
     limbs_open:
         The rest pose left a limb's joints to choose among joints in one straight line (a

@@ -16,14 +16,9 @@ _BENT_KNEE = np.sin(np.radians(10))  # a knee bent this much shows its hinge axi
 class _SideRules(_MapperState):
     """Puts the mapped limbs on their sides."""
 
-    def left(self, pose: np.ndarray, up: np.ndarray, legs: list[_Limb]) -> np.ndarray:
-        """The subject's left in ``pose`` (zero when it shows none).
-
-        A bent knee's hinge axis, thigh x shin, points to the subject's left whichever way
-        the subject faces and whatever the feet do (the shin folds back); in a mirrored
-        capture it points to the mirror image's left, as ``up x forward`` does. Knees too
-        straight to show it leave ``up x forward``, forward from the feet, else the knees'
-        bend."""
+    def knee_hinge(self, pose: np.ndarray, up: np.ndarray, legs: list[_Limb]) -> np.ndarray:
+        """``(3,)`` the unit hinge axis (thigh x shin, across ``up``) of the knees bent in
+        ``pose``, when at least one is bent and the two agree; else zero."""
         hinge = np.zeros(3)
         for leg in legs:
             thigh = pose[leg["knee"]] - pose[leg["hip"]]
@@ -32,8 +27,19 @@ class _SideRules(_MapperState):
             if _length(axis) > _BENT_KNEE * _length(thigh) * _length(shin):
                 hinge += axis / _length(axis)
         hinge -= (hinge @ up) * up
-        if _length(hinge) > 0.5:  # at least one knee bent and the two agree
-            return _unit(hinge)
+        return _unit(hinge) if _length(hinge) > 0.5 else np.zeros(3)
+
+    def left(self, pose: np.ndarray, up: np.ndarray, legs: list[_Limb]) -> np.ndarray:
+        """The subject's left in ``pose`` (zero when it shows none).
+
+        A bent knee's hinge axis, thigh x shin, points to the subject's left whichever way
+        the subject faces and whatever the feet do (the shin folds back); in a mirrored
+        capture it points to the mirror image's left, as ``up x forward`` does. Knees too
+        straight to show it leave ``up x forward``, forward from the feet, else the knees'
+        bend."""
+        hinge = self.knee_hinge(pose, up, legs)
+        if _length(hinge):
+            return hinge
         forward = np.zeros(3)
         for leg in legs:
             step = pose[leg["toe"]] - pose[leg["ankle"]]
@@ -62,9 +68,12 @@ class _SideRules(_MapperState):
         )
         voters = [(pose, left, keys)]
         # The clip's other poses vote with this one: always when the mapping comes from a frame
-        # (one frame can mislead); from the rest pose, only when it shows no side at all
-        # (straight knees, no feet: the motion's bent knees do).
-        if not self.rest or not _length(left):
+        # (one frame can mislead); from the rest pose when it shows no side at all (straight
+        # knees, no feet: the motion's bent knees do), or shows it by bent knees: a person at
+        # rest stands on straight knees, so a rest pose with bent knees is a pose of the take
+        # (a pose estimator's first frame), and one such pose can mislead as a frame can.
+        posed = bool(_length(self.knee_hinge(pose, up, legs)))
+        if not self.rest or not _length(left) or posed:
             self.sides_open = self.rest
             for other in self.others():
                 spine = other[self.body.chest] - other[self.body.pelvis]

@@ -1,0 +1,231 @@
+"""Rest poses that are not a rest: real rigs rewritten as video-derived and pose-estimator
+exporters write them (issue 20, item 7; docs/skeletons.md, "2026-11-27, rest poses that are
+not a rest").
+
+Each rig keeps its world motion and gets another way of writing it:
+
+* (a) bones along odd axes: every joint's local axes turned (a signed permutation of the
+  axes, or a random turn), the channels conjugated, so the OFFSETs lie anywhere;
+* (b) all-zero rotations meaning a pose that is not standing: every joint's axes turned 90
+  degrees alike (the rest pose lies), or the middle frame written as the rest pose;
+* (c) one-frame and two-frame clips, their own first frame as rest or bones in random axes;
+* (d) a take that never stands: the whole motion turned 90 degrees about a horizontal axis
+  (lying), with its first frame, or a lying figure, as rest;
+* (e) a left-handed export: one world axis negated (the names then lie on the mirror
+  image's sides: the mapping must be the same joints, taken as a mirrored capture).
+
+Two measures per copy: the mapping (the same source joints by name, mirrored exactly when
+the copy is) and the body's axes (the mean pelvis frame's up within 30 degrees and forward
+within 45 degrees of the original's, read back through the probe's world change). The CMU and
+Bandai fixtures must map alike under every probe; the development rigs are ratchets, with
+the counts of each measure recorded. No probed copy may fail otherwise than with a
+:class:`~app.errors.MocapError` (a 4xx).
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from app.errors import MocapError
+from app.motion import transforms
+from app.motion.formats import read_bvh
+from app.motion.ground import sample_frames
+from app.motion.model import Motion
+from app.motion.pipeline import describable_body
+from tests.conftest import shared_data_dir
+from tests.motion.conftest import BANDAI_FIXTURE, CMU_BVH_FIXTURE, fixture_bytes
+from tests.motion.holds import frames_at
+from tests.motion.test_mapping_probes import frame_as_rest, rebased
+from tests.motion.test_nameless_real import FILES
+
+_TURN = transforms.rotation_about([1.0, 0.0, 0.0], 90.0)  # about a horizontal axis
+_LEFT_HANDED = np.diag([1.0, 1.0, -1.0])  # a right-handed file written left-handed
+
+
+def signed_axes(motion: Motion, seed: int = 1) -> Motion:
+    """Every joint's local axes a signed permutation of its own (rotations only): each
+    OFFSET then lies along another axis, as in a writer whose bones point along x, y or z."""
+    rng = np.random.default_rng(seed)
+    frames = []
+    for _ in range(motion.skeleton.joint_count):
+        while True:
+            turn = np.eye(3)[rng.permutation(3)] * rng.choice([-1.0, 1.0], 3)
+            if np.linalg.det(turn) > 0:
+                break
+        frames.append(turn)
+    return rebased(motion, np.stack(frames))
+
+
+def random_axes(motion: Motion, seed: int = 3) -> Motion:
+    """Every joint's local axes turned at random (a rest pose that is no figure at all)."""
+    return rebased(motion, Rotation.random(motion.skeleton.joint_count, seed).as_matrix())
+
+
+def all_turned(motion: Motion, turn: np.ndarray = _TURN) -> Motion:
+    """Every joint's axes turned by one ``(3, 3)`` ``turn``: the rest pose is the standing
+    one turned (lying), the motion unchanged."""
+    return rebased(motion, np.broadcast_to(turn, (motion.skeleton.joint_count, 3, 3)).copy())
+
+
+def middle(motion: Motion, count: int) -> Motion:
+    """``count`` frames from the middle of the clip."""
+    start = max(0, motion.frame_count // 2 - count // 2)
+    return frames_at(motion, np.arange(start, min(motion.frame_count, start + count)))
+
+
+# Probe -> (the rewritten copy, the frames of the original it shows, the world change
+# ``(3, 3)`` from the original's coordinates to the copy's).
+Probe = tuple[Callable[[Motion], Motion], Callable[[Motion], Motion], np.ndarray]
+_SAME: Callable[[Motion], Motion] = lambda m: m  # noqa: E731
+_ONE: Callable[[Motion], Motion] = lambda m: middle(m, 1)  # noqa: E731
+_TWO: Callable[[Motion], Motion] = lambda m: middle(m, 2)  # noqa: E731
+PROBES: dict[str, Probe] = {
+    "a: bones along signed axes": (signed_axes, _SAME, np.eye(3)),
+    "a: bones in random axes": (random_axes, _SAME, np.eye(3)),
+    "b: rest pose lying": (all_turned, _SAME, np.eye(3)),
+    "b: middle frame as rest": (
+        lambda m: frame_as_rest(m, m.frame_count // 2),
+        _SAME,
+        np.eye(3),
+    ),
+    "c: one frame": (_ONE, _ONE, np.eye(3)),
+    "c: one frame, it as rest": (lambda m: frame_as_rest(_ONE(m)), _ONE, np.eye(3)),
+    "c: one frame, random axes": (lambda m: random_axes(_ONE(m), 5), _ONE, np.eye(3)),
+    "c: two frames, first as rest": (lambda m: frame_as_rest(_TWO(m)), _TWO, np.eye(3)),
+    "c: two frames, random axes": (lambda m: random_axes(_TWO(m), 5), _TWO, np.eye(3)),
+    "d: take lying, first frame as rest": (
+        lambda m: frame_as_rest(transforms.rotate(m, _TURN)),
+        _SAME,
+        _TURN,
+    ),
+    "d: take lying, rest pose lying": (
+        lambda m: all_turned(transforms.rotate(m, _TURN)),
+        _SAME,
+        _TURN,
+    ),
+    "e: left-handed": (
+        lambda m: transforms.change_basis(m, _LEFT_HANDED),
+        _SAME,
+        _LEFT_HANDED,
+    ),
+    "e: left-handed, first frame as rest": (
+        lambda m: frame_as_rest(transforms.change_basis(m, _LEFT_HANDED)),
+        _SAME,
+        _LEFT_HANDED,
+    ),
+}
+_UP_WITHIN = np.cos(np.radians(30.0))
+_FORWARD_WITHIN = np.cos(np.radians(45.0))
+
+
+def _reading(motion: Motion, world: np.ndarray) -> tuple[tuple[str, ...], bool, np.ndarray]:
+    """(the mapped source joints by name, mirrored, ``(3, 2)`` the body's mean up and
+    forward in the original's coordinates: ``world`` undone, and the mirror the body
+    describes undone too)."""
+    body = describable_body(motion)
+    mapping = body.mapping
+    assert mapping is not None
+    undo = world.T
+    if mapping.mirrored:
+        flip = np.ones(3)
+        flip[mapping.mirror_axis] = -1.0
+        undo = undo @ np.diag(flip)
+    axes = undo @ body.pelvis_frames[:, :, 1:].mean(axis=0)
+    axes /= np.linalg.norm(axes, axis=0)
+    return tuple(motion.skeleton.names[j] for j in mapping.joints), mapping.mirrored, axes
+
+
+def outcome(
+    motion: Motion, probe: str, original: tuple[tuple[str, ...], bool, np.ndarray] | None = None
+) -> tuple[str, bool]:
+    """("same" | "refused: ..." | "differ ...", body axes right) of ``motion`` under
+    ``probe`` (``original``: ``motion``'s own reading, when known); anything but a
+    MocapError is raised (it would be a 500)."""
+    rewrite, shown, world = PROBES[probe]
+    names, mirrored, axes_or_none = original or _reading(motion, np.eye(3))
+    axes: np.ndarray | None = axes_or_none
+    if shown is not _SAME:
+        try:
+            _, _, axes = _reading(shown(motion), np.eye(3))
+        except MocapError:
+            axes = None  # the frames themselves show no body: only the mapping is compared
+    try:
+        got, got_mirrored, got_axes = _reading(rewrite(motion), world)
+    except MocapError as error:
+        return f"refused: {error}", False
+    expected_mirror = bool(np.linalg.det(world) < 0) != mirrored
+    if got != names or got_mirrored != expected_mirror:
+        pairs = [(a, b) for a, b in zip(names, got, strict=True) if a != b]
+        return f"differ {pairs}, mirrored {got_mirrored}", False
+    upright = axes is not None and bool(
+        got_axes[:, 0] @ axes[:, 0] >= _UP_WITHIN and got_axes[:, 1] @ axes[:, 1] >= _FORWARD_WITHIN
+    )
+    return "same", upright
+
+
+@pytest.mark.parametrize("fixture", [CMU_BVH_FIXTURE, BANDAI_FIXTURE])
+def test_the_fixtures_map_alike_under_every_rest_that_is_not_a_rest(fixture: str) -> None:
+    motion = sample_frames(read_bvh(fixture_bytes(fixture)), 60)
+    found = {probe: outcome(motion, probe)[0] for probe in PROBES}
+    assert all(v == "same" for v in found.values()), found
+
+
+def family(path: Path) -> str:
+    """The dev-set folder a file belongs to (``wild-bvh/mixamo``)."""
+    parts = path.relative_to(shared_data_dir()).parts
+    return f"{parts[0]}/{parts[1]}"
+
+
+@functools.cache
+def _dev_motions() -> tuple[tuple[Path, Motion, tuple[tuple[str, ...], bool, np.ndarray]], ...]:
+    """The human dev BVH files, 60 frames spread over each (the mapper reads a dozen), with
+    their own reading: parsed and read once for every probe."""
+    found = []
+    for path in FILES:
+        motion = sample_frames(read_bvh(path.read_bytes()), 60)
+        found.append((path, motion, _reading(motion, np.eye(3))))
+    return tuple(found)
+
+
+def dev_outcomes(probe: str) -> dict[Path, tuple[str, bool]]:
+    return {path: outcome(motion, probe, read) for path, motion, read in _dev_motions()}
+
+
+# Human dev BVH files (66) whose probed copy maps like the file, and of those whose body
+# axes are also right, at least (ratchets: raise them as the mapper and the body frame
+# improve). The body's axes are read from the rest pose's OFFSETs (app/motion/body.py),
+# so bones along odd axes map right but face anywhere: docs/skeletons.md says what would
+# raise the second count (8 -> 55 for signed axes, in a prototype).
+RECORDED: dict[str, tuple[int, int]] = {
+    "a: bones along signed axes": (61, 8),
+    "a: bones in random axes": (59, 19),
+    "b: rest pose lying": (66, 66),
+    "b: middle frame as rest": (58, 52),
+    "c: one frame": (66, 66),
+    "c: one frame, it as rest": (55, 51),
+    "c: one frame, random axes": (57, 23),
+    "c: two frames, first as rest": (56, 52),
+    "c: two frames, random axes": (57, 23),
+    "d: take lying, first frame as rest": (59, 52),
+    "d: take lying, rest pose lying": (66, 66),
+    "e: left-handed": (64, 64),
+    "e: left-handed, first frame as rest": (57, 50),
+}
+
+
+@pytest.mark.skipif(not FILES, reason="no wild-bvh or wild-more in ../shared/data")
+@pytest.mark.parametrize("probe", list(PROBES))
+def test_human_dev_rigs_under_a_rest_that_is_not_a_rest(probe: str) -> None:
+    found = dev_outcomes(probe)
+    maps = sum(v == "same" for v, _ in found.values())
+    upright = sum(v == "same" and axes for v, axes in found.values())
+    print(f"{probe}: {maps} of {len(found)} map alike, {upright} with the body's axes right")
+    failed = {f"{family(p)}/{p.name}": v for p, (v, _) in found.items() if v != "same"}
+    assert maps >= RECORDED[probe][0], failed
+    assert upright >= RECORDED[probe][1], failed
