@@ -2,7 +2,7 @@
 
 Copying bone directions onto legs of other proportions (a longer shin, a foot that ends at
 the toe tip where the capture's ends at the ball) moves a planted foot over the floor. The
-retarget first corrects the pelvis's path (:func:`app.motion.retarget.planted_feet_offsets`),
+retarget first corrects the pelvis's path (:func:`app.motion.retarget_floor.planted_feet_offsets`),
 which holds one planted point exactly but not two that disagree (both feet, or the heel and
 toe of a long foot rolling over its tip). What is left is taken up here, leg by leg:
 
