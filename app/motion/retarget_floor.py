@@ -19,7 +19,7 @@ from app.motion.body import body_height
 from app.motion.ground import FOOT_POINTS, ON_FLOOR
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion
-from app.motion.retarget_feet import Pose, hold_planted_feet
+from app.motion.retarget_feet import Pose, hold_planted_feet, planted_steps
 from app.motion.retarget_joints import between
 from app.motion.retarget_reference import leg_length, swing
 from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap
@@ -238,17 +238,15 @@ def planted_feet_offsets(
 ) -> np.ndarray:
     """``(F, 3)`` horizontal offsets to add to the pelvis's path so that the foot points
     ``feet`` ``(F, P, 3)`` move over the floor as ``source_feet`` ``(F, P, 3)`` (the source's,
-    scaled, in the same axes) do while both are on it: within ``near`` of the lowest any of
-    their own points gets, at both ends of a frame step (a swinging foot that skims the floor
-    in one of them is not planted). A step with planted foot points moves the path back by
-    the mean of their extra horizontal movement; a step with none (in the air) leaves it."""
-
-    def on_floor(points: np.ndarray) -> np.ndarray:
-        heights = points @ up  # (F, P)
-        near_floor = heights - heights.min() < near
-        return near_floor[1:] & near_floor[:-1]
-
-    planted = on_floor(feet) & on_floor(source_feet)  # (F - 1, P)
+    scaled, in the same axes) do while the source's are on it: within ``near`` of the lowest
+    any of them gets, at both ends of a frame step (:func:`planted_steps`). A step with
+    planted foot points moves the path back by the mean of their extra horizontal movement;
+    a step with none (in the air) leaves it. Contact is the source's alone, as for the legs'
+    hold: until 2026-11-27 a point also had to be near the target's own floor, and a rig
+    whose ankle or toe joint sits higher in its foot than the source's left out steps where
+    the source's foot stood, so its foot slid there (docs/export.md "Rigs we have not
+    seen")."""
+    planted = planted_steps(source_feet, up, near)  # (F - 1, P)
     extra = np.diff(feet, axis=0) - np.diff(source_feet, axis=0)  # (F - 1, P, 3)
     extra = extra - (extra @ up)[..., None] * up
     count = planted.sum(axis=1)
