@@ -11,7 +11,7 @@ toe of a long foot rolling over its tip). What is left is taken up here, leg by 
   of the source's floor at both ends, however fast it moves: a foot on the floor moves as
   the source's does, standing or sliding. (Until 2026-11-27 steps faster than 0.5 body
   heights per second were left out; those are a walk's push-off and landing, where a foot
-  longer for its leg than the source's moved 0.01-0.04 body heights per second faster
+  longer for its leg than the source's moved up to 0.05 body heights per second faster
   over the floor than the source's: see docs/export.md "Rigs we have not seen".)
 * **Where the foot should be.** Over a run of planted steps the target's same point must
   move over the floor as the source's does (not at all while it stands): the correction is
