@@ -2,14 +2,17 @@
 
 Copying bone directions onto legs of other proportions (a longer shin, a foot that ends at
 the toe tip where the capture's ends at the ball) moves a planted foot over the floor. The
-retarget first corrects the pelvis's path (:func:`app.motion.retarget.planted_feet_offsets`),
+retarget first corrects the pelvis's path (:func:`app.motion.retarget_floor.planted_feet_offsets`),
 which holds one planted point exactly but not two that disagree (both feet, or the heel and
 toe of a long foot rolling over its tip). What is left is taken up here, leg by leg:
 
 * **Contact, from the source.** A frame step is planted for a foot when one of its source
   points (the toe first, else the ankle: the point the foot rolls over) is within ``near``
-  of the source's floor at both ends and moves slower than :data:`SLOW` body heights per
-  second.
+  of the source's floor at both ends, however fast it moves: a foot on the floor moves as
+  the source's does, standing or sliding. (Until 2026-11-27 steps faster than 0.5 body
+  heights per second were left out; those are a walk's push-off and landing, where a foot
+  longer for its leg than the source's moved up to 0.05 body heights per second faster
+  over the floor than the source's: see docs/export.md "Rigs we have not seen".)
 * **Where the foot should be.** Over a run of planted steps the target's same point must
   move over the floor as the source's does (not at all while it stands): the correction is
   the running sum of the difference, minus its mean over the run (the least change that
@@ -41,7 +44,6 @@ import numpy as np
 
 from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap
 
-SLOW = 0.5  # body heights per second: a foot point on the floor slower than this is planted
 BLEND = 0.1  # seconds over which a hold fades in before a contact and out after it
 MAX_TURN = 4.5  # degrees: the most a hold turns a leg (the quality bar allows 5)
 _TINY = 1e-12
@@ -75,15 +77,12 @@ def turn_toward(a: np.ndarray, b: np.ndarray, max_angle: float) -> np.ndarray:
     return np.eye(3) + sin * k + (1 - cos) * (k @ k)
 
 
-def planted_steps(points: np.ndarray, up: np.ndarray, near: float, slow: float) -> np.ndarray:
+def planted_steps(points: np.ndarray, up: np.ndarray, near: float) -> np.ndarray:
     """``(F - 1, P)`` whether each point of ``points`` ``(F, P, 3)`` is planted over each
-    frame step: within ``near`` of the lowest any of them gets at both ends, and moving
-    over the floor less than ``slow`` (length per frame)."""
+    frame step: within ``near`` of the lowest any of them gets at both ends."""
     heights = points @ up
     low = heights - heights.min() < near
-    step = np.diff(points, axis=0)
-    step = step - (step @ up)[..., None] * up
-    return low[1:] & low[:-1] & (np.linalg.norm(step, axis=-1) < slow)
+    return low[1:] & low[:-1]
 
 
 def _smooth(x: np.ndarray) -> np.ndarray:
@@ -183,7 +182,7 @@ def hold_planted_feet(
     rotations, positions = kinematics(
         [j for _, hip, ankle, toe in legs for j in (hip, ankle, toe, parents[hip], parents[ankle])]
     )
-    planted = planted_steps(source_feet, up, near, SLOW * height * frame_time)
+    planted = planted_steps(source_feet, up, near)
     blend_frames = max(1, round(BLEND / frame_time))
     feet = np.stack([positions[j] for _, _, ankle, toe in legs for j in (ankle, toe)], axis=1)
     changed = False
@@ -224,7 +223,6 @@ def hold_planted_feet(
 __all__ = [
     "BLEND",
     "MAX_TURN",
-    "SLOW",
     "Pose",
     "hold_corrections",
     "hold_planted_feet",

@@ -9,8 +9,13 @@ quarter turn the retarget used) and in body heights of each skeleton:
   same side as the source's;
 * ``feet_error``: largest per-frame difference of the feet's lowest point above the floor;
 * ``slide`` / ``source_slide``: mean horizontal speed of the foot points (ankles, toes)
-  while within 2 % of the floor, body heights per second;
-
+  over the frame steps where the source's point is within 2 % of the source's floor at
+  both ends (the foot contact the retarget holds), body heights per second, both over the
+  same (step, point) pairs. Until 2026-11-27 each was measured over its own contacts; that
+  compared means over different sets: a rig whose ankle or toe joint sits at another
+  height in the foot has other steps within 2 % of its floor (a cartwheel's slow standing
+  steps dropped, fast landing ones added), which failed retargets moving every planted
+  point as the source's and passed walks whose feet slid more than the source's;
 (the source measured at the retarget's scale, the ratio of the legs, in the target's body
 heights: the retarget scales travel and height by that ratio, as the issue asks);
 * ``finite``: no NaN or infinity anywhere;
@@ -72,16 +77,24 @@ class RetargetQuality:
         )
 
 
-def _slide(canonical: np.ndarray, up: np.ndarray, height: float, frame_time: float) -> float:
-    """Mean horizontal speed (body heights / s) of the foot points while on the floor."""
+def _on_floor(canonical: np.ndarray, up: np.ndarray, height: float) -> np.ndarray:
+    """``(F - 1, 4)`` whether each foot point of ``canonical`` ``(F, C, 3)`` is within
+    :data:`CONTACT` body heights of the lowest any of them gets, at both ends of a step."""
+    heights = canonical[:, list(FOOT_POINTS)] @ up  # (F, 4)
+    near = heights - heights.min() < CONTACT * height
+    return near[1:] & near[:-1]
+
+
+def _slide(
+    canonical: np.ndarray, up: np.ndarray, height: float, frame_time: float, steps: np.ndarray
+) -> float:
+    """Mean horizontal speed (body heights / s) of the foot points of ``canonical``
+    ``(F, C, 3)`` over the (step, point) pairs marked in ``steps`` ``(F - 1, 4)``."""
     feet = canonical[:, list(FOOT_POINTS)]  # (F, 4, 3)
-    heights = feet @ up
-    floor = float(heights.min())
-    on_floor = (heights[1:] - floor < CONTACT * height) & (heights[:-1] - floor < CONTACT * height)
     speed = np.linalg.norm(horizontal(np.diff(feet, axis=0), up), axis=2) / frame_time
-    if not on_floor.any():
+    if not steps.any():
         return 0.0
-    return float(speed[on_floor].mean() / height)
+    return float(speed[steps].mean() / height)
 
 
 def retarget_quality(
@@ -138,12 +151,14 @@ def retarget_quality(
             np.linalg.norm(sb, axis=1) * np.linalg.norm(tb, axis=1), 1e-12
         )
         worst = min(worst, float(np.mean(cos >= np.cos(np.radians(DIRECTION_DEG)))))
+    # Sliding: both over the same steps, where the source has the point on its floor.
+    contact = _on_floor(s * scale, t_up, t_height)
     return RetargetQuality(
         bone_error=bone_error,
         left_ok=float(agree.mean()),
         feet_error=feet_error,
-        slide=_slide(t, t_up, t_height, result.frame_time),
-        source_slide=_slide(s * scale, t_up, t_height, source.frame_time),
+        slide=_slide(t, t_up, t_height, result.frame_time, contact),
+        source_slide=_slide(s * scale, t_up, t_height, source.frame_time, contact),
         finite=finite,
         direction_ok=worst,
     )

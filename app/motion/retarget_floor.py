@@ -1,0 +1,259 @@
+"""The retarget's pelvis path and feet: on the source's floor, planted where it stands.
+
+The pelvis travels as the source's pelvis, scaled about the world origin by the ratio of the
+legs' bone paths, then moved up or down per frame so the target's foot points that are on
+the floor in the source (the standing foot) are where the source's are, and nothing is
+below the source's lowest point. A swinging foot whose toe would skim the floor is pitched
+up about its ankle (:func:`clear_swinging_toes`); the path's horizontal part is corrected so
+a planted foot moves over the floor as the source's does (:func:`planted_feet_offsets`); what
+that cannot hold the legs take up (:mod:`app.motion.retarget_feet`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from app.motion.body import body_height
+from app.motion.ground import FOOT_POINTS, ON_FLOOR
+from app.motion.kinematics import forward_kinematics
+from app.motion.model import Motion
+from app.motion.retarget_feet import Pose, hold_planted_feet, planted_steps
+from app.motion.retarget_joints import between
+from app.motion.retarget_reference import leg_length, swing
+from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap
+
+_TINY = 1e-9
+
+
+def place_pelvis(
+    source: Motion,
+    source_map: SkeletonMap,
+    target: Motion,
+    target_map: SkeletonMap,
+    s_canon: np.ndarray,
+    world: np.ndarray,
+    t_up: np.ndarray,
+    local: np.ndarray,
+    pelvis_rot: np.ndarray,
+    assemble: Callable[[np.ndarray], Motion],
+    *,
+    hold_feet: bool,
+) -> np.ndarray:
+    """``(F, 3)`` the target pelvis's world position per frame (see the module docstring).
+
+    ``s_canon`` ``(F, C, 3)`` are the source's canonical joints' positions, ``world``
+    ``(3, 3)`` the target's world axes onto the source's, ``t_up`` ``(3,)`` the target's up;
+    ``local`` ``(F, J, 3, 3)`` the target's local rotations (the feet's passes change the
+    legs' in place), ``pelvis_rot`` ``(F, 3, 3)`` the target pelvis's world rotations;
+    ``assemble`` builds the output motion for a pelvis path (the kinematics of a rig whose
+    legs do not hang below the pelvis); ``hold_feet`` whether the legs hold planted feet."""
+    frames = local.shape[0]
+    parents = target.skeleton.parents
+    pelvis = int(target_map.joints[CANONICAL_INDEX["pelvis"]])
+    # The pelvis's path: the source's, scaled by the legs.
+    scale = leg_length(target, target_map) / max(leg_length(source, source_map), _TINY)
+    s_pelvis = s_canon[:, CANONICAL_INDEX["pelvis"]]
+    pelvis_at = scale * s_pelvis @ world  # (F, 3)
+    feet = target_map.joints[list(FOOT_POINTS)]
+    feet_s = scale * s_canon[:, list(FOOT_POINTS)] @ world
+    near = ON_FLOOR * body_height(target, target_map.joints, head_joint=target_map.head_joint)
+
+    # The legs' joints the feet's passes read (hips, ankles, toes and the hips' and ankles'
+    # parents): their kinematics, with the pelvis at the origin, computed once, and again
+    # only after a pass changes a leg's rotations.
+    leg_joints = sorted(
+        {
+            int(j)
+            for side in ("l", "r")
+            for name in ("hip", "ankle", "toe")
+            for j in (
+                target_map.joints[CANONICAL_INDEX[f"{side}_{name}"]],
+                parents[target_map.joints[CANONICAL_INDEX[f"{side}_{name}"]]],
+            )
+            if j >= 0
+        }
+    )
+    origin = np.zeros((frames, 3))
+    posed: list[Pose] = []
+
+    def refresh() -> None:
+        try:
+            pose = below(
+                parents, target.skeleton.offsets, local, pelvis, pelvis_rot, origin, leg_joints
+            )
+        except ValueError:  # a leg joint not below the pelvis: the whole rig's kinematics
+            rot, pos = forward_kinematics(assemble(origin), joints=leg_joints)
+            pose = ({j: rot[:, j] for j in leg_joints}, {j: pos[:, j] for j in leg_joints})
+        posed[:] = [pose]
+
+    def legs(joints: Sequence[int], at: np.ndarray) -> Pose:
+        """World rotations and positions of the target's ``joints`` (legs' joints) for the
+        current ``local`` rotations, with the pelvis at ``at`` ``(F, 3)``."""
+        rotations, positions = posed[0]
+        return rotations, {int(j): positions[int(j)] + at for j in joints}
+
+    refresh()
+
+    def foot_points(at: np.ndarray) -> np.ndarray:
+        """``(F, P, 3)`` the foot points with the pelvis at ``at``."""
+        positions = legs([int(j) for j in feet], at)[1]
+        return np.stack([positions[int(j)] for j in feet], axis=1)
+
+    def onto(points: np.ndarray, stance: np.ndarray) -> np.ndarray:
+        """``(F,)`` how far to move the pelvis up so that the lowest of the foot points
+        ``points`` ``(F, P, 3)`` marked in ``stance`` ``(F, P)`` is where the source's
+        lowest of them is (the pelvis's translation carries every joint below it)."""
+        lowest = np.where(stance, points @ t_up, np.inf).min(axis=1)
+        return np.where(stance, s_heights, np.inf).min(axis=1) - lowest
+
+    # The standing foot sets the body's height: the target's foot points that are on the
+    # floor in the source (within ``near`` of its floor) are put where the source's are, so
+    # a swinging foot lower on the rig (a longer shin, a long foot's toe tip) does not lift
+    # the standing one off the floor; the swinging toe is then raised (below). At frames
+    # with no point on the floor (a jump) the lowest points match.
+    s_heights = feet_s @ t_up  # (F, P)
+    stance = s_heights - s_heights.min() < near
+    stance[~stance.any(axis=1)] = True
+    feet_t = foot_points(pelvis_at)
+    lift = onto(feet_t, stance)
+    pelvis_at = pelvis_at + lift[:, None] * t_up
+    feet_t = feet_t + lift[:, None, None] * t_up
+    # A swinging foot clears the floor as the source's does (a long foot points its toe lower).
+    if clear_swinging_toes(
+        lambda joints: legs(joints, pelvis_at), target_map, parents, local, feet_s, t_up, near
+    ):
+        refresh()
+        feet_t = foot_points(pelvis_at)
+    # Then the lowest point is the source's lowest (feet neither sinking nor floating): this
+    # moves only frames where a swinging foot could not clear the floor, or a jump's.
+    lift = onto(feet_t, np.ones_like(stance))
+    pelvis_at = pelvis_at + lift[:, None] * t_up
+    feet_t = feet_t + lift[:, None, None] * t_up
+    pelvis_at = pelvis_at + planted_feet_offsets(feet_t, feet_s, t_up, near)
+    if hold_feet:
+        held = hold_planted_feet(
+            lambda joints: legs(joints, pelvis_at),
+            target_map,
+            parents,
+            local,
+            source.frame_time,
+            feet_s,
+            t_up,
+            near,
+            near / ON_FLOOR,
+        )
+        if held is not None:
+            # A leg turned about its hip raises or lowers its foot a little: the standing
+            # foot goes back onto the floor, and nothing sinks below the source's lowest.
+            lift = onto(held, stance)
+            lift = lift + onto(held + lift[:, None, None] * t_up, np.ones_like(stance))
+            pelvis_at = pelvis_at + lift[:, None] * t_up
+    return pelvis_at
+
+
+def clear_swinging_toes(
+    kinematics: Callable[[Sequence[int]], Pose],
+    mapping: SkeletonMap,
+    parents: np.ndarray,
+    local: np.ndarray,
+    source_feet: np.ndarray,
+    up: np.ndarray,
+    near: float,
+) -> bool:
+    """Pitch each foot up about its ankle (``local`` ``(F, J, 3, 3)`` changed in place)
+    at frames where the source's toe is off the floor (``near`` or more above the lowest any
+    source foot point gets) but the target's toe is lower than the source's: on a foot
+    longer for its leg than the source's (a toe tip against a ball of the foot), the same
+    foot direction puts the toe of a swinging foot on the floor, where it skims. The toe is
+    raised to the source toe's height (or as near as the foot reaches); the foot keeps its
+    heading. ``kinematics`` gives the legs' joints' world rotations and positions for the
+    current ``local``; ``source_feet`` ``(F, P, 3)`` are the source's foot points (scaled,
+    target axes, :data:`FOOT_POINTS` order) at the target's heights. Returns whether
+    anything changed."""
+    source_floor = float((source_feet @ up).min())
+    changed = False
+    for side in ("l", "r"):
+        ankle = int(mapping.joints[CANONICAL_INDEX[f"{side}_ankle"]])
+        toe = int(mapping.joints[CANONICAL_INDEX[f"{side}_toe"]])
+        if ankle == toe or (not between(parents, ankle, toe) and parents[toe] != ankle):
+            continue
+        rot, pos = kinematics([ankle, toe, int(parents[ankle])])
+        wanted = source_feet[:, FOOT_POINTS.index(CANONICAL_INDEX[f"{side}_toe"])] @ up
+        bone = pos[toe] - pos[ankle]  # (F, 3)
+        length = np.linalg.norm(bone, axis=1)
+        flat = bone - (bone @ up)[:, None] * up
+        flat_length = np.linalg.norm(flat, axis=1)
+        low = (
+            (wanted - source_floor >= near)
+            & (pos[toe] @ up < wanted)
+            & (flat_length > 1e-6 * np.maximum(length, _TINY))
+        )
+        if not low.any():
+            continue
+        rise = np.clip((wanted[low] - pos[ankle][low] @ up) / length[low], -1.0, 1.0)
+        heading = flat[low] / flat_length[low, None]
+        raised = length[low, None] * (
+            np.sqrt(1.0 - rise**2)[:, None] * heading + rise[:, None] * up
+        )
+        turn = swing(bone[low], raised)  # about the horizontal axis across the foot
+        above = rot[int(parents[ankle])][low]
+        local[low, ankle] = np.swapaxes(above, -1, -2) @ turn @ above @ local[low, ankle]
+        changed = True
+    return changed
+
+
+def below(
+    parents: np.ndarray,
+    offsets: np.ndarray,
+    local: np.ndarray,
+    top: int,
+    top_rotation: np.ndarray,
+    top_position: np.ndarray,
+    joints: Sequence[int],
+) -> Pose:
+    """Forward kinematics of the joints between ``top`` and ``joints`` (all below it), from
+    ``top``'s world rotation ``(F, 3, 3)`` and position ``(F, 3)``: world rotations
+    ``(F, 3, 3)`` and positions ``(F, 3)`` by joint. Only these few joints are computed
+    (a leg's, against a rig of 70 joints with fingers)."""
+    needed: set[int] = set()
+    for start in joints:
+        j = int(start)
+        while j != top and j not in needed:
+            if j < 0:
+                raise ValueError(f"joint {start} is not below joint {top}")
+            needed.add(j)
+            j = int(parents[j])
+    rotations, positions = {top: top_rotation}, {top: top_position}
+    for j in sorted(needed):  # parents before children
+        parent = int(parents[j])
+        rotations[j] = rotations[parent] @ local[:, j]
+        positions[j] = positions[parent] + rotations[parent] @ offsets[j]
+    return rotations, positions
+
+
+def planted_feet_offsets(
+    feet: np.ndarray, source_feet: np.ndarray, up: np.ndarray, near: float
+) -> np.ndarray:
+    """``(F, 3)`` horizontal offsets to add to the pelvis's path so that the foot points
+    ``feet`` ``(F, P, 3)`` move over the floor as ``source_feet`` ``(F, P, 3)`` (the source's,
+    scaled, in the same axes) do while the source's are on it: within ``near`` of the lowest
+    any of them gets, at both ends of a frame step (:func:`planted_steps`). A step with
+    planted foot points moves the path back by the mean of their extra horizontal movement;
+    a step with none (in the air) leaves it. Contact is the source's alone, as for the legs'
+    hold: until 2026-11-27 a point also had to be near the target's own floor, and a rig
+    whose ankle or toe joint sits higher in its foot than the source's left out steps where
+    the source's foot stood, so its foot slid there (docs/export.md "Rigs we have not
+    seen")."""
+    planted = planted_steps(source_feet, up, near)  # (F - 1, P)
+    extra = np.diff(feet, axis=0) - np.diff(source_feet, axis=0)  # (F - 1, P, 3)
+    extra = extra - (extra @ up)[..., None] * up
+    count = planted.sum(axis=1)
+    step = -(extra * planted[..., None]).sum(axis=1) / np.maximum(count, 1)[:, None]
+    offsets = np.zeros((feet.shape[0], 3))
+    offsets[1:] = np.cumsum(step, axis=0)
+    return offsets
+
+
+__all__ = ["below", "clear_swinging_toes", "place_pelvis", "planted_feet_offsets"]
