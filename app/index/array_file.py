@@ -99,10 +99,10 @@ def has_checksum(path: Path, sha256: object) -> bool:
     OSError
         The file cannot be read (``FileNotFoundError``: missing).
     """
-    if not isinstance(sha256, str):
-        return False
     with open(path, "rb") as stream:
         info = os.fstat(stream.fileno())  # of the very file hashed, even if replaced meanwhile
+        if not isinstance(sha256, str):
+            return False
         if is_stamped(path, info, sha256):
             return True
         digest = hashlib.sha256()
