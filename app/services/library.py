@@ -299,14 +299,20 @@ class Library:
         index at 100 hours was a large part of a start). Returns the indexes that disagreed."""
         for _ in range(3):  # until no change arrives between the sync and the counts
             self.sync_indexes()
-            with self._sync_lock, self.reads() as session:
+            # Counted without the sync lock (a start's loading of the places waits for it):
+            # the counts hold if the indexes followed no change meanwhile.
+            with self.reads() as session:
+                seen = self._feed.position
                 if self._feed.poll(session).clip_ids.size:
                     continue  # changed meanwhile: sync again
-                wrong = [
-                    name
+                counts = {
+                    name: window_db.count_windows(session, key)
                     for name, key in self.window_keys.items()
-                    if window_db.count_windows(session, key) != self.window_indexes[name].size
-                ]
+                }
+            sizes = {name: self.window_indexes[name].size for name in counts}
+            if self._feed.position != seen:
+                continue
+            wrong = [name for name in counts if counts[name] != sizes[name]]
             if wrong and not self._stopping.is_set():
                 log.warning(
                     "the window indexes %s disagree with the database's windows: rebuilding",
