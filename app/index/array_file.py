@@ -4,6 +4,9 @@ the FAISS indexes (the catalogue, the window places) are persisted and shared.
 ``<stem>.arrays`` holds the arrays one after another (each at a 64-byte boundary);
 ``<stem>.json`` beside it records where each lies, its dtype and shape, the file's sha256 and
 whatever the writer adds (the change-feed position the arrays reflect, a format version).
+A file whose checksum was found to match is stamped (``<file>.verified``: its size,
+modification time, inode and that checksum, see :func:`has_checksum`), so the next start does
+not hash it again while it is unchanged.
 Writes go to temporary files renamed into place under the directory's exclusive lock
 (:func:`app.index.locks.directory_lock`), so a reader never sees half a file. A read maps the
 file read-only: every process reading it shares one copy of its pages (the page cache), and
@@ -17,6 +20,7 @@ import hashlib
 import json
 import mmap
 import os
+import threading
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -27,6 +31,10 @@ from app.index.locks import directory_lock
 
 ALIGN = 64
 HASH_CHUNK = 1 << 22
+STAMP_SUFFIX = ".verified"  # <file>.verified: the file's checksum was found to match
+# Private key read_arrays adds to the metadata it returns (never written to a file): the
+# mapped file was known to match its checksum when read, or where to stamp it once checked.
+CHECKED = "_checked"
 
 
 def file_sha256(path: Path) -> str:
@@ -37,6 +45,73 @@ def file_sha256(path: Path) -> str:
         while chunk := stream.read(HASH_CHUNK):
             digest.update(chunk)
     return digest.hexdigest()
+
+
+def _stamp_path(path: Path) -> Path:
+    return path.with_name(path.name + STAMP_SUFFIX)
+
+
+def _identity(info: os.stat_result) -> list[int]:
+    """What changes when a file is rewritten or replaced: its size, modification time (ns)
+    and inode (files here are replaced by a rename, which gives a new inode)."""
+    return [info.st_size, info.st_mtime_ns, info.st_ino]
+
+
+def is_stamped(path: Path, info: os.stat_result, sha256: object) -> bool:
+    """Whether ``<path>.verified`` records the file of ``info`` (stat of ``path``) as
+    matching ``sha256``."""
+    if not isinstance(sha256, str):
+        return False
+    try:
+        stamp = json.loads(_stamp_path(path).read_text())
+    except (OSError, ValueError):
+        return False
+    return (
+        isinstance(stamp, dict)
+        and stamp.get("file") == _identity(info)
+        and stamp.get("sha256") == sha256
+    )
+
+
+def write_stamp(path: Path, info: os.stat_result, sha256: str) -> None:
+    """Record that the file of ``info`` (stat of ``path``) matched ``sha256`` (atomically;
+    nothing when the directory is read-only: it is hashed again at the next start)."""
+    stamp = _stamp_path(path)
+    tmp = stamp.with_name(f".{stamp.name}.{os.getpid()}.{threading.get_ident()}.tmp")
+    try:
+        tmp.write_text(json.dumps({"file": _identity(info), "sha256": sha256}))
+        os.replace(tmp, stamp)
+    except OSError:
+        pass
+    finally:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+
+
+def has_checksum(path: Path, sha256: object) -> bool:
+    """Whether the file at ``path`` matches ``sha256``: at once when its stamp records this
+    very file (unchanged since it was hashed), else hashed — and stamped when it matches, so
+    an unchanged file is hashed once, not at every start. A changed file (written again, or
+    replaced) has another size, time or inode and is hashed again.
+
+    Raises
+    ------
+    OSError
+        The file cannot be read (``FileNotFoundError``: missing).
+    """
+    with open(path, "rb") as stream:
+        info = os.fstat(stream.fileno())  # of the very file hashed, even if replaced meanwhile
+        if not isinstance(sha256, str):
+            return False
+        if is_stamped(path, info, sha256):
+            return True
+        digest = hashlib.sha256()
+        while chunk := stream.read(HASH_CHUNK):
+            digest.update(chunk)
+    if digest.hexdigest() != sha256:
+        return False
+    write_stamp(path, info, sha256)
+    return True
 
 
 def _fsync(path: Path) -> None:
@@ -102,8 +177,9 @@ def read_arrays(
     """The arrays of ``<stem>.arrays`` (read-only views of the mapped file) and the metadata,
     or why they cannot be used: a file missing, unreadable or not matching its checksum, or
     metadata differing from ``expect`` (a format version, a descriptor). With
-    ``verify=False`` the checksum is left to :func:`verify_arrays` (later, in a thread);
-    ``lock=False``: the caller holds the directory's lock."""
+    ``verify=False`` the checksum is left to :func:`verify_arrays` (later, in a thread) unless
+    the file's stamp shows it matched already; ``lock=False``: the caller holds the
+    directory's lock."""
     path = directory / f"{stem}.arrays"
     with directory_lock(directory, exclusive=False) if lock else contextlib.nullcontext():
         try:
@@ -113,11 +189,17 @@ def read_arrays(
             for key, value in expect.items():
                 if meta.get(key) != value:
                     return f"{key} is {meta.get(key)!r}, expected {value!r}"
-            if verify and file_sha256(path) != meta.get("sha256"):
+            if verify and not has_checksum(path, meta.get("sha256")):
                 return f"{path.name} does not match its checksum"
             with open(path, "rb") as stream:
-                size = os.fstat(stream.fileno()).st_size
-                mapped = mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) if size else None
+                info = os.fstat(stream.fileno())
+                mapped = (
+                    mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) if info.st_size else None
+                )
+            # The file mapped: checked (now, or before when its stamp says so), or where to
+            # stamp it once verify_arrays has checked it.
+            checked = verify or is_stamped(path, info, meta.get("sha256"))
+            meta[CHECKED] = True if checked else [str(path), info]
         except FileNotFoundError as exc:
             return f"missing {Path(exc.filename).name}"
         except (OSError, ValueError) as exc:
@@ -140,7 +222,12 @@ def read_arrays(
 
 def verify_arrays(arrays: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> str | None:
     """Check the checksum of arrays read with ``verify=False`` (the mapped file itself, even if
-    another process has replaced the file since): why they cannot be used, or None."""
+    another process has replaced the file since): why they cannot be used, or None. A file
+    its stamp showed unchanged since it matched is not hashed again; one that matches now is
+    stamped."""
+    checked = meta.get(CHECKED)
+    if checked is True:
+        return None
     mapped = next(filter(None, (_mapping_of(a) for a in arrays.values())), None)
     if mapped is None:  # an empty file: nothing mapped
         return None
@@ -149,7 +236,14 @@ def verify_arrays(arrays: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> 
     for start in range(0, len(view), HASH_CHUNK):
         digest.update(view[start : start + HASH_CHUNK])
     view.release()
-    return None if digest.hexdigest() == meta.get("sha256") else "file does not match its checksum"
+    if digest.hexdigest() != meta.get("sha256"):
+        return "file does not match its checksum"
+    if isinstance(checked, list):  # the very file mapped, stamped if it was not replaced
+        path, info = Path(checked[0]), checked[1]
+        with contextlib.suppress(OSError):
+            if _identity(os.stat(path)) == _identity(info):
+                write_stamp(path, info, digest.hexdigest())
+    return None
 
 
 def _mapping_of(array: np.ndarray) -> mmap.mmap | None:

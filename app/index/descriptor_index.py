@@ -59,7 +59,14 @@ from typing import Any, Protocol
 import faiss
 import numpy as np
 
-from app.index.array_file import read_arrays, verify_arrays, write_arrays
+from app.index.array_file import (
+    has_checksum,
+    is_stamped,
+    read_arrays,
+    verify_arrays,
+    write_arrays,
+    write_stamp,
+)
 from app.index.frozen import FrozenIVF
 from app.index.kinds import (
     FLAT,
@@ -849,7 +856,10 @@ class DescriptorIndex:
             try:
                 meta = json.loads(self.meta_path.read_text())
                 later = not verify and meta.get("kind") == IVF and self._maps(meta)
-                digest = None if later else _file_sha256(self.path)
+                # Checked now (at once when its stamp shows it unchanged since it matched);
+                # "": it does not match.
+                expected = meta.get("sha256")
+                digest = None if later else expected if has_checksum(self.path, expected) else ""
             except FileNotFoundError as exc:
                 return f"missing {Path(exc.filename).name}"
             except (OSError, ValueError) as exc:
@@ -911,12 +921,18 @@ class DescriptorIndex:
         fd, expected = unchecked
         try:
             with os.fdopen(fd, "rb") as stream:
+                info = os.fstat(stream.fileno())  # the file mapped, even if replaced since
+                if is_stamped(self.path, info, expected):
+                    return None  # unchanged since it matched: not hashed again
                 digest = hashlib.sha256()
                 while chunk := stream.read(HASH_CHUNK):
                     digest.update(chunk)
         except OSError as exc:
             return f"unreadable index file: {exc}"
-        return None if digest.hexdigest() == expected else "index file does not match its checksum"
+        if digest.hexdigest() != expected:
+            return "index file does not match its checksum"
+        write_stamp(self.path, info, expected)
+        return None
 
     def load_or_rebuild(
         self, source: VectorSource, found: tuple[Any, dict[str, Any]] | str | None = None

@@ -9,7 +9,6 @@ milliseconds), never its start or end pose.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from app.motion.model import Motion
 
@@ -30,6 +29,9 @@ def sample_times(frame_count: int, frame_time: float, fps: float) -> np.ndarray:
 def slerp_frames(rotations: np.ndarray, at: np.ndarray) -> np.ndarray:
     """``(K, J, 3, 3)`` rotations ``(F, J, 3, 3)`` slerped at fractional frames ``at``
     ``(K,)`` (each joint along the shortest arc between the two frames around it)."""
+    # SciPy's rotations here only (~0.3 s to import): not at every server start.
+    from scipy.spatial.transform import Rotation
+
     frames, joints = rotations.shape[:2]
     lower = np.clip(np.floor(at).astype(np.int64), 0, max(frames - 2, 0))
     upper = np.minimum(lower + 1, frames - 1)

@@ -26,7 +26,7 @@ import logging
 import sqlite3
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from datetime import timedelta
@@ -240,11 +240,13 @@ class Library:
             ids, vectors = vector_db.load_vectors(session, info.name, info.version, info.dimension)
             self.indexes[name].replace_all(ids, vectors, synced_to=position)
 
-    def rebuild_window_indexes(self) -> None:
-        """Refill every window index from the database and save it."""
+    def rebuild_window_indexes(self, names: Collection[str] | None = None) -> None:
+        """Refill every window index (or those ``names``) from the database and save it."""
         with self._sync_lock, self.reads() as session:
             position = horizon(session)  # before the vectors: nothing older is missed
             for name, key in self.window_keys.items():
+                if names is not None and name not in names:
+                    continue
                 ids, vectors = window_db.load_windows(session, key)
                 self.window_indexes[name].replace_all(ids, vectors, synced_to=position)
                 if self.window_places[name].loaded:
@@ -288,6 +290,46 @@ class Library:
             self.rebuild_catalogue()
             rebuilt.append("catalogue")
         return rebuilt
+
+    def check_window_counts(self) -> list[str]:
+        """Compare each window index's size with the windows the database holds for it, at
+        one feed position, and rebuild the window indexes when one disagrees (what
+        :meth:`DescriptorIndex.load_or_rebuild` checks at start; a server, opened with
+        ``verify_later``, checks it here, in its verifier thread: counting 1.7 M rows per
+        index at 100 hours was a large part of a start). Returns the indexes that disagreed."""
+        for _ in range(3):  # until no change arrives between the sync and the counts
+            self.sync_indexes()
+            # Counted without the sync lock (a start's loading of the places waits for it):
+            # the counts hold if the indexes followed no change meanwhile.
+            with self.reads() as session:
+                seen = self._feed.position
+                if self._feed.poll(session).clip_ids.size:
+                    continue  # changed meanwhile: sync again
+                counts = {
+                    name: window_db.count_windows(session, key)
+                    for name, key in self.window_keys.items()
+                }
+            sizes = {name: self.window_indexes[name].size for name in counts}
+            if self._feed.position != seen:
+                continue
+            wrong = [name for name in counts if counts[name] != sizes[name]]
+            if wrong and not self._stopping.is_set():
+                log.warning(
+                    "the window indexes %s disagree with the database's windows: rebuilding",
+                    ", ".join(wrong),
+                )
+                self.rebuild_window_indexes(wrong)
+            return wrong
+        return []
+
+    def _check_files(self) -> None:
+        """The verifier thread of a server: window counts, then checksums (see
+        :meth:`check_window_counts`, :meth:`verify_files`)."""
+        try:
+            self.check_window_counts()
+        except (SQLAlchemyError, sqlite3.Error) as exc:
+            log.warning("could not count the windows in the database: %s", exc)
+        self.verify_files()
 
     def places(self, name: str) -> WindowPlaces:
         """Where the windows of window index ``name`` lie (loaded from the database when
@@ -646,12 +688,28 @@ def _open_indexes(
         for name, key in keys.items():
             index = windows[name]
             found = _followable(files.pop(index), pruned)
-            index.load_or_rebuild(StoredWindows(session, key, watermark, index), found)
+            stored = StoredWindows if verify else _WindowsCountedLater
+            index.load_or_rebuild(stored(session, key, watermark, index), found)
         found = _followable(catalogue_file, pruned)
         catalogue.load_or_rebuild(StoredClips(session, watermark), found)
     if fresh and not any(index.size for index in every):
         log.info("new library: created its %d empty indexes in %s", len(every), settings.index_dir)
     return IndexSet(indexes), IndexSet(windows), catalogue
+
+
+class _WindowsCountedLater(StoredWindows):
+    """:class:`StoredWindows` whose count is the index's own: a server's start does not
+    count the windows in the database (see :meth:`Library.check_window_counts`, which its
+    verifier thread runs; files it cannot follow are still rebuilt at once)."""
+
+    def __init__(
+        self, session: Session, key: window_db.WindowKey, watermark: int, index: DescriptorIndex
+    ) -> None:
+        super().__init__(session, key, watermark, index)
+        self._held = index
+
+    def count(self) -> int:
+        return self._held.size
 
 
 def _followable(found: tuple[Any, dict[str, Any]] | str, pruned: int) -> Any:
@@ -673,9 +731,10 @@ def open_library(
     """Migrate the database to the newest schema and load (or rebuild) the indexes.
 
     ``verify_later`` (the server): the large, mapped files are used before their checksums
-    are checked; :meth:`Library.verify_files` checks them in a thread of the library and
-    rebuilds any that fails, so a server answers within seconds of starting at a million
-    clips (hashing them was most of the start)."""
+    are checked, and the window indexes before their sizes are compared with the database;
+    a thread of the library checks both (:meth:`Library.check_window_counts`,
+    :meth:`Library.verify_files`) and rebuilds what fails, so a server answers within seconds
+    of starting at a million clips (hashing them was most of the start)."""
     parsers = ParserPool.from_settings(settings)  # no process until an FBX/glTF arrives
     if describer is None:
         describer = MotionDescriber.from_settings(settings, parsers=parsers)
@@ -724,7 +783,7 @@ def open_library(
     )
     if verify_later:
         library.verifier = threading.Thread(
-            target=library.verify_files, name="verify-files", daemon=True
+            target=library._check_files, name="verify-files", daemon=True
         )
         library.verifier.start()
     for name, outdated in library.count_outdated().items():

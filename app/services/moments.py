@@ -82,7 +82,10 @@ MAX_PROBES = 16  # query parts that search the window index, at most
 PROBE_COVER = 0.15  # ... until every part is this near one (share of a typical distance)
 FIRST_FETCH = 256  # windows each probe asks for first (twice as many per widening)
 SPAN_CACHE = 32  # described stored spans kept (a page asking again, a span dragged back)
-DIRECT_PARTS = 8  # a query of this many parts at most measures every (part, window) pair
+DIRECT_PARTS = 8  # a query of this many parts at most: each window's nearest part exactly
+# The expanded form's rounding error on a squared distance stays below this share of the two
+# squares summed (~D * 1e-16 for D of a few hundred): pairs further apart are told apart.
+SQUARES_SLACK = 1e-9
 BLOCK_BYTES = 64 * 2**20  # memory one block of a search's comparisons may take (issue 21)
 
 
@@ -480,12 +483,8 @@ class _Finder:
         distance (exact: the parts near the expanded form's minimum are measured again from
         their differences)."""
         q = self.query
-        if len(q) <= DIRECT_PARTS:  # few parts: every pair from its difference at once
-            count = len(windows)
-            difference = (q[:, None, :] - windows[None, :, :]).reshape(-1, q.shape[1])
-            every = _pair_distances_of(difference).reshape(len(q), count)
-            nearest = every.argmin(axis=0)  # the first part on ties
-            return nearest, every[nearest, np.arange(count)]
+        if len(q) <= DIRECT_PARTS:
+            return self._nearest_of_few_parts(windows)
         squared = q @ windows.T  # (J, M), turned in place into squared distances
         squared *= -2.0
         squared += (q**2).sum(axis=1)[:, None]
@@ -505,6 +504,34 @@ class _Finder:
         order = np.lexsort((rows, exact, columns))  # per column: nearest, then first part
         first = order[np.r_[True, columns[order][1:] != columns[order][:-1]]]
         return rows[first], exact[first]
+
+    def _nearest_of_few_parts(self, windows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_nearest_parts` of ``windows`` ``(M, D)`` for a query of few parts, with
+        the very numbers of measuring every (part, window) pair from its difference (the
+        first nearest part on ties) at about one pair's cost a window: the expanded form (a
+        matrix product) names each window's nearest part when no other part lies within its
+        rounding error, far below ``SQUARES_SLACK`` of the squares summed; only that pair is
+        then measured from its difference. Windows with such near ties (a query repeating
+        itself) measure every pair so."""
+        q = self.query
+        count = len(windows)
+        query_squares = np.einsum("ij,ij->i", q, q)
+        window_squares = np.einsum("ij,ij->i", windows, windows)
+        # (J, M), turned in place into squared distances. Not through BLAS: numpy's runs on
+        # every core, which costs more than it gains for a product this small.
+        squared = np.einsum("jd,md->jm", q, windows)
+        squared *= -2.0
+        squared += query_squares[:, None]
+        squared += window_squares[None, :]
+        nearest = squared.argmin(axis=0)
+        lowest = squared[nearest, np.arange(count)]
+        slack = SQUARES_SLACK * (float(query_squares.max()) + window_squares)
+        tied = np.flatnonzero(np.count_nonzero(squared <= lowest + 2 * slack, axis=0) > 1)
+        if tied.size:
+            difference = (q[:, None, :] - windows[None, tied, :]).reshape(-1, q.shape[1])
+            every = _pair_distances_of(difference).reshape(len(q), tied.size)
+            nearest[tied] = every.argmin(axis=0)  # the first part on ties
+        return nearest, _pair_distances_of(q[nearest] - windows)
 
     def _fits(
         self,

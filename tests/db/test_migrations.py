@@ -15,7 +15,7 @@ from alembic.runtime.migration import MigrationContext
 from sqlalchemy import Engine, inspect, text
 
 from app.config import Settings
-from app.db.migrate import current_revision, downgrade, head_revision, upgrade
+from app.db.migrate import current_revision, downgrade, head_in_files, head_revision, upgrade
 from app.db.models import Base
 from app.db.session import create_db_engine
 from tests.conftest import REPO_ROOT
@@ -141,3 +141,45 @@ def test_replicas_starting_together_migrate_one_after_the_other(
         assert current_revision(engine) == head_revision()
     finally:
         engine.dispose()
+
+
+def test_newest_revision_read_from_the_files_is_alembics() -> None:
+    # upgrade() skips Alembic when the stored revision is this one: it must be Alembic's head.
+    assert head_in_files() == head_revision()
+
+
+def test_up_to_date_database_starts_without_alembic(settings: Settings) -> None:
+    # A start of an up-to-date library leaves Alembic unimported (a new process: the tests
+    # have imported it already); one revision behind is still migrated to the newest.
+    engine = create_db_engine(settings.sqlalchemy_url)
+    try:
+        upgrade(engine)
+        script = (
+            "import sys; from app.db.migrate import upgrade; "
+            "from app.db.session import create_db_engine; "
+            f"upgrade(create_db_engine({settings.sqlalchemy_url!r})); "
+            "print(sorted({m.split('.')[0] for m in sys.modules} & {'alembic'}))"
+        )
+        env = {k: v for k, v in os.environ.items() if not k.startswith("MOCAP_")}
+        run = subprocess.run(
+            [sys.executable, "-c", script], cwd=REPO_ROOT, env=env, capture_output=True, text=True
+        )
+        assert run.returncode == 0, run.stderr
+        assert run.stdout.strip() == "[]"
+        previous = _revision_before(head_revision())
+        downgrade(engine, previous)
+        assert current_revision(engine) == previous
+        upgrade(engine)
+        assert current_revision(engine) == head_revision()
+    finally:
+        engine.dispose()
+
+
+def _revision_before(revision: str | None) -> str:
+    from alembic.script import ScriptDirectory
+
+    from app.db.migrate import alembic_config
+
+    script = ScriptDirectory.from_config(alembic_config()).get_revision(revision)
+    assert isinstance(script.down_revision, str)
+    return script.down_revision

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import threading
 import time
 from pathlib import Path
@@ -515,3 +516,45 @@ def test_sorted_ids_follow_every_change(tmp_path: Path, kind: str) -> None:
     agrees()
     index.replace_all(ids[:100], vectors[:100], persist=False)
     agrees()
+
+
+def _flip_byte(path: Path, at: int, *, keep_time: bool) -> None:
+    """Change byte ``at`` (from the end: inside the vectors) in place (same size and inode);
+    ``keep_time``: with the modification time put back, as a stamp cannot tell."""
+    info = path.stat()
+    with open(path, "r+b") as stream:
+        stream.seek(at, 2)
+        byte = stream.read(1)[0]
+        stream.seek(at, 2)
+        stream.write(bytes([byte ^ 0xFF]))
+    mtime = info.st_mtime_ns if keep_time else info.st_mtime_ns + 1_000_000
+    os.utime(path, ns=(info.st_atime_ns, mtime))
+
+
+@pytest.mark.parametrize("verify", [True, False])
+def test_a_verified_index_file_is_not_hashed_again_until_it_changes(
+    tmp_path: Path, verify: bool
+) -> None:
+    # The checksum of an unchanged file is checked once (stamped), at the first start (verify)
+    # or by the server's later check; a file changed since is hashed again and refused.
+    ids, vectors = make_data(3000)
+    options = IndexOptions(IVF, nlist=8)
+    DescriptorIndex("posture", D, 1, tmp_path, options=options).replace_all(ids, vectors)
+    path = tmp_path / "posture.faiss"
+
+    def problem() -> str | None:
+        index = DescriptorIndex("posture", D, 1, tmp_path, options=options)
+        found = index.read_file(verify=verify)
+        if isinstance(found, str):
+            return found
+        later = index.verify_file()
+        index.load_or_rebuild(Source(ids, vectors), found)
+        return later
+
+    assert problem() is None
+    assert (tmp_path / "posture.faiss.verified").is_file()
+    _flip_byte(path, -5, keep_time=True)
+    assert problem() is None  # the stamp trusted: not hashed
+    _flip_byte(path, -9, keep_time=False)
+    found = problem()
+    assert found is not None and "checksum" in found
