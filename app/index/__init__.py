@@ -9,10 +9,4 @@ feed (:mod:`app.db.changes`) and rebuilt from it when missing or stale.
 - :mod:`app.index.locks`: reader/writer lock and the index directory's file lock.
 """
 
-import os
-
-# FAISS reads OMP_NUM_THREADS once, when its OpenMP runtime loads, and a single query is not
-# faster on more threads (STYLE.md): default to one before the import — faiss is imported only
-# in this package, whose modules all run this first, so every entry point (serve, uvicorn
-# --factory, tests) gets it — but keep a value the operator set.
-os.environ.setdefault("OMP_NUM_THREADS", "1")
+# FAISS runs one OpenMP thread a process: app/__init__.py sets OMP_NUM_THREADS before any import.
