@@ -61,6 +61,10 @@ _TELEPORT = 2.0
 # Frames offered to the skeleton mapper when the rest pose is not a standing figure; the
 # first that shows a humanoid is used (a leg kicked high in one frame is not in the next).
 _POSE_FRAMES = 12
+# The rest pose is a pose of this body when some frame shows its up and lateral within 30
+# degrees each, seen from the pelvis (a body turns its pelvis further from the trunk only
+# lying or bent double; a bone axis convention turns it by 90 or 180).
+_REST_SHOWN = float(np.cos(np.radians(30.0)))
 
 
 @dataclass(frozen=True, eq=False)
@@ -181,7 +185,9 @@ def build_body(motion: Motion) -> Body:
             "root jumping); kept"
         )
     lead_in += start
-    frames = _pelvis_frames(motion, mapping.joints, canon_rot)
+    frames = _pelvis_frames(
+        motion, mapping.joints, canon_rot, rest_is_a_figure=mapping.pose == "rest pose"
+    )
     return Body(
         positions=canon_pos,
         rotations=canon_rot,
@@ -350,14 +356,47 @@ def _pose_change(local: np.ndarray) -> np.ndarray:
     return np.arccos(cos_angle.min(axis=1))
 
 
-def _pelvis_frames(motion: Motion, canonical: np.ndarray, rotations: np.ndarray) -> np.ndarray:
+def _pelvis_frames(
+    motion: Motion, canonical: np.ndarray, rotations: np.ndarray, *, rest_is_a_figure: bool
+) -> np.ndarray:
     """``(F, 3, 3)`` pelvis-fixed body frames; columns lateral (left), up, forward.
 
     ``canonical`` is the ``(C,)`` source joint index per canonical joint and ``rotations`` the
-    ``(F, C, 3, 3)`` world rotations of the canonical joints.
+    ``(F, C, 3, 3)`` world rotations of the canonical joints; ``rest_is_a_figure``: the
+    mapping was read from the rest pose (see :func:`pelvis_basis`).
     """
-    basis = rest_pelvis_basis(motion, canonical)
+    basis = pelvis_basis(motion, canonical, rest_is_a_figure=rest_is_a_figure)
     return rotations[:, CANONICAL_INDEX["pelvis"]] @ basis
+
+
+def pelvis_basis(motion: Motion, canonical: np.ndarray, *, rest_is_a_figure: bool) -> np.ndarray:
+    """``(3, 3)`` body axes (columns lateral, up, forward) in the pelvis joint's coordinates.
+
+    From the rest pose (:func:`rest_pelvis_basis`), unless the mapper found no figure there
+    (``rest_is_a_figure`` False: it read the take's frames) and no frame of a dozen spread
+    over the clip shows the rest pose's axes, seen from the pelvis (up and lateral each within
+    30 degrees): then the rest pose is no pose of this body at all — a writer whose bones lie
+    along odd axes, all-zero rotations meaning some other pose, as pose estimators write —
+    and the axes are the frames' own, averaged. A rest pose some frame agrees with is kept,
+    so a standing rig that merely starts seated reads as before.
+    """
+    rest = rest_pelvis_basis(motion, canonical)
+    if rest_is_a_figure:
+        return rest
+    _, picked = _spread_frames(motion)
+    rotations, positions = forward_kinematics(picked, joints=canonical)
+    pelvis = rotations[:, canonical[CANONICAL_INDEX["pelvis"]]]
+    try:
+        shown = [_basis(positions[[i]], pelvis[[i]], canonical) for i in range(len(positions))]
+        if any(
+            float(rest[:, 0] @ axes[:, 0]) >= _REST_SHOWN
+            and float(rest[:, 1] @ axes[:, 1]) >= _REST_SHOWN
+            for axes in shown
+        ):
+            return rest
+        return _basis(positions, pelvis, canonical)
+    except ParseError:  # some frame shows no body: the rest pose's axes, as before
+        return rest
 
 
 def rest_pelvis_basis(motion: Motion, canonical: np.ndarray) -> np.ndarray:
