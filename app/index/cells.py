@@ -6,9 +6,17 @@ cells. At a million clips (4,000 cells) that scan was a third of FAISS's time fo
 :class:`CellGraph` — an HNSW graph (``faiss.IndexHNSWFlat``) over the same centroids — finds
 the same cells for a fraction of that (0.02-0.03 ms); the lists are then scanned as before
 (``search_preassigned``), so where the cells are the same the answer is the same, bit for bit.
-The graph is approximate: it returns the cells a scan of the centroids would for every query
-measured (300 stored motion vectors at ``nprobe`` 12, search effort 24 and more), and its
-search effort (:func:`effort`) is kept well above ``nprobe``.
+The graph is approximate, and one failure is structural: a centroid that no node links to is
+never returned, whatever the search effort (1 of 4,000 in a 1M-clip ``motion`` library, which
+alone made the graph find other cells for 4 of 1,000 stored vectors). So when the graph is
+built, every centroid is searched for itself, in one batch and just as a query is (its search
+effort, ``nprobe`` results); those not among their own results are *unreachable*
+(:meth:`CellGraph.unreachable_cells`), and each query is also compared with them directly,
+the ``nprobe`` nearest of both kept (:meth:`CellGraph.nearest`). On motion centroids they are
+a handful (one of 4,000); a graph that misses many searches poorly, and the direct comparisons
+then make it slower than the scan, so it is not kept (below). Beyond that the graph returned
+the scan's cells for every query measured (300 stored motion vectors at ``nprobe`` 12, search
+effort 24 and more), and its search effort (:func:`effort`) is kept well above ``nprobe``.
 
 The graph is built from the index's centroids in memory (a few MB; ~0.7 s for 4,000 x 135
 on one loaded core), not stored: it is a cache of the index, as the index is of the database.
@@ -68,6 +76,28 @@ class CellGraph:
         # FAISS only reads the parameters: one object for every search
         self._params: Any = faiss.SearchParametersHNSW()  # type: ignore[attr-defined]
         self._params.efSearch = effort(nprobe)
+        self.unreachable = np.empty(0, np.int64)  # (U,) cells each query is compared with
+        self._unreachable_centroids: Any = None  # a flat index of theirs, when there are any
+        self.compare_directly(self.unreachable_cells())
+
+    def unreachable_cells(self) -> np.ndarray:
+        """``(U,)`` the cells whose centroid, searched for as a query is, is not among the
+        graph's results: a query nearest them would miss them too (an identical twin found at
+        distance 0 does not stand in for one, as a scan returns both)."""
+        centroids = self.graph.reconstruct_n(0, self.count)
+        _squared, found = self.graph.search(centroids, self.nprobe, params=self._params)
+        own = (found == np.arange(self.count)[:, None]).any(axis=1)
+        return np.flatnonzero(~own).astype(np.int64)
+
+    def compare_directly(self, cells: np.ndarray) -> None:
+        """Compare every query with the centroids of ``cells`` ``(U,)`` too (see
+        :meth:`nearest`)."""
+        self.unreachable = np.unique(np.asarray(cells, np.int64))
+        self._unreachable_centroids = None
+        if self.unreachable.size:
+            flat: Any = faiss.IndexFlatL2(self.dimension)
+            flat.add(np.stack([self.graph.reconstruct(int(c)) for c in self.unreachable]))
+            self._unreachable_centroids = flat
 
     @classmethod
     def of(cls, index: Any, nprobe: int, samples: np.ndarray) -> CellGraph | None:
@@ -89,9 +119,11 @@ class CellGraph:
         same = all(set(x.tolist()) == set(y.tolist()) for x, y in zip(scanned, found, strict=True))
         keep = same and graph_time <= KEEP_BELOW * scan_time
         log.info(
-            "cells of a %d-cell index: graph %.1f us, scan %.1f us a query, %s cells: %s",
+            "cells of a %d-cell index: graph %.1f us (%d centroids unreachable, compared "
+            "directly), scan %.1f us a query, %s cells: %s",
             nlist,
             graph_time * 1e6,
+            graph.unreachable.size,
             scan_time * 1e6,
             "same" if same else "other",
             "graph kept" if keep else "scan kept",
@@ -100,7 +132,8 @@ class CellGraph:
 
     def nearest(self, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(Q, nprobe)`` squared distances to and numbers of the cells nearest each of
-        ``queries`` ``(Q, D)``, nearest first."""
+        ``queries`` ``(Q, D)``, nearest first: the graph's, merged with the unreachable
+        cells'."""
         # FAISS's own call without its Python wrapper's checks (the graph's dimension is the
         # index's; a search asks for a dozen cells once per request)
         queries = np.ascontiguousarray(queries, np.float32)
@@ -117,7 +150,33 @@ class CellGraph:
             faiss.swig_ptr(cells),
             self._params,
         )
-        return distances, cells
+        if self._unreachable_centroids is None:
+            return distances, cells
+        return self._merged(queries, distances, cells)
+
+    def _merged(
+        self, queries: np.ndarray, distances: np.ndarray, cells: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The ``nprobe`` nearest of the graph's ``cells`` ``(Q, nprobe)`` (at ``distances``)
+        and the unreachable cells, each once, nearest first."""
+        count, extra = int(queries.shape[0]), int(self.unreachable.size)
+        to_extra = np.empty((count, extra), np.float32)
+        rows = np.empty((count, extra), np.int64)
+        # FAISS's flat distances, computed as the scan's are
+        self._unreachable_centroids.search_c(
+            count, faiss.swig_ptr(queries), extra, faiss.swig_ptr(to_extra), faiss.swig_ptr(rows)
+        )
+        extra_cells = self.unreachable[rows]
+        found = (cells[:, :, None] == extra_cells[:, None, :]).any(axis=1)  # the graph's too
+        to_extra[found] = np.inf
+        extra_cells[found] = -1  # FAISS's "no cell", put last by its infinite distance
+        to_both = np.concatenate([distances, to_extra], axis=1)
+        order = np.argsort(to_both, axis=1, kind="stable")[:, : self.nprobe]
+        both = np.concatenate([cells, extra_cells], axis=1)
+        return (
+            np.ascontiguousarray(np.take_along_axis(to_both, order, axis=1)),
+            np.ascontiguousarray(np.take_along_axis(both, order, axis=1)),
+        )
 
 
 def _timed(search: Any, queries: np.ndarray, rounds: int = 3) -> tuple[float, list[np.ndarray]]:
