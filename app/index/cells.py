@@ -77,7 +77,7 @@ class CellGraph:
         self._params: Any = faiss.SearchParametersHNSW()  # type: ignore[attr-defined]
         self._params.efSearch = effort(nprobe)
         self.unreachable = np.empty(0, np.int64)  # (U,) cells each query is compared with
-        self._unreachable_centroids: Any = None  # a flat index of theirs, when there are any
+        self._unreachable_centroids = np.empty((0, self.dimension), np.float32)  # (U, D)
         self.compare_directly(self.unreachable_cells())
 
     def unreachable_cells(self) -> np.ndarray:
@@ -92,12 +92,10 @@ class CellGraph:
     def compare_directly(self, cells: np.ndarray) -> None:
         """Compare every query with the centroids of ``cells`` ``(U,)`` too (see
         :meth:`nearest`)."""
-        self.unreachable = np.unique(np.asarray(cells, np.int64))
-        self._unreachable_centroids = None
-        if self.unreachable.size:
-            flat: Any = faiss.IndexFlatL2(self.dimension)
-            flat.add(np.stack([self.graph.reconstruct(int(c)) for c in self.unreachable]))
-            self._unreachable_centroids = flat
+        unreachable = np.unique(np.asarray(cells, np.int64))
+        centroids = [self.graph.reconstruct(int(cell)) for cell in unreachable]
+        self._unreachable_centroids = np.array(centroids, np.float32).reshape(-1, self.dimension)
+        self.unreachable = unreachable
 
     @classmethod
     def of(cls, index: Any, nprobe: int, samples: np.ndarray) -> CellGraph | None:
@@ -150,7 +148,7 @@ class CellGraph:
             faiss.swig_ptr(cells),
             self._params,
         )
-        if self._unreachable_centroids is None:
+        if not self.unreachable.size:
             return distances, cells
         return self._merged(queries, distances, cells)
 
@@ -158,25 +156,27 @@ class CellGraph:
         self, queries: np.ndarray, distances: np.ndarray, cells: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """The ``nprobe`` nearest of the graph's ``cells`` ``(Q, nprobe)`` (at ``distances``)
-        and the unreachable cells, each once, nearest first."""
+        and the unreachable cells, each once, nearest first (both arrays updated in place)."""
         count, extra = int(queries.shape[0]), int(self.unreachable.size)
         to_extra = np.empty((count, extra), np.float32)
-        rows = np.empty((count, extra), np.int64)
-        # FAISS's flat distances, computed as the scan's are
-        self._unreachable_centroids.search_c(
-            count, faiss.swig_ptr(queries), extra, faiss.swig_ptr(to_extra), faiss.swig_ptr(rows)
-        )
-        extra_cells = self.unreachable[rows]
-        found = (cells[:, :, None] == extra_cells[:, None, :]).any(axis=1)  # the graph's too
-        to_extra[found] = np.inf
-        extra_cells[found] = -1  # FAISS's "no cell", put last by its infinite distance
-        to_both = np.concatenate([distances, to_extra], axis=1)
-        order = np.argsort(to_both, axis=1, kind="stable")[:, : self.nprobe]
-        both = np.concatenate([cells, extra_cells], axis=1)
-        return (
-            np.ascontiguousarray(np.take_along_axis(to_both, order, axis=1)),
-            np.ascontiguousarray(np.take_along_axis(both, order, axis=1)),
-        )
+        for row in range(count):  # FAISS's kernel of the scan: its distances, bit for bit
+            faiss.fvec_L2sqr_ny(
+                faiss.swig_ptr(to_extra[row]),
+                faiss.swig_ptr(queries[row]),
+                faiss.swig_ptr(self._unreachable_centroids),
+                self.dimension,
+                extra,
+            )
+        # Usually none is nearer than the graph's last cell: nothing to merge.
+        for row, column in zip(*np.nonzero(to_extra < distances[:, -1:]), strict=True):
+            cell, squared = self.unreachable[column], to_extra[row, column]
+            if squared >= distances[row, -1] or cell in cells[row]:
+                continue  # pushed out by one merged before, or the graph's too
+            place = int(np.searchsorted(distances[row], squared, side="right"))
+            distances[row, place + 1 :] = distances[row, place:-1]  # numpy copies overlaps
+            cells[row, place + 1 :] = cells[row, place:-1]
+            distances[row, place], cells[row, place] = squared, cell
+        return distances, cells
 
 
 def _timed(search: Any, queries: np.ndarray, rounds: int = 3) -> tuple[float, list[np.ndarray]]:

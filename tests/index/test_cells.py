@@ -203,35 +203,55 @@ def test_cells_compared_directly_are_merged_once_each(
     assert_scans_cells(graph, index, queries)
 
 
-def cut_links_to(graph: cells_module.CellGraph, cell: int) -> None:
-    """Point every link to ``cell`` in ``graph`` back at the node holding it (a node linked
-    to itself is a visited one): no search can then reach ``cell``."""
+def cut_links_to(graph: cells_module.CellGraph, cells: np.ndarray) -> None:
+    """Point every link to one of ``cells`` ``(C,)`` in ``graph`` back at the node holding it
+    (a node linked to itself is a visited one): no search can then reach them."""
     hnsw = graph.graph.hnsw
-    assert hnsw.entry_point != cell
+    assert hnsw.entry_point not in cells
     links = faiss.vector_to_array(hnsw.neighbors)
     owners = np.searchsorted(faiss.vector_to_array(hnsw.offsets), np.arange(links.size), "right")
-    to_cell = links == cell
-    links[to_cell] = owners[to_cell] - 1
+    to_cells = np.isin(links, cells)
+    links[to_cells] = owners[to_cells] - 1
     faiss.copy_array_to_vector(links, hnsw.neighbors)
 
 
-def test_a_centroid_no_link_reaches_is_found_and_then_compared_directly(
-    trained: tuple[faiss.IndexIVFFlat, np.ndarray],
+@pytest.mark.parametrize("lost_count", [1, 16])
+def test_centroids_no_link_reaches_are_found_and_then_compared_directly(
+    trained: tuple[faiss.IndexIVFFlat, np.ndarray], lost_count: int
 ) -> None:
     index, others = trained
     centroids = centroids_of(index)
     graph = cells_module.CellGraph(centroids, NPROBE)
-    lost = 1 + int(graph.graph.hnsw.entry_point) % (graph.count - 1)  # not the entry point
+    # The centroids nearest one centroid (16: more than a query's cells, so merging one
+    # pushes out another merged before it), none of them the entry point.
+    centre = 1 + int(graph.graph.hnsw.entry_point) % (graph.count - 1)
+    nearest = np.argsort(((centroids - centroids[centre]) ** 2).sum(axis=1))
+    lost = nearest[nearest != graph.graph.hnsw.entry_point][int(lost_count > 1) :][:lost_count]
     cut_links_to(graph, lost)
-    assert lost not in graph.nearest(centroids[lost : lost + 1])[1]  # the graph alone misses it
+    missed = set(lost.tolist()) - set(graph.nearest(centroids[lost])[1].ravel().tolist())
+    assert missed == set(lost.tolist())  # the graph alone never returns them
     unreachable = graph.unreachable_cells()
-    assert unreachable.tolist() == [lost]
+    assert set(lost.tolist()) <= set(unreachable.tolist())  # (their links may have led on)
+    graph.compare_directly(np.empty(0, np.int64))
+    # queries whose cells include the lost ones: the centroids themselves and the vectors
+    # nearest them
+    near = np.argsort(((others - centroids[centre]) ** 2).sum(axis=1))[:20]
+    queries = np.concatenate([centroids[lost], others[near]])
+    _squared, graph_alone = graph.nearest(queries)
     graph.compare_directly(unreachable)
-    # queries whose cells include the lost one: the centroid itself and the stored vectors
-    # nearest it
-    near = np.argsort(((others - centroids[lost]) ** 2).sum(axis=1))[:20]
-    assert_scans_cells(graph, index, np.concatenate([centroids[lost : lost + 1], others[near]]))
-    assert_scans_cells(graph, index, centroids)
+    # The merge: the nprobe nearest of the graph's cells and the unreachable ones, each once.
+    _squared, ranked = faiss.downcast_index(index.quantizer).search(queries, index.nlist)
+    for row, cells in enumerate(graph.nearest(queries)[1]):
+        either = set(graph_alone[row].tolist()) | set(unreachable.tolist())
+        assert cells.tolist() == [c for c in ranked[row].tolist() if c in either][:NPROBE]
+    if lost_count == 1:  # then the scan's cells for every query (16 cut: the paths through
+        assert_scans_cells(graph, index, queries)  # them are gone too, and with them some
+        assert_scans_cells(graph, index, centroids)  # other cells: the keep guard's part)
+    # the merged cells' distances are the scan's, bit for bit (the graph's own kernel rounds
+    # differently)
+    scanned_squared, _cells = faiss.downcast_index(index.quantizer).search(centroids[lost], 1)
+    squared, found = graph.nearest(centroids[lost])
+    assert np.array_equal(found[:, 0], lost) and np.array_equal(squared[:, :1], scanned_squared)
 
 
 def test_the_log_counts_the_unreachable_centroids(
