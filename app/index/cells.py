@@ -157,25 +157,24 @@ class CellGraph:
     ) -> tuple[np.ndarray, np.ndarray]:
         """The ``nprobe`` nearest of the graph's ``cells`` ``(Q, nprobe)`` (at ``distances``)
         and the unreachable cells, each once, nearest first (both arrays updated in place)."""
-        count, extra = int(queries.shape[0]), int(self.unreachable.size)
-        to_extra = np.empty((count, extra), np.float32)
-        for row in range(count):  # FAISS's kernel of the scan: its distances, bit for bit
-            faiss.fvec_L2sqr_ny(
-                faiss.swig_ptr(to_extra[row]),
+        extra = int(self.unreachable.size)
+        to_extra = np.empty(extra, np.float32)
+        for row in range(int(queries.shape[0])):
+            faiss.fvec_L2sqr_ny(  # type: ignore[attr-defined]  # the scan's kernel and bits
+                faiss.swig_ptr(to_extra),
                 faiss.swig_ptr(queries[row]),
                 faiss.swig_ptr(self._unreachable_centroids),
                 self.dimension,
                 extra,
             )
-        # Usually none is nearer than the graph's last cell: nothing to merge.
-        for row, column in zip(*np.nonzero(to_extra < distances[:, -1:]), strict=True):
-            cell, squared = self.unreachable[column], to_extra[row, column]
-            if squared >= distances[row, -1] or cell in cells[row]:
-                continue  # pushed out by one merged before, or the graph's too
-            place = int(np.searchsorted(distances[row], squared, side="right"))
-            distances[row, place + 1 :] = distances[row, place:-1]  # numpy copies overlaps
-            cells[row, place + 1 :] = cells[row, place:-1]
-            distances[row, place], cells[row, place] = squared, cell
+            # Plain floats: a handful, usually none nearer than the graph's last cell.
+            for column, squared in enumerate(to_extra.tolist()):
+                if squared >= distances[row, -1] or self.unreachable[column] in cells[row]:
+                    continue  # farther (than one merged before, too), or the graph's too
+                place = int(np.searchsorted(distances[row], squared, side="right"))
+                distances[row, place + 1 :] = distances[row, place:-1]  # numpy copies overlaps
+                cells[row, place + 1 :] = cells[row, place:-1]
+                distances[row, place], cells[row, place] = squared, self.unreachable[column]
         return distances, cells
 
 
