@@ -19,7 +19,8 @@ the scan's cells for every query measured (300 stored motion vectors at ``nprobe
 effort 24 and more), and its search effort (:func:`effort`) is kept well above ``nprobe``.
 
 The graph is built from the index's centroids in memory (a few MB; ~0.7 s for 4,000 x 135
-on one loaded core, and ~0.2 s more to search every centroid for itself), not stored: it is a cache of the index, as the index is of the database.
+on one loaded core, and ~0.2 s more to search every centroid for itself), not stored: it is a
+cache of the index, as the index is of the database.
 It is kept only when it measures faster than the scan and finds the same cells for every one
 of :data:`SAMPLES` stored vectors used as queries: for ``kinetic`` (4,000 x 50,
 ``nprobe`` 64) the scan is cheap and the graph, which must then look at 128 candidates, was no
