@@ -6,12 +6,21 @@ cells. At a million clips (4,000 cells) that scan was a third of FAISS's time fo
 :class:`CellGraph` — an HNSW graph (``faiss.IndexHNSWFlat``) over the same centroids — finds
 the same cells for a fraction of that (0.02-0.03 ms); the lists are then scanned as before
 (``search_preassigned``), so where the cells are the same the answer is the same, bit for bit.
-The graph is approximate: it returns the cells a scan of the centroids would for every query
-measured (300 stored motion vectors at ``nprobe`` 12, search effort 24 and more), and its
-search effort (:func:`effort`) is kept well above ``nprobe``.
+The graph is approximate, and one failure is structural: a centroid that no node links to is
+never returned, whatever the search effort (1 of 4,000 in a 1M-clip ``motion`` library, which
+alone made the graph find other cells for 4 of 1,000 stored vectors). So when the graph is
+built, every centroid is searched for itself, in one batch and just as a query is (its search
+effort, ``nprobe`` results); those not among their own results are *unreachable*
+(:meth:`CellGraph.unreachable_cells`), and each query is also compared with them directly,
+the ``nprobe`` nearest of both kept (:meth:`CellGraph.nearest`). On motion centroids they are
+a handful (one of 4,000); a graph that misses many searches poorly, and the direct comparisons
+then make it slower than the scan, so it is not kept (below). Beyond that the graph returned
+the scan's cells for every query measured (300 stored motion vectors at ``nprobe`` 12, search
+effort 24 and more), and its search effort (:func:`effort`) is kept well above ``nprobe``.
 
 The graph is built from the index's centroids in memory (a few MB; ~0.7 s for 4,000 x 135
-on one loaded core), not stored: it is a cache of the index, as the index is of the database.
+on one loaded core, and ~0.2 s more to search every centroid for itself), not stored: it is a
+cache of the index, as the index is of the database.
 It is kept only when it measures faster than the scan and finds the same cells for every one
 of :data:`SAMPLES` stored vectors used as queries: for ``kinetic`` (4,000 x 50,
 ``nprobe`` 64) the scan is cheap and the graph, which must then look at 128 candidates, was no
@@ -68,6 +77,26 @@ class CellGraph:
         # FAISS only reads the parameters: one object for every search
         self._params: Any = faiss.SearchParametersHNSW()  # type: ignore[attr-defined]
         self._params.efSearch = effort(nprobe)
+        self.unreachable = np.empty(0, np.int64)  # (U,) cells each query is compared with
+        self._unreachable_centroids = np.empty((0, self.dimension), np.float32)  # (U, D)
+        self.compare_directly(self.unreachable_cells())
+
+    def unreachable_cells(self) -> np.ndarray:
+        """``(U,)`` the cells whose centroid, searched for as a query is, is not among the
+        graph's results: a query nearest them would miss them too (an identical twin found at
+        distance 0 does not stand in for one, as a scan returns both)."""
+        centroids = self.graph.reconstruct_n(0, self.count)
+        _squared, found = self.graph.search(centroids, self.nprobe, params=self._params)
+        own = (found == np.arange(self.count)[:, None]).any(axis=1)
+        return np.flatnonzero(~own).astype(np.int64)
+
+    def compare_directly(self, cells: np.ndarray) -> None:
+        """Compare every query with the centroids of ``cells`` ``(U,)`` too (see
+        :meth:`nearest`)."""
+        unreachable = np.unique(np.asarray(cells, np.int64))
+        centroids = [self.graph.reconstruct(int(cell)) for cell in unreachable]
+        self._unreachable_centroids = np.array(centroids, np.float32).reshape(-1, self.dimension)
+        self.unreachable = unreachable
 
     @classmethod
     def of(cls, index: Any, nprobe: int, samples: np.ndarray) -> CellGraph | None:
@@ -89,9 +118,11 @@ class CellGraph:
         same = all(set(x.tolist()) == set(y.tolist()) for x, y in zip(scanned, found, strict=True))
         keep = same and graph_time <= KEEP_BELOW * scan_time
         log.info(
-            "cells of a %d-cell index: graph %.1f us, scan %.1f us a query, %s cells: %s",
+            "cells of a %d-cell index: graph %.1f us (centroids unreachable, compared directly: "
+            "%d), scan %.1f us a query, %s cells: %s",
             nlist,
             graph_time * 1e6,
+            graph.unreachable.size,
             scan_time * 1e6,
             "same" if same else "other",
             "graph kept" if keep else "scan kept",
@@ -100,7 +131,8 @@ class CellGraph:
 
     def nearest(self, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(Q, nprobe)`` squared distances to and numbers of the cells nearest each of
-        ``queries`` ``(Q, D)``, nearest first."""
+        ``queries`` ``(Q, D)``, nearest first: the graph's, merged with the unreachable
+        cells'."""
         # FAISS's own call without its Python wrapper's checks (the graph's dimension is the
         # index's; a search asks for a dozen cells once per request)
         queries = np.ascontiguousarray(queries, np.float32)
@@ -117,6 +149,33 @@ class CellGraph:
             faiss.swig_ptr(cells),
             self._params,
         )
+        if not self.unreachable.size:
+            return distances, cells
+        return self._merged(queries, distances, cells)
+
+    def _merged(
+        self, queries: np.ndarray, distances: np.ndarray, cells: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The ``nprobe`` nearest of the graph's ``cells`` ``(Q, nprobe)`` (at ``distances``)
+        and the unreachable cells, each once, nearest first (both arrays updated in place)."""
+        extra = int(self.unreachable.size)
+        to_extra = np.empty(extra, np.float32)
+        for row in range(int(queries.shape[0])):
+            faiss.fvec_L2sqr_ny(  # type: ignore[attr-defined]  # the scan's kernel and bits
+                faiss.swig_ptr(to_extra),
+                faiss.swig_ptr(queries[row]),
+                faiss.swig_ptr(self._unreachable_centroids),
+                self.dimension,
+                extra,
+            )
+            # Plain floats: a handful, usually none nearer than the graph's last cell.
+            for column, squared in enumerate(to_extra.tolist()):
+                if squared >= distances[row, -1] or self.unreachable[column] in cells[row]:
+                    continue  # farther (than one merged before, too), or the graph's too
+                place = int(np.searchsorted(distances[row], squared, side="right"))
+                distances[row, place + 1 :] = distances[row, place:-1]  # numpy copies overlaps
+                cells[row, place + 1 :] = cells[row, place:-1]
+                distances[row, place], cells[row, place] = squared, self.unreachable[column]
         return distances, cells
 
 

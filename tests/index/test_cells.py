@@ -4,9 +4,12 @@ bit; filtered searches still probe every cell."""
 
 from __future__ import annotations
 
+import logging
 import time
 from pathlib import Path
+from typing import Any
 
+import faiss
 import numpy as np
 import pytest
 
@@ -135,3 +138,132 @@ def test_the_first_search_builds_the_graph_meanwhile_and_filters_still_probe_eve
     rows = np.searchsorted(ids, allowed)
     exact = ((vectors[rows] - query) ** 2).sum(axis=1)
     assert set(found[0].tolist()) == set(allowed[np.argsort(exact, kind="stable")[:10]].tolist())
+
+
+# The graph's own cells against a scan of the centroids, on a real IVF index of
+# GRAPH_MIN_CELLS cells: k-means over clustered vectors, as a library's cells are trained.
+
+NPROBE = 12
+
+
+@pytest.fixture(scope="module")
+def trained() -> tuple[faiss.IndexIVFFlat, np.ndarray]:
+    """An IVF index of 1,000 cells trained on 20,000 clustered vectors (~0.3 s), and 500 other
+    vectors like them ``(500, DIMENSION)`` as queries."""
+    rng = np.random.default_rng(0)
+    vectors = clustered(rng, 20_500)
+    quantizer = faiss.IndexFlatL2(DIMENSION)
+    index = faiss.IndexIVFFlat(quantizer, DIMENSION, cells_module.GRAPH_MIN_CELLS)
+    index.cp.niter = 10  # cells as good as the test needs, in a third of a second
+    index.cp.min_points_per_centroid = 1  # 20 a cell: FAISS would only warn
+    index.train(vectors[:20_000])
+    return index, vectors[20_000:]
+
+
+def centroids_of(index: faiss.IndexIVFFlat) -> np.ndarray:
+    return faiss.downcast_index(index.quantizer).reconstruct_n(0, index.nlist)
+
+
+def assert_scans_cells(graph: cells_module.CellGraph, index: Any, queries: np.ndarray) -> None:
+    """``graph`` finds, for each of ``queries`` ``(Q, D)``, the cells a scan of the centroids
+    finds, each once, nearest first; one query at a time (as served) and all at once."""
+    scanned_squared, scanned = faiss.downcast_index(index.quantizer).search(queries, NPROBE)
+    squared, found = graph.nearest(queries)
+    for row in range(queries.shape[0]):
+        one_squared, one = graph.nearest(queries[row : row + 1])
+        assert np.array_equal(one[0], found[row]) and np.array_equal(one_squared[0], squared[row])
+        assert np.array_equal(found[row], scanned[row]), row  # the same cells, in the same order
+        # the graph's distances and the scan's are FAISS's, each kernel's own rounding
+        assert np.allclose(squared[row], scanned_squared[row], rtol=1e-6, atol=1e-5)
+    assert np.all(np.diff(squared, axis=1) >= 0)
+
+
+def test_the_graph_finds_the_scans_cells_for_every_centroid_and_other_queries(
+    trained: tuple[faiss.IndexIVFFlat, np.ndarray],
+) -> None:
+    index, others = trained
+    centroids = centroids_of(index)
+    graph = cells_module.CellGraph(centroids, NPROBE)
+    assert graph.unreachable.size == 0  # every centroid returned when searched for itself
+    assert_scans_cells(graph, index, np.concatenate([centroids, others]))
+
+
+def test_cells_compared_directly_are_merged_once_each(
+    trained: tuple[faiss.IndexIVFFlat, np.ndarray],
+) -> None:
+    index, others = trained
+    centroids = centroids_of(index)
+    queries = np.concatenate([centroids[:300], others[:200]])
+    graph = cells_module.CellGraph(centroids, NPROBE)
+    _squared, found = graph.nearest(queries[:1])
+    # Cells the graph also returns for the first query (which must not come twice) and others.
+    marked = np.concatenate([found[0, :4], [found[0, -1]], np.arange(0, 1000, 97)])
+    graph.compare_directly(marked)
+    assert graph.unreachable.size == np.unique(marked).size
+    assert_scans_cells(graph, index, queries)
+
+
+def cut_links_to(graph: cells_module.CellGraph, cells: np.ndarray) -> None:
+    """Point every link to one of ``cells`` ``(C,)`` in ``graph`` back at the node holding it
+    (a node linked to itself is a visited one): no search can then reach them."""
+    hnsw = graph.graph.hnsw
+    assert hnsw.entry_point not in cells
+    links = faiss.vector_to_array(hnsw.neighbors)
+    owners = np.searchsorted(faiss.vector_to_array(hnsw.offsets), np.arange(links.size), "right")
+    to_cells = np.isin(links, cells)
+    links[to_cells] = owners[to_cells] - 1
+    faiss.copy_array_to_vector(links, hnsw.neighbors)
+
+
+@pytest.mark.parametrize("lost_count", [1, 16])
+def test_centroids_no_link_reaches_are_found_and_then_compared_directly(
+    trained: tuple[faiss.IndexIVFFlat, np.ndarray], lost_count: int
+) -> None:
+    index, others = trained
+    centroids = centroids_of(index)
+    graph = cells_module.CellGraph(centroids, NPROBE)
+    # The centroids nearest one centroid (16: more than a query's cells, so merging one
+    # pushes out another merged before it), none of them the entry point.
+    centre = 1 + int(graph.graph.hnsw.entry_point) % (graph.count - 1)
+    nearest = np.argsort(((centroids - centroids[centre]) ** 2).sum(axis=1))
+    lost = nearest[nearest != graph.graph.hnsw.entry_point][int(lost_count > 1) :][:lost_count]
+    cut_links_to(graph, lost)
+    missed = set(lost.tolist()) - set(graph.nearest(centroids[lost])[1].ravel().tolist())
+    assert missed == set(lost.tolist())  # the graph alone never returns them
+    unreachable = graph.unreachable_cells()
+    assert set(lost.tolist()) <= set(unreachable.tolist())  # (their links may have led on)
+    graph.compare_directly(np.empty(0, np.int64))
+    # queries whose cells include the lost ones: the centroids themselves and the vectors
+    # nearest them
+    near = np.argsort(((others - centroids[centre]) ** 2).sum(axis=1))[:20]
+    queries = np.concatenate([centroids[lost], others[near]])
+    _squared, graph_alone = graph.nearest(queries)
+    graph.compare_directly(unreachable)
+    # The merge: the nprobe nearest of the graph's cells and the unreachable ones, each once.
+    _squared, ranked = faiss.downcast_index(index.quantizer).search(queries, index.nlist)
+    for row, cells in enumerate(graph.nearest(queries)[1]):
+        either = set(graph_alone[row].tolist()) | set(unreachable.tolist())
+        assert cells.tolist() == [c for c in ranked[row].tolist() if c in either][:NPROBE]
+    if lost_count == 1:  # then the scan's cells for every query (16 cut: the paths through
+        assert_scans_cells(graph, index, queries)  # them are gone too, and with them some
+        assert_scans_cells(graph, index, centroids)  # other cells: the keep guard's part)
+    # the merged cells' distances are the scan's, bit for bit (the graph's own kernel rounds
+    # differently)
+    scanned_squared, _cells = faiss.downcast_index(index.quantizer).search(centroids[lost], 1)
+    squared, found = graph.nearest(centroids[lost])
+    assert np.array_equal(found[:, 0], lost) and np.array_equal(squared[:, :1], scanned_squared)
+
+
+def test_the_log_counts_the_unreachable_centroids(
+    trained: tuple[faiss.IndexIVFFlat, np.ndarray],
+    small_graphs: None,
+    monkeypatch: pytest.MonkeyPatch,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    index, others = trained
+    monkeypatch.setattr(cells_module, "KEEP_BELOW", float("inf"))
+    index.nprobe = NPROBE
+    with caplog.at_level(logging.INFO, logger=cells_module.__name__):
+        graph = cells_module.CellGraph.of(index, NPROBE, others[:50])
+    assert graph is not None
+    assert "unreachable, compared directly: 0)" in caplog.text and "graph kept" in caplog.text
