@@ -29,6 +29,7 @@ import pytest
 
 from app.errors import MocapError
 from app.motion.formats import read_bvh
+from app.motion.ground import sample_frames
 from app.motion.mapping.tree import _is_thumb
 from app.motion.model import Motion
 from app.motion.pipeline import describable_body
@@ -665,7 +666,10 @@ RECORDED: dict[str, int] = {
 
 @functools.cache
 def _dev_motions() -> dict[str, Motion]:
-    return {f"{path.parent.name}/{path.name}": read_bvh(path.read_bytes()) for path in FILES}
+    return {
+        f"{path.parent.name}/{path.name}": sample_frames(read_bvh(path.read_bytes()), 60)
+        for path in FILES
+    }
 
 
 @pytest.mark.skipif(not FILES, reason="no wild-bvh or wild-more in ../shared/data")
