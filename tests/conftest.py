@@ -150,22 +150,25 @@ def postgres_url(postgres_cluster: postgres.Cluster) -> str:
 # the order it is given them (``--no-loadscope-reorder``: its own order, most tests first,
 # left a long file of few tests, the OpenAPI fuzz or a browser file, for the end while the
 # other workers had nothing left). The longest files go first, by the worker-seconds of
-# ``--durations=0`` runs, then the other browser files, then the rest by their number of
-# tests (xdist's own order); the order inside a file is unchanged.
+# ``--durations=0`` runs (the last: the junit times of a quiet first phase, 2026-11-27), then
+# the other browser files, then the rest by their number of tests (xdist's own order); the
+# order inside a file is unchanged.
 LONGEST_FILES_FIRST = (
-    "tests/api/test_everyday.py",
     "tests/services/test_describe.py",
+    "tests/api/test_everyday.py",
+    "tests/motion/test_mapping_names.py",
+    "tests/api/test_wild_more_devset.py",
     "tests/ui/test_everyday_ui.py",
     "tests/hardening/test_openapi_fuzz.py",
-    "tests/api/test_wild_more_devset.py",
-    "tests/ui/test_pages_browser.py",
-    "tests/api/test_errors.py",
-    "tests/motion/test_mapping_probes.py",
     "tests/motion/test_mapping_rest.py",
-    "tests/motion/test_mapping_names.py",
+    "tests/motion/test_mapping_probes.py",
+    "tests/ui/test_pages_browser.py",
     "tests/api/test_readme.py",
+    "tests/ui/test_downloads_browser.py",
+    "tests/cli/test_import_process.py",
     "tests/hardening/test_crash_import.py",
-    "tests/hardening/test_replicas.py",
+    "tests/test_importer.py",
+    "tests/motion/test_mapping_odd_rest.py",
     "tests/ui/",
 )
 
