@@ -24,7 +24,7 @@ log = logging.getLogger(__name__)
 # migrations/ sits beside app/ (repository root), as alembic.ini expects.
 MIGRATIONS_DIR = Path(__file__).resolve().parents[2] / "migrations"
 MIGRATION_LOCK = 0x6D6F636170  # "mocap": the advisory lock id migrations take on PostgreSQL
-# A migration file's own revision and the one it follows, as Alembic's template writes them.
+# A migration file's own revision and the one it follows, as `alembic revision` writes them.
 _REVISION = re.compile(r'^revision(?:\s*:[^=]*)?\s*=\s*["\']([^"\']+)["\']', re.MULTILINE)
 _DOWN_REVISION = re.compile(
     r'^down_revision(?:\s*:[^=]*)?\s*=\s*(None|["\']([^"\']+)["\'])', re.MULTILINE
