@@ -23,7 +23,7 @@ import os
 import threading
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 
@@ -40,10 +40,15 @@ CHECKED = "_checked"
 def file_sha256(path: Path) -> str:
     """sha256 of a file, read in chunks (hashlib releases the GIL: files can be checked in
     threads side by side)."""
-    digest = hashlib.sha256()
     with open(path, "rb") as stream:
-        while chunk := stream.read(HASH_CHUNK):
-            digest.update(chunk)
+        return stream_sha256(stream)
+
+
+def stream_sha256(stream: BinaryIO) -> str:
+    """sha256 of what is left to read of ``stream``, read in chunks."""
+    digest = hashlib.sha256()
+    while chunk := stream.read(HASH_CHUNK):
+        digest.update(chunk)
     return digest.hexdigest()
 
 
@@ -105,10 +110,8 @@ def has_checksum(path: Path, sha256: object) -> bool:
             return False
         if is_stamped(path, info, sha256):
             return True
-        digest = hashlib.sha256()
-        while chunk := stream.read(HASH_CHUNK):
-            digest.update(chunk)
-    if digest.hexdigest() != sha256:
+        digest = stream_sha256(stream)
+    if digest != sha256:
         return False
     write_stamp(path, info, sha256)
     return True

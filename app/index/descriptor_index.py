@@ -44,7 +44,6 @@ int64 ids.
 from __future__ import annotations
 
 import ctypes
-import hashlib
 import json
 import logging
 import math
@@ -60,9 +59,11 @@ import faiss
 import numpy as np
 
 from app.index.array_file import (
+    file_sha256,
     has_checksum,
     is_stamped,
     read_arrays,
+    stream_sha256,
     verify_arrays,
     write_arrays,
     write_stamp,
@@ -90,7 +91,6 @@ from app.index.locks import ReadWriteLock, directory_lock
 
 log = logging.getLogger(__name__)
 
-HASH_CHUNK = 1 << 22
 EXACT_FORMAT = 1  # the layout of an index's exact vectors file (compressed lists)
 
 
@@ -134,14 +134,6 @@ class Neighbours:
 
     def __len__(self) -> int:
         return int(self.ids.shape[0])
-
-
-def _file_sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as stream:
-        while chunk := stream.read(HASH_CHUNK):
-            digest.update(chunk)
-    return digest.hexdigest()
 
 
 def _return_freed_memory() -> None:
@@ -763,7 +755,7 @@ class DescriptorIndex:
                     "nprobe": nprobe,
                     "count": count,
                     "feed_position": synced_to,
-                    "sha256": _file_sha256(tmp),
+                    "sha256": file_sha256(tmp),
                     "saved_at": time.time(),
                 }
                 if exact is not None:  # first: an index file never lacks its exact vectors
@@ -924,12 +916,10 @@ class DescriptorIndex:
                 info = os.fstat(stream.fileno())  # the file mapped, even if replaced since
                 if is_stamped(self.path, info, expected):
                     return None  # unchanged since it matched: not hashed again
-                digest = hashlib.sha256()
-                while chunk := stream.read(HASH_CHUNK):
-                    digest.update(chunk)
+                digest = stream_sha256(stream)
         except OSError as exc:
             return f"unreadable index file: {exc}"
-        if digest.hexdigest() != expected:
+        if digest != expected:
             return "index file does not match its checksum"
         write_stamp(self.path, info, expected)
         return None
