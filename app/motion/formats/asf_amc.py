@@ -49,6 +49,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, field
+from itertools import islice
 
 import numpy as np
 
@@ -527,10 +528,11 @@ def _drop_cut_last_frame(
     that bones are missing at its end or its last line is short; anything else in it is left
     for the readers to report. The first frame is never dropped.
     """
-    numbered = [i for i, line in enumerate(body) if _FRAME_NUMBER_RE.fullmatch(line.strip())]
-    if len(numbered) < 2:
+    # Only the last frame's number line matters, and that there is one before it: found from
+    # the ends (matching every line of a long take was a third of reading an AMC).
+    last = next((i for i in range(len(body) - 1, -1, -1) if _is_frame_number(body[i])), None)
+    if last is None or not any(_is_frame_number(line) for line in islice(body, last)):
         return body, []
-    last = numbered[-1]
     entries = [line.split() for line in body[last + 1 :]]
     entries = [tokens for tokens in entries if tokens and not tokens[0].startswith("#")]
     seen = [tokens[0] for tokens in entries]
@@ -544,6 +546,10 @@ def _drop_cut_last_frame(
     return body[:last], [
         f"the last frame ({body[last].strip()}, line {first_line + last}) was cut short: dropped"
     ]
+
+
+def _is_frame_number(line: str) -> bool:
+    return _FRAME_NUMBER_RE.fullmatch(line.strip()) is not None
 
 
 def _check_amc_limits(
