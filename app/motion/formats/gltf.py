@@ -91,18 +91,31 @@ def _load(data: bytes) -> tuple[Any, bytes | None]:
 
 
 class _Doc:
-    """Attribute access to a glTF JSON object (``doc.nodes``, ``node.name``; None if absent)."""
+    """Attribute access to a glTF JSON object (``doc.nodes``, ``node.name``; None if absent).
+
+    A key's value is wrapped once and kept on the instance (``__getattr__`` is then no longer
+    called for it): reading ``doc.accessors[i]`` for each of a file's thousands of accessors
+    wrapped the whole list each time, the better part of reading a large glTF.
+    """
 
     def __init__(self, raw: dict[str, Any]) -> None:
         self._raw = raw
 
     def __getattr__(self, key: str) -> Any:
+        if key.startswith("__"):  # copy, pickle and friends ask for these
+            raise AttributeError(key)
         value = self._raw.get(key)
         if isinstance(value, dict) and key not in ("extensions", "extras"):
-            return _Doc(value)
-        if isinstance(value, list):
-            return [_Doc(v) if isinstance(v, dict) else v for v in value]
+            value = _Doc(value)
+        elif isinstance(value, list):
+            value = [_Doc(v) if isinstance(v, dict) else v for v in value]
+        self.__dict__[key] = value
         return value
+
+    def replace(self, key: str, value: Any) -> None:
+        """Sets ``key`` of the JSON object (and forgets its wrapped value)."""
+        self._raw[key] = value
+        self.__dict__.pop(key, None)
 
 
 def _glb_chunks(data: bytes) -> tuple[str, bytes | None]:
@@ -404,7 +417,7 @@ def read_gltf(
     if not loaded.animations and still:  # a rig: its rest (bind) pose as one frame
         loaded.animations = [Animation("", 1, 0.0)]
         loaded.rates, loaded.spans = [DEFAULT_FPS], [(0.0, 0.0)]
-        document._raw["animations"] = [{}]
+        document.replace("animations", [{}])
     chosen = pick_animation(loaded.animations, animation, joints=int(is_bone.sum()))
     info = loaded.animations[chosen]
     joinable = np.ones(count, dtype=bool)
