@@ -9,6 +9,13 @@ INSTALLED := $(VENV)/.installed
 
 .PHONY: install browser postgres serve test lint clean
 
+# Python writes bytecode here even where the environment says not to (some images set
+# PYTHONDONTWRITEBYTECODE=1): the tests start hundreds of Python processes (servers, parser
+# and export workers, command lines), and without it each compiled the application again
+# (~0.4 s of CPU a process for `import app.main`) and every test worker rewrote every test
+# module's assertions again.
+unexport PYTHONDONTWRITEBYTECODE
+
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 
