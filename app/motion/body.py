@@ -65,6 +65,11 @@ _POSE_FRAMES = 12
 # degrees each, seen from the pelvis (a body turns its pelvis further from the trunk only
 # lying or bent double; a bone axis convention turns it by 90 or 180).
 _REST_SHOWN = float(np.cos(np.radians(30.0)))
+# ...in at least this share of those frames: a rest pose of the body is the pose the take
+# keeps its trunk near, while a rest pose that is no pose (bones in random axes) points the
+# trunk anywhere and one frame of a dozen, in a take that bends or turns the trunk, can
+# agree with it by chance.
+_REST_SHARE = 0.5
 
 
 @dataclass(frozen=True, eq=False)
@@ -373,12 +378,14 @@ def pelvis_basis(motion: Motion, canonical: np.ndarray, *, rest_is_a_figure: boo
     """``(3, 3)`` body axes (columns lateral, up, forward) in the pelvis joint's coordinates.
 
     From the rest pose (:func:`rest_pelvis_basis`), unless the mapper found no figure there
-    (``rest_is_a_figure`` False: it read the take's frames) and no frame of a dozen spread
-    over the clip shows the rest pose's axes, seen from the pelvis (up and lateral each within
-    30 degrees): then the rest pose is no pose of this body at all — a writer whose bones lie
-    along odd axes, all-zero rotations meaning some other pose, as pose estimators write —
-    and the axes are the frames' own, averaged. A rest pose some frame agrees with is kept,
-    so a standing rig that merely starts seated reads as before.
+    (``rest_is_a_figure`` False: it read the take's frames) and fewer than half of a dozen
+    frames spread over the clip show the rest pose's axes, seen from the pelvis (up and
+    lateral each within 30 degrees): then the rest pose is no pose of this body at all — a
+    writer whose bones lie along odd axes, all-zero rotations meaning some other pose, as
+    pose estimators write — and the axes are the frames' own, averaged. A rest pose most
+    frames agree with is kept, so a standing rig that merely starts seated reads as before;
+    one frame agreeing is not enough (a rest pose in random axes points the trunk anywhere,
+    and a take that bends or turns the trunk meets it in some frame by chance).
     """
     rest = rest_pelvis_basis(motion, canonical)
     if rest_is_a_figure:
@@ -388,11 +395,12 @@ def pelvis_basis(motion: Motion, canonical: np.ndarray, *, rest_is_a_figure: boo
     pelvis = rotations[:, canonical[CANONICAL_INDEX["pelvis"]]]
     try:
         shown = [_basis(positions[[i]], pelvis[[i]], canonical) for i in range(len(positions))]
-        if any(
+        agreeing = sum(
             float(rest[:, 0] @ axes[:, 0]) >= _REST_SHOWN
             and float(rest[:, 1] @ axes[:, 1]) >= _REST_SHOWN
             for axes in shown
-        ):
+        )
+        if agreeing >= _REST_SHARE * len(shown):
             return rest
         return _basis(positions, pelvis, canonical)
     except ParseError:  # some frame shows no body: the rest pose's axes, as before

@@ -1,11 +1,13 @@
 import numpy as np
 
 from app.motion import transforms
-from app.motion.body import build_body, count_lead_in_frames
+from app.motion.body import build_body, count_lead_in_frames, pelvis_basis
+from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion
 from app.motion.skeleton_map import CANONICAL_INDEX
 from tests.motion.skeleton_trees import Humanoid, synthetic_humanoid
 from tests.motion.synthetic import walker_motion, walking
+from tests.motion.test_mapping_probes import frame_as_rest
 
 
 def _leaning(motion: Motion, degrees: float) -> Motion:
@@ -95,3 +97,27 @@ def test_hips_at_the_pelvis_take_the_sides_from_where_the_legs_part():
     assert skeleton.names[body.mapping.joints[CANONICAL_INDEX["l_hip"]]] == truth["l_hip"]
     lateral = body.pelvis_frames[:, :, 0].mean(axis=0)
     assert lateral[0] > 0.95  # the left knee is on +x, and so is the subject's left
+
+
+def test_a_rest_pose_only_one_frame_shows_is_not_the_bodys_rest():
+    # A pose estimator writes its first frame as the rest pose, and that frame is bent 60
+    # degrees forward at the spine: the other frames (upright) do not show it, so the body's
+    # axes are the frames' own, not the one bent pose's (docs/skeletons.md, "2026-11-27, a
+    # rest pose one frame shows").
+    walker = walker_motion(frames=60, fps=30.0)
+    body = build_body(walker)
+    assert body.mapping is not None
+    canonical = body.mapping.joints
+    spine = int(canonical[CANONICAL_INDEX["spine"]])
+    world, _ = forward_kinematics(walker, joints=[spine])
+    above = world[0, walker.skeleton.parents[spine]]
+    bend = transforms.rotation_about([1.0, 0.0, 0.0], 60.0)  # about the walker's left (+x)
+    bent = walker.local_rotations.copy()
+    bent[0, spine] = above.T @ bend @ above @ bent[0, spine]
+    copy = frame_as_rest(transforms._replace(walker, local_rotations=bent), 0)
+
+    basis = pelvis_basis(copy, canonical, rest_is_a_figure=False)
+    rotations, _ = forward_kinematics(copy, joints=canonical)
+    up = rotations[1:, canonical[CANONICAL_INDEX["pelvis"]]] @ basis[:, 1]  # (F-1, 3)
+    agreement = np.einsum("fa,fa->f", up, body.pelvis_frames[1:, :, 1])
+    assert float(agreement.min()) > np.cos(np.radians(30.0))
