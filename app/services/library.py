@@ -48,7 +48,8 @@ from app.db.session import create_db_engine, read_sessions, write_sessions
 from app.errors import DescriptorOutdated, InvalidInput, StorageUnavailable
 from app.index.array_file import read_arrays, write_arrays
 from app.index.catalogue import Catalogue
-from app.index.descriptor_index import DescriptorIndex, IndexSet
+from app.index.descriptor_index import DescriptorIndex
+from app.index.index_set import IndexSet
 from app.index.kinds import IndexOptions
 from app.index.neighbour_scale import NeighbourScales
 from app.index.places import Places, WindowPlaces

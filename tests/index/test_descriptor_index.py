@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.index.descriptor_index import DescriptorIndex, IndexSet
+from app.index.descriptor_index import DescriptorIndex
+from app.index.index_set import IndexSet
 from app.index.kinds import FLAT, IVF, IndexOptions
 from app.index.locks import ReadWriteLock
 
