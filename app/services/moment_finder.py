@@ -18,7 +18,8 @@ import numpy as np
 from app.db import windows as window_db
 from app.index.places import Places
 from app.services.describe import WINDOW_LENGTHS
-from app.services.library import Library, window_index_name
+from app.services.library import Library
+from app.services.library_caches import window_index_name
 from app.services.moment_parts import Parts
 
 PROBE_AHEAD = 2  # a probe search asks for this many times the windows a round needs

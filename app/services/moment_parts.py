@@ -26,7 +26,8 @@ from app.services.describe import (
     MotionDescriber,
     SpanDescription,
 )
-from app.services.library import Library, window_index_name
+from app.services.library import Library
+from app.services.library_caches import window_index_name
 from app.services.search import clip_vector
 
 MAX_PARTS = 2048  # query parts at most: one per frame up to this many
