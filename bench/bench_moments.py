@@ -515,7 +515,8 @@ def recall(args: argparse.Namespace) -> int:
     those of the same library with float32 lists."""
     import faiss
 
-    from app.services.moments import FIRST_FETCH, PROBE_AHEAD
+    from app.services.moment_finder import PROBE_AHEAD
+    from app.services.moments import FIRST_FETCH
 
     print(f"machine: {machine()}")
     faiss.omp_set_num_threads(1)

@@ -34,8 +34,10 @@ Files: saves write a temporary file and rename it, under an exclusive ``fcntl.fl
 ``<dir>/.lock`` (loads take it shared), so two processes (the server and ``mocap-index
 import``) never interleave the ``.faiss`` and ``.json`` of one index.
 
-Concurrency: searches share a read lock, add/remove take the write lock, so a search sees a
-clip either entirely or not at all.
+Layout: :class:`DescriptorIndex` builds on :class:`app.index.held_index.HeldIndex` (the FAISS
+index in memory: what it holds, its searches); its files are
+:class:`app.index.index_file.IndexFile`. Searches share a read lock, add/remove take the write
+lock, so a search sees a clip either entirely or not at all.
 
 Shapes: a query is ``(D,)`` float32; batches are ``(N, D)`` float32 C-contiguous with ``(N,)``
 int64 ids.
@@ -43,34 +45,18 @@ int64 ids.
 
 from __future__ import annotations
 
-import ctypes
-import json
 import logging
-import math
-import os
 import threading
-import time
-from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
 import faiss
 import numpy as np
 
-from app.index.array_file import (
-    file_sha256,
-    has_checksum,
-    is_stamped,
-    read_arrays,
-    stream_sha256,
-    verify_arrays,
-    write_arrays,
-    write_stamp,
-)
 from app.index.frozen import FrozenIVF
+from app.index.held_index import HeldIndex
+from app.index.index_file import IndexFile
 from app.index.kinds import (
-    FLAT,
     FLOAT32,
     IVF,
     SQ8,
@@ -79,19 +65,11 @@ from app.index.kinds import (
     as_vectors,
     build_index,
     codes_of,
-    empty_flat,
-    has_id_map,
-    ivf_ids,
     kind_of,
-    padded_width,
-    selector,
-    with_id_map,
 )
-from app.index.locks import ReadWriteLock, directory_lock
+from app.index.locks import directory_lock
 
 log = logging.getLogger(__name__)
-
-EXACT_FORMAT = 1  # the layout of an index's exact vectors file (compressed lists)
 
 
 class VectorSource(Protocol):
@@ -124,38 +102,10 @@ class VectorSource(Protocol):
         ...
 
 
-@dataclass(frozen=True)
-class Neighbours:
-    """Search results, nearest first: ``ids`` ``(n,)`` int64, ``distances`` ``(n,)`` float64
-    Euclidean (not squared)."""
-
-    ids: np.ndarray
-    distances: np.ndarray
-
-    def __len__(self) -> int:
-        return int(self.ids.shape[0])
-
-
-def _return_freed_memory() -> None:
-    """Give the heap's free pages back to the system (glibc's ``malloc_trim``): mapping an
-    index file reads and sorts its ids (the locator) in temporary arrays, whose pages would
-    otherwise stay in each server process's resident memory, private to it."""
-    if _LIBC is not None:
-        _LIBC.malloc_trim(0)
-
-
-def _libc() -> Any:
-    try:
-        return ctypes.CDLL("libc.so.6")  # glibc; elsewhere nothing is trimmed
-    except OSError:
-        return None
-
-
-_LIBC = _libc()
-
-
-class DescriptorIndex:
-    """The index of one descriptor.
+class DescriptorIndex(HeldIndex):
+    """The index of one descriptor, kept in step with the database (changes, loading,
+    rebuilding) and saved to its files; what it holds and its searches are
+    :class:`HeldIndex`'s.
 
     Parameters
     ----------
@@ -178,64 +128,25 @@ class DescriptorIndex:
         index: Any | None = None,
         options: IndexOptions | None = None,
     ) -> None:
+        super().__init__(dimension, index, options)
         self.name = name
-        self.dimension = dimension
         self.version = version
         self.directory = directory
-        self.options = options if options is not None else IndexOptions()
-        self._index = index if index is not None else empty_flat(dimension)
-        self._max_id: int | None = None  # see _id_bound
-        self._sorted: np.ndarray | None = None  # see sorted_ids
+        self.file = IndexFile(name, dimension, version, directory)
         self._synced_to = 0
         self._unsaved = 0
         self.autosave = True  # False: changes are saved only by an explicit save()
         self._timer: threading.Timer | None = None
         self._timer_lock = threading.Lock()
-        self._lock = ReadWriteLock()
         self._save_lock = threading.Lock()
-        self._unchecked: tuple[int, str] | None = None  # see read_file(verify=False)
-        self._unchecked_exact: tuple[Any, Any] | None = None  # ... its exact vectors
-        self._mapped_inode = -1  # the index file mapped (see _map), and its metadata
-        self._mapped_meta: dict[str, Any] = {}
 
     @property
     def path(self) -> Path:
-        return self.directory / f"{self.name}.faiss"
+        return self.file.path
 
     @property
     def meta_path(self) -> Path:
-        return self.directory / f"{self.name}.json"
-
-    @property
-    def size(self) -> int:
-        return int(self._index.ntotal)
-
-    @property
-    def kind(self) -> str:
-        return IVF if isinstance(self._index, FrozenIVF) else kind_of(self._index) or FLAT
-
-    @property
-    def codes(self) -> str:
-        """What an IVF index's lists hold (``float32`` or ``sq8``; see app/index/kinds.py)."""
-        index = self._index
-        return codes_of(index.base if isinstance(index, FrozenIVF) else index)
-
-    @property
-    def mapped(self) -> bool:
-        """Whether the index is read from its file's pages (shared by every process mapping
-        it; see app/index/frozen.py), not held in memory of its own."""
-        return isinstance(self._index, FrozenIVF) and self._index.mapped_from is not None
-
-    @property
-    def nprobe(self) -> int:
-        """Cells an IVF search scans: ``MOCAP_IVF_NPROBE``, else the one calibrated when the
-        index was built (0 for a flat index)."""
-        index = self._index
-        if isinstance(index, FrozenIVF):
-            return self.options.nprobe or index.base_nprobe
-        if kind_of(index) != IVF:
-            return 0
-        return int(self.options.nprobe or index.nprobe)
+        return self.file.meta_path
 
     @property
     def synced_to(self) -> int:
@@ -249,63 +160,6 @@ class DescriptorIndex:
     def mark_synced(self, position: int) -> None:
         """Nothing changed up to feed position ``position``: the index reflects it."""
         self._synced_to = max(self._synced_to, int(position))
-
-    def ids(self) -> np.ndarray:
-        """``(N,)`` int64 ids in the index (flat: insertion order; IVF: by cell)."""
-        with self._lock.read():
-            return self._ids()
-
-    def _ids(self) -> np.ndarray:
-        if isinstance(self._index, FrozenIVF):
-            return self._index.ids()
-        if self.kind == IVF:
-            return ivf_ids(self._index)
-        return faiss.vector_to_array(self._index.id_map).astype(np.int64)
-
-    def sorted_ids(self) -> np.ndarray:
-        """``(N,)`` int64 ids in the index, ascending. Read from FAISS once (~60 ms for an IVF
-        index of 1.2 M windows), then kept up to date as ids come and go (a few ms per change
-        at that size): finding a clip's windows is then a binary search. Do not modify it."""
-        with self._lock.read():
-            held = self._sorted
-            index = self._index
-        if held is not None:
-            return held
-        if isinstance(index, FrozenIVF) and not index.changed:
-            # The mapped file's ids are sorted already: no private copy of them (8 MB an
-            # index at a million clips, in every worker process).
-            return index.base_ids
-        with self._lock.write():
-            if self._sorted is None:
-                self._sorted = np.sort(self._ids())
-            return self._sorted
-
-    def _note_added(self, ids: np.ndarray) -> None:
-        """Keep :meth:`sorted_ids` up to date (under the write lock)."""
-        held = self._sorted
-        if held is None or not ids.size:
-            return
-        new = np.sort(ids)
-        if not held.size or new[0] > held[-1]:
-            self._sorted = np.concatenate([held, new])
-        else:
-            self._sorted = np.union1d(held, new)
-
-    def _note_removed(self, ids: np.ndarray) -> None:
-        """Keep :meth:`sorted_ids` up to date (under the write lock)."""
-        held = self._sorted
-        if held is None or not ids.size or not held.size:
-            return
-        at = np.minimum(np.searchsorted(held, ids), held.size - 1)
-        self._sorted = np.delete(held, np.unique(at[held[at] == ids]))
-
-    def _id_bound(self) -> int:
-        """No id above this is in the index (kept up to date while adding, computed again
-        after the index was swapped; removals leave it high). Under the write lock."""
-        if self._max_id is None:
-            ids = self._ids()
-            self._max_id = int(ids.max()) if ids.size else -1
-        return self._max_id
 
     def _autosave(self, persist: bool | None) -> None:
         if persist:
@@ -355,26 +209,6 @@ class DescriptorIndex:
             )
             return False
         return True
-
-    def _add_locked(self, ids: np.ndarray, vectors: np.ndarray) -> None:
-        if isinstance(self._index, FrozenIVF):
-            self._index.add(ids, vectors)
-        else:
-            self._index.add_with_ids(vectors, ids)
-
-    def _remove_locked(self, ids: np.ndarray) -> int:
-        if isinstance(self._index, FrozenIVF):
-            return self._index.remove(ids)
-        return int(self._index.remove_ids(selector(self._index, ids)))
-
-    def _held(self, vector_id: int) -> np.ndarray | None:
-        """The vector held under ``vector_id`` (None: not held)."""
-        if isinstance(self._index, FrozenIVF):
-            return self._index.vector(vector_id)
-        try:
-            return np.asarray(self._index.reconstruct(int(vector_id)), np.float32)
-        except RuntimeError:  # not in the index
-            return None
 
     def add(
         self,
@@ -471,202 +305,6 @@ class DescriptorIndex:
             self._autosave(persist)
         return len(add), len(remove)
 
-    def search(
-        self,
-        query: np.ndarray,
-        k: int,
-        *,
-        allowed: np.ndarray | None = None,
-        exclude: int | None = None,
-    ) -> Neighbours:
-        """The ``k`` nearest stored vectors to ``query`` ``(D,)``.
-
-        ``allowed`` ``(M,)`` int64 restricts the search to those ids (exactly: FAISS skips the
-        others while scanning, and an IVF index probes every cell); ``exclude`` drops one id
-        (the query clip itself) — we ask for one more neighbour and remove it, so it never
-        costs a result.
-        """
-        q = as_vectors(query, self.dimension)
-        if q.shape[0] != 1:
-            raise ValueError("search takes one query vector")
-        available = self.size
-        if allowed is not None:
-            allowed = np.unique(as_ids(allowed))
-            if exclude is not None:
-                allowed = allowed[allowed != exclude]
-                exclude = None
-            available = min(available, int(allowed.size))
-        wanted = min(k + (1 if exclude is not None else 0), available)
-        if wanted <= 0:
-            return Neighbours(np.empty(0, np.int64), np.empty(0, np.float64))
-        squared, ids = self._search_selected(q, wanted, allowed)
-        # A dozen numbers: Python's floats and math.sqrt (the same IEEE results as numpy's
-        # float64 square root) cost less than the numpy calls filtering them would.
-        skipped = -1 if exclude is None else exclude  # FAISS pads with -1 past the vectors
-        kept = [
-            (i, s)
-            for i, s in zip(ids[0].tolist(), squared[0].tolist(), strict=True)
-            if i >= 0 and i != skipped
-        ][:k]
-        return Neighbours(
-            np.array([i for i, _ in kept], np.int64),
-            np.array([math.sqrt(max(s, 0.0)) for _, s in kept], np.float64),
-        )
-
-    def nearest(self, query: np.ndarray, k: int, *, exclude: int) -> list[tuple[int, float]]:
-        """:meth:`search` of a stored vector ``query`` ``(D,)`` float32 without filters, as
-        ``(id, Euclidean distance)`` pairs, nearest first, ``exclude`` (the query clip)
-        left out: the same hits and the same numbers, without the arrays around them (the
-        plain ``GET /search``, app/services/search.py)."""
-        wanted = min(k + 1, self.size)
-        if wanted <= 0:
-            return []
-        q = np.ascontiguousarray(query, np.float32).reshape(1, -1)
-        if q.shape[1] != self.dimension:
-            raise ValueError(f"expected a vector of {self.dimension} numbers, got {query.shape}")
-        squared, ids = self._search_selected(q, wanted, None)
-        sqrt = math.sqrt
-        found = [
-            (i, sqrt(max(s, 0.0)))  # as search()
-            for i, s in zip(ids[0].tolist(), squared[0].tolist(), strict=True)
-            if i >= 0 and i != exclude  # FAISS pads with -1 past the vectors
-        ]
-        return found[:k]
-
-    def _search_selected(
-        self, q: np.ndarray, wanted: int, allowed: np.ndarray | None
-    ) -> tuple[Any, Any]:
-        """FAISS's squared distances and ids ``(Q, wanted)`` of the ``wanted`` nearest to ``q``
-        ``(Q, D)`` among ``allowed`` (sorted unique ids; ``None``: all; an IVF index then probes
-        every cell)."""
-        with self._lock.read():
-            index = self._index
-            if isinstance(index, FrozenIVF):
-                return index.search(q, wanted, nprobe=self.nprobe, allowed=allowed)
-            selector = None if allowed is None else faiss.IDSelectorBatch(allowed)
-            params: Any = None
-            if kind_of(index) == IVF:
-                params = faiss.SearchParametersIVF()
-                params.nprobe = index.nlist if selector is not None else self.nprobe
-            elif selector is not None:
-                params = faiss.SearchParameters()
-            if selector is not None:
-                params.sel = selector
-            return index.search(q, wanted, params=params)
-
-    def search_batch(
-        self, queries: np.ndarray, k: int, *, allowed: np.ndarray | None = None
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """The ``k`` nearest stored vectors to each of ``queries`` ``(Q, D)`` in one FAISS
-        call (``allowed`` as in :meth:`search`): ``(Q, k)`` Euclidean distances (float64,
-        ascending) and ids (int64, -1 past the vectors that qualify)."""
-        q = as_vectors(queries, self.dimension)
-        if allowed is not None:
-            allowed = np.unique(as_ids(allowed))
-        wanted = max(1, min(k, self.size if allowed is None else min(self.size, allowed.size)))
-        if q.shape[0] == 0 or self.size == 0 or (allowed is not None and allowed.size == 0):
-            empty = np.full((q.shape[0], k), -1, np.int64)
-            return np.full((q.shape[0], k), np.inf), empty
-        squared, ids = self._search_selected(q, wanted, allowed)
-        distances = np.full((q.shape[0], k), np.inf)
-        found = np.full((q.shape[0], k), -1, np.int64)
-        valid = ids >= 0
-        distances[:, :wanted] = np.where(
-            valid, np.sqrt(np.maximum(squared.astype(np.float64), 0.0)), np.inf
-        )
-        found[:, :wanted] = ids
-        return distances, found
-
-    def scan_cost(self, *, filtered: bool = False) -> int:
-        """Roughly how many numbers one search compares: every vector for a flat index (or a
-        filtered IVF search), the centroids plus ``nprobe`` cells for IVF."""
-        index = self._index
-        if isinstance(index, FrozenIVF):
-            return index.scan_cost(self.nprobe, filtered=filtered)
-        if kind_of(index) != IVF or filtered:
-            return self.size * self.dimension
-        nlist = int(index.nlist)
-        probed = min(self.nprobe, nlist) * self.size // max(nlist, 1)
-        return (nlist + probed) * self.dimension
-
-    def search_many(self, queries: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        """``(Q, k)`` squared distances and ids for ``queries`` ``(Q, D)`` (benchmarks)."""
-        q = as_vectors(queries, self.dimension)
-        with self._lock.read():
-            if isinstance(self._index, FrozenIVF):
-                return self._index.search(q, k, nprobe=self.nprobe)
-            params: Any = None
-            if self.kind == IVF:
-                params = faiss.SearchParametersIVF()
-                params.nprobe = self.nprobe
-            distances, ids = self._index.search(q, k, params=params)
-        return distances, ids
-
-    def reconstruct(self, clip_id: int) -> np.ndarray:
-        """The stored ``(D,)`` float32 vector of ``clip_id`` (``KeyError`` when absent)."""
-        with self._lock.read():
-            held = self._held(clip_id)
-        if held is None:
-            raise KeyError(clip_id)
-        return held
-
-    def reconstruct_many(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The stored vectors of those of ``ids`` ``(N,)`` that are held: kept ids ``(M,)``
-        and ``(M, D)`` float32 (one read lock for all)."""
-        kept, vectors = [], []
-        with self._lock.read():
-            for vector_id in np.asarray(ids, dtype=np.int64).tolist():
-                held = self._held(vector_id)
-                if held is not None:
-                    vectors.append(held)
-                    kept.append(vector_id)
-        if not vectors:
-            return np.empty(0, np.int64), np.empty((0, self.dimension), np.float32)
-        return np.array(kept, np.int64), np.asarray(np.stack(vectors), dtype=np.float32)
-
-    def reconstruct_batch(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The stored vectors of ``ids`` ``(N,)``: which are held ``(N,)`` bool and their
-        ``(M, D)`` float32 vectors, in the order of ``ids`` (one call into FAISS when all are
-        held, the usual case; one by one otherwise)."""
-        ids = np.ascontiguousarray(ids, dtype=np.int64)
-        if not ids.size:
-            return np.zeros(0, bool), np.empty((0, self.dimension), np.float32)
-        with self._lock.read():
-            if isinstance(self._index, FrozenIVF):
-                return self._index.vectors(ids)
-            try:
-                return np.ones(ids.size, bool), self._index.reconstruct_batch(ids)
-            except RuntimeError:  # one is not held
-                pass
-        kept, vectors = self.reconstruct_many(ids)
-        return np.isin(ids, kept), vectors
-
-    def all_vectors(self) -> tuple[np.ndarray, np.ndarray]:
-        """Every ``(ids (N,), vectors (N, D))`` held (used to change the index kind)."""
-        with self._lock.read():
-            if isinstance(self._index, FrozenIVF):
-                return self._index.all_vectors()
-            if self.kind == IVF:
-                invlists = self._index.invlists
-                id_parts, vector_parts = [], []
-                for cell in range(self._index.nlist):
-                    size = invlists.list_size(cell)
-                    if not size:
-                        continue
-                    id_parts.append(faiss.rev_swig_ptr(invlists.get_ids(cell), size).copy())
-                    codes = faiss.rev_swig_ptr(invlists.get_codes(cell), size * 4 * self.dimension)
-                    vector_parts.append(
-                        np.frombuffer(codes, dtype=np.float32).reshape(size, self.dimension).copy()
-                    )
-                if not id_parts:
-                    return np.empty(0, np.int64), np.empty((0, self.dimension), np.float32)
-                return np.concatenate(id_parts).astype(np.int64), np.concatenate(vector_parts)
-            n = self.size
-            ids = faiss.vector_to_array(self._index.id_map).astype(np.int64)
-            flat: Any = faiss.downcast_index(self._index.index)
-            data = faiss.rev_swig_ptr(flat.get_xb(), n * self.dimension) if n else np.empty(0)
-            return ids, np.asarray(data, dtype=np.float32).reshape(n, self.dimension).copy()
-
     def replace_all(
         self,
         ids: np.ndarray,
@@ -690,7 +328,7 @@ class DescriptorIndex:
         if kind_of(fresh) == IVF and codes_of(fresh) == SQ8:  # its exact vectors beside it
             order = np.argsort(ids_, kind="stable")
             fresh = FrozenIVF(fresh, array[order], ids_[order])
-        self._drop_unchecked()  # that file is no longer used
+        self.file.drop_unchecked()  # that file is no longer used
         with self._lock.write():
             self._index = fresh
             self._max_id = None
@@ -718,10 +356,10 @@ class DescriptorIndex:
                     isinstance(index, FrozenIVF)
                     and index.mapped_from is not None
                     and not index.changed
-                    and self._is_mapped_file()
+                    and self.file.is_mapped_file()
                 ):
                     # The file holds these vectors: only the feed position moves on.
-                    self._write_meta(dict(self._mapped_meta, feed_position=synced_to))
+                    self.file.write_meta(dict(self.file.mapped_meta, feed_position=synced_to))
                     self._unsaved = max(0, self._unsaved - unsaved)
                     return
                 written = index.merged() if isinstance(index, FrozenIVF) else index
@@ -733,20 +371,12 @@ class DescriptorIndex:
                     if isinstance(index, FrozenIVF) and index.exact is not None
                     else None
                 )
-                tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
-                try:
-                    faiss.write_index(written, str(tmp))
-                except BaseException:
-                    tmp.unlink(missing_ok=True)
-                    raise
+                tmp = self.file.write_temporary(written)
             del written
-            try:
-                fd = os.open(tmp, os.O_RDONLY)
-                try:
-                    os.fsync(fd)
-                finally:
-                    os.close(fd)
-                meta = {
+            # The exact vectors go first: an index file never lacks them.
+            meta = self.file.install(
+                tmp,
+                {
                     "descriptor": self.name,
                     "version": self.version,
                     "dimension": self.dimension,
@@ -755,174 +385,29 @@ class DescriptorIndex:
                     "nprobe": nprobe,
                     "count": count,
                     "feed_position": synced_to,
-                    "sha256": file_sha256(tmp),
-                    "saved_at": time.time(),
-                }
-                if exact is not None:  # first: an index file never lacks its exact vectors
-                    write_arrays(
-                        self.directory,
-                        f"{self.name}.exact",
-                        {"ids": exact[0], "vectors": exact[1]},
-                        {"format": EXACT_FORMAT, "index_sha256": meta["sha256"]},
-                        lock=False,
-                    )
-                    del exact
-                os.replace(tmp, self.path)
-            finally:
-                tmp.unlink(missing_ok=True)
-            self._write_meta(meta)
-            mapped = self._map(meta) if kind == IVF and self._maps(meta) else None
+                },
+                exact,
+            )
+            del exact
+            maps = kind == IVF and self.file.maps(meta, mmap=self.options.mmap)
+            mapped = self.file.map(meta) if maps else None
             with self._lock.write():
                 if mapped is not None and self._index is index and self._unsaved == unsaved:
                     self._index = mapped  # nothing changed while writing: share the file
                     self._sorted = None
                 self._unsaved = max(0, self._unsaved - unsaved)
 
-    def _write_meta(self, meta: dict[str, Any]) -> None:
-        meta_tmp = self.meta_path.with_name(f".{self.meta_path.name}.{os.getpid()}.tmp")
-        try:
-            meta_tmp.write_text(json.dumps(meta, indent=2))
-            os.replace(meta_tmp, self.meta_path)
-        finally:
-            meta_tmp.unlink(missing_ok=True)
-
-    def _maps(self, meta: dict[str, Any]) -> bool:
-        """Whether an IVF file of ``meta`` is mapped (compressed lists always are: their
-        exact vectors are only read that way)."""
-        return self.options.mmap or meta.get("codes") == SQ8
-
-    def _read_exact(
-        self, meta: dict[str, Any], *, verify: bool
-    ) -> tuple[np.ndarray, np.ndarray] | str:
-        """The sorted ids ``(N,)`` and ``(N, D)`` exact vectors of the index file of ``meta``
-        (mapped), or why they cannot be used: missing, damaged, or written with another index
-        file."""
-        expect = {"format": EXACT_FORMAT, "index_sha256": meta.get("sha256")}
-        found = read_arrays(self.directory, f"{self.name}.exact", expect, verify=verify, lock=False)
-        if isinstance(found, str):
-            return found
-        arrays, exact_meta = found
-        ids, vectors = arrays.get("ids"), arrays.get("vectors")
-        if vectors is None or vectors.ndim != 2 or vectors.shape[1] != self.dimension:
-            return "exact vectors of another shape"
-        if ids is None or ids.shape != (vectors.shape[0],) or ids.dtype != np.int64:
-            return "exact vectors without their ids"
-        if not verify:
-            self._unchecked_exact = (arrays, exact_meta)
-        return ids, vectors
-
-    def _map(self, meta: dict[str, Any], *, verify_exact: bool = True) -> FrozenIVF | None:
-        """The index file, mapped (None when it cannot be: the copy in memory stays), with
-        its exact vectors when its lists are compressed (the caller holds the directory's
-        lock; their checksum is checked later when ``verify_exact`` is False)."""
-        try:
-            exact: tuple[np.ndarray, np.ndarray] | tuple[None, None] = (None, None)
-            if meta.get("codes") == SQ8:
-                found = self._read_exact(meta, verify=verify_exact)
-                if isinstance(found, str):
-                    log.warning("the %s index's exact vectors: %s", self.name, found)
-                    return None
-                exact = found
-            mapped = FrozenIVF.open(str(self.path), exact[1], exact[0])
-            self._mapped_inode = os.stat(self.path).st_ino
-        except (OSError, RuntimeError) as exc:
-            log.warning("could not map the %s index file (%s); holding a copy", self.name, exc)
-            return None
-        self._mapped_meta = meta
-        _return_freed_memory()
-        return mapped
-
-    def _is_mapped_file(self) -> bool:
-        """Whether the index file is still the one mapped (not replaced by another process)."""
-        try:
-            return os.stat(self.path).st_ino == self._mapped_inode
-        except OSError:
-            return False
-
     def read_file(self, *, verify: bool = True) -> tuple[Any, dict[str, Any]] | str:
         """The persisted index and its metadata, or why they cannot be used (file work only:
         several indexes can be read at once, in threads). An IVF index is mapped, not read
         (see app/index/frozen.py); with ``verify=False`` its checksum is checked later, by
         :meth:`verify_file` (hashing a large file is most of a server's start-up)."""
-        with directory_lock(self.directory, exclusive=False):
-            try:
-                meta = json.loads(self.meta_path.read_text())
-                later = not verify and meta.get("kind") == IVF and self._maps(meta)
-                # Checked now (at once when its stamp shows it unchanged since it matched);
-                # "": it does not match.
-                expected = meta.get("sha256")
-                digest = None if later else expected if has_checksum(self.path, expected) else ""
-            except FileNotFoundError as exc:
-                return f"missing {Path(exc.filename).name}"
-            except (OSError, ValueError) as exc:
-                return f"unreadable metadata: {exc}"
-            if not isinstance(meta, dict):
-                return "unreadable metadata"
-            for key, value in (
-                ("descriptor", self.name),
-                ("version", self.version),
-                ("dimension", self.dimension),
-            ):
-                if meta.get(key) != value:
-                    return f"{key} is {meta.get(key)!r}, expected {value!r}"
-            if digest is not None and meta.get("sha256") != digest:
-                return "index file does not match its checksum"
-            try:
-                if meta.get("kind") == IVF and self._maps(meta):
-                    if digest is None:  # the file now mapped, open until checked (the lock
-                        # keeps another process from replacing it meanwhile)
-                        self._unchecked = (os.open(self.path, os.O_RDONLY), str(meta["sha256"]))
-                    mapped = self._map(meta, verify_exact=digest is not None)
-                    if mapped is None:
-                        return "unreadable index"
-                    index: Any = mapped
-                    plain: Any = mapped.base
-                else:
-                    index = plain = faiss.read_index(str(self.path))
-            except RuntimeError as exc:
-                return f"unreadable index: {exc}"
-        width = padded_width(self.dimension) if codes_of(plain) == SQ8 else self.dimension
-        if kind_of(plain) is None or plain.d != width:
-            return "index of another kind or dimension"
-        if kind_of(plain) == IVF and not isinstance(index, FrozenIVF) and not has_id_map(index):
-            with_id_map(index)  # a file written before the id map was kept: save it again
-            meta["resave"] = True
-        if int(index.ntotal) != meta.get("count"):
-            return "index count disagrees with its metadata"
-        if kind_of(index) == FLAT and index.id_map.size() != index.ntotal:
-            return "index count disagrees with its id map"
-        return index, meta
-
-    def _drop_unchecked(self) -> None:
-        self._unchecked_exact = None
-        unchecked, self._unchecked = self._unchecked, None
-        if unchecked is not None:
-            os.close(unchecked[0])
+        return self.file.read(verify=verify, mmap=self.options.mmap)
 
     def verify_file(self) -> str | None:
         """Check the checksum of the file mapped by ``read_file(verify=False)``: why it cannot
         be used (the caller rebuilds the index), or None."""
-        unchecked, self._unchecked = self._unchecked, None
-        exact, self._unchecked_exact = self._unchecked_exact, None
-        if exact is not None and (problem := verify_arrays(*exact)) is not None:
-            if unchecked is not None:
-                os.close(unchecked[0])
-            return f"exact vectors: {problem}"
-        if unchecked is None:
-            return None
-        fd, expected = unchecked
-        try:
-            with os.fdopen(fd, "rb") as stream:
-                info = os.fstat(stream.fileno())  # the file mapped, even if replaced since
-                if is_stamped(self.path, info, expected):
-                    return None  # unchanged since it matched: not hashed again
-                digest = stream_sha256(stream)
-        except OSError as exc:
-            return f"unreadable index file: {exc}"
-        if digest != expected:
-            return "index file does not match its checksum"
-        write_stamp(self.path, info, expected)
-        return None
+        return self.file.verify()
 
     def load_or_rebuild(
         self, source: VectorSource, found: tuple[Any, dict[str, Any]] | str | None = None
@@ -1020,41 +505,3 @@ class DescriptorIndex:
             problem,
         )
         return problem
-
-
-class IndexSet(Mapping[str, DescriptorIndex]):
-    """The indexes of every descriptor, by descriptor name."""
-
-    def __init__(self, indexes: Mapping[str, DescriptorIndex]) -> None:
-        self._indexes = dict(indexes)
-
-    def __getitem__(self, name: str) -> DescriptorIndex:
-        return self._indexes[name]
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self._indexes)
-
-    def __len__(self) -> int:
-        return len(self._indexes)
-
-    def add(self, ids: np.ndarray | list[int], vectors: Mapping[str, np.ndarray]) -> None:
-        """Add one batch: ``vectors[name]`` is ``(N, D_name)`` for the ``(N,)`` ``ids``."""
-        for name, array in vectors.items():
-            self._indexes[name].add(ids, array)
-
-    def remove(self, ids: np.ndarray | list[int]) -> None:
-        """Remove ``ids`` from every index."""
-        for index in self._indexes.values():
-            index.remove(ids)
-
-    def sizes(self) -> dict[str, int]:
-        return {name: index.size for name, index in self._indexes.items()}
-
-    def save(self, *, only_changed: bool = True) -> None:
-        """Save every index (with ``only_changed``: those with unsaved changes); a file that
-        cannot be written is logged, not raised (see :meth:`DescriptorIndex.try_save`)."""
-        for index in self._indexes.values():
-            if only_changed:
-                index.flush()
-            else:
-                index.try_save()

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.index.descriptor_index import IndexSet
+from app.index.index_set import IndexSet
 
 # (descriptor, version) -> largest distance between near-identical clips; see above.
 NEAR_IDENTICAL: dict[tuple[str, int], float] = {

@@ -2,8 +2,8 @@
 
 ``create_app``'s lifespan and the CLI commands call :func:`open_library`, which migrates the
 database, then loads every descriptor's index (bringing a file that is behind up to date from
-the database, rebuilding one that is missing, unreadable or stale), and hand the
-:class:`Library` to the services.
+the database, rebuilding one that is missing, unreadable or stale; see
+:mod:`app.services.library_caches`), and hand the :class:`Library` to the services.
 
 Several processes may write to one database at once (``mocap-index serve`` replicas, on one
 machine or several, and ``mocap-index import``). Each keeps its indexes in memory and follows
@@ -21,16 +21,13 @@ same feed: a clip's windows come and go with it.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import sqlite3
 import threading
 import time
 from collections.abc import Collection, Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from datetime import timedelta
-from typing import Any
 
 import numpy as np
 from sqlalchemy import Engine
@@ -48,45 +45,29 @@ from app.db.session import create_db_engine, read_sessions, write_sessions
 from app.errors import DescriptorOutdated, InvalidInput, StorageUnavailable
 from app.index.array_file import read_arrays, write_arrays
 from app.index.catalogue import Catalogue
-from app.index.descriptor_index import DescriptorIndex, IndexSet
-from app.index.kinds import IndexOptions
+from app.index.index_set import IndexSet
 from app.index.neighbour_scale import NeighbourScales
 from app.index.places import Places, WindowPlaces
 from app.index.sources import (
-    StoredClips,
-    StoredVectors,
-    StoredWindows,
     touched_windows,
     windows_of_clips,
 )
 from app.motion.descriptors import DEFAULT_DESCRIPTOR
 from app.services.blobs import BlobStore, open_blob_store
 from app.services.describe import (
-    WINDOW_DESCRIPTORS,
-    WINDOW_LENGTHS,
     Describer,
     DescriptorInfo,
     MotionDescriber,
 )
 from app.services.export_pool import ExportPool
+from app.services.library_caches import open_caches, window_keys
 from app.services.parser_pool import ParserPool
 
 log = logging.getLogger(__name__)
 
 PLACES_FORMAT = 1  # the layout of a window index's places file
-WINDOW_IVF_FROM = 20_000  # windows from which a window index is IVF (or MOCAP_INDEX_AUTO_...)
 # While a descriptor has outdated vectors, how often a search recounts them.
 OUTDATED_RECOUNT_SECONDS = 5.0
-
-
-def index_options(settings: Settings) -> IndexOptions:
-    """The index kind and search settings of ``MOCAP_INDEX_TYPE`` and friends."""
-    return IndexOptions(
-        kind=settings.index_type,
-        auto_threshold=settings.index_auto_threshold,
-        nlist=settings.ivf_nlist,
-        nprobe=settings.ivf_nprobe,
-    )
 
 
 def drop_clip_windows(library: Library, clip_ids: Sequence[int]) -> None:
@@ -105,29 +86,6 @@ def drop_clip_windows(library: Library, clip_ids: Sequence[int]) -> None:
                 name,
                 exc,
             )
-
-
-def window_index_name(descriptor: str, length: float) -> str:
-    """File stem of the index of ``descriptor`` windows of ``length`` seconds."""
-    return f"windows-{descriptor}-{length:g}s"
-
-
-def window_keys(
-    settings: Settings, descriptors: Mapping[str, DescriptorInfo]
-) -> dict[str, window_db.WindowKey]:
-    """Every window index: its name -> which windows it holds (the descriptors of
-    :data:`WINDOW_DESCRIPTORS` the describer has, at each of :data:`WINDOW_LENGTHS`; none
-    when MOCAP_MOMENTS is off)."""
-    if not settings.moments:
-        return {}
-    return {
-        window_index_name(name, length): window_db.WindowKey(
-            name, descriptors[name].version, descriptors[name].dimension, length
-        )
-        for name in WINDOW_DESCRIPTORS
-        if name in descriptors
-        for length in WINDOW_LENGTHS
-    }
 
 
 @dataclass
@@ -636,95 +594,6 @@ class _DataVersion:
             self._connection.close()
 
 
-def _open_indexes(
-    settings: Settings,
-    reads: sessionmaker[Session],
-    descriptors: Mapping[str, DescriptorInfo],
-    *,
-    verify: bool = True,
-) -> tuple[IndexSet, IndexSet, Catalogue]:
-    """The clip indexes, the window indexes and the catalogue, loaded (or rebuilt) from their
-    files (``verify=False``: the mapped files' checksums are left to
-    :meth:`Library.verify_files`)."""
-    options = index_options(settings)
-    indexes = {
-        info.name: DescriptorIndex(
-            info.name, info.dimension, info.version, settings.index_dir, options=options
-        )
-        for info in descriptors.values()
-    }
-    keys = window_keys(settings, descriptors)
-    # A moments search asks one or two window indexes for ~140 windows each: a flat scan of
-    # the 90,000 8-s windows of 100 hours was a sixth of it. IVF from fewer windows.
-    window_options = dataclasses.replace(
-        options,
-        auto_threshold=min(options.auto_threshold, WINDOW_IVF_FROM),
-        codes=settings.window_codes,
-    )
-    windows = {
-        name: DescriptorIndex(
-            name, key.dimension, key.version, settings.index_dir, options=window_options
-        )
-        for name, key in keys.items()
-    }
-    catalogue = Catalogue(
-        settings.index_dir, autosave_below=options.autosave_below, save_delay=options.save_delay
-    )
-    # Reading and checksumming the files (hundreds of MB at a million clips) releases the
-    # GIL: all at once, in threads.
-    every = [*indexes.values(), *windows.values()]
-    with ThreadPoolExecutor(max_workers=max(1, min(8, len(every) + 1))) as pool:
-        listed = pool.submit(catalogue.read_file, verify=verify)
-        files = dict(zip(every, pool.map(lambda i: i.read_file(verify=verify), every), strict=True))
-        catalogue_file = listed.result()
-    fresh = all(isinstance(found, str) for found in files.values())  # no index file at all
-    with reads() as session:  # one feed position for every index, taken before their vectors
-        watermark = horizon(session)
-        pruned = pruned_before(session)
-        for info in descriptors.values():
-            source = StoredVectors(session, info, watermark)
-            index = indexes[info.name]
-            index.load_or_rebuild(source, _followable(files.pop(index), pruned))
-        for name, key in keys.items():
-            index = windows[name]
-            found = _followable(files.pop(index), pruned)
-            stored = StoredWindows if verify else _WindowsCountedLater
-            index.load_or_rebuild(stored(session, key, watermark, index), found)
-        found = _followable(catalogue_file, pruned)
-        catalogue.load_or_rebuild(StoredClips(session, watermark), found)
-    if fresh and not any(index.size for index in every):
-        log.info("new library: created its %d empty indexes in %s", len(every), settings.index_dir)
-    return IndexSet(indexes), IndexSet(windows), catalogue
-
-
-class _WindowsCountedLater(StoredWindows):
-    """:class:`StoredWindows` whose count is the index's own: a server's start does not
-    count the windows in the database (see :meth:`Library.check_window_counts`, which its
-    verifier thread runs; files it cannot follow are still rebuilt at once)."""
-
-    def __init__(
-        self, session: Session, key: window_db.WindowKey, watermark: int, index: DescriptorIndex
-    ) -> None:
-        super().__init__(session, key, watermark, index)
-        self._held = index
-
-    def count(self) -> int:
-        return self._held.size
-
-
-def _followable(found: tuple[Any, dict[str, Any]] | str, pruned: int) -> Any:
-    """An index file as read (:meth:`DescriptorIndex.read_file`), or why it cannot be
-    brought up to date from the change feed: saved before the rows the feed keeps (the
-    process was away longer than the retention), it is rebuilt from the database."""
-    if isinstance(found, tuple):
-        position = found[1].get("feed_position")
-        if isinstance(position, int) and position < pruned:
-            return (
-                "the index file is older than the change feed keeps (MOCAP_CHANGE_RETENTION_HOURS)"
-            )
-    return found
-
-
 def open_library(
     settings: Settings, *, describer: Describer | None = None, verify_later: bool = False
 ) -> Library:
@@ -749,7 +618,7 @@ def open_library(
         raise StorageUnavailable(f"cannot open the database: {exc}") from exc
     reads = read_sessions(engine)
     try:
-        indexes, windows, catalogue = _open_indexes(
+        indexes, windows, catalogue = open_caches(
             settings, reads, describer.descriptors, verify=not verify_later
         )
         with reads() as session:

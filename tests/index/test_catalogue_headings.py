@@ -8,7 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from app.index.catalogue import Catalogue, _Base
+from app.index.catalogue import Catalogue
+from app.index.catalogue_base import CatalogueBase
 from tests.index.test_catalogue import entry
 
 
@@ -16,17 +17,17 @@ def test_rows_through_the_table_are_the_binary_searchs() -> None:
     rng = np.random.default_rng(3)
     # Runs without gaps, gaps inside a run, empty runs, an id at a run's very start.
     held = sorted({1, 2, 3, 1023, 1024, 1025, 5000, *rng.integers(6000, 60_000, 300).tolist()})
-    base = _Base.build(entry(i) for i in held)
+    base = CatalogueBase.build(entry(i) for i in held)
     for clip_id in [0, *held, *(i + 1 for i in held), 59_999, 70_000, 1 << 40]:
         assert base.row_of(clip_id) == base.row(clip_id), clip_id
 
 
 def test_sparse_ids_fall_back_to_the_binary_search() -> None:
     held = [5, 1 << 40, (1 << 40) + 7]  # a table would need 2**30 entries
-    base = _Base.build(entry(1)._replace(id=i) for i in held)
+    base = CatalogueBase.build(entry(1)._replace(id=i) for i in held)
     assert base._row_table is None
     assert [base.row_of(i) for i in [5, 6, 1 << 40, (1 << 40) + 7]] == [0, -1, 1, 2]
-    assert _Base.empty().row_of(1) == -1
+    assert CatalogueBase.empty().row_of(1) == -1
 
 
 def test_headings_are_the_entries_fields(tmp_path: Path) -> None:

@@ -24,7 +24,7 @@ from fastapi.testclient import TestClient
 
 from app.config import Settings
 from app.main import create_app
-from app.services import moments
+from app.services import moment_finder
 from app.services.synthetic import fill_synthetic
 from tests.conftest import FIXTURES_DIR
 from tests.hardening.live import stretched_bvh
@@ -69,7 +69,7 @@ def test_a_long_take_at_the_largest_k_is_placed_within_the_bounds(
 ) -> None:
     settings, take_id = library_dir
     blocks: list[int] = []
-    real = moments._blocks
+    real = moment_finder.blocks_within
 
     def counted(weights: Any, budget: int) -> list[slice]:
         """The real blocks, recording the bytes each one weighs."""
@@ -79,7 +79,7 @@ def test_a_long_take_at_the_largest_k_is_placed_within_the_bounds(
         )
         return found
 
-    monkeypatch.setattr(moments, "_blocks", counted)
+    monkeypatch.setattr(moment_finder, "blocks_within", counted)
     with TestClient(create_app(settings)) as client:
         tracemalloc.start()
         try:
@@ -92,7 +92,7 @@ def test_a_long_take_at_the_largest_k_is_placed_within_the_bounds(
     (take,) = [moment for moment in results if moment["id"] == take_id]
     assert take["start"] == pytest.approx(0, abs=1.0)
     assert take["end"] == pytest.approx(TAKE_SECONDS, abs=1.0)
-    assert blocks and max(blocks) <= moments.BLOCK_BYTES, blocks
+    assert blocks and max(blocks) <= moment_finder.BLOCK_BYTES, blocks
     assert peak < PEAK_LIMIT, f"{peak / 2**20:.0f} MB traced during the search"
 
 
@@ -100,8 +100,8 @@ def test_blocks_stay_within_the_budget_and_cover_every_item_once() -> None:
     import numpy as np
 
     weights = np.array([5, 5, 5, 20, 1, 1, 1, 9, 3])
-    found = moments._blocks(weights, 10)
+    found = moment_finder.blocks_within(weights, 10)
     assert [i for block in found for i in range(block.start, block.stop)] == list(range(9))
     for block in found:  # within the budget, or one item heavier than it alone
         assert weights[block].sum() <= 10 or block.stop - block.start == 1
-    assert moments._blocks(np.zeros(0, np.int64), 10) == []
+    assert moment_finder.blocks_within(np.zeros(0, np.int64), 10) == []

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.services.moments import _Candidates, _chosen
+from app.services.moment_finder import PlacedMoments
+from app.services.moments import _chosen
 
 
 @pytest.mark.parametrize("seed", range(20))
@@ -17,7 +18,7 @@ def test_choosing_the_first_k_is_the_start_of_the_whole_list(seed: int) -> None:
     starts = rng.integers(0, 40, count) * 0.25
     spans = rng.choice([1.0, 2.5, 4.0], count)
     # Ties in distance and repeated (clip, start) pairs: the order's tie-breaks matter.
-    found = _Candidates(clips, starts, starts + spans, rng.integers(0, 30, count) * 0.1)
+    found = PlacedMoments(clips, starts, starts + spans, rng.integers(0, 30, count) * 0.1)
     frame_of = {int(c): 1 / 30 for c in np.unique(clips)}
     exclude = (int(clips[0]), 0, 60) if seed % 2 else None
     per_clip = int(rng.integers(1, 4))

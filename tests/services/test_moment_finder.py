@@ -1,4 +1,4 @@
-"""A window's nearest query part (``_Finder._nearest_parts``) for a query of few parts is
+"""A window's nearest query part (``MomentFinder._nearest_parts``) for a query of few parts is
 chosen from the expanded form and measured for that pair only: the very numbers — part and
 distance, to the last digit — of measuring every (part, window) pair from its difference,
 also with windows that copy a part, near ties, a query repeating itself and any scale."""
@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.services.moments import DIRECT_PARTS, _Finder, _pair_distances_of
+from app.services.moment_finder import DIRECT_PARTS, MomentFinder, pair_distances_of
 
 DIMENSION = 135  # the motion descriptor's windows
 
@@ -16,7 +16,7 @@ DIMENSION = 135  # the motion descriptor's windows
 def every_pair(query: np.ndarray, windows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each window's first nearest part and its distance, every pair measured."""
     difference = (query[:, None, :] - windows[None, :, :]).reshape(-1, query.shape[1])
-    every = _pair_distances_of(difference).reshape(len(query), len(windows))
+    every = pair_distances_of(difference).reshape(len(query), len(windows))
     nearest = every.argmin(axis=0)
     return nearest, every[nearest, np.arange(len(windows))]
 
@@ -40,7 +40,7 @@ def test_few_parts_give_every_pairs_numbers(seed: int) -> None:
         copies = rng.integers(0, 400, 100)
         windows[copies] = query[rng.integers(0, parts, 100)].astype(np.float32)
         windows[:50] = query[0] + rng.normal(size=DIMENSION) * scale * 1e-7  # near ties
-        found = _Finder._nearest_of_few_parts(_Query(query), windows)  # type: ignore[arg-type]
+        found = MomentFinder._nearest_of_few_parts(_Query(query), windows)  # type: ignore[arg-type]
         expected = every_pair(query, windows)
         assert np.array_equal(found[0], expected[0])
         assert np.array_equal(found[1], expected[1])
