@@ -76,14 +76,17 @@ def body_axes(motion: Motion, names: tuple[str, ...]) -> tuple[np.ndarray, np.nd
     raise AssertionError("the legs coincide")
 
 
-def posed(motion: Motion, names: tuple[str, ...], posture: str) -> Motion:
-    """``motion`` with every frame turned into ``posture`` (see :data:`POSTURES`): each turn
-    is about the subject's left at that frame, at the canonical joint named, and carries
-    everything below it."""
+def posed(
+    motion: Motion, names: tuple[str, ...], posture: str | tuple[tuple[str, float], ...]
+) -> Motion:
+    """``motion`` with every frame turned into ``posture`` (see :data:`POSTURES`, or its
+    turns themselves): each turn is about the subject's left at that frame, at the canonical
+    joint named, and carries everything below it."""
     left, _ = body_axes(motion, names)
     rotations = motion.local_rotations.copy()
     parents = motion.skeleton.parents
-    for canonical, degrees in POSTURES[posture]:
+    turns = POSTURES[posture] if isinstance(posture, str) else posture
+    for canonical, degrees in turns:
         joint = _at(names, motion, canonical)
         turn = Rotation.from_rotvec(np.radians(degrees) * left).as_matrix()  # (F, 3, 3)
         world, _ = forward_kinematics(
