@@ -277,7 +277,8 @@ def _check_pose(
             f"({names}): a four-legged animal, not a humanoid",
             3,
         )
-    lower, higher = sorted(d / length for d, length in zip(drops, leg_lengths, strict=True))
+    ratios = [d / length for d, length in zip(drops, leg_lengths, strict=True)]
+    lower, higher = sorted(ratios)
     if higher < _LEG_DROP_RATIO or lower < (_LIFTED_FOOT_DROP if lifted else _LEG_DROP_RATIO):
         return None, "no two legs reach down from the pelvis: missing legs", 2
     if float((pose[head] - pose[chest]) @ up) <= 0:
@@ -290,6 +291,5 @@ def _check_pose(
     cost -= 0.1 * float((pose[head] - pose[pelvis]) @ up) / extent
     cost -= 0.5 * (sum(leg_lengths) + sum(arm_lengths)) / extent
     # A foot short of the standing drop (allowed only with ``lifted``) is the lifted one.
-    ratios = [d / length for d, length in zip(drops, leg_lengths, strict=True)]
     raised = feet[int(np.argmin(ratios))] if lower < _LEG_DROP_RATIO else None
     return _Body(head, hands, feet, chest, pelvis, up, cost, raised), "", 4

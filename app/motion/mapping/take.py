@@ -25,6 +25,11 @@ its reason in the body:
   than the pelvis (lying down), while an animal's spine is level with its legs hanging
   below it (:func:`_stands_in_the_world`).
 
+A fourth reading comes last (:func:`map_on_one_leg`): a person **standing on one leg**, the
+other foot lifted up to about the hips (a single pose of a kick, a knee raised, a fighting
+or flying stance), with mirror-image legs and arms shorter than the legs
+(:data:`_ONE_LEG_ARM_TO_LEG`); the lifted leg is mapped as the standing one's mirror image.
+
 One pose can mislead (a leg kicking out, a tumble), so the take votes: the choice read so in
 the most poses, at least half of them, is the body, mapped from the first pose that shows it,
 with a warning. Only the first limb ends of the standing search are read: a pose that does
