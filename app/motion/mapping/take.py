@@ -74,9 +74,9 @@ _LOWER_LEG_OPPOSITE_SPINE = -0.5
 _ARM_TO_LEG = 0.5
 # ...and standing on one leg, at most 0.9 of them: with the other foot off the ground, one
 # pose of a person (a kick, a knee raised) and of a four-legged animal in a gallop look
-# alike, but an animal's fore and hind legs both carry it and are about as long (a fox's
-# 1.0), where a person's arm is shorter than the leg (0.75, Drillis & Contini; cartoon rigs
-# with arms as long as the legs are not read so).
+# alike, but an animal's fore and hind legs both carry it and are about as long (a dog's or
+# a cat's), where a person's arm is shorter than the leg (0.75, Drillis & Contini; cartoon
+# rigs with arms as long as the legs are not read so).
 _ONE_LEG_ARM_TO_LEG = 0.9
 # Where a person's knee and ankle lie along the leg's bones from the pelvis, as shares of
 # the way to the toes: (hip offset 0.1 + thigh 0.245) / (that + shin 0.246 + foot 0.152) =
