@@ -295,7 +295,8 @@ EVERY_RIG = (
     "clavicles left out",
 )
 # Rest-pose probes: human BVH files whose probed copy maps alike, at least (a ratchet).
-RECORDED = {"first frame as rest": 59, "bones in axes of their own": 61}
+# (59 and 61 before a single pose on one leg was read, 2026-11-27.)
+RECORDED = {"first frame as rest": 62, "bones in axes of their own": 62}
 
 
 @pytest.mark.skipif(not FILES, reason="no wild-bvh or wild-more in ../shared/data")

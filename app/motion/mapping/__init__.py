@@ -77,7 +77,10 @@ When neither the rest pose nor any frame offered shows a standing figure (a seat
 or lying take, a pose estimator's first frame taken for rest), the take is read once more as
 a person bent at the hips and knees: lower legs going down the trunk, mirror-image legs, and
 the world's up (the coordinate axis along which both feet rest) showing the trunk upright or
-lying, not a spine level over hanging legs (:mod:`.take`); such a mapping carries a warning.
+lying, not a spine level over hanging legs (:mod:`.take`); last, as a person standing on one
+leg with the other foot lifted (a single pose of a kick or a fighting stance: the legs
+opposite the spine as standing, mirror-image legs, arms shorter than the legs, the lifted
+leg mapped as the standing one's mirror image). Such a mapping carries a warning.
 
 What the tree alone decides (the candidate limb ends, the choices it allows) and, when the
 rest pose shows a standing figure, the whole mapping are kept per skeleton: every clip of a

@@ -19,6 +19,12 @@ _MIN_LEG = 0.15  # a leg chain is at least this long
 _MIN_ARM = 0.15  # an arm chain is at least this long
 # Feet lie below the pelvis by at least this fraction of the leg chain's length.
 _LEG_DROP_RATIO = 0.5
+# ...but when a person stands on one leg (read only when no pose shows two feet down: see
+# :mod:`.skeleton`), the other foot is lifted (a kick, a knee raised, a flying or fighting
+# pose): up to about the height of the hips (a kick level with them points the toes a little
+# above the pelvis), not much higher: a foot a quarter of its leg or more above the pelvis
+# is a high kick's, a cartwheel's or a handstand's, which one pose does not tell apart.
+_LIFTED_FOOT_DROP = -0.25
 # cos of the smallest angle between the spine and the legs of a standing biped (120 deg).
 _LEGS_OPPOSITE_SPINE = -0.5
 
@@ -61,6 +67,8 @@ class _Body:
     pelvis: int
     up: np.ndarray
     cost: float
+    # The foot a body standing on one leg lifts (a leaf of ``feet``), else None.
+    lifted: int | None = None
 
 
 def _structure(tree: _Tree, count: int) -> _Known:
@@ -196,13 +204,16 @@ def _choice(
     return (head, hands, feet, chest, pelvis, leg_lengths, arm_lengths, tuple(cost))
 
 
-def _hypotheses(known: _Known, pose: np.ndarray, extent: float) -> tuple[list[_Body], str]:
+def _hypotheses(
+    known: _Known, pose: np.ndarray, extent: float, lifted: bool = False
+) -> tuple[list[_Body], str]:
     """Every valid head/hands/feet choice in ``pose``, and the best reason a rejected one
-    gave (for the error message)."""
+    gave (for the error message); ``lifted``: one foot may be lifted (see
+    :data:`_LIFTED_FOOT_DROP`)."""
     valid: list[_Body] = []
     reason, best_partial = known.reason, known.progress
     for choice in known.choices:
-        body, why, progress = _check_pose(known.tree, pose, extent, *choice)
+        body, why, progress = _check_pose(known.tree, pose, extent, *choice, lifted=lifted)
         if body is not None:
             valid.append(body)
         elif progress > best_partial:
@@ -244,9 +255,12 @@ def _check_pose(
     leg_lengths: list[float],
     arm_lengths: list[float],
     name_cost: tuple[float, ...],
+    *,
+    lifted: bool = False,
 ) -> tuple[_Body | None, str, int]:
     """The geometric half: a hypothesis if the choice is a humanoid in ``pose``, else (None,
-    why, how far it got)."""
+    why, how far it got); ``lifted``: the body may stand on one foot, the other lifted up to
+    about the height of the hips (:data:`_LIFTED_FOOT_DROP`)."""
     up = trunk_up(pose, extent, head, chest, pelvis)
     if not _length(up) > 0:
         return None, "the spine has no length", 1
@@ -263,7 +277,9 @@ def _check_pose(
             f"({names}): a four-legged animal, not a humanoid",
             3,
         )
-    if min(d / length for d, length in zip(drops, leg_lengths, strict=True)) < _LEG_DROP_RATIO:
+    ratios = [d / length for d, length in zip(drops, leg_lengths, strict=True)]
+    lower, higher = sorted(ratios)
+    if higher < _LEG_DROP_RATIO or lower < (_LIFTED_FOOT_DROP if lifted else _LEG_DROP_RATIO):
         return None, "no two legs reach down from the pelvis: missing legs", 2
     if float((pose[head] - pose[chest]) @ up) <= 0:
         return None, "no head above the arms: missing head", 2
@@ -274,4 +290,6 @@ def _check_pose(
     # the knee is a marker joint, not the foot).
     cost -= 0.1 * float((pose[head] - pose[pelvis]) @ up) / extent
     cost -= 0.5 * (sum(leg_lengths) + sum(arm_lengths)) / extent
-    return _Body(head, hands, feet, chest, pelvis, up, cost), "", 4
+    # A foot short of the standing drop (allowed only with ``lifted``) is the lifted one.
+    raised = feet[int(np.argmin(ratios))] if lower < _LEG_DROP_RATIO else None
+    return _Body(head, hands, feet, chest, pelvis, up, cost, raised), "", 4

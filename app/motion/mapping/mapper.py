@@ -10,7 +10,7 @@ from app.motion.mapping.canonical import CANONICAL_JOINTS, SkeletonMap, detect_f
 from app.motion.mapping.hypotheses import _hypotheses, _Known, _NotHumanoid
 from app.motion.mapping.limbs import _ARM, _LEG, _LimbRules
 from app.motion.mapping.sides import _SideRules
-from app.motion.mapping.state import _HEAD_END_MIN
+from app.motion.mapping.state import _HEAD_END_MIN, _Limb
 from app.motion.mapping.vectors import _length, _unit
 
 # Head/hands/feet choices walked, cheapest first, before giving up on a pose.
@@ -22,14 +22,16 @@ def _map_pose(
     pose: np.ndarray,
     label: str,
     others: Callable[[], list[np.ndarray]] = list,
+    lifted: bool = False,
 ) -> SkeletonMap:
     """The mapping ``pose`` shows (``others``: more poses of the clip, which vote on the
-    sides with it)."""
+    sides with it; ``lifted``: the body may stand on one foot, see
+    :data:`~app.motion.mapping.hypotheses._LIFTED_FOOT_DROP`)."""
     tree = known.tree
     extent = float(np.linalg.norm(np.ptp(pose[tree.body_joints], axis=0)))
     if not extent > 0:
         raise _NotHumanoid("every joint of the pose is at one point: no shape to map")
-    valid, reason = _hypotheses(known, pose, extent)
+    valid, reason = _hypotheses(known, pose, extent, lifted)
     if not valid:
         raise _NotHumanoid(f"not a whole humanoid: {reason}")
     # The cheapest choice whose limbs have knees and elbows (an IK target hanging from the
@@ -54,7 +56,10 @@ class _Mapper(_LimbRules, _SideRules):
         self.derived.append("chest")
         self.map_head()
         self.map_spine()
-        legs = [self.map_leg(f) for f in body.feet]
+        legs = [
+            self.map_leg(f) if f != body.lifted else self.lifted_leg(body.feet, f)
+            for f in body.feet
+        ]
         # Each leg is its own chain from the hip down: a hip at or above the point where the
         # two leg chains part is one limb forking (fingers of one hand), not two legs.
         fork = tree.lca(*body.feet)
@@ -88,6 +93,31 @@ class _Mapper(_LimbRules, _SideRules):
             limbs_open=self.limbs_open,
             warnings=tuple(self.warnings),
         )
+
+    def lifted_leg(self, feet: tuple[int, int], lifted: int) -> _Limb:
+        """The leg ending at ``lifted`` (a foot raised off the ground) as the mirror image of
+        the standing leg, joint for joint by its bones from the pelvis: the rules that find
+        an ankle and a sole read a leg that comes down to the ground, and a kicked leg
+        does not, while the two legs are one leg and its mirror image, bone for bone (checked
+        before this reading: take._mirror_legs)."""
+        tree, pelvis = self.tree, self.body.pelvis
+        standing = self.map_leg(next(f for f in feet if f != lifted))
+        chain = tree.chain(pelvis, lifted)[1:]
+        joints: dict[str, int] = {}
+        how: dict[str, str] = {}
+        for part, joint in standing.joints.items():
+            bones = tree.bones[joint] - tree.bones[pelvis]
+            # Joints at one place (dummies) share a bone count: the same one of the group.
+            group = [j for j in tree.chain(pelvis, joint)[1:] if tree.bones[j] == tree.bones[joint]]
+            same = [j for j in chain if tree.bones[j] - tree.bones[pelvis] == bones]
+            if not same:
+                raise _NotHumanoid(
+                    f"the lifted leg ending at {tree.names[lifted]!r} has no joint where the "
+                    f"standing leg has its {part}"
+                )
+            joints[part] = same[min(len(group), len(same)) - 1]
+            how[part] = f"structure: the standing leg's {part}, mirrored (the leg is lifted)"
+        return _Limb(joints, how)
 
     def map_head(self) -> None:
         tree, body = self.tree, self.body

@@ -1,6 +1,7 @@
 """The public entry: :func:`map_skeleton`, trying the rest pose, then the clip's frames, then
 limb ends held by IK, then the take read as a person bent at the hips and knees (no pose
-standing); what one rig's structure decides is kept per skeleton."""
+standing), then as a person standing on one leg; what one rig's structure decides is kept
+per skeleton."""
 
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ from app.motion.mapping.canonical import SkeletonMap, rest_pose
 from app.motion.mapping.held import _held_ends, _rehung
 from app.motion.mapping.hypotheses import _Known, _NotHumanoid, _structure
 from app.motion.mapping.mapper import _map_pose
-from app.motion.mapping.take import map_take
+from app.motion.mapping.take import map_on_one_leg, map_take
 from app.motion.mapping.tree import _Tree
 from app.motion.model import Skeleton
 
@@ -100,6 +101,13 @@ def _bent_take(
         raise problem
     try:
         return map_take(known, [("rest pose, bent", known.rest), *stream.labelled(_POSES)])
+    except _NotHumanoid:
+        pass
+    # A person at rest stands on both feet: a rest pose on one leg is a pose of the take.
+    try:
+        return map_on_one_leg(
+            known, [("rest pose, on one leg", known.rest), *stream.labelled(_POSES)]
+        )
     except _NotHumanoid:
         raise problem from None
 

@@ -25,6 +25,11 @@ its reason in the body:
   than the pelvis (lying down), while an animal's spine is level with its legs hanging
   below it (:func:`_stands_in_the_world`).
 
+A fourth reading comes last (:func:`map_on_one_leg`): a person **standing on one leg**, the
+other foot lifted up to about the hips (a single pose of a kick, a knee raised, a fighting
+or flying stance), with mirror-image legs and arms shorter than the legs
+(:data:`_ONE_LEG_ARM_TO_LEG`); the lifted leg is mapped as the standing one's mirror image.
+
 One pose can mislead (a leg kicking out, a tumble), so the take votes: the choice read so in
 the most poses, at least half of them, is the body, mapped from the first pose that shows it,
 with a warning. Only the first limb ends of the standing search are read: a pose that does
@@ -37,6 +42,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from functools import partial
 
 import numpy as np
@@ -46,6 +52,7 @@ from app.motion.mapping.hypotheses import (
     _MIN_ARM,
     _MIN_LEG,
     _Body,
+    _check_pose,
     _Choice,
     _Known,
     _NotHumanoid,
@@ -65,6 +72,12 @@ _LOWER_LEG_OPPOSITE_SPINE = -0.5
 # bones (0.1 + 0.44 against 0.1 + 0.53 + 0.1 of the height, Drillis & Contini); under half,
 # the "arms" are face bones or fingers and the "legs" arms.
 _ARM_TO_LEG = 0.5
+# ...and standing on one leg, at most 0.9 of them: with the other foot off the ground, one
+# pose of a person (a kick, a knee raised) and of a four-legged animal in a gallop look
+# alike, but an animal's fore and hind legs both carry it and are about as long (a dog's or
+# a cat's), where a person's arm is shorter than the leg (0.75, Drillis & Contini; cartoon
+# rigs with arms as long as the legs are not read so).
+_ONE_LEG_ARM_TO_LEG = 0.9
 # Where a person's knee and ankle lie along the leg's bones from the pelvis, as shares of
 # the way to the toes: (hip offset 0.1 + thigh 0.245) / (that + shin 0.246 + foot 0.152) =
 # 0.46 and 0.79 (Drillis & Contini); the joint nearest each is taken for it.
@@ -172,6 +185,59 @@ def map_take(known: _Known, poses: list[tuple[str, np.ndarray]]) -> SkeletonMap:
     """The body most of ``poses`` (``(label, (J, 3))``: the rest pose and the frames read)
     show as a person with bent hips and knees (see the module docstring); else _NotHumanoid.
     """
+    return _voted(
+        known,
+        poses,
+        _check_bent,
+        in_the_world=True,
+        how="no pose shows a standing figure: the body was read from {where}, bent at the "
+        "hips and knees (seated, crouching or lying)",
+    )
+
+
+def _check_on_one_leg(
+    tree: _Tree, pose: np.ndarray, extent: float, choice: _Choice
+) -> _Body | None:
+    """``choice`` as a person standing on one leg in ``pose``, the other foot lifted, else
+    None: the standing search's test with one foot lifted (hypotheses._LIFTED_FOOT_DROP),
+    and the bones of a person (mirror-image legs, arms at least half as long: a tail beside a
+    leg, or a creature's feathers for arms, is none; and arms shorter than the legs:
+    :data:`_ONE_LEG_ARM_TO_LEG`)."""
+    _, _, feet, _, pelvis, leg_lengths, arm_lengths, _ = choice
+    if min(arm_lengths) < _ARM_TO_LEG * max(leg_lengths) or not _mirror_legs(tree, pelvis, feet):
+        return None
+    if max(arm_lengths) > _ONE_LEG_ARM_TO_LEG * min(leg_lengths):
+        return None
+    body, _, _ = _check_pose(tree, pose, extent, *choice, lifted=True)
+    return body
+
+
+def map_on_one_leg(known: _Known, poses: list[tuple[str, np.ndarray]]) -> SkeletonMap:
+    """The body most of ``poses`` (``(label, (J, 3))``) show standing on one leg, the other
+    foot lifted (a single pose of a kick, a knee raised, a fighting or flying stance, written
+    as the rest pose or as a one-frame clip); else _NotHumanoid. Read after :func:`map_take`:
+    the take votes as there, so a pose or two of a walking animal do not decide."""
+    return _voted(
+        known,
+        poses,
+        _check_on_one_leg,
+        in_the_world=False,
+        how="no pose shows a figure standing on both feet: the body was read from {where}, "
+        "standing on one leg with the other foot lifted",
+    )
+
+
+def _voted(
+    known: _Known,
+    poses: list[tuple[str, np.ndarray]],
+    check: Callable[[_Tree, np.ndarray, float, _Choice], _Body | None],
+    *,
+    in_the_world: bool,
+    how: str,
+) -> SkeletonMap:
+    """The choice ``check`` finds in the most of ``poses``, at least half of them (and, with
+    ``in_the_world``, a person by the world's vertical: :func:`_stands_in_the_world`), mapped
+    from the first pose showing it, with the warning ``how``; else _NotHumanoid."""
     tree = known.tree
     shown: dict[int, list[tuple[int, _Body, float]]] = {}
     for index, (_, pose) in enumerate(poses):
@@ -179,7 +245,7 @@ def map_take(known: _Known, poses: list[tuple[str, np.ndarray]]) -> SkeletonMap:
         if not extent > 0:
             continue
         for number, choice in enumerate(known.choices):
-            body = _check_bent(tree, pose, extent, choice)
+            body = check(tree, pose, extent, choice)
             if body is not None:
                 shown.setdefault(number, []).append((index, body, extent))
     need = _TAKE_MAJORITY * len(poses)
@@ -188,7 +254,8 @@ def map_take(known: _Known, poses: list[tuple[str, np.ndarray]]) -> SkeletonMap:
         (
             number
             for number, seen in shown.items()
-            if len(seen) >= need and _stands_in_the_world(tree, at, known.choices[number])
+            if len(seen) >= need
+            and (not in_the_world or _stands_in_the_world(tree, at, known.choices[number]))
         ),
         key=lambda number: (-len(shown[number]), sum(b.cost for _, b, _ in shown[number])),
     )
@@ -204,11 +271,6 @@ def map_take(known: _Known, poses: list[tuple[str, np.ndarray]]) -> SkeletonMap:
                 continue
             where = "the rest pose" if label.startswith("rest pose") else label
             return dataclasses.replace(
-                mapping,
-                warnings=(
-                    *mapping.warnings,
-                    "no pose shows a standing figure: the body was read from "
-                    f"{where}, bent at the hips and knees (seated, crouching or lying)",
-                ),
+                mapping, warnings=(*mapping.warnings, how.format(where=where))
             )
     raise problem
