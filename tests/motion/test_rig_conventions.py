@@ -24,6 +24,7 @@ from app.motion.formats.gltf_writer import write_glb
 from app.motion.model import Motion
 from app.motion.pipeline import analyse
 from app.motion.skeleton_map import CANONICAL_JOINTS
+from app.motion.skeleton_names import name_hint
 from tests.motion.conftest import BANDAI_FIXTURE, CMU_BVH_FIXTURE, fixture_bytes
 from tests.motion.industry_rigs import CERTAINTY, RIGS
 from tests.motion.rig_building import (
@@ -138,6 +139,46 @@ def test_industry_rigs_map_to_their_own_joints(rig_name: str) -> None:
     assert not failed, failed
     fixed = [c for c, v in found.items() if v == "ok" and (rig_name, c) in KNOWN_FAILURES]
     assert not fixed, f"{rig_name} {fixed} pass now: take them off KNOWN_FAILURES"
+
+
+# Truth joints whose names say nothing of their part (structure alone finds them): the
+# tools' root or trunk names that are no word for a pelvis or head, and MMD's deforming
+# copies of the leg ("D" bones). A ratchet: every other truth joint's name must say its part
+# and side (app/motion/skeleton_names.py).
+UNREAD_NAMES: dict[str, set[str]] = {
+    "blender_rigify": {"DEF-spine", "DEF-spine.006"},
+    "max_biped": {"Bip01"},
+    "mmd": {"センター", "グルーブ", "腰", "上半身"},
+    "mmd_semi_standard": {
+        "センター",
+        "グルーブ",
+        "腰",
+        "上半身",
+        *(side + bone for side in "左右" for bone in ("足D", "ひざD", "足首D")),
+    },
+    "kinect_v2": {"SpineBase"},
+}
+
+
+def unread_names(rig: Rig) -> set[str]:
+    """The rig's truth joints whose names do not hint their canonical part and side."""
+    unread = set()
+    for canonical, names in rig.truth.items():
+        sided = canonical[:2] in ("l_", "r_")
+        part = canonical[2:] if sided else canonical
+        for name in names:
+            hint = name_hint(name)
+            if part not in hint.parts or (sided and hint.side != canonical[0]):
+                unread.add(name)
+    return unread
+
+
+@pytest.mark.parametrize("rig_name", list(RIGS))
+def test_industry_rig_names_say_their_parts(rig_name: str) -> None:
+    rig = RIGS[rig_name]()
+    if rig_name == "blender_rigify_full":  # its MCH- copies are mechanism, never the joint
+        rig.truth = {c: {n for n in v if not n.startswith("MCH-")} for c, v in rig.truth.items()}
+    assert unread_names(rig) == UNREAD_NAMES.get(rig_name.removesuffix("_full"), set())
 
 
 @pytest.mark.parametrize("rig_name", ["unreal5", "daz_genesis8", "blender_rigify", "mmd"])
