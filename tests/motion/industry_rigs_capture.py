@@ -1,6 +1,6 @@
 """Humanoid rigs of avatar tools, capture systems and body models (issue 20; see
 :mod:`tests.motion.industry_rigs`): VRoid, MMD, Perception Neuron, OptiTrack Motive, Kinect
-v2, ARKit, SMPL-X."""
+v2, ARKit, SMPL-X, Xsens MVN, Rokoko."""
 
 from __future__ import annotations
 
@@ -274,6 +274,59 @@ def smplx() -> Rig:
         r.add(p + "elbow", p + "shoulder", "elbow", "s_fore", side=s, truth="s_elbow")
         r.add(p + "wrist", p + "elbow", "wrist", "s_hand", side=s, truth="s_wrist")
         fingers(r, s, p + "wrist", lambda f, k: None if k == 0 else f"{p}{f}{k}")
+
+    sides(side)
+    return r
+
+
+@rig("sure: Xsens MVN's 23 segments (Pelvis, L5, L3, T12, T8...), as its BVH export writes them")
+def xsens_mvn() -> Rig:
+    r = Rig("xsens_mvn", pose="T", unit=100.0)
+    r.add("Pelvis", None, "pelvis", "pelvis", truth="pelvis")
+    r.add("L5", "Pelvis", "pelvis@chest:0.15", "abdomen")
+    r.add("L3", "L5", "spine", "abdomen")
+    r.add("T12", "L3", "spine@chest:0.5", "abdomen")
+    r.add("T8", "T12", "chest", "chest")
+    r.add("Neck", "T8", "neck", "neck")
+    r.add("Head", "Neck", "head", "head", truth="head")
+
+    def side(s: str, w: str) -> None:
+        p = "Left" if s == "l" else "Right"
+        r.add(p + "Shoulder", "T8", "clav", "s_clav", side=s)
+        r.add(p + "UpperArm", p + "Shoulder", "shoulder", "s_upper", side=s, truth="s_shoulder")
+        r.add(p + "ForeArm", p + "UpperArm", "elbow", "s_fore", side=s, truth="s_elbow")
+        r.add(p + "Hand", p + "ForeArm", "wrist", "s_hand", side=s, truth="s_wrist")
+        r.add(p + "UpperLeg", "Pelvis", "hip", "s_thigh", side=s, truth="s_hip")
+        r.add(p + "LowerLeg", p + "UpperLeg", "knee", "s_shin", side=s, truth="s_knee")
+        r.add(p + "Foot", p + "LowerLeg", "ankle", "s_foot", side=s, truth="s_ankle")
+        r.add(p + "Toe", p + "Foot", "ball", "s_foot", side=s)
+
+    sides(side)
+    return r
+
+
+@rig("fairly sure: Rokoko Studio's BVH names (Thigh/Shin, Spine1..Spine4, ToeEnd)")
+def rokoko() -> Rig:
+    r = Rig("rokoko", pose="T", unit=100.0)
+    r.add("Hips", None, "pelvis", "pelvis", truth="pelvis")
+    parent = "Hips"
+    for i, place in enumerate(["spine", "spine@chest:0.5", "chest", "chest@neck:0.5"], start=1):
+        parent = r.add(f"Spine{i}", parent, place, "abdomen" if i < 3 else "chest")
+    r.add("Neck", "Spine4", "neck", "neck")
+    r.add("Head", "Neck", "head", "head", truth="head")
+
+    def side(s: str, w: str) -> None:
+        p = "Left" if s == "l" else "Right"
+        r.add(p + "Thigh", "Hips", "hip", "s_thigh", side=s, truth="s_hip")
+        r.add(p + "Shin", p + "Thigh", "knee", "s_shin", side=s, truth="s_knee")
+        r.add(p + "Foot", p + "Shin", "ankle", "s_foot", side=s, truth="s_ankle")
+        r.add(p + "Toe", p + "Foot", "ball", "s_foot", side=s)
+        r.add(p + "ToeEnd", p + "Toe", "toe_tip", "s_foot", side=s)
+        r.add(p + "Shoulder", "Spine4", "clav", "s_clav", side=s)
+        r.add(p + "Arm", p + "Shoulder", "shoulder", "s_upper", side=s, truth="s_shoulder")
+        r.add(p + "ForeArm", p + "Arm", "elbow", "s_fore", side=s, truth="s_elbow")
+        r.add(p + "Hand", p + "ForeArm", "wrist", "s_hand", side=s, truth="s_wrist")
+        fingers(r, s, p + "Hand", lambda f, k: None if k == 0 else f"{p}{f.title()}{k}")
 
     sides(side)
     return r
