@@ -189,6 +189,18 @@ def words(name: str) -> list[str]:
     return [w.lower() for w in _WORD.findall(unicodedata.normalize("NFKC", name))]
 
 
+# A trailing "joint" set off by a separator is a tag saying the node is a joint, as "_jnt"
+# is (ARKit's body skeleton names every joint so: ``left_upLeg_joint``, ``hips_joint``);
+# glued to the word before it, it is part of the bone's own name (CMU's ``LHipJoint`` is the
+# bone from the pelvis to the hip, not the hip) and stays.
+_JOINT_TAG = re.compile(r"(?<=\w)[\s_\-.:|]+joint$", re.IGNORECASE)
+
+
+def _name_words(name: str) -> list[str]:
+    """The words of ``name`` that may say what it is: a separated ``joint`` tag dropped."""
+    return words(_JOINT_TAG.sub("", name))
+
+
 def _part_words(all_words: list[str]) -> list[str]:
     """The words that may name a part: numbers and neutral words dropped."""
     return [w for w in all_words if not w.isdecimal() and w not in NEUTRAL_WORDS]
@@ -223,7 +235,7 @@ def _split_side(compact: str) -> list[tuple[str, str]]:
 
 def name_hint(name: str) -> NameHint:
     """The side and body parts ``name`` names (empty when it names none)."""
-    return _read(name)[0] if len(name) <= _CACHED_LENGTH else _hint(words(name))
+    return _read(name)[0] if len(name) <= _CACHED_LENGTH else _hint(_name_words(name))
 
 
 def name_side(name: str) -> str | None:
@@ -234,7 +246,7 @@ def name_side(name: str) -> str | None:
     """
     if len(name) <= _CACHED_LENGTH:
         return _read(name)[1]
-    all_words = words(name)
+    all_words = _name_words(name)
     return _side(all_words, _hint(all_words))
 
 
@@ -244,7 +256,7 @@ _CACHED_LENGTH = 200
 
 @functools.lru_cache(maxsize=4096)
 def _read(name: str) -> tuple[NameHint, str | None]:
-    all_words = words(name)
+    all_words = _name_words(name)
     hint = _hint(all_words)
     return hint, _side(all_words, hint)
 

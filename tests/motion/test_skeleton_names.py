@@ -59,6 +59,11 @@ def test_names_split_into_words(name: str, expected: list[str]) -> None:
         ("左足首", "l", "ankle"),
         ("右つま先", "r", "toe"),
         ("左肩", "l", "clavicle"),
+        # ARKit body: every name tagged "_joint"
+        ("left_upLeg_joint", "l", "hip"),
+        ("right_leg_joint", "r", "knee"),
+        ("left_forearm_joint", "l", "elbow"),
+        ("right_arm_joint", "r", "shoulder"),
     ],
 )
 def test_conventions_name_their_parts(name: str, side: str, part: str) -> None:
@@ -69,10 +74,23 @@ def test_conventions_name_their_parts(name: str, side: str, part: str) -> None:
 
 @pytest.mark.parametrize(
     ("name", "part"),
-    [("首", "neck"), ("頭", "head"), ("neckLower", "neck"), ("Bip01 Head", "head")],
+    [
+        ("首", "neck"),
+        ("頭", "head"),
+        ("neckLower", "neck"),
+        ("Bip01 Head", "head"),
+        ("hips_joint", "pelvis"),
+        ("head_joint", "head"),
+    ],
 )
 def test_unsided_parts(name: str, part: str) -> None:
     assert part in name_hint(name).parts
+
+
+def test_joint_is_a_tag_only_when_set_off() -> None:
+    # CMU's LHipJoint is the bone from the pelvis to the hip: "Joint" glued on stays a word.
+    assert name_hint("LHipJoint").parts == {}
+    assert name_hint("joint").parts == {}
 
 
 @pytest.mark.parametrize(
