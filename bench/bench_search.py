@@ -503,7 +503,10 @@ def main() -> int:
     baseline = None
     if args.baseline is not None:
         baseline = baseline_server(args.baseline, args.data_dir, log, **settings)
-        print(f"baseline {args.baseline}: started in {baseline.startup:.2f} s")
+        print(
+            f"baseline {args.baseline}: started in {baseline.startup:.2f} s, "
+            f"CPU {baseline.startup_cpu:.2f} s"
+        )
     try:
         print(f"load average before the load: {os.getloadavg()[0]:.2f}")
         floors, searches = load_runs(

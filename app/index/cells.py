@@ -19,8 +19,12 @@ the scan's cells for every query measured (300 stored motion vectors at ``nprobe
 effort 24 and more), and its search effort (:func:`effort`) is kept well above ``nprobe``.
 
 The graph is built from the index's centroids in memory (a few MB; ~0.7 s for 4,000 x 135
-on one loaded core, and ~0.2 s more to search every centroid for itself), not stored: it is a
-cache of the index, as the index is of the database.
+on one loaded core, and ~0.2 s more to search every centroid for itself, in every worker at
+every start), and a kept one is stored beside the index file (``<stem>.cells.arrays``,
+:func:`store_graph`): the next start, in any process, reads it back instead
+(:func:`stored_graph`) when it was built from that very file (inode, size, modification time)
+with the same settings and matches its checksum, else builds it again. It is a cache of the
+index, as the index is of the database.
 It is kept only when it measures faster than the scan and finds the same cells for every one
 of :data:`SAMPLES` stored vectors used as queries: for ``kinetic`` (4,000 x 50,
 ``nprobe`` 64) the scan is cheap and the graph, which must then look at 128 candidates, was no
@@ -36,12 +40,17 @@ Shapes: queries ``(Q, D)`` float32; centroids ``(nlist, D)`` float32.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
+from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
 import faiss
 import numpy as np
+
+from app.index.array_file import read_arrays, write_arrays
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +62,7 @@ SAMPLES = 200  # stored vectors timed and compared when deciding whether to keep
 KEEP_BELOW = 0.75  # ... kept when it takes at most this share of the scan's time
 CROWDED = 0.5  # no graph whose search would compare this share of the centroids or more
 QUICK_SCAN = 50e-6  # a scan of the centroids this quick is kept without trying a graph
+CACHE_FORMAT = 1  # of the <index>.cells files (see stored_graph)
 
 
 def effort(nprobe: int) -> int:
@@ -66,20 +76,38 @@ class CellGraph:
     (see the module docstring)."""
 
     def __init__(self, centroids: np.ndarray, nprobe: int) -> None:
-        self.nprobe = nprobe  # the cells a search asks for (those the graph was checked for)
         array = np.ascontiguousarray(centroids, dtype=np.float32)
         graph: Any = faiss.IndexHNSWFlat(int(array.shape[1]), LINKS)
         graph.hnsw.efConstruction = BUILD_EFFORT
         graph.add(array)
+        self._use(graph, nprobe)
+        self.compare_directly(self.unreachable_cells())
+
+    def _use(self, graph: Any, nprobe: int) -> None:
+        self.nprobe = nprobe  # the cells a search asks for (those the graph was checked for)
         self.graph = graph
-        self.count = int(array.shape[0])
-        self.dimension = int(array.shape[1])
+        self.count = int(graph.ntotal)
+        self.dimension = int(graph.d)
         # FAISS only reads the parameters: one object for every search
         self._params: Any = faiss.SearchParametersHNSW()  # type: ignore[attr-defined]
         self._params.efSearch = effort(nprobe)
         self.unreachable = np.empty(0, np.int64)  # (U,) cells each query is compared with
         self._unreachable_centroids = np.empty((0, self.dimension), np.float32)  # (U, D)
-        self.compare_directly(self.unreachable_cells())
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The graph as arrays to store (:meth:`restored` reads them back): FAISS's bytes of
+        the graph ``(B,)`` uint8 and its unreachable cells ``(U,)``."""
+        return {"graph": faiss.serialize_index(self.graph), "unreachable": self.unreachable}
+
+    @classmethod
+    def restored(cls, arrays: Mapping[str, np.ndarray], nprobe: int) -> CellGraph:
+        """The graph :meth:`arrays` gave, for searches of ``nprobe`` cells (those it was
+        checked for), its unreachable cells as found when it was built: the same graph
+        (FAISS's own bytes), so the same cells for every query."""
+        graph = cls.__new__(cls)
+        graph._use(faiss.deserialize_index(np.ascontiguousarray(arrays["graph"])), nprobe)
+        graph.compare_directly(np.asarray(arrays["unreachable"], np.int64))
+        return graph
 
     def unreachable_cells(self) -> np.ndarray:
         """``(U,)`` the cells whose centroid, searched for as a query is, is not among the
@@ -177,6 +205,49 @@ class CellGraph:
                 cells[row, place + 1 :] = cells[row, place:-1]
                 distances[row, place], cells[row, place] = squared, self.unreachable[column]
         return distances, cells
+
+
+def _cache_file(
+    index_file: str, identity: list[int], nprobe: int
+) -> tuple[Path, str, dict[str, Any]]:
+    """Where the graph of the index file ``index_file`` is kept (``<stem>.cells.arrays``
+    beside it) and the stamp it must carry: that very file (``identity``: its inode, size and
+    modification time in ns, taken before it was mapped) and the graph's settings."""
+    path = Path(index_file)
+    stamp = {
+        "format": CACHE_FORMAT,
+        "index_file": list(identity),
+        "nprobe": nprobe,
+        "links": LINKS,
+        "build_effort": BUILD_EFFORT,
+    }
+    return path.parent, f"{path.stem}.cells", stamp
+
+
+def stored_graph(index_file: str, identity: list[int], nprobe: int, index: Any) -> CellGraph | None:
+    """The graph kept beside the IVF ``index`` (mapped from ``index_file``) by an earlier start
+    of any process (:func:`store_graph`), when it was built from that very file for ``nprobe``
+    cells and matches its checksum, else None. Building it again (0.47-0.49 s of CPU for the
+    4,000 x 135 ``motion`` centroids of a 1M-clip library, against 0.006 s to read it back,
+    bench/README.md; in every worker at every start) would give the same graph: the file is
+    a cache of the index, as the index is of the database; a missing or stale one is built
+    again."""
+    directory, stem, stamp = _cache_file(index_file, identity, nprobe)
+    found = read_arrays(directory, stem, stamp)
+    if isinstance(found, str) or not {"graph", "unreachable"} <= found[0].keys():
+        return None
+    graph = CellGraph.restored(found[0], nprobe)
+    if graph.count != int(index.nlist) or graph.dimension != int(index.d):
+        return None
+    return graph
+
+
+def store_graph(index_file: str, identity: list[int], graph: CellGraph) -> None:
+    """Keep ``graph``, found worth having for the index file ``index_file`` (``identity`` as
+    in :func:`stored_graph`), for the next start."""
+    directory, stem, stamp = _cache_file(index_file, identity, graph.nprobe)
+    with contextlib.suppress(OSError):  # a read-only directory: built at every start
+        write_arrays(directory, stem, graph.arrays(), stamp)
 
 
 def _timed(search: Any, queries: np.ndarray, rounds: int = 3) -> tuple[float, list[np.ndarray]]:

@@ -43,7 +43,7 @@ import faiss
 import numpy as np
 
 from app.index.array_file import read_arrays, write_arrays
-from app.index.cells import GRAPH_MIN_CELLS, SAMPLES, CellGraph
+from app.index.cells import GRAPH_MIN_CELLS, SAMPLES, CellGraph, store_graph, stored_graph
 from app.index.kinds import RERANK, SQ8, codes_of, empty_flat, padded
 
 LIST_SHIFT = 32  # a place is list << 32 | offset
@@ -126,6 +126,7 @@ class FrozenIVF:
     ) -> None:
         self.base = base
         self.mapped_from: str | None = None  # the file the base is mapped from (see open)
+        self.file_identity: list[int] | None = None  # ... its inode, size and mtime (ns)
         # Compressed lists: the exact vectors beside them, by id (``exact_ids``, sorted: the
         # file's ids), queries padded to base.d.
         self.exact = exact
@@ -163,6 +164,9 @@ class FrozenIVF:
         """Map the IVF index file at ``path`` (its id hash table, if it has one, dropped);
         ``exact``, ``exact_ids``: its vectors by id, for compressed lists (see the module
         docstring)."""
+        # Before the read: were the file replaced in between, a cache stamped with this
+        # identity would name a file that is gone (see stored_graph), never the new one.
+        info = os.stat(path)
         base = faiss.read_index(path, faiss.IO_FLAG_MMAP_IFC)
         if base.direct_map.type != faiss.DirectMap.NoMap:  # type: ignore[attr-defined]
             base.set_direct_map_type(faiss.DirectMap.NoMap)  # type: ignore[attr-defined]
@@ -170,6 +174,7 @@ class FrozenIVF:
         locator = None if stored else _stored_locator(path, base)
         frozen = cls(base, exact, exact_ids, locator)
         frozen.mapped_from = path
+        frozen.file_identity = [info.st_ino, info.st_size, info.st_mtime_ns]
         frozen._view_codes(os.path.getsize(path))
         return frozen
 
@@ -492,11 +497,20 @@ class FrozenIVF:
         self._cells_started = True
         if int(self.base.nlist) < GRAPH_MIN_CELLS:
             return
+        nprobe = nprobe or self.base_nprobe
+        file, identity = self.mapped_from, self.file_identity
+        # Kept beside the file by an earlier start (app/index/cells.py: a cache of the index)
+        if file is not None and identity is not None:
+            self.cells = stored_graph(file, identity, nprobe, self.base)
+            if self.cells is not None:
+                return
         rng = np.random.default_rng(0)
         sample = np.sort(rng.choice(self.base_ids, min(SAMPLES, self.base_ids.size), False))
         _, samples = self.vectors(sample)
         samples = padded(samples, self.width)
-        self.cells = CellGraph.of(self.base, nprobe or self.base_nprobe, samples)
+        self.cells = CellGraph.of(self.base, nprobe, samples)
+        if self.cells is not None and file is not None and identity is not None:
+            store_graph(file, identity, self.cells)
 
     def scan_cost(self, nprobe: int, *, filtered: bool) -> int:
         """Numbers one search compares (see DescriptorIndex.scan_cost)."""

@@ -140,6 +140,72 @@ def test_the_first_search_builds_the_graph_meanwhile_and_filters_still_probe_eve
     assert set(found[0].tolist()) == set(allowed[np.argsort(exact, kind="stable")[:10]].tolist())
 
 
+def no_graph_built(*_args: Any) -> None:
+    raise AssertionError("the graph was built, not read from its file")
+
+
+def test_a_kept_graph_is_read_back_from_beside_its_index_file_by_the_next_start(
+    index_file: tuple[Path, np.ndarray, np.ndarray], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path, _ids, vectors = index_file
+    monkeypatch.setattr(cells_module, "KEEP_BELOW", float("inf"))
+    first = FrozenIVF.open(str(path))
+    first.build_cells()
+    assert first.cells is not None
+    assert (path.parent / f"{path.stem}.cells.arrays").is_file()
+    with monkeypatch.context() as patch:
+        patch.setattr(cells_module.CellGraph, "of", no_graph_built)
+        again = FrozenIVF.open(str(path))
+        again.build_cells()
+    assert again.cells is not None
+    assert np.array_equal(again.cells.unreachable, first.cells.unreachable)
+    queries = vectors[:100]
+    for one, other in zip(first.cells.nearest(queries), again.cells.nearest(queries), strict=True):
+        assert np.array_equal(one, other)
+    nprobe = first.base_nprobe
+    assert np.array_equal(
+        again.search(queries[:5], 11, nprobe=nprobe)[1],
+        first.search(queries[:5], 11, nprobe=nprobe)[1],
+    )
+
+
+def test_a_graph_file_of_another_index_file_or_damaged_is_built_again(
+    index_file: tuple[Path, np.ndarray, np.ndarray], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path, ids, vectors = index_file
+    monkeypatch.setattr(cells_module, "KEEP_BELOW", float("inf"))
+    FrozenIVF.open(str(path)).build_cells()
+    cache = path.parent / f"{path.stem}.cells.arrays"
+    damaged = bytearray(cache.read_bytes())
+    damaged[len(damaged) // 2] ^= 0xFF
+    cache.write_bytes(bytes(damaged))
+    built = []
+    real_of = cells_module.CellGraph.of
+
+    def counted(*args: Any) -> Any:
+        built.append(1)
+        return real_of(*args)
+
+    monkeypatch.setattr(cells_module.CellGraph, "of", counted)
+    frozen = FrozenIVF.open(str(path))
+    frozen.build_cells()
+    assert built == [1] and frozen.cells is not None  # the checksum refused it
+    # The index file written again (a reindex: new centroids): the old graph is not used.
+    index = DescriptorIndex(
+        "motion", DIMENSION, 1, path.parent, options=IndexOptions("ivf", nlist=CELLS)
+    )
+    index.replace_all(ids, vectors[::-1].copy(), persist=True)
+    rebuilt = FrozenIVF.open(str(index.path))
+    rebuilt.build_cells()
+    assert built == [1, 1] and rebuilt.cells is not None
+    scan = without_graph(index.path)
+    query = vectors[:1]
+    nprobe = rebuilt.base_nprobe
+    assert np.array_equal(
+        rebuilt.search(query, 11, nprobe=nprobe)[1], scan.search(query, 11, nprobe=nprobe)[1]
+    )
+
+
 # The graph's own cells against a scan of the centroids, on a real IVF index of
 # GRAPH_MIN_CELLS cells: k-means over clustered vectors, as a library's cells are trained.
 
