@@ -11,7 +11,9 @@ Subcommands register themselves with :func:`command`; adding one is a function
         ...
 
 Every subcommand takes ``--data-dir`` and ``--database-url``; any other setting comes from its
-``MOCAP_*`` environment variable.
+``MOCAP_*`` environment variable. A command whose options and report are long lives in a module
+of its own, imported when it runs (``import``: :mod:`app.cli_import`; ``eval``:
+:mod:`app.evaluation.cli`); the progress bar is :mod:`app.cli_progress`.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
+from app.cli_progress import ProgressBar
 from app.config import Settings
 from app.errors import MocapError
 
@@ -172,7 +175,7 @@ def _reindex(args: argparse.Namespace, settings: Settings) -> int:
     from app.services.reindex import reindex
 
     show = sys.stderr.isatty() if args.progress is None else args.progress
-    bar = _ProgressBar("reindexing")
+    bar = ProgressBar("reindexing")
 
     def progress(done: int, total: int, clip: Any) -> None:
         bar.total = total
@@ -212,129 +215,9 @@ def _eval(args: argparse.Namespace, settings: Settings) -> int:
 
 
 def _configure_import(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "paths", nargs="+", type=Path, metavar="PATH", help="folders (walked) or clip files"
-    )
-    parser.add_argument(
-        "--workers",
-        type=int,
-        help="worker processes (default: one per core, MOCAP_IMPORT_WORKERS)",
-    )
-    parser.add_argument(
-        "--batch-size",
-        type=int,
-        default=64,
-        help="clips per database transaction and index update (default 64)",
-    )
-    parser.add_argument(
-        "--labels-tsv",
-        type=Path,
-        metavar="FILE",
-        help="TSV with a header row: clip key (file stem), then one column per label kind; "
-        "columns named 'source' and 'licence' give those fields instead",
-    )
-    parser.add_argument(
-        "--label-columns",
-        action="append",
-        metavar="COLUMN[,COLUMN...]",
-        help="the --labels-tsv columns to use as labels (default: every column except those "
-        "holding free text: a value over 40 characters or 3 words, like a description)",
-    )
-    parser.add_argument(
-        "--labels-regex",
-        metavar="REGEX",
-        help="regular expression with named groups over each clip's path relative to the "
-        r"folder given, e.g. 'dataset-1_(?P<content>[^_]+)_(?P<style>[^_]+)_\d+' "
-        "(JavaScript's (?<content>...) works too)",
-    )
-    parser.add_argument(
-        "--label",
-        action="append",
-        default=[],
-        metavar="LABEL",
-        help="a label for every imported clip (repeat for more)",
-    )
-    parser.add_argument(
-        "--source",
-        metavar="TEXT",
-        help="where the clips come from (a URL, a dataset), for every clip whose --labels-tsv "
-        "row gives none; a duplicate gets it too",
-    )
-    parser.add_argument(
-        "--licence",
-        "--license",
-        dest="licence",
-        metavar="TEXT",
-        help="the clips' licence (e.g. 'CC BY 4.0'), for every clip whose --labels-tsv row "
-        "gives none; a duplicate gets it too",
-    )
-    parser.add_argument(
-        "--strict",
-        action="store_true",
-        help="exit with 1 when any file failed, also one an earlier run already reported as "
-        "refused (default: only new failures make the exit status 1)",
-    )
-    progress = parser.add_mutually_exclusive_group()
-    progress.add_argument(
-        "--progress",
-        dest="progress",
-        action="store_true",
-        default=None,
-        help="show a progress bar (default: when stderr is a terminal)",
-    )
-    progress.add_argument("--no-progress", dest="progress", action="store_false")
-    parser.add_argument(
-        "--verbose", "-v", action="store_true", help="list every clip, not only the failures"
-    )
+    from app.cli_import import configure_import
 
-
-class _ProgressBar:
-    """A rich progress bar (clips, clips/s, elapsed, ETA) on stderr, started on the first
-    update — after the worker processes are forked, as it runs a thread."""
-
-    def __init__(self, doing: str = "importing") -> None:
-        self._doing = doing
-        self._progress: Any = None
-        self._task: Any = None
-        self.total = 0
-
-    def start(self, found: int, workers: int) -> None:
-        self.total = found
-
-    def update(self, report: Any) -> None:
-        self.set_done(report.done)
-
-    def set_done(self, done: int) -> None:
-        if self._progress is None:
-            from rich.console import Console
-            from rich.progress import (
-                BarColumn,
-                MofNCompleteColumn,
-                Progress,
-                TextColumn,
-                TimeElapsedColumn,
-                TimeRemainingColumn,
-            )
-
-            self._progress = Progress(
-                TextColumn(self._doing),
-                BarColumn(),
-                MofNCompleteColumn(),
-                TextColumn("{task.fields[rate]}"),
-                TimeElapsedColumn(),
-                TextColumn("ETA"),
-                TimeRemainingColumn(),
-                console=Console(stderr=True),
-            )
-            self._progress.start()
-            self._task = self._progress.add_task("import", total=self.total, rate="")
-        task = self._progress.tasks[0]
-        rate = f"{task.speed:.0f} clips/s" if task.speed else ""
-        self._progress.update(self._task, completed=done, rate=rate)
-
-    def stop(self) -> None:
-        if self._progress is not None:
-            self._progress.stop()
+    configure_import(parser)
 
 
 @command(
@@ -343,78 +226,9 @@ class _ProgressBar:
     configure=_configure_import,
 )
 def _import(args: argparse.Namespace, settings: Settings) -> int:
-    from app.importer import LabelRules, run_import
+    from app.cli_import import run_import_command
 
-    rules = LabelRules.build(
-        tsv=args.labels_tsv,
-        regex=args.labels_regex,
-        fixed=args.label,
-        columns=args.label_columns,
-        source=args.source,
-        licence=args.licence,
-    )
-    if rules.left_out:
-        print(
-            f"mocap-index: labels file columns left out (free text): {', '.join(rules.left_out)}; "
-            "choose columns with --label-columns",
-            file=sys.stderr,
-        )
-    if args.workers is not None and args.workers < 1:
-        print("mocap-index: --workers must be at least 1", file=sys.stderr)
-        return 2
-    show = sys.stderr.isatty() if args.progress is None else args.progress
-    bar = _ProgressBar()
-    try:
-        report = run_import(
-            settings,
-            args.paths,
-            labels=rules,
-            workers=args.workers,
-            batch_size=args.batch_size,
-            progress=bar.update if show else None,
-            on_start=bar.start,
-        )
-    finally:
-        bar.stop()
-    if args.verbose:
-        for clip in report.imported:
-            paired = f" (skeleton {clip.skeleton})" if clip.skeleton else ""
-            print(f"imported  {clip.path} as clip {clip.clip_id}{paired}")
-        for dup in report.duplicates:
-            news = "; given new labels, source or licence" if dup.updated else ""
-            print(
-                f"duplicate {dup.path}: same content as clip {dup.clip_id} {dup.clip_name!r}{news}"
-            )
-    for skeleton, count in sorted(report.skeletons().items()):
-        print(f"skeleton {skeleton} used for {count} .amc clip{'s' if count != 1 else ''}")
-    if report.failed:
-        print("failed:")
-        for failure in sorted(report.failed, key=lambda f: str(f.path)):
-            before = " (refused before)" if failure.path in report.known_refusals else ""
-            print(f"  {failure.path}: {failure.reason}{before}")
-    rate = report.done / report.seconds if report.seconds else 0.0
-    updated = sum(d.updated for d in report.duplicates)
-    known = len(report.known_refusals)
-    print(
-        f"{'interrupted: ' if report.interrupted else ''}"
-        f"imported {len(report.imported)}, skipped {len(report.duplicates)} as duplicates"
-        f"{f' ({updated} given new labels, source or licence)' if updated else ''}, "
-        f"failed {len(report.failed)}{f' ({known} refused before)' if known else ''} "
-        f"of {report.found} clips found, in {report.seconds:.2f} s "
-        f"({rate:.0f} clips/s, {report.workers} worker{'s' if report.workers != 1 else ''})"
-    )
-    if report.interrupted:
-        print("run the same command again to finish the import", file=sys.stderr)
-        return 130
-    return import_status(report, strict=args.strict)
-
-
-def import_status(report: Any, *, strict: bool) -> int:
-    """``import``'s exit status: 1 when a clip failed that no earlier run reported (any
-    failure with ``strict``), else 0 — re-running an import over files known to be
-    unreadable is not an error."""
-    failures = report.failed if strict else report.new_failures
-    return 1 if failures else 0
+    return run_import_command(args, settings)
 
 
 # -- fill-synthetic ------------------------------------------------------------------------
@@ -565,7 +379,7 @@ def _export(args: argparse.Namespace, settings: Settings) -> int:
         format=args.format, units=args.units, fps=args.fps, root=args.root, rig=args.rig
     )
     show = sys.stderr.isatty() if args.progress is None else args.progress
-    bar = _ProgressBar("exporting")
+    bar = ProgressBar("exporting")
     library = open_library(settings)
     failed = written = 0
     try:

@@ -40,7 +40,7 @@ from common import machine, shared_data  # bench/common.py (scripts run from ben
 
 from app.config import Settings
 from app.db import vectors as vector_db
-from app.services import library_map
+from app.services import library_map, map_geometry
 from app.services.library import open_library
 
 # No windows (the map does not read them); the 8-9 requests at once come from one address, so
@@ -86,15 +86,15 @@ def in_process(data_dir: Path) -> tuple[float, float]:
     )
     rng = np.random.default_rng(0)
     sample = vectors[rng.choice(n, min(n, SAMPLE), replace=False)]
-    limit = library_map.EXACT_NEIGHBOURS_UP_TO
-    library_map.EXACT_NEIGHBOURS_UP_TO = n + 1  # the code before: all pairs, always
+    limit = map_geometry.EXACT_NEIGHBOURS_UP_TO
+    map_geometry.EXACT_NEIGHBOURS_UP_TO = n + 1  # the code before: all pairs, always
     try:
         _, _, old_cpu = timed(
             f"exact all-pairs isolation of {len(sample)} (the code before)",
-            lambda: library_map.isolation_scores(sample),
+            lambda: map_geometry.isolation_scores(sample),
         )
     finally:
-        library_map.EXACT_NEIGHBOURS_UP_TO = limit
+        map_geometry.EXACT_NEIGHBOURS_UP_TO = limit
     scaled = old_cpu * (n / len(sample)) ** 2
     print(
         f"  the code before on all {n}: about {scaled:.0f} s CPU (x (N/{len(sample)})^2); "

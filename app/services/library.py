@@ -9,14 +9,16 @@ Several processes may write to one database at once (``mocap-index serve`` repli
 machine or several, and ``mocap-index import``). Each keeps its indexes in memory and follows
 the database, the source of truth, through its change feed (:mod:`app.db.changes`: a row per
 clip added or deleted, written by triggers): :meth:`Library.sync_indexes` applies the clips
-changed since it last looked. The writes of this process call it after their commit; searches
-call :meth:`Library.refresh`, which looks at most every ``MOCAP_INDEX_REFRESH_SECONDS``, so
-clips another process stores or deletes are found, or no longer found, without a restart. On
-PostgreSQL the feed also catches a clip whose transaction commits after one with a larger id.
+changed since it last looked (:mod:`app.services.library_sync`). The writes of this process
+call it after their commit; searches call :meth:`Library.refresh`, which looks at most every
+``MOCAP_INDEX_REFRESH_SECONDS``, so clips another process stores or deletes are found, or no
+longer found, without a restart. On PostgreSQL the feed also catches a clip whose
+transaction commits after one with a larger id.
 
 The window indexes of moments search (one per windowed descriptor and window length, ids =
 window ids of ``clip_windows``) are loaded, rebuilt and kept up to date the same way, from the
-same feed: a clip's windows come and go with it.
+same feed: a clip's windows come and go with it; where each window lies (the places) is
+loaded and saved by :mod:`app.services.library_places`.
 """
 
 from __future__ import annotations
@@ -38,18 +40,16 @@ from app.config import Settings
 from app.db import clips as clip_db
 from app.db import vectors as vector_db
 from app.db import windows as window_db
-from app.db.changes import ChangeFeed, horizon, prune, pruned_before, read_since
+from app.db.changes import ChangeFeed, horizon, prune
 from app.db.entries import ClipEntry, clip_entries
 from app.db.migrate import upgrade
 from app.db.session import create_db_engine, read_sessions, write_sessions
 from app.errors import DescriptorOutdated, InvalidInput, StorageUnavailable
-from app.index.array_file import read_arrays, write_arrays
 from app.index.catalogue import Catalogue
 from app.index.index_set import IndexSet
 from app.index.neighbour_scale import NeighbourScales
-from app.index.places import Places, WindowPlaces
+from app.index.places import WindowPlaces
 from app.index.sources import (
-    touched_windows,
     windows_of_clips,
 )
 from app.motion.descriptors import DEFAULT_DESCRIPTOR
@@ -61,11 +61,12 @@ from app.services.describe import (
 )
 from app.services.export_pool import ExportPool
 from app.services.library_caches import open_caches, window_keys
+from app.services.library_places import load_places, save_places
+from app.services.library_sync import DataVersion, sync_with_feed
 from app.services.parser_pool import ParserPool
 
 log = logging.getLogger(__name__)
 
-PLACES_FORMAT = 1  # the layout of a window index's places file
 # While a descriptor has outdated vectors, how often a search recounts them.
 OUTDATED_RECOUNT_SECONDS = 5.0
 
@@ -122,7 +123,8 @@ class Library:
     edits: int = 0
     # Each index's typical neighbour distances: the similarity of search results.
     scales: NeighbourScales = field(default_factory=NeighbourScales, repr=False)
-    _sync_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+    # Held while the caches follow the feed or are refilled (library_sync takes it too).
+    sync_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
     # Checks the checksums of the files mapped unchecked at start (verify_files).
     verifier: threading.Thread | None = field(default=None, repr=False)
     _refresher: threading.Thread | None = field(default=None, repr=False)
@@ -131,7 +133,8 @@ class Library:
     # Descriptor -> stored vectors of an older version, and when that was last counted.
     _outdated: dict[str, int] = field(default_factory=dict, repr=False)
     _outdated_at: float = field(default=0.0, repr=False)
-    _feed: ChangeFeed = field(init=False, repr=False)
+    # How far along the change feed the caches are (library_sync moves it).
+    feed: ChangeFeed = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         self.window_places = {
@@ -139,7 +142,7 @@ class Library:
         }
         # Every index is at least this far along the feed (they were loaded from one snapshot).
         positions = [i.synced_to for i in self.indexes.values()] + [self.catalogue.synced_to]
-        self._feed = ChangeFeed(min(positions))
+        self.feed = ChangeFeed(min(positions))
 
     @property
     def descriptors(self) -> Mapping[str, DescriptorInfo]:
@@ -193,14 +196,14 @@ class Library:
     def rebuild_index(self, name: str) -> None:
         """Refill one index from the database (the source of truth) and save it."""
         info = self.descriptors[name]
-        with self._sync_lock, self.reads() as session:
+        with self.sync_lock, self.reads() as session:
             position = horizon(session)  # before the vectors: nothing older is missed
             ids, vectors = vector_db.load_vectors(session, info.name, info.version, info.dimension)
             self.indexes[name].replace_all(ids, vectors, synced_to=position)
 
     def rebuild_window_indexes(self, names: Collection[str] | None = None) -> None:
         """Refill every window index (or those ``names``) from the database and save it."""
-        with self._sync_lock, self.reads() as session:
+        with self.sync_lock, self.reads() as session:
             position = horizon(session)  # before the vectors: nothing older is missed
             for name, key in self.window_keys.items():
                 if names is not None and name not in names:
@@ -208,7 +211,7 @@ class Library:
                 ids, vectors = window_db.load_windows(session, key)
                 self.window_indexes[name].replace_all(ids, vectors, synced_to=position)
                 if self.window_places[name].loaded:
-                    self._load_places(session, name)
+                    load_places(self, session, name)
 
     def clip_entry(self, clip_id: int) -> ClipEntry | None:
         """What a search shows of clip ``clip_id``: from the catalogue, or — a clip another
@@ -222,7 +225,7 @@ class Library:
     def rebuild_catalogue(self) -> None:
         """Refill the catalogue from the database and save it (after a bulk load that went
         around the feed's readers, like ``fill-synthetic``)."""
-        with self._sync_lock, self.reads() as session:
+        with self.sync_lock, self.reads() as session:
             position = horizon(session)  # before the rows: nothing older is missed
             self.catalogue.replace_all(clip_entries(session), synced_to=position)
 
@@ -260,15 +263,15 @@ class Library:
             # Counted without the sync lock (a start's loading of the places waits for it):
             # the counts hold if the indexes followed no change meanwhile.
             with self.reads() as session:
-                seen = self._feed.position
-                if self._feed.poll(session).clip_ids.size:
+                seen = self.feed.position
+                if self.feed.poll(session).clip_ids.size:
                     continue  # changed meanwhile: sync again
                 counts = {
                     name: window_db.count_windows(session, key)
                     for name, key in self.window_keys.items()
                 }
             sizes = {name: self.window_indexes[name].size for name in counts}
-            if self._feed.position != seen:
+            if self.feed.position != seen:
                 continue
             wrong = [name for name in counts if counts[name] != sizes[name]]
             if wrong and not self._stopping.is_set():
@@ -294,9 +297,9 @@ class Library:
         first asked for; then kept up to date with the index)."""
         places = self.window_places[name]
         if not places.loaded:
-            with self._sync_lock, self.reads() as session:
+            with self.sync_lock, self.reads() as session:
                 if not places.loaded:
-                    self._load_places(session, name)
+                    load_places(self, session, name)
         return places
 
     def load_window_places(self) -> None:
@@ -307,128 +310,11 @@ class Library:
             self.places(name)
             self.window_indexes[name].sorted_ids()
 
-    def _load_places(self, session: Session, name: str) -> None:
-        """From the places file when it can be used (mapped: shared by the server's
-        processes), with the clips changed since it was written read again; else from the
-        database, then saved. Changes after the indexes' feed position are applied again at
-        the next sync (a clip's windows as a whole), so any later state is fine here."""
-        places = self.window_places[name]
-        found = read_arrays(self.settings.index_dir, f"{name}.places", {"format": PLACES_FORMAT})
-        if not isinstance(found, str):
-            arrays, meta = found
-            loaded = Places(arrays["ids"], arrays["starts"], arrays["stops"])
-            position = int(meta.get("feed_position", -1))
-            # A file older than the feed keeps cannot be brought up to date from it.
-            followable = pruned_before(session) <= position <= horizon(session)
-            if len(loaded) == meta.get("count") and followable:
-                changed = read_since(session, position)[1]
-                clips = np.unique(np.fromiter((r.clip_id for r in changed), np.int64))
-                places.replace_all(loaded)
-                if clips.size:
-                    key = self.window_keys[name]
-                    found_rows = window_db.window_places_of_clips(session, key, clips.tolist())
-                    places.apply_changes(clips, Places(*found_rows))
-                if len(places) == self.window_indexes[name].size:
-                    return
-                log.warning(
-                    "the %s places hold %d windows, the index %d: reading them again",
-                    name,
-                    len(places),
-                    self.window_indexes[name].size,
-                )
-        position = horizon(session)  # before the rows: nothing older is missed
-        places.replace_all(Places(*window_db.load_window_places(session, self.window_keys[name])))
-        self._save_places(name, position)
-
-    def _save_places(self, name: str, position: int) -> None:
-        held = self.window_places[name].held
-        try:
-            write_arrays(
-                self.settings.index_dir,
-                f"{name}.places",
-                {"ids": held.ids, "starts": held.starts, "stops": held.stops},
-                {"format": PLACES_FORMAT, "count": len(held), "feed_position": position},
-            )
-        except OSError as exc:
-            log.warning("could not save the %s places (%s); read again at next start", name, exc)
-
     def sync_indexes(self, *, wait: bool = True) -> bool:
         """Apply to the indexes the clips added or deleted since they last looked (by this
         process or another one). With ``wait=False`` it returns False at once when another
         thread is syncing (that thread brings the indexes up to date)."""
-        if not self._sync_lock.acquire(blocking=wait):
-            return False
-        try:
-            with self.reads() as session:
-                if self._feed.position < pruned_before(session):
-                    self._rebuild_all(session)  # away longer than the feed keeps its rows
-                    return True
-                poll = self._feed.poll(session)
-                changed = poll.clip_ids
-                if not changed.size:  # the usual poll: nothing to look up or lock
-                    for index in (*self.indexes.values(), *self.window_indexes.values()):
-                        index.mark_synced(poll.position)
-                    self.catalogue.mark_synced(poll.position)
-                    self._feed.advance(poll)
-                    return True
-                # The catalogue first: a hit an index finds always has its display data.
-                self._sync_catalogue(session, changed, poll.position)
-                for name, info in self.descriptors.items():
-                    index = self.indexes[name]
-                    ids, vectors = vector_db.load_vectors_of(
-                        session, info.name, info.version, info.dimension, changed.tolist()
-                    )
-                    try:
-                        index.apply_changes(changed, ids, vectors, synced_to=poll.position)
-                    except Exception:
-                        # The rows are committed; the index is only a cache of them.
-                        log.exception("updating the %s index failed; rebuilding it", name)
-                        position = horizon(session)
-                        everything = vector_db.load_vectors(
-                            session, info.name, info.version, info.dimension
-                        )
-                        index.replace_all(*everything, synced_to=position, persist=False)
-                        index.try_save()
-                self._sync_windows(session, changed, poll.position)
-                self._feed.advance(poll)
-        finally:
-            self._sync_lock.release()
-        return True
-
-    def _sync_catalogue(self, session: Session, changed: np.ndarray, position: int) -> None:
-        """The catalogue follows the same feed: a changed clip's entry is replaced by what the
-        database holds now (none when it was deleted)."""
-        try:
-            entries = {e.id: e for e in clip_entries(session, changed.tolist())}
-            self.catalogue.apply_changes(changed, entries, synced_to=position)
-        except Exception:
-            log.exception("updating the catalogue failed; rebuilding it")
-            now = horizon(session)
-            self.catalogue.replace_all(clip_entries(session), synced_to=now, persist=False)
-            self.catalogue.try_save()
-
-    def _rebuild_all(self, session: Session) -> None:
-        """Refill every index from the database and follow the feed from now on (the caller
-        holds the sync lock): the change rows this process had not read yet were pruned."""
-        position = horizon(session)  # before the vectors: nothing older is missed
-        log.warning(
-            "the change feed no longer holds the changes since this process last looked "
-            "(away longer than MOCAP_CHANGE_RETENTION_HOURS): rebuilding the indexes"
-        )
-        # The catalogue first: a hit an index finds always has its display data.
-        self.catalogue.replace_all(clip_entries(session), synced_to=position, persist=False)
-        self.catalogue.try_save()
-        for name, info in self.descriptors.items():
-            everything = vector_db.load_vectors(session, info.name, info.version, info.dimension)
-            self.indexes[name].replace_all(*everything, synced_to=position, persist=False)
-            self.indexes[name].try_save()
-        for name, key in self.window_keys.items():
-            everything = window_db.load_windows(session, key)
-            self.window_indexes[name].replace_all(*everything, synced_to=position, persist=False)
-            self.window_indexes[name].try_save()
-            if self.window_places[name].loaded:
-                self._load_places(session, name)
-        self._feed = ChangeFeed(position)
+        return sync_with_feed(self, wait=wait)
 
     def prune_changes(self) -> int:
         """Delete the change rows older than ``MOCAP_CHANGE_RETENTION_HOURS`` (and record
@@ -455,28 +341,6 @@ class Library:
                     return
 
         threading.Thread(target=run, name="mocap-housekeeping", daemon=True).start()
-
-    def _sync_windows(self, session: Session, changed: np.ndarray, position: int) -> None:
-        """The window indexes follow the same feed: a changed clip's windows are replaced
-        by those the database holds now (none when it was deleted)."""
-        for name, key in self.window_keys.items():
-            index = self.window_indexes[name]
-            try:
-                ids, vectors = window_db.load_windows_of_clips(session, key, changed.tolist())
-                touched = touched_windows(index, changed, ids)
-                index.apply_changes(touched, ids, vectors, synced_to=position)
-                places = self.window_places[name]
-                if places.loaded and changed.size:
-                    found = window_db.window_places_of_clips(session, key, changed.tolist())
-                    places.apply_changes(changed, Places(*found))
-            except Exception:
-                log.exception("updating the %s index failed; rebuilding it", name)
-                now = horizon(session)  # not ``position``: the other indexes keep the poll's
-                everything = window_db.load_windows(session, key)
-                index.replace_all(*everything, synced_to=now, persist=False)
-                index.try_save()
-                if self.window_places[name].loaded:
-                    self._load_places(session, name)
 
     def refresh(self) -> None:
         """Keep the indexes up to date with the database, within
@@ -506,7 +370,7 @@ class Library:
             log.warning("could not check the database for changed clips: %s", exc)
 
     def _refresh_loop(self, interval: float) -> None:
-        watch = _DataVersion(self.engine)
+        watch = DataVersion(self.engine)
         try:
             while True:
                 if watch.changed():
@@ -532,7 +396,7 @@ class Library:
         self.catalogue.flush()
         for name, places in self.window_places.items():
             if places.loaded and places.changed:
-                self._save_places(name, self._feed.position)
+                save_places(self, name, self.feed.position)
 
     def vector_counts(self) -> tuple[int, dict[str, int]]:
         """The number of clips and, per descriptor, of current vectors (one snapshot)."""
@@ -561,37 +425,6 @@ class Library:
                 self.parsers.close()
             if self.exporters is not None:
                 self.exporters.close()
-
-
-class _DataVersion:
-    """Whether a SQLite database may have changed since last asked: ``PRAGMA data_version``
-    on a connection of its own moves when another connection commits (no file read), so the
-    refresher polls the feed only then — ten times a second a session and two statements
-    cost an idle server a few per cent of a core. Other databases: always maybe."""
-
-    def __init__(self, engine: Engine) -> None:
-        self._connection: sqlite3.Connection | None = None
-        self._seen: int | None = None
-        path = engine.url.database if engine.dialect.name == "sqlite" else None
-        if path:
-            try:
-                self._connection = sqlite3.connect(path, check_same_thread=False)
-            except sqlite3.Error:
-                self._connection = None
-
-    def changed(self) -> bool:
-        if self._connection is None:
-            return True
-        try:
-            version = int(self._connection.execute("PRAGMA data_version").fetchone()[0])
-        except sqlite3.Error:
-            return True
-        changed, self._seen = version != self._seen, version
-        return changed
-
-    def close(self) -> None:
-        if self._connection is not None:
-            self._connection.close()
 
 
 def open_library(

@@ -1,6 +1,6 @@
-"""The map at scale: neighbours from a random-projection forest beyond the exact limit, and
-one layout computation per change of the library (single flight; a slow one in the
-background while the last layout is served). ``bench/bench_map.py`` times 100,000 clips.
+"""The map at scale: one layout computation per change of the library (single flight; a slow
+one in the background while the last layout is served). ``bench/bench_map.py`` times 100,000
+clips; the random-projection forest's neighbours are tested in test_map_geometry.py.
 
 The layouts are computed from vectors stored in a real SQLite file through the real app
 (``GET /map``); the vectors are chosen by the test (the fake motion core)."""
@@ -11,60 +11,14 @@ import threading
 from collections.abc import Iterator
 from typing import Any
 
-import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
 from app.config import Settings
 from app.services import library_map
-from app.services.library_map import (
-    LibraryMap,
-    forest_neighbours,
-    isolation_scores,
-    modified_z_scores,
-)
+from app.services.library_map import LibraryMap
 from tests.services.fakes import FakeDescriber, fake_motion
 from tests.ui.conftest import ui_app
-
-
-def clustered(n: int, dimension: int, seed: int) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    centres = rng.normal(scale=10.0, size=(40, dimension))
-    return centres[rng.integers(0, 40, n)] + rng.normal(size=(n, dimension))
-
-
-def exact_isolation(data: np.ndarray, k: int = 5) -> np.ndarray:
-    """Mean distance to the k nearest others, all pairs (for comparison)."""
-    squared = (data**2).sum(axis=1)
-    d2 = np.maximum(squared[:, None] + squared[None, :] - 2 * data @ data.T, 0)
-    np.fill_diagonal(d2, np.inf)
-    return np.sqrt(np.sort(d2, axis=1)[:, :k]).mean(axis=1)
-
-
-def test_the_forest_finds_nearly_every_nearest_neighbour() -> None:
-    data = clustered(3000, 20, seed=1)
-    far = np.random.default_rng(2).normal(scale=60.0, size=(6, 20))
-    data = np.vstack([data, far])
-    exact = exact_isolation(data)
-    found = np.sqrt(forest_neighbours(data, 5)).mean(axis=1)
-    assert np.all(found >= exact * (1 - 1e-4))  # what is missed only makes a score larger
-    relative = (found - exact) / exact
-    assert np.median(relative) < 0.01 and np.mean(relative < 0.05) > 0.9
-    # The isolated vectors stand out either way; the flags mostly agree.
-    flagged = modified_z_scores(found) > library_map.OUTLIER_Z
-    truly = modified_z_scores(exact) > library_map.OUTLIER_Z
-    assert flagged[-6:].all() and truly[-6:].all()
-    assert (flagged & truly).sum() >= 0.8 * (flagged | truly).sum()
-
-
-def test_isolation_beyond_the_exact_limit_comes_from_the_forest(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    data = clustered(600, 8, seed=3)
-    monkeypatch.setattr(library_map, "EXACT_NEIGHBOURS_UP_TO", 500)
-    scores = isolation_scores(data)
-    np.testing.assert_allclose(scores, np.sqrt(forest_neighbours(data, 5)).mean(axis=1))
-    assert np.median(scores / exact_isolation(data) - 1) < 0.01
 
 
 @pytest.fixture

@@ -7,21 +7,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
-from sklearn.decomposition import PCA
 
 from app.motion.descriptors.kinetic import three_man
 from app.motion.formats import read_asf_amc, read_bvh
 from app.motion.model import Motion
 from app.motion.pipeline import analyse
 from app.services import library_map
-from app.services.library_map import (
-    isolation_scores,
-    modified_z_scores,
-    pca_2d,
-    robust_outliers,
-    three_man_from_kinetic,
-    three_man_many,
-)
+from app.services.map_geometry import pca_2d, three_man_from_kinetic, three_man_many
 from tests.conftest import SharedData, shared_data_dir
 from tests.services.fakes import fake_motion
 from tests.ui.conftest import upload_bvh
@@ -70,71 +62,6 @@ def test_three_man_from_kinetic_on_whole_real_clips(
     shared_data: SharedData, files: tuple[str, ...]
 ) -> None:
     check_three_man([shared_data(f) for f in files])
-
-
-def test_three_man_from_kinetic_refuses_other_vectors() -> None:
-    with pytest.raises(ValueError, match="50 numbers"):
-        three_man_from_kinetic(np.zeros(12))
-    zero = three_man_from_kinetic(np.zeros(50))
-    np.testing.assert_array_equal(zero, [0.0, 0.0, 0.0])  # no motion: no energy, ratio 1
-
-
-def test_pca_2d_matches_scikit_learn_up_to_sign() -> None:
-    rng = np.random.default_rng(3)
-    data = rng.normal(size=(200, 6)) @ rng.normal(size=(6, 6)) + 5.0
-    ours = pca_2d(data)
-    reference = PCA(n_components=2).fit(data)
-    theirs = reference.transform(data)
-    for k in range(2):
-        sign = np.sign(np.dot(ours.points[:, k], theirs[:, k]))
-        np.testing.assert_allclose(ours.points[:, k], sign * theirs[:, k], atol=1e-8)
-    np.testing.assert_allclose(ours.explained, reference.explained_variance_ratio_, rtol=1e-8)
-    # Deterministic signs: the same data gives the same map.
-    np.testing.assert_array_equal(pca_2d(data).points, ours.points)
-    assert pca_2d(data[:1]).points.tolist() == [[0.0, 0.0]]
-
-
-def test_robust_outliers_marks_only_the_far_clip() -> None:
-    rng = np.random.default_rng(4)
-    cluster = rng.normal(size=(40, 5))
-    far = np.full((1, 5), 20.0)
-    flags = robust_outliers(np.vstack([cluster, far]))
-    assert flags.tolist() == [False] * 40 + [True]
-    assert not robust_outliers(cluster[:2]).any()  # too few clips to tell
-    assert not robust_outliers(np.ones((10, 3))).any()  # all alike
-
-
-def test_a_whole_minority_class_is_no_outlier() -> None:
-    # 60 walks and 15 dashes far from them: the dashes are a class, not odd clips.
-    rng = np.random.default_rng(5)
-    walks = rng.normal(size=(60, 4))
-    dashes = rng.normal(size=(15, 4)) + 30.0
-    odd = np.array([[15.0, -15.0, 15.0, -15.0]])
-    flags = robust_outliers(np.vstack([walks, dashes, odd]))
-    assert flags.tolist() == [False] * 75 + [True]
-
-
-def test_isolation_scores_are_exact_over_blocks() -> None:
-    rng = np.random.default_rng(6)
-    data = rng.normal(size=(2100, 3))  # 4e6 / 2100 -> blocks of 1904 rows: two blocks
-    got = isolation_scores(data, k=3)
-    pick = [0, 1, 1903, 1904, 2099]
-    for i in pick:
-        distances = np.sort(np.linalg.norm(data - data[i], axis=1))[1:4]
-        assert got[i] == pytest.approx(distances.mean(), rel=1e-9)
-    assert isolation_scores(data[:1]).tolist() == [0.0]
-    assert isolation_scores(data[:2], k=5).tolist() == pytest.approx(
-        [np.linalg.norm(data[0] - data[1])] * 2
-    )
-
-
-def test_modified_z_scores() -> None:
-    values = np.array([1.0, 2.0, 3.0, 4.0, 100.0])
-    median, mad = 3.0, 1.0
-    np.testing.assert_allclose(modified_z_scores(values), 0.6745 * (values - median) / mad)
-    flat = np.array([1.0, 1.0, 1.0, 1.0, 5.0])  # MAD 0: mean absolute deviation instead
-    np.testing.assert_allclose(modified_z_scores(flat)[-1], 4.0 / (1.253314 * 0.8))
-    assert modified_z_scores(np.ones(4)).tolist() == [0.0] * 4
 
 
 POINTS: dict[str, list[float]] = {
