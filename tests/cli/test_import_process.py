@@ -91,7 +91,9 @@ def processes_mentioning(text: str) -> list[int]:
 def test_stopped_half_way_then_run_again(
     stop: signal.Signals, tmp_path: Path, fixtures_dir: Path
 ) -> None:
-    total = 160  # enough batches of 8 to stop between; the rerun imports the rest
+    # Enough batches of 8 to stop between, the rerun importing the rest: the import runs ~200
+    # clips a second, so with 160 a loaded machine could let it finish before the signal.
+    total = 400
     unique_copies(fixtures_dir / FIXTURE, tmp_path / "clips", total)
     data_dir = tmp_path / "data"
     command = import_command(
