@@ -162,6 +162,12 @@ def main() -> None:
     parser.add_argument(
         "--rig", action="append", help="only these rigs (by the start of their name)"
     )
+    parser.add_argument(
+        "--dump",
+        type=Path,
+        help="save every clip's name and vector and every re-upload's vector to this .npz "
+        "(to break the round trip's distances down afterwards)",
+    )
     args = parser.parse_args()
     print(f"machine: {machine()}")
     pool = ParserPool(1)
@@ -170,6 +176,10 @@ def main() -> None:
         clips = load_clips(pool, args.limit, args.seconds)
         vectors = np.stack([c.vector for c in clips])
         print(f"{len(clips)} clips described in {time.perf_counter() - started:.0f} s")
+        dumped: dict[str, np.ndarray] = {
+            "names": np.array([c.name for c in clips]),
+            "vectors": vectors,
+        }
         apart = np.linalg.norm(vectors[:, None] - vectors[None], axis=2)
         np.fill_diagonal(apart, np.inf)
         identical = apart.min(axis=1) <= 1e-6 * np.linalg.norm(vectors, axis=1)
@@ -194,6 +204,7 @@ def main() -> None:
             tied: list[bool] = []
             qualities: list[RetargetQuality] = []
             failures: list[str] = []
+            uploads = np.full_like(vectors, np.nan)
             for index, clip in enumerate(clips):
                 try:
                     out = retarget(clip.motion, clip.mapping, rig, rig_map)
@@ -205,6 +216,7 @@ def main() -> None:
                     twin.append(False)
                     tied.append(False)
                     continue
+                uploads[index] = vector
                 distances = np.linalg.norm(vectors - vector, axis=1)
                 nearest = int(np.argmin(distances))
                 found.append(nearest == index)
@@ -225,6 +237,9 @@ def main() -> None:
             )
             for failure in failures:
                 print(f"  failed: {failure}", file=sys.stderr)
+            if args.dump:
+                dumped[f"rig: {rig_name}"] = uploads
+                np.savez_compressed(args.dump, **dumped)  # per rig: a stopped run keeps some
     finally:
         pool.close()
 
