@@ -1,6 +1,7 @@
 """Retarget quality and round trip on rigs from the development data (issue 22).
 
-    .venv/bin/python bench/eval_retarget.py [--limit N]     # uses ../shared/data
+    .venv/bin/python bench/eval_retarget.py [--limit N] [--dump FILE.npz]   # ../shared/data
+    .venv/bin/python bench/eval_retarget.py generalise [--round-trip FILE.npz]
 
 Every clip of ``../shared/data`` the service accepts (BVH, ASF/AMC, FBX, glTF; the longest
 animation of a file; cut to its first 20 s, ``--seconds``, so the sweep fits an hour on a
