@@ -1,6 +1,7 @@
 """Retarget quality and round trip on rigs from the development data (issue 22).
 
-    .venv/bin/python bench/eval_retarget.py [--limit N]     # uses ../shared/data
+    .venv/bin/python bench/eval_retarget.py [--limit N] [--dump FILE.npz]   # ../shared/data
+    .venv/bin/python bench/eval_retarget.py generalise [--round-trip FILE.npz]
 
 Every clip of ``../shared/data`` the service accepts (BVH, ASF/AMC, FBX, glTF; the longest
 animation of a file; cut to its first 20 s, ``--seconds``, so the sweep fits an hour on a
@@ -27,6 +28,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -162,6 +164,12 @@ def main() -> None:
     parser.add_argument(
         "--rig", action="append", help="only these rigs (by the start of their name)"
     )
+    parser.add_argument(
+        "--dump",
+        type=Path,
+        help="save every clip's name and vector and every re-upload's vector to this .npz "
+        "(to break the round trip's distances down afterwards)",
+    )
     args = parser.parse_args()
     print(f"machine: {machine()}")
     pool = ParserPool(1)
@@ -170,6 +178,10 @@ def main() -> None:
         clips = load_clips(pool, args.limit, args.seconds)
         vectors = np.stack([c.vector for c in clips])
         print(f"{len(clips)} clips described in {time.perf_counter() - started:.0f} s")
+        dumped: dict[str, np.ndarray] = {
+            "names": np.array([c.name for c in clips]),
+            "vectors": vectors,
+        }
         apart = np.linalg.norm(vectors[:, None] - vectors[None], axis=2)
         np.fill_diagonal(apart, np.inf)
         identical = apart.min(axis=1) <= 1e-6 * np.linalg.norm(vectors, axis=1)
@@ -194,6 +206,7 @@ def main() -> None:
             tied: list[bool] = []
             qualities: list[RetargetQuality] = []
             failures: list[str] = []
+            uploads = np.full_like(vectors, np.nan)
             for index, clip in enumerate(clips):
                 try:
                     out = retarget(clip.motion, clip.mapping, rig, rig_map)
@@ -205,6 +218,7 @@ def main() -> None:
                     twin.append(False)
                     tied.append(False)
                     continue
+                uploads[index] = vector
                 distances = np.linalg.norm(vectors - vector, axis=1)
                 nearest = int(np.argmin(distances))
                 found.append(nearest == index)
@@ -225,6 +239,9 @@ def main() -> None:
             )
             for failure in failures:
                 print(f"  failed: {failure}", file=sys.stderr)
+            if args.dump:
+                dumped[f"rig: {rig_name}"] = uploads
+                np.savez_compressed(args.dump, **dumped)  # per rig: a stopped run keeps some
     finally:
         pool.close()
 
@@ -279,7 +296,14 @@ def generalise(argv: list[str]) -> None:
     parser.add_argument("--seconds", type=float, default=8.0, help="clips cut to this")
     parser.add_argument("--rigs", type=int, help="only the first N distinct rigs")
     parser.add_argument("--failures", action="store_true", help="list failing pairs (stderr)")
+    parser.add_argument(
+        "--round-trip",
+        type=Path,
+        help="a `--dump` of the seven-rig sweep (same --seconds): also write each retarget as "
+        "BVH, read it back and look it up among that sweep's library, as the table does",
+    )
     args = parser.parse_args(argv)
+    library = np.load(args.round_trip) if args.round_trip else None
     print(f"machine: {machine()}")
     started = time.perf_counter()
     pool = ParserPool(1)
@@ -305,6 +329,8 @@ def generalise(argv: list[str]) -> None:
         f"{time.perf_counter() - started:.0f} s"
     )
     passed: dict[str, list[list[bool]]] = {}
+    # Per kind of rig: the round trip found, or a twin, or tied (as in the seven-rig table).
+    trips: dict[str, list[tuple[bool, bool, bool]]] = {}
     unmapped: dict[str, int] = {}
     for index, (name, rig, rig_map) in enumerate(rigs):
         candidates: list[tuple[str, Draft | None]] = [("as read", None)]
@@ -316,6 +342,7 @@ def generalise(argv: list[str]) -> None:
                 unmapped[kind] = unmapped.get(kind, 0) + 1
                 continue
             for clip_name, motion, mapping, lead_in in clips:
+                out: Motion | None = None
                 try:
                     out = retarget(motion, mapping, target, target_map)
                     q = retarget_quality(motion, mapping, out, target_map, skip=lead_in)
@@ -332,6 +359,9 @@ def generalise(argv: list[str]) -> None:
                     q = error  # type: ignore[assignment]
                 bars.append(all(bars))
                 passed.setdefault(kind, []).append(bars)
+                if library is not None:
+                    trip = (False,) * 3 if out is None else round_trip(library, clip_name, out)
+                    trips.setdefault(kind, []).append(trip)
                 if args.failures and not bars[-1]:
                     print(f"  {kind} | {name} | {clip_name}: {q}", file=sys.stderr)
         print(
@@ -356,7 +386,38 @@ def generalise(argv: list[str]) -> None:
         + " | ".join(f"{s:.1f} %" for s in share)
         + " |"
     )
+    if trips:
+        print("| rig | pairs | round trip: source nearest (or twin; or tied) |")
+        print("|---|---|---|")
+        for kind, found in [*trips.items(), ("every variant", every_trip(trips))]:
+            share = np.mean(np.array(found, dtype=float), axis=0) * 100
+            print(
+                f"| {kind} | {len(found)} | {share[0]:.1f} % ({share[1]:.1f} %; {share[2]:.1f} %) |"
+            )
     print(f"{time.perf_counter() - started:.0f} s in all; machine: {machine()}")
+
+
+def round_trip(library: Any, name: str, out: Motion) -> tuple[bool, bool, bool]:
+    """Whether ``out`` (``name`` retargeted), written as BVH and read back, has ``name`` as
+    its nearest clip in a ``--dump``'s library, or a twin of it, or a tie with it; a
+    re-upload the service refuses is a miss."""
+    names = [str(n) for n in library["names"]]
+    vectors = library["vectors"]
+    try:
+        vector = analyse(read_bvh(write_bvh(out)), descriptors=["motion"]).descriptors["motion"]
+    except MocapError:
+        return (False, False, False)
+    index = names.index(name)
+    distances = np.linalg.norm(vectors - vector, axis=1)
+    nearest = int(np.argmin(distances))
+    twin = capture(names[nearest]) == capture(name)
+    tie = bool(distances[index] <= distances[nearest] * (1 + 1e-9))
+    return (nearest == index, twin, twin or tie)
+
+
+def every_trip(trips: dict[str, list[tuple[bool, bool, bool]]]) -> list[tuple[bool, bool, bool]]:
+    """The round trips of every rewrite (not the rigs as read)."""
+    return [t for kind, found in trips.items() if kind != "as read" for t in found]
 
 
 if __name__ == "__main__":

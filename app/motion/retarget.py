@@ -66,8 +66,11 @@ limb directions stay within the quality bar (:mod:`app.motion.retarget_feet`).
 
 **Swinging feet clear the floor.** A foot long for its leg (a toe tip where the source has
 the ball of its foot) points its toe lower than the source's when it swings toe-down; where
-the source's toe is off the floor and the target's is lower, the foot is pitched up about
-the ankle until the toe is as high as the source's (then the pelvis goes back on the floor).
+the source's toe is off the floor and the target's is not, the foot is pitched up about the
+ankle until the toe is off the floor too (then the pelvis goes back on the floor). Only that
+far, not to the source toe's height: on a foot long for its leg that took a 30-50 degree
+pitch at every toe-off, an ankle motion the source does not have
+(:func:`~app.motion.retarget_floor.clear_swinging_toes`).
 
 A capture with left-handed geometry (``SkeletonMap.mirrored``) is first reflected as the
 describer reflects it, so left stays left.

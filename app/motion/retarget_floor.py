@@ -164,14 +164,21 @@ def clear_swinging_toes(
 ) -> bool:
     """Pitch each foot up about its ankle (``local`` ``(F, J, 3, 3)`` changed in place)
     at frames where the source's toe is off the floor (``near`` or more above the lowest any
-    source foot point gets) but the target's toe is lower than the source's: on a foot
-    longer for its leg than the source's (a toe tip against a ball of the foot), the same
-    foot direction puts the toe of a swinging foot on the floor, where it skims. The toe is
-    raised to the source toe's height (or as near as the foot reaches); the foot keeps its
-    heading. ``kinematics`` gives the legs' joints' world rotations and positions for the
-    current ``local``; ``source_feet`` ``(F, P, 3)`` are the source's foot points (scaled,
-    target axes, :data:`FOOT_POINTS` order) at the target's heights. Returns whether
-    anything changed."""
+    source foot point gets) but the target's toe is not: on a foot longer for its leg than
+    the source's (a toe tip against a ball of the foot), the same foot direction puts the
+    toe of a swinging foot on the floor, where it skims. The toe is raised until it is off
+    the floor too (``near`` above it, or the source toe's height if that is lower; as near
+    as the foot reaches); the foot keeps its heading. ``kinematics`` gives the legs' joints'
+    world rotations and positions for the current ``local``; ``source_feet`` ``(F, P, 3)``
+    are the source's foot points (scaled, target axes, :data:`FOOT_POINTS` order) at the
+    target's heights. Returns whether anything changed.
+
+    Until 2026-11-27 the toe was raised to the source toe's height: the source's clearance,
+    which on a foot long for its leg took a 30-50 degree pitch coming in within one frame at
+    every toe-off (the rig's foot then points nearly straight down). ``kinetic``'s ankle
+    terms, the energy a re-upload is described by, doubled: walks and runs retargeted onto
+    the Mixamo and Xsens rigs were 0.6-1.0 from their source, about two thirds of it the
+    ankles (docs/export.md, "The round trip's misses")."""
     source_floor = float((source_feet @ up).min())
     changed = False
     for side in ("l", "r"):
@@ -180,13 +187,15 @@ def clear_swinging_toes(
         if ankle == toe or (not between(parents, ankle, toe) and parents[toe] != ankle):
             continue
         rot, pos = kinematics([ankle, toe, int(parents[ankle])])
-        wanted = source_feet[:, FOOT_POINTS.index(CANONICAL_INDEX[f"{side}_toe"])] @ up
+        source_toe = source_feet[:, FOOT_POINTS.index(CANONICAL_INDEX[f"{side}_toe"])] @ up
+        # Off the floor as the contact bands define it, not as high as the source's toe.
+        wanted = np.minimum(source_toe, source_floor + near)
         bone = pos[toe] - pos[ankle]  # (F, 3)
         length = np.linalg.norm(bone, axis=1)
         flat = bone - (bone @ up)[:, None] * up
         flat_length = np.linalg.norm(flat, axis=1)
         low = (
-            (wanted - source_floor >= near)
+            (source_toe - source_floor >= near)
             & (pos[toe] @ up < wanted)
             & (flat_length > 1e-6 * np.maximum(length, _TINY))
         )
