@@ -44,7 +44,9 @@ class _Tree:
         # A bone shorter than the mapper's "same place" is no bone: a file that went through
         # another tool (an FBX export's float rounding) keeps a joint that sat on its parent
         # a hair away from it, and must map as the original did.
-        extent = float(np.linalg.norm(np.ptp(rest_pose(skeleton), axis=0))) if count else 0.0
+        self.rest = rest_pose(skeleton)  # (J, 3)
+        extent = float(np.linalg.norm(np.ptp(self.rest, axis=0))) if count else 0.0
+        self.extent = extent
         self.lengths[self.lengths <= COINCIDENT * extent] = 0.0
         # An End Site exactly as long as the bone it ends is a tail a writer invented for a
         # leaf *joint* (Blender gives a leaf bone its parent's length and exports that tail
@@ -249,24 +251,77 @@ def contradicted_names(parents: np.ndarray, hints: list[NameHint]) -> int:
     return count
 
 
-def _extremity_candidates(tree: _Tree, count: int = 8) -> list[int]:
+def _extremity_candidates(tree: _Tree, count: int = 8, copies_last: bool = False) -> list[int]:
     """Up to ``count`` leaves, each the farthest (along bones) from those before.
 
     Only leaves at least :data:`_MIN_LIMB_BONES` bones of non-zero length below the root
     count: a limb has at least a thigh and a shin (its hip may sit at the pelvis itself); an
     IK target or prop hanging from the root by one bone does not.
+
+    With ``copies_last`` (when the plain choice showed no humanoid), a rig exported with
+    copies of its limbs (control and deform chains on the same places) is read as one body:
+    leaves at one place in the rest pose are one end, taken by the copy nearest along the
+    bones to the ends chosen before (the copy of the same body), and a leaf where another
+    branch's joint carries on (a control chain stopping at the wrist of a hand with fingers)
+    is a copy of a joint, not an end: such leaves come only after every other.
     """
-    leaves = np.array(tree.limb_leaves or tree.leaves)
-    chosen = [int(leaves[int(np.argmax(tree.path[leaves]))])]
-    nearest = tree.geodesic(chosen[0])
-    while len(chosen) < min(count, len(leaves)):
-        gaps = nearest[leaves]
-        best = int(np.argmax(gaps))
-        if gaps[best] <= 0:
-            break
-        chosen.append(int(leaves[best]))
-        nearest = np.minimum(nearest, tree.geodesic(chosen[-1]))
+    leaves = tree.limb_leaves or tree.leaves
+    if not copies_last:
+        return _farthest_leaves(tree, [leaves], count, {})
+    twins, stopped = _rest_copies(tree, leaves)
+    ends = [j for j in leaves if j not in stopped]
+    return _farthest_leaves(tree, [ends, [j for j in leaves if j in stopped]], count, twins)
+
+
+def _farthest_leaves(
+    tree: _Tree, tiers: list[list[int]], count: int, twins: dict[int, list[int]]
+) -> list[int]:
+    """Greedy farthest leaves of ``tiers`` in turn (a later tier only once an earlier one
+    has no leaf left apart from the chosen); a chosen leaf's ``twins`` are taken with it."""
+    chosen: list[int] = []
+    taken: set[int] = set()
+    nearest = np.full(len(tree.names), np.inf)
+    for tier in tiers:
+        while len(chosen) < count:
+            pool = np.array([j for j in tier if j not in taken], dtype=np.int64)
+            if not len(pool):
+                break
+            if chosen:
+                gaps = nearest[pool]
+                best = int(pool[int(np.argmax(gaps))])
+                if nearest[best] <= 0:
+                    break
+            else:
+                best = int(pool[int(np.argmax(tree.path[pool]))])
+            group = [best, *twins.get(best, [])]
+            # Of copies at one place, the one of the body already chosen: nearest to it.
+            pick = min(group, key=lambda j: (nearest[j], j)) if chosen else min(group)
+            chosen.append(pick)
+            taken.update(group)
+            nearest = np.minimum(nearest, tree.geodesic(pick))
     return chosen
+
+
+def _rest_copies(tree: _Tree, leaves: list[int]) -> tuple[dict[int, list[int]], set[int]]:
+    """Of ``leaves``: each one's twins (other leaves at its place in the rest pose), and
+    those at the place of a joint of another branch that carries on (no leaf)."""
+    same = COINCIDENT * tree.extent
+    rest = tree.rest
+    twins: dict[int, list[int]] = {}
+    stopped: set[int] = set()
+    inner = np.array(
+        [j for j in range(len(tree.names)) if tree.children[j] and not tree.void[j]],
+        dtype=np.int64,
+    )
+    for leaf in leaves:
+        others = [j for j in leaves if j != leaf and np.linalg.norm(rest[j] - rest[leaf]) <= same]
+        if others:
+            twins[leaf] = others
+        if len(inner):
+            close = inner[np.linalg.norm(rest[inner] - rest[leaf], axis=1) <= same]
+            if any(not tree.is_ancestor(int(j), leaf) for j in close):
+                stopped.add(leaf)
+    return twins, stopped
 
 
 def _is_thumb(name: str) -> bool:
