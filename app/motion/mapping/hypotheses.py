@@ -71,10 +71,10 @@ class _Body:
     lifted: int | None = None
 
 
-def _structure(tree: _Tree, count: int, copies_last: bool = False) -> _Known:
+def _structure(tree: _Tree, count: int) -> _Known:
     """Every head/hands/feet choice among up to ``count`` candidate leaves that the tree
     allows, and the best reason a rejected one gave (for the error message)."""
-    candidates = _extremity_candidates(tree, count, copies_last)
+    candidates = _extremity_candidates(tree, count)
     found = ", ".join(tree.names[c] for c in candidates)
     if len(candidates) < 5:
         reason = (

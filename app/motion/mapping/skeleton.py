@@ -242,7 +242,7 @@ def _known(skeleton: Skeleton, candidates: int) -> _Known:
             "every OFFSET is 0: the skeleton has no shape to map "
             f"({skeleton.joint_count} joints collapse to one point)"
         )
-    known = _structure(tree, candidates, copies_last=candidates > _CANDIDATES)
+    known = _structure(tree, candidates)
     known.rest = rest
     try:
         known.rest_result = _map_pose(known, rest, "rest pose")
