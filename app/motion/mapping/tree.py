@@ -44,7 +44,9 @@ class _Tree:
         # A bone shorter than the mapper's "same place" is no bone: a file that went through
         # another tool (an FBX export's float rounding) keeps a joint that sat on its parent
         # a hair away from it, and must map as the original did.
-        extent = float(np.linalg.norm(np.ptp(rest_pose(skeleton), axis=0))) if count else 0.0
+        self.rest = rest_pose(skeleton)  # (J, 3)
+        extent = float(np.linalg.norm(np.ptp(self.rest, axis=0))) if count else 0.0
+        self.extent = extent
         self.lengths[self.lengths <= COINCIDENT * extent] = 0.0
         # An End Site exactly as long as the bone it ends is a tail a writer invented for a
         # leaf *joint* (Blender gives a leaf bone its parent's length and exports that tail
@@ -249,24 +251,124 @@ def contradicted_names(parents: np.ndarray, hints: list[NameHint]) -> int:
     return count
 
 
-def _extremity_candidates(tree: _Tree, count: int = 8) -> list[int]:
+def _extremity_candidates(tree: _Tree, count: int = 8, copies_last: bool = True) -> list[int]:
     """Up to ``count`` leaves, each the farthest (along bones) from those before.
 
     Only leaves at least :data:`_MIN_LIMB_BONES` bones of non-zero length below the root
     count: a limb has at least a thigh and a shin (its hip may sit at the pelvis itself); an
     IK target or prop hanging from the root by one bone does not.
+
+    Copies are one end (``copies_last``; off only to show what they crowd out): a rig
+    exported with copies of its limbs (control and deform chains on the same places, a whole
+    Rigify export) and chains of one shape in a bundle (hair strands, a skirt's pleats) are
+    each read as one end, or the farthest-leaf choice fills with them and keeps the body's
+    own ends out. Of leaves at one place in the rest pose, or of one bundle
+    (:func:`_strands`), the one nearest along the bones to the ends chosen before (the copy
+    of the same body) is taken and the others not; a leaf where another branch's joint
+    carries on (a control chain stopping at the wrist of a hand with fingers) is a copy of a
+    joint, not an end, and comes only after every other leaf.
     """
-    leaves = np.array(tree.limb_leaves or tree.leaves)
-    chosen = [int(leaves[int(np.argmax(tree.path[leaves]))])]
-    nearest = tree.geodesic(chosen[0])
-    while len(chosen) < min(count, len(leaves)):
-        gaps = nearest[leaves]
-        best = int(np.argmax(gaps))
-        if gaps[best] <= 0:
-            break
-        chosen.append(int(leaves[best]))
-        nearest = np.minimum(nearest, tree.geodesic(chosen[-1]))
+    leaves = tree.limb_leaves or tree.leaves
+    if not copies_last:
+        return _farthest_leaves(tree, [leaves], count, {})
+    twins, stopped = _rest_copies(tree, leaves)
+    ends = [j for j in leaves if j not in stopped]
+    return _farthest_leaves(tree, [ends, [j for j in leaves if j in stopped]], count, twins)
+
+
+def _farthest_leaves(
+    tree: _Tree, tiers: list[list[int]], count: int, twins: dict[int, list[int]]
+) -> list[int]:
+    """Greedy farthest leaves of ``tiers`` in turn (a later tier only once an earlier one
+    has no leaf left apart from the chosen); a chosen leaf's ``twins`` are taken with it."""
+    chosen: list[int] = []
+    taken: set[int] = set()
+    nearest = np.full(len(tree.names), np.inf)
+    for tier in tiers:
+        while len(chosen) < count:
+            pool = np.array([j for j in tier if j not in taken], dtype=np.int64)
+            if not len(pool):
+                break
+            if chosen:
+                gaps = nearest[pool]
+                best = int(pool[int(np.argmax(gaps))])
+                if nearest[best] <= 0:
+                    break
+            else:
+                best = int(pool[int(np.argmax(tree.path[pool]))])
+            group = [best, *twins.get(best, [])]
+            # Of copies at one place, the one of the body already chosen: nearest to it.
+            pick = min(group, key=lambda j: (nearest[j], j)) if chosen else min(group)
+            chosen.append(pick)
+            taken.update(group)
+            nearest = np.minimum(nearest, tree.geodesic(pick))
     return chosen
+
+
+# Chains of one shape hanging from one joint that make a bundle, not limbs: a body hangs at
+# most two limbs of one shape (a pair) from a joint.
+_BUNDLE = 3
+# Bones of its own below a chain's first that give it a shape: a single one is often a tail
+# an exporter writes alike on every leaf (a head top's and the eyes' End Sites).
+_SHAPE_BONES = 2
+
+
+def _rest_copies(tree: _Tree, leaves: list[int]) -> tuple[dict[int, list[int]], set[int]]:
+    """Of ``leaves``: each one's twins (the others where more than a pair of leaves share a
+    place in the rest pose, or of its bundle), and those at the place of a joint of another
+    branch that carries on (no leaf)."""
+    same = COINCIDENT * tree.extent
+    at = tree.rest[np.array(leaves, dtype=np.int64)]  # (L, 3)
+    close = np.linalg.norm(at[:, None] - at[None], axis=2) <= same  # (L, L)
+    inner = np.array(
+        [j for j in range(len(tree.names)) if tree.children[j] and not tree.void[j]],
+        dtype=np.int64,
+    )
+    on_inner = np.linalg.norm(at[:, None] - tree.rest[inner][None], axis=2) <= same  # (L, I)
+    strands = _strands(tree, leaves)
+    twins: dict[int, list[int]] = {}
+    stopped: set[int] = set()
+    for i, leaf in enumerate(leaves):
+        # A pair at one place may be the two sides folded onto one line by a rest pose that
+        # is no figure (joint orientation): only more than a pair are copies.
+        others = [leaves[k] for k in np.flatnonzero(close[i]) if k != i]
+        if len(others) < _BUNDLE - 1:
+            others = []
+        others += [j for j in strands.get(leaf, []) if j not in others]
+        if others:
+            twins[leaf] = others
+        if any(not tree.is_ancestor(int(j), leaf) for j in inner[on_inner[i]]):
+            stopped.add(leaf)
+    return twins, stopped
+
+
+def _strands(tree: _Tree, leaves: list[int]) -> dict[int, list[int]]:
+    """Per leaf, the other leaves of its bundle: :data:`_BUNDLE` or more unbranched chains
+    hanging from one joint with the same bone lengths below their first bone (hair strands,
+    a skirt's pleats; the first bone, from the joint, only says where each hangs)."""
+    same = COINCIDENT * tree.extent
+    hung: dict[int, list[tuple[int, np.ndarray]]] = {}
+    for leaf in leaves:
+        chain = [leaf]
+        while len(tree.children[int(tree.parents[chain[-1]])]) == 1:
+            chain.append(int(tree.parents[chain[-1]]))
+            if tree.parents[chain[-1]] < 0:
+                break
+        shape = tree.lengths[chain[-2::-1]]  # the bones below the first, from the top
+        if np.count_nonzero(shape) < _SHAPE_BONES or tree.parents[chain[-1]] < 0:
+            continue  # too few bones to have a shape; a chain from the root is the body
+        hung.setdefault(int(tree.parents[chain[-1]]), []).append((leaf, shape))
+    out: dict[int, list[int]] = {}
+    for chains in hung.values():
+        for leaf, shape in chains:
+            alike = [
+                other
+                for other, lengths in chains
+                if len(lengths) == len(shape) and np.all(np.abs(lengths - shape) <= same)
+            ]
+            if len(alike) >= _BUNDLE:
+                out[leaf] = [j for j in alike if j != leaf]
+    return out
 
 
 def _is_thumb(name: str) -> bool:
