@@ -188,6 +188,35 @@ def test_a_worker_that_dies_is_replaced_and_its_task_handed_back(
         pool.close()
 
 
+def test_a_worker_from_the_fork_server_waits_for_work_however_long(
+    settings: Settings, fixtures_dir: Path
+) -> None:
+    """A worker started by the fork server (a replacement, or any worker once the importing
+    process has threads) has the fork server as its parent: it must not take that for its
+    importer being gone, and quit, when no task comes within its first poll (a rerun that
+    opened a large library first then failed writing to its pipe: BrokenPipeError)."""
+    clip = (0, "bvh", (str(fixtures_dir / BVH_FIXTURES[0]),))
+    pool = WorkerPool(1, settings.parse_limits, None)
+    try:
+        killed = pool.workers[0]
+        os.kill(killed.process.pid, signal.SIGKILL)
+        deadline = time.monotonic() + 30
+        while pool.workers[0] is killed and time.monotonic() < deadline:
+            pool.collect(0.2)
+        replacement = pool.workers[0]
+        assert replacement is not killed
+        time.sleep(2.5)  # idle past the worker's 1-s poll for orphanhood
+        assert replacement.process.is_alive()
+        pool.submit(replacement, [clip])
+        outcomes: list = []
+        while not outcomes and time.monotonic() < deadline:
+            outcomes, _ = pool.collect(0.2)
+        [(number, (status, _, _))] = outcomes
+        assert number == 0 and status == "ok"
+    finally:
+        pool.close()
+
+
 def test_every_animation_of_a_scene_file_is_a_clip_and_a_rerun_skips_them(
     tmp_path: Path, settings: Settings, fixtures_dir: Path
 ) -> None:

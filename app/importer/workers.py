@@ -104,7 +104,6 @@ def _describe_one(describer: MotionDescriber, limits: ParseLimits, clip: TaskCli
 
 def _worker_main(
     conn: Connection,
-    parent: int,
     limits: ParseLimits,
     max_values: int | None,
     parser_limits: tuple[float | None, int | None] = (None, None),
@@ -123,10 +122,15 @@ def _worker_main(
     time_limit, memory_mb = parser_limits
     parsers = InlineParser(time_limit=time_limit, memory_mb=memory_mb)
     describer = MotionDescriber(max_values=max_values, parsers=parsers, windows=windows)
+    # The process that started this one: the importer when forked, else the fork server
+    # (which exits with the importer). Either way it is gone when this one is re-parented; a
+    # worker from the fork server compared its parent with the importer's id and quit at
+    # its first idle second.
+    started_by = os.getppid()
     while True:
         try:
             if not conn.poll(1.0):
-                if os.getppid() != parent:  # the main process is gone (killed)
+                if os.getppid() != started_by:  # the importer is gone (killed)
                     return
                 continue
             task = conn.recv()
@@ -191,7 +195,6 @@ class WorkerPool:
             target=_worker_main,
             args=(
                 theirs,
-                os.getpid(),
                 self._limits,
                 self._max_values,
                 self._parser_limits,
