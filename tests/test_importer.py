@@ -217,6 +217,26 @@ def test_a_worker_from_the_fork_server_waits_for_work_however_long(
         pool.close()
 
 
+def test_a_task_for_a_worker_that_died_since_the_last_collect_is_not_sent(
+    settings: Settings, fixtures_dir: Path
+) -> None:
+    """``submit`` to a worker that died after the last ``collect`` says so (the importer
+    keeps the clips pending; they are no culprits) instead of raising BrokenPipeError, and
+    the next ``collect`` replaces the worker."""
+    clip = (0, "bvh", (str(fixtures_dir / BVH_FIXTURES[0]),))
+    pool = WorkerPool(1, settings.parse_limits, None)
+    try:
+        dead = pool.workers[0]
+        os.kill(dead.process.pid, signal.SIGKILL)
+        dead.process.join(timeout=30)
+        assert pool.submit(dead, [clip]) is False and not dead.tasks
+        _, lost = pool.collect(0.2)
+        assert lost == [] and pool.workers[0] is not dead
+        assert pool.submit(pool.workers[0], [clip]) is True
+    finally:
+        pool.close()
+
+
 def test_every_animation_of_a_scene_file_is_a_clip_and_a_rerun_skips_them(
     tmp_path: Path, settings: Settings, fixtures_dir: Path
 ) -> None:

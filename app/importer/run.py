@@ -248,12 +248,16 @@ class _Run:
     def loop(self) -> None:
         while self.pending or self.pool.busy() or self.ready or self.storing is not None:
             library = self.library
+            gone = False
             for worker in self.pool.free_slots():
                 while len(worker.tasks) < TASKS_PER_WORKER and self.pending:
                     task = self.next_task(library)
-                    if task:
-                        self.pool.submit(worker, task)
-            if self.pool.busy():
+                    if task and not self.pool.submit(worker, task):
+                        # Gone since the last collect (which replaces it): the clips wait.
+                        self.pending.extendleft(self.by_number[n] for n, _, _ in reversed(task))
+                        gone = True
+                        break
+            if self.pool.busy() or gone:
                 outcomes, lost = self.pool.collect(
                     POLL_SECONDS if library else 0.05, also=[self.stored_signal]
                 )

@@ -213,10 +213,16 @@ class WorkerPool:
     def busy(self) -> bool:
         return any(w.tasks for w in self.workers)
 
-    def submit(self, worker: _Worker, clips: list[TaskClip]) -> None:
+    def submit(self, worker: _Worker, clips: list[TaskClip]) -> bool:
+        """Send ``clips`` to ``worker``; False when it is gone (it died since the last
+        :meth:`collect`, which replaces it): nothing was sent and its clips are no culprits."""
         self._next_task += 1
+        try:
+            worker.conn.send((self._next_task, clips))
+        except (BrokenPipeError, OSError):
+            return False
         worker.tasks[self._next_task] = clips
-        worker.conn.send((self._next_task, clips))
+        return True
 
     def collect(
         self, timeout: float, also: Sequence[Connection] = ()
