@@ -568,14 +568,14 @@ def _read_regular_amc(
     limits: ParseLimits,
 ) -> tuple[np.ndarray, int] | None:
     """Fast path for files that repeat one bone order every frame; ``None`` if not regular."""
-    if _FRAME_NUMBER_RE.fullmatch(body[0].strip()) is None:
+    if not _is_frame_number(body[0]):
         return None
     bone_order: list[str] = []
     for line in body[1:]:
         tokens = line.split(None, 1)
         if not tokens or len(bone_order) > len(layout):
             return None
-        if _FRAME_NUMBER_RE.fullmatch(line.strip()) is not None:
+        if _is_frame_number(line):
             break
         bone_order.append(tokens[0])
     if sorted(bone_order) != sorted(layout):
