@@ -14,12 +14,13 @@ Each rig keeps its world motion and gets another way of writing it:
 * (e) a left-handed export: one world axis negated (the names then lie on the mirror
   image's sides: the mapping must be the same joints, taken as a mirrored capture).
 
-Two measures per copy: the mapping (the same source joints by name, mirrored exactly when
-the copy is) and the body's axes (the pelvis frame's up within 30 degrees and forward within
-45 degrees of the original's, the median over the frames, read back through the probe's world
-change). The CMU and
-Bandai fixtures must map alike under every probe; the development rigs are ratchets, with
-the counts of each measure recorded. No probed copy may fail otherwise than with a
+Three measures per copy: the mapping (the same source joints by name, mirrored exactly when
+the copy is), the body's axes (the pelvis frame's up within 30 degrees and forward within 45
+degrees of the original's, the median over the frames, read back through the probe's world
+change) and what a user sees (the copy's stored ``motion``, ``posture`` and ``kinetic``
+vectors each find the original first among the dev files). The CMU and Bandai fixtures must
+map alike, axes right, under every probe; the development rigs are ratchets, with the counts
+of each measure recorded. No probed copy may fail otherwise than with a
 :class:`~app.errors.MocapError` (a 4xx).
 """
 
