@@ -16,7 +16,8 @@ canonical joints only, and works out from the skeleton itself:
   the pelvis toward the neck (orthogonalised), forward = lateral x up. It depends on the
   pelvis alone — never on the clip's other frames — so every clip of one skeleton has the
   same axes, and a frame's features are the same whether computed from the whole clip or a
-  part of it (only a rig whose rest pose shows no side at all reads them from the frames).
+  part of it (only a rig whose rest pose shows no side at all, or is no pose of the body,
+  reads them from the frames: :mod:`app.motion.body_axes`).
   Neither the file's up axis, its units nor the facing direction matter.
 * ``world_up`` — the world's vertical axis, needed to split root speed into horizontal and
   vertical parts: the coordinate axis (with sign) nearest to the clip's mean body-up
@@ -34,12 +35,12 @@ from typing import Any, TypeVar
 import numpy as np
 
 from app.errors import ParseError
+from app.motion.body_axes import frames_basis, pose_basis
 from app.motion.kinematics import bone_lengths, forward_kinematics
 from app.motion.model import Motion
 from app.motion.skeleton_map import (
     CANONICAL_INDEX,
     CANONICAL_JOINTS,
-    COINCIDENT,
     SkeletonMap,
     map_skeleton,
 )
@@ -382,7 +383,9 @@ def pelvis_basis(motion: Motion, canonical: np.ndarray, *, rest_is_a_figure: boo
     frames spread over the clip show the rest pose's axes, seen from the pelvis (up and
     lateral each within 30 degrees): then the rest pose is no pose of this body at all — a
     writer whose bones lie along odd axes, all-zero rotations meaning some other pose, as
-    pose estimators write — and the axes are the frames' own, averaged. A rest pose most
+    pose estimators write — and the axes are the frames' own (:func:`frames_basis`: up
+    from the world's up seen from the pelvis when most frames stand, else from the
+    trunk). A rest pose most
     frames agree with is kept, so a standing rig that merely starts seated reads as before;
     one frame agreeing is not enough (a rest pose in random axes points the trunk anywhere,
     and a take that bends or turns the trunk meets it in some frame by chance).
@@ -394,7 +397,7 @@ def pelvis_basis(motion: Motion, canonical: np.ndarray, *, rest_is_a_figure: boo
     rotations, positions = forward_kinematics(picked, joints=canonical)
     pelvis = rotations[:, canonical[CANONICAL_INDEX["pelvis"]]]
     try:
-        shown = [_basis(positions[[i]], pelvis[[i]], canonical) for i in range(len(positions))]
+        shown = [pose_basis(positions[[i]], pelvis[[i]], canonical) for i in range(len(positions))]
         agreeing = sum(
             float(rest[:, 0] @ axes[:, 0]) >= _REST_SHOWN
             and float(rest[:, 1] @ axes[:, 1]) >= _REST_SHOWN
@@ -402,7 +405,7 @@ def pelvis_basis(motion: Motion, canonical: np.ndarray, *, rest_is_a_figure: boo
         )
         if agreeing >= _REST_SHARE * len(shown):
             return rest
-        return _basis(positions, pelvis, canonical)
+        return frames_basis(positions, pelvis, canonical)
     except ParseError:  # some frame shows no body: the rest pose's axes, as before
         return rest
 
@@ -426,7 +429,7 @@ def rest_pelvis_basis(motion: Motion, canonical: np.ndarray) -> np.ndarray:
         for j in range(1, skeleton.joint_count):
             rest[j] = rest[skeleton.parents[j]] + offsets[j]
         try:
-            return _basis(rest[None], np.eye(3)[None], canonical)
+            return pose_basis(rest[None], np.eye(3)[None], canonical)
         except ParseError as why:
             problem = str(why)
     # Joint orientation in the rotations and both hips at the pelvis: the rest pose's legs
@@ -434,41 +437,9 @@ def rest_pelvis_basis(motion: Motion, canonical: np.ndarray) -> np.ndarray:
     _, picked = _spread_frames(motion)
     rotations, positions = forward_kinematics(picked, joints=canonical)
     try:
-        return _basis(positions, rotations[:, canonical[CANONICAL_INDEX["pelvis"]]], canonical)
+        return pose_basis(positions, rotations[:, canonical[CANONICAL_INDEX["pelvis"]]], canonical)
     except ParseError:
         raise ParseError(problem) from None
-
-
-def _basis(positions: np.ndarray, pelvis: np.ndarray, canonical: np.ndarray) -> np.ndarray:
-    """``(3, 3)`` body axes in the pelvis joint's coordinates from ``(F, J, 3)`` poses and the
-    ``(F, 3, 3)`` pelvis rotations in them (directions averaged over the poses)."""
-    at = {
-        name: positions[:, canonical[CANONICAL_INDEX[name]]]
-        for name in (
-            "pelvis",
-            "neck",
-            *(f"{s}_{p}" for s in "lr" for p in ("hip", "knee", "ankle")),
-        )
-    }
-    size = float(np.ptp(positions[:, canonical], axis=1).max())
-    local = np.swapaxes(pelvis, -1, -2)
-    # Some rigs put both hip joints at the pelvis and separate the legs only at the next
-    # joint down: the legs then show the sides where they part.
-    for part in ("hip", "knee", "ankle"):
-        across = np.einsum("fab,fb->fa", local, at[f"l_{part}"] - at[f"r_{part}"])
-        if float(np.linalg.norm(across, axis=1).min()) > COINCIDENT * size:
-            break
-    else:
-        raise ParseError("the left and right legs coincide; cannot tell left from right")
-    lateral = (across / np.linalg.norm(across, axis=1, keepdims=True)).sum(axis=0)
-    x = lateral / np.linalg.norm(lateral)
-    up = np.einsum("fab,fb->a", local, at["neck"] - at["pelvis"])
-    up = up - np.dot(up, x) * x
-    up_norm = float(np.linalg.norm(up))
-    if up_norm < 1e-9 * max(size, 1e-300):
-        raise ParseError("the neck is level with the hips; cannot find the body's up direction")
-    y = up / up_norm
-    return np.stack([x, y, np.cross(x, y)], axis=1)
 
 
 def _world_up(pelvis_frames: np.ndarray) -> np.ndarray:

@@ -1,0 +1,122 @@
+"""The body's axes (lateral, up, forward) in the pelvis joint's coordinates, read from poses.
+
+:mod:`app.motion.body` reads them from the rest pose when it is a figure of the body; the
+functions here read them from any ``(F, J, 3)`` poses with the pelvis's ``(F, 3, 3)`` world
+rotations in them: :func:`pose_basis` the legs' line and the trunk, :func:`frames_basis` the
+same for a take whose rest pose is no pose of the body, up then from the world's up when the
+take stands.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from app.errors import ParseError
+from app.motion.skeleton_map import CANONICAL_INDEX, COINCIDENT
+
+# A pose stands when its trunk is upright, within 35 degrees of the world's up (the angle
+# the bent-take reading of mapping/take.py calls upright)...
+_UPRIGHT = float(np.cos(np.radians(35.0)))
+# ...and an ankle is below the pelvis by this share of the leg (hip -> knee -> ankle) at
+# least: a stance leg bent at the knee by up to ~50 degrees (a run's stance bends ~40, a
+# walk's ~20), where a seated body's ankles are only a shin (~0.5) below...
+_STANDING_DROP = 0.8
+# ...and the world's up tells the pelvis's up when most poses of the take stand (a
+# majority, as the take's vote).
+_STANDING_SHARE = 0.5
+
+
+def pose_basis(positions: np.ndarray, pelvis: np.ndarray, canonical: np.ndarray) -> np.ndarray:
+    """``(3, 3)`` body axes in the pelvis joint's coordinates from ``(F, J, 3)`` poses and the
+    ``(F, 3, 3)`` pelvis rotations in them (directions averaged over the poses)."""
+    at = {
+        name: positions[:, canonical[CANONICAL_INDEX[name]]]
+        for name in (
+            "pelvis",
+            "neck",
+            *(f"{s}_{p}" for s in "lr" for p in ("hip", "knee", "ankle")),
+        )
+    }
+    size = float(np.ptp(positions[:, canonical], axis=1).max())
+    local = np.swapaxes(pelvis, -1, -2)
+    # Some rigs put both hip joints at the pelvis and separate the legs only at the next
+    # joint down: the legs then show the sides where they part.
+    for part in ("hip", "knee", "ankle"):
+        across = np.einsum("fab,fb->fa", local, at[f"l_{part}"] - at[f"r_{part}"])
+        if float(np.linalg.norm(across, axis=1).min()) > COINCIDENT * size:
+            break
+    else:
+        raise ParseError("the left and right legs coincide; cannot tell left from right")
+    lateral = (across / np.linalg.norm(across, axis=1, keepdims=True)).sum(axis=0)
+    x = lateral / np.linalg.norm(lateral)
+    up = np.einsum("fab,fb->a", local, at["neck"] - at["pelvis"])
+    up = up - np.dot(up, x) * x
+    up_norm = float(np.linalg.norm(up))
+    if up_norm < 1e-9 * max(size, 1e-300):
+        raise ParseError("the neck is level with the hips; cannot find the body's up direction")
+    y = up / up_norm
+    return np.stack([x, y, np.cross(x, y)], axis=1)
+
+
+def frames_basis(positions: np.ndarray, pelvis: np.ndarray, canonical: np.ndarray) -> np.ndarray:
+    """``(3, 3)`` body axes (columns lateral, up, forward) in the pelvis joint's coordinates
+    read from ``(F, J, 3)`` poses of the take and the ``(F, 3, 3)`` pelvis rotations in them,
+    for a rig whose rest pose is no pose of the body.
+
+    Lateral comes from the legs (:func:`pose_basis`: exact, the hips hang from the pelvis).
+    Up should be where a standing rest pose puts it, and the take's trunk (pelvis -> neck,
+    seen from the pelvis) is a biased reading of it: it carries the spine's bend, which the
+    activity sets (a walk leaning into its steps, a hunched walk, a one-pose clip bent at
+    the spine), by up to 30 degrees and more. A standing person carries the pelvis near
+    level whatever the spine does, so when most poses stand (:data:`_UPRIGHT`,
+    :data:`_STANDING_DROP`), up is the world's up seen from the pelvis, averaged over the
+    standing poses. The world's up is the coordinate axis nearest the trunk's mean
+    direction (files are authored with an axis up, as ``app.motion.body`` finds the world's
+    up). A take that mostly does not stand (lying, flying, seated, tumbling) tells nothing
+    of the pelvis through gravity and keeps the trunk's up.
+    """
+    axes = pose_basis(positions, pelvis, canonical)
+    at = {
+        name: positions[:, canonical[CANONICAL_INDEX[name]]]
+        for name in (
+            "pelvis",
+            "neck",
+            *(f"{s}_{p}" for s in "lr" for p in ("hip", "knee", "ankle")),
+        )
+    }
+    trunk = at["neck"] - at["pelvis"]
+    trunk = trunk / np.maximum(np.linalg.norm(trunk, axis=1, keepdims=True), 1e-300)
+    world_up = _snapped(trunk.mean(axis=0))
+    leg = np.mean(
+        [
+            np.linalg.norm(at[f"{s}_hip"] - at[f"{s}_knee"], axis=1)
+            + np.linalg.norm(at[f"{s}_knee"] - at[f"{s}_ankle"], axis=1)
+            for s in "lr"
+        ]
+    )
+    drop = np.max([(at["pelvis"] - at[f"{s}_ankle"]) @ world_up for s in "lr"], axis=0)
+    standing = (trunk @ world_up >= _UPRIGHT) & (drop >= _STANDING_DROP * leg)
+    if not standing.any() or standing.sum() < _STANDING_SHARE * len(standing):
+        return axes
+    x = axes[:, 0]
+    up = np.einsum("fba,b->a", pelvis[standing], world_up)
+    up = up - np.dot(up, x) * x
+    up_norm = float(np.linalg.norm(up))
+    if up_norm < 1e-9:  # the pelvis lies sideways in every standing pose: no reading
+        return axes
+    y = up / up_norm
+    return np.stack([x, y, np.cross(x, y)], axis=1)
+
+
+def _snapped(vector: np.ndarray) -> np.ndarray:
+    """``(3,)`` the signed coordinate axis nearest to ``vector`` (``+Y`` for a zero vector)."""
+    snapped = np.zeros(3)
+    if not float(np.linalg.norm(vector)) > 1e-9:
+        snapped[1] = 1.0
+        return snapped
+    axis = int(np.argmax(np.abs(vector)))
+    snapped[axis] = np.sign(vector[axis])
+    return snapped
+
+
+__all__ = ["frames_basis", "pose_basis"]
