@@ -27,7 +27,9 @@ alignment takes its up (head joint -> top of the head, or neck -> head) onto the
 head's. The hand's orientation is carried by the palm — the first joint past the wrist
 where the fingers branch, or the joint the hand tip hangs from — which is driven by the
 source's palm, so a rig that bends the hand below its wrist joint (wrist -> hand ->
-fingers) passes that bend on.
+fingers) passes that bend on. Where the branch is a hand and a thumb starting at one place
+(the CMU skeletons: ``rwrist`` -> ``rhand``, ``rthumb``), the hand is the palm: the joint
+above them only twists the forearm's end (:func:`~app.motion.retarget_joints.palm`).
 
 **Directions exact.** Where the source has joints the target lacks between two canonical
 joints (a spine of five against one of three), the transferred rotation alone would point
