@@ -36,6 +36,7 @@ import contextlib
 import ctypes
 import os
 import threading
+from bisect import bisect_left
 from pathlib import Path
 from typing import Any
 
@@ -51,6 +52,11 @@ LOCATOR_FORMAT = 1  # of the <index>.locator files (see _stored_locator)
 LOCATOR_CHECKS = 64  # places of a stored locator checked against the lists when it is read
 BUCKET_BITS = 20  # ids sharing their bits above these are looked up from one table entry
 MAX_BUCKETS = 1 << 22  # ... a table of at most this many entries (32 MB)
+
+
+def _int64_view(array: np.ndarray) -> memoryview:
+    """``array`` ``(N,)`` int64 as a view whose items are Python ints."""
+    return np.ascontiguousarray(array, np.int64).data.cast("B").cast("q")
 
 
 def _stored_locator(path: str, base: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -139,6 +145,9 @@ class FrozenIVF:
         self.base_nprobe = int(base.nprobe)
         self._params: dict[int, Any] = {}  # nprobe -> unfiltered search parameters (read-only)
         self.delta = empty_flat(self.dimension)
+        # How many vectors ``delta`` holds, kept in step by add and remove: every search and
+        # vector read asks, and FAISS's ``ntotal`` through SWIG costs a microsecond or two.
+        self.delta_total = 0
         self.gone = np.zeros(0, np.int64)
         if exact is not None and exact_ids is not None and exact_ids.size == self.base_total:
             # Vectors are read from the exact rows: the ids are the whole locator (no pass
@@ -149,6 +158,7 @@ class FrozenIVF:
             self.base_ids, self.places = locator if locator is not None else _locator(base)
         self._codes: np.ndarray | None = None  # see _view_codes
         self._buckets: np.ndarray | None = None  # see _guessed_rows
+        self._views: tuple[memoryview, memoryview | None] | None = None  # see _id_views
         self._rows: np.ndarray | None = None  # ... and _view_rows
         self._list_starts = np.zeros(0, np.int64)
         # The cells' graph (app/index/cells.py): built in a thread at the first search, the
@@ -221,12 +231,12 @@ class FrozenIVF:
 
     @property
     def ntotal(self) -> int:
-        return self.base_total - int(self.gone.size) + int(self.delta.ntotal)
+        return self.base_total - int(self.gone.size) + self.delta_total
 
     @property
     def changed(self) -> bool:
         """Whether it differs from its file."""
-        return bool(self.gone.size or self.delta.ntotal)
+        return bool(self.gone.size or self.delta_total)
 
     def _base_rows(self, ids: np.ndarray) -> np.ndarray:
         """Rows of the locator holding ``ids`` (-1: not in the file, or gone)."""
@@ -264,9 +274,22 @@ class FrozenIVF:
         return np.clip(first + (ids - self.base_ids[first]), 0, last)
 
     def _base_row(self, vector_id: int) -> int:
-        """:meth:`_base_rows` of one id (a search's query clip: no arrays built)."""
-        at = int(self.base_ids.searchsorted(vector_id))
-        if at >= self.base_ids.size or int(self.base_ids[at]) != vector_id:
+        """:meth:`_base_rows` of one id (a search's query clip): the same guess and check, in
+        Python ints read through memoryviews (numpy's calls on one number cost more than the
+        lookup)."""
+        ids, buckets = self._id_views()
+        last = len(ids) - 1
+        if last < 0:
+            return -1
+        if buckets is not None:
+            bucket = min(max(vector_id >> BUCKET_BITS, 0), len(buckets) - 2)
+            first = min(buckets[bucket], last)
+            at = min(max(first + vector_id - ids[first], 0), last)
+            if ids[at] != vector_id:
+                at = min(bisect_left(ids, vector_id), last)
+        else:
+            at = min(bisect_left(ids, vector_id), last)
+        if ids[at] != vector_id:
             return -1
         if self.gone.size:
             gone_at = int(self.gone.searchsorted(vector_id))
@@ -274,19 +297,33 @@ class FrozenIVF:
                 return -1
         return at
 
+    def _id_views(self) -> tuple[memoryview, memoryview | None]:
+        """The locator's ids and the bucket table of :meth:`_guessed_rows` (None: too sparse
+        for one) as memoryviews of Python ints (made once: the file never changes)."""
+        views = self._views
+        if views is None:
+            if self.base_ids.size:
+                self._guessed_rows(self.base_ids[:1])  # builds the bucket table
+            table = self._buckets
+            views = self._views = (
+                _int64_view(self.base_ids),
+                _int64_view(table) if table is not None and table.size else None,
+            )
+        return views
+
     def ids(self) -> np.ndarray:
         """``(N,)`` int64 ids held (sorted)."""
         kept = self.base_ids
         if self.gone.size:
             kept = kept[~np.isin(kept, self.gone, assume_unique=True)]
-        if not self.delta.ntotal:
+        if not self.delta_total:
             return kept
         added = faiss.vector_to_array(self.delta.id_map).astype(np.int64)
         return np.union1d(kept, added)
 
     def vector(self, vector_id: int) -> np.ndarray | None:
         """The ``(D,)`` float32 vector held under ``vector_id``, or None."""
-        if self.delta.ntotal:
+        if self.delta_total:
             try:
                 return np.asarray(self.delta.reconstruct(int(vector_id)), np.float32)
             except RuntimeError:
@@ -314,9 +351,9 @@ class FrozenIVF:
         ids = np.asarray(ids, np.int64)
         rows = self._base_rows(ids)
         from_base = rows >= 0
-        if self.exact is not None and not self.delta.ntotal:
+        if self.exact is not None and not self.delta_total:
             return from_base, np.array(self.exact[rows[from_base]], np.float32)
-        if self._codes is None or self.delta.ntotal:
+        if self._codes is None or self.delta_total:
             kept, found = [], []
             for vector_id in ids.tolist():
                 vector = self.vector(vector_id)
@@ -345,7 +382,7 @@ class FrozenIVF:
             for at in np.flatnonzero(rows < 0).tolist():
                 vectors[at] = self.delta.reconstruct(int(ids[at]))
             return ids, vectors
-        if not self.delta.ntotal and self._rows is not None:  # one gather of the codes
+        if not self.delta_total and self._rows is not None:  # one gather of the codes
             return ids, self.vectors(ids)[1]
         vectors = np.empty((ids.size, self.dimension), np.float32)
         for row, vector_id in enumerate(ids.tolist()):
@@ -359,12 +396,14 @@ class FrozenIVF:
     def add(self, ids: np.ndarray, vectors: np.ndarray) -> None:
         """Add vectors under ids not held yet."""
         self.delta.add_with_ids(vectors, ids)
+        self.delta_total = int(self.delta.ntotal)
 
     def remove(self, ids: np.ndarray) -> int:
         """Remove ``ids`` (absent ones ignored); returns how many were held."""
         removed = 0
-        if self.delta.ntotal:
+        if self.delta_total:
             removed += int(self.delta.remove_ids(faiss.IDSelectorBatch(ids)))
+            self.delta_total = int(self.delta.ntotal)
         in_base = ids[self._base_rows(ids) >= 0]
         if in_base.size:
             self.gone = np.union1d(self.gone, in_base)
@@ -431,7 +470,7 @@ class FrozenIVF:
         if self.exact is not None:
             squared, ids = self._ranked(exact_queries, ids, k)
         queries = exact_queries
-        if not self.delta.ntotal:
+        if not self.delta_total:
             return squared, ids
         flat: Any = None
         if allowed is not None:
@@ -517,7 +556,7 @@ class FrozenIVF:
         nlist = int(self.base.nlist)
         held = int(self.base.ntotal)
         probed = held if filtered else min(nprobe, nlist) * held // max(nlist, 1)
-        return (nlist + probed + int(self.delta.ntotal)) * self.dimension
+        return (nlist + probed + self.delta_total) * self.dimension
 
     # -- the next file ---------------------------------------------------------------------
 
