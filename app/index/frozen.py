@@ -445,13 +445,14 @@ class FrozenIVF:
                 params.nprobe = nprobe
                 self._params[nprobe] = params
         cells = self.cells if allowed is None else None  # a filtered search probes all
+        # FAISS's own calls without their Python wrappers' checks and copies (``queries`` is
+        # C-contiguous float32 of the lists' width, ``padded``): a plain search makes one.
+        count = int(queries.shape[0])
+        squared = np.empty((count, fetch), np.float32)
+        ids = np.empty((count, fetch), np.int64)
         if cells is not None and cells.nprobe == nprobe:
-            # FAISS's own search after its scan of the centroids (the Python wrapper of
-            # search_preassigned takes no parameters)
+            # FAISS's own search after its scan of the centroids
             to_cells, nearest = cells.nearest(queries)
-            count = int(queries.shape[0])
-            squared = np.empty((count, fetch), np.float32)
-            ids = np.empty((count, fetch), np.int64)
             self.base.search_preassigned_c(
                 count,
                 faiss.swig_ptr(queries),
@@ -466,7 +467,14 @@ class FrozenIVF:
         else:
             if not self._cells_started and allowed is None:
                 self._start_cells(nprobe)
-            squared, ids = self.base.search(queries, fetch, params=params)
+            self.base.search_c(
+                count,
+                faiss.swig_ptr(queries),
+                fetch,
+                faiss.swig_ptr(squared),
+                faiss.swig_ptr(ids),
+                params,
+            )
         if self.exact is not None:
             squared, ids = self._ranked(exact_queries, ids, k)
         queries = exact_queries
