@@ -3,6 +3,7 @@ bad parameter, clips without files, /health (fake motion core: vectors chosen he
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
@@ -14,9 +15,11 @@ from sqlalchemy.orm import Session
 from app.config import Settings
 from app.db import clips as clip_db
 from app.db import vectors as vector_db
+from app.main import create_app
 from app.services.ingest import ingest
 from app.services.library import open_library
 from app.services.uploads import Upload
+from tests.conftest import new_sqlite_settings
 from tests.services.fakes import FakeDescriber, fake_motion
 
 
@@ -31,14 +34,48 @@ def stored(client: TestClient, name: str, posture: list[float], labels: list[str
     return clip_id
 
 
+def store_labelled(client: TestClient) -> dict[str, int]:
+    return {
+        "walk_happy": stored(client, "walk_happy", [0, 0, 0], ["walk", "happy"]),
+        "walk_sad": stored(client, "walk_sad", [1, 0, 0], ["Walk", "sad"]),
+        "run_happy": stored(client, "run_happy", [2, 0, 0], ["run", "HAPPY"]),
+        "idle": stored(client, "idle", [3, 0, 0], []),
+    }
+
+
 @pytest.fixture
 def labelled(fake_client: TestClient) -> dict[str, int]:
-    return {
-        "walk_happy": stored(fake_client, "walk_happy", [0, 0, 0], ["walk", "happy"]),
-        "walk_sad": stored(fake_client, "walk_sad", [1, 0, 0], ["Walk", "sad"]),
-        "run_happy": stored(fake_client, "run_happy", [2, 0, 0], ["run", "HAPPY"]),
-        "idle": stored(fake_client, "idle", [3, 0, 0], []),
-    }
+    return store_labelled(fake_client)
+
+
+Library = tuple[TestClient, dict[str, int]]
+
+
+def shared_library(
+    request: pytest.FixtureRequest,
+    tmp_path_factory: pytest.TempPathFactory,
+    fill: Callable[[TestClient], dict[str, int]],
+) -> Iterator[Library]:
+    """One library per backend (``request.param``) filled by ``fill``, for a module's tests
+    that only read it: a new library for each case of their parameters was most of this
+    file's time (each case a new app and database, then the uploads)."""
+    data_dir = tmp_path_factory.mktemp("shared") / "data"
+    if request.param == "postgresql":
+        url = request.getfixturevalue("postgres_cluster").new_database()
+        settings = Settings(data_dir=data_dir, database_url=url)
+    else:
+        migrated = request.getfixturevalue("migrated_sqlite_file")
+        settings = new_sqlite_settings(data_dir, migrated)
+    with TestClient(create_app(settings, describer=FakeDescriber())) as client:
+        yield client, fill(client)
+
+
+@pytest.fixture(scope="module", params=["sqlite", "postgresql"])
+def labelled_library(
+    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[Library]:
+    """:func:`store_labelled`'s four clips, read by every case of the tests using it."""
+    yield from shared_library(request, tmp_path_factory, store_labelled)
 
 
 def names(page: dict[str, Any]) -> list[str]:
@@ -62,8 +99,9 @@ def names(page: dict[str, Any]) -> list[str]:
     ],
 )
 def test_label_filters_mean_all_of_them_in_any_case(
-    fake_client: TestClient, labelled: dict[str, int], query: str, expected: list[str]
+    labelled_library: Library, query: str, expected: list[str]
 ) -> None:
+    fake_client, labelled = labelled_library
     for route in ("/clips", "/library/clips"):
         response = fake_client.get(f"{route}?{query}")
         assert response.status_code == 200, response.text
@@ -282,6 +320,16 @@ def test_hits_carry_format_and_file_names(fake_client: TestClient) -> None:
 # -- 15: one code for a bad parameter ------------------------------------------------------
 
 
+@pytest.fixture(scope="module", params=["sqlite", "postgresql"])
+def one_clip_library(
+    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[Library]:
+    """A library of one clip (id 1), read by every case of the test below."""
+    yield from shared_library(
+        request, tmp_path_factory, lambda client: {"one": stored(client, "one", [0, 0, 0], [])}
+    )
+
+
 @pytest.mark.parametrize(
     "path",
     [
@@ -295,8 +343,8 @@ def test_hits_carry_format_and_file_names(fake_client: TestClient) -> None:
         "/clips/abc",
     ],
 )
-def test_one_code_for_a_bad_parameter(fake_client: TestClient, path: str) -> None:
-    stored(fake_client, "one", [0, 0, 0], [])
+def test_one_code_for_a_bad_parameter(one_clip_library: Library, path: str) -> None:
+    fake_client, _ = one_clip_library
     response = fake_client.get(path)
     assert response.status_code == 422
     assert response.json()["error"] == "invalid_input", response.json()
@@ -409,8 +457,7 @@ def test_a_fresh_library_says_so_once(settings: Settings, caplog: pytest.LogCapt
 # -- issue 24, items 12-14: licence filters, one search box, bulk labels -------------------
 
 
-@pytest.fixture
-def licensed(fake_client: TestClient) -> dict[str, int]:
+def store_licensed(fake_client: TestClient) -> dict[str, int]:
     def add(name: str, posture: list[float], licence: str | None, **extra: Any) -> int:
         data = {"licence": licence} if licence else {}
         response = upload(fake_client, name, posture, **data, **extra)
@@ -425,6 +472,19 @@ def licensed(fake_client: TestClient) -> dict[str, int]:
         "by_jump": add("by_jump", [0, 0, 4], "CC BY 4.0", labels=["jump"], source="Studio B"),
         "unknown": add("unknown", [0, 0, 5], None),
     }
+
+
+@pytest.fixture
+def licensed(fake_client: TestClient) -> dict[str, int]:
+    return store_licensed(fake_client)
+
+
+@pytest.fixture(scope="module", params=["sqlite", "postgresql"])
+def licensed_library(
+    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[Library]:
+    """:func:`store_licensed`'s five clips, read by every case of the tests using it."""
+    yield from shared_library(request, tmp_path_factory, store_licensed)
 
 
 @pytest.mark.parametrize(
@@ -484,8 +544,9 @@ def test_licence_filter_is_documented(fake_client: TestClient) -> None:
     ],
 )
 def test_one_search_box_finds_text_anywhere(
-    fake_client: TestClient, licensed: dict[str, int], q: str, expected: list[str]
+    licensed_library: Library, q: str, expected: list[str]
 ) -> None:
+    fake_client, _ = licensed_library
     response = fake_client.get("/clips", params={"q": q})
     assert response.status_code == 200, response.text
     assert names(response.json()) == expected
@@ -568,8 +629,9 @@ def test_bulk_labels_by_ids_label_licence_or_text(
     ],
 )
 def test_bulk_labels_say_what_is_wrong(
-    fake_client: TestClient, licensed: dict[str, int], body: dict[str, Any], message: str
+    licensed_library: Library, body: dict[str, Any], message: str
 ) -> None:
+    fake_client, _ = licensed_library
     response = fake_client.post("/clips/labels", json=body)
     assert response.status_code == 422, response.text
     assert response.json()["error"] == "invalid_input"
