@@ -336,7 +336,7 @@ def _check_pose(
     if min(leg_lengths) < _MIN_LEG * extent:
         return None, "no two legs reach down from the pelvis: missing legs", 2
     if facts.legs_up(head, chest, pelvis, feet, up) > _LEGS_OPPOSITE_SPINE:
-        names = ", ".join(tree.names[j] for j in (*feet, *hands))
+        names = tree.limb_names((*feet, *hands))
         return (
             None,
             "the spine is horizontal with the limbs hanging down "

@@ -118,6 +118,11 @@ class _Tree:
         self._words_below: dict[tuple[int, int], frozenset[str]] = {}
         self._geodesic: dict[int, np.ndarray] = {}
         self._walk: tuple[list[int], list[float]] | None = None  # parents, lengths
+        self._limb_names: dict[tuple[int, ...], str] = {}
+        # What :mod:`.take` reads of a leg from the bones alone: (pelvis, foot) -> (knee,
+        # ankle), and (pelvis, foot, foot) -> the two legs are mirror images.
+        self.lower_legs: dict[tuple[int, int], tuple[int, int]] = {}
+        self.mirror_legs: dict[tuple[int, int, int], bool] = {}
 
     def lca(self, a: int, b: int) -> int:
         key = (a, b)
@@ -194,6 +199,13 @@ class _Tree:
             out.append(j)
             stack.extend(self.children[j])
         return out
+
+    def limb_names(self, joints: tuple[int, ...]) -> str:
+        """The names of ``joints``, comma-separated (for messages; kept per tuple)."""
+        found = self._limb_names.get(joints)
+        if found is None:
+            found = self._limb_names[joints] = ", ".join(self.names[j] for j in joints)
+        return found
 
     def words_below(self, top: int, end: int) -> frozenset[str]:
         """:meth:`role_words` of the chain below ``top`` down to ``end`` (kept per pair)."""
