@@ -196,7 +196,7 @@ def _choice(
     ]
     for role, ends, top in roles:
         for end in ends:
-            words = tree.role_words(tree.chain(top, end)[1:])
+            words = tree.words_below(top, end)
             if words and role not in words:
                 cost.append(3.0)
             elif role in words:
@@ -212,13 +212,78 @@ def _hypotheses(
     :data:`_LIFTED_FOOT_DROP`)."""
     valid: list[_Body] = []
     reason, best_partial = known.reason, known.progress
+    # The choices share heads, chests, pelvises and feet: what the pose says of each is read
+    # once for all of them.
+    facts = _PoseFacts(pose, extent)
     for choice in known.choices:
-        body, why, progress = _check_pose(known.tree, pose, extent, *choice, lifted=lifted)
+        body, why, progress = _check_pose(
+            known.tree, pose, extent, *choice, lifted=lifted, facts=facts
+        )
         if body is not None:
             valid.append(body)
         elif progress > best_partial:
             best_partial, reason = progress, why
     return valid, reason
+
+
+class _PoseFacts:
+    """What one ``(J, 3)`` pose says of the parts the choices share (a trunk's up, a foot's
+    drop, a pair of legs' direction), each computed on first use, with the arithmetic
+    :func:`_check_pose` does for a single choice (so the same bits), and kept for the next
+    choice with the same parts."""
+
+    def __init__(self, pose: np.ndarray, extent: float) -> None:
+        self.pose = pose
+        self.extent = extent
+        # (head, chest, pelvis) -> (up, it has a length, head above the chest, head above
+        # the pelvis).
+        self._trunks: dict[tuple[int, int, int], tuple[np.ndarray, bool, float, float]] = {}
+        self._drops: dict[tuple[int, int, int, int], float] = {}  # (trunk, foot) -> drop
+        self._legs: dict[tuple[int, int], np.ndarray] = {}  # (pelvis, foot) -> unit leg
+        self._legs_up: dict[tuple[int, int, int, int, int], float] = {}  # (trunk, feet) -> cos
+
+    def trunk(self, head: int, chest: int, pelvis: int) -> tuple[np.ndarray, bool, float, float]:
+        """The trunk's ``(3,)`` up (:func:`trunk_up`), whether it has a length, and how far
+        the head is above the chest and above the pelvis along it."""
+        key = (head, chest, pelvis)
+        found = self._trunks.get(key)
+        if found is None:
+            pose = self.pose
+            up = trunk_up(pose, self.extent, head, chest, pelvis)
+            up.setflags(write=False)  # shared by the bodies of every choice with this trunk
+            found = self._trunks[key] = (
+                up,
+                _length(up) > 0,
+                float((pose[head] - pose[chest]) @ up),
+                float((pose[head] - pose[pelvis]) @ up),
+            )
+        return found
+
+    def drop(self, head: int, chest: int, pelvis: int, foot: int, up: np.ndarray) -> float:
+        """How far ``foot`` is below the pelvis along the trunk's ``up``."""
+        key = (head, chest, pelvis, foot)
+        found = self._drops.get(key)
+        if found is None:
+            found = self._drops[key] = float((self.pose[pelvis] - self.pose[foot]) @ up)
+        return found
+
+    def legs_up(
+        self, head: int, chest: int, pelvis: int, feet: tuple[int, int], up: np.ndarray
+    ) -> float:
+        """cos of the angle between the two legs' mean direction and the trunk's ``up``."""
+        key = (head, chest, pelvis, *feet)
+        found = self._legs_up.get(key)
+        if found is None:
+            legs = [self._leg(pelvis, f) for f in feet]
+            found = self._legs_up[key] = float(_unit(legs[0] + legs[1]) @ up)
+        return found
+
+    def _leg(self, pelvis: int, foot: int) -> np.ndarray:
+        key = (pelvis, foot)
+        found = self._legs.get(key)
+        if found is None:
+            found = self._legs[key] = _unit(self.pose[foot] - self.pose[pelvis])
+        return found
 
 
 def trunk_up(pose: np.ndarray, extent: float, head: int, chest: int, pelvis: int) -> np.ndarray:
@@ -257,38 +322,42 @@ def _check_pose(
     name_cost: tuple[float, ...],
     *,
     lifted: bool = False,
+    facts: _PoseFacts | None = None,
 ) -> tuple[_Body | None, str, int]:
     """The geometric half: a hypothesis if the choice is a humanoid in ``pose``, else (None,
     why, how far it got); ``lifted``: the body may stand on one foot, the other lifted up to
-    about the height of the hips (:data:`_LIFTED_FOOT_DROP`)."""
-    up = trunk_up(pose, extent, head, chest, pelvis)
-    if not _length(up) > 0:
+    about the height of the hips (:data:`_LIFTED_FOOT_DROP`); ``facts``: what ``pose`` says
+    of the parts, kept across the choices of one pose."""
+    if facts is None:
+        facts = _PoseFacts(pose, extent)
+    up, has_length, head_over_chest, head_height = facts.trunk(head, chest, pelvis)
+    if not has_length:
         return None, "the spine has no length", 1
-    drops = [float((pose[pelvis] - pose[f]) @ up) for f in feet]
-    legs = [_unit(pose[f] - pose[pelvis]) for f in feet]
-    leg_dir = _unit(legs[0] + legs[1])
     if min(leg_lengths) < _MIN_LEG * extent:
         return None, "no two legs reach down from the pelvis: missing legs", 2
-    if float(leg_dir @ up) > _LEGS_OPPOSITE_SPINE:
-        names = ", ".join(tree.names[j] for j in (*feet, *hands))
+    if facts.legs_up(head, chest, pelvis, feet, up) > _LEGS_OPPOSITE_SPINE:
+        names = tree.limb_names((*feet, *hands))
         return (
             None,
             "the spine is horizontal with the limbs hanging down "
             f"({names}): a four-legged animal, not a humanoid",
             3,
         )
-    ratios = [d / length for d, length in zip(drops, leg_lengths, strict=True)]
+    ratios = [
+        facts.drop(head, chest, pelvis, f, up) / length
+        for f, length in zip(feet, leg_lengths, strict=True)
+    ]
     lower, higher = sorted(ratios)
     if higher < _LEG_DROP_RATIO or lower < (_LIFTED_FOOT_DROP if lifted else _LEG_DROP_RATIO):
         return None, "no two legs reach down from the pelvis: missing legs", 2
-    if float((pose[head] - pose[chest]) @ up) <= 0:
+    if head_over_chest <= 0:
         return None, "no head above the arms: missing head", 2
     if min(arm_lengths) < _MIN_ARM * extent:
         return None, "no two arms branch off the spine: missing arms", 2
     cost = pair_cost(leg_lengths, arm_lengths, name_cost)
     # Prefer the highest head and the longest limbs among otherwise equal choices (a leaf at
     # the knee is a marker joint, not the foot).
-    cost -= 0.1 * float((pose[head] - pose[pelvis]) @ up) / extent
+    cost -= 0.1 * head_height / extent
     cost -= 0.5 * (sum(leg_lengths) + sum(arm_lengths)) / extent
     # A foot short of the standing drop (allowed only with ``lifted``) is the lifted one.
     raised = feet[int(np.argmin(ratios))] if lower < _LEG_DROP_RATIO else None

@@ -15,7 +15,7 @@ from functools import partial
 import numpy as np
 
 from app.errors import SkeletonMappingError
-from app.motion.mapping.canonical import SkeletonMap, rest_pose
+from app.motion.mapping.canonical import SkeletonMap
 from app.motion.mapping.held import _held_ends, _rehung
 from app.motion.mapping.hypotheses import _Known, _NotHumanoid, _structure
 from app.motion.mapping.mapper import _map_pose
@@ -229,14 +229,23 @@ def _known(skeleton: Skeleton, candidates: int) -> _Known:
     """The structural facts and the rest-pose result of ``skeleton`` with up to
     ``candidates`` limb ends (memoised: every clip of one rig shares them, so importing many
     clips maps the rig once)."""
-    key = _skeleton_key(skeleton) + candidates.to_bytes(2, "little")
+    rig = _skeleton_key(skeleton)
+    key = rig + candidates.to_bytes(2, "little")
     with _KNOWN_LOCK:
         known = _KNOWN.get(key)
         if known is not None:
             _KNOWN.move_to_end(key)
             return known
-    tree = _Tree(skeleton)
-    rest = rest_pose(skeleton)
+        # The same rig read with another number of limb ends has the same tree: its index
+        # helpers and what they keep (chains, geodesics) serve this one too.
+        seen = (
+            _KNOWN.get(rig + other.to_bytes(2, "little"))
+            for other in (_CANDIDATES, _MORE_CANDIDATES)
+        )
+        tree = next((other.tree for other in seen if other is not None), None)
+    if tree is None:
+        tree = _Tree(skeleton)
+    rest = tree.rest.copy()  # what rest_pose(skeleton) gives: the tree computed it
     if float(np.linalg.norm(np.ptp(rest, axis=0))) <= 0.0 or not np.any(tree.lengths > 0):
         raise SkeletonMappingError(
             "every OFFSET is 0: the skeleton has no shape to map "

@@ -102,25 +102,35 @@ _TAKE_MAJORITY = 0.5
 def _lower_leg(tree: _Tree, pelvis: int, foot: int) -> tuple[int, int]:
     """The knee and the ankle, by where they lie along the leg's bones: the joints of the
     leg chain nearest :data:`_KNEE_SHARE` and :data:`_ANKLE_SHARE` of its bone path from
-    the pelvis (the foot's end when the ankle is the knee: a leg without a foot)."""
-    chain = tree.chain(pelvis, foot)[1:]
-    total = tree.path[foot] - tree.path[pelvis]
-    share = np.array([(tree.path[j] - tree.path[pelvis]) / total for j in chain])
-    knee = chain[int(np.argmin(np.abs(share - _KNEE_SHARE)))]
-    ankle = chain[int(np.argmin(np.abs(share - _ANKLE_SHARE)))]
-    return knee, foot if ankle == knee else ankle
+    the pelvis (the foot's end when the ankle is the knee: a leg without a foot). Kept on
+    the tree: every pose and choice of a take asks of the same few legs."""
+    key = (pelvis, foot)
+    found = tree.lower_legs.get(key)
+    if found is None:
+        chain = tree.chain(pelvis, foot)[1:]
+        total = tree.path[foot] - tree.path[pelvis]
+        share = np.array([(tree.path[j] - tree.path[pelvis]) / total for j in chain])
+        knee = chain[int(np.argmin(np.abs(share - _KNEE_SHARE)))]
+        ankle = chain[int(np.argmin(np.abs(share - _ANKLE_SHARE)))]
+        found = tree.lower_legs[key] = (knee, foot if ankle == knee else ankle)
+    return found
 
 
 def _mirror_legs(tree: _Tree, pelvis: int, feet: tuple[int, int]) -> bool:
     """Whether the two legs are one leg and its mirror image, bone for bone (within
-    :data:`_ALIKE`): a person's are; a tail or a creature's other limb beside a leg is not."""
-    bones = [
-        [float(tree.lengths[j]) for j in tree.chain(pelvis, foot)[1:] if tree.lengths[j] > 0]
-        for foot in feet
-    ]
-    return len(bones[0]) == len(bones[1]) and all(
-        abs(math.log(a / b)) <= _ALIKE for a, b in zip(*bones, strict=True)
-    )
+    :data:`_ALIKE`): a person's are; a tail or a creature's other limb beside a leg is not.
+    Kept on the tree, as :func:`_lower_leg`."""
+    key = (pelvis, *feet)
+    found = tree.mirror_legs.get(key)
+    if found is None:
+        bones = [
+            [float(tree.lengths[j]) for j in tree.chain(pelvis, foot)[1:] if tree.lengths[j] > 0]
+            for foot in feet
+        ]
+        found = tree.mirror_legs[key] = len(bones[0]) == len(bones[1]) and all(
+            abs(math.log(a / b)) <= _ALIKE for a, b in zip(*bones, strict=True)
+        )
+    return found
 
 
 def _check_bent(tree: _Tree, pose: np.ndarray, extent: float, choice: _Choice) -> _Body | None:

@@ -110,9 +110,19 @@ class _Tree:
         self.sides: list[str | None] = (
             [name_side(n) for n in skeleton.names] if self.names_trusted else [None] * count
         )
-        # The hypotheses ask the same few pairs thousands of times.
+        # The hypotheses ask the same few pairs thousands of times (the tree does not change
+        # while it is mapped, so each answer is kept).
         self._lca: dict[tuple[int, int], int] = {}
         self._ancestor: dict[tuple[int, int], bool] = {}
+        self._chain: dict[tuple[int, int], tuple[int, ...]] = {}
+        self._words_below: dict[tuple[int, int], frozenset[str]] = {}
+        self._geodesic: dict[int, np.ndarray] = {}
+        self._walk: tuple[list[int], list[float]] | None = None  # parents, lengths
+        self._limb_names: dict[tuple[int, ...], str] = {}
+        # What :mod:`.take` reads of a leg from the bones alone: (pelvis, foot) -> (knee,
+        # ankle), and (pelvis, foot, foot) -> the two legs are mirror images.
+        self.lower_legs: dict[tuple[int, int], tuple[int, int]] = {}
+        self.mirror_legs: dict[tuple[int, int, int], bool] = {}
 
     def lca(self, a: int, b: int) -> int:
         key = (a, b)
@@ -142,27 +152,45 @@ class _Tree:
 
     def chain(self, top: int, bottom: int) -> list[int]:
         """Joints from ``top`` down to ``bottom`` inclusive (``top`` is an ancestor)."""
-        out = [bottom]
-        while out[-1] != top:
-            out.append(int(self.parents[out[-1]]))
-        return out[::-1]
+        key = (top, bottom)
+        found = self._chain.get(key)
+        if found is None:
+            out = [bottom]
+            while out[-1] != top:
+                out.append(int(self.parents[out[-1]]))
+            found = self._chain[key] = tuple(out[::-1])
+        return list(found)  # a fresh list: callers may change theirs
 
     def geodesic(self, start: int) -> np.ndarray:
         """``(J,)`` bone path length from ``start`` to every joint."""
-        out = np.full(len(self.names), -1.0)
+        found = self._geodesic.get(start)
+        if found is None:
+            found = self._geodesic[start] = self._walk_from(start)
+            found.setflags(write=False)
+        return found.copy()  # a fresh array: callers may change theirs
+
+    def _walk_from(self, start: int) -> np.ndarray:
+        """``(J,)`` bone path length from ``start`` to every joint, walked along the bones
+        (on Python floats and lists, cheaper than numpy scalars: the same sums in the same
+        order, so the same bits)."""
+        if self._walk is None:
+            self._walk = (self.parents.tolist(), self.lengths.tolist())
+        parents, lengths = self._walk
+        children = self.children
+        out = [-1.0] * len(self.names)
         out[start] = 0.0
         stack = [start]
         while stack:
             j = stack.pop()
-            neighbours = list(self.children[j])
-            if self.parents[j] >= 0:
-                neighbours.append(int(self.parents[j]))
+            neighbours = list(children[j])
+            if parents[j] >= 0:
+                neighbours.append(parents[j])
             for n in neighbours:
                 if out[n] < 0:
-                    step = self.lengths[n] if self.parents[n] == j else self.lengths[j]
+                    step = lengths[n] if parents[n] == j else lengths[j]
                     out[n] = out[j] + step
                     stack.append(n)
-        return out
+        return np.array(out)
 
     def descendants(self, joint: int) -> list[int]:
         out, stack = [], [joint]
@@ -171,6 +199,21 @@ class _Tree:
             out.append(j)
             stack.extend(self.children[j])
         return out
+
+    def limb_names(self, joints: tuple[int, ...]) -> str:
+        """The names of ``joints``, comma-separated (for messages; kept per tuple)."""
+        found = self._limb_names.get(joints)
+        if found is None:
+            found = self._limb_names[joints] = ", ".join(self.names[j] for j in joints)
+        return found
+
+    def words_below(self, top: int, end: int) -> frozenset[str]:
+        """:meth:`role_words` of the chain below ``top`` down to ``end`` (kept per pair)."""
+        key = (top, end)
+        found = self._words_below.get(key)
+        if found is None:
+            found = self._words_below[key] = frozenset(self.role_words(self.chain(top, end)[1:]))
+        return found
 
     def role_words(self, joints: Sequence[int]) -> set[str]:
         """Which of ``arm``/``leg``/``head`` the names along ``joints`` say."""
