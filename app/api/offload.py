@@ -26,8 +26,11 @@ T = TypeVar("T")
 # loop under load, so a quick search never waits behind another one for long.
 INLINE_BELOW = 0.002
 WEIGHT = 0.2  # of the newest measure in the moving average
-# Calls measured: the first few of a kind, then one in SAMPLE_EVERY. Reading a thread's CPU
-# clock is a system call (no vDSO), which on this VM cost more than the search it measured.
+# Calls measured: the first few of a kind, every one that runs in a thread, and one in
+# SAMPLE_EVERY of those that run inline. Reading a thread's CPU clock is a system call (no
+# vDSO), which on this VM cost more than an inline search it measured; next to a thread hop
+# it is nothing, and a kind whose first calls were slow (a cold index's first search: ~90
+# ms at a million clips) must come back inline within a few calls, not a few hundred.
 FIRST_MEASURED = 4
 SAMPLE_EVERY = 32
 
@@ -53,7 +56,9 @@ class Offload:
     def _timed(self, kind: Hashable, call: Callable[[], T]) -> T:
         calls = self._calls.get(kind, 0)
         self._calls[kind] = calls + 1
-        if calls >= FIRST_MEASURED and calls % SAMPLE_EVERY:
+        estimate = self._seconds.get(kind)
+        inline = estimate is not None and estimate < self._inline_below
+        if inline and calls >= FIRST_MEASURED and calls % SAMPLE_EVERY:
             return call()
         # CPU time of this thread, not wall time: on a loaded machine (or behind the GIL in
         # a thread) a 0.3-ms search can take 3 ms of wall time, and would never run inline.
