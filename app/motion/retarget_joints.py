@@ -14,8 +14,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-import numpy as np
-
 from app.motion.hand import between, palm
 from app.motion.model import Motion
 from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap
