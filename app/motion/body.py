@@ -36,6 +36,7 @@ import numpy as np
 
 from app.errors import ParseError
 from app.motion.body_axes import frames_basis, pose_basis
+from app.motion.hand import palm
 from app.motion.kinematics import bone_lengths, forward_kinematics
 from app.motion.model import Motion
 from app.motion.skeleton_map import (
@@ -83,7 +84,8 @@ class Body:
         ``(F, C, 3)`` world positions of the canonical joints, file units.
     rotations:
         ``(F, C, 3, 3)`` world rotations of the canonical joints' frames (for derived end
-        points such as ``hand_tip`` the frame of the joint they hang from).
+        points the frame of the joint they hang from; for ``hand_tip`` the palm's,
+        :func:`app.motion.hand.palm`).
     frame_time:
         Seconds between frames.
     height:
@@ -163,6 +165,13 @@ def build_body(motion: Motion) -> Body:
     for c, j in enumerate(mapping.joints):
         if motion.skeleton.end_site[j]:
             canon_rot[:, c] = rotations[:, motion.skeleton.parents[j]]
+    # The hand turns at the palm, the joint the retarget drives: the hand tip (an end site or
+    # a finger's last joint) takes the palm's frame. A finger joint's frame adds the fingers'
+    # own curl, which the retarget keeps at rest and a rig without fingers cannot show.
+    for side in ("l", "r"):
+        wrist = int(mapping.joints[CANONICAL_INDEX[f"{side}_wrist"]])
+        tip = CANONICAL_INDEX[f"{side}_hand_tip"]
+        canon_rot[:, tip] = rotations[:, palm(motion.skeleton, wrist, int(mapping.joints[tip]))]
     if not np.all(np.isfinite(canon_pos)) or not np.all(np.isfinite(canon_rot)):
         raise ParseError("forward kinematics produced non-finite joint positions")
 

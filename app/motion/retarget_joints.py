@@ -6,17 +6,17 @@ structural mapping (:mod:`app.motion.skeleton_map`), with the joints each bone a
 its direction can be made the source's. Where both skeletons have as many joints between two
 canonical joints (a spine of three against three, a limb bone split by twist joints at other
 points) those are paired one by one too. The head joint and the hand's palm are driven
-without a direction (their own direction depends on what lies beyond them).
+without a direction (their own direction depends on what lies beyond them); the palm is
+:func:`app.motion.hand.palm`, the joint the descriptors read the hand at.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-import numpy as np
-
-from app.motion.model import Motion, Skeleton
-from app.motion.skeleton_map import CANONICAL_INDEX, COINCIDENT, SkeletonMap
+from app.motion.hand import between, palm
+from app.motion.model import Motion
+from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap
 
 # Canonical chains whose joints the retarget drives, top first: (base, end) canonical names.
 # Joints between the two are driven too when both skeletons have as many there (a spine of
@@ -78,46 +78,6 @@ class Limb:
     end: int
     source_base: int
     source_end: int
-
-
-def between(parents: np.ndarray, top: int, bottom: int) -> list[int]:
-    """Joints strictly between ``bottom`` and its ancestor ``top``, bottom first."""
-    out, j = [], int(parents[bottom])
-    while j != top and j >= 0:
-        out.append(j)
-        j = int(parents[j])
-    return out if j == top else []
-
-
-def palm(skeleton: Skeleton, wrist: int, tip: int) -> int:
-    """The joint that carries the hand's orientation: on the path from ``wrist`` to the hand
-    tip, the first joint where the hand branches (into fingers), else the joint the tip hangs
-    from (the wrist itself when there is nothing between).
-
-    Where it branches into exactly two joints starting at one place, a hand and a thumb
-    (CMU's ``rwrist`` -> ``rhand``, ``rthumb``; MotionBuilder's ``RightHand`` ->
-    ``RightFingerBase``, ``RThumb``), the branching joint only twists the forearm's end and
-    the hand turns at the child on the path: its frame, not the branching joint's, bends the
-    palm (a palm bone per finger, three or more at one place, leaves the branching joint)."""
-    if tip == wrist:
-        return wrist
-    path = [wrist, *between(skeleton.parents, wrist, tip)[::-1], tip]
-    for step, joint in enumerate(path[:-1]):
-        children = skeleton.children(joint)
-        if len(children) > 1:
-            if len(children) == 2 and _one_place(skeleton, joint, children):
-                return path[step + 1]
-            return joint
-    return path[-2]
-
-
-def _one_place(skeleton: Skeleton, joint: int, children: list[int]) -> bool:
-    """The children start at one place in the rest pose (offsets from ``joint`` within
-    :data:`COINCIDENT` of the bone into ``joint``, or all at the joint itself)."""
-    starts = skeleton.offsets[children]
-    scale = float(np.linalg.norm(skeleton.offsets[joint]))
-    spread = float(np.linalg.norm(np.ptp(starts, axis=0)))
-    return spread <= COINCIDENT * max(scale, float(np.linalg.norm(starts, axis=1).max()))
 
 
 def driven_joints(

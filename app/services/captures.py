@@ -39,6 +39,11 @@ NEAR_IDENTICAL: dict[tuple[str, int], float] = {
     # Version 3 measures travel in leg lengths: the same twins lie closer (CMU ASF/AMC vs
     # MotionBuilder BVH, FBX/BVH pairs: at most 0.064, was 0.241), the threshold holds.
     ("motion", 3): 0.25,
+    # kinetic 3 / motion 4 read the hand at the palm, not at a finger joint (issue 22): the
+    # twins lie as close as before (kinetic at most 0.149, motion 0.064; docs/evaluation.md,
+    # "kinetic 3, motion 4"), the thresholds hold.
+    ("kinetic", 3): 0.25,
+    ("motion", 4): 0.25,
 }
 IDENTICAL = 1e-6  # share of a vector's length: other descriptors
 

@@ -7,7 +7,11 @@ motion. To give every skeleton the same dimension and make the numbers independe
 direction, units and Euler conventions:
 
 * the joints are the 16 rotating canonical joints (pelvis, chest, neck, head and left/right
-  shoulder, elbow, wrist, hip, knee, ankle);
+  shoulder, elbow, wrist, hip, knee, ankle). The paper names none: its figure is the CMU
+  "human figure model ... It has 29 joints, 56 joint angles" (section 4), whose hands are
+  several joints. Here the wrist's DOFs are the whole hand's turn, read at the palm
+  (:func:`app.motion.hand.palm`, the joint a retarget drives), never a finger's own curl,
+  which a retarget keeps at rest and a rig without fingers cannot show;
 * each joint's angular velocity is taken from its world rotations, never from Euler channels:
   ``ω_c = rotvec(G_c(t+1) G_c(t)ᵀ) / dt`` minus the same for its canonical parent (the pelvis
   uses its own), in rad/s; its three DOFs are its components along the pelvis-fixed body axes
@@ -69,9 +73,9 @@ KINETIC_PARENT: dict[str, str | None] = {
     **{f"{s}_knee": f"{s}_hip" for s in ("l", "r")},
     **{f"{s}_ankle": f"{s}_knee" for s in ("l", "r")},
 }
-# The wrist's DOFs are the hand's rotation: the frame the hand tip hangs from. Rigs split the
-# hand over one to three joints (Hand; lwrist/lhand/lfingers; LeftWrist/lhand/LFingers), and
-# only the last of them carries the whole hand's orientation in every rig.
+# The wrist's DOFs are the hand's rotation: the hand tip's frame, which the body gives the
+# palm's (build_body). Rigs split the hand over one to three joints (Hand; lwrist/lhand/
+# lfingers; LeftWrist/lhand/LFingers); the palm is the one that turns the whole hand.
 SEGMENT_FRAME: dict[str, str] = {f"{s}_wrist": f"{s}_hand_tip" for s in ("l", "r")}
 _JOINT_INDEX = np.array([CANONICAL_INDEX[SEGMENT_FRAME.get(name, name)] for name in KINETIC_JOINTS])
 _PARENT_POSITION = np.array(
@@ -233,7 +237,7 @@ def three_man_from_vectors(vectors: np.ndarray) -> np.ndarray:
 DESCRIPTOR = Descriptor(
     name="kinetic",
     dimension=len(KINETIC_JOINTS) * 3 + 2,
-    version=2,
+    version=3,
     description="How much each part of the body moves: the energy of every joint's rotation "
     "and of the body's travel. Finds clips of similar vigour and rhythm (a punch, a kick, a "
     "dance) whatever the pose; blind to where the limbs point.",

@@ -291,7 +291,7 @@ DESCRIPTOR = Descriptor(
     + PARTS_DIMENSION
     + TRAVEL_DIMENSION
     + SIDEWAYS_DIMENSION,
-    version=3,
+    version=4,
     description="The best all-round choice (the default): what the body does — where the "
     "limbs point, which parts move and how hard, and how the body travels (ahead, back, to "
     "the side, turning). Finds the same action across actors, styles and skeletons.",
