@@ -22,13 +22,13 @@ $(BIN)/python:
 # Reinstall whenever the dependencies change. The `fbx` extra (bpy, ~1 GB: Blender's FBX
 # exporter for format=fbx) may fail where no wheel exists for this platform: then everything
 # else is installed, format=fbx answers 501 (fbx_unavailable) and the FBX tests skip, except
-# in CI. One pip run: two resolved and installed everything twice. Everything installed is
-# then compiled to bytecode on every core (pip compiles one file at a time: ~40 s of the
-# install). Blender's own scripts must be compiled at install: Blender turns off writing
-# bytecode, so without it every Blender worker compiled them again (`import bpy` 4.9 s
-# instead of 1.2 s, the tests' first phase 13:04 instead of 10:43). Everything else is
-# compiled by the first process that imports it (a small part of the 8,000 files installed:
-# compiling all of them cost ~45 s of CPU, bpy's ~4 s).
+# in CI. One pip run: two resolved and installed everything twice. pip compiles nothing
+# (one file at a time: ~40 s of the install); Blender's own scripts are then compiled on
+# every core, as they must be at install: Blender turns off writing bytecode, so without it
+# every Blender worker compiled them again (`import bpy` 4.9 s instead of 1.2 s, the tests'
+# first phase 13:04 instead of 10:43). Everything else is compiled by the first process that
+# imports it (a small part of the 8,000 files installed: compiling all of them cost ~45 s of
+# CPU, bpy's ~4 s).
 PIP_INSTALL = $(BIN)/python -m pip install --quiet --no-compile
 SITE_PACKAGES = $(BIN)/python -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])'
 $(INSTALLED): pyproject.toml | $(BIN)/python
