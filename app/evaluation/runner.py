@@ -45,6 +45,7 @@ from pathlib import Path, PurePath
 
 import numpy as np
 
+from app.cli_progress import ProgressBar
 from app.discovery import ClipSource, DiscoveryFailure, content_hash, discover
 from app.errors import InvalidInput
 from app.evaluation.metrics import (
@@ -227,29 +228,24 @@ ProgressCallback = Callable[[int], None]
 
 @contextlib.contextmanager
 def _progress_bar(total: int, enabled: bool) -> Iterator[ProgressCallback]:
+    """The long commands' progress bar (:class:`app.cli_progress.ProgressBar`), advanced by
+    the number of clips each call reports."""
     if not enabled or total == 0:
         yield lambda _n: None
         return
-    from rich.console import Console
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
+    bar = ProgressBar("describing clips")
+    bar.start(total, workers=0)
+    done = 0
 
-    columns = (
-        TextColumn("describing clips"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        TimeRemainingColumn(),
-    )
-    with Progress(*columns, console=Console(stderr=True)) as progress:
-        task = progress.add_task("describe", total=total)
-        yield lambda n: progress.advance(task, n)
+    def advance(n: int) -> None:
+        nonlocal done
+        done += n
+        bar.set_done(done)
+
+    try:
+        yield advance
+    finally:
+        bar.stop()
 
 
 def _pool_context() -> BaseContext | None:
