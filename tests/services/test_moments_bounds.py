@@ -42,7 +42,10 @@ def bandai(seconds: float, n: int) -> bytes:
 @pytest.fixture(scope="module")
 def library_dir(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Settings, int]]:
     """Eight real clips of 20-55 s, a three-minute take, and synthetic copies: 400 clips."""
-    settings = Settings(data_dir=tmp_path_factory.mktemp("moments") / "data")
+    # IVF window indexes as a real library of this size has, with fewer cells than the default
+    # 4 x sqrt(windows): training ~2,000 cells was two thirds of this file's CPU, and how many
+    # cells there are is not what it checks.
+    settings = Settings(data_dir=tmp_path_factory.mktemp("moments") / "data", ivf_nlist=256)
     with TestClient(create_app(settings)) as client:
         for n in range(8):
             files = {"file": (f"walk_{n}.bvh", bandai(20 + 5 * n, n + 1))}
