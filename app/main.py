@@ -20,6 +20,7 @@ from app.api.compression import add_compression
 from app.api.errors import error_responses, install_error_handlers
 from app.api.guard import AccessTable, RequestGuard, document_access, shared_access_table
 from app.api.limits import BodySizeLimit, DescribeGate, Slots
+from app.api.routers import add_router
 from app.config import Settings
 from app.services.clips import remove_orphan_files
 from app.services.describe import Describer
@@ -133,8 +134,8 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
     reads = read_dependencies(settings)
     read_errors = error_responses(401, 403) if reads else {}
     for router in READING_ROUTERS:
-        app.include_router(router, dependencies=reads, responses=read_errors)
-    app.include_router(meta.router)
+        add_router(app, router, dependencies=reads, responses=read_errors)
+    add_router(app, meta.router)
     ui.mount_ui(app)  # the web UI at /, /static/*, and the routes it reads (skeletons, map)
     document_access(app, settings)
     return app

@@ -32,6 +32,7 @@ from app.api.compression import MINIMUM_BYTES
 from app.api.deps import ClipDep, DescriptorDep, LabelQuery, LibraryDep, SettingsDep, UploadDep
 from app.api.errors import error_responses
 from app.api.query_check import CheckedQueryRoute
+from app.api.routers import add_router
 from app.api.schemas import ClipOut, ClipPage
 from app.services import library_map as ui_service
 from app.services import previews
@@ -402,6 +403,6 @@ def mount_ui(app: FastAPI) -> None:
     # The page and its files are open (like /docs); the data routes are reading routes.
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
     reads = read_dependencies(state.settings)
-    app.include_router(
-        router, dependencies=reads, responses=error_responses(401, 403) if reads else None
+    add_router(
+        app, router, dependencies=reads, responses=error_responses(401, 403) if reads else None
     )
