@@ -299,10 +299,10 @@ def dev_outcomes(probe: str) -> dict[Path, tuple[str, bool, bool, bool]]:
 # search's, finds the original first. Every copy that maps alike with its axes right and is not
 # found first by all three is missed by ``posture`` (104 of 104 such pairs, seven probes, the
 # files not held out; one by ``motion`` too), and described with the original's body axes all
-# three of its vectors are the original's exactly (75 pairs of five probes; 3 more keep a lead-in
-# frame the original drops; tests/motion/test_body_axes.py): what tells it apart is the body's
-# pitch, 5-29 degrees, which a rest pose that is no writer's rest cannot tell (docs/skeletons.md,
-# "2026-11-27, what tells an odd-rest copy from its original").
+# three of its vectors are the original's to rounding (75 pairs of five probes; 3 more keep a
+# lead-in frame the original drops; tests/motion/test_body_axes.py): what tells it apart is the
+# body's pitch, 5-29 degrees, which a rest pose that is no writer's rest cannot tell
+# (docs/skeletons.md, "2026-11-27, what tells an odd-rest copy from its original").
 RECORDED: dict[str, tuple[int, int, int, int]] = {
     "a: bones along signed axes": (62, 61, 46, 61),
     "a: bones in random axes": (60, 55, 35, 59),
