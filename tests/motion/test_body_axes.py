@@ -3,15 +3,22 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
+import pytest
 
 from app.motion import transforms
 from app.motion.body import build_body, pelvis_basis
+from app.motion.formats import read_bvh
+from app.motion.ground import sample_frames
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion
+from app.motion.pipeline import analyse, describable_body
 from app.motion.skeleton_map import CANONICAL_INDEX
+from tests.motion.conftest import BANDAI_FIXTURE, CMU_BVH_FIXTURE, fixture_bytes
 from tests.motion.synthetic import walker_motion
-from tests.motion.test_mapping_probes import own_axes
+from tests.motion.test_mapping_probes import frame_as_rest, own_axes
 
 
 def _hunched_walk() -> tuple[Motion, np.ndarray]:
@@ -53,3 +60,36 @@ def test_a_hunched_walk_turned_as_a_whole_finds_its_own_up_axis() -> None:
     walk, canonical = _hunched_walk()
     lying = transforms.rotate(walk, transforms.rotation_about([1.0, 0.0, 0.0], 90.0))
     assert _least_agreement_with_its_copy_in_odd_axes(lying, canonical) > np.cos(np.radians(5.0))
+
+
+def _described(motion: Motion, axes_of: Motion | None = None) -> dict[str, np.ndarray]:
+    """Every stored descriptor vector of ``motion``, its body given the body axes (and so the
+    world's up) of ``axes_of`` when given: the rest of the body is ``motion``'s own."""
+    body = describable_body(motion)
+    if axes_of is not None:
+        other = describable_body(axes_of)
+        assert other.frame_count == body.frame_count
+        body = dataclasses.replace(
+            body, pelvis_frames=other.pelvis_frames, world_up=other.world_up, _memo={}
+        )
+    return analyse(motion, body=body).descriptors
+
+
+@pytest.mark.parametrize("fixture", [CMU_BVH_FIXTURE, BANDAI_FIXTURE])
+def test_the_descriptors_read_the_world_motion_and_the_body_axes_only(fixture: str) -> None:
+    # Issue 20, item 7: a copy whose bones lie along other axes, or whose rest pose is a frame
+    # of the take, has other local rotations and offsets but the same world motion. Given the
+    # original's body axes, every descriptor is the original's: kinetic reads each joint's
+    # turn from its world rotations (a constant turn of the bone's axes cancels in
+    # G(t+1) G(t)^T), posture and motion read world positions. So what still tells such a
+    # copy from its original is the body axes alone (docs/skeletons.md, "2026-11-27, what
+    # tells an odd-rest copy from its original").
+    motion = sample_frames(read_bvh(fixture_bytes(fixture)), 60)
+    # The CMU conversion starts from its rest pose, a lead-in frame dropped because its
+    # rotations are the identity; the copies write that frame otherwise (left, see the docs).
+    motion = motion.slice_frames(describable_body(motion).lead_in_frames, motion.frame_count)
+    original = _described(motion)
+    for copy in (own_axes(motion), frame_as_rest(motion, motion.frame_count // 2)):
+        described = _described(copy, axes_of=motion)
+        for name, vector in original.items():
+            assert np.allclose(described[name], vector, rtol=0.0, atol=1e-9), name

@@ -14,11 +14,12 @@ Each rig keeps its world motion and gets another way of writing it:
 * (e) a left-handed export: one world axis negated (the names then lie on the mirror
   image's sides: the mapping must be the same joints, taken as a mirrored capture).
 
-Three measures per copy: the mapping (the same source joints by name, mirrored exactly when
+Four measures per copy: the mapping (the same source joints by name, mirrored exactly when
 the copy is), the body's axes (the pelvis frame's up within 30 degrees and forward within 45
 degrees of the original's, the median over the frames, read back through the probe's world
 change) and what a user sees (the copy's stored ``motion``, ``posture`` and ``kinetic``
-vectors each find the original first among the dev files). The CMU and Bandai fixtures must
+vectors each find the original first among the dev files; and ``motion``, the default
+search, alone). The CMU and Bandai fixtures must
 map alike, axes right, under every probe; the development rigs are ratchets, with the counts
 of each measure recorded. No probed copy may fail otherwise than with a
 :class:`~app.errors.MocapError` (a 4xx).
@@ -242,27 +243,36 @@ def _shown_vectors(probe: str) -> dict[Path, dict[str, np.ndarray]]:
     return found
 
 
-def nearest_is_the_original(path: Path, vectors: dict[str, np.ndarray], probe: str) -> bool:
-    """What a user sees: each of the probed copy's stored descriptors (``motion``,
-    ``posture``, ``kinetic``) finds the unprobed file first among the dev files (ties,
-    such as a one-frame clip's empty kinetic vector, count for the original)."""
+def finding_the_original(path: Path, vectors: dict[str, np.ndarray], probe: str) -> set[str]:
+    """The probed copy's stored descriptors (of ``motion``, ``posture``, ``kinetic``) that
+    find the unprobed file first among the dev files (ties, such as a one-frame clip's
+    empty kinetic vector, count for the original)."""
     originals = _shown_vectors(probe)
     if path not in originals:
-        return False
+        return set()
+    finding = set()
     for name, vector in vectors.items():
         distance = {q: float(np.linalg.norm(vector - v[name])) for q, v in originals.items()}
-        if distance[path] > min(distance.values()):
-            return False
-    return True
+        if distance[path] <= min(distance.values()):
+            finding.add(name)
+    return finding
 
 
-def dev_outcomes(probe: str) -> dict[Path, tuple[str, bool, bool]]:
-    """Per dev file: (mapping verdict, body axes right, the original found first)."""
+def nearest_is_the_original(path: Path, vectors: dict[str, np.ndarray], probe: str) -> bool:
+    """What a user sees: each of the probed copy's stored descriptors finds the unprobed file
+    first among the dev files."""
+    return finding_the_original(path, vectors, probe) == set(vectors)
+
+
+def dev_outcomes(probe: str) -> dict[Path, tuple[str, bool, bool, bool]]:
+    """Per dev file: (mapping verdict, body axes right, the original found first by all
+    three stored descriptors, by ``motion``, the default search, alone)."""
     found = {}
     for path, motion, read in _dev_motions():
         verdict, axes, got = probed(motion, probe, read)
-        first = got is not None and nearest_is_the_original(path, got[4], probe)
-        found[path] = (verdict, axes, first)
+        finding = set() if got is None else finding_the_original(path, got[4], probe)
+        every = got is not None and finding == set(got[4])
+        found[path] = (verdict, axes, every, "motion" in finding)
     return found
 
 
@@ -285,20 +295,28 @@ def dev_outcomes(probe: str) -> dict[Path, tuple[str, bool, bool]]:
 # -> 57) and the copies found first (42 -> 46, 31 -> 35, two frames 35 -> 37) but one frame in
 # random axes 35 -> 34: a single pose's pelvis tilt is no smaller than its spine's bend as often
 # as not (five files found first now, six no longer).
-RECORDED: dict[str, tuple[int, int, int]] = {
-    "a: bones along signed axes": (62, 61, 46),
-    "a: bones in random axes": (60, 55, 35),
-    "b: rest pose lying": (66, 66, 66),
-    "b: middle frame as rest": (61, 56, 39),
-    "c: one frame": (66, 66, 66),
-    "c: one frame, it as rest": (59, 54, 42),
-    "c: one frame, random axes": (59, 58, 34),
-    "c: two frames, first as rest": (60, 55, 40),
-    "c: two frames, random axes": (59, 57, 37),
-    "d: take lying, first frame as rest": (62, 56, 41),
-    "d: take lying, rest pose lying": (66, 66, 66),
-    "e: left-handed": (64, 64, 64),
-    "e: left-handed, first frame as rest": (60, 54, 39),
+# A fourth count since 2026-11-27: the copies (mapped alike) whose ``motion`` vector, the default
+# search's, finds the original first. Every copy that maps alike with its axes right and is not
+# found first by all three is missed by ``posture`` (104 of 104 such pairs, seven probes, the
+# files not held out; one by ``motion`` too), and described with the original's body axes all
+# three of its vectors are the original's to rounding (75 pairs of five probes; 3 more keep a
+# lead-in frame the original drops; tests/motion/test_body_axes.py): what tells it apart is the
+# body's pitch, 5-29 degrees, which a rest pose that is no writer's rest cannot tell
+# (docs/skeletons.md, "2026-11-27, what tells an odd-rest copy from its original").
+RECORDED: dict[str, tuple[int, int, int, int]] = {
+    "a: bones along signed axes": (62, 61, 46, 61),
+    "a: bones in random axes": (60, 55, 35, 59),
+    "b: rest pose lying": (66, 66, 66, 66),
+    "b: middle frame as rest": (61, 56, 39, 58),
+    "c: one frame": (66, 66, 66, 66),
+    "c: one frame, it as rest": (59, 54, 42, 56),
+    "c: one frame, random axes": (59, 58, 34, 57),
+    "c: two frames, first as rest": (60, 55, 40, 58),
+    "c: two frames, random axes": (59, 57, 37, 59),
+    "d: take lying, first frame as rest": (62, 56, 41, 60),
+    "d: take lying, rest pose lying": (66, 66, 66, 66),
+    "e: left-handed": (64, 64, 64, 64),
+    "e: left-handed, first frame as rest": (60, 54, 39, 58),
 }
 
 
@@ -306,14 +324,16 @@ RECORDED: dict[str, tuple[int, int, int]] = {
 @pytest.mark.parametrize("probe", list(PROBES))
 def test_human_dev_rigs_under_a_rest_that_is_not_a_rest(probe: str) -> None:
     found = dev_outcomes(probe)
-    maps = sum(v == "same" for v, _, _ in found.values())
-    upright = sum(v == "same" and axes for v, axes, _ in found.values())
-    first = sum(v == "same" and near for v, _, near in found.values())
+    maps = sum(v == "same" for v, _, _, _ in found.values())
+    upright = sum(v == "same" and axes for v, axes, _, _ in found.values())
+    first = sum(v == "same" and near for v, _, near, _ in found.values())
+    by_motion = sum(v == "same" and near for v, _, _, near in found.values())
     print(
         f"{probe}: {maps} of {len(found)} map alike, {upright} with the body's axes right, "
-        f"{first} found first by their own descriptors"
+        f"{first} found first by their own descriptors, {by_motion} by motion"
     )
-    failed = {f"{family(p)}/{p.name}": v for p, (v, _, _) in found.items() if v != "same"}
+    failed = {f"{family(p)}/{p.name}": v for p, (v, _, _, _) in found.items() if v != "same"}
     assert maps >= RECORDED[probe][0], failed
     assert upright >= RECORDED[probe][1], failed
     assert first >= RECORDED[probe][2], failed
+    assert by_motion >= RECORDED[probe][3], failed
