@@ -113,6 +113,9 @@ def stored_span_parts(library: Library, span: StoredSpan) -> Parts:
         return parts
     vector = _stored_span_vector(library, span)
     if vector is None:
+        with library.reads() as session:  # its windows and vectors went with it: 404, not 422
+            if clip_db.get_clip(session, clip.id) is None:
+                raise NotFound(f"no clip with id {clip.id}")
         raise InvalidInput(
             f"clip {clip.id} has no stored file to describe a part of ({clip.format} clip); "
             "search from the whole clip or one of its windows"
