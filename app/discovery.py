@@ -191,7 +191,8 @@ def discover(paths: Sequence[Path], *, scenes: bool = False) -> DiscoveryResult:
     return DiscoveryResult(sources, failures)
 
 
-def _file_digest(path: Path) -> str:
+def file_digest(path: Path) -> str:
+    """SHA-256 hex of the file at ``path``, read a megabyte at a time."""
     digest = hashlib.sha256()
     with path.open("rb") as stream:
         for chunk in iter(lambda: stream.read(1 << 20), b""):
@@ -226,6 +227,6 @@ def content_hash_of_animation(data: bytes, animation: str, *, digest: str | None
 def content_hash(source: ClipSource) -> str:
     """SHA-256 hex of a BVH's bytes; for ASF/AMC, of ``sha256(asf) + sha256(amc)`` hex digests."""
     if source.skeleton is None:
-        return _file_digest(source.motion)
-    pair = _file_digest(source.skeleton) + _file_digest(source.motion)
+        return file_digest(source.motion)
+    pair = file_digest(source.skeleton) + file_digest(source.motion)
     return hashlib.sha256(pair.encode("ascii")).hexdigest()

@@ -3,12 +3,12 @@ already reported."""
 
 from __future__ import annotations
 
-import hashlib
 import json
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from app.discovery import file_digest
 from app.importer.report import ImportReport
 
 if TYPE_CHECKING:
@@ -19,7 +19,7 @@ REFUSALS_FILE = "import-refusals.json"
 
 def _file_sha256(path: Path) -> str | None:
     try:
-        return hashlib.sha256(path.read_bytes()).hexdigest()
+        return file_digest(path)
     except OSError:
         return None
 
