@@ -15,15 +15,13 @@ from __future__ import annotations
 
 import importlib.util
 import os
-import resource
 import signal
-from contextlib import suppress
 from multiprocessing.connection import Connection
 from typing import TYPE_CHECKING, Any, cast
 
 from app.errors import ExportFailed, FbxUnavailable, InvalidInput, ParseError, UnreadableFile
 from app.motion.model import Motion, ParseLimits
-from app.services.parser_pool import ParserPool
+from app.services.parser_pool import ParserPool, serve_requests
 
 if TYPE_CHECKING:
     from app.config import Settings
@@ -44,11 +42,6 @@ def fbx_unavailable_reason() -> str | None:
     return None
 
 
-def _address_space() -> int:
-    with open("/proc/self/statm") as stream:
-        return int(stream.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
-
-
 def _import_blender() -> str | None:
     """Import bpy; the problem, or ``None``. The worker's stdout and stderr go nowhere from
     here on: Blender talks (a message about a numpy extension it does not use here, "export
@@ -65,60 +58,34 @@ def _import_blender() -> str | None:
     return None
 
 
+def _export_answer(request: tuple[Any, ...], problem: str | None) -> tuple[Any, ...]:
+    """The answer to ``(WRITE_FBX, (motion, metres_per_unit, name), None, limits)``: the FBX
+    bytes, or why not (the answers of the parser pool's protocol)."""
+    if problem is not None:
+        return ("unreadable", f"{_UNAVAILABLE}{problem}")
+    from app.motion.formats.fbx_writer import write_fbx
+
+    motion, metres_per_unit, name = request[1]
+    try:
+        return ("ok", write_fbx(motion, metres_per_unit=metres_per_unit, name=name))
+    except ValueError as error:
+        return ("parse_error", str(error), None)
+    except MemoryError:
+        raise
+    except Exception as error:  # the exporter failed on this motion
+        return ("unreadable", f"Blender's FBX exporter failed ({type(error).__name__})")
+
+
 def _export_worker_main(conn: Connection, memory_mb: int | None) -> None:
-    """Answer ``(WRITE_FBX, (motion, metres_per_unit, name), None, limits)`` requests with the
-    FBX bytes until the pipe closes (the answers of the parser pool's protocol)."""
+    """Import Blender, then answer FBX requests until the pipe closes."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     problem = _import_blender()
-    baseline = _address_space()
-    if memory_mb is not None:
-        limit = baseline + memory_mb * 1024 * 1024
-        with suppress(ValueError, OSError):
-            resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
-    conn.send(("ready", os.getpid()))
-    done = 0
-    while True:
-        try:
-            request = conn.recv()
-        except (EOFError, OSError):
-            return
-        if request is None:
-            return
-        _kind, payload, _animation, _limits = request
-        exit_after = False
-        answer: tuple[Any, ...]
-        if problem is not None:
-            answer = ("unreadable", f"{_UNAVAILABLE}{problem}")
-        else:
-            from app.motion.formats.fbx_writer import write_fbx
-
-            motion, metres_per_unit, name = payload
-            try:
-                answer = ("ok", write_fbx(motion, metres_per_unit=metres_per_unit, name=name))
-            except ValueError as error:
-                answer = ("parse_error", str(error), None)
-            except MemoryError:
-                answer = ("memory", None)
-                exit_after = True
-            except Exception as error:  # the exporter failed on this motion
-                answer = ("unreadable", f"Blender's FBX exporter failed ({type(error).__name__})")
-        try:
-            conn.send(answer)
-        except (BrokenPipeError, OSError):
-            return
-        del answer, request
-        if exit_after:
-            os._exit(0)
-        done += 1
-        retire = done >= RETIRE_AFTER_EXPORTS or (
-            memory_mb is not None and _address_space() > baseline + memory_mb * 2**19
-        )
-        try:
-            conn.send(("retire" if retire else "ready", None))
-        except (BrokenPipeError, OSError):
-            return
-        if retire:
-            os._exit(0)
+    serve_requests(
+        conn,
+        memory_mb,
+        lambda request: _export_answer(request, problem),
+        retire_after=RETIRE_AFTER_EXPORTS,
+    )
 
 
 class ExportPool(ParserPool):

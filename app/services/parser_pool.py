@@ -163,6 +163,88 @@ def _address_space() -> int:
         return int(stream.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
 
 
+def serve_requests(
+    conn: Connection,
+    memory_mb: int | None,
+    answer_for: Callable[[tuple[Any, ...]], tuple[Any, ...]],
+    *,
+    retire_after: int,
+    keep: Callable[[tuple[Any, ...]], None] = lambda _request: None,
+) -> None:
+    """The worker's side of the pool's protocol, once its imports are done.
+
+    Limits the address space to ``memory_mb`` above what the worker maps now, says "ready",
+    then answers each request ``(kind, data, animation, limits)`` with ``answer_for(request)``
+    until the pipe closes, ``keep(request)`` after each answer (what must outlive it), and
+    after each one says "ready" again, or "retire" and exits after ``retire_after`` requests
+    or half its memory budget. ``MemoryError`` answers ``("memory", None)`` and exits (the
+    heap may be in pieces); exits skip destructors.
+    """
+    baseline = _address_space()
+    if memory_mb is not None and hasattr(resource, "RLIMIT_AS"):
+        limit = baseline + memory_mb * 1024 * 1024
+        with suppress(ValueError, OSError):
+            resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+    conn.send(("ready", os.getpid()))
+    done = 0
+    while True:
+        try:
+            request = conn.recv()
+        except (EOFError, OSError):
+            return
+        if request is None:
+            return
+        exit_after = False
+        answer: tuple[Any, ...]
+        try:
+            answer = answer_for(request)
+        except MemoryError:
+            answer = ("memory", None)
+            exit_after = True
+        try:
+            conn.send(answer)
+        except MemoryError:
+            exit_after = True
+            with suppress(Exception):
+                conn.send(("memory", None))
+        except (BrokenPipeError, OSError):
+            return
+        del answer
+        if exit_after:
+            os._exit(0)
+        keep(request)
+        del request
+        done += 1
+        retire = done >= retire_after or (
+            memory_mb is not None and _address_space() > baseline + memory_mb * 2**19
+        )
+        try:
+            conn.send(("retire" if retire else "ready", None))
+        except (BrokenPipeError, OSError):
+            return
+        if retire:
+            os._exit(0)
+
+
+def _parse_answer(request: tuple[Any, ...], kept: list[Any]) -> tuple[Any, ...]:
+    """The answer to ``(kind, data, animation, limits)``: the scene, or the reader's error."""
+    kind, data, animation, limits = request
+    try:
+        return ("ok", parse_scene(kind, data, animation, limits, kept))
+    except UnknownAnimation as error:
+        return ("unknown_animation", error.reason, None)
+    except ParseError as error:
+        return ("parse_error", error.reason, error.line, error.code)
+    except LimitExceeded as error:
+        return ("limit", error.detail)
+    except MemoryError:
+        raise
+    except RecursionError:
+        return ("unreadable", "the file is nested too deeply to read")
+    except Exception as error:  # a reader bug on odd input: that file is unreadable
+        return ("unreadable", f"the reader failed ({type(error).__name__})")
+
+
 def _worker_main(conn: Connection, memory_mb: int | None) -> None:
     """Answer requests ``(kind, data, animation, limits)`` until the pipe closes."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is for the server to handle
@@ -176,64 +258,19 @@ def _worker_main(conn: Connection, memory_mb: int | None) -> None:
     # The cyclic garbage collector crashes on the binding's objects once scenes are kept
     # alive (below); nothing here needs it, and the worker retires before it matters.
     gc.disable()
-    baseline = _address_space()
-    kept: list[Any] = []  # loaded scenes, never freed (see below)
+    # Scenes are never freed here (freeing the binding's objects can crash it, and a scene
+    # may point into the file's bytes): they are kept, with the bytes, until the worker
+    # retires after RETIRE_AFTER_FILES files or half its memory budget, and exits without
+    # running destructors.
+    kept: list[Any] = []  # loaded scenes
     kept_bytes: list[bytes] = []
-    if memory_mb is not None and hasattr(resource, "RLIMIT_AS"):
-        limit = baseline + memory_mb * 1024 * 1024
-        with suppress(ValueError, OSError):
-            resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
-    conn.send(("ready", os.getpid()))
-    while True:
-        try:
-            request = conn.recv()
-        except (EOFError, OSError):
-            return
-        if request is None:
-            return
-        kind, data, animation, limits = request
-        exit_after = False
-        try:
-            answer: tuple[Any, ...] = ("ok", parse_scene(kind, data, animation, limits, kept))
-        except UnknownAnimation as error:
-            answer = ("unknown_animation", error.reason, None)
-        except ParseError as error:
-            answer = ("parse_error", error.reason, error.line, error.code)
-        except LimitExceeded as error:
-            answer = ("limit", error.detail)
-        except MemoryError:
-            answer = ("memory", None)
-            exit_after = True
-        except RecursionError:
-            answer = ("unreadable", "the file is nested too deeply to read")
-        except Exception as error:  # a reader bug on odd input: that file is unreadable
-            answer = ("unreadable", f"the reader failed ({type(error).__name__})")
-        try:
-            conn.send(answer)
-        except MemoryError:
-            exit_after = True
-            with suppress(Exception):
-                conn.send(("memory", None))
-        except (BrokenPipeError, OSError):
-            return
-        del answer
-        if exit_after:
-            os._exit(0)
-        # Scenes are never freed here (freeing the binding's objects can crash it, and a scene
-        # may point into the file's bytes): they are kept, with the bytes, until the worker
-        # retires after RETIRE_AFTER_FILES files or half its memory budget, and exits without
-        # running destructors. "ready" tells the pool it may send the next file.
-        kept_bytes.append(data)
-        del request
-        retire = len(kept_bytes) >= RETIRE_AFTER_FILES or (
-            memory_mb is not None and _address_space() > baseline + memory_mb * 2**19
-        )
-        try:
-            conn.send(("retire" if retire else "ready", None))
-        except (BrokenPipeError, OSError):
-            return
-        if retire:
-            os._exit(0)
+    serve_requests(
+        conn,
+        memory_mb,
+        lambda request: _parse_answer(request, kept),
+        retire_after=RETIRE_AFTER_FILES,
+        keep=lambda request: kept_bytes.append(request[1]),
+    )
 
 
 @dataclass(eq=False)
