@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from app.motion.formats import read_asf_amc, read_bvh
-from app.motion.pipeline import ClipAnalysis, analyse
+from app.motion.pipeline import ClipAnalysis, analyse, describable_body
+from app.motion.skeleton_map import CANONICAL_INDEX, rest_pose
 from tests.motion.shared import SHARED_DATA, requires_shared_data
 
 pytestmark = requires_shared_data
@@ -94,3 +95,55 @@ def test_motion_is_at_least_as_accurate_as_both_papers_on_cmu_fine_labels(cmu_cl
         accuracy[name] = float(np.mean(predicted[scored] == fine[scored]))
     print("CMU fine-label 1-NN accuracy, twins excluded:", accuracy)
     assert accuracy["motion"] >= max(accuracy["posture"], accuracy["kinetic"])
+
+
+def _degrees(rotations: np.ndarray) -> np.ndarray:
+    """``(...)`` angle in degrees of each ``(..., 3, 3)`` rotation."""
+    cosine = (np.trace(rotations, axis1=-2, axis2=-1) - 1.0) / 2.0
+    return np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0)))
+
+
+def test_daz_conversion_is_read_as_the_same_pelvis_motion_on_another_figure():
+    """``posture`` misses every DAZ twin (docs/skeletons.md, "the DAZ twins"): not a misreading.
+
+    The two files' pelvis frames agree frame for frame up to one constant turn (the figures'
+    rest spines lean differently), once the converter's lead-in is dropped; the DAZ figure is
+    another body (shoulders about 40 % narrower in leg lengths, a thigh shorter than the shin) and
+    has no point above its head joint, so its ``head`` is the head joint itself.
+    """
+    trial = CMU / "asf-amc" / "02"
+    original = describable_body(
+        read_asf_amc((trial / "02.asf").read_bytes(), (trial / "02_01.amc").read_bytes())
+    )
+    daz_motion = read_bvh((CMU / "bvh-daz" / "02" / "02_01.bvh").read_bytes())
+    daz = describable_body(daz_motion)
+
+    # The DAZ file has one frame more (its rest pose first), so its frame k+1 is AMC frame k.
+    start = daz.lead_in_frames - 1
+    original_frames = original.pelvis_frames[start : start + daz.frame_count]
+    relative = np.einsum("fba,fbc->fac", daz.pelvis_frames[: len(original_frames)], original_frames)
+    assert len(relative) == daz.frame_count  # every frame has its twin
+    assert np.abs(relative - relative[0]).max() < 1e-3  # one constant turn...
+    assert 0.5 < _degrees(relative[0]) < 5.0  # ...of a few degrees
+
+    def proportions(motion, body) -> tuple[float, float]:
+        """Shoulder width and thigh over shin, in leg lengths, from the rest pose."""
+        pose = rest_pose(motion.skeleton)[body.mapping.joints]
+        at = {name: pose[CANONICAL_INDEX[name]] for name in CANONICAL_INDEX}
+        thigh = np.linalg.norm(at["l_knee"] - at["l_hip"])
+        shin = np.linalg.norm(at["l_ankle"] - at["l_knee"])
+        return float(np.linalg.norm(at["l_shoulder"] - at["r_shoulder"]) / (thigh + shin)), float(
+            thigh / shin
+        )
+
+    original_motion = read_asf_amc(
+        (trial / "02.asf").read_bytes(), (trial / "02_01.amc").read_bytes()
+    )
+    daz_width, daz_thigh = proportions(daz_motion, daz)
+    original_width, original_thigh = proportions(original_motion, original)
+    assert daz_width < 0.7 * original_width
+    assert daz_thigh < 0.85 < original_thigh
+
+    head = CANONICAL_INDEX["head"]
+    assert daz.mapping.joints[head] == daz.mapping.head_joint
+    assert original.mapping.joints[head] != original.mapping.head_joint
