@@ -26,17 +26,19 @@ _STANDING_DROP = 0.8
 _STANDING_SHARE = 0.5
 
 
+# The joints the axes are read from: the trunk's two ends and each leg's.
+_TRUNK_AND_LEGS = ("pelvis", "neck", *(f"{s}_{p}" for s in "lr" for p in ("hip", "knee", "ankle")))
+
+
+def _trunk_and_legs(positions: np.ndarray, canonical: np.ndarray) -> dict[str, np.ndarray]:
+    """Name -> ``(F, 3)`` positions of the :data:`_TRUNK_AND_LEGS` joints in the poses."""
+    return {name: positions[:, canonical[CANONICAL_INDEX[name]]] for name in _TRUNK_AND_LEGS}
+
+
 def pose_basis(positions: np.ndarray, pelvis: np.ndarray, canonical: np.ndarray) -> np.ndarray:
     """``(3, 3)`` body axes in the pelvis joint's coordinates from ``(F, J, 3)`` poses and the
     ``(F, 3, 3)`` pelvis rotations in them (directions averaged over the poses)."""
-    at = {
-        name: positions[:, canonical[CANONICAL_INDEX[name]]]
-        for name in (
-            "pelvis",
-            "neck",
-            *(f"{s}_{p}" for s in "lr" for p in ("hip", "knee", "ankle")),
-        )
-    }
+    at = _trunk_and_legs(positions, canonical)
     size = float(np.ptp(positions[:, canonical], axis=1).max())
     local = np.swapaxes(pelvis, -1, -2)
     # Some rigs put both hip joints at the pelvis and separate the legs only at the next
@@ -76,14 +78,7 @@ def frames_basis(positions: np.ndarray, pelvis: np.ndarray, canonical: np.ndarra
     of the pelvis through gravity and keeps the trunk's up.
     """
     axes = pose_basis(positions, pelvis, canonical)
-    at = {
-        name: positions[:, canonical[CANONICAL_INDEX[name]]]
-        for name in (
-            "pelvis",
-            "neck",
-            *(f"{s}_{p}" for s in "lr" for p in ("hip", "knee", "ankle")),
-        )
-    }
+    at = _trunk_and_legs(positions, canonical)
     trunk = at["neck"] - at["pelvis"]
     trunk = trunk / np.maximum(np.linalg.norm(trunk, axis=1, keepdims=True), 1e-300)
     world_up = _snapped(trunk.mean(axis=0))
