@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import logging
 import os
 import threading
 from bisect import bisect_left
@@ -43,9 +44,12 @@ from typing import Any
 import faiss
 import numpy as np
 
+from app.index import probe_cutoff
 from app.index.array_file import read_arrays, write_arrays
 from app.index.cells import GRAPH_MIN_CELLS, SAMPLES, CellGraph, store_graph, stored_graph
 from app.index.kinds import RERANK, SQ8, codes_of, empty_flat, padded
+
+log = logging.getLogger(__name__)
 
 LIST_SHIFT = 32  # a place is list << 32 | offset
 LOCATOR_FORMAT = 1  # of the <index>.locator files (see _stored_locator)
@@ -166,6 +170,11 @@ class FrozenIVF:
         self.cells: CellGraph | None = None
         self._cells_started = int(base.nlist) < GRAPH_MIN_CELLS  # True: none to build
         self._cells_lock = threading.Lock()
+        # The adaptive probe (app/index/probe_cutoff.py): nprobe -> the ratio beyond which a
+        # search by clip skips a cell (None: none skipped), decided from the file's vectors.
+        self._cutoffs: dict[int, float | None] = {}
+        self._cutoff_lock = threading.Lock()
+        self._quantizer: Any = faiss.downcast_index(base.quantizer)
 
     @classmethod
     def open(
@@ -413,11 +422,18 @@ class FrozenIVF:
     # -- searches --------------------------------------------------------------------------
 
     def search(
-        self, queries: np.ndarray, k: int, *, nprobe: int, allowed: np.ndarray | None = None
+        self,
+        queries: np.ndarray,
+        k: int,
+        *,
+        nprobe: int,
+        allowed: np.ndarray | None = None,
+        adaptive: bool = False,
     ) -> tuple[np.ndarray, np.ndarray]:
         """``(Q, k)`` squared distances and ids of the nearest held vectors to ``queries``
         ``(Q, D)`` (padded with id -1), among ``allowed`` (sorted unique ids; every cell is
-        then probed) when given."""
+        then probed) when given. ``adaptive``: skip the cells a query's nearest ones make
+        unlikely, where the file's decision says so (app/index/probe_cutoff.py)."""
         fetch = k
         if self.exact is not None:  # compressed lists: candidates, ranked exactly below
             fetch = max(1, min(k * RERANK, self.base_total))
@@ -450,9 +466,28 @@ class FrozenIVF:
         count = int(queries.shape[0])
         squared = np.empty((count, fetch), np.float32)
         ids = np.empty((count, fetch), np.int64)
-        if cells is not None and cells.nprobe == nprobe:
+        # A query's decisive cells only, where the file's decision says so
+        cutoff = self.cutoff(nprobe) if adaptive and allowed is None else None
+        graph = cells is not None and cells.nprobe == nprobe
+        if not graph and not self._cells_started and allowed is None:
+            self._start_cells(nprobe)
+        if graph or cutoff is not None:
+            if cells is not None and graph:  # the graph's cells: the scan's (app/index/cells.py)
+                to_cells, nearest = cells.nearest(queries)
+            else:
+                to_cells = np.empty((count, nprobe), np.float32)
+                nearest = np.empty((count, nprobe), np.int64)
+                self._quantizer.search_c(
+                    count,
+                    faiss.swig_ptr(queries),
+                    nprobe,
+                    faiss.swig_ptr(to_cells),
+                    faiss.swig_ptr(nearest),
+                    None,
+                )
+            if cutoff is not None:
+                probe_cutoff.skip_far_cells(to_cells, nearest, cutoff)
             # FAISS's own search after its scan of the centroids
-            to_cells, nearest = cells.nearest(queries)
             self.base.search_preassigned_c(
                 count,
                 faiss.swig_ptr(queries),
@@ -465,8 +500,6 @@ class FrozenIVF:
                 params,
             )
         else:
-            if not self._cells_started and allowed is None:
-                self._start_cells(nprobe)
             self.base.search_c(
                 count,
                 faiss.swig_ptr(queries),
@@ -551,13 +584,53 @@ class FrozenIVF:
             self.cells = stored_graph(file, identity, nprobe, self.base)
             if self.cells is not None:
                 return
-        rng = np.random.default_rng(0)
-        sample = np.sort(rng.choice(self.base_ids, min(SAMPLES, self.base_ids.size), False))
-        _, samples = self.vectors(sample)
-        samples = padded(samples, self.width)
-        self.cells = CellGraph.of(self.base, nprobe, samples)
+        self.cells = CellGraph.of(self.base, nprobe, self._samples(SAMPLES, 0)[1])
         if self.cells is not None and file is not None and identity is not None:
             store_graph(file, identity, self.cells)
+
+    def _samples(self, count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+        """``count`` stored vectors of the file, drawn with ``seed`` (the same for a file at
+        every start): their ids ``(S,)`` and vectors ``(S, W)`` padded to the lists' width."""
+        rng = np.random.default_rng(seed)
+        sample = np.sort(rng.choice(self.base_ids, min(count, self.base_ids.size), False))
+        _, vectors = self.vectors(sample)
+        return sample, padded(vectors, self.width)
+
+    def cutoff(self, nprobe: int) -> float | None:
+        """The ratio beyond which an adaptive search of ``nprobe`` cells skips a cell (None:
+        none skipped): read from beside the file, else measured from the file's vectors and
+        stored there — once per file, whichever process comes first, the same decision in
+        every one (app/index/probe_cutoff.py)."""
+        try:
+            return self._cutoffs[nprobe]
+        except KeyError:
+            pass
+        with self._cutoff_lock:
+            if nprobe not in self._cutoffs:
+                self._cutoffs[nprobe] = self._decided_cutoff(nprobe)
+        return self._cutoffs[nprobe]
+
+    def _decided_cutoff(self, nprobe: int) -> float | None:
+        few_cells = int(self.base.nlist) < probe_cutoff.MIN_CELLS  # the centroids' scan is most
+        if few_cells or self.exact is not None or not self.base_total:  # compressed: reranked
+            return None
+        file, identity = self.mapped_from, self.file_identity
+        if file is not None and identity is not None:
+            stored = probe_cutoff.stored_cutoff(file, identity, nprobe)
+            if stored is not None:
+                return stored[0]
+        ids, samples = self._samples(probe_cutoff.SAMPLES, probe_cutoff.SEED)
+        cutoff, measured = probe_cutoff.measure_cutoff(self.base, samples, nprobe, ids)
+        log.info(
+            "adaptive probe of %d of %d cells: %s (%s)",
+            nprobe,
+            int(self.base.nlist),
+            f"ratio {cutoff}" if cutoff is not None else "every cell",
+            ", ".join(f"{key} {value:.4f}" for key, value in measured.items()) or "no ratio",
+        )
+        if file is not None and identity is not None:
+            probe_cutoff.store_cutoff(file, identity, nprobe, cutoff, measured)
+        return cutoff
 
     def scan_cost(self, nprobe: int, *, filtered: bool) -> int:
         """Numbers one search compares (see DescriptorIndex.scan_cost)."""
