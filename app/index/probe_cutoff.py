@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -140,6 +141,36 @@ def measure_cutoff(
             }
             return (cutoff if saved >= MIN_SAVED else None), measured
     return None, {}
+
+
+def decided_cutoff(
+    base: Any,
+    nprobe: int,
+    index_file: str | None,
+    identity: list[int] | None,
+    draw: Callable[[int, int], tuple[np.ndarray, np.ndarray]],
+) -> float | None:
+    """The decision for searches of ``nprobe`` cells of the IVF index ``base`` mapped from
+    ``index_file`` (``identity``: its inode, size and modification time; None: not mapped,
+    nothing stored): read from beside the file (:func:`stored_cutoff`), else measured on
+    ``draw(SAMPLES, SEED)`` — the ids ``(S,)`` and vectors ``(S, W)`` of :data:`SAMPLES`
+    stored vectors drawn with :data:`SEED` — and stored there."""
+    if index_file is not None and identity is not None:
+        stored = stored_cutoff(index_file, identity, nprobe)
+        if stored is not None:
+            return stored[0]
+    ids, samples = draw(SAMPLES, SEED)
+    cutoff, measured = measure_cutoff(base, samples, nprobe, ids)
+    log.info(
+        "adaptive probe of %d of %d cells: %s (%s)",
+        nprobe,
+        int(base.nlist),
+        f"ratio {cutoff}" if cutoff is not None else "every cell",
+        ", ".join(f"{key} {value:.4f}" for key, value in measured.items()) or "no ratio",
+    )
+    if index_file is not None and identity is not None:
+        store_cutoff(index_file, identity, nprobe, cutoff, measured)
+    return cutoff
 
 
 def _answers(squared: np.ndarray, found: np.ndarray, kept: np.ndarray) -> list[set[int]]:
