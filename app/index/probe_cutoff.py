@@ -25,7 +25,7 @@ None — every cell scanned, the answers bit for bit those of the full search �
 The decision is kept in ``<stem>.probe.arrays`` beside the index file (:func:`store_cutoff`),
 stamped with that very file (inode, size, modification time), the settings and its own
 checksum, like the locator and the cells graph: a stale, missing or damaged one is measured
-again (0.1-0.9 s of CPU at a million clips), which gives the same decision — it only spares
+again (0.1-0.6 s of CPU at a million clips), which gives the same decision — it only spares
 the work.
 
 Where: searches by clip or by file of a mapped IVF index (:class:`app.index.frozen.FrozenIVF`,
