@@ -13,7 +13,7 @@ made since the file beside it, like the catalogue's overlay:
 
 A search asks both and merges by distance. Where each id of the file lies (its list and
 offset: the *locator*, sorted by id) is read once when the file is mapped — and kept in a
-file beside it for the next start, see :func:`_stored_locator` — so a vector is found
+file beside it for the next start, see :mod:`app.index.locator` — so a vector is found
 without FAISS's id hash table, which would be a private copy in every process (~40 bytes per
 vector). :meth:`merged` gives an ordinary (owned, writable) index of the current vectors, to
 write as the next file.
@@ -32,91 +32,18 @@ Shapes: a query is ``(1, D)`` float32; ids ``(N,)`` int64; vectors ``(N, D)`` fl
 
 from __future__ import annotations
 
-import contextlib
 import ctypes
 import os
 import threading
-from bisect import bisect_left
-from pathlib import Path
 from typing import Any
 
 import faiss
 import numpy as np
 
-from app.index.array_file import read_arrays, write_arrays
+from app.index import probe_cutoff
 from app.index.cells import GRAPH_MIN_CELLS, SAMPLES, CellGraph, store_graph, stored_graph
 from app.index.kinds import RERANK, SQ8, codes_of, empty_flat, padded
-
-LIST_SHIFT = 32  # a place is list << 32 | offset
-LOCATOR_FORMAT = 1  # of the <index>.locator files (see _stored_locator)
-LOCATOR_CHECKS = 64  # places of a stored locator checked against the lists when it is read
-BUCKET_BITS = 20  # ids sharing their bits above these are looked up from one table entry
-MAX_BUCKETS = 1 << 22  # ... a table of at most this many entries (32 MB)
-
-
-def _int64_view(array: np.ndarray) -> memoryview:
-    """``array`` ``(N,)`` int64 as a view whose items are Python ints."""
-    return np.ascontiguousarray(array, np.int64).data.cast("B").cast("q")
-
-
-def _stored_locator(path: str, base: Any) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_locator` of the index file at ``path`` (mapped as ``base``), read from
-    ``<stem>.locator.arrays`` beside it when that file was written from this very index file
-    (its inode, size and modification time; its own checksum; a sample of its places
-    checked against the lists), else computed and written there for the next start: the
-    pass over the lists and the sort of a million ids are most of opening a window index
-    (~0.8 s a worker at 100 hours). The caller holds the directory's lock (shared: the index
-    file does not change meanwhile; the locator file is replaced atomically)."""
-    directory, stem = Path(path).parent, f"{Path(path).stem}.locator"
-    info = os.stat(path)
-    stamp = {"format": LOCATOR_FORMAT, "index_file": [info.st_ino, info.st_size, info.st_mtime_ns]}
-    found = read_arrays(directory, stem, stamp, lock=False)
-    if not isinstance(found, str):
-        ids, places = found[0].get("ids"), found[0].get("places")
-        if (
-            ids is not None
-            and places is not None
-            and ids.shape == places.shape == (int(base.ntotal),)
-            and _places_hold(base, ids, places)
-        ):
-            return ids, places
-    ids, places = _locator(base)
-    with contextlib.suppress(OSError):  # a read-only directory: computed at the next start
-        write_arrays(directory, stem, {"ids": ids, "places": places}, stamp, lock=False)
-    return ids, places
-
-
-def _places_hold(base: Any, ids: np.ndarray, places: np.ndarray) -> bool:
-    """Whether a sample of ``places`` (list << LIST_SHIFT | offset) hold their ``ids`` in the
-    lists of ``base``, and ``ids`` ascend."""
-    if not ids.size:
-        return True
-    if ids.size > 1 and not bool(np.all(ids[1:] > ids[:-1])):
-        return False
-    invlists = base.invlists
-    offset_mask = (1 << LIST_SHIFT) - 1
-    for row in np.linspace(0, ids.size - 1, min(LOCATOR_CHECKS, ids.size)).astype(np.int64):
-        cell, offset = int(places[row]) >> LIST_SHIFT, int(places[row]) & offset_mask
-        if not 0 <= cell < base.nlist or offset >= invlists.list_size(cell):
-            return False
-        if int(invlists.get_single_id(cell, offset)) != int(ids[row]):
-            return False
-    return True
-
-
-def _locator(base: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Every id of the IVF index ``base`` ``(N,)`` sorted, and where it lies ``(N,)`` (list
-    << LIST_SHIFT | offset)."""
-    invlists = base.invlists
-    ids, places = [], []
-    for cell in range(base.nlist):
-        size = invlists.list_size(cell)
-        if size:
-            ids.append(faiss.rev_swig_ptr(invlists.get_ids(cell), size).copy())
-            places.append((cell << LIST_SHIFT) + np.arange(size, dtype=np.int64))
-    every = np.concatenate(ids).astype(np.int64) if ids else np.zeros(0, np.int64)
-    order = np.argsort(every, kind="stable")
-    return every[order], np.concatenate(places)[order] if places else np.zeros(0, np.int64)
+from app.index.locator import LIST_SHIFT, Locator, stored_locator, walk_lists
 
 
 class FrozenIVF:
@@ -152,13 +79,11 @@ class FrozenIVF:
         if exact is not None and exact_ids is not None and exact_ids.size == self.base_total:
             # Vectors are read from the exact rows: the ids are the whole locator (no pass
             # over the lists and no sort at start: ~1 s a worker at 100 hours of windows).
-            self.base_ids = exact_ids
-            self.places = np.zeros(0, np.int64)
+            self.locator = Locator(exact_ids, np.zeros(0, np.int64))
         else:
-            self.base_ids, self.places = locator if locator is not None else _locator(base)
+            self.locator = Locator(*(locator if locator is not None else walk_lists(base)))
+        self.base_ids, self.places = self.locator.ids, self.locator.places  # (N,) each
         self._codes: np.ndarray | None = None  # see _view_codes
-        self._buckets: np.ndarray | None = None  # see _guessed_rows
-        self._views: tuple[memoryview, memoryview | None] | None = None  # see _id_views
         self._rows: np.ndarray | None = None  # ... and _view_rows
         self._list_starts = np.zeros(0, np.int64)
         # The cells' graph (app/index/cells.py): built in a thread at the first search, the
@@ -166,6 +91,11 @@ class FrozenIVF:
         self.cells: CellGraph | None = None
         self._cells_started = int(base.nlist) < GRAPH_MIN_CELLS  # True: none to build
         self._cells_lock = threading.Lock()
+        # The adaptive probe (app/index/probe_cutoff.py): nprobe -> the ratio beyond which a
+        # search by clip skips a cell (None: none skipped), decided from the file's vectors.
+        self._cutoffs: dict[int, float | None] = {}
+        self._cutoff_lock = threading.Lock()
+        self._quantizer: Any = faiss.downcast_index(base.quantizer)
 
     @classmethod
     def open(
@@ -181,7 +111,7 @@ class FrozenIVF:
         if base.direct_map.type != faiss.DirectMap.NoMap:  # type: ignore[attr-defined]
             base.set_direct_map_type(faiss.DirectMap.NoMap)  # type: ignore[attr-defined]
         stored = exact is not None and exact_ids is not None and exact_ids.size == base.ntotal
-        locator = None if stored else _stored_locator(path, base)
+        locator = None if stored else stored_locator(path, base)
         frozen = cls(base, exact, exact_ids, locator)
         frozen.mapped_from = path
         frozen.file_identity = [info.st_ino, info.st_size, info.st_mtime_ns]
@@ -239,77 +169,21 @@ class FrozenIVF:
         return bool(self.gone.size or self.delta_total)
 
     def _base_rows(self, ids: np.ndarray) -> np.ndarray:
-        """Rows of the locator holding ``ids`` (-1: not in the file, or gone)."""
+        """Rows of the locator holding ``ids`` ``(M,)`` (-1: not in the file, or gone)."""
         ids = np.asarray(ids, np.int64)
-        if not self.base_ids.size:
-            return np.full(ids.size, -1, np.int64)
-        at = self._guessed_rows(ids)
-        found = self.base_ids[at] == ids
-        if not found.all():  # not where a run of consecutive ids puts them: searched for
-            missed = np.flatnonzero(~found)
-            at[missed] = np.minimum(self.base_ids.searchsorted(ids[missed]), self.base_ids.size - 1)
-            found[missed] = self.base_ids[at[missed]] == ids[missed]
+        rows = self.locator.rows(ids)
         if self.gone.size:
-            found &= ~np.isin(ids, self.gone)
-        return np.where(found, at, -1)
-
-    def _guessed_rows(self, ids: np.ndarray) -> np.ndarray:
-        """Where ``ids`` ``(M,)`` would lie in the locator if the ids of their bucket (ids
-        sharing their bits above :data:`BUCKET_BITS`) ran without gaps from the bucket's
-        first: ``(M,)`` rows, to check. Window ids (``clip << 20 | ordinal``) do within a
-        clip, so a vector is found with two reads instead of a binary search over a million
-        ids (~20 reads far apart: a moments search looks up thousands)."""
-        if self._buckets is None:
-            buckets = (int(self.base_ids[-1]) >> BUCKET_BITS) + 2
-            if buckets > MAX_BUCKETS:  # ids too sparse for a table: the binary search
-                self._buckets = np.zeros(0, np.int64)
-            else:
-                edges = np.arange(buckets, dtype=np.int64) << BUCKET_BITS
-                self._buckets = self.base_ids.searchsorted(edges)
-        last = self.base_ids.size - 1
-        if not self._buckets.size:
-            return np.minimum(self.base_ids.searchsorted(ids), last)
-        bucket = np.clip(ids >> BUCKET_BITS, 0, self._buckets.size - 2)
-        first = np.minimum(self._buckets[bucket], last)
-        return np.clip(first + (ids - self.base_ids[first]), 0, last)
+            rows[np.isin(ids, self.gone)] = -1
+        return rows
 
     def _base_row(self, vector_id: int) -> int:
-        """:meth:`_base_rows` of one id (a search's query clip): the same guess and check, in
-        Python ints read through memoryviews (numpy's calls on one number cost more than the
-        lookup)."""
-        ids, buckets = self._id_views()
-        last = len(ids) - 1
-        if last < 0:
-            return -1
-        if buckets is not None:
-            bucket = min(max(vector_id >> BUCKET_BITS, 0), len(buckets) - 2)
-            first = min(buckets[bucket], last)
-            at = min(max(first + vector_id - ids[first], 0), last)
-            if ids[at] != vector_id:
-                at = min(bisect_left(ids, vector_id), last)
-        else:
-            at = min(bisect_left(ids, vector_id), last)
-        if ids[at] != vector_id:
-            return -1
-        if self.gone.size:
+        """:meth:`_base_rows` of one id (a search's query clip), without arrays."""
+        at = self.locator.row(vector_id)
+        if at >= 0 and self.gone.size:
             gone_at = int(self.gone.searchsorted(vector_id))
             if gone_at < self.gone.size and int(self.gone[gone_at]) == vector_id:
                 return -1
         return at
-
-    def _id_views(self) -> tuple[memoryview, memoryview | None]:
-        """The locator's ids and the bucket table of :meth:`_guessed_rows` (None: too sparse
-        for one) as memoryviews of Python ints (made once: the file never changes)."""
-        views = self._views
-        if views is None:
-            if self.base_ids.size:
-                self._guessed_rows(self.base_ids[:1])  # builds the bucket table
-            table = self._buckets
-            views = self._views = (
-                _int64_view(self.base_ids),
-                _int64_view(table) if table is not None and table.size else None,
-            )
-        return views
 
     def ids(self) -> np.ndarray:
         """``(N,)`` int64 ids held (sorted)."""
@@ -413,11 +287,18 @@ class FrozenIVF:
     # -- searches --------------------------------------------------------------------------
 
     def search(
-        self, queries: np.ndarray, k: int, *, nprobe: int, allowed: np.ndarray | None = None
+        self,
+        queries: np.ndarray,
+        k: int,
+        *,
+        nprobe: int,
+        allowed: np.ndarray | None = None,
+        adaptive: bool = False,
     ) -> tuple[np.ndarray, np.ndarray]:
         """``(Q, k)`` squared distances and ids of the nearest held vectors to ``queries``
         ``(Q, D)`` (padded with id -1), among ``allowed`` (sorted unique ids; every cell is
-        then probed) when given."""
+        then probed) when given. ``adaptive``: skip the cells a query's nearest ones make
+        unlikely, where the file's decision says so (app/index/probe_cutoff.py)."""
         fetch = k
         if self.exact is not None:  # compressed lists: candidates, ranked exactly below
             fetch = max(1, min(k * RERANK, self.base_total))
@@ -450,9 +331,28 @@ class FrozenIVF:
         count = int(queries.shape[0])
         squared = np.empty((count, fetch), np.float32)
         ids = np.empty((count, fetch), np.int64)
-        if cells is not None and cells.nprobe == nprobe:
+        # A query's decisive cells only, where the file's decision says so
+        cutoff = self.cutoff(nprobe) if adaptive and allowed is None else None
+        graph = cells is not None and cells.nprobe == nprobe
+        if not graph and not self._cells_started and allowed is None:
+            self._start_cells(nprobe)
+        if graph or cutoff is not None:
+            if cells is not None and graph:  # the graph's cells: the scan's (app/index/cells.py)
+                to_cells, nearest = cells.nearest(queries)
+            else:
+                to_cells = np.empty((count, nprobe), np.float32)
+                nearest = np.empty((count, nprobe), np.int64)
+                self._quantizer.search_c(
+                    count,
+                    faiss.swig_ptr(queries),
+                    nprobe,
+                    faiss.swig_ptr(to_cells),
+                    faiss.swig_ptr(nearest),
+                    None,
+                )
+            if cutoff is not None:
+                probe_cutoff.skip_far_cells(to_cells, nearest, cutoff)
             # FAISS's own search after its scan of the centroids
-            to_cells, nearest = cells.nearest(queries)
             self.base.search_preassigned_c(
                 count,
                 faiss.swig_ptr(queries),
@@ -465,8 +365,6 @@ class FrozenIVF:
                 params,
             )
         else:
-            if not self._cells_started and allowed is None:
-                self._start_cells(nprobe)
             self.base.search_c(
                 count,
                 faiss.swig_ptr(queries),
@@ -551,13 +449,39 @@ class FrozenIVF:
             self.cells = stored_graph(file, identity, nprobe, self.base)
             if self.cells is not None:
                 return
-        rng = np.random.default_rng(0)
-        sample = np.sort(rng.choice(self.base_ids, min(SAMPLES, self.base_ids.size), False))
-        _, samples = self.vectors(sample)
-        samples = padded(samples, self.width)
-        self.cells = CellGraph.of(self.base, nprobe, samples)
+        self.cells = CellGraph.of(self.base, nprobe, self._samples(SAMPLES, 0)[1])
         if self.cells is not None and file is not None and identity is not None:
             store_graph(file, identity, self.cells)
+
+    def _samples(self, count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+        """``count`` stored vectors of the file, drawn with ``seed`` (the same for a file at
+        every start): their ids ``(S,)`` and vectors ``(S, W)`` padded to the lists' width."""
+        rng = np.random.default_rng(seed)
+        sample = np.sort(rng.choice(self.base_ids, min(count, self.base_ids.size), False))
+        _, vectors = self.vectors(sample)
+        return sample, padded(vectors, self.width)
+
+    def cutoff(self, nprobe: int) -> float | None:
+        """The ratio beyond which an adaptive search of ``nprobe`` cells skips a cell (None:
+        none skipped): read from beside the file, else measured from the file's vectors and
+        stored there — once per file, whichever process comes first, the same decision in
+        every one (app/index/probe_cutoff.py)."""
+        try:
+            return self._cutoffs[nprobe]
+        except KeyError:
+            pass
+        with self._cutoff_lock:
+            if nprobe not in self._cutoffs:
+                self._cutoffs[nprobe] = self._decided_cutoff(nprobe)
+        return self._cutoffs[nprobe]
+
+    def _decided_cutoff(self, nprobe: int) -> float | None:
+        few_cells = int(self.base.nlist) < probe_cutoff.MIN_CELLS  # the centroids' scan is most
+        if few_cells or self.exact is not None or not self.base_total:  # compressed: reranked
+            return None
+        return probe_cutoff.decided_cutoff(
+            self.base, nprobe, self.mapped_from, self.file_identity, self._samples
+        )
 
     def scan_cost(self, nprobe: int, *, filtered: bool) -> int:
         """Numbers one search compares (see DescriptorIndex.scan_cost)."""

@@ -201,7 +201,7 @@ class HeldIndex:
         wanted = min(k + (1 if exclude is not None else 0), available)
         if wanted <= 0:
             return Neighbours(np.empty(0, np.int64), np.empty(0, np.float64))
-        squared, ids = self._search_selected(q, wanted, allowed)
+        squared, ids = self._search_selected(q, wanted, allowed, adaptive=True)
         # A dozen numbers: Python's floats and math.sqrt (the same IEEE results as numpy's
         # float64 square root) cost less than the numpy calls filtering them would.
         skipped = -1 if exclude is None else exclude  # FAISS pads with -1 past the vectors
@@ -226,7 +226,7 @@ class HeldIndex:
         q = np.ascontiguousarray(query, np.float32).reshape(1, -1)
         if q.shape[1] != self.dimension:
             raise ValueError(f"expected a vector of {self.dimension} numbers, got {query.shape}")
-        squared, ids = self._search_selected(q, wanted, None)
+        squared, ids = self._search_selected(q, wanted, None, adaptive=True)
         sqrt = math.sqrt
         found = [
             (i, sqrt(max(s, 0.0)))  # as search()
@@ -236,15 +236,18 @@ class HeldIndex:
         return found[:k]
 
     def _search_selected(
-        self, q: np.ndarray, wanted: int, allowed: np.ndarray | None
+        self, q: np.ndarray, wanted: int, allowed: np.ndarray | None, *, adaptive: bool = False
     ) -> tuple[Any, Any]:
         """FAISS's squared distances and ids ``(Q, wanted)`` of the ``wanted`` nearest to ``q``
         ``(Q, D)`` among ``allowed`` (sorted unique ids; ``None``: all; an IVF index then probes
-        every cell)."""
+        every cell). ``adaptive``: a search by clip or file, whose mapped IVF lists are probed
+        adaptively (app/index/probe_cutoff.py; batches — moments — scan every cell)."""
         with self._lock.read():
             index = self._index
             if isinstance(index, FrozenIVF):
-                return index.search(q, wanted, nprobe=self.nprobe, allowed=allowed)
+                return index.search(
+                    q, wanted, nprobe=self.nprobe, allowed=allowed, adaptive=adaptive
+                )
             selector = None if allowed is None else faiss.IDSelectorBatch(allowed)
             params: Any = None
             if kind_of(index) == IVF:

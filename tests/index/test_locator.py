@@ -1,4 +1,4 @@
-"""Where each id of a mapped IVF file lies (the locator, app/index/frozen.py) is kept in
+"""Where each id of a mapped IVF file lies (the locator, app/index/locator.py) is kept in
 ``<index>.locator.arrays`` beside the file: a second opening reads it instead of walking the
 lists and sorting every id, and a locator written from another file, damaged, or whose places
 disagree with the lists is never used — it is computed again from the index file."""
@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.index import frozen
+from app.index import locator
 from app.index.descriptor_index import DescriptorIndex
 from app.index.frozen import FrozenIVF
 from app.index.kinds import IndexOptions
@@ -35,7 +35,7 @@ def opened_without_walking(path: Path, monkeypatch: pytest.MonkeyPatch) -> Froze
         raise AssertionError("the lists were walked: the stored locator was not used")
 
     with monkeypatch.context() as patch:
-        patch.setattr(frozen, "_locator", walked)
+        patch.setattr(locator, "walk_lists", walked)
         return FrozenIVF.open(str(path))
 
 

@@ -1,0 +1,194 @@
+"""The adaptive probe (app/index/probe_cutoff.py): a ratio measured from the index file's own
+vectors, cells beyond it skipped, the full search's answers otherwise; the decision stored
+beside the file, so every opening of that file (another worker, a restart) answers alike, and
+measured again for a rebuilt file or a damaged or stale decision file."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import faiss
+import numpy as np
+import pytest
+
+from app.index import probe_cutoff
+from app.index.frozen import FrozenIVF
+from app.index.kinds import with_id_map
+from app.index.probe_cutoff import CUTOFFS, measure_cutoff, skip_far_cells
+
+DIMENSION = 16
+CENTRES = 40
+NLIST = 64
+NPROBE = 16
+
+
+@pytest.fixture(autouse=True)
+def small_indexes_decide(monkeypatch: pytest.MonkeyPatch) -> None:
+    """These indexes have 64 cells (a real library's: 1,000 and more)."""
+    monkeypatch.setattr(probe_cutoff, "MIN_CELLS", 1)
+
+
+def clustered(count: int, seed: int) -> np.ndarray:
+    """``(count, DIMENSION)`` float32 vectors around :data:`CENTRES` centres (as descriptor
+    vectors cluster around the real clips, bench/README.md)."""
+    rng = np.random.default_rng(seed)
+    centres = np.random.default_rng(0).normal(size=(CENTRES, DIMENSION)) * 4
+    return (centres[rng.integers(0, CENTRES, count)] + rng.normal(size=(count, DIMENSION))).astype(
+        np.float32
+    )
+
+
+def ivf_file(tmp_path: Path, vectors: np.ndarray, nprobe: int = NPROBE) -> str:
+    """An IVF index file of ``vectors`` (ids 1..N) written as a save writes one (a new file
+    replacing the old by a rename)."""
+    quantizer = faiss.IndexFlatL2(DIMENSION)
+    index = faiss.IndexIVFFlat(quantizer, DIMENSION, NLIST, faiss.METRIC_L2)
+    index.own_fields = True
+    quantizer.this.disown()
+    index.cp.seed = 1
+    index.train(vectors)
+    with_id_map(index)
+    index.add_with_ids(vectors, np.arange(1, vectors.shape[0] + 1, dtype=np.int64))
+    index.nprobe = nprobe
+    path = tmp_path / "kinetic.faiss"
+    faiss.write_index(index, str(tmp_path / ".kinetic.faiss.tmp"))
+    (tmp_path / ".kinetic.faiss.tmp").replace(path)
+    return str(path)
+
+
+def opened_without_measuring(path: str, monkeypatch: pytest.MonkeyPatch) -> FrozenIVF:
+    """The file opened and its decision read, failing if it had to be measured."""
+
+    def measured(*_args: object) -> None:
+        raise AssertionError("measured: the stored decision was not used")
+
+    frozen = FrozenIVF.open(path)
+    with monkeypatch.context() as patch:
+        patch.setattr(probe_cutoff, "measure_cutoff", measured)
+        frozen.cutoff(NPROBE)
+    return frozen
+
+
+def test_cells_farther_than_the_ratio_are_skipped_in_place() -> None:
+    to_cells = np.array([[1.0, 1.5, 2.5, 9.0], [0.0, 0.0, 1.0, 2.0]], np.float32)
+    cells = np.array([[7, 3, 5, 1], [2, 4, 6, 8]], np.int64)
+    skip_far_cells(to_cells, cells, 2.0)
+    # the nearest cell is always kept; a query on a centroid keeps the cells at distance 0
+    assert cells.tolist() == [[7, 3, -1, -1], [2, 4, -1, -1]]
+
+
+def test_a_measured_ratio_keeps_the_full_searchs_hits_for_other_queries(tmp_path: Path) -> None:
+    vectors = clustered(8_000, seed=1)
+    frozen = FrozenIVF.open(ivf_file(tmp_path, vectors))
+    cutoff = frozen.cutoff(NPROBE)
+    assert cutoff in CUTOFFS  # 40 tight clusters over 64 cells: most lists are far
+    queries = clustered(300, seed=2)  # not stored, not measured
+    found = kept = 0
+    for query in queries:
+        _, full = frozen.search(query[None], 10, nprobe=NPROBE)
+        squared, adaptive = frozen.search(query[None], 10, nprobe=NPROBE, adaptive=True)
+        found += len(set(full[0].tolist()))
+        kept += len(set(full[0].tolist()) & set(adaptive[0].tolist()))
+        # every hit at its exact distance, nearest first
+        exact = ((vectors[adaptive[0] - 1] - query) ** 2).sum(axis=1)
+        np.testing.assert_allclose(squared[0], exact, rtol=1e-4, atol=1e-4)
+        assert (np.diff(squared[0]) >= 0).all()
+    assert kept / found >= 0.99
+
+
+def test_too_small_a_saving_means_every_cell_and_the_same_answers(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    vectors = clustered(5_000, seed=4)
+    frozen = FrozenIVF.open(ivf_file(tmp_path, vectors, 8))
+    monkeypatch.setattr(probe_cutoff, "MIN_SAVED", 1.01)  # no ratio saves more than all
+    ids = np.arange(1, 201, dtype=np.int64)
+    cutoff, measured = measure_cutoff(frozen.base, vectors[:200], 8, ids)
+    assert cutoff is None and measured["ratio"] in CUTOFFS  # a ratio kept the hits, no more
+    assert frozen.cutoff(8) is None
+    for query in vectors[:50]:
+        full = frozen.search(query[None], 10, nprobe=8)
+        adaptive = frozen.search(query[None], 10, nprobe=8, adaptive=True)
+        assert full[1].tolist() == adaptive[1].tolist()
+        assert full[0].tobytes() == adaptive[0].tobytes()
+
+
+def test_two_openings_of_one_file_decide_and_answer_alike(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    vectors = clustered(8_000, seed=6)
+    path = ivf_file(tmp_path, vectors)
+    first = FrozenIVF.open(path)  # a worker, or the server before a restart
+    decided = first.cutoff(NPROBE)
+    assert (tmp_path / "kinetic.probe.arrays").exists()
+    again = opened_without_measuring(path, monkeypatch)  # the other worker, or after it
+    assert again.cutoff(NPROBE) == decided
+    for query in clustered(100, seed=7):
+        one = first.search(query[None], 10, nprobe=NPROBE, adaptive=True)
+        other = again.search(query[None], 10, nprobe=NPROBE, adaptive=True)
+        assert one[1].tolist() == other[1].tolist()
+        assert one[0].tobytes() == other[0].tobytes()
+    # measured again without the stored file, the same decision: it depends on the file only
+    for stored in tmp_path.glob("kinetic.probe.*"):
+        stored.unlink()
+    assert FrozenIVF.open(path).cutoff(NPROBE) == decided
+
+
+def test_a_rebuilt_index_decides_again(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    path = ivf_file(tmp_path, clustered(8_000, seed=8))
+    FrozenIVF.open(path).cutoff(NPROBE)
+    stamped = json.loads((tmp_path / "kinetic.probe.json").read_text())["index_file"]
+    path = ivf_file(tmp_path, np.random.default_rng(9).normal(size=(8_000, DIMENSION)))
+    with pytest.raises(AssertionError, match="measured"):  # another file: decided again
+        opened_without_measuring(path, monkeypatch)
+    FrozenIVF.open(path).cutoff(NPROBE)
+    assert json.loads((tmp_path / "kinetic.probe.json").read_text())["index_file"] != stamped
+    opened_without_measuring(path, monkeypatch)  # ... and stored again
+
+
+def test_another_nprobe_is_decided_for_itself(tmp_path: Path) -> None:
+    path = ivf_file(tmp_path, clustered(8_000, seed=10))
+    FrozenIVF.open(path).cutoff(NPROBE)
+    frozen = FrozenIVF.open(path)
+    frozen.cutoff(4)  # MOCAP_IVF_NPROBE set: the stored decision is for 16 cells
+    assert json.loads((tmp_path / "kinetic.probe.json").read_text())["nprobe"] == 4
+
+
+@pytest.mark.parametrize("damage", ["bytes", "stamp", "ratio"])
+def test_a_damaged_or_stale_decision_is_never_used(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, damage: str
+) -> None:
+    path = ivf_file(tmp_path, clustered(8_000, seed=11))
+    decided = FrozenIVF.open(path).cutoff(NPROBE)
+    arrays, meta = tmp_path / "kinetic.probe.arrays", tmp_path / "kinetic.probe.json"
+    described = json.loads(meta.read_text())
+    if damage == "bytes":  # not its checksum
+        data = bytearray(arrays.read_bytes())
+        data[3] ^= 0xFF
+        arrays.write_bytes(bytes(data))
+    elif damage == "stamp":  # measured with another rule
+        described["kept_hits"] = 0.5
+        meta.write_text(json.dumps(described))
+    else:  # a ratio the rule never picks, with a checksum that matches
+        stamp = {k: v for k, v in described.items() if k not in ("arrays", "sha256")}
+        probe_cutoff.write_arrays(
+            tmp_path, "kinetic.probe", {"cutoff": np.array([1.234], np.float64)}, stamp
+        )
+    with pytest.raises(AssertionError, match="measured"):
+        opened_without_measuring(path, monkeypatch)
+    assert FrozenIVF.open(path).cutoff(NPROBE) == decided  # measured again, the same
+    opened_without_measuring(path, monkeypatch)  # ... and stored again
+
+
+def test_an_adaptive_search_sees_removed_and_added_vectors(tmp_path: Path) -> None:
+    vectors = clustered(8_000, seed=5)
+    frozen = FrozenIVF.open(ivf_file(tmp_path, vectors))
+    assert frozen.cutoff(NPROBE) is not None
+    query = vectors[99][None]
+    _, before = frozen.search(query, 5, nprobe=NPROBE, adaptive=True)
+    assert before[0][0] == 100  # the stored vector itself
+    frozen.remove(np.array([100], np.int64))
+    frozen.add(np.array([9_000], np.int64), query + 1e-3)
+    _, after = frozen.search(query, 5, nprobe=NPROBE, adaptive=True)
+    assert after[0][0] == 9_000 and 100 not in after[0].tolist()
