@@ -13,7 +13,9 @@ turns as its source joint turned since the source's reference pose::
 
 ``Q`` are the joints' world rotations in the reference poses, ``A`` takes the target's
 reference bone onto the source's: first the whole body (``B_source B_target^T`` from the
-two bodies' lateral/up/forward axes), then the smallest rotation bringing the bone's
+two bodies' lateral/up/forward axes, fixed to the pelvis joint as the describer reads them,
+so the rig's pelvis frame is the source's in every frame and a trunk leaning in the
+reference pose stays leaning), then the smallest rotation bringing the bone's
 direction onto the source bone's. So a T-pose rig driven by an A-pose capture lifts its arms
 to where the capture's are, and since the smallest rotation has no twist about the bone, a
 bone's roll never twists. ``W`` changes world axes from the source's up to the target's
