@@ -13,7 +13,9 @@ turns as its source joint turned since the source's reference pose::
 
 ``Q`` are the joints' world rotations in the reference poses, ``A`` takes the target's
 reference bone onto the source's: first the whole body (``B_source B_target^T`` from the
-two bodies' lateral/up/forward axes), then the smallest rotation bringing the bone's
+two bodies' lateral/up/forward axes, fixed to the pelvis joint as the describer reads them,
+so the rig's pelvis frame is the source's in every frame and a trunk leaning in the
+reference pose stays leaning), then the smallest rotation bringing the bone's
 direction onto the source bone's. So a T-pose rig driven by an A-pose capture lifts its arms
 to where the capture's are, and since the smallest rotation has no twist about the bone, a
 bone's roll never twists. ``W`` changes world axes from the source's up to the target's
@@ -90,7 +92,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from app.motion.ground import body_frame, snap_axis
+from app.motion.body import pelvis_basis
+from app.motion.ground import snap_axis
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion
 from app.motion.retarget_floor import place_pelvis
@@ -176,8 +179,13 @@ def retarget(
     t_ref_rot, t_ref_pos = t_ref_rot_all[0], t_ref_pos_all[0]
 
     s_canon = s_pos[:, source_map.joints]  # (F, C, 3)
-    b_source = body_frame(s_ref_pos[source_map.joints])
-    b_target = body_frame(t_ref_pos[target_map.joints])
+    # The body's axes in each reference pose as the describer reads them: fixed to the
+    # pelvis joint (app.motion.body), not the reference pose's own trunk, which carries
+    # that pose's bend (a take's first frame, leaning into a tired walk).
+    s_pelvis = int(source_map.joints[CANONICAL_INDEX["pelvis"]])
+    t_pelvis = int(target_map.joints[CANONICAL_INDEX["pelvis"]])
+    b_source = s_ref_rot[s_pelvis] @ _pelvis_axes(source, source_map)
+    b_target = t_ref_rot[t_pelvis] @ _pelvis_axes(target, target_map)
     body = b_source @ b_target.T  # target reference body -> source reference body
     s_up_vec = s_canon[:, CANONICAL_INDEX["neck"]] - s_canon[:, CANONICAL_INDEX["pelvis"]]
     s_up = snap_axis(
@@ -254,6 +262,21 @@ def _assemble(
         length_unit=target.length_unit,
         notes={},
     )
+
+
+def _pelvis_axes(motion: Motion, mapping: SkeletonMap) -> np.ndarray:
+    """``(3, 3)`` body axes (columns lateral, up, forward) in ``motion``'s pelvis joint
+    coordinates, as :func:`app.motion.body.build_body` finds them for the clip's pelvis
+    frames: from the rest pose, or for a rig whose rest pose is not a standing figure from
+    the frames where they disagree with it.
+
+    Aligning the two reference poses by these axes gives the target's pelvis the source's
+    pelvis frame in every frame, so whatever the describer reads relative to the pelvis (the
+    trunk's lean, the limbs' directions) arrives as the source has it. Aligning by the
+    reference pose's own trunk (pelvis -> neck) instead took a reference frame's spine bend
+    for upright: a take whose first frame leans forward (a tired walk) lost that lean in
+    every frame, the pelvis tilted back by as much."""
+    return pelvis_basis(motion, mapping.joints, rest_is_a_figure=mapping.pose == "rest pose")
 
 
 def _unmirrored(mapping: SkeletonMap) -> SkeletonMap:
