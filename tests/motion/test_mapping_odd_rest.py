@@ -27,7 +27,6 @@ of each measure recorded. No probed copy may fail otherwise than with a
 
 from __future__ import annotations
 
-import contextlib
 import functools
 from collections.abc import Callable
 from pathlib import Path
@@ -45,6 +44,7 @@ from app.motion.pipeline import analyse, describable_body
 from tests.conftest import shared_data_dir
 from tests.motion.conftest import BANDAI_FIXTURE, CMU_BVH_FIXTURE, fixture_bytes
 from tests.motion.holds import frames_at
+from tests.motion.read_once import read_only
 from tests.motion.test_mapping_probes import frame_as_rest, rebased
 from tests.motion.test_nameless_real import FILES
 
@@ -181,14 +181,21 @@ def outcome(motion: Motion, probe: str, original: Reading | None = None) -> tupl
 
 
 def probed(
-    motion: Motion, probe: str, original: Reading | None = None
+    motion: Motion,
+    probe: str,
+    original: Reading | None = None,
+    shown_reading: tuple[Reading | None] | None = None,
 ) -> tuple[str, bool, Reading | None]:
-    """:func:`outcome`, and the probed copy's reading when it maps alike."""
+    """:func:`outcome`, and the probed copy's reading when it maps alike (``shown_reading``:
+    the reading of the frames the probe shows, when known, in a 1-tuple; None in it: those
+    frames are refused)."""
     rewrite, shown, world = PROBES[probe]
     expected: Reading | None = original or _reading(motion, np.eye(3))
     assert expected is not None
     names, mirrored = expected[0], expected[1]
-    if shown is not _SAME:
+    if shown is not _SAME and shown_reading is not None:
+        expected = shown_reading[0]
+    elif shown is not _SAME:
         try:
             expected = _reading(shown(motion), np.eye(3))
         except MocapError:
@@ -223,24 +230,34 @@ def _dev_motions() -> tuple[tuple[Path, Motion, Reading], ...]:
     their own reading: parsed and read once for every probe."""
     found = []
     for path in FILES:
-        motion = sample_frames(read_bvh(path.read_bytes()), 60)
+        motion = read_only(sample_frames(read_bvh(path.read_bytes()), 60))
         found.append((path, motion, _reading(motion, np.eye(3))))
     return tuple(found)
 
 
 @functools.cache
-def _shown_vectors(probe: str) -> dict[Path, dict[str, np.ndarray]]:
-    """The stored descriptors of every dev file as ``probe`` shows it (the whole file, or
-    the one or two frames it cuts), unprobed; files whose cut is refused are left out."""
-    _, shown, _ = PROBES[probe]
-    found = {}
+def _shown_readings(shown: Callable[[Motion], Motion]) -> dict[Path, Reading | None]:
+    """Every dev file's own reading of the frames ``shown`` keeps (the whole file, or the one
+    or two frames a probe cuts), unprobed: read once for all the probes that show the same
+    frames; None where the cut is refused."""
+    found: dict[Path, Reading | None] = {}
     for path, motion, read in _dev_motions():
         if shown is _SAME:
-            found[path] = read[4]
+            found[path] = read
             continue
-        with contextlib.suppress(MocapError):
-            found[path] = _reading(shown(motion), np.eye(3))[4]
+        try:
+            found[path] = _reading(shown(motion), np.eye(3))
+        except MocapError:
+            found[path] = None
     return found
+
+
+@functools.cache
+def _shown_vectors(probe: str) -> dict[Path, dict[str, np.ndarray]]:
+    """The stored descriptors of every dev file as ``probe`` shows it, unprobed; files whose
+    cut is refused are left out."""
+    _, shown, _ = PROBES[probe]
+    return {path: read[4] for path, read in _shown_readings(shown).items() if read is not None}
 
 
 def finding_the_original(path: Path, vectors: dict[str, np.ndarray], probe: str) -> set[str]:
@@ -268,8 +285,9 @@ def dev_outcomes(probe: str) -> dict[Path, tuple[str, bool, bool, bool]]:
     """Per dev file: (mapping verdict, body axes right, the original found first by all
     three stored descriptors, by ``motion``, the default search, alone)."""
     found = {}
+    shown = _shown_readings(PROBES[probe][1])
     for path, motion, read in _dev_motions():
-        verdict, axes, got = probed(motion, probe, read)
+        verdict, axes, got = probed(motion, probe, read, (shown[path],))
         finding = set() if got is None else finding_the_original(path, got[4], probe)
         every = got is not None and finding == set(got[4])
         found[path] = (verdict, axes, every, "motion" in finding)

@@ -13,7 +13,9 @@ the rest-pose probes are ratchets that say which rigs fail.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -30,6 +32,7 @@ from app.motion.skeleton_map import CANONICAL_INDEX
 from app.motion.windows import describe_windows
 from tests.motion.conftest import BANDAI_FIXTURE, CMU_BVH_FIXTURE, fixture_bytes
 from tests.motion.holds import held_motion
+from tests.motion.read_once import read_only
 from tests.motion.test_nameless_real import FILES
 
 Probe = Callable[[Motion], Motion]
@@ -206,9 +209,11 @@ def _joint(motion: Motion, names: tuple[str, ...], canonical: str) -> int:
     return motion.skeleton.names.index(names[CANONICAL_INDEX[canonical]])
 
 
-def _probes(motion: Motion) -> dict[str, Probe]:
-    """Name -> perturbation of ``motion`` (the clavicles only where the rig has them)."""
-    names, _ = _named_mapping(motion)
+def _probes(motion: Motion, names: tuple[str, ...] | None = None) -> dict[str, Probe]:
+    """Name -> perturbation of ``motion`` (the clavicles only where the rig has them);
+    ``names``: the rig's mapped joint names when already known."""
+    if names is None:
+        names, _ = _named_mapping(motion)
     probes: dict[str, Probe] = {
         "z-up": lambda m: transforms.change_basis(
             m, transforms.rotation_about([1.0, 0.0, 0.0], 90.0)
@@ -258,20 +263,26 @@ def _check_same_positions(before: Motion, after: Motion) -> None:
 def test_the_fixtures_map_alike_under_every_probe(fixture: str) -> None:
     motion = read_bvh(fixture_bytes(fixture))
     named = _named_mapping(motion)
-    for name, probe in _probes(motion).items():
+    for name, probe in _probes(motion, named[0]).items():
         changed = probe(motion)
         if name in SAME_POSITIONS:
             _check_same_positions(motion, changed)
         assert _named_mapping(changed) == named, name
 
 
+@functools.cache
+def _dev_rig(path: Path) -> tuple[Motion, tuple[tuple[str, ...], bool], dict[str, Probe]]:
+    """A dev file parsed and mapped once for every probe (read-only: each probe copies)."""
+    motion = read_only(read_bvh(path.read_bytes()))
+    named = _named_mapping(motion)
+    return motion, named, _probes(motion, named[0])
+
+
 def _outcomes(probe: str) -> dict[str, str | None]:
     """Dev file -> None when the probed copy maps like the file, else how not."""
     found: dict[str, str | None] = {}
     for path in FILES:
-        motion = read_bvh(path.read_bytes())
-        named = _named_mapping(motion)
-        probes = _probes(motion)
+        motion, named, probes = _dev_rig(path)
         if probe not in probes:
             continue
         try:

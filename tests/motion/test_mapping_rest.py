@@ -123,13 +123,14 @@ def standing_frames(motion: Motion, names: tuple[str, ...]) -> np.ndarray:
     return standing & (np.sum(legs * up, axis=1) <= -0.5)
 
 
-def rest_probes(motion: Motion) -> dict[str, Motion]:
-    """Name -> the rig written with no standing figure in its rest pose or its frames."""
-    names, _ = _named_mapping(motion)
-    probes = {
-        f"{posture} take": frame_as_rest(posed(motion, names, posture)) for posture in POSTURES
-    }
-    seated_start = frames_at(posed(motion, names, "seated"), np.array([0]))
+def rest_probes(motion: Motion, names: tuple[str, ...] | None = None) -> dict[str, Motion]:
+    """Name -> the rig written with no standing figure in its rest pose or its frames;
+    ``names``: the rig's mapped joint names when already known."""
+    if names is None:
+        names, _ = _named_mapping(motion)
+    takes = {posture: posed(motion, names, posture) for posture in POSTURES}
+    probes = {f"{posture} take": frame_as_rest(take) for posture, take in takes.items()}
+    seated_start = frames_at(takes["seated"], np.array([0]))
     first = motion.local_rotations.copy()
     first[0] = seated_start.local_rotations[0]
     probes["seated first frame as rest"] = frame_as_rest(
@@ -163,8 +164,9 @@ def _outcome(named: tuple[tuple[str, ...], bool], probed: Motion) -> str | None:
 @pytest.mark.parametrize("fixture", [CMU_BVH_FIXTURE, BANDAI_FIXTURE])
 def test_the_fixtures_map_alike_in_a_take_that_never_stands(fixture: str) -> None:
     motion = read_bvh(fixture_bytes(fixture))
-    names, _ = _named_mapping(motion)
-    probes = rest_probes(motion)
+    named = _named_mapping(motion)
+    names = named[0]
+    probes = rest_probes(motion, names)
     for name, probed in probes.items():
         # The probe moves joints, never a bone's length.
         _, a = forward_kinematics(motion)
@@ -177,7 +179,7 @@ def test_the_fixtures_map_alike_in_a_take_that_never_stands(fixture: str) -> Non
         )
         if not name.startswith("seated first"):  # (a walk's stride may still read as one)
             assert standing_frames(probed, names).mean() < 0.1, name
-        assert _outcome(_named_mapping(motion), probed) is None, name
+        assert _outcome(named, probed) is None, name
 
 
 def _dev_outcomes() -> dict[str, dict[str, str | None]]:
@@ -187,7 +189,7 @@ def _dev_outcomes() -> dict[str, dict[str, str | None]]:
         # The mapper reads a dozen frames: 120 spread over the clip keep the probes quick.
         motion = sample_frames(read_bvh(path.read_bytes()), 120)
         named = _named_mapping(motion)
-        for probe, probed in rest_probes(motion).items():
+        for probe, probed in rest_probes(motion, named[0]).items():
             found[probe][path.name] = _outcome(named, probed)
     return found
 
