@@ -46,7 +46,6 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from sqlalchemy import Engine, Exists, Select, delete, exists, select
-from sqlalchemy.dialects.postgresql import insert as pg_insert
 from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session
 
@@ -266,6 +265,10 @@ class DatabaseBlobStore:
         self._engine = engine
 
     def put(self, data: bytes) -> tuple[str, bool]:
+        # PostgreSQL's dialect is imported here, not with the module: a SQLite server's
+        # workers would load it at every start for nothing (~0.1 s of CPU each).
+        from sqlalchemy.dialects.postgresql import insert as pg_insert
+
         sha = hashlib.sha256(data).hexdigest()
         statement = (
             pg_insert(Blob)
@@ -315,6 +318,8 @@ class DatabaseBlobStore:
             self.release(session, [sha256])
 
     def claim(self, session: Session, files: Sequence[tuple[bytes, str]]) -> list[str]:
+        from sqlalchemy.dialects.postgresql import insert as pg_insert  # see put
+
         wanted = {sha: data for data, sha in files}
         # FOR SHARE: a removal (FOR UPDATE) waits for this transaction; in sha256 order, as
         # removals lock, so two transactions never wait for each other.

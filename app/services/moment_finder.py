@@ -77,10 +77,14 @@ class _Known:
         return known, rows
 
     def add(self, ids: np.ndarray, values: np.ndarray) -> None:
-        ids = np.concatenate([self.ids, ids])
-        values = np.concatenate([self.values, values])
-        order = np.argsort(ids, kind="stable")
-        self.ids, self.values = ids[order], values[order]
+        """Keep rows ``values`` ``(M, C)`` of ``ids`` ``(M,)`` (none known yet): merged into
+        place, not sorted again with every id known (a round adds hundreds to thousands)."""
+        if ids.size > 1 and bool((ids[1:] < ids[:-1]).any()):
+            order = np.argsort(ids, kind="stable")
+            ids, values = ids[order], values[order]
+        at = np.searchsorted(self.ids, ids, side="right")
+        self.ids = np.insert(self.ids, at, ids)
+        self.values = np.insert(self.values, at, values, axis=0)
 
 
 def _members(values: np.ndarray, keys: np.ndarray) -> np.ndarray:
@@ -92,9 +96,17 @@ def _members(values: np.ndarray, keys: np.ndarray) -> np.ndarray:
     return keys[at] == values
 
 
+def _distinct(ordered: np.ndarray) -> np.ndarray:
+    """The distinct values of ``ordered`` ``(N,)`` (ascending): ``np.unique`` without its
+    sort."""
+    if ordered.size < 2:
+        return ordered.copy()
+    return ordered[np.r_[True, ordered[1:] != ordered[:-1]]]
+
+
 def _to_nearest(keys: np.ndarray, marks: np.ndarray) -> np.ndarray:
-    """For each of ``keys`` ``(N,)``, how far the nearest of ``marks`` ``(M,)`` (M >= 1) is."""
-    marks = np.sort(marks)
+    """For each of ``keys`` ``(N,)``, how far the nearest of ``marks`` ``(M,)`` (ascending,
+    M >= 1) is."""
     at = np.clip(np.searchsorted(marks, keys), 1, max(marks.size - 1, 1))
     below, above = marks[np.maximum(at - 1, 0)], marks[np.minimum(at, marks.size - 1)]
     return np.minimum(np.abs(keys - below), np.abs(keys - above))
@@ -172,7 +184,7 @@ class MomentFinder:
         hits alone (a wider round adds hits to a few of the clips it had)."""
         bits = window_db.WINDOW_ID_BITS
         new = hits[~_members(hits, self._hits)]
-        changed = np.unique(new >> bits)
+        changed = _distinct(new >> bits)  # window ids hold their clip's id in the high bits
         kept = self._found
         keep = ~_members(kept.clips, changed)
         placed = self.moments(hits[_members(hits >> bits, changed)])
@@ -189,7 +201,7 @@ class MomentFinder:
         """The moments placed by the seeds near the hits (within a query's length of one, in
         its clip), with their distances."""
         bits = window_db.WINDOW_ID_BITS
-        clips = np.unique(hits >> bits)
+        clips = _distinct(hits >> bits)
         held, facts = self.facts.find(clips)
         if not held.all():  # no SQL: the catalogue (clips deleted meanwhile are not there)
             listed = self.library.catalogue.frames(clips[~held].tolist())
@@ -208,17 +220,19 @@ class MomentFinder:
         starts, stops = rows.starts * frame_time, rows.stops * frame_time
         # Seconds from each window to the nearest hit of its clip (clips kept far apart).
         apart = 4.0 * (float(np.max(frames * frame_time)) + self.seconds + 1.0)
-        keys = group * apart + starts
+        keys = group * apart + starts  # ascending: clips in order, their windows by start
         marked = _members(rows.ids, hits)
         if not marked.any():  # their clips deleted meanwhile
             return PlacedMoments.empty()
         to_hit = _to_nearest(keys, keys[marked])
         slack = float(frame_time.max())
         seed_reach = max(self.seconds - self.length, 0.0) + slack
+        nothing = np.zeros((0, self.query.shape[1]), np.float32)
+        gathered: tuple[np.ndarray, np.ndarray] = (np.zeros(0, np.int64), nothing)
         if self.whole:  # the hits themselves, centred on their window
             seeds = np.flatnonzero(marked)
         else:
-            seeds = self._local_minima(
+            seeds, gathered = self._local_minima(
                 rows, group, to_hit <= seed_reach + self.length + slack, to_hit <= seed_reach
             )
         if self.exclude is not None:  # nothing overlapping the query's own span
@@ -229,13 +243,12 @@ class MomentFinder:
         if fresh.size:
             # Windows a moment placed by a fresh seed may hold (in its clip, a query's
             # length around it), with their vectors.
-            near = _to_nearest(keys, keys[fresh]) <= self.seconds + slack
-            held, vectors = self.index.reconstruct_batch(rows.ids[near])
-            window = np.flatnonzero(near)[held]
+            near = np.flatnonzero(_to_nearest(keys, keys[fresh]) <= self.seconds + slack)
+            held, stored = self._vectors(rows.ids, near, *gathered)
+            window = near[held]
             position = np.full(len(rows), -1)
             position[window] = np.arange(window.size)
             fresh = fresh[position[fresh] >= 0]
-            stored = vectors.astype(np.float64)
             durations = frames[fresh] * frame_time[fresh]
             spans = np.minimum(self.seconds, durations)
             if self.whole:
@@ -262,14 +275,34 @@ class MomentFinder:
         found = found[known]
         return PlacedMoments(found[:, 0].astype(np.int64), found[:, 1], found[:, 2], found[:, 3])
 
+    def _vectors(
+        self, ids: np.ndarray, wanted: np.ndarray, had: np.ndarray, vectors: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Which of the windows ``wanted`` (ascending rows of ``ids`` ``(N,)``) are held
+        ``(M,)`` bool, and their ``(K, D)`` float64 vectors: those among ``had`` (ascending
+        rows) from ``vectors`` (theirs, gathered this round), the others from the index.
+        Gathering a row from the mapped lists reads far apart: the windows around a seed
+        are mostly those whose nearest part was just measured."""
+        at = np.minimum(np.searchsorted(had, wanted), max(had.size - 1, 0))
+        reuse = had[at] == wanted if had.size else np.zeros(wanted.size, bool)
+        missing = np.flatnonzero(~reuse)
+        found, fetched = self.index.reconstruct_batch(ids[wanted[missing]])
+        held = reuse.copy()
+        held[missing[found]] = True
+        stored = np.empty((wanted.size, self.query.shape[1]))
+        stored[reuse] = vectors[at[reuse]]
+        stored[missing[found]] = fetched
+        return held, stored if held.all() else stored[held]
+
     def _local_minima(
         self, rows: Places, group: np.ndarray, region: np.ndarray, seedable: np.ndarray
-    ) -> np.ndarray:
+    ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
         """The seeds (rows of ``rows``): windows ``seedable`` nearer their nearest part than
         the window before them in their clip (or as near) and than the one after — a
         moment's best place, not its slopes. ``region`` (the seedable windows and their
         neighbours) get their nearest part measured. Whether a window is a seed depends on
-        it, its neighbours and the query only, never on which windows the probes found."""
+        it, its neighbours and the query only, never on which windows the probes found.
+        Also the rows whose vectors were gathered for it, and those ``(K, D)`` float32."""
         wanted = np.flatnonzero(region)
         unknown = wanted[~self._nearest.find(rows.ids[wanted])[0]]
         held, vectors = self.index.reconstruct_batch(rows.ids[unknown])
@@ -285,7 +318,7 @@ class MomentFinder:
         has_right = (candidates < last) & (group[right] == group[candidates])
         here = delta[candidates]
         lowest = (~has_left | (here <= delta[left])) & (~has_right | (here < delta[right]))
-        return candidates[lowest]
+        return candidates[lowest], (unknown, vectors)
 
     # Bounded work (issue 21): a long query has up to MAX_PARTS parts and the clips near
     # the hits thousands of windows, so (parts x windows) matrices are built a block at a
@@ -392,7 +425,9 @@ class MomentFinder:
             difference = (q[:, None, :] - windows[None, tied, :]).reshape(-1, q.shape[1])
             every = pair_distances_of(difference).reshape(len(q), tied.size)
             nearest[tied] = every.argmin(axis=0)  # the first part on ties
-        return nearest, pair_distances_of(q[nearest] - windows)
+        difference = q[nearest]  # a fresh (M, D) array: the pair's difference in place
+        difference -= windows
+        return nearest, pair_distances_of(difference)
 
     def _fits(
         self,
@@ -429,7 +464,9 @@ class MomentFinder:
         part = np.where(closer, below, part)
         # Moments placed near each other share most pairs: each measured once.
         pairs, which = np.unique(part * len(stored) + columns, return_inverse=True)
-        unique = pair_distances(self.query[pairs // len(stored)], stored[pairs % len(stored)])
+        difference = self.query[pairs // len(stored)]  # fresh: the difference in place
+        difference -= stored[pairs % len(stored)]
+        unique = pair_distances_of(difference)
         sums = np.bincount(owner, weights=unique[which], minlength=seeds.size)
         return sums / np.maximum(counts, 1)
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.services.moment_finder import DIRECT_PARTS, MomentFinder, pair_distances_of
+from app.services.moment_finder import DIRECT_PARTS, MomentFinder, _Known, pair_distances_of
 
 DIMENSION = 135  # the motion descriptor's windows
 
@@ -44,3 +44,49 @@ def test_few_parts_give_every_pairs_numbers(seed: int) -> None:
         expected = every_pair(query, windows)
         assert np.array_equal(found[0], expected[0])
         assert np.array_equal(found[1], expected[1])
+
+
+def test_known_rows_merge_in_id_order_whatever_order_they_come_in() -> None:
+    rng = np.random.default_rng(0)
+    known = _Known(2)
+    every = rng.permutation(1000)[:300].astype(np.int64)
+    for batch in np.array_split(every, 7):
+        known.add(batch, np.stack([batch * 2.0, batch * 3.0], axis=1))
+    assert np.array_equal(known.ids, np.sort(every))
+    asked = np.array([every[5], 5000, every[200], -1])
+    held, rows = known.find(asked)
+    assert held.tolist() == [True, False, True, False]
+    assert np.array_equal(rows[held], np.stack([asked[held] * 2.0, asked[held] * 3.0], axis=1))
+    assert np.isnan(rows[~held]).all()
+
+
+class _Windows:
+    """What ``_vectors`` reads of a finder: the query's width and the window index."""
+
+    def __init__(self, stored: dict[int, np.ndarray]) -> None:
+        self.query = np.zeros((1, DIMENSION))
+        self.index = self
+        self.stored = stored
+        self.asked: list[int] = []
+
+    def reconstruct_batch(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        self.asked += ids.tolist()
+        held = np.array([int(i) in self.stored for i in ids], bool)
+        found = [self.stored[int(i)] for i in ids if int(i) in self.stored]
+        return held, np.array(found, np.float32).reshape(-1, DIMENSION)
+
+
+def test_vectors_gathered_this_round_are_not_read_again() -> None:
+    rng = np.random.default_rng(1)
+    ids = np.arange(100, dtype=np.int64) * 7
+    stored = {int(i): rng.normal(size=DIMENSION).astype(np.float32) for i in ids if i % 5}
+    windows = _Windows(stored)
+    had = np.array([3, 4, 9, 41, 43], np.int64)  # held rows, as the region's gathered are
+    wanted = np.array([1, 3, 4, 5, 9, 10, 41, 42, 99], np.int64)
+    held, vectors = MomentFinder._vectors(  # type: ignore[arg-type]
+        windows, ids, wanted, had, np.stack([stored[int(ids[r])] for r in had])
+    )
+    assert sorted(windows.asked) == sorted(int(ids[r]) for r in wanted if r not in had)
+    assert held.tolist() == [int(ids[r]) in stored for r in wanted]
+    expected = np.stack([stored[int(ids[r])] for r in wanted[held]]).astype(np.float64)
+    assert vectors.dtype == np.float64 and np.array_equal(vectors, expected)
