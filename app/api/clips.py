@@ -28,7 +28,6 @@ from app.errors import InvalidInput
 from app.labels import label_filter, normalise_labels
 from app.services import clips as clip_service
 from app.services.describe import span_frames
-from app.services.export import Exporter, ExportOptions
 from app.services.ingest import ingest
 from app.services.uploads import SCENE_FORMATS, normalise_name, normalise_note
 
@@ -264,6 +263,10 @@ def download_clip(
     frames = None
     if start is not None or end is not None:
         frames = span_frames(clip.frame_count, clip.frame_time, 0, start, end)
+    # Imported here: the export pipeline (retargeting, root motion, resampling, the GLB
+    # writer) is ~70 ms a worker would pay at start-up for a route few requests take.
+    from app.services.export import Exporter, ExportOptions
+
     exporter = Exporter(
         library,
         ExportOptions(format=file_format, units=units, fps=fps, root=root or "keep", rig=rig),

@@ -12,7 +12,6 @@ from pydantic import BaseModel, ConfigDict, Field
 from app.api.deps import LibraryDep
 from app.api.errors import error_responses
 from app.api.query_check import CheckedQueryRoute
-from app.services.export import Exporter, ExportOptions, export_items, export_zip
 
 router = APIRouter(prefix="/exports", tags=["exports"], route_class=CheckedQueryRoute)
 
@@ -79,6 +78,10 @@ def create_export(body: ExportRequest, library: LibraryDep) -> StreamingResponse
     """Export the clips named by `clips`, `label` or `search` with the options of a single
     download, streamed as each file is written. At most MOCAP_MAX_EXPORT_CLIPS clips (422
     beyond, saying how many)."""
+    # Imported here, not at start-up: the export pipeline (retargeting and the writers) is
+    # ~70 ms of a worker's start for a route few requests take.
+    from app.services.export import Exporter, ExportOptions, export_items, export_zip
+
     options = ExportOptions(
         format=body.format, units=body.units, fps=body.fps, root=body.root, rig=body.rig
     )

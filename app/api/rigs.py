@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 from fastapi import APIRouter, File, Form, Query, Request, Response, UploadFile, status
 from pydantic import BaseModel, Field
@@ -13,11 +13,15 @@ from app.api.clips import check_page
 from app.api.deps import LibraryDep, SettingsDep
 from app.api.errors import error_responses
 from app.api.query_check import CheckedQueryRoute
-from app.db.rigs import RigRecord
 from app.errors import InvalidInput, UnsupportedMediaType
 from app.motion.units import unit_name
 from app.services import clips as clip_service
-from app.services import rigs as rig_service
+
+if TYPE_CHECKING:
+    from app.db.rigs import RigRecord
+
+# app.services.rigs (with the retargeting it needs, ~30 ms) is imported inside the routes that
+# use it, so that a worker starts without it: rigs are stored and read by few requests.
 
 router = APIRouter(prefix="/rigs", tags=["rigs"], route_class=CheckedQueryRoute)
 
@@ -52,6 +56,8 @@ class RigOut(BaseModel):
 
     @classmethod
     def of(cls, rig: RigRecord, *, details: bool = False) -> RigOut:
+        from app.services import rigs as rig_service
+
         return cls(
             id=rig.id,
             name=rig.name,
@@ -102,6 +108,8 @@ def create_rig(
     """Store a rig, mapped by the same structural mapper as clips (a skeleton that is not a
     whole humanoid gets 422 like a clip); the answer shows the mapping. Read under the same
     limits as a clip upload (FBX and glTF in the isolated reader processes)."""
+    from app.services import rigs as rig_service
+
     if from_clip is not None:
         if file is not None:
             raise InvalidInput("file: send a file or from_clip, not both")
@@ -129,6 +137,8 @@ def list_rigs(
     offset: Annotated[int, Query(description="Rigs to skip (≥ 0).")] = 0,
 ) -> RigPage:
     """Rigs in id order, a page at a time, with the total count (what a rig picker lists)."""
+    from app.services import rigs as rig_service
+
     check_page(settings, limit, offset)
     items, total = rig_service.list_rigs(library, limit=limit, offset=offset)
     return RigPage(total=total, limit=limit, offset=offset, items=[RigOut.of(r) for r in items])
@@ -137,6 +147,8 @@ def list_rigs(
 @router.get("/{rig_id}", summary="Get a rig", responses=error_responses(404, 422, 503))
 def get_rig(rig_id: int, library: LibraryDep) -> RigOut:
     """One rig, with its mapping and its rest-pose skeleton."""
+    from app.services import rigs as rig_service
+
     return RigOut.of(rig_service.get_rig(library, rig_id), details=True)
 
 
@@ -150,5 +162,7 @@ def get_rig(rig_id: int, library: LibraryDep) -> RigOut:
 )
 def delete_rig(rig_id: int, library: LibraryDep) -> Response:
     """Remove the rig (clips are not touched)."""
+    from app.services import rigs as rig_service
+
     rig_service.delete_rig(library, rig_id)
     return Response(status_code=status.HTTP_204_NO_CONTENT)
