@@ -117,6 +117,10 @@ class DescriptorIndex(HeldIndex):
         A FAISS index to start from (default: an empty flat one).
     options:
         Index kind and search settings.
+    searched_by_clip:
+        Whether searches by clip ask it (a clip index; not the moments' window indexes, only
+        searched in batches): a file it writes then has its adaptive probe and cells' graph
+        decided before it is used (:meth:`FrozenIVF.prepare`), not by its first search.
     """
 
     def __init__(
@@ -127,8 +131,11 @@ class DescriptorIndex(HeldIndex):
         directory: Path,
         index: Any | None = None,
         options: IndexOptions | None = None,
+        *,
+        searched_by_clip: bool = True,
     ) -> None:
         super().__init__(dimension, index, options)
+        self.searched_by_clip = searched_by_clip
         self.name = name
         self.version = version
         self.directory = directory
@@ -344,7 +351,26 @@ class DescriptorIndex(HeldIndex):
         directory's exclusive file lock; then map the file (IVF; see app/index/frozen.py)
         instead of holding a copy, when nothing changed meanwhile."""
         # The save lock keeps two saves in order: the last state serialised is the one written.
-        with self._save_lock, directory_lock(self.directory, exclusive=True):
+        with self._save_lock:
+            written = self._write_and_map()
+            if written is None:  # only the feed position moved on
+                return
+            index, unsaved, mapped = written
+            if mapped is not None and self.searched_by_clip:
+                # Decided here, not by the first search (outside the directory's lock: it is
+                # taken again to store them beside the file)
+                mapped.prepare(self.options.nprobe or mapped.base_nprobe)
+            with self._lock.write():
+                if mapped is not None and self._index is index and self._unsaved == unsaved:
+                    self._index = mapped  # nothing changed while writing: share the file
+                    self._sorted = None
+                self._unsaved = max(0, self._unsaved - unsaved)
+
+    def _write_and_map(self) -> tuple[Any, int, FrozenIVF | None] | None:
+        """:meth:`save`'s file work, under the directory's exclusive lock: the index written
+        (``(index, its unsaved count then, the file mapped or None)``), or only the feed
+        position (None) when the mapped file holds its vectors already."""
+        with directory_lock(self.directory, exclusive=True):
             with self._lock.read():
                 index = self._index
                 count = int(index.ntotal)
@@ -361,7 +387,7 @@ class DescriptorIndex(HeldIndex):
                     # The file holds these vectors: only the feed position moves on.
                     self.file.write_meta(dict(self.file.mapped_meta, feed_position=synced_to))
                     self._unsaved = max(0, self._unsaved - unsaved)
-                    return
+                    return None
                 written = index.merged() if isinstance(index, FrozenIVF) else index
                 if isinstance(index, FrozenIVF) and index.exact is not None:
                     # a copy, mapped once written: no id hash table for FAISS to rebuild
@@ -390,12 +416,7 @@ class DescriptorIndex(HeldIndex):
             )
             del exact
             maps = kind == IVF and self.file.maps(meta, mmap=self.options.mmap)
-            mapped = self.file.map(meta) if maps else None
-            with self._lock.write():
-                if mapped is not None and self._index is index and self._unsaved == unsaved:
-                    self._index = mapped  # nothing changed while writing: share the file
-                    self._sorted = None
-                self._unsaved = max(0, self._unsaved - unsaved)
+            return index, unsaved, self.file.map(meta) if maps else None
 
     def read_file(self, *, verify: bool = True) -> tuple[Any, dict[str, Any]] | str:
         """The persisted index and its metadata, or why they cannot be used (file work only:

@@ -426,6 +426,20 @@ class FrozenIVF:
             ids[row, : order.size] = candidates[row][valid[row]][order]
         return squared, ids
 
+    def prepare(self, nprobe: int | None = None) -> None:
+        """Decide the adaptive probe and build (or read) the cells' graph for searches of
+        ``nprobe`` cells (default: the file's calibrated number) now, in the caller's thread:
+        the process that wrote the file, or a server's verifier thread, so that no search
+        pays for them (each is a function of the file; a search still decides them itself
+        when nothing did)."""
+        nprobe = nprobe or self.base_nprobe
+        self.cutoff(nprobe)
+        with self._cells_lock:  # not when a search has started building it already
+            if self._cells_started:
+                return
+            self._cells_started = True
+        self.build_cells(nprobe)
+
     def _start_cells(self, nprobe: int) -> None:
         """Build the cells' graph in a thread (once): the first search does not wait."""
         with self._cells_lock:

@@ -215,6 +215,14 @@ class HeldIndex:
             np.array([math.sqrt(max(s, 0.0)) for _, s in kept], np.float64),
         )
 
+    def prepare_searches(self) -> None:
+        """Decide now what a mapped IVF file's first search by clip would otherwise decide:
+        its adaptive probe and its cells' graph (:meth:`FrozenIVF.prepare`); nothing for
+        other indexes. Not under the lock: searches go on meanwhile, on the same file."""
+        index = self._index
+        if isinstance(index, FrozenIVF) and index.mapped_from is not None:
+            index.prepare(self.options.nprobe or index.base_nprobe)
+
     def nearest(self, query: np.ndarray, k: int, *, exclude: int) -> list[tuple[int, float]]:
         """:meth:`search` of a stored vector ``query`` ``(D,)`` float32 without filters, as
         ``(id, Euclidean distance)`` pairs, nearest first, ``exclude`` (the query clip)

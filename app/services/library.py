@@ -284,8 +284,12 @@ class Library:
         return []
 
     def _check_files(self) -> None:
-        """The verifier thread of a server: window counts, then checksums (see
-        :meth:`check_window_counts`, :meth:`verify_files`)."""
+        """The verifier thread of a server: the clip indexes' search decisions (first: a
+        search may come soon; see :meth:`HeldIndex.prepare_searches`), window counts, then
+        checksums (see :meth:`check_window_counts`, :meth:`verify_files`)."""
+        for index in self.indexes.values():
+            if not self._stopping.is_set():
+                index.prepare_searches()
         try:
             self.check_window_counts()
         except (SQLAlchemyError, sqlite3.Error) as exc:

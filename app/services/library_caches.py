@@ -94,7 +94,12 @@ def open_caches(
     )
     windows = {
         name: DescriptorIndex(
-            name, key.dimension, key.version, settings.index_dir, options=window_options
+            name,
+            key.dimension,
+            key.version,
+            settings.index_dir,
+            options=window_options,
+            searched_by_clip=False,
         )
         for name, key in keys.items()
     }

@@ -7,15 +7,19 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import faiss
 import numpy as np
 import pytest
 
 from app.index import probe_cutoff
+from app.index.descriptor_index import DescriptorIndex
 from app.index.frozen import FrozenIVF
-from app.index.kinds import with_id_map
+from app.index.held_index import HeldIndex
+from app.index.kinds import IVF, IndexOptions, with_id_map
 from app.index.probe_cutoff import CUTOFFS, measure_cutoff, skip_far_cells
+from tests.index.test_descriptor_index import Source
 
 DIMENSION = 16
 CENTRES = 40
@@ -192,3 +196,70 @@ def test_an_adaptive_search_sees_removed_and_added_vectors(tmp_path: Path) -> No
     frozen.add(np.array([9_000], np.int64), query + 1e-3)
     _, after = frozen.search(query, 5, nprobe=NPROBE, adaptive=True)
     assert after[0][0] == 9_000 and 100 not in after[0].tolist()
+
+
+@pytest.fixture()
+def measures(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """Counts the decisions measured (each a call of the real :func:`measure_cutoff`)."""
+    calls: list[int] = []
+    real = probe_cutoff.measure_cutoff
+
+    def counted(*args: Any) -> tuple[float | None, dict[str, float]]:
+        calls.append(1)
+        return real(*args)
+
+    monkeypatch.setattr(probe_cutoff, "measure_cutoff", counted)
+    return calls
+
+
+def ivf_options() -> IndexOptions:
+    return IndexOptions(kind=IVF, nlist=NLIST, nprobe=NPROBE, save_delay=0)
+
+
+def test_a_saved_clip_index_decides_before_its_first_search(
+    tmp_path: Path, measures: list[int]
+) -> None:
+    vectors = clustered(8_000, seed=3)
+    ids = np.arange(1, vectors.shape[0] + 1, dtype=np.int64)
+    index = DescriptorIndex("kinetic", DIMENSION, 1, tmp_path, options=ivf_options())
+    index.replace_all(ids, vectors)  # built and written as a rebuild or fill-synthetic does
+    assert index.mapped and measures == [1]
+    assert (tmp_path / "kinetic.probe.arrays").exists()
+    index.search(vectors[7], 5, exclude=8)  # the first search by clip: decided already
+    reopened = DescriptorIndex("kinetic", DIMENSION, 1, tmp_path, options=ivf_options())
+    found = reopened.read_file()
+    assert not isinstance(found, str)
+    reopened.load_or_rebuild(Source(ids, vectors), found)  # another worker, a restart
+    hits = reopened.search(vectors[7], 5, exclude=8).ids.tolist()
+    assert measures == [1] and hits == index.search(vectors[7], 5, exclude=8).ids.tolist()
+
+
+def test_a_window_index_decides_nothing_ahead(tmp_path: Path, measures: list[int]) -> None:
+    """Window indexes are searched in batches, which scan every cell: no decision to make."""
+    vectors = clustered(8_000, seed=3)
+    index = DescriptorIndex(
+        "windows", DIMENSION, 1, tmp_path, options=ivf_options(), searched_by_clip=False
+    )
+    index.replace_all(np.arange(1, vectors.shape[0] + 1, dtype=np.int64), vectors)
+    assert index.mapped and measures == []
+    assert not (tmp_path / "windows.probe.arrays").exists()
+
+
+def test_prepared_searches_measure_once_then_searches_read_the_decision(
+    tmp_path: Path, measures: list[int]
+) -> None:
+    """A file from another process without its decision: the verifier thread's
+    ``prepare_searches`` measures it, the first search does not (and its answers are those
+    of a search deciding lazily)."""
+    vectors = clustered(8_000, seed=4)
+    path = ivf_file(tmp_path, vectors)
+    options = IndexOptions(nprobe=NPROBE)
+    lazy = HeldIndex(DIMENSION, FrozenIVF.open(path), options)
+    expected = [lazy.search(vector, 5).ids.tolist() for vector in vectors[:20]]
+    assert measures == [1]  # by the first search
+    Path(path).with_name("kinetic.probe.arrays").unlink()
+    held = HeldIndex(DIMENSION, FrozenIVF.open(path), options)
+    held.prepare_searches()
+    assert measures == [1, 1]
+    assert [held.search(vector, 5).ids.tolist() for vector in vectors[:20]] == expected
+    assert measures == [1, 1]
