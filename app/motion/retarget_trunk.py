@@ -24,9 +24,13 @@ from app.motion.retarget_joints import Driven
 from app.motion.retarget_reference import swing
 from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap
 
-# The trunk's canonical joints from the pelvis up; each chord pelvis -> joint is aimed by
-# turning the one below it.
 _TRUNK = ("pelvis", "spine", "chest", "neck")
+# (pivot, chord's end, only where the neck was not reached): each chord from the pelvis is
+# aimed by turning the canonical joint below its end. Where the chest joint's bone is too
+# short to bring the neck onto its chord (a deep bend on a rig whose lower back is one long
+# bone), the spine joint turns the chest and neck together: the neck's chord, which the
+# describer reads, before the chest's.
+_TURNS = (("spine", "chest", False), ("chest", "neck", False), ("spine", "neck", True))
 
 
 def bend_trunk(
@@ -46,27 +50,33 @@ def bend_trunk(
     ``(J, 3)`` are the rig's hierarchy and reference pose, ``s_pos`` ``(F, J_s, 3)`` the
     source's positions, ``world`` ``(3, 3)`` the rig's world axes onto the source's."""
     slot = {d.target: i for i, d in enumerate(driven)}
-    t_stops = [int(target_map.joints[CANONICAL_INDEX[n]]) for n in _TRUNK]
-    s_stops = [int(source_map.joints[CANONICAL_INDEX[n]]) for n in _TRUNK]
-    s_pelvis = s_stops[0]
-    for k in range(2, len(_TRUNK)):
-        pivot, end, s_end = t_stops[k - 1], t_stops[k], s_stops[k]
-        chain = _path(parents, t_stops[0], end)
+    t_joint = {n: int(target_map.joints[CANONICAL_INDEX[n]]) for n in _TRUNK}
+    s_joint = {n: int(source_map.joints[CANONICAL_INDEX[n]]) for n in _TRUNK}
+    missed = np.ones(rotation.shape[0], dtype=bool)
+    for pivot_name, end_name, only_missed in _TURNS:
+        pivot, end = t_joint[pivot_name], t_joint[end_name]
+        chain = _path(parents, t_joint["pelvis"], end)
         if chain is None or pivot not in chain[1:-1] or pivot not in slot:
             continue  # the canonical joints coincide or are not one chain: nothing to bend
-        if s_end == s_pelvis:
+        if s_joint[end_name] == s_joint["pelvis"]:
             continue
-        positions = _chain_positions(chain, slot, rotation, parents, t_ref_rot, t_ref_pos)
+        frames = missed if only_missed else np.ones_like(missed)
+        if not frames.any():
+            continue
+        positions = _chain_positions(chain, slot, rotation[frames], parents, t_ref_rot, t_ref_pos)
         at = chain.index(pivot)
         pelvis_at, pivot_at, end_at = positions[:, 0], positions[:, at], positions[:, -1]
-        wanted = (s_pos[:, s_end] - s_pos[:, s_pelvis]) @ world
-        target = _on_ray(pelvis_at, wanted, pivot_at, np.linalg.norm(end_at - pivot_at, axis=1))
-        turn = swing(end_at - pivot_at, target - pivot_at)  # (F, 3, 3)
+        wanted = (s_pos[frames, s_joint[end_name]] - s_pos[frames, s_joint["pelvis"]]) @ world
+        radius = np.linalg.norm(end_at - pivot_at, axis=1)
+        target, reached = _on_ray(pelvis_at, wanted, pivot_at, radius)
+        if end_name == "neck":
+            missed[frames] = ~reached
+        turn = swing(end_at - pivot_at, target - pivot_at)  # (F', 3, 3)
         # The driven joints from the pivot up to (not including) the chain's end turn with
         # it; those beyond keep their world rotations (their bones' directions).
         for joint in chain[at:-1]:
             if joint in slot:
-                rotation[:, slot[joint]] = turn @ rotation[:, slot[joint]]
+                rotation[frames, slot[joint]] = turn @ rotation[frames, slot[joint]]
 
 
 def _path(parents: np.ndarray, top: int, joint: int) -> list[int] | None:
@@ -104,16 +114,17 @@ def _chain_positions(
 
 def _on_ray(
     origin: np.ndarray, direction: np.ndarray, centre: np.ndarray, radius: np.ndarray
-) -> np.ndarray:
+) -> tuple[np.ndarray, np.ndarray]:
     """``(F, 3)`` the far point where the ray ``origin + t·direction`` (``(F, 3)``) meets the
     sphere about ``centre`` ``(F, 3)`` of ``radius`` ``(F,)``; where it misses, the ray's
-    point nearest the centre (the chord as close as the bone can bring it)."""
+    point nearest the centre (the chord as close as the bone can bring it); and ``(F,)``
+    whether the ray met the sphere."""
     unit = direction / np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), 1e-12)
     offset = origin - centre
     along = np.sum(unit * offset, axis=1)
     room = along**2 - np.sum(offset * offset, axis=1) + radius**2
     t = -along + np.sqrt(np.maximum(room, 0.0))
-    return origin + t[:, None] * unit
+    return origin + t[:, None] * unit, room >= 0.0
 
 
 __all__ = ["bend_trunk"]
