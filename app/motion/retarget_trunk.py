@@ -60,7 +60,7 @@ def bend_trunk(
             continue  # the canonical joints coincide or are not one chain: nothing to bend
         if s_joint[end_name] == s_joint["pelvis"]:
             continue
-        frames = missed if only_missed else np.ones_like(missed)
+        frames = missed.copy() if only_missed else np.ones_like(missed)
         if not frames.any():
             continue
         positions = _chain_positions(chain, slot, rotation[frames], parents, t_ref_rot, t_ref_pos)
@@ -69,7 +69,7 @@ def bend_trunk(
         wanted = (s_pos[frames, s_joint[end_name]] - s_pos[frames, s_joint["pelvis"]]) @ world
         radius = np.linalg.norm(end_at - pivot_at, axis=1)
         target, reached = _on_ray(pelvis_at, wanted, pivot_at, radius)
-        if end_name == "neck":
+        if end_name == "neck" and not only_missed:
             missed[frames] = ~reached
         turn = swing(end_at - pivot_at, target - pivot_at)  # (F', 3, 3)
         # The driven joints from the pivot up to (not including) the chain's end turn with
