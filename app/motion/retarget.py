@@ -107,7 +107,6 @@ from app.motion.retarget_reference import (
     swing,
 )
 from app.motion.retarget_transfer import driven_rotations, target_rotations
-from app.motion.retarget_trunk import bend_trunk
 from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap
 from app.motion.transforms import reflect
 
@@ -199,9 +198,6 @@ def retarget(
         driven, limbs, s_rot, s_pos, s_ref_rot, s_ref_pos, t_ref_rot, t_ref_pos, body, world
     )
     parents = target.skeleton.parents
-    bend_trunk(
-        driven, rotation, parents, t_ref_rot, t_ref_pos, s_pos, source_map, target_map, world
-    )
     rotations = target_rotations(driven, rotation, t_ref_rot, parents)
     local = rotations.local
     pelvis = int(target_map.joints[CANONICAL_INDEX["pelvis"]])

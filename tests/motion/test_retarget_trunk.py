@@ -12,20 +12,15 @@ Real files: a Bandai tired walk (../shared/data), the Bandai and CMU fixtures as
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
 from app.motion.body import Body, build_body
 from app.motion.formats import read_asf_amc, read_bvh
 from app.motion.formats.bvh_writer import write_bvh
-from app.motion.ground import canonical_positions
-from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion
 from app.motion.retarget import retarget
 from app.motion.skeleton_map import CANONICAL_INDEX
-from app.motion.transforms import rotation_about
 from tests.conftest import SharedData
 from tests.motion.conftest import (
     BANDAI_FIXTURE,
@@ -76,53 +71,3 @@ def test_a_walk_leaning_from_its_first_frame_keeps_its_lean_on_the_rig(
     angles = np.degrees(np.arccos(np.clip(np.sum(upload_trunk * source_trunk, axis=1), -1, 1)))
     assert np.median(angles) < 4.0
     assert abs(upload_trunk[:, 2].mean() - source_trunk[:, 2].mean()) < 0.06
-
-
-def _bent_back(source: Motion, degrees: float) -> Motion:
-    """``source`` bent forward by ``degrees`` in its lower back — the first joint above the
-    pelvis towards the neck — about the body's lateral axis, in every frame."""
-    mapping = mapped(source)
-    pelvis = int(mapping.joints[CANONICAL_INDEX["pelvis"]])
-    lower_back = int(mapping.joints[CANONICAL_INDEX["neck"]])
-    parents = source.skeleton.parents
-    while parents[lower_back] != pelvis:
-        lower_back = int(parents[lower_back])
-    lateral = build_body(source).pelvis_frames[:, :, 0]  # (F, 3), in world axes
-    world, _ = forward_kinematics(source)  # (F, J, 3, 3)
-    local = source.local_rotations.copy()
-    for f in range(source.frame_count):
-        # Forward: the lateral axis points to the body's left; a right-handed turn about it
-        # takes the up towards the front.
-        turn = rotation_about(lateral[f], degrees)
-        local[f, lower_back] = world[f, pelvis].T @ turn @ world[f, pelvis] @ local[f, lower_back]
-    return dataclasses.replace(source, local_rotations=local)
-
-
-@pytest.mark.parametrize("chord_end", ["neck", "chest"])
-def test_a_bent_back_keeps_its_bend_on_a_rig_with_a_long_lower_back(chord_end: str) -> None:
-    # The CMU ASF/AMC skeleton bends its back right above the pelvis (its first spine joint
-    # sits on the root); the Bandai rig's first spine joint is a third of the way up the
-    # trunk, on a bone that turns with the pelvis. Before, the bend below that joint was
-    # lost: bent 20 degrees, the rig's pelvis -> neck was up to 10 degrees, pelvis -> chest
-    # up to 18 degrees off the source's; after, the spine and chest joints take the bend up.
-    # Compared in world axes: the retarget gives the rig's pelvis the source's pelvis frame
-    # (the describer's frame on the Bandai rig is read from the frames, so it would take a
-    # lean held in every frame for part of upright, on both sides alike).
-    cmu = read_asf_amc(fixture_bytes(CMU_ASF_FIXTURE), fixture_bytes(CMU_AMC_FIXTURE))
-    source = _bent_back(cmu, 20.0)
-    rig, rig_map = rig_of(read_bvh(fixture_bytes(BANDAI_FIXTURE)))
-    out = retarget(source, mapped(source), rig, rig_map)
-    source_chord = _chord(canonical_positions(source, mapped(source)), chord_end)
-    out_chord = _chord(canonical_positions(out, rig_map), chord_end)
-    # The bend is there in the source: the chord leans forward of the pelvis's up.
-    up = build_body(cmu).pelvis_frames[:, :, 1]
-    assert np.all(np.degrees(np.arccos(np.sum(source_chord * up, axis=1))) > 20.0)
-    angles = np.degrees(np.arccos(np.clip(np.sum(out_chord * source_chord, axis=1), -1, 1)))
-    assert angles.max() < 0.5
-
-
-def _chord(positions: np.ndarray, end: str) -> np.ndarray:
-    """``(F, 3)`` unit pelvis -> ``end`` direction in world axes from canonical
-    ``positions`` ``(F, C, 3)``."""
-    chord = positions[:, CANONICAL_INDEX[end]] - positions[:, CANONICAL_INDEX["pelvis"]]
-    return chord / np.linalg.norm(chord, axis=1, keepdims=True)
