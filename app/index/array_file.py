@@ -20,6 +20,7 @@ import hashlib
 import json
 import mmap
 import os
+import secrets
 import threading
 from collections.abc import Mapping
 from pathlib import Path
@@ -30,6 +31,8 @@ import numpy as np
 from app.index.locks import directory_lock
 
 ALIGN = 64
+# Random bytes ending each .arrays file, named by its .json: the two are one write.
+TOKEN_BYTES = 16
 HASH_CHUNK = 1 << 22
 STAMP_SUFFIX = ".verified"  # <file>.verified: the file's checksum was found to match
 # Private key read_arrays adds to the metadata it returns (never written to a file): the
@@ -155,8 +158,15 @@ def write_arrays(
                     }
                     out.write(data.data.cast("B"))
                     offset += data.nbytes
+                token = secrets.token_bytes(TOKEN_BYTES)
+                out.write(token)
             _fsync(tmp)
-            described = {**meta, "arrays": layout, "sha256": file_sha256(tmp)}
+            described = {
+                **meta,
+                "arrays": layout,
+                "sha256": file_sha256(tmp),
+                "token": token.hex(),
+            }
             os.replace(tmp, path)
         finally:
             tmp.unlink(missing_ok=True)
@@ -199,6 +209,8 @@ def read_arrays(
                 mapped = (
                     mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) if info.st_size else None
                 )
+            if not _same_write(mapped, meta):
+                return f"{path.name} and {stem}.json are from different writes"
             # The file mapped: checked (now, or before when its stamp says so), or where to
             # stamp it once verify_arrays has checked it.
             checked = verify or is_stamped(path, info, meta.get("sha256"))
@@ -221,6 +233,24 @@ def read_arrays(
     except (KeyError, TypeError, ValueError) as exc:
         return f"unreadable {stem} metadata: {exc}"
     return arrays, meta
+
+
+def _same_write(mapped: mmap.mmap | None, meta: Mapping[str, Any]) -> bool:
+    """Whether the mapped ``.arrays`` file ends with the token its metadata names. The two
+    files are replaced one after the other: a process killed between the two renames leaves
+    the new arrays beside the old metadata (whose layout would read them as garbage), which
+    a start that defers the checksum (``verify=False``) must not take. Metadata without a
+    token (written before tokens) is taken as before."""
+    token = meta.get("token")
+    if token is None:
+        return True
+    if not isinstance(token, str) or mapped is None:
+        return False
+    try:
+        expected = bytes.fromhex(token)
+    except ValueError:
+        return False
+    return len(expected) == TOKEN_BYTES and mapped[-TOKEN_BYTES:] == expected
 
 
 def verify_arrays(arrays: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> str | None:

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from app.index.array_file import TOKEN_BYTES
 from app.index.descriptor_index import DescriptorIndex
 from app.index.kinds import FLAT, IVF, SQ8, IndexOptions
 from tests.index.test_frozen import _Source  # the database's view, of given vectors
@@ -112,7 +113,7 @@ def test_a_damaged_exact_file_mapped_unchecked_is_caught_by_the_later_check(
     every_cell(tmp_path).replace_all(ids, vectors)
     path = tmp_path / "windows-motion-1s.exact.arrays"
     data = bytearray(path.read_bytes())
-    data[-5] ^= 0xFF
+    data[-5 - TOKEN_BYTES] ^= 0xFF  # a vector (the file ends with its write's token)
     path.write_bytes(bytes(data))
     server = every_cell(tmp_path)
     found = server.read_file(verify=False)  # as a server starts: checksums later
