@@ -128,6 +128,17 @@ def _fsync(path: Path) -> None:
         os.close(fd)
 
 
+def beside_index(
+    index_file: str, suffix: str, identity: list[int], settings: Mapping[str, Any]
+) -> tuple[Path, str, dict[str, Any]]:
+    """Where arrays derived from the index file ``index_file`` are kept (``<stem>.<suffix>
+    .arrays`` beside it) and the stamp they must carry: that very file (``identity``: its
+    inode, size and modification time in ns, taken before it was mapped) and the
+    ``settings`` they were derived with (a change of either makes them stale)."""
+    path = Path(index_file)
+    return path.parent, f"{path.stem}.{suffix}", {**settings, "index_file": list(identity)}
+
+
 def write_arrays(
     directory: Path,
     stem: str,

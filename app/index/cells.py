@@ -50,7 +50,7 @@ from typing import Any
 import faiss
 import numpy as np
 
-from app.index.array_file import read_arrays, write_arrays
+from app.index.array_file import beside_index, read_arrays, write_arrays
 
 log = logging.getLogger(__name__)
 
@@ -210,18 +210,14 @@ class CellGraph:
 def _cache_file(
     index_file: str, identity: list[int], nprobe: int
 ) -> tuple[Path, str, dict[str, Any]]:
-    """Where the graph of the index file ``index_file`` is kept (``<stem>.cells.arrays``
-    beside it) and the stamp it must carry: that very file (``identity``: its inode, size and
-    modification time in ns, taken before it was mapped) and the graph's settings."""
-    path = Path(index_file)
-    stamp = {
+    """Where the graph of ``index_file`` is kept (``<stem>.cells.arrays``) and its stamp."""
+    settings = {
         "format": CACHE_FORMAT,
-        "index_file": list(identity),
         "nprobe": nprobe,
         "links": LINKS,
         "build_effort": BUILD_EFFORT,
     }
-    return path.parent, f"{path.stem}.cells", stamp
+    return beside_index(index_file, "cells", identity, settings)
 
 
 def stored_graph(index_file: str, identity: list[int], nprobe: int, index: Any) -> CellGraph | None:

@@ -47,7 +47,7 @@ from typing import Any
 import faiss
 import numpy as np
 
-from app.index.array_file import read_arrays, write_arrays
+from app.index.array_file import beside_index, read_arrays, write_arrays
 from app.index.cells import GRAPH_MIN_CELLS
 
 log = logging.getLogger(__name__)
@@ -187,13 +187,10 @@ def _answers(squared: np.ndarray, found: np.ndarray, kept: np.ndarray) -> list[s
 def _cache_file(
     index_file: str, identity: list[int], nprobe: int
 ) -> tuple[Path, str, dict[str, Any]]:
-    """Where the decision for the index file ``index_file`` is kept (``<stem>.probe.arrays``
-    beside it) and the stamp it must carry: that very file (``identity``: its inode, size and
-    modification time in ns, taken before it was mapped) and the rule's settings."""
-    path = Path(index_file)
-    stamp = {
+    """Where the decision for ``index_file`` is kept (``<stem>.probe.arrays``) and its stamp:
+    the file and the rule's settings."""
+    settings = {
         "format": FORMAT,
-        "index_file": list(identity),
         "nprobe": nprobe,
         "cutoffs": list(CUTOFFS),
         "kept_hits": KEPT_HITS,
@@ -201,7 +198,7 @@ def _cache_file(
         "samples": SAMPLES,
         "seed": SEED,
     }
-    return path.parent, f"{path.stem}.probe", stamp
+    return beside_index(index_file, "probe", identity, settings)
 
 
 def stored_cutoff(
