@@ -38,7 +38,13 @@ def _trunk_and_legs(positions: np.ndarray, canonical: np.ndarray) -> dict[str, n
 def pose_basis(positions: np.ndarray, pelvis: np.ndarray, canonical: np.ndarray) -> np.ndarray:
     """``(3, 3)`` body axes in the pelvis joint's coordinates from ``(F, J, 3)`` poses and the
     ``(F, 3, 3)`` pelvis rotations in them (directions averaged over the poses)."""
-    at = _trunk_and_legs(positions, canonical)
+    return _basis(_trunk_and_legs(positions, canonical), positions, pelvis, canonical)
+
+
+def _basis(
+    at: dict[str, np.ndarray], positions: np.ndarray, pelvis: np.ndarray, canonical: np.ndarray
+) -> np.ndarray:
+    """:func:`pose_basis` from the poses' trunk-and-legs positions ``at`` already read."""
     size = float(np.ptp(positions[:, canonical], axis=1).max())
     local = np.swapaxes(pelvis, -1, -2)
     # Some rigs put both hip joints at the pelvis and separate the legs only at the next
@@ -77,8 +83,8 @@ def frames_basis(positions: np.ndarray, pelvis: np.ndarray, canonical: np.ndarra
     up). A take that mostly does not stand (lying, flying, seated, tumbling) tells nothing
     of the pelvis through gravity and keeps the trunk's up.
     """
-    axes = pose_basis(positions, pelvis, canonical)
     at = _trunk_and_legs(positions, canonical)
+    axes = _basis(at, positions, pelvis, canonical)
     trunk = at["neck"] - at["pelvis"]
     trunk = trunk / np.maximum(np.linalg.norm(trunk, axis=1, keepdims=True), 1e-300)
     world_up = _snapped(trunk.mean(axis=0))
