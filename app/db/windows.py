@@ -166,6 +166,11 @@ def load_window_rows(
 WINDOW_ID_BITS = 20
 
 
+def clips_of_windows(ids: np.ndarray) -> np.ndarray:
+    """The clip ids ``(N,)`` of window ids ``(N,)``."""
+    return ids >> WINDOW_ID_BITS
+
+
 def window_rows(clip_id: int, groups: Sequence[NewWindows]) -> list[tuple[Any, ...]]:
     """The ``clip_windows`` rows of a clip's windows, tuples in :data:`WINDOW_COLUMNS` order
     (ids: the clip id, then the window's ordinal)."""

@@ -215,6 +215,18 @@ class HeldIndex:
             np.array([math.sqrt(max(s, 0.0)) for _, s in kept], np.float64),
         )
 
+    def unchanged_file(self) -> tuple[str, list[int]] | None:
+        """The IVF file this index maps and its identity (inode, size, modification time)
+        when the index holds exactly the file's vectors (none added or removed since): what
+        depends only on the vectors can then be kept beside the file. Else None."""
+        with self._lock.read():
+            index = self._index
+            if not isinstance(index, FrozenIVF) or index.changed:
+                return None
+            if index.mapped_from is None or index.file_identity is None:
+                return None
+            return index.mapped_from, list(index.file_identity)
+
     def prepare_searches(self) -> None:
         """Decide now what a mapped IVF file's first search by clip would otherwise decide:
         its adaptive probe and its cells' graph (:meth:`FrozenIVF.prepare`); nothing for

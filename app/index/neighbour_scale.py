@@ -13,19 +13,29 @@ The scale is computed when first asked for (that search waits: 0.2-1.5 s at 12,0
 and 350,000 windows on a loaded 2-core machine, bench/README.md) and again, in a background
 thread while searches go on with the old one, once the index has grown or shrunk by
 :data:`REFRESH_SHARE`: a sorted array per index, so a search pays one ``searchsorted`` over
-its hits.
+its hits. A scale far from the index's size (half or twice it: an import by another process,
+a library that was empty at start) is not served meanwhile: the search waits for a new one.
+
+The scale of an index that holds exactly its mapped file's vectors is a function of that
+file: it is kept beside it (``<stem>.scale.arrays``, stamped with the file and the settings
+like the adaptive probe's decision, app/index/probe_cutoff.py), so every worker and restart
+reads it instead of measuring again; a server's verifier thread reads or measures it at
+start (:meth:`NeighbourScales.prepare`), before the first search asks.
 """
 
 from __future__ import annotations
 
+import contextlib
 import threading
 from bisect import bisect_right
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 
+from app.index.array_file import beside_index, read_arrays, write_arrays
 from app.index.descriptor_index import DescriptorIndex
 
 SAMPLE = 1000  # vectors whose neighbours make the scale
@@ -33,6 +43,8 @@ NEIGHBOURS = 10  # nearest others of each
 REFRESH_SHARE = 0.05  # recompute once the index size moved by this share
 SEED = 24
 IDENTICAL = 1e-6  # distances below this share of a typical vector's length are zero
+FAR = 2.0  # a scale of an index this many times larger or smaller is not served
+FORMAT = 1  # of the file kept beside an index
 
 
 @dataclass(frozen=True)
@@ -63,6 +75,15 @@ def _stale(scale: Scale | None, size: int) -> bool:
     return scale is None or abs(size - scale.size) > REFRESH_SHARE * scale.size
 
 
+def _far(scale: Scale, size: int) -> bool:
+    """Whether ``scale`` describes a library so unlike one of ``size`` vectors that its
+    similarities would mislead (a library empty at start, then filled): measured again
+    before it answers, not in the background."""
+    if scale.size < 2:
+        return size >= 2
+    return not scale.size / FAR <= size <= scale.size * FAR
+
+
 def measure(index: DescriptorIndex, group: Callable[[np.ndarray], np.ndarray] | None) -> Scale:
     """The scale of ``index`` now; ``group`` maps ids ``(N,)`` to what must differ between
     neighbours (windows: their clip), else only a vector itself is left out."""
@@ -91,6 +112,51 @@ def measure(index: DescriptorIndex, group: Callable[[np.ndarray], np.ndarray] | 
     return Scale(np.sort(distances[keep]), size)
 
 
+def kept_or_measured(
+    index: DescriptorIndex, group: Callable[[np.ndarray], np.ndarray] | None
+) -> Scale:
+    """:func:`measure`, or the same scale read from beside the index's file when the index
+    holds exactly that file's vectors (then the measurement is a function of the file), and
+    kept there when measured on it."""
+    place = index.unchanged_file()
+    if place is None:
+        return measure(index, group)
+    directory, stem, stamp = _kept_at(place, index, group)
+    found = read_arrays(directory, stem, stamp)
+    if not isinstance(found, str):
+        arrays, meta = found
+        distances = arrays.get("distances")
+        if distances is not None and distances.ndim == 1 and meta.get("size") == index.size:
+            return Scale(np.array(distances, np.float64), index.size)
+    scale = measure(index, group)
+    if index.unchanged_file() == place:  # not replaced while measuring
+        with contextlib.suppress(OSError):  # a read-only directory: measured at every start
+            write_arrays(
+                directory, stem, {"distances": scale.distances}, {**stamp, "size": scale.size}
+            )
+    return scale
+
+
+def _kept_at(
+    place: tuple[str, list[int]],
+    index: DescriptorIndex,
+    group: Callable[[np.ndarray], np.ndarray] | None,
+) -> tuple[Any, str, dict[str, Any]]:
+    """Where the scale of the index file ``place`` (path, identity) is kept and its stamp:
+    the file and what the measurement depends on (windows are grouped by their clip; the
+    cells an IVF search scans)."""
+    settings = {
+        "format": FORMAT,
+        "sample": SAMPLE,
+        "neighbours": NEIGHBOURS,
+        "seed": SEED,
+        "identical": IDENTICAL,
+        "grouped": group is not None,
+        "nprobe": index.nprobe,
+    }
+    return beside_index(place[0], "scale", place[1], settings)
+
+
 @dataclass
 class NeighbourScales:
     """The scale of each index, by name, computed when first needed and kept current."""
@@ -107,14 +173,27 @@ class NeighbourScales:
     ) -> Scale:
         scale = self._scales.get(name)
         if scale is not None:
-            if _stale(scale, index.size):
+            size = index.size
+            if not _stale(scale, size):
+                return scale
+            if not _far(scale, size):
                 self._refresh(name, index, group)
-            return scale
+                return scale
         with self._lock:  # the first measurement: the others wait for it
             scale = self._scales.get(name)
-            if scale is None:
-                scale = self._scales[name] = measure(index, group)
+            if scale is None or _far(scale, index.size):
+                scale = self._scales[name] = kept_or_measured(index, group)
             return scale
+
+    def prepare(
+        self,
+        name: str,
+        index: DescriptorIndex,
+        group: Callable[[np.ndarray], np.ndarray] | None = None,
+    ) -> None:
+        """Have the scale of ``name`` ready before a search asks (a server's verifier thread):
+        read from beside the index file, or measured (and kept there)."""
+        self.of(name, index, group)
 
     def _refresh(
         self,
@@ -130,7 +209,7 @@ class NeighbourScales:
 
         def run() -> None:
             try:
-                self._scales[name] = measure(index, group)
+                self._scales[name] = kept_or_measured(index, group)
             finally:
                 with self._lock:
                     self._refreshing.discard(name)

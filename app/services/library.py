@@ -284,12 +284,17 @@ class Library:
         return []
 
     def _check_files(self) -> None:
-        """The verifier thread of a server: the clip indexes' search decisions (first: a
-        search may come soon; see :meth:`HeldIndex.prepare_searches`), window counts, then
-        checksums (see :meth:`check_window_counts`, :meth:`verify_files`)."""
-        for index in self.indexes.values():
+        """The verifier thread of a server: the clip indexes' search decisions and every
+        index's similarity scale (first: a search may come soon; see
+        :meth:`HeldIndex.prepare_searches`, :meth:`NeighbourScales.prepare`), window counts,
+        then checksums (see :meth:`check_window_counts`, :meth:`verify_files`)."""
+        for name, index in self.indexes.items():
             if not self._stopping.is_set():
                 index.prepare_searches()
+                self.scales.prepare(name, index)
+        for name, index in self.window_indexes.items():
+            if not self._stopping.is_set():
+                self.scales.prepare(name, index, window_db.clips_of_windows)
         try:
             self.check_window_counts()
         except (SQLAlchemyError, sqlite3.Error) as exc:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import base64
 import json
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -20,6 +19,7 @@ from app.services import previews
 from app.services.lru import LRUCache
 from app.services.preview_store import PREVIEWS_DIR
 from tests.api.test_moments import long_take
+from tests.calls import count_calls
 from tests.conftest import SharedData
 from tests.ui.conftest import ui_app, upload_asf_amc, upload_bvh
 
@@ -175,15 +175,7 @@ def test_unknown_clip_is_404_and_non_number_is_422(
 
 def count_reads(monkeypatch: pytest.MonkeyPatch) -> list[int]:
     """A list that grows by one each time a stored clip's file is parsed for a preview."""
-    reads: list[int] = []
-    real = previews.read_stored_motion
-
-    def counting(*args: Any) -> Any:
-        reads.append(1)
-        return real(*args)
-
-    monkeypatch.setattr(previews, "read_stored_motion", counting)
-    return reads
+    return count_calls(monkeypatch, previews, "read_stored_motion")
 
 
 def test_skeletons_are_cached_and_carry_an_etag(
