@@ -185,6 +185,12 @@ class NeighbourScales:
                 scale = self._scales[name] = kept_or_measured(index, group)
             return scale
 
+    def forget(self, name: str) -> None:
+        """Drop the scale of ``name`` (its index was rebuilt: a damaged file's vectors may
+        have made it): the next search measures or reads it again."""
+        with self._lock:
+            self._scales.pop(name, None)
+
     def prepare(
         self,
         name: str,

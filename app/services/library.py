@@ -53,6 +53,7 @@ from app.index.sources import (
     windows_of_clips,
 )
 from app.motion.descriptors import DEFAULT_DESCRIPTOR
+from app.services import library_checks
 from app.services.blobs import BlobStore, open_blob_store
 from app.services.describe import (
     Describer,
@@ -200,6 +201,7 @@ class Library:
             position = horizon(session)  # before the vectors: nothing older is missed
             ids, vectors = vector_db.load_vectors(session, info.name, info.version, info.dimension)
             self.indexes[name].replace_all(ids, vectors, synced_to=position)
+        self.scales.forget(name)  # it may have been measured on a damaged file
 
     def rebuild_window_indexes(self, names: Collection[str] | None = None) -> None:
         """Refill every window index (or those ``names``) from the database and save it."""
@@ -210,6 +212,7 @@ class Library:
                     continue
                 ids, vectors = window_db.load_windows(session, key)
                 self.window_indexes[name].replace_all(ids, vectors, synced_to=position)
+                self.scales.forget(name)  # it may have been measured on a damaged file
                 if self.window_places[name].loaded:
                     load_places(self, session, name)
 
@@ -229,77 +232,20 @@ class Library:
             position = horizon(session)  # before the rows: nothing older is missed
             self.catalogue.replace_all(clip_entries(session), synced_to=position)
 
+    @property
+    def stopping(self) -> bool:
+        """Whether :meth:`close` has begun (background work stops at its next step)."""
+        return self._stopping.is_set()
+
     def verify_files(self) -> list[str]:
         """Check the checksums left unchecked at start (``open_library(verify_later=True)``);
         rebuild from the database whatever fails. Returns what was rebuilt."""
-        rebuilt = []
-        for name, index in self.indexes.items():
-            problem = index.verify_file()
-            if problem is not None and not self._stopping.is_set():
-                log.warning("rebuilding the %s index from the database: %s", name, problem)
-                self.rebuild_index(name)
-                rebuilt.append(name)
-        for name, index in self.window_indexes.items():
-            problem = index.verify_file()
-            if problem is not None and not self._stopping.is_set():
-                log.warning("rebuilding the %s index from the database: %s", name, problem)
-                self.rebuild_window_indexes()
-                rebuilt.append(name)
-        problem = self.catalogue.verify_file()
-        if problem is not None and not self._stopping.is_set():
-            log.warning("rebuilding the catalogue from the database: %s", problem)
-            self.rebuild_catalogue()
-            rebuilt.append("catalogue")
-        return rebuilt
+        return library_checks.verify_files(self)
 
     def check_window_counts(self) -> list[str]:
-        """Compare each window index's size with the windows the database holds for it, at
-        one feed position, and rebuild the window indexes when one disagrees (what
-        :meth:`DescriptorIndex.load_or_rebuild` checks at start; a server, opened with
-        ``verify_later``, checks it here, in its verifier thread: counting 1.7 M rows per
-        index at 100 hours was a large part of a start). Returns the indexes that disagreed."""
-        for _ in range(3):  # until no change arrives between the sync and the counts
-            self.sync_indexes()
-            # Counted without the sync lock (a start's loading of the places waits for it):
-            # the counts hold if the indexes followed no change meanwhile.
-            with self.reads() as session:
-                seen = self.feed.position
-                if self.feed.poll(session).clip_ids.size:
-                    continue  # changed meanwhile: sync again
-                counts = {
-                    name: window_db.count_windows(session, key)
-                    for name, key in self.window_keys.items()
-                }
-            sizes = {name: self.window_indexes[name].size for name in counts}
-            if self.feed.position != seen:
-                continue
-            wrong = [name for name in counts if counts[name] != sizes[name]]
-            if wrong and not self._stopping.is_set():
-                log.warning(
-                    "the window indexes %s disagree with the database's windows: rebuilding",
-                    ", ".join(wrong),
-                )
-                self.rebuild_window_indexes(wrong)
-            return wrong
-        return []
-
-    def _check_files(self) -> None:
-        """The verifier thread of a server: the clip indexes' search decisions and every
-        index's similarity scale (first: a search may come soon; see
-        :meth:`HeldIndex.prepare_searches`, :meth:`NeighbourScales.prepare`), window counts,
-        then checksums (see :meth:`check_window_counts`, :meth:`verify_files`)."""
-        for name, index in self.indexes.items():
-            if not self._stopping.is_set():
-                index.prepare_searches()
-                self.scales.prepare(name, index)
-        for name, index in self.window_indexes.items():
-            if not self._stopping.is_set():
-                self.scales.prepare(name, index, window_db.clips_of_windows)
-        try:
-            self.check_window_counts()
-        except (SQLAlchemyError, sqlite3.Error) as exc:
-            log.warning("could not count the windows in the database: %s", exc)
-        self.verify_files()
+        """Rebuild the window indexes when one's size disagrees with the database's windows
+        (see :func:`app.services.library_checks.check_window_counts`). Returns those."""
+        return library_checks.check_window_counts(self)
 
     def places(self, name: str) -> WindowPlaces:
         """Where the windows of window index ``name`` lie (loaded from the database when
@@ -494,7 +440,7 @@ def open_library(
     )
     if verify_later:
         library.verifier = threading.Thread(
-            target=library._check_files, name="verify-files", daemon=True
+            target=library_checks.check_files, args=(library,), name="verify-files", daemon=True
         )
         library.verifier.start()
     for name, outdated in library.count_outdated().items():
