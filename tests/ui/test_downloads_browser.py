@@ -36,6 +36,8 @@ BANDAI = FIXTURES_DIR / "bandai_walk_normal_001_first40.bvh"
 PHONE = {"width": 360, "height": 740}
 FPS = 60
 EXPORT_TIMEOUT_MS = 180_000  # the first FBX starts a Blender worker
+# Storing a rig parses and maps it in a parser worker: seconds when the machine is busy.
+STORE_TIMEOUT_MS = 30_000
 # A two-bone chain: not a person (422 unmappable_skeleton).
 STICK = b"""HIERARCHY
 ROOT a
@@ -263,12 +265,14 @@ def test_rigs_page_uploads_draws_and_deletes(browser: Any, tmp_path: Path) -> No
         expect(key_form).to_contain_text("The service needs an API key to store a rig")
         key_form.get_by_label("API key").fill(key)
         key_form.get_by_role("button", name="Use this key").click()
-        expect(page.locator("main .status")).to_contain_text("Stored rig #")
+        expect(page.locator("main .status")).to_contain_text(
+            "Stored rig #", timeout=STORE_TIMEOUT_MS
+        )
         page.get_by_label(re.compile("^Rig file")).set_input_files(str(CMU_ASF))
         page.get_by_label("Name").fill("CMU subject 02")
         page.get_by_role("button", name="Store rig").click()
         cards = page.locator(".rig-card")
-        expect(cards).to_have_count(2)
+        expect(cards).to_have_count(2, timeout=STORE_TIMEOUT_MS)
         expect(cards.nth(1)).to_contain_text("CMU subject 02")
         page.wait_for_function("() => window.__mocap.rigs().length === 2")
 
