@@ -107,6 +107,7 @@ from app.motion.retarget_reference import (
     swing,
 )
 from app.motion.retarget_transfer import driven_rotations, target_rotations
+from app.motion.retarget_trunk import aim_trunk_chord
 from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap
 from app.motion.transforms import reflect
 
@@ -198,6 +199,9 @@ def retarget(
         driven, limbs, s_rot, s_pos, s_ref_rot, s_ref_pos, t_ref_rot, t_ref_pos, body, world
     )
     parents = target.skeleton.parents
+    aim_trunk_chord(
+        driven, rotation, parents, t_ref_rot, t_ref_pos, s_pos, source_map, target_map, world
+    )
     rotations = target_rotations(driven, rotation, t_ref_rot, parents)
     local = rotations.local
     pelvis = int(target_map.joints[CANONICAL_INDEX["pelvis"]])
