@@ -41,6 +41,12 @@ A limb bone both split into as many pieces (twist joints at other points) then t
 so the bone from mapped joint to mapped joint points as the source's
 (:func:`~app.motion.retarget_transfer.turn_split_limbs`).
 
+**The trunk's chord.** Where the two skeletons' spine, chest and neck joints sit at other
+heights, spine bones pointing as the source's add up to another pelvis -> neck, the chord
+the describer reads; the rig's spine joint then turns so that chord is the source's, the
+chest and what hangs from it keeping their directions
+(:func:`~app.motion.retarget_trunk.aim_trunk_chord`).
+
 **Everything else at rest.** Unmapped target joints (fingers, face, twist bones, a static
 root above the pelvis) keep their reference-pose local rotation; offsets are the rig's own,
 so bone lengths are exactly the rig's.
@@ -82,7 +88,8 @@ describer reflects it, so left stays left.
 This module is the public entry; the parts live beside it: which joints are driven
 (:mod:`app.motion.retarget_joints`), the reference poses and alignments
 (:mod:`app.motion.retarget_reference`), the per-joint rotation transfer
-(:mod:`app.motion.retarget_transfer`), the pelvis's path and the feet on the floor
+(:mod:`app.motion.retarget_transfer`), the trunk's chord (:mod:`app.motion.retarget_trunk`),
+the pelvis's path and the feet on the floor
 (:mod:`app.motion.retarget_floor`, :mod:`app.motion.retarget_feet`).
 """
 

@@ -25,13 +25,16 @@ What was tried first and why not (``docs/export.md``, "The trunk's neck chord"):
 chest joint for the neck, or the spine and chest as one piece. Either turns the chest,
 whose rotation ``motion`` reads: a game character's short chest -> neck bone (0.14 of the
 trunk) needed 50-75 degree turns, and even the rigid piece gave the re-upload's chest and
-shoulders kinetic energy the source's do not have (Bandai bows on that character: distance
-to the source 0.02-0.03 -> 0.05-0.7).
+shoulders kinetic energy the source's do not have (four Bandai bows on that character,
+distance to the source: 0.017-0.031 on ``main``, 0.22-0.71 turning the chest, 0.024-0.105
+turning spine and chest as one; three of them 0.006-0.024 turning the spine alone).
 
 Not on a rig whose rest pose is no standing figure (its mapping read from a frame, as the
 Bandai rig): its re-upload is read back from its frames, which must show a standing body and
 give the body's axes; a bent trunk passed on whole is refused as a four-legged animal, or
-its lean read as upright (measured: five re-uploads unreadable on the Bandai rig).
+its lean read as upright (measured on the Bandai rig: the prototype's five re-uploads not
+read back; turning the spine alone, the two tried of them still not, and the biovision
+sample 0.137 -> 0.545 from its source).
 """
 
 from __future__ import annotations
