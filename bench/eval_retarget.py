@@ -14,9 +14,10 @@ round trip holds when the nearest is the source — or, in brackets, its twin: t
 capture in another format or folder, by file stem (CMU trials as ASF/AMC, MotionBuilder BVH
 and DAZ BVH; the FBX/BVH pairs), which the retargeted copy cannot tell from its source.
 A third figure also counts a tie as found (besides a twin): the nearest clip is no nearer
-than the source, which happens only when that clip's vector is the source's (the same
-motion stored twice under other names, or rigs holding one rest pose); the count of such
-clips is printed first, the ceiling no retarget can pass.
+than the source, or holds the source's vector to float rounding (the same motion stored
+twice under other names, or rigs holding one rest pose: a copy that lands on that vector
+is nearer one of them by rounding); the count of such clips is printed first, the ceiling
+no retarget can pass.
 Per rig the retarget quality of :mod:`app.motion.retarget_quality` is summarised. FBX and
 glTF files are read in parser
 worker processes, as the service reads them.
