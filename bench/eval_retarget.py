@@ -14,9 +14,10 @@ round trip holds when the nearest is the source — or, in brackets, its twin: t
 capture in another format or folder, by file stem (CMU trials as ASF/AMC, MotionBuilder BVH
 and DAZ BVH; the FBX/BVH pairs), which the retargeted copy cannot tell from its source.
 A third figure also counts a tie as found (besides a twin): the nearest clip is no nearer
-than the source, which happens only when that clip's vector is the source's (the same
-motion stored twice under other names, or rigs holding one rest pose); the count of such
-clips is printed first, the ceiling no retarget can pass.
+than the source, or holds the source's vector to float rounding (the same motion stored
+twice under other names, or rigs holding one rest pose: a copy that lands on that vector
+is nearer one of them by rounding); the count of such clips is printed first, the ceiling
+no retarget can pass.
 Per rig the retarget quality of :mod:`app.motion.retarget_quality` is summarised. FBX and
 glTF files are read in parser
 worker processes, as the service reads them.
@@ -122,6 +123,17 @@ def load_rig(path: Path, pool: ParserPool) -> tuple[Motion, SkeletonMap]:
     return rig, map_skeleton(rig.skeleton, poses=[("frame 0", positions[0])])
 
 
+def is_tie(vectors: np.ndarray, distances: np.ndarray, index: int, nearest: int) -> bool:
+    """Whether the ``nearest`` clip to a re-upload (``distances`` ``(N,)`` to the library's
+    ``vectors`` ``(N, D)``) is no nearer than its source ``index``, or holds the source's
+    vector (to 1e-6 of its length, as the count of clips sharing a vector reads it): a copy
+    within float rounding of two identical vectors lands nearer one of them by rounding."""
+    if distances[index] <= distances[nearest] * (1 + 1e-9):
+        return True
+    apart = np.linalg.norm(vectors[index] - vectors[nearest])
+    return bool(apart <= 1e-6 * np.linalg.norm(vectors[index]))
+
+
 def capture(name: str) -> str:
     """The capture a clip is of: its file stem (the CMU trials, the FBX/BVH pairs are one
     capture in several formats and folders, under one stem)."""
@@ -224,7 +236,7 @@ def main() -> None:
                 nearest = int(np.argmin(distances))
                 found.append(nearest == index)
                 twin.append(capture(clips[nearest].name) == capture(clip.name))
-                tie = distances[index] <= distances[nearest] * (1 + 1e-9)
+                tie = is_tie(vectors, distances, index, nearest)
                 tied.append(twin[-1] or tie)
                 if not twin[-1]:
                     failures.append(
@@ -412,7 +424,7 @@ def round_trip(library: Any, name: str, out: Motion) -> tuple[bool, bool, bool]:
     distances = np.linalg.norm(vectors - vector, axis=1)
     nearest = int(np.argmin(distances))
     twin = capture(names[nearest]) == capture(name)
-    tie = bool(distances[index] <= distances[nearest] * (1 + 1e-9))
+    tie = is_tie(vectors, distances, index, nearest)
     return (nearest == index, twin, twin or tie)
 
 
@@ -445,7 +457,7 @@ def outcomes(dump: Path) -> tuple[list[str], dict[str, list[tuple[str, float]]]]
                 kind = "found"
             elif capture(names[nearest]) == capture(names[index]):
                 kind = "twin"
-            elif distances[index] <= distances[nearest] * (1 + 1e-9):
+            elif is_tie(vectors, distances, index, nearest):
                 kind = "tie"
             else:
                 kind = "miss"

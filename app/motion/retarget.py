@@ -41,6 +41,12 @@ A limb bone both split into as many pieces (twist joints at other points) then t
 so the bone from mapped joint to mapped joint points as the source's
 (:func:`~app.motion.retarget_transfer.turn_split_limbs`).
 
+**The trunk's chord.** Where the two skeletons' spine, chest and neck joints sit at other
+heights, spine bones pointing as the source's add up to another pelvis -> neck, the chord
+the describer reads; the rig's spine joint then turns so that chord is the source's, the
+chest and what hangs from it keeping their directions
+(:func:`~app.motion.retarget_trunk.aim_trunk_chord`).
+
 **Everything else at rest.** Unmapped target joints (fingers, face, twist bones, a static
 root above the pelvis) keep their reference-pose local rotation; offsets are the rig's own,
 so bone lengths are exactly the rig's.
@@ -82,7 +88,8 @@ describer reflects it, so left stays left.
 This module is the public entry; the parts live beside it: which joints are driven
 (:mod:`app.motion.retarget_joints`), the reference poses and alignments
 (:mod:`app.motion.retarget_reference`), the per-joint rotation transfer
-(:mod:`app.motion.retarget_transfer`), the pelvis's path and the feet on the floor
+(:mod:`app.motion.retarget_transfer`), the trunk's chord (:mod:`app.motion.retarget_trunk`),
+the pelvis's path and the feet on the floor
 (:mod:`app.motion.retarget_floor`, :mod:`app.motion.retarget_feet`).
 """
 
@@ -107,6 +114,7 @@ from app.motion.retarget_reference import (
     swing,
 )
 from app.motion.retarget_transfer import driven_rotations, target_rotations
+from app.motion.retarget_trunk import aim_trunk_chord
 from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap
 from app.motion.transforms import reflect
 
@@ -198,6 +206,9 @@ def retarget(
         driven, limbs, s_rot, s_pos, s_ref_rot, s_ref_pos, t_ref_rot, t_ref_pos, body, world
     )
     parents = target.skeleton.parents
+    aim_trunk_chord(
+        driven, rotation, parents, t_ref_rot, t_ref_pos, s_pos, source_map, target_map, world
+    )
     rotations = target_rotations(driven, rotation, t_ref_rot, parents)
     local = rotations.local
     pelvis = int(target_map.joints[CANONICAL_INDEX["pelvis"]])
