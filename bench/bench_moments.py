@@ -6,6 +6,7 @@ Run from the repository root::
     .venv/bin/python bench/bench_moments.py styles [--seed 0]
     .venv/bin/python bench/bench_moments.py scale [--hours 100] [--data-dir DIR] [--baseline DIR]
     .venv/bin/python bench/bench_moments.py recall --data-dir DIR [--against FLOAT32_COPY]
+    .venv/bin/python bench/bench_moments.py alternate --data-dir DIR --baseline MAIN_CHECKOUT
 
 ``exact``
     Imports Bandai dataset 1, the CMU ASF/AMC trials and their MotionBuilder BVH twins of
@@ -29,6 +30,12 @@ Run from the repository root::
     8-bit lists, candidates re-ranked by their exact vectors) against exact search, and
     (``--against`` a copy of the library with float32 lists) how many moments answers are
     identical.
+``alternate``
+    Main's moments search (``--baseline``: its checkout, whose three moments modules are
+    loaded under other names) and this checkout's in one process on the library at
+    ``--data-dir``, alternating query by query: thread CPU, identical answers, (part, window)
+    measurements a search. Run with ``OPENBLAS_NUM_THREADS=1`` (this script loads numpy
+    before ``app`` sets it).
 ``scale``
     Fills ``DIR`` (default ``$TMPDIR/mocap-bench-moments-100h``) with ``--hours`` of motion
     windows: Bandai dataset 1 imported, then ``mocap-index fill-synthetic`` clips (each a
@@ -55,6 +62,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from common import machine, shared_data  # bench/common.py (scripts run from bench/)
@@ -589,6 +597,103 @@ def recall(args: argparse.Namespace) -> int:
     return 0
 
 
+def alternate(args: argparse.Namespace) -> int:
+    """Main's moments search and this checkout's in one process on one library, alternating
+    query by query: ``--baseline``'s ``moments.py``, ``moment_finder.py`` and
+    ``moment_parts.py`` loaded under other names. Thread CPU of the search, answers compared
+    by SHA-1 of (clip, start, end, distance), (part, window) measurements counted. Each query
+    runs once by both untimed first: a clip with a stored file is described from its file at
+    its first query (a span cache per module), which would land on whichever ran first."""
+    import hashlib
+
+    from app.services import moment_finder
+
+    base_dir = args.baseline / "app" / "services"
+
+    def load(name: str, path: Path, replace: dict[str, str]) -> Any:
+        text = path.read_text()
+        for old, new in replace.items():
+            text = text.replace(old, new)
+        module = type(sys)(name)
+        module.__file__ = str(path)
+        sys.modules[name] = module
+        exec(compile(text, str(path), "exec"), module.__dict__)
+        return module
+
+    load("base_moment_parts", base_dir / "moment_parts.py", {})
+    base_finder = load("base_moment_finder", base_dir / "moment_finder.py", {})
+    base = load(
+        "base_moments",
+        base_dir / "moments.py",
+        {
+            "app.services.moment_finder": "base_moment_finder",
+            "app.services.moment_parts": "base_moment_parts",
+        },
+    )
+    counts = {"nearest": 0, "fits": 0}
+    for finder in (base_finder.MomentFinder, moment_finder.MomentFinder):
+        nearest, fits = finder._nearest_parts_in_blocks, finder._fits_in_blocks
+
+        def counted_nearest(self: Any, windows: Any, real: Any = nearest) -> Any:
+            counts["nearest"] += len(windows)
+            return real(self, windows)
+
+        def counted_fits(self: Any, placed: Any, *rest: Any, real: Any = fits) -> Any:
+            counts["fits"] += len(placed)
+            return real(self, placed, *rest)
+
+        finder._nearest_parts_in_blocks, finder._fits_in_blocks = counted_nearest, counted_fits
+    library = open_library(Settings(data_dir=args.data_dir, log_level="warning"))
+    library.load_window_places()
+    every = np.array(sorted(library.catalogue.ids()), np.int64)
+    queries = np.random.default_rng(args.seed).choice(every, args.queries, replace=False)
+
+    def run(module: Any, clip: int) -> tuple[float, str, int, int]:
+        counts["nearest"] = counts["fits"] = 0
+        started = time.thread_time()
+        _, found = module.search_moments_by_clip(
+            library,
+            clip,
+            DESCRIPTOR,
+            start=None,
+            end=None,
+            k=10,
+            per_clip=args.per_clip,
+            label=None,
+        )
+        used = time.thread_time() - started
+        answer = repr([(m.clip.id, m.start, m.end, m.distance) for m in found])
+        return used, hashlib.sha1(answer.encode()).hexdigest(), counts["nearest"], counts["fits"]
+
+    from app.services import moments
+
+    measured: dict[str, list[tuple[float, str, int, int]]] = {"main": [], "branch": []}
+    load_before = os.getloadavg()[0]
+    for number, clip in enumerate(int(c) for c in queries):
+        run(base, clip)  # untimed (see the docstring)
+        run(moments, clip)
+        order = [("main", base), ("branch", moments)][:: 1 if number % 2 else -1]
+        for name, module in order:
+            measured[name].append(run(module, clip))
+    same = sum(a[1] == b[1] for a, b in zip(measured["main"], measured["branch"], strict=True))
+    print(f"{machine()}; load {load_before:.1f} -> {os.getloadavg()[0]:.1f}")
+    for name, rows in measured.items():
+        cpu = [1e3 * row[0] for row in rows]
+        nearest = statistics.mean(row[2] for row in rows)
+        fits = [row[3] for row in rows]
+        print(
+            f"  {name:6s} thread CPU median {statistics.median(cpu):.2f} ms, mean "
+            f"{statistics.mean(cpu):.2f}; nearest parts a search {nearest:.0f}, fits "
+            f"{statistics.mean(fits):.0f} (median {statistics.median(fits):.0f})"
+        )
+    print(
+        f"  identical answers {same}/{len(queries)} ({args.queries} queries, seed {args.seed}, "
+        f"per_clip {args.per_clip}, k 10)"
+    )
+    library.close()
+    return 0 if same == len(queries) else 1
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     commands = parser.add_subparsers(dest="command", required=True)
@@ -628,8 +733,20 @@ def main() -> int:
     four.add_argument("--against", type=Path, help="the same library with float32 lists")
     four.add_argument("--clips", type=int, default=100, help="moments queries compared")
     four.add_argument("--window-codes", default="sq8", help="MOCAP_WINDOW_CODES of --data-dir")
+    five = commands.add_parser("alternate", help="main's search and this one's, in-process")
+    five.add_argument("--data-dir", type=Path, required=True)
+    five.add_argument("--baseline", type=Path, required=True, help="main's checkout")
+    five.add_argument("--queries", type=int, default=300)
+    five.add_argument("--seed", type=int, default=0)
+    five.add_argument("--per-clip", type=int, default=1)
     args = parser.parse_args()
-    run = {"exact": exact, "styles": styles, "scale": scale, "recall": recall}[args.command]
+    run = {
+        "exact": exact,
+        "styles": styles,
+        "scale": scale,
+        "recall": recall,
+        "alternate": alternate,
+    }[args.command]
     return run(args)
 
 
