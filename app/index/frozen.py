@@ -41,7 +41,13 @@ import faiss
 import numpy as np
 
 from app.index import probe_cutoff
-from app.index.cells import GRAPH_MIN_CELLS, SAMPLES, CellGraph, store_graph, stored_graph
+from app.index.cells import (
+    EFFORT_SAMPLES,
+    GRAPH_MIN_CELLS,
+    CellGraph,
+    store_graph,
+    stored_graph,
+)
 from app.index.kinds import RERANK, SQ8, codes_of, empty_flat, padded
 from app.index.locator import LIST_SHIFT, Locator, stored_locator, walk_lists
 
@@ -463,7 +469,7 @@ class FrozenIVF:
             self.cells = stored_graph(file, identity, nprobe, self.base)
             if self.cells is not None:
                 return
-        self.cells = CellGraph.of(self.base, nprobe, self._samples(SAMPLES, 0)[1])
+        self.cells = CellGraph.of(self.base, nprobe, self._samples(EFFORT_SAMPLES, 0)[1])
         if self.cells is not None and file is not None and identity is not None:
             store_graph(file, identity, self.cells)
 
