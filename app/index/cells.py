@@ -23,13 +23,14 @@ stored vectors (:meth:`CellGraph.settle_effort`), at most :func:`effort`; the un
 cells are those of that effort.
 
 The graph is built from the index's centroids in memory (a few MB; ~0.7 s for 4,000 x 135
-on one loaded core, and ~0.2 s more to search every centroid for itself, in every worker at
-every start), and a kept one is stored beside the index file (``<stem>.cells.arrays``,
-:func:`store_graph`): the next start, in any process, reads it back instead
-(:func:`stored_graph`), its effort with it, when it was built from that very file (inode,
-size, modification time) with the same settings and matches its checksum, else builds it
-again (the samples are drawn with a fixed seed; once stored, every process searches the
-same graph at the same effort). It is a cache of the index, as the index is of the database.
+on one loaded core, and ~0.2 s more to search every centroid for itself at each effort
+tried), and what was decided — the graph with its effort, or that none is worth having — is
+stored beside the index file (``<stem>.cells.arrays``, :func:`store_graph`): the next start,
+in any process, reads it back instead (:func:`stored_graph`) when it was decided from that
+very file (inode, size, modification time) with the same settings and matches its
+checksum, else decides again (the samples are drawn with a fixed seed; once stored, every
+process searches the same graph at the same effort, or none tries one). It is a cache of
+the index, as the index is of the database.
 It is kept only when it measures faster than the scan and finds the same cells for every one
 of :data:`SAMPLES` stored vectors used as queries: for ``kinetic`` (4,000 x 50,
 ``nprobe`` 64) the scan is cheap and the graph, which must then look at 128 candidates, was no
@@ -72,6 +73,7 @@ KEEP_BELOW = 0.75  # ... kept when it takes at most this share of the scan's tim
 CROWDED = 0.5  # no graph whose search would compare this share of the centroids or more
 QUICK_SCAN = 50e-6  # a scan of the centroids this quick is kept without trying a graph
 CACHE_FORMAT = 2  # of the <index>.cells files (see stored_graph); 2: with its effort
+NO_GRAPH = 0  # the stored effort of an index for which no graph was worth having
 
 
 def effort(nprobe: int) -> int:
@@ -286,36 +288,53 @@ def _cache_file(
         "efforts": efforts(nprobe),
         "effort_margin": EFFORT_MARGIN,
         "effort_samples": EFFORT_SAMPLES,
+        # the keep rule's: a graph not kept under other settings might be (and vice versa)
+        "keep": [GRAPH_MIN_CELLS, SAMPLES, KEEP_BELOW, CROWDED, QUICK_SCAN],
     }
     return beside_index(index_file, "cells", identity, settings)
 
 
-def stored_graph(index_file: str, identity: list[int], nprobe: int, index: Any) -> CellGraph | None:
-    """The graph kept beside the IVF ``index`` (mapped from ``index_file``) by an earlier start
-    of any process (:func:`store_graph`), when it was built from that very file for ``nprobe``
-    cells and matches its checksum, else None. Building it again (0.47-0.49 s of CPU for the
-    4,000 x 135 ``motion`` centroids of a 1M-clip library, against 0.006 s to read it back,
-    bench/README.md; in every worker at every start) would give the same graph: the file is
-    a cache of the index, as the index is of the database; a missing or stale one is built
-    again."""
+def stored_graph(
+    index_file: str, identity: list[int], nprobe: int, index: Any
+) -> tuple[bool, CellGraph | None]:
+    """What an earlier start of any process decided for the IVF ``index`` (mapped from
+    ``index_file``) and stored beside it (:func:`store_graph`): ``(True, graph)``, or ``(True,
+    None)`` when no graph was worth having, if that was decided from that very file for
+    ``nprobe`` cells and the file matches its checksum; ``(False, None)`` otherwise (decide
+    again). Building a graph again costs 0.5-0.8 s of CPU for the 4,000 x 135 ``motion``
+    centroids of a 1M-clip library, against 0.006 s to read it back; trying one that is then
+    not kept (``posture``'s) 0.4-0.8 s — in every worker at every start, were it not stored
+    (bench/README.md). The file is a cache of the index, as the index is of the database; a
+    missing or stale one is decided again."""
     directory, stem, stamp = _cache_file(index_file, identity, nprobe)
     found = read_arrays(directory, stem, stamp)
     if isinstance(found, str) or not {"graph", "unreachable", "effort"} <= found[0].keys():
-        return None
-    if int(np.asarray(found[0]["effort"]).reshape(-1)[0]) not in efforts(nprobe):
-        return None  # an effort the rule never picks
+        return False, None
+    stored_effort = int(np.asarray(found[0]["effort"]).reshape(-1)[0])
+    if stored_effort == NO_GRAPH and not found[0]["graph"].size:
+        return True, None
+    if stored_effort not in efforts(nprobe):
+        return False, None  # an effort the rule never picks
     graph = CellGraph.restored(found[0], nprobe)
     if graph.count != int(index.nlist) or graph.dimension != int(index.d):
-        return None
-    return graph
+        return False, None
+    return True, graph
 
 
-def store_graph(index_file: str, identity: list[int], graph: CellGraph) -> None:
-    """Keep ``graph``, found worth having for the index file ``index_file`` (``identity`` as
-    in :func:`stored_graph`), for the next start."""
-    directory, stem, stamp = _cache_file(index_file, identity, graph.nprobe)
-    with contextlib.suppress(OSError):  # a read-only directory: built at every start
-        write_arrays(directory, stem, graph.arrays(), stamp)
+def store_graph(index_file: str, identity: list[int], nprobe: int, graph: CellGraph | None) -> None:
+    """Keep what was decided for the index file ``index_file`` (``identity`` as in
+    :func:`stored_graph`) and searches of ``nprobe`` cells — ``graph``, or None: no graph
+    worth having — for the next start of any process."""
+    directory, stem, stamp = _cache_file(index_file, identity, nprobe)
+    arrays: dict[str, np.ndarray] = {
+        "graph": np.empty(0, np.uint8),
+        "unreachable": np.empty(0, np.int64),
+        "effort": np.array([NO_GRAPH], np.int64),
+    }
+    if graph is not None:
+        arrays = graph.arrays()
+    with contextlib.suppress(OSError):  # a read-only directory: decided at every start
+        write_arrays(directory, stem, arrays, stamp)
 
 
 def _timed(search: Any, queries: np.ndarray, rounds: int = 3) -> tuple[float, list[np.ndarray]]:

@@ -96,6 +96,36 @@ def test_a_graph_no_faster_than_the_scan_is_not_kept(
     assert frozen.cells is None
 
 
+def test_no_graph_worth_having_is_decided_once_per_index_file(
+    index_file: tuple[Path, np.ndarray, np.ndarray], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path, ids, vectors = index_file
+    monkeypatch.setattr(cells_module, "KEEP_BELOW", 0.0)  # never faster enough: not kept
+    first = FrozenIVF.open(str(path))
+    first.build_cells()
+    assert first.cells is None
+    assert (path.parent / f"{path.stem}.cells.arrays").is_file()  # the decision, stored
+    with monkeypatch.context() as patch:  # the next opening reads it: no graph tried
+        patch.setattr(cells_module.CellGraph, "of", no_graph_built)
+        again = FrozenIVF.open(str(path))
+        again.build_cells()
+    assert again.cells is None
+    nprobe = again.base_nprobe
+    assert np.array_equal(
+        again.search(vectors[:5], 11, nprobe=nprobe)[1],
+        without_graph(path).search(vectors[:5], 11, nprobe=nprobe)[1],
+    )
+    # The index file written again: decided again (here a graph is now worth having).
+    monkeypatch.setattr(cells_module, "KEEP_BELOW", float("inf"))
+    index = DescriptorIndex(
+        "motion", DIMENSION, 1, path.parent, options=IndexOptions("ivf", nlist=CELLS)
+    )
+    index.replace_all(ids, vectors[::-1].copy(), persist=True)
+    rebuilt = FrozenIVF.open(str(index.path))
+    rebuilt.build_cells()
+    assert rebuilt.cells is not None
+
+
 def test_a_quick_scan_or_a_crowded_graph_is_not_tried(
     index_file: tuple[Path, np.ndarray, np.ndarray], monkeypatch: pytest.MonkeyPatch
 ) -> None:
