@@ -16,15 +16,21 @@ the ``nprobe`` nearest of both kept (:meth:`CellGraph.nearest`). On motion centr
 a handful (one of 4,000); a graph that misses many searches poorly, and the direct comparisons
 then make it slower than the scan, so it is not kept (below). Beyond that the graph returned
 the scan's cells for every query measured (300 stored motion vectors at ``nprobe`` 12, search
-effort 24 and more), and its search effort (:func:`effort`) is kept well above ``nprobe``.
+effort 24 and more). Its search effort (HNSW's ``efSearch``, the candidates a search keeps)
+is measured when it is built: the smallest of a few steps that finds the scan's cells for
+every one of :data:`EFFORT_SAMPLES` stored vectors, one step higher for queries that are not
+stored vectors (:meth:`CellGraph.settle_effort`), at most :func:`effort`; the unreachable
+cells are those of that effort.
 
 The graph is built from the index's centroids in memory (a few MB; ~0.7 s for 4,000 x 135
-on one loaded core, and ~0.2 s more to search every centroid for itself, in every worker at
-every start), and a kept one is stored beside the index file (``<stem>.cells.arrays``,
-:func:`store_graph`): the next start, in any process, reads it back instead
-(:func:`stored_graph`) when it was built from that very file (inode, size, modification time)
-with the same settings and matches its checksum, else builds it again. It is a cache of the
-index, as the index is of the database.
+on one loaded core, and ~0.2 s more to search every centroid for itself at each effort
+tried), and what was decided — the graph with its effort, or that none is worth having — is
+stored beside the index file (``<stem>.cells.arrays``, :func:`store_graph`): the next start,
+in any process, reads it back instead (:func:`stored_graph`) when it was decided from that
+very file (inode, size, modification time) with the same settings and matches its
+checksum, else decides again (the samples are drawn with a fixed seed; once stored, every
+process searches the same graph at the same effort, or none tries one). It is a cache of
+the index, as the index is of the database.
 It is kept only when it measures faster than the scan and finds the same cells for every one
 of :data:`SAMPLES` stored vectors used as queries: for ``kinetic`` (4,000 x 50,
 ``nprobe`` 64) the scan is cheap and the graph, which must then look at 128 candidates, was no
@@ -58,56 +64,109 @@ GRAPH_MIN_CELLS = 1000  # fewer cells: their scan is cheap (1,000 x 135 floats: 
 LINKS = 32  # neighbours per node (HNSW's M): 16 took longer to search at the same recall
 BUILD_EFFORT = 80  # HNSW's efConstruction
 MIN_EFFORT = 48
+# The search efforts tried below effort(nprobe), smallest first (see CellGraph.settle_effort)
+EFFORT_STEPS = (16, 20, 24, 32)
+EFFORT_MARGIN = 1  # steps taken above the smallest effort that finds every sample's cells
+EFFORT_SAMPLES = 1000  # stored vectors whose cells choose the effort
 SAMPLES = 200  # stored vectors timed and compared when deciding whether to keep a graph
 KEEP_BELOW = 0.75  # ... kept when it takes at most this share of the scan's time
 CROWDED = 0.5  # no graph whose search would compare this share of the centroids or more
 QUICK_SCAN = 50e-6  # a scan of the centroids this quick is kept without trying a graph
-CACHE_FORMAT = 1  # of the <index>.cells files (see stored_graph)
+CACHE_FORMAT = 2  # of the <index>.cells files (see stored_graph); 2: with its effort
+NO_GRAPH = 0  # the stored effort of an index for which no graph was worth having
 
 
 def effort(nprobe: int) -> int:
-    """The graph's search effort (HNSW's ``efSearch``) for ``nprobe`` cells: twice as many
-    candidates as cells, at least :data:`MIN_EFFORT`."""
+    """The graph's largest search effort (HNSW's ``efSearch``) for ``nprobe`` cells: twice
+    as many candidates as cells, at least :data:`MIN_EFFORT` (a graph searched with less is
+    one whose samples measured it enough, :meth:`CellGraph.settle_effort`)."""
     return max(MIN_EFFORT, 2 * nprobe)
+
+
+def efforts(nprobe: int) -> list[int]:
+    """The search efforts :meth:`CellGraph.settle_effort` tries for ``nprobe`` cells,
+    smallest first: :data:`EFFORT_STEPS` (at least ``nprobe``: HNSW keeps that many
+    candidates anyway) under :func:`effort`, then it."""
+    largest = effort(nprobe)
+    return sorted({max(nprobe, step) for step in EFFORT_STEPS if step < largest} | {largest})
 
 
 class CellGraph:
     """The nearest cells of an IVF index's ``centroids`` ``(nlist, D)``, through an HNSW graph
     (see the module docstring)."""
 
-    def __init__(self, centroids: np.ndarray, nprobe: int) -> None:
+    def __init__(self, centroids: np.ndarray, nprobe: int, search_effort: int = 0) -> None:
+        """The graph over ``centroids`` ``(nlist, D)`` for searches of ``nprobe`` cells at
+        ``search_effort`` (0: :func:`effort`)."""
         array = np.ascontiguousarray(centroids, dtype=np.float32)
         graph: Any = faiss.IndexHNSWFlat(int(array.shape[1]), LINKS)
         graph.hnsw.efConstruction = BUILD_EFFORT
         graph.add(array)
-        self._use(graph, nprobe)
+        self._use(graph, nprobe, search_effort or effort(nprobe))
         self.compare_directly(self.unreachable_cells())
 
-    def _use(self, graph: Any, nprobe: int) -> None:
+    def _use(self, graph: Any, nprobe: int, search_effort: int) -> None:
         self.nprobe = nprobe  # the cells a search asks for (those the graph was checked for)
         self.graph = graph
         self.count = int(graph.ntotal)
         self.dimension = int(graph.d)
         # FAISS only reads the parameters: one object for every search
         self._params: Any = faiss.SearchParametersHNSW()  # type: ignore[attr-defined]
-        self._params.efSearch = effort(nprobe)
+        self.effort = search_effort  # HNSW's efSearch: candidates a search keeps
+        self._params.efSearch = search_effort
         self.unreachable = np.empty(0, np.int64)  # (U,) cells each query is compared with
         self._unreachable_centroids = np.empty((0, self.dimension), np.float32)  # (U, D)
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The graph as arrays to store (:meth:`restored` reads them back): FAISS's bytes of
-        the graph ``(B,)`` uint8 and its unreachable cells ``(U,)``."""
-        return {"graph": faiss.serialize_index(self.graph), "unreachable": self.unreachable}
+        the graph ``(B,)`` uint8, its unreachable cells ``(U,)`` and its search effort
+        ``(1,)``."""
+        return {
+            "graph": faiss.serialize_index(self.graph),
+            "unreachable": self.unreachable,
+            "effort": np.array([self.effort], np.int64),
+        }
 
     @classmethod
     def restored(cls, arrays: Mapping[str, np.ndarray], nprobe: int) -> CellGraph:
         """The graph :meth:`arrays` gave, for searches of ``nprobe`` cells (those it was
-        checked for), its unreachable cells as found when it was built: the same graph
-        (FAISS's own bytes), so the same cells for every query."""
+        checked for), at the effort and with the unreachable cells found when it was built:
+        the same graph (FAISS's own bytes), so the same cells for every query."""
         graph = cls.__new__(cls)
-        graph._use(faiss.deserialize_index(np.ascontiguousarray(arrays["graph"])), nprobe)
+        stored = faiss.deserialize_index(np.ascontiguousarray(arrays["graph"]))
+        graph._use(stored, nprobe, int(np.asarray(arrays["effort"]).reshape(-1)[0]))
         graph.compare_directly(np.asarray(arrays["unreachable"], np.int64))
         return graph
+
+    def set_effort(self, search_effort: int) -> None:
+        """Search with ``search_effort`` from now on; the unreachable cells are found again
+        (they depend on it)."""
+        self.effort = search_effort
+        self._params.efSearch = search_effort
+        self.compare_directly(self.unreachable_cells())
+
+    def settle_effort(self, queries: np.ndarray, scanned: np.ndarray) -> int:
+        """Search with the smallest of :func:`efforts` that finds, for every one of
+        ``queries`` ``(Q, D)`` (stored vectors), the cells the scan of the centroids found
+        (``scanned`` ``(Q, nprobe)``), taken :data:`EFFORT_MARGIN` steps higher (unseen
+        queries lie as the stored ones do, but not exactly on them); the largest effort when
+        none does (the keep rule then judges the graph). Returns the effort.
+
+        A graph search keeps ``effort`` candidates while it walks; on a library's centroids
+        fewer than :func:`effort`'s 48 already find the scan's cells (20-24 at 1M ``motion``
+        clips, ``nprobe`` 12, bench/README.md), and each one costs a search a few distance
+        computations."""
+        steps = efforts(self.nprobe)
+        chosen = steps[-1]
+        for at, step in enumerate(steps[:-1]):
+            self.set_effort(step)
+            found = self.nearest(queries)[1]
+            if _same_cells(scanned, found):
+                chosen = steps[min(at + EFFORT_MARGIN, len(steps) - 1)]
+                break
+        if chosen != self.effort:
+            self.set_effort(chosen)
+        return chosen
 
     def unreachable_cells(self) -> np.ndarray:
         """``(U,)`` the cells whose centroid, searched for as a query is, is not among the
@@ -130,26 +189,30 @@ class CellGraph:
     def of(cls, index: Any, nprobe: int, samples: np.ndarray) -> CellGraph | None:
         """The graph over the centroids of the IVF ``index`` for searches of ``nprobe`` cells,
         when it is worth having for queries like ``samples`` ``(S, D)`` (see the module
-        docstring), else None."""
+        docstring), else None: its search effort chosen from all of them
+        (:meth:`settle_effort`), then the first :data:`SAMPLES` timed and compared."""
         nlist = int(index.nlist)
         quantizer: Any = faiss.downcast_index(index.quantizer)
         if nlist < GRAPH_MIN_CELLS or not isinstance(quantizer, faiss.IndexFlatL2):
             return None
         if effort(nprobe) * LINKS > CROWDED * nlist:
             return None
-        queries = np.ascontiguousarray(samples, dtype=np.float32)
+        everyone = np.ascontiguousarray(samples, dtype=np.float32)
+        queries = everyone[:SAMPLES]
         scan_time, scanned = _timed(lambda q: quantizer.search(q, nprobe)[1], queries)
         if scan_time < QUICK_SCAN:
             return None
         graph = cls(quantizer.reconstruct_n(0, nlist), nprobe)
+        chosen = graph.settle_effort(everyone, quantizer.search(everyone, nprobe)[1])
         graph_time, found = _timed(lambda q: graph.nearest(q)[1], queries)
-        same = all(set(x.tolist()) == set(y.tolist()) for x, y in zip(scanned, found, strict=True))
+        same = _same_cells(np.array(scanned), np.array(found))
         keep = same and graph_time <= KEEP_BELOW * scan_time
         log.info(
-            "cells of a %d-cell index: graph %.1f us (centroids unreachable, compared directly: "
-            "%d), scan %.1f us a query, %s cells: %s",
+            "cells of a %d-cell index: graph %.1f us at effort %d (centroids unreachable, "
+            "compared directly: %d), scan %.1f us a query, %s cells: %s",
             nlist,
             graph_time * 1e6,
+            chosen,
             graph.unreachable.size,
             scan_time * 1e6,
             "same" if same else "other",
@@ -207,6 +270,12 @@ class CellGraph:
         return distances, cells
 
 
+def _same_cells(scanned: np.ndarray, found: np.ndarray) -> bool:
+    """Whether each row of ``found`` ``(Q, nprobe)`` holds the cells of that row of
+    ``scanned`` (in any order: the lists scanned, so the answer, are the same)."""
+    return bool(np.array_equal(np.sort(scanned, axis=1), np.sort(found, axis=1)))
+
+
 def _cache_file(
     index_file: str, identity: list[int], nprobe: int
 ) -> tuple[Path, str, dict[str, Any]]:
@@ -216,34 +285,56 @@ def _cache_file(
         "nprobe": nprobe,
         "links": LINKS,
         "build_effort": BUILD_EFFORT,
+        "efforts": efforts(nprobe),
+        "effort_margin": EFFORT_MARGIN,
+        "effort_samples": EFFORT_SAMPLES,
+        # the keep rule's: a graph not kept under other settings might be (and vice versa)
+        "keep": [GRAPH_MIN_CELLS, SAMPLES, KEEP_BELOW, CROWDED, QUICK_SCAN],
     }
     return beside_index(index_file, "cells", identity, settings)
 
 
-def stored_graph(index_file: str, identity: list[int], nprobe: int, index: Any) -> CellGraph | None:
-    """The graph kept beside the IVF ``index`` (mapped from ``index_file``) by an earlier start
-    of any process (:func:`store_graph`), when it was built from that very file for ``nprobe``
-    cells and matches its checksum, else None. Building it again (0.47-0.49 s of CPU for the
-    4,000 x 135 ``motion`` centroids of a 1M-clip library, against 0.006 s to read it back,
-    bench/README.md; in every worker at every start) would give the same graph: the file is
-    a cache of the index, as the index is of the database; a missing or stale one is built
-    again."""
+def stored_graph(
+    index_file: str, identity: list[int], nprobe: int, index: Any
+) -> tuple[bool, CellGraph | None]:
+    """What an earlier start of any process decided for the IVF ``index`` (mapped from
+    ``index_file``) and stored beside it (:func:`store_graph`): ``(True, graph)``, or ``(True,
+    None)`` when no graph was worth having, if that was decided from that very file for
+    ``nprobe`` cells and the file matches its checksum; ``(False, None)`` otherwise (decide
+    again). Building a graph again costs 0.5-0.8 s of CPU for the 4,000 x 135 ``motion``
+    centroids of a 1M-clip library, against 0.006 s to read it back; trying one that is then
+    not kept (``posture``'s) 0.4-0.8 s — in every worker at every start, were it not stored
+    (bench/README.md). The file is a cache of the index, as the index is of the database; a
+    missing or stale one is decided again."""
     directory, stem, stamp = _cache_file(index_file, identity, nprobe)
     found = read_arrays(directory, stem, stamp)
-    if isinstance(found, str) or not {"graph", "unreachable"} <= found[0].keys():
-        return None
+    if isinstance(found, str) or not {"graph", "unreachable", "effort"} <= found[0].keys():
+        return False, None
+    stored_effort = int(np.asarray(found[0]["effort"]).reshape(-1)[0])
+    if stored_effort == NO_GRAPH and not found[0]["graph"].size:
+        return True, None
+    if stored_effort not in efforts(nprobe):
+        return False, None  # an effort the rule never picks
     graph = CellGraph.restored(found[0], nprobe)
     if graph.count != int(index.nlist) or graph.dimension != int(index.d):
-        return None
-    return graph
+        return False, None
+    return True, graph
 
 
-def store_graph(index_file: str, identity: list[int], graph: CellGraph) -> None:
-    """Keep ``graph``, found worth having for the index file ``index_file`` (``identity`` as
-    in :func:`stored_graph`), for the next start."""
-    directory, stem, stamp = _cache_file(index_file, identity, graph.nprobe)
-    with contextlib.suppress(OSError):  # a read-only directory: built at every start
-        write_arrays(directory, stem, graph.arrays(), stamp)
+def store_graph(index_file: str, identity: list[int], nprobe: int, graph: CellGraph | None) -> None:
+    """Keep what was decided for the index file ``index_file`` (``identity`` as in
+    :func:`stored_graph`) and searches of ``nprobe`` cells — ``graph``, or None: no graph
+    worth having — for the next start of any process."""
+    directory, stem, stamp = _cache_file(index_file, identity, nprobe)
+    arrays: dict[str, np.ndarray] = {
+        "graph": np.empty(0, np.uint8),
+        "unreachable": np.empty(0, np.int64),
+        "effort": np.array([NO_GRAPH], np.int64),
+    }
+    if graph is not None:
+        arrays = graph.arrays()
+    with contextlib.suppress(OSError):  # a read-only directory: decided at every start
+        write_arrays(directory, stem, arrays, stamp)
 
 
 def _timed(search: Any, queries: np.ndarray, rounds: int = 3) -> tuple[float, list[np.ndarray]]:

@@ -41,7 +41,13 @@ import faiss
 import numpy as np
 
 from app.index import probe_cutoff
-from app.index.cells import GRAPH_MIN_CELLS, SAMPLES, CellGraph, store_graph, stored_graph
+from app.index.cells import (
+    EFFORT_SAMPLES,
+    GRAPH_MIN_CELLS,
+    CellGraph,
+    store_graph,
+    stored_graph,
+)
 from app.index.kinds import RERANK, SQ8, codes_of, empty_flat, padded
 from app.index.locator import LIST_SHIFT, Locator, stored_locator, walk_lists
 
@@ -458,14 +464,14 @@ class FrozenIVF:
             return
         nprobe = nprobe or self.base_nprobe
         file, identity = self.mapped_from, self.file_identity
-        # Kept beside the file by an earlier start (app/index/cells.py: a cache of the index)
+        # Decided beside the file by an earlier start (app/index/cells.py: a cache of the index)
         if file is not None and identity is not None:
-            self.cells = stored_graph(file, identity, nprobe, self.base)
-            if self.cells is not None:
+            decided, self.cells = stored_graph(file, identity, nprobe, self.base)
+            if decided:
                 return
-        self.cells = CellGraph.of(self.base, nprobe, self._samples(SAMPLES, 0)[1])
-        if self.cells is not None and file is not None and identity is not None:
-            store_graph(file, identity, self.cells)
+        self.cells = CellGraph.of(self.base, nprobe, self._samples(EFFORT_SAMPLES, 0)[1])
+        if file is not None and identity is not None:  # a graph, or none worth having
+            store_graph(file, identity, nprobe, self.cells)
 
     def _samples(self, count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
         """``count`` stored vectors of the file, drawn with ``seed`` (the same for a file at

@@ -15,6 +15,7 @@ import pytest
 
 from app.index import cells as cells_module
 from app.index import frozen as frozen_module
+from app.index.array_file import write_arrays
 from app.index.descriptor_index import DescriptorIndex
 from app.index.frozen import FrozenIVF
 from app.index.kinds import IndexOptions
@@ -95,6 +96,36 @@ def test_a_graph_no_faster_than_the_scan_is_not_kept(
     assert frozen.cells is None
 
 
+def test_no_graph_worth_having_is_decided_once_per_index_file(
+    index_file: tuple[Path, np.ndarray, np.ndarray], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path, ids, vectors = index_file
+    monkeypatch.setattr(cells_module, "KEEP_BELOW", 0.0)  # never faster enough: not kept
+    first = FrozenIVF.open(str(path))
+    first.build_cells()
+    assert first.cells is None
+    assert (path.parent / f"{path.stem}.cells.arrays").is_file()  # the decision, stored
+    with monkeypatch.context() as patch:  # the next opening reads it: no graph tried
+        patch.setattr(cells_module.CellGraph, "of", no_graph_built)
+        again = FrozenIVF.open(str(path))
+        again.build_cells()
+    assert again.cells is None
+    nprobe = again.base_nprobe
+    assert np.array_equal(
+        again.search(vectors[:5], 11, nprobe=nprobe)[1],
+        without_graph(path).search(vectors[:5], 11, nprobe=nprobe)[1],
+    )
+    # The index file written again: decided again (here a graph is now worth having).
+    monkeypatch.setattr(cells_module, "KEEP_BELOW", float("inf"))
+    index = DescriptorIndex(
+        "motion", DIMENSION, 1, path.parent, options=IndexOptions("ivf", nlist=CELLS)
+    )
+    index.replace_all(ids, vectors[::-1].copy(), persist=True)
+    rebuilt = FrozenIVF.open(str(index.path))
+    rebuilt.build_cells()
+    assert rebuilt.cells is not None
+
+
 def test_a_quick_scan_or_a_crowded_graph_is_not_tried(
     index_file: tuple[Path, np.ndarray, np.ndarray], monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -159,6 +190,7 @@ def test_a_kept_graph_is_read_back_from_beside_its_index_file_by_the_next_start(
         again.build_cells()
     assert again.cells is not None
     assert np.array_equal(again.cells.unreachable, first.cells.unreachable)
+    assert again.cells.effort == first.cells.effort  # measured once, stored with the graph
     queries = vectors[:100]
     for one, other in zip(first.cells.nearest(queries), again.cells.nearest(queries), strict=True):
         assert np.array_equal(one, other)
@@ -203,6 +235,37 @@ def test_a_graph_file_of_another_index_file_or_damaged_is_built_again(
     nprobe = rebuilt.base_nprobe
     assert np.array_equal(
         rebuilt.search(query, 11, nprobe=nprobe)[1], scan.search(query, 11, nprobe=nprobe)[1]
+    )
+
+
+def test_a_graph_file_with_an_effort_the_rule_never_picks_is_built_again(
+    index_file: tuple[Path, np.ndarray, np.ndarray], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path, _ids, vectors = index_file
+    monkeypatch.setattr(cells_module, "KEEP_BELOW", float("inf"))
+    first = FrozenIVF.open(str(path))
+    first.build_cells()
+    assert first.cells is not None and first.file_identity is not None
+    nprobe = first.base_nprobe
+    # A forged effort in a file whose checksum and stamp match (written as the service does)
+    forged = {**first.cells.arrays(), "effort": np.array([7], np.int64)}
+    directory, stem, stamp = cells_module._cache_file(str(path), first.file_identity, nprobe)
+    write_arrays(directory, stem, forged, stamp)
+    built = []
+    real_of = cells_module.CellGraph.of
+
+    def counted(*args: Any) -> Any:
+        built.append(1)
+        return real_of(*args)
+
+    monkeypatch.setattr(cells_module.CellGraph, "of", counted)
+    again = FrozenIVF.open(str(path))
+    again.build_cells()
+    assert built == [1] and again.cells is not None
+    assert again.cells.effort in cells_module.efforts(nprobe)
+    assert np.array_equal(
+        again.search(vectors[:5], 11, nprobe=nprobe)[1],
+        without_graph(path).search(vectors[:5], 11, nprobe=nprobe)[1],
     )
 
 
@@ -333,3 +396,33 @@ def test_the_log_counts_the_unreachable_centroids(
         graph = cells_module.CellGraph.of(index, NPROBE, others[:50])
     assert graph is not None
     assert "unreachable, compared directly: 0)" in caplog.text and "graph kept" in caplog.text
+
+
+def test_the_effort_is_the_smallest_that_finds_every_samples_cells_one_step_up(
+    trained: tuple[faiss.IndexIVFFlat, np.ndarray],
+) -> None:
+    index, others = trained
+    quantizer = faiss.downcast_index(index.quantizer)
+    graph = cells_module.CellGraph(centroids_of(index), NPROBE)
+    assert graph.effort == cells_module.effort(NPROBE)  # before it is measured: the largest
+    samples = others[:300]
+    scanned = quantizer.search(samples, NPROBE)[1]
+    chosen = graph.settle_effort(samples, scanned)
+    steps = cells_module.efforts(NPROBE)
+    assert chosen == graph.effort and chosen in steps and chosen <= steps[-1]
+    assert steps[0] == max(NPROBE, cells_module.EFFORT_STEPS[0])
+
+    def finds_the_scans_cells(effort: int) -> bool:
+        probe = cells_module.CellGraph.restored(graph.arrays(), NPROBE)
+        probe.set_effort(effort)  # its unreachable cells found again at that effort
+        found = probe.nearest(samples)[1]
+        return bool(np.array_equal(np.sort(found, axis=1), np.sort(scanned, axis=1)))
+
+    at = steps.index(chosen)
+    smallest = max(0, at - cells_module.EFFORT_MARGIN) if at < len(steps) - 1 else None
+    if smallest is not None:  # the smallest passing step, then the margin above it
+        assert finds_the_scans_cells(steps[smallest])
+        assert not any(finds_the_scans_cells(step) for step in steps[:smallest])
+    assert finds_the_scans_cells(chosen)
+    # At the chosen effort the graph gives the scan's cells for the samples, as served.
+    assert_scans_cells(graph, index, samples)
