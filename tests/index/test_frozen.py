@@ -4,7 +4,6 @@ the file's pages, not a copy."""
 
 from __future__ import annotations
 
-import json
 import shutil
 from pathlib import Path
 
@@ -156,52 +155,6 @@ def test_mapped_index_is_the_files_pages(tmp_path: Path) -> None:
     reopened.load_or_rebuild(_Source(ids, vectors), found)
     assert reopened.mapped and not reopened._index.changed  # type: ignore[attr-defined]
     assert reopened.sorted_ids()[:3].tolist() == [1, 2, 9]
-
-
-def test_server_checks_mapped_files_after_start_and_rebuilds_a_damaged_one(
-    tmp_path: Path, caplog: pytest.LogCaptureFixture
-) -> None:
-    """A server maps its large files unchecked (start-up) and checks them in a thread: a
-    damaged one is rebuilt from the database, and searches answer right."""
-    from app.config import Settings
-    from app.services.ingest import describe, store_many
-    from app.services.library import open_library
-    from app.services.search import search_by_clip_id
-    from app.services.uploads import Upload
-    from tests.services.fakes import FakeDescriber, fake_motion
-
-    settings = Settings(data_dir=tmp_path / "data", index_type="ivf")
-    library = open_library(settings, describer=FakeDescriber())
-    uploads = [
-        Upload.from_files(file=(f"c{n}.bvh", fake_motion([n % 17, n // 17, 0.5])))
-        for n in range(600)
-    ]
-    store_many(library, [describe(library, u) for u in uploads])
-    library.close()
-    open_library(settings, describer=FakeDescriber()).close()  # now IVF, saved and mapped
-    assert json.loads((settings.index_dir / "posture.json").read_text())["kind"] == IVF
-    index_file = settings.index_dir / "posture.faiss"
-    data = bytearray(index_file.read_bytes())
-    data[-5] ^= 0xFF  # a vector's last byte: only the checksum notices
-    index_file.write_bytes(bytes(data))
-    catalogue_file = settings.index_dir / "catalogue.arrays"
-    data = bytearray(catalogue_file.read_bytes())
-    data[len(data) // 2] ^= 0xFF
-    catalogue_file.write_bytes(bytes(data))
-    caplog.set_level("WARNING")
-    library = open_library(settings, describer=FakeDescriber(), verify_later=True)
-    try:
-        assert library.indexes["posture"].mapped
-        assert library.verifier is not None  # the check runs in a thread of the library
-        library.verifier.join(timeout=60)
-        assert library.verify_files() == []  # the thread found and rebuilt both already
-        query, hits = search_by_clip_id(library, 1, "posture", 5, label=None)
-        assert query.name == "c0" and {h.clip.name for h in hits[:2]} == {"c17", "c1"}
-        assert len(library.catalogue) == 600
-        assert "rebuilding the posture index" in caplog.text
-        assert "rebuilding the catalogue" in caplog.text
-    finally:
-        library.close()
 
 
 def test_vectors_gathered_as_float_rows_are_the_stored_ones(tmp_path: Path) -> None:

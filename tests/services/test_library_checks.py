@@ -3,14 +3,18 @@ searches, and what it rebuilds when a file mapped unchecked at start turns out d
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from app.config import Settings
+from app.index.kinds import IVF
 from app.index.neighbour_scale import measure
 from app.services.ingest import describe, store_many
 from app.services.library import open_library
+from app.services.search import search_by_clip_id
 from app.services.uploads import Upload
 from tests.services.fakes import FakeDescriber, fake_motion
 
@@ -57,5 +61,36 @@ def test_the_verifier_prepares_scales_and_forgets_one_measured_on_a_damaged_file
         fresh = measure(index, None)
         assert scale.size == fresh.size
         assert scale.distances.tobytes() == fresh.distances.tobytes()
+    finally:
+        library.close()
+
+
+def test_server_checks_mapped_files_after_start_and_rebuilds_a_damaged_one(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A server maps its large files unchecked (start-up) and checks them in a thread: a
+    damaged one is rebuilt from the database, and searches answer right."""
+    settings = stored_library(tmp_path)
+    assert json.loads((settings.index_dir / "posture.json").read_text())["kind"] == IVF
+    index_file = settings.index_dir / "posture.faiss"
+    data = bytearray(index_file.read_bytes())
+    data[-5] ^= 0xFF  # a byte of the lists: only the checksum notices
+    index_file.write_bytes(bytes(data))
+    catalogue_file = settings.index_dir / "catalogue.arrays"
+    data = bytearray(catalogue_file.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    catalogue_file.write_bytes(bytes(data))
+    caplog.set_level("WARNING")
+    library = open_library(settings, describer=FakeDescriber(), verify_later=True)
+    try:
+        assert library.indexes["posture"].mapped
+        assert library.verifier is not None  # the check runs in a thread of the library
+        library.verifier.join(timeout=60)
+        assert library.verify_files() == []  # the thread found and rebuilt both already
+        query, hits = search_by_clip_id(library, 1, "posture", 5, label=None)
+        assert query.name == "c0" and {h.clip.name for h in hits[:2]} == {"c17", "c1"}
+        assert len(library.catalogue) == 600
+        assert "rebuilding the posture index" in caplog.text
+        assert "rebuilding the catalogue" in caplog.text
     finally:
         library.close()
