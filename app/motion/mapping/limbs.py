@@ -212,6 +212,18 @@ class _LimbRules(_RunRules):
                 < path[option[1][kind.parts[2]]] - path[option[1][kind.parts[0]]]
             ]
             limbs = narrow or limbs
+            # A person's shoulders sit wider apart than the hip joints, and never at the
+            # chest's own place (so among one wrist's choices, :meth:`upper_and_middle`): an
+            # arm whose top lies nearer the spine's line is the collar, upper arm and forearm
+            # taken one joint high, which a hand of one bone or none (SMPL's, a game rig's)
+            # makes look nearer a person's proportions than the arm itself.
+            wide = [
+                option
+                for option in limbs
+                if not self.same_place(option[1][kind.parts[0]], chain[0])
+                and self.off_midline(option[1][kind.parts[0]]) >= self.hip_half_gap
+            ]
+            limbs = wide or limbs
         limbs.sort(key=lambda option: option[0])  # stable: the first on ties
         if seen is not None:
             seen.extend(limbs)
@@ -252,8 +264,28 @@ class _LimbRules(_RunRules):
         beyond = self.tree.reach[end]
         cost = abs(math.log(max(upper, 1e-12) / lower / kind.upper))
         if beyond > 0:
-            return cost + abs(math.log(beyond / lower / kind.beyond))
+            end = math.log(beyond / lower / kind.beyond)
+            if end < 0 and kind is _ARM and not self.branches_below(top):
+                # A hand shorter than a person's, on an arm where no fingers branch, is a
+                # hand drawn in part (SMPL's hand joint, a game rig's short hand bone, one
+                # finger joint kept): no worse a sign than no hand, so it costs at most as
+                # much. (Where fingers branch, the hand's structure shows the wrist.)
+                return cost + min(-end, math.log(2.0))
+            return cost + abs(end)
         return cost + math.log(2.0)
+
+    def branches_below(self, joint: int) -> bool:
+        """Whether some joint below ``joint`` parts into two or more bones (fingers, or a
+        twist bone beside a limb bone)."""
+        tree = self.tree
+        frontier = list(tree.children[joint])
+        while frontier:
+            j = frontier.pop()
+            kids = tree.children[j]
+            if sum(1 for c in kids if tree.lengths[c] > 0 or tree.children[c]) >= 2:
+                return True
+            frontier.extend(kids)
+        return False
 
     def doubles_back(self, chain: list[int], i: int) -> bool:
         """Whether the leaf ``chain[i]`` turns back up (within 45 degrees of the spine's
