@@ -8,7 +8,7 @@ HumanIK FBX): the same canonical joints by name, never refused, never a 500.
 A ratchet like the dev-data ones: how many of the 19 probes map each fixture alike, at least
 (main before the 2026-11-27 arm rules: 17 for the CMU BVH, which lost its arms one joint high
 under the SMPL-like probes without names, and for the VRM and the FBX, whose collars passed
-for shoulders with the hips at the pelvis and no names; 19 for the others).
+for shoulders with the hips at the pelvis and no names; 19 for the others; now 19, 18, 18).
 """
 
 from __future__ import annotations
@@ -44,6 +44,10 @@ RIGS: dict[str, Callable[[], Motion]] = {
 # Probes (of the 19) under which the fixture maps alike, at least; a probe that does not apply
 # (nothing of the rig to cut or move) counts as passed.
 RECORDED = dict.fromkeys(RIGS, 19)
+# With the hips at the pelvis, no names and bones in axes of their own, the VRM and the FBX
+# are mapped from a frame, where the legs' gap is not read at the knees (a stride parts them):
+# the collar's root still passes for a shoulder there.
+RECORDED["vrm animation"] = RECORDED["maya humanik fbx"] = 18
 
 
 @pytest.mark.parametrize("rig", RIGS)
