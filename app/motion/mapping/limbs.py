@@ -11,7 +11,7 @@ import numpy as np
 from app.motion.mapping.hypotheses import _NotHumanoid
 from app.motion.mapping.runs import _ARM, _LEG, _LimbKind, _RunRules
 from app.motion.mapping.state import _EFFECTOR_COS, _Limb
-from app.motion.mapping.tree import _farthest_descendant, _is_thumb
+from app.motion.mapping.tree import _branches_below, _farthest_descendant, _is_thumb
 from app.motion.mapping.vectors import _length, _unit
 
 # A later limb top must fit the proportions this much better (log ratio) to be taken.
@@ -212,6 +212,18 @@ class _LimbRules(_RunRules):
                 < path[option[1][kind.parts[2]]] - path[option[1][kind.parts[0]]]
             ]
             limbs = narrow or limbs
+            # A person's shoulders sit wider apart than the hip joints, and never at the
+            # chest's own place (so among one wrist's choices, :meth:`upper_and_middle`): an
+            # arm whose top lies nearer the spine's line is the collar, upper arm and forearm
+            # taken one joint high, which a hand of one bone or none (SMPL's, a game rig's)
+            # makes look nearer a person's proportions than the arm itself.
+            wide = [
+                option
+                for option in limbs
+                if not self.same_place(option[1][kind.parts[0]], chain[0])
+                and self.off_midline(option[1][kind.parts[0]]) >= self.hip_half_gap
+            ]
+            limbs = wide or limbs
         limbs.sort(key=lambda option: option[0])  # stable: the first on ties
         if seen is not None:
             seen.extend(limbs)
@@ -244,7 +256,8 @@ class _LimbRules(_RunRules):
         """How far a limb's upper : lower : end part lengths (along the bones; the end part
         is the longest path beyond the limb's end: hand, foot) are from a person's, as the
         sum of ``|log|`` of each ratio's error; an end part with no bones costs as much as
-        one twice too long or too short."""
+        one twice too long or too short, and so, at most, does a hand too short on an arm
+        where nothing branches (a hand drawn in part)."""
         path = self.tree.path
         top, middle, end = (limb[part] for part in kind.parts)
         upper = path[middle] - path[top]
@@ -252,7 +265,14 @@ class _LimbRules(_RunRules):
         beyond = self.tree.reach[end]
         cost = abs(math.log(max(upper, 1e-12) / lower / kind.upper))
         if beyond > 0:
-            return cost + abs(math.log(beyond / lower / kind.beyond))
+            off = math.log(beyond / lower / kind.beyond)  # < 0: shorter than a person's
+            if off < 0 and kind is _ARM and not _branches_below(self.tree, top):
+                # A hand shorter than a person's, on an arm where no fingers branch, is a
+                # hand drawn in part (SMPL's hand joint, a game rig's short hand bone, one
+                # finger joint kept): no worse a sign than no hand, so it costs at most as
+                # much. (Where fingers branch, the hand's structure shows the wrist.)
+                return cost + min(-off, math.log(2.0))
+            return cost + abs(off)
         return cost + math.log(2.0)
 
     def doubles_back(self, chain: list[int], i: int) -> bool:

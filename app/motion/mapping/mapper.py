@@ -67,7 +67,13 @@ class _Mapper(_LimbRules, _SideRules):
             raise _NotHumanoid(
                 "the two legs share their hip: no two separate legs below the pelvis"
             )
-        self.hip_half_gap = 0.5 * _length(self.pose[legs[0]["hip"]] - self.pose[legs[1]["hip"]])
+        # How far apart the legs start: at the hips, or, in a rest pose whose hip joints
+        # both sit at the pelvis, at the knees (at rest a person's knees stand about as far
+        # apart as the hip joints; a gap of zero would let a collar's root pass for a
+        # shoulder). Not in a frame of the take: a stride parts the knees much farther.
+        coincide = self.same_place(legs[0]["hip"], legs[1]["hip"])
+        part = "knee" if coincide and self.rest else "hip"
+        self.hip_half_gap = 0.5 * _length(self.pose[legs[0][part]] - self.pose[legs[1][part]])
         arms = self.alike_arms([self.map_arm(h) for h in body.hands], body.hands)
         for limbs, kind, trunk in ((legs, _LEG, body.pelvis), (arms, _ARM, body.chest)):
             for limb in limbs:

@@ -414,6 +414,19 @@ def _strands(tree: _Tree, leaves: list[int]) -> dict[int, list[int]]:
     return out
 
 
+def _branches_below(tree: _Tree, joint: int) -> bool:
+    """Whether some joint below ``joint`` parts into two or more bones (fingers, or a twist
+    bone beside a limb bone; zero-length leaves are no bones)."""
+    frontier = list(tree.children[joint])
+    while frontier:
+        j = frontier.pop()
+        kids = tree.children[j]
+        if sum(1 for c in kids if tree.lengths[c] > 0 or tree.children[c]) >= 2:
+            return True
+        frontier.extend(kids)
+    return False
+
+
 def _is_thumb(name: str) -> bool:
     # Only steers the hand-tip search away from thumbs; canonical matching stays whole-name.
     return "thumb" in normalise_name(name)
