@@ -189,16 +189,7 @@ def _world_rotations(motion: Motion, frame: int) -> np.ndarray:
 
 def frame_as_rest(motion: Motion, frame: int = 0) -> Motion:
     """The rig as a writer that takes ``frame`` for its rest pose writes it (each joint's
-    axes are its world axes at that frame: every rotation there is the root's only; each
-    bone's offset its translation at that frame)."""
-    if motion.local_translations is not None:
-        # Translations that change per frame (a joint cut by :func:`without` leaves its
-        # children's turning with it) make that frame's pose another than the offsets'.
-        offsets = motion.skeleton.offsets.copy()
-        bones = [j for j, p in enumerate(motion.skeleton.parents) if p >= 0]
-        offsets[bones] = motion.local_translations[frame, bones]
-        skeleton = dataclasses.replace(motion.skeleton, offsets=offsets)
-        motion = dataclasses.replace(motion, skeleton=skeleton)
+    axes are its world axes at that frame: every rotation there is the root's only)."""
     return rebased(motion, np.transpose(_world_rotations(motion, frame), (0, 2, 1)))
 
 
