@@ -103,7 +103,16 @@ def nameless(motion: Motion, expected: Expected) -> tuple[Motion, Expected]:
 
 
 def first_rest(motion: Motion, expected: Expected) -> tuple[Motion, Expected]:
-    """The first frame written as the rest pose (a video-derived or baked export)."""
+    """The first frame written as the rest pose (a video-derived or baked export): each
+    bone's offset its translation in that frame, each joint's axes its world axes there."""
+    if motion.local_translations is not None:
+        # Translations that change per frame (a joint cut by ``without`` leaves its
+        # children's turning with it) make the offsets' pose another than the frame's.
+        offsets = motion.skeleton.offsets.copy()
+        bones = [j for j, p in enumerate(motion.skeleton.parents) if p >= 0]
+        offsets[bones] = motion.local_translations[0, bones]
+        skeleton = dataclasses.replace(motion.skeleton, offsets=offsets)
+        motion = dataclasses.replace(motion, skeleton=skeleton)
     return frame_as_rest(motion), expected
 
 

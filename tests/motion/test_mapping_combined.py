@@ -13,12 +13,15 @@ for shoulders with the hips at the pelvis and no names; 19 for the others; now 1
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from app.motion.formats import read_asf_amc, read_bvh
+from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion, ParseLimits
 from app.services.parser_pool import parse_scene
 from bench.probe_mapping import PROBES, mapped_names, outcome
@@ -61,3 +64,35 @@ def test_combined_probes_map_the_fixture_alike(rig: str) -> None:
         if got not in (None, "same"):
             failed[probe] = got
     assert len(PROBES) - len(failed) >= RECORDED[rig], failed
+
+
+def _hips_wider_than_shoulders(motion: Motion, expected: dict[str, str]) -> Motion:
+    """Each hip joint moved out along the bone it ends until the hip joints sit 1.3 times as
+    far apart as the shoulders in the rest pose (a heavy figure, a sumo wrestler's build)."""
+    _, at = forward_kinematics(motion.slice_frames(0, 1))
+    names = motion.skeleton.names
+    hips = [names.index(expected[f"{side}_hip"]) for side in "lr"]
+    shoulders = [names.index(expected[f"{side}_shoulder"]) for side in "lr"]
+    scale = 1.3 * np.linalg.norm(at[0, shoulders[0]] - at[0, shoulders[1]])
+    scale /= np.linalg.norm(at[0, hips[0]] - at[0, hips[1]])
+    offsets = motion.skeleton.offsets.copy()
+    offsets[hips] *= scale
+    translations = motion.local_translations
+    if translations is not None:
+        translations = translations.copy()
+        translations[:, hips] *= scale
+    skeleton = dataclasses.replace(motion.skeleton, offsets=offsets)
+    return dataclasses.replace(motion, skeleton=skeleton, local_translations=translations)
+
+
+def test_a_figure_whose_hips_are_wider_than_its_shoulders_keeps_its_arms() -> None:
+    # Only the arm's first joint below the chest (where a collar starts) is held to the
+    # hips' gap: a shoulder below a collar is no collar's root however wide the hips (on
+    # main before that, the CMU arm without names and with SMPL-like hands was taken one
+    # joint low, its elbow for the shoulder).
+    motion = read_bvh(fixture_bytes(CMU_BVH_FIXTURE))
+    expected, mirrored = mapped_names(motion)
+    wide = _hips_wider_than_shoulders(motion, expected)
+    assert mapped_names(wide)[0] == expected
+    for probe in ("nameless", "SMPL-like + nameless", "SMPL-like + nameless + axes of their own"):
+        assert outcome(wide, dict(expected), mirrored, PROBES[probe]) == "same", probe

@@ -36,10 +36,12 @@ facing, naming or extra joints (fingers, face, twist bones, props, IK targets, d
    two joints before the hand's end and the arm's last joint (a rig without hand bones), the
    one whose upper arm, forearm and hand come nearest human proportions (where the fingers
    branch standing unless another is clearly nearer, and never a wrist whose arm would not
-   make its share of the way from the chest, nor one whose shoulder lies nearer the spine's
-   line than a hip joint — or, where the hips sit at the pelvis, a knee — or at the chest's
-   own place: that is a collar's root; a hand shorter than a person's on an arm where nothing
-   branches, a hand drawn in part, costs no more than no hand); the ankle likewise
+   make its share of the way from the chest, nor one whose shoulder is at the chest's own
+   place, or is the arm's first joint below the chest and lies nearer the spine's line than
+   a hip joint — or, where the hips sit at the pelvis, a knee: that is a collar's root; a
+   joint lower down hangs from the collar, whatever the hips' gap; a hand shorter than a
+   person's on an arm where nothing branches, a hand drawn in part, costs no more than no
+   hand); the ankle likewise
    when the foot does not turn forward; two legs never share their hip, and each limb makes
    most of the way from the trunk to its end (a creature's claws hanging at the end of its
    legs are no person's legs). A game rig whose feet are IK bones under the root (legs

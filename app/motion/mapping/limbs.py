@@ -212,16 +212,25 @@ class _LimbRules(_RunRules):
                 < path[option[1][kind.parts[2]]] - path[option[1][kind.parts[0]]]
             ]
             limbs = narrow or limbs
-            # A person's shoulders sit wider apart than the hip joints, and never at the
-            # chest's own place (so among one wrist's choices, :meth:`upper_and_middle`): an
-            # arm whose top lies nearer the spine's line is the collar, upper arm and forearm
-            # taken one joint high, which a hand of one bone or none (SMPL's, a game rig's)
-            # makes look nearer a person's proportions than the arm itself.
+            # An arm's top is never at the chest's own place, and its first joint below the
+            # chest — where a collar bone starts, or a rig without collars hangs the
+            # shoulder — is its top only when it sits wider of the spine's line than a hip
+            # joint of the pelvis (a person's shoulders are wider apart than the hip joints;
+            # so among one wrist's choices, :meth:`upper_and_middle`): else it is the collar,
+            # upper arm and forearm taken one joint high, which a hand of one bone or none
+            # (SMPL's, a game rig's) makes look nearer a person's proportions than the arm
+            # itself. A joint lower down hangs at the end of a bone of the arm (the collar),
+            # so it is no collar's root, and the hips' gap says nothing of it: a heavy figure's
+            # hip joints, or a rest standing legs apart, may lie wider than its shoulders.
+            first = chain[1]
             wide = [
                 option
                 for option in limbs
                 if not self.same_place(option[1][kind.parts[0]], chain[0])
-                and self.off_midline(option[1][kind.parts[0]]) >= self.hip_half_gap
+                and (
+                    option[1][kind.parts[0]] != first
+                    or self.off_midline(first) >= self.hip_half_gap
+                )
             ]
             limbs = wide or limbs
         limbs.sort(key=lambda option: option[0])  # stable: the first on ties
