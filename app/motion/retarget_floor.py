@@ -5,8 +5,9 @@ legs' bone paths, then moved up or down per frame so the target's foot points th
 the floor in the source (the standing foot) are where the source's are, and nothing is
 below the source's lowest point. A swinging foot whose toe would skim the floor is pitched
 up about its ankle (:func:`clear_swinging_toes`); the path's horizontal part is corrected so
-a planted foot moves over the floor as the source's does (:func:`planted_feet_offsets`); what
-that cannot hold the legs take up (:mod:`app.motion.retarget_feet`).
+a planted foot moves over the floor as the source's does, and goes back toward the scaled
+source's where no foot is on the floor (:func:`planted_feet_offsets`); what that cannot hold
+the legs take up (:mod:`app.motion.retarget_feet`).
 """
 
 from __future__ import annotations
@@ -250,18 +251,50 @@ def planted_feet_offsets(
     scaled, in the same axes) do while the source's are on it: within ``near`` of the lowest
     any of them gets, at both ends of a frame step (:func:`planted_steps`). A step with
     planted foot points moves the path back by the mean of their extra horizontal movement;
-    a step with none (in the air) leaves it. Contact is the source's alone, as for the legs'
-    hold: until 2026-11-27 a point also had to be near the target's own floor, and a rig
-    whose ankle or toe joint sits higher in its foot than the source's left out steps where
-    the source's foot stood, so its foot slid there (docs/export.md "Rigs we have not
-    seen")."""
+    a step with none (in the air) gives back what the steps on the floor gathered
+    (:func:`_given_back`). Contact is the source's alone, as for the legs' hold: until
+    2026-11-27 a point also had to be near the target's own floor, and a rig whose ankle or
+    toe joint sits higher in its foot than the source's left out steps where the source's
+    foot stood, so its foot slid there (docs/export.md "Rigs we have not seen")."""
     planted = planted_steps(source_feet, up, near)  # (F - 1, P)
     extra = np.diff(feet, axis=0) - np.diff(source_feet, axis=0)  # (F - 1, P, 3)
     extra = extra - (extra @ up)[..., None] * up
     count = planted.sum(axis=1)
     step = -(extra * planted[..., None]).sum(axis=1) / np.maximum(count, 1)[:, None]
-    offsets = np.zeros((feet.shape[0], 3))
-    offsets[1:] = np.cumsum(step, axis=0)
+    return _given_back(step, count > 0)
+
+
+def _given_back(step: np.ndarray, on_floor: np.ndarray) -> np.ndarray:
+    """``(F, 3)`` the path's offsets from its per-step corrections ``step`` ``(F - 1, 3)``,
+    summed over the steps marked ``on_floor`` ``(F - 1,)``; over the other steps (no foot
+    point on the floor) the sum goes back toward zero, per step by at most the largest
+    correction of the last run of steps on the floor.
+
+    Why: on a rig whose legs and feet are of other proportions, the same limb directions
+    move a standing foot over the floor by a little more (or less) than the source's every
+    contact — a foot rolling over a longer toe, a longer shin sweeping — and in the swing
+    the difference goes back with no correction. Summed over the take that was travel the
+    source never had (an in-place run: 0.27 leg lengths per second on the Mixamo rig,
+    docs/export.md "In-place travel"), against the contract "travel scaled by the ratio of
+    leg lengths". In the air no foot is on the floor, so the pelvis can return there
+    without any foot sliding; no faster than the holds already moved it, so a brief gap in a
+    long contact does not snap the body back."""
+    offsets = np.zeros((step.shape[0] + 1, 3))
+    current = np.zeros(3)
+    rate = 0.0  # the largest correction per step in the last run on the floor
+    changes = np.flatnonzero(np.diff(on_floor.astype(np.int8))) + 1
+    for start, end in zip(
+        np.concatenate([[0], changes]), np.concatenate([changes, [len(step)]]), strict=True
+    ):
+        if on_floor[start]:
+            values = current + np.cumsum(step[start:end], axis=0)
+            rate = float(np.linalg.norm(step[start:end], axis=1).max())
+        else:  # shrinks toward zero along its direction, ``rate`` a step
+            size = float(np.linalg.norm(current))
+            left = np.maximum(size - rate * np.arange(1, end - start + 1), 0.0)
+            values = current * (left / max(size, _TINY))[:, None]
+        offsets[start + 1 : end + 1] = values
+        current = values[-1]
     return offsets
 
 
