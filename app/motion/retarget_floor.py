@@ -280,6 +280,8 @@ def _given_back(step: np.ndarray, on_floor: np.ndarray) -> np.ndarray:
     without any foot sliding; no faster than the holds already moved it, so a brief gap in a
     long contact does not snap the body back."""
     offsets = np.zeros((step.shape[0] + 1, 3))
+    if not len(step):  # a single frame: nothing to correct
+        return offsets
     current = np.zeros(3)
     rate = 0.0  # the largest correction per step in the last run on the floor
     changes = np.flatnonzero(np.diff(on_floor.astype(np.int8))) + 1

@@ -62,6 +62,11 @@ def test_a_short_gap_in_a_long_contact_does_not_snap_the_body_back() -> None:
     assert np.abs(np.diff(offsets[:, 0])).max() <= 1.0 + 1e-12
 
 
+def test_a_single_frame_has_nothing_to_correct() -> None:
+    source, target = _strides([True], cycles=1)
+    np.testing.assert_array_equal(planted_feet_offsets(target, source, _UP, near=0.1), 0.0)
+
+
 def test_an_in_place_run_on_a_long_footed_rig_stays_in_place() -> None:
     """CMU's run ``02_03`` made in place (``root=in-place``) onto the Mixamo rig (a foot to
     the toe tip, long for its legs): before 2026-11-27 it travelled 0.084 leg lengths per
