@@ -267,8 +267,8 @@ def planted_feet_offsets(
 def _given_back(step: np.ndarray, on_floor: np.ndarray) -> np.ndarray:
     """``(F, 3)`` the path's offsets from its per-step corrections ``step`` ``(F - 1, 3)``,
     summed over the steps marked ``on_floor`` ``(F - 1,)``; over the other steps (no foot
-    point on the floor) the sum goes back toward zero, per step by at most the largest
-    correction of the last run of steps on the floor.
+    point on the floor) the sum goes back toward zero evenly over the gap, per step by at
+    most the largest correction of the last run of steps on the floor.
 
     Why: on a rig whose legs and feet are of other proportions, the same limb directions
     move a standing foot over the floor by a little more (or less) than the source's every
@@ -278,7 +278,9 @@ def _given_back(step: np.ndarray, on_floor: np.ndarray) -> np.ndarray:
     docs/export.md "In-place travel"), against the contract "travel scaled by the ratio of
     leg lengths". In the air no foot is on the floor, so the pelvis can return there
     without any foot sliding; no faster than the holds already moved it, so a brief gap in a
-    long contact does not snap the body back."""
+    long contact does not snap the body back; and evenly, so a step the contact bands call
+    in the air but a foot still touches (a take whose first frame, a rest pose, sets the
+    floor's height) moves as little as the gap allows."""
     offsets = np.zeros((step.shape[0] + 1, 3))
     if not len(step):  # a single frame: nothing to correct
         return offsets
@@ -291,9 +293,10 @@ def _given_back(step: np.ndarray, on_floor: np.ndarray) -> np.ndarray:
         if on_floor[start]:
             values = current + np.cumsum(step[start:end], axis=0)
             rate = float(np.linalg.norm(step[start:end], axis=1).max())
-        else:  # shrinks toward zero along its direction, ``rate`` a step
+        else:  # shrinks toward zero along its direction, evenly over the gap
             size = float(np.linalg.norm(current))
-            left = np.maximum(size - rate * np.arange(1, end - start + 1), 0.0)
+            per_step = min(rate, size / (end - start))
+            left = np.maximum(size - per_step * np.arange(1, end - start + 1), 0.0)
             values = current * (left / max(size, _TINY))[:, None]
         offsets[start + 1 : end + 1] = values
         current = values[-1]
