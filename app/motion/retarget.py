@@ -68,8 +68,8 @@ takes the mean of how much farther they moved over the floor than the source's (
 back, so a foot on the floor moves as the source's moves — not at all when the source's
 stands, a slide where the source slides. Every bone keeps the source's direction. At steps
 with no foot point on the floor (a run's flight) the path goes back toward the scaled
-source's, no faster than the holds moved it: what the holds gathered over a contact does not
-carry over as travel the source never had
+source's, evenly over the gap and no faster than the holds moved it: what the holds gathered
+over a contact does not carry over as travel the source never had
 (:func:`~app.motion.retarget_floor.planted_feet_offsets`). A walk, always on a foot, still
 travels as far as the rig's own legs carry it.
 
