@@ -16,7 +16,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from app.motion.body import body_height
+from app.motion.body import body_height, count_lead_in_frames
 from app.motion.ground import FOOT_POINTS, ON_FLOOR
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion
@@ -132,7 +132,9 @@ def place_pelvis(
     lift = onto(feet_t, np.ones_like(stance))
     pelvis_at = pelvis_at + lift[:, None] * t_up
     feet_t = feet_t + lift[:, None, None] * t_up
-    pelvis_at = pelvis_at + planted_feet_offsets(feet_t, feet_s, t_up, near)
+    pelvis_at = pelvis_at + planted_feet_offsets(
+        feet_t, feet_s, t_up, near, lead_in=count_lead_in_frames(source)
+    )
     if hold_feet:
         held = hold_planted_feet(
             lambda joints: legs(joints, pelvis_at),
@@ -244,7 +246,7 @@ def below(
 
 
 def planted_feet_offsets(
-    feet: np.ndarray, source_feet: np.ndarray, up: np.ndarray, near: float
+    feet: np.ndarray, source_feet: np.ndarray, up: np.ndarray, near: float, *, lead_in: int = 0
 ) -> np.ndarray:
     """``(F, 3)`` horizontal offsets to add to the pelvis's path so that the foot points
     ``feet`` ``(F, P, 3)`` move over the floor as ``source_feet`` ``(F, P, 3)`` (the source's,
@@ -252,23 +254,36 @@ def planted_feet_offsets(
     any of them gets, at both ends of a frame step (:func:`planted_steps`). A step with
     planted foot points moves the path back by the mean of their extra horizontal movement;
     a step with none (in the air) gives back what the steps on the floor gathered
-    (:func:`_given_back`). Contact is the source's alone, as for the legs' hold: until
-    2026-11-27 a point also had to be near the target's own floor, and a rig whose ankle or
-    toe joint sits higher in its foot than the source's left out steps where the source's
-    foot stood, so its foot slid there (docs/export.md "Rigs we have not seen")."""
+    (:func:`_given_back`) — in the air also by the floor of the frames after the first
+    ``lead_in`` (a converter's rest-pose frames, :func:`~app.motion.body.count_lead_in_frames`,
+    whose feet can sit below every later contact and make the contact bands call a standing
+    foot's steps in the air; measured on CMU MotionBuilder takes). Contact is the source's
+    alone, as for the legs' hold: until 2026-11-27 a point also had to be near the target's
+    own floor, and a rig whose ankle or toe joint sits higher in its foot than the source's
+    left out steps where the source's foot stood, so its foot slid there (docs/export.md
+    "Rigs we have not seen")."""
     planted = planted_steps(source_feet, up, near)  # (F - 1, P)
     extra = np.diff(feet, axis=0) - np.diff(source_feet, axis=0)  # (F - 1, P, 3)
     extra = extra - (extra @ up)[..., None] * up
     count = planted.sum(axis=1)
     step = -(extra * planted[..., None]).sum(axis=1) / np.maximum(count, 1)[:, None]
-    return _given_back(step, count > 0)
+    after = source_feet[min(lead_in, len(source_feet) - 1) :]
+    touching = np.zeros_like(planted)
+    touching[len(planted) - len(after) + 1 :] = planted_steps(after, up, near)
+    touching[: len(planted) - len(after) + 1] = True  # the lead-in's steps: never given back
+    touching_any: np.ndarray = touching.any(axis=1)
+    return _given_back(step, count > 0, touching_any)
 
 
-def _given_back(step: np.ndarray, on_floor: np.ndarray) -> np.ndarray:
+def _given_back(
+    step: np.ndarray, on_floor: np.ndarray, touching: np.ndarray | None = None
+) -> np.ndarray:
     """``(F, 3)`` the path's offsets from its per-step corrections ``step`` ``(F - 1, 3)``,
     summed over the steps marked ``on_floor`` ``(F - 1,)``; over the other steps (no foot
     point on the floor) the sum goes back toward zero evenly over the gap, per step by at
-    most the largest correction of the last run of steps on the floor.
+    most the largest correction of the last run of steps on the floor — except at steps
+    marked ``touching`` ``(F - 1,)`` (by another estimate of the floor a foot is on it),
+    where it stays.
 
     Why: on a rig whose legs and feet are of other proportions, the same limb directions
     move a standing foot over the floor by a little more (or less) than the source's every
@@ -295,8 +310,11 @@ def _given_back(step: np.ndarray, on_floor: np.ndarray) -> np.ndarray:
             rate = float(np.linalg.norm(step[start:end], axis=1).max())
         else:  # shrinks toward zero along its direction, evenly over the gap
             size = float(np.linalg.norm(current))
-            per_step = min(rate, size / (end - start))
-            left = np.maximum(size - per_step * np.arange(1, end - start + 1), 0.0)
+            moving = np.ones(end - start, dtype=bool)
+            if touching is not None:
+                moving = ~touching[start:end]
+            per_step = min(rate, size / max(int(moving.sum()), 1))
+            left = np.maximum(size - per_step * np.cumsum(moving), 0.0)
             values = current * (left / max(size, _TINY))[:, None]
         offsets[start + 1 : end + 1] = values
         current = values[-1]
