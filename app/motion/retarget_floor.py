@@ -271,8 +271,7 @@ def planted_feet_offsets(
     touching = np.zeros_like(planted)
     touching[len(planted) - len(after) + 1 :] = planted_steps(after, up, near)
     touching[: len(planted) - len(after) + 1] = True  # the lead-in's steps: never given back
-    touching_any: np.ndarray = touching.any(axis=1)
-    return _given_back(step, count > 0, touching_any)
+    return _given_back(step, count > 0, np.any(touching, axis=1))
 
 
 def _given_back(
