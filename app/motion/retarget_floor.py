@@ -257,7 +257,8 @@ def planted_feet_offsets(
     (:func:`_given_back`) — in the air also by the floor of the frames after the first
     ``lead_in`` (a converter's rest-pose frames, :func:`~app.motion.body.count_lead_in_frames`,
     whose feet can sit below every later contact and make the contact bands call a standing
-    foot's steps in the air; measured on CMU MotionBuilder takes). Contact is the source's
+    foot's steps in the air; measured on CMU MotionBuilder takes); the lead-in's own
+    corrections stay as they are. Contact is the source's
     alone, as for the legs' hold: until 2026-11-27 a point also had to be near the target's
     own floor, and a rig whose ankle or toe joint sits higher in its foot than the source's
     left out steps where the source's foot stood, so its foot slid there (docs/export.md
@@ -267,11 +268,14 @@ def planted_feet_offsets(
     extra = extra - (extra @ up)[..., None] * up
     count = planted.sum(axis=1)
     step = -(extra * planted[..., None]).sum(axis=1) / np.maximum(count, 1)[:, None]
-    after = source_feet[min(lead_in, len(source_feet) - 1) :]
-    touching = np.zeros_like(planted)
-    touching[len(planted) - len(after) + 1 :] = planted_steps(after, up, near)
-    touching[: len(planted) - len(after) + 1] = True  # the lead-in's steps: never given back
-    return _given_back(step, count > 0, np.any(touching, axis=1))
+    # The lead-in is not the take: its steps' corrections (a jump out of the rest pose) sum
+    # as before and stay, a constant under the rest; the take's own are given back.
+    start = min(max(lead_in, 0), len(step))
+    offsets = np.zeros((feet.shape[0], 3))
+    offsets[1 : start + 1] = np.cumsum(step[:start], axis=0)
+    touching = np.any(planted_steps(source_feet[start:], up, near), axis=1)
+    offsets[start:] = offsets[start] + _given_back(step[start:], count[start:] > 0, touching)
+    return offsets
 
 
 def _given_back(
