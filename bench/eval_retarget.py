@@ -154,6 +154,7 @@ def summary(
         return f"{100 * np.mean(values):5.1f} %"
 
     slide_over = [q.slide - q.source_slide for q in qualities]
+    travel_off = [abs(q.travel - q.source_travel) for q in qualities]
     return (
         f"| {name} | {joints} | {n} | {share(found)} ({share(twin)}; or tied {share(tied)}) | "
         f"{max(q.bone_error for q in qualities):.1e} | "
@@ -161,7 +162,8 @@ def summary(
         f"{share([q.feet_error <= 0.02 for q in qualities])} | "
         f"{share([s <= 0.01 for s in slide_over])} (median +{np.median(slide_over):.3f}) | "
         f"{share([q.finite for q in qualities])} | "
-        f"{share([q.direction_ok >= 0.99 for q in qualities])} |"
+        f"{share([q.direction_ok >= 0.99 for q in qualities])} | "
+        f"{np.median(travel_off):.3f} / {max(travel_off):.3f} |"
     )
 
 
@@ -207,9 +209,10 @@ def main() -> None:
                 "| rig | joints | clips | round trip: source is nearest (or a twin: same "
                 "capture in another format; or tied with an identical clip) | bones (max error, "
                 "body heights) | left stays left | feet within 2 % | sliding <= source + 1 %/s "
-                "| finite | limb directions within 5 deg in 99 % of frames |"
+                "| finite | limb directions within 5 deg in 99 % of frames | net travel off the "
+                "source's, leg lengths/s (median / max) |"
             )
-            print("|---|---|---|---|---|---|---|---|---|---|")
+            print("|---|---|---|---|---|---|---|---|---|---|---|")
         for rig_name, relative in RIGS.items():
             if args.rig and not any(rig_name.startswith(r) for r in args.rig):
                 continue

@@ -66,8 +66,12 @@ pelvis's horizontal path is corrected instead of the legs: at each frame where f
 (ankles, toes) are on the floor in both (within :data:`ON_FLOOR` of the body height), the path
 takes the mean of how much farther they moved over the floor than the source's (scaled) did
 back, so a foot on the floor moves as the source's moves — not at all when the source's
-stands, a slide where the source slides. Every bone keeps the source's direction; the
-target travels as far as its own legs carry it.
+stands, a slide where the source slides. Every bone keeps the source's direction. At steps
+with no foot point on the floor (a run's flight) the path goes back toward the scaled
+source's, evenly over the gap and no faster than the holds moved it: what the holds gathered
+over a contact does not carry over as travel the source never had
+(:func:`~app.motion.retarget_floor.planted_feet_offsets`). A walk, always on a foot, still
+travels as far as the rig's own legs carry it.
 
 What the pelvis cannot hold (two points down that disagree: both feet, or the heel and
 toe of a long foot) the legs take up: each planted foot (contact from the source) is held

@@ -5,8 +5,9 @@ legs' bone paths, then moved up or down per frame so the target's foot points th
 the floor in the source (the standing foot) are where the source's are, and nothing is
 below the source's lowest point. A swinging foot whose toe would skim the floor is pitched
 up about its ankle (:func:`clear_swinging_toes`); the path's horizontal part is corrected so
-a planted foot moves over the floor as the source's does (:func:`planted_feet_offsets`); what
-that cannot hold the legs take up (:mod:`app.motion.retarget_feet`).
+a planted foot moves over the floor as the source's does, and goes back toward the scaled
+source's where no foot is on the floor (:func:`planted_feet_offsets`); what that cannot hold
+the legs take up (:mod:`app.motion.retarget_feet`).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from app.motion.body import body_height
+from app.motion.body import body_height, count_lead_in_frames
 from app.motion.ground import FOOT_POINTS, ON_FLOOR
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion
@@ -131,7 +132,9 @@ def place_pelvis(
     lift = onto(feet_t, np.ones_like(stance))
     pelvis_at = pelvis_at + lift[:, None] * t_up
     feet_t = feet_t + lift[:, None, None] * t_up
-    pelvis_at = pelvis_at + planted_feet_offsets(feet_t, feet_s, t_up, near)
+    pelvis_at = pelvis_at + planted_feet_offsets(
+        feet_t, feet_s, t_up, near, lead_in=count_lead_in_frames(source)
+    )
     if hold_feet:
         held = hold_planted_feet(
             lambda joints: legs(joints, pelvis_at),
@@ -243,25 +246,81 @@ def below(
 
 
 def planted_feet_offsets(
-    feet: np.ndarray, source_feet: np.ndarray, up: np.ndarray, near: float
+    feet: np.ndarray, source_feet: np.ndarray, up: np.ndarray, near: float, *, lead_in: int = 0
 ) -> np.ndarray:
     """``(F, 3)`` horizontal offsets to add to the pelvis's path so that the foot points
     ``feet`` ``(F, P, 3)`` move over the floor as ``source_feet`` ``(F, P, 3)`` (the source's,
     scaled, in the same axes) do while the source's are on it: within ``near`` of the lowest
     any of them gets, at both ends of a frame step (:func:`planted_steps`). A step with
     planted foot points moves the path back by the mean of their extra horizontal movement;
-    a step with none (in the air) leaves it. Contact is the source's alone, as for the legs'
-    hold: until 2026-11-27 a point also had to be near the target's own floor, and a rig
-    whose ankle or toe joint sits higher in its foot than the source's left out steps where
-    the source's foot stood, so its foot slid there (docs/export.md "Rigs we have not
-    seen")."""
+    a step with none (in the air) gives back what the steps on the floor gathered
+    (:func:`_given_back`) — in the air also by the floor of the frames after the first
+    ``lead_in`` (a converter's rest-pose frames, :func:`~app.motion.body.count_lead_in_frames`,
+    whose feet can sit below every later contact and make the contact bands call a standing
+    foot's steps in the air; measured on CMU MotionBuilder takes); the lead-in's own
+    corrections stay as they are. Contact is the source's
+    alone, as for the legs' hold: until 2026-11-27 a point also had to be near the target's
+    own floor, and a rig whose ankle or toe joint sits higher in its foot than the source's
+    left out steps where the source's foot stood, so its foot slid there (docs/export.md
+    "Rigs we have not seen")."""
     planted = planted_steps(source_feet, up, near)  # (F - 1, P)
     extra = np.diff(feet, axis=0) - np.diff(source_feet, axis=0)  # (F - 1, P, 3)
     extra = extra - (extra @ up)[..., None] * up
     count = planted.sum(axis=1)
     step = -(extra * planted[..., None]).sum(axis=1) / np.maximum(count, 1)[:, None]
+    # The lead-in is not the take: its steps' corrections (a jump out of the rest pose) sum
+    # as before and stay, a constant under the rest; the take's own are given back.
+    start = min(max(lead_in, 0), len(step))
     offsets = np.zeros((feet.shape[0], 3))
-    offsets[1:] = np.cumsum(step, axis=0)
+    offsets[1 : start + 1] = np.cumsum(step[:start], axis=0)
+    touching = np.any(planted_steps(source_feet[start:], up, near), axis=1)
+    offsets[start:] = offsets[start] + _given_back(step[start:], count[start:] > 0, touching)
+    return offsets
+
+
+def _given_back(
+    step: np.ndarray, on_floor: np.ndarray, touching: np.ndarray | None = None
+) -> np.ndarray:
+    """``(F, 3)`` the path's offsets from its per-step corrections ``step`` ``(F - 1, 3)``,
+    summed over the steps marked ``on_floor`` ``(F - 1,)``; over the other steps (no foot
+    point on the floor) the sum goes back toward zero evenly over the gap, per step by at
+    most the largest correction of the last run of steps on the floor — except at steps
+    marked ``touching`` ``(F - 1,)`` (by another estimate of the floor a foot is on it),
+    where it stays.
+
+    Why: on a rig whose legs and feet are of other proportions, the same limb directions
+    move a standing foot over the floor by a little more (or less) than the source's every
+    contact — a foot rolling over a longer toe, a longer shin sweeping — and in the swing
+    the difference goes back with no correction. Summed over the take that was travel the
+    source never had (an in-place run: 0.27 leg lengths per second on the Mixamo rig,
+    docs/export.md "In-place travel"), against the contract "travel scaled by the ratio of
+    leg lengths". In the air no foot is on the floor, so the pelvis can return there
+    without any foot sliding; no faster than the holds already moved it, so a brief gap in a
+    long contact does not snap the body back; and evenly, so a step the contact bands call
+    in the air but a foot still touches (a take whose first frame, a rest pose, sets the
+    floor's height) moves as little as the gap allows."""
+    offsets = np.zeros((step.shape[0] + 1, 3))
+    if not len(step):  # a single frame: nothing to correct
+        return offsets
+    current = np.zeros(3)
+    rate = 0.0  # the largest correction per step in the last run on the floor
+    changes = np.flatnonzero(np.diff(on_floor.astype(np.int8))) + 1
+    for start, end in zip(
+        np.concatenate([[0], changes]), np.concatenate([changes, [len(step)]]), strict=True
+    ):
+        if on_floor[start]:
+            values = current + np.cumsum(step[start:end], axis=0)
+            rate = float(np.linalg.norm(step[start:end], axis=1).max())
+        else:  # shrinks toward zero along its direction, evenly over the gap
+            size = float(np.linalg.norm(current))
+            moving = np.ones(end - start, dtype=bool)
+            if touching is not None:
+                moving = ~touching[start:end]
+            per_step = min(rate, size / max(int(moving.sum()), 1))
+            left = np.maximum(size - per_step * np.cumsum(moving), 0.0)
+            values = current * (left / max(size, _TINY))[:, None]
+        offsets[start + 1 : end + 1] = values
+        current = values[-1]
     return offsets
 
 

@@ -18,6 +18,10 @@ quarter turn the retarget used) and in body heights of each skeleton:
   point as the source's and passed walks whose feet slid more than the source's;
 (the source measured at the retarget's scale, the ratio of the legs, in the target's body
 heights: the retarget scales travel and height by that ratio, as the issue asks);
+* ``travel`` / ``source_travel``: the pelvis's net horizontal displacement, first frame to
+  last, in leg lengths (hip -> knee -> ankle) per second of each skeleton: the contract
+  "the root's travel is scaled by the ratio of leg lengths" makes them equal (added
+  2026-11-27, when an in-place run travelled 0.27 leg lengths per second on the Mixamo rig);
 * ``finite``: no NaN or infinity anywhere;
 * ``direction_ok``: over the limb bones (upper arms, forearms, thighs, shins), the smallest
   fraction of frames where the bone's world direction is within 5 degrees of the source's.
@@ -62,6 +66,8 @@ class RetargetQuality:
     source_slide: float
     finite: bool
     direction_ok: float
+    travel: float = 0.0
+    source_travel: float = 0.0
 
     def passes(self) -> bool:
         """The issue's bar: exact bones, left stays left, feet within 2 %, sliding within
@@ -161,7 +167,19 @@ def retarget_quality(
         source_slide=_slide(s * scale, t_up, t_height, source.frame_time, contact),
         finite=finite,
         direction_ok=worst,
+        travel=_travel(t, t_up, leg_length(result, result_map), result.frame_time),
+        source_travel=_travel(s, t_up, leg_length(source, source_map), source.frame_time),
     )
+
+
+def _travel(canonical: np.ndarray, up: np.ndarray, leg: float, frame_time: float) -> float:
+    """The pelvis's net horizontal displacement in ``canonical`` ``(F, C, 3)``, first frame
+    to last, in leg lengths ``leg`` per second (0 for a single frame)."""
+    pelvis = canonical[:, CANONICAL_INDEX["pelvis"]]
+    seconds = frame_time * (len(pelvis) - 1)
+    if seconds <= 0 or leg <= 0:
+        return 0.0
+    return float(np.linalg.norm(horizontal(pelvis[-1] - pelvis[0], up)) / leg / seconds)
 
 
 __all__ = ["LIMB_BONES", "RetargetQuality", "retarget_quality"]
