@@ -20,7 +20,7 @@ The scale of an index that holds exactly its mapped file's vectors is a function
 file: it is kept beside it (``<stem>.scale.arrays``, stamped with the file and the settings
 like the adaptive probe's decision, app/index/probe_cutoff.py), so every worker and restart
 reads it instead of measuring again; a server's verifier thread reads or measures it at
-start (:meth:`NeighbourScales.prepare`), before the first search asks.
+start (:meth:`NeighbourScales.of`), before the first search asks.
 """
 
 from __future__ import annotations
@@ -190,16 +190,6 @@ class NeighbourScales:
         have made it): the next search measures or reads it again."""
         with self._lock:
             self._scales.pop(name, None)
-
-    def prepare(
-        self,
-        name: str,
-        index: DescriptorIndex,
-        group: Callable[[np.ndarray], np.ndarray] | None = None,
-    ) -> None:
-        """Have the scale of ``name`` ready before a search asks (a server's verifier thread):
-        read from beside the index file, or measured (and kept there)."""
-        self.of(name, index, group)
 
     def _refresh(
         self,

@@ -79,15 +79,15 @@ def check_window_counts(library: Library) -> list[str]:
 def check_files(library: Library) -> None:
     """The verifier thread of a server: the clip indexes' search decisions and every
     index's similarity scale (first: a search may come soon; see
-    :meth:`HeldIndex.prepare_searches`, :meth:`NeighbourScales.prepare`), window counts,
+    :meth:`HeldIndex.prepare_searches`, :meth:`NeighbourScales.of`), window counts,
     then checksums (see :func:`check_window_counts`, :func:`verify_files`)."""
     for name, index in library.indexes.items():
         if not library.stopping:
             index.prepare_searches()
-            library.scales.prepare(name, index)
+            library.scales.of(name, index)
     for name, index in library.window_indexes.items():
         if not library.stopping:
-            library.scales.prepare(name, index, window_db.clips_of_windows)
+            library.scales.of(name, index, window_db.clips_of_windows)
     try:
         library.check_window_counts()
     except (SQLAlchemyError, sqlite3.Error) as exc:

@@ -19,6 +19,7 @@ from app.index.array_file import write_arrays
 from app.index.descriptor_index import DescriptorIndex
 from app.index.frozen import FrozenIVF
 from app.index.kinds import IndexOptions
+from tests.calls import count_calls
 
 DIMENSION = 16
 COUNT = 12_000
@@ -211,14 +212,7 @@ def test_a_graph_file_of_another_index_file_or_damaged_is_built_again(
     damaged = bytearray(cache.read_bytes())
     damaged[len(damaged) // 2] ^= 0xFF
     cache.write_bytes(bytes(damaged))
-    built = []
-    real_of = cells_module.CellGraph.of
-
-    def counted(*args: Any) -> Any:
-        built.append(1)
-        return real_of(*args)
-
-    monkeypatch.setattr(cells_module.CellGraph, "of", counted)
+    built = count_calls(monkeypatch, cells_module.CellGraph, "of")
     frozen = FrozenIVF.open(str(path))
     frozen.build_cells()
     assert built == [1] and frozen.cells is not None  # the checksum refused it
@@ -251,14 +245,7 @@ def test_a_graph_file_with_an_effort_the_rule_never_picks_is_built_again(
     forged = {**first.cells.arrays(), "effort": np.array([7], np.int64)}
     directory, stem, stamp = cells_module._cache_file(str(path), first.file_identity, nprobe)
     write_arrays(directory, stem, forged, stamp)
-    built = []
-    real_of = cells_module.CellGraph.of
-
-    def counted(*args: Any) -> Any:
-        built.append(1)
-        return real_of(*args)
-
-    monkeypatch.setattr(cells_module.CellGraph, "of", counted)
+    built = count_calls(monkeypatch, cells_module.CellGraph, "of")
     again = FrozenIVF.open(str(path))
     again.build_cells()
     assert built == [1] and again.cells is not None

@@ -151,7 +151,7 @@ def test_a_scale_far_from_the_index_s_size_is_not_served(tmp_path: Path) -> None
     100 % for everything while a new one is measured in the background."""
     index = line_index(tmp_path, 1)
     scales = NeighbourScales()
-    scales.prepare("posture", index)  # the verifier thread at start
+    scales.of("posture", index)  # the verifier thread at start
     assert scales.of("posture", index).size == 1
     points = np.zeros((30, 2), np.float32)
     points[:, 0] = np.arange(30) + 0.5
