@@ -172,6 +172,14 @@ def test_the_first_search_builds_the_graph_meanwhile_and_filters_still_probe_eve
     assert set(found[0].tolist()) == set(allowed[np.argsort(exact, kind="stable")[:10]].tolist())
 
 
+def graph_kept(path: Path, monkeypatch: pytest.MonkeyPatch) -> FrozenIVF:
+    """The index file opened and its cells' graph built and stored (kept whatever it times)."""
+    monkeypatch.setattr(cells_module, "KEEP_BELOW", float("inf"))
+    frozen = FrozenIVF.open(str(path))
+    frozen.build_cells()
+    return frozen
+
+
 def no_graph_built(*_args: Any) -> None:
     raise AssertionError("the graph was built, not read from its file")
 
@@ -180,9 +188,7 @@ def test_a_kept_graph_is_read_back_from_beside_its_index_file_by_the_next_start(
     index_file: tuple[Path, np.ndarray, np.ndarray], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     path, _ids, vectors = index_file
-    monkeypatch.setattr(cells_module, "KEEP_BELOW", float("inf"))
-    first = FrozenIVF.open(str(path))
-    first.build_cells()
+    first = graph_kept(path, monkeypatch)
     assert first.cells is not None
     assert (path.parent / f"{path.stem}.cells.arrays").is_file()
     with monkeypatch.context() as patch:
@@ -236,9 +242,7 @@ def test_a_graph_file_with_an_effort_the_rule_never_picks_is_built_again(
     index_file: tuple[Path, np.ndarray, np.ndarray], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     path, _ids, vectors = index_file
-    monkeypatch.setattr(cells_module, "KEEP_BELOW", float("inf"))
-    first = FrozenIVF.open(str(path))
-    first.build_cells()
+    first = graph_kept(path, monkeypatch)
     assert first.cells is not None and first.file_identity is not None
     nprobe = first.base_nprobe
     # A forged effort in a file whose checksum and stamp match (written as the service does)
