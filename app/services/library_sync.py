@@ -25,6 +25,7 @@ from app.db.entries import clip_entries
 from app.index.places import Places
 from app.index.sources import touched_windows
 from app.services.library_places import load_places
+from app.services.preview_store import preview_store
 
 if TYPE_CHECKING:
     from app.services.library import Library
@@ -78,15 +79,32 @@ def sync_with_feed(library: Library, *, wait: bool = True) -> bool:
 
 def sync_catalogue(library: Library, session: Session, changed: np.ndarray, position: int) -> None:
     """The catalogue follows the same feed: a changed clip's entry is replaced by what the
-    database holds now (none when it was deleted)."""
+    database holds now (none when it was deleted). A clip deleted by another process also
+    loses the previews this process stored of it (its motion does not stay on disk)."""
     try:
         entries = {e.id: e for e in clip_entries(session, changed.tolist())}
+        gone = [int(i) for i in changed.tolist() if int(i) not in entries]
+        was = library.catalogue.get_many(gone) if gone else {}
         library.catalogue.apply_changes(changed, entries, synced_to=position)
     except Exception:
         log.exception("updating the catalogue failed; rebuilding it")
         now = horizon(session)
         library.catalogue.replace_all(clip_entries(session), synced_to=now, persist=False)
         library.catalogue.try_save()
+        return
+    kept = {e.content_hash for e in entries.values()}  # the same content stored again
+    forget_previews(library, [e.content_hash for e in was.values() if e.content_hash not in kept])
+
+
+def forget_previews(library: Library, content_hashes: list[str]) -> None:
+    """Remove this process's stored previews of clips deleted elsewhere (the deleting
+    process removed its own; on a shared data directory this finds nothing left)."""
+    if not content_hashes:
+        return
+    try:
+        preview_store(library.settings).remove(content_hashes)
+    except OSError as exc:
+        log.warning("the stored previews of %d deleted clips stay (%s)", len(content_hashes), exc)
 
 
 def sync_windows(library: Library, session: Session, changed: np.ndarray, position: int) -> None:
@@ -134,6 +152,19 @@ def rebuild_all(library: Library, session: Session) -> None:
         if library.window_places[name].loaded:
             load_places(library, session, name)
     library.feed = ChangeFeed(position)
+    sweep_previews(library)  # the feed's rows of deleted clips are gone: compare contents
+
+
+def sweep_previews(library: Library) -> None:
+    """Remove the stored previews whose content no clip in the catalogue has."""
+    try:
+        stored = preview_store(library.settings).stored_hashes()
+    except OSError as exc:
+        log.warning("cannot list the stored previews (%s)", exc)
+        return
+    if stored:
+        kept = {e.content_hash for e in library.catalogue.entries() if e.content_hash in stored}
+        forget_previews(library, sorted(stored - kept))
 
 
 class DataVersion:

@@ -82,6 +82,12 @@ class PreviewStore:
             for path in (self.root / content_hash[:2]).glob(f"{content_hash}.*.npz"):
                 path.unlink(missing_ok=True)
 
+    def stored_hashes(self) -> set[str]:
+        """The contents with a stored preview (any version)."""
+        if not self.root.is_dir():
+            return set()
+        return {path.name.split(".", 1)[0] for path in self.root.glob("*/*.npz")}
+
 
 def preview_store(settings: Settings) -> PreviewStore:
     """The library's stored previews: ``<data dir>/previews/``."""

@@ -176,3 +176,37 @@ def test_the_first_search_of_a_process_sees_what_another_stored_since_it_opened(
     finally:
         writer.close()
         reader.close()
+
+
+def test_a_replica_forgets_its_previews_of_clips_deleted_elsewhere(
+    settings_on: Settings, writer: Library, tmp_path: Path
+) -> None:
+    """A replica with a data directory of its own stores previews there; a clip deleted
+    through another replica must not leave its motion on this one's disk."""
+    from app.services.clips import delete_clip
+    from app.services.library_sync import rebuild_all
+    from app.services.preview_store import preview_store
+
+    with writer.writes.begin() as session:
+        ids = clip_db.insert_clips(session, [row(writer, n) for n in range(4)])
+        hashes = [clip_db.content_hashes(session, [clip_id])[0] for clip_id in ids]
+    other = settings_on.model_copy(
+        update={"data_dir": tmp_path / "replica", "database_url": settings_on.sqlalchemy_url}
+    )
+    replica = open_library(other, describer=FakeDescriber())
+    try:
+        store = preview_store(replica.settings)
+        paths = [store.path(h, "v1") for h in hashes]
+        for path in paths:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_bytes(b"a stored preview")
+        delete_clip(writer, ids[0])
+        replica.refresh()  # follows the feed, as before a search
+        assert [p.exists() for p in paths] == [False, True, True, True]
+        # Away longer than the feed keeps its rows: the rebuild compares contents instead.
+        delete_clip(writer, ids[1])
+        with replica.sync_lock, replica.reads() as session:
+            rebuild_all(replica, session)
+        assert [p.exists() for p in paths] == [False, False, True, True]
+    finally:
+        replica.close()
