@@ -41,7 +41,12 @@ def test_motion_core_imports_no_web_database_or_index_code() -> None:
             assert module.split(".")[0] not in FRAMEWORKS, f"{path.relative_to(ROOT)}: {module}"
 
 
-SCENE_READERS = {"app.motion.formats.fbx", "app.motion.formats.gltf", "ufbx"}
+SCENE_READERS = {
+    "app.motion.formats.fbx",
+    "app.motion.formats.gltf",
+    "app.motion.formats.gltf_data",
+    "ufbx",
+}
 # Where the FBX/glTF readers may be called from: worker processes only (the parser pool's
 # workers, and the bulk import's workers through its InlineParser).
 SCENE_READER_CALLERS = {"app/services/parser_pool.py"}

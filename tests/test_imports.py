@@ -23,6 +23,7 @@ NOT_AT_START = {
     "alembic": "imported by the lifespan only when the database needs migrating",
     "app.motion.formats.fbx": "the scene readers run in the parser workers",
     "app.motion.formats.gltf": "the scene readers run in the parser workers",
+    "app.motion.formats.gltf_data": "the scene readers run in the parser workers",
     "app.evaluation": "the `eval` command",
     "app.importer": "the `import` command",
     "rich": "the CLI's progress bar and reports",

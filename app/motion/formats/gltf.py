@@ -24,15 +24,12 @@ binary input.
 
 from __future__ import annotations
 
-import base64
-import binascii
-import json
-import struct
 from typing import Any
 
 import numpy as np
 
 from app.errors import LimitExceeded, ParseError
+from app.motion.formats.gltf_data import accessor_values, buffers_of, load_document
 from app.motion.formats.scene import (
     Animation,
     NodeGraph,
@@ -48,179 +45,13 @@ from app.motion.formats.scene import (
 from app.motion.model import Motion, ParseLimits
 
 DEFAULT_LIMITS = ParseLimits()
-GLB_MAGIC = b"glTF"
 MAX_NODES = 100_000
 DEFAULT_FPS = 30.0
 MIN_FPS = 24.0
 MAX_KEY_FPS = 240.0
 
-_COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
-_DTYPES = {5120: "i1", 5121: "u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}
-_NORMALISE = {5120: 127.0, 5121: 255.0, 5122: 32767.0, 5123: 65535.0}
 _PATHS = {"translation": 3, "rotation": 4, "scale": 3}
 _NOT_JOINT = ("mesh", "camera", "skin")  # node fields that make a node something else
-_NOT_JOINT = ("mesh", "camera", "skin")  # node fields that make a node something else
-UPLOAD_GLB = "upload a .glb (binary glTF) with everything embedded instead"
-
-
-def _load(data: bytes) -> tuple[Any, bytes | None]:
-    """The JSON document and the GLB binary chunk (``None`` for JSON glTF)."""
-    blob = None
-    try:
-        if data[:4] == GLB_MAGIC:
-            text, blob = _glb_chunks(data)
-        else:
-            text = data.decode("utf-8-sig")
-        document = json.loads(text)
-    except UnicodeDecodeError:
-        raise ParseError("not a glTF file (neither a GLB nor UTF-8 JSON)") from None
-    except json.JSONDecodeError as error:
-        raise ParseError(f"not a glTF file: JSON error at line {error.lineno}") from None
-    except RecursionError:
-        raise LimitExceeded("the glTF JSON is nested too deeply") from None
-    if not isinstance(document, dict) or not isinstance(document.get("asset"), dict):
-        raise ParseError("not a glTF file (no 'asset' object)")
-    version = str(document["asset"].get("version", ""))
-    if not version.startswith("2."):
-        raise ParseError(f"glTF version {version!r}: only glTF 2.0 is read")
-    for key in ("nodes", "accessors", "bufferViews", "buffers", "animations", "skins"):
-        value = document.get(key, [])
-        if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
-            raise ParseError(f"not a usable glTF file ('{key}' is not a list of objects)")
-    return _Doc(document), blob
-
-
-class _Doc:
-    """Attribute access to a glTF JSON object (``doc.nodes``, ``node.name``; None if absent).
-
-    A key's value is wrapped once and kept on the instance (``__getattr__`` is then no longer
-    called for it): reading ``doc.accessors[i]`` for each of a file's thousands of accessors
-    wrapped the whole list each time, the better part of reading a large glTF.
-    """
-
-    def __init__(self, raw: dict[str, Any]) -> None:
-        self._raw = raw
-
-    def __getattr__(self, key: str) -> Any:
-        if key.startswith("__"):  # copy, pickle and friends ask for these
-            raise AttributeError(key)
-        value = self._raw.get(key)
-        if isinstance(value, dict) and key not in ("extensions", "extras"):
-            value = _Doc(value)
-        elif isinstance(value, list):
-            value = [_Doc(v) if isinstance(v, dict) else v for v in value]
-        self.__dict__[key] = value
-        return value
-
-    def replace(self, key: str, value: Any) -> None:
-        """Sets ``key`` of the JSON object (and forgets its wrapped value)."""
-        self._raw[key] = value
-        self.__dict__.pop(key, None)
-
-
-def _glb_chunks(data: bytes) -> tuple[str, bytes | None]:
-    """The JSON text and binary chunk of a GLB container (glTF 2.0 spec, "GLB File Format")."""
-    if len(data) < 20:
-        raise ParseError("the GLB file is truncated")
-    version, length = struct.unpack("<II", data[4:12])
-    if version != 2:
-        raise ParseError(f"GLB container version {version}: only version 2 is read")
-    if length > len(data):
-        raise ParseError(f"the GLB file is truncated ({len(data)} of {length} bytes)")
-    offset, text, blob = 12, None, None
-    while offset + 8 <= length:
-        size, kind = struct.unpack("<I4s", data[offset : offset + 8])
-        chunk = data[offset + 8 : offset + 8 + size]
-        if len(chunk) != size:
-            raise ParseError("a GLB chunk runs past the end of the file")
-        if kind == b"JSON" and text is None:
-            text = chunk.decode("utf-8-sig")
-        elif kind == b"BIN\x00" and blob is None:
-            blob = chunk
-        offset += 8 + size + (-size % 4)
-    if text is None:
-        raise ParseError("the GLB file has no JSON chunk")
-    return text, blob
-
-
-def _buffers(document: Any, blob: bytes | None) -> list[bytes]:
-    """Every buffer's bytes; refuses any ``uri`` that is not a ``data:`` URI."""
-    out = []
-    for i, buffer in enumerate(document.buffers or []):
-        uri = getattr(buffer, "uri", None)
-        if uri is None:
-            if i != 0 or blob is None:
-                raise ParseError(f"buffer {i} has no data (no uri and no GLB binary chunk)")
-            out.append(blob)
-            continue
-        out.append(_data_uri(uri, f"buffer {i}"))
-    for i, image in enumerate(document.images or []):
-        uri = getattr(image, "uri", None)
-        if uri is not None:
-            _check_uri(uri, f"image {i}")
-    return out
-
-
-def _check_uri(uri: Any, what: str) -> None:
-    if not isinstance(uri, str) or not uri.startswith("data:"):
-        shown = str(uri)[:80]
-        raise ParseError(
-            f"{what} refers to an external file or address ({shown!r}), which is never "
-            f"read; {UPLOAD_GLB}"
-        )
-
-
-def _data_uri(uri: Any, what: str) -> bytes:
-    _check_uri(uri, what)
-    header, _, payload = uri.partition(",")
-    if not header.endswith(";base64"):
-        raise ParseError(f"{what}: only base64 data URIs are supported")
-    try:
-        return base64.b64decode(payload, validate=True)
-    except (binascii.Error, ValueError):
-        raise ParseError(f"{what}: the base64 data URI is damaged") from None
-
-
-def _accessor(document: Any, buffers: list[bytes], index: Any) -> np.ndarray:
-    """``(count, components)`` float64 of accessor ``index`` (normalised integers scaled)."""
-    accessors = document.accessors or []
-    if not isinstance(index, int) or not 0 <= index < len(accessors):
-        raise ParseError(f"accessor {index!r} does not exist")
-    accessor = accessors[index]
-    if getattr(accessor, "sparse", None) is not None:
-        raise ParseError(f"accessor {index}: sparse accessors are not supported in animations")
-    components = _COMPONENTS.get(accessor.type)
-    dtype = _DTYPES.get(accessor.componentType)
-    count = accessor.count
-    if components is None or dtype is None or not isinstance(count, int) or count < 0:
-        raise ParseError(f"accessor {index}: unknown type or component type")
-    if accessor.bufferView is None:
-        return np.zeros((count, components))
-    views = document.bufferViews or []
-    if not isinstance(accessor.bufferView, int) or not 0 <= accessor.bufferView < len(views):
-        raise ParseError(f"accessor {index}: buffer view {accessor.bufferView!r} does not exist")
-    view = views[accessor.bufferView]
-    if not isinstance(view.buffer, int) or not 0 <= view.buffer < len(buffers):
-        raise ParseError(f"accessor {index}: buffer {view.buffer!r} does not exist")
-    data = buffers[view.buffer]
-    item = np.dtype(dtype).itemsize * components
-    stride = view.byteStride or item
-    start = (view.byteOffset or 0) + (accessor.byteOffset or 0)
-    end_needed = start + (stride * (count - 1) + item if count else 0)
-    view_end = (view.byteOffset or 0) + (view.byteLength or 0)
-    if start < 0 or stride < item or end_needed > min(len(data), view_end):
-        raise ParseError(f"accessor {index}: reads past the end of its buffer")
-    if count == 0:
-        return np.zeros((0, components))
-    raw = np.lib.stride_tricks.as_strided(
-        np.frombuffer(data, dtype=np.uint8, count=end_needed - start, offset=start),
-        shape=(count, item),
-        strides=(stride, 1),
-    )
-    values = np.ascontiguousarray(raw).view(dtype).reshape(count, components).astype(np.float64)
-    if accessor.normalized and accessor.componentType in _NORMALISE:
-        values = np.maximum(values / _NORMALISE.get(accessor.componentType, 1.0), -1.0)
-    return values
 
 
 def _node_transform(node: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -311,8 +142,8 @@ def _animated_nodes(document: Any, parents: np.ndarray) -> np.ndarray:
 
 class _Document:
     def __init__(self, data: bytes, limits: ParseLimits) -> None:
-        self.document, blob = _load(data)
-        self.buffers = _buffers(self.document, blob)
+        self.document, blob = load_document(data)
+        self.buffers = buffers_of(self.document, blob)
         nodes = self.document.nodes or []
         if len(nodes) > MAX_NODES:
             raise LimitExceeded(
@@ -336,7 +167,7 @@ class _Document:
 
     def times(self, index: int) -> np.ndarray:
         if index not in self._inputs:
-            keys = _accessor(self.document, self.buffers, index)[:, 0]
+            keys = accessor_values(self.document, self.buffers, index)[:, 0]
             if not np.all(np.isfinite(keys)):
                 raise ParseError(f"accessor {index}: non-finite key times (inf or NaN)")
             if keys.size > 1 and np.any(np.diff(keys) < 0):
@@ -451,7 +282,7 @@ def read_gltf(
             raise ParseError(f"a channel names sampler {channel.sampler!r}, which does not exist")
         sampler = samplers[channel.sampler]
         keys = loaded.times(sampler.input)
-        values = _accessor(document, loaded.buffers, sampler.output)
+        values = accessor_values(document, loaded.buffers, sampler.output)
         tracks[path][:, position[node]] = _sample_channel(
             keys, values, times, sampler.interpolation or "LINEAR", _PATHS[path], path
         )
