@@ -1,5 +1,6 @@
 """glTF 2.0's containers and binary data: the GLB chunks, the JSON document, buffers
-(embedded only) and accessors (strided, normalised, sparse), as the glTF 2.0 specification
+(embedded only; views compressed with ``EXT_meshopt_compression`` decoded) and accessors
+(strided, normalised, sparse), as the glTF 2.0 specification
 describes them. Every offset and length is checked against the bytes there are: the files
 are untrusted input (read in a parser worker, :mod:`app.services.parser_pool`)."""
 
@@ -9,11 +10,13 @@ import base64
 import binascii
 import json
 import struct
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from app.errors import LimitExceeded, ParseError
+from app.motion.formats.meshopt import compressed_view, decode_view, is_fallback_buffer
 
 GLB_MAGIC = b"glTF"
 _COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
@@ -102,13 +105,26 @@ def _glb_chunks(data: bytes) -> tuple[str, bytes | None]:
     return text, blob
 
 
-def buffers_of(document: Any, blob: bytes | None) -> list[bytes]:
-    """Every buffer's bytes; refuses any ``uri`` that is not a ``data:`` URI."""
+@dataclass
+class Buffers:
+    """A file's buffers' bytes, and its compressed buffer views once decoded (by index)."""
+
+    data: list[bytes]
+    decoded_views: dict[int, bytes] = field(default_factory=dict)
+
+
+def buffers_of(document: Any, blob: bytes | None) -> Buffers:
+    """Every buffer's bytes; refuses any ``uri`` that is not a ``data:`` URI. A buffer
+    without data that compressed views decode into (``EXT_meshopt_compression``'s fallback)
+    holds no bytes."""
     out = []
     for i, buffer in enumerate(document.buffers or []):
         uri = getattr(buffer, "uri", None)
         if uri is None:
             if i != 0 or blob is None:
+                if is_fallback_buffer(buffer, document.extensionsRequired):
+                    out.append(b"")
+                    continue
                 raise ParseError(f"buffer {i} has no data (no uri and no GLB binary chunk)")
             out.append(blob)
             continue
@@ -117,7 +133,7 @@ def buffers_of(document: Any, blob: bytes | None) -> list[bytes]:
         uri = getattr(image, "uri", None)
         if uri is not None:
             _check_uri(uri, f"image {i}")
-    return out
+    return Buffers(out)
 
 
 def _check_uri(uri: Any, what: str) -> None:
@@ -140,7 +156,7 @@ def _data_uri(uri: Any, what: str) -> bytes:
         raise ParseError(f"{what}: the base64 data URI is damaged") from None
 
 
-def accessor_values(document: Any, buffers: list[bytes], index: Any) -> np.ndarray:
+def accessor_values(document: Any, buffers: Buffers, index: Any) -> np.ndarray:
     """``(count, components)`` float64 of accessor ``index`` (normalised integers scaled;
     sparse substitutions applied over the dense values, or over zeros without a view)."""
     accessors = document.accessors or []
@@ -177,7 +193,7 @@ def accessor_values(document: Any, buffers: list[bytes], index: Any) -> np.ndarr
 
 def _view_items(
     document: Any,
-    buffers: list[bytes],
+    buffers: Buffers,
     view_index: Any,
     byte_offset: Any,
     count: int,
@@ -191,14 +207,18 @@ def _view_items(
     if not isinstance(view_index, int) or not 0 <= view_index < len(views):
         raise ParseError(f"{what}: buffer view {view_index!r} does not exist")
     view = views[view_index]
-    if not isinstance(view.buffer, int) or not 0 <= view.buffer < len(buffers):
-        raise ParseError(f"{what}: buffer {view.buffer!r} does not exist")
-    data = buffers[view.buffer]
+    data = _view_bytes(view, view_index, buffers, what)
     item = np.dtype(dtype).itemsize * components
-    stride = view.byteStride or item
-    start = (view.byteOffset or 0) + (byte_offset or 0)
+    compressed = compressed_view(view)
+    if compressed is not None:  # decoded: the view's own bytes, from 0
+        stride = compressed.get("byteStride") or item
+        start = byte_offset or 0
+        view_end = len(data)
+    else:
+        stride = view.byteStride or item
+        start = (view.byteOffset or 0) + (byte_offset or 0)
+        view_end = (view.byteOffset or 0) + (view.byteLength or 0)
     end_needed = start + (stride * (count - 1) + item if count else 0)
-    view_end = (view.byteOffset or 0) + (view.byteLength or 0)
     if start < 0 or stride < item or end_needed > min(len(data), view_end):
         raise ParseError(f"{what}: reads past the end of its buffer")
     if count == 0:
@@ -211,9 +231,28 @@ def _view_items(
     return np.ascontiguousarray(raw).view(dtype).reshape(count, components)
 
 
+def _view_bytes(view: Any, view_index: int, buffers: Buffers, what: str) -> bytes:
+    """The bytes a buffer view's offsets point into: its buffer's, or for a compressed view
+    its own decoded bytes (decoded once a file)."""
+    compressed = compressed_view(view)
+    if compressed is None:
+        if not isinstance(view.buffer, int) or not 0 <= view.buffer < len(buffers.data):
+            raise ParseError(f"{what}: buffer {view.buffer!r} does not exist")
+        return buffers.data[view.buffer]
+    decoded = buffers.decoded_views.get(view_index)
+    if decoded is None:
+        source = compressed.get("buffer")
+        if not isinstance(source, int) or not 0 <= source < len(buffers.data):
+            raise ParseError(f"{what}: compressed buffer {source!r} does not exist")
+        where = f"{what} (buffer view {view_index})"
+        decoded = decode_view(compressed, buffers.data[source], where)
+        buffers.decoded_views[view_index] = decoded
+    return decoded
+
+
 def _apply_sparse(
     document: Any,
-    buffers: list[bytes],
+    buffers: Buffers,
     sparse: Any,
     values: np.ndarray,
     dtype: str,
