@@ -140,3 +140,9 @@ def test_gltfpacks_own_output_decodes_to_a_smooth_face_take(shared_data) -> None
                 np.testing.assert_allclose(np.linalg.norm(values, axis=1), 1.0, atol=1e-4)
                 steps = np.abs(np.sum(values[1:] * values[:-1], axis=1))
                 assert np.degrees(2 * np.arccos(np.minimum(steps, 1.0))).max() < 10
+
+
+def test_a_count_the_data_cannot_hold_is_refused_before_allocating() -> None:
+    stream = encode_attributes(np.zeros((16, 4), dtype=np.uint8))
+    with pytest.raises(ParseError, match="10000000000 elements claimed"):
+        decode_attributes(stream, 10**10, 4, "view 0")

@@ -78,6 +78,12 @@ def decode_attributes(data: bytes, count: int, stride: int, what: str) -> np.nda
     end = len(data) - tail
     last = np.frombuffer(data[-stride:], dtype=np.uint8).copy()
     block_elements = min((BLOCK_BYTES // stride) & ~(GROUP - 1), BLOCK_MAX_ELEMENTS)
+    # Two header bits a group of 16 at least: a count the data cannot hold is refused
+    # before anything is allocated for it (a few bytes must not claim gigabytes).
+    full, rest = divmod(count, block_elements)
+    headers = full * -(-block_elements // (4 * GROUP)) + -(-rest // (4 * GROUP))
+    if 1 + tail + stride * headers > len(data):
+        raise ParseError(f"{what}: the compressed data is truncated ({count} elements claimed)")
     out = np.empty((count, stride), dtype=np.uint8)
     position, done = 1, 0
     while done < count:
