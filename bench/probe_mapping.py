@@ -44,6 +44,7 @@ from app.motion.pipeline import describable_body  # noqa: E402
 from app.motion.skeleton_map import CANONICAL_INDEX  # noqa: E402
 from app.services.parser_pool import parse_scene  # noqa: E402
 from bench.common import machine, shared_data  # noqa: E402
+from tests.motion.synthetic import grown  # noqa: E402
 from tests.motion.test_mapping_probes import (  # noqa: E402
     _arrays,
     frame_as_rest,
@@ -256,6 +257,65 @@ def leaves_150(motion: Motion, expected: Expected) -> tuple[Motion, Expected]:
     return _with_small_bones(motion, 150), expected
 
 
+def twist_leaves(motion: Motion, expected: Expected) -> tuple[Motion, Expected] | None:
+    """Twist bones as game rigs hang them (Unreal's mannequin): a leaf half-way along the
+    upper arm, forearm, thigh and shin, a sibling of the next joint, never moving."""
+    skeleton = motion.skeleton
+    parents: list[int] = []
+    offsets: list[np.ndarray] = []
+    for side in "lr":
+        for top, end in (
+            ("shoulder", "elbow"),
+            ("elbow", "wrist"),
+            ("hip", "knee"),
+            ("knee", "ankle"),
+        ):
+            joint = _index(motion, expected[f"{side}_{end}"])
+            if skeleton.parents[joint] == _index(motion, expected[f"{side}_{top}"]):
+                parents.append(int(skeleton.parents[joint]))
+                offsets.append(0.5 * skeleton.offsets[joint])
+    return (grown(motion, parents, offsets), expected) if parents else None
+
+
+def legs_on_a_branch(motion: Motion, expected: Expected) -> tuple[Motion, Expected] | None:
+    """The thighs hang from a joint of their own between the hips, a sibling of the spine
+    (DAZ Genesis's ``pelvis`` under ``hip``), never moving."""
+    parents, offsets, rotations, translations, names, end_site = _arrays(motion)
+    pelvis = _index(motion, expected["pelvis"])
+    hips = [_index(motion, expected[f"{side}_hip"]) for side in "lr"]
+    if any(parents[hip] != pelvis for hip in hips):
+        return None
+    branch, frames = len(parents), motion.frame_count
+    shift = 0.5 * (offsets[hips[0]] + offsets[hips[1]])
+    parents.append(pelvis)
+    offsets = np.concatenate([offsets, shift[None]])
+    rotations = np.concatenate([rotations, np.broadcast_to(np.eye(3), (frames, 1, 3, 3))], 1)
+    translations = np.concatenate([translations, np.broadcast_to(shift, (frames, 1, 3))], 1)
+    names.append("legs_branch")
+    end_site.append(False)
+    for hip in hips:
+        parents[hip] = branch
+        offsets[hip] = offsets[hip] - shift
+        translations[:, hip] = translations[:, hip] - shift
+    arrays = (parents, offsets, rotations, translations, names, end_site)
+    return kept(motion, list(range(branch + 1)), arrays), expected
+
+
+def root_above(motion: Motion, expected: Expected) -> tuple[Motion, Expected]:
+    """A still ``root`` joint at the origin above the rig's own root (Unreal's ``root``)."""
+    parents, offsets, rotations, translations, names, end_site = _arrays(motion)
+    top, frames = parents.index(-1), motion.frame_count
+    parents.append(-1)
+    parents[top] = len(parents) - 1
+    offsets = np.concatenate([offsets, np.zeros((1, 3))])
+    rotations = np.concatenate([rotations, np.broadcast_to(np.eye(3), (frames, 1, 3, 3))], 1)
+    translations = np.concatenate([translations, np.zeros((frames, 1, 3))], 1)
+    names.append("root_above")
+    end_site.append(False)
+    arrays = (parents, offsets, rotations, translations, names, end_site)
+    return kept(motion, list(range(len(parents))), arrays), expected
+
+
 # Steps that rewrite how the rig is written, not its joints.
 WRITING = (nameless, first_rest, odd_axes)
 GAME = [clavicles_out, spine_of_two, toes_cut, fingers_cut]
@@ -282,6 +342,16 @@ PROBES: dict[str, list[Step]] = {
     "game rig + 150 leaves + nameless + axes of their own": [
         *GAME,
         leaves_150,
+        odd_axes,
+        nameless,
+    ],
+    "twist leaves + nameless": [twist_leaves, nameless],
+    "legs on a branch + nameless": [legs_on_a_branch, nameless],
+    "root above + nameless": [root_above, nameless],
+    "twist leaves + legs on a branch + root above + nameless + axes of their own": [
+        twist_leaves,
+        legs_on_a_branch,
+        root_above,
         odd_axes,
         nameless,
     ],
