@@ -398,11 +398,11 @@ REJECTIONS: list[tuple[str, str | bytes, type[Exception], int | None, str]] = [
         "expected MOTION",
     ),
     (
-        "several ROOTs",
-        edit(TINY, L_CLOSE_ROOT, "}\nROOT Other\n{\nOFFSET 0 0 0\n}"),
+        "a ROOT inside a joint",
+        edit(TINY, L_JOINT, "ROOT Other"),
         ParseError,
-        16,
-        "second ROOT",
+        L_JOINT,
+        "a ROOT inside the joint 'Hips'",
     ),
     ("MOTION missing", cut_after(TINY, L_CLOSE_ROOT), NoAnimation, None, "no MOTION section"),
     (
@@ -1066,3 +1066,26 @@ def test_polars_reads_numbers_as_numpy_does(lines: list[tuple[list[str], str, st
         return
     expected = np.loadtxt(io.StringIO(block), dtype=np.float64, comments=None, ndmin=2)
     assert got.tobytes() == expected.tobytes()
+
+
+def test_a_file_of_several_skeletons_is_read_as_its_largest_with_a_warning():
+    """A second ROOT (a prop, another person) before and after the body: the body's joints
+    and its own columns of every frame are read, the others left out with a warning."""
+    prop = "ROOT Ball\n{\n  OFFSET 0 0 0\n  CHANNELS 3 Xposition Yposition Zposition\n}\n"
+    hierarchy, motion = TINY.split("MOTION\n")
+    lines = motion.rstrip("\n").split("\n")
+    header, frames = lines[:2], lines[2:]
+    plain = read_bvh(TINY)
+    for before in (True, False):
+        body = hierarchy.replace("HIERARCHY\n", "")
+        both = prop + body if before else body + prop
+        rows = [f"7 8 9 {row}" if before else f"{row} 7 8 9" for row in frames]
+        text = "HIERARCHY\n" + both + "MOTION\n" + "\n".join([*header, *rows]) + "\n"
+        motion = read_bvh(text)
+        assert motion.skeleton.names == plain.skeleton.names
+        np.testing.assert_array_equal(motion.local_rotations, plain.local_rotations)
+        np.testing.assert_array_equal(motion.root_translation, plain.root_translation)
+        assert motion.notes["warnings"] == [
+            "the file holds 2 skeletons; the largest, 'Hips' (2 joints), is read and 'Ball' "
+            "left out"
+        ]

@@ -33,9 +33,10 @@ offending line. Both readers round every number correctly, so they give the same
 
 from __future__ import annotations
 
+import itertools
 import re
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -236,7 +237,9 @@ def parse_bvh(
     values, warnings = read_frames(
         text, lines.pos, lines.line + 1, frame_count, frames_line, channel_count, limits, raw
     )
+    joints, values, several = _largest_skeleton(joints, values)
     motion = _build_motion(joints, values, frame_time, limits)
+    warnings = [*([several] if several else []), *warnings]
     if warnings:
         motion.notes["warnings"] = warnings
     return motion
@@ -250,7 +253,38 @@ def parse_bvh_rest(text: str, *, limits: ParseLimits = DEFAULT_LIMITS) -> Motion
     channel_count = sum(len(j.channels or ()) for j in joints)
     # Zero channels: no rotation, and position channels that read as "no change" from the
     # OFFSETs (see _positions_are_deltas), so the rest pose is the OFFSETs'.
-    return _build_motion(joints, np.zeros((1, channel_count)), 1.0 / 30.0)
+    joints, values, _ = _largest_skeleton(joints, np.zeros((1, channel_count)))
+    return _build_motion(joints, values, 1.0 / 30.0)
+
+
+def _largest_skeleton(
+    joints: list[_Joint], values: np.ndarray
+) -> tuple[list[_Joint], np.ndarray, str | None]:
+    """The skeleton of the file's several ROOTs (a second person, a prop, a camera rig) with
+    the most joints (the first of equals), its ``(F, C')`` columns of the ``(F, C)`` frame
+    values, and a warning naming what was left out (None for a file of one skeleton).
+    Each ROOT's joints and channels follow one another in the file."""
+    roots = [i for i, joint in enumerate(joints) if joint.parent < 0]
+    if len(roots) == 1:
+        return joints, values, None
+    bounds = [*roots, len(joints)]
+    sizes = [
+        sum(not joint.end_site for joint in joints[a:b]) for a, b in itertools.pairwise(bounds)
+    ]
+    chosen = sizes.index(max(sizes))
+    begin, end = bounds[chosen], bounds[chosen + 1]
+    widths = [len(joint.channels or ()) for joint in joints]
+    first = sum(widths[:begin])
+    kept = [
+        replace(joint, parent=joint.parent - begin if joint.parent >= 0 else -1)
+        for joint in joints[begin:end]
+    ]
+    others = ", ".join(repr(joints[r].name) for r in roots if r != begin)
+    warning = (
+        f"the file holds {len(roots)} skeletons; the largest, {joints[begin].name!r} "
+        f"({sizes[chosen]} joints), is read and {others} left out"
+    )
+    return kept, values[:, first : first + sum(widths[begin:end])], warning
 
 
 # The line that ends the hierarchy (the parser's rule: a line whose only token is MOTION).
@@ -347,11 +381,9 @@ def _read_hierarchy(lines: _Lines, limits: ParseLimits) -> list[_Joint]:
                     if len(tokens) > 1:
                         raise ParseError("unexpected text after MOTION", line=number)
                     return joints
-                if keyword == "ROOT":
-                    raise ParseError(
-                        "a second ROOT: files with several skeletons are not supported",
-                        line=number,
-                    )
+                if keyword == "ROOT":  # another skeleton (a second person, a prop)
+                    root_closed = False
+                    continue
                 raise ParseError(
                     f"expected MOTION after the hierarchy, found {show(tokens[i])}", line=number
                 )
@@ -428,8 +460,9 @@ def _declare_joint(
         name_tokens.append(tokens[i])
         i += 1
     if keyword == "ROOT":
-        if joints:
-            raise ParseError("a second ROOT inside the hierarchy is not supported", line=number)
+        if open_joints:
+            inside = joints[open_joints[-1]].name
+            raise ParseError(f"a ROOT inside the joint {inside!r}", line=number)
         parent = -1
     else:
         if not open_joints:
