@@ -109,3 +109,28 @@ def test_a_real_take_of_one_instant_is_a_one_frame_still():
     motion = read_fbx((data_folder("wild-more") / name).read_bytes())[0]
     assert motion.frame_count == 1
     assert any("single instant" in w for w in motion.notes["warnings"])
+
+
+def test_a_skeleton_of_animated_null_nodes_is_read_and_maps_as_its_bvh() -> None:
+    """No LimbNode and no skin cluster (Unity's FBX Exporter, some DCC tools): the nodes
+    an animation turns are the skeleton. The fixture is the CMU BVH fixture written so
+    (tests/fixtures/null_skeleton_fbx.py): same joints, same places, mapped alike."""
+    from app.motion.formats.bvh import parse_bvh
+    from app.motion.pipeline import describable_body
+
+    motion = read_fbx((FIXTURES_DIR / "cmu_mb_02_01_nulls.fbx").read_bytes())[0]
+    source = parse_bvh((FIXTURES_DIR / "cmu_mb_02_01_first41.bvh").read_text())
+    names = source.skeleton.names
+    assert set(motion.skeleton.names) == {n for n in names if not n.endswith("_end")}
+    assert motion.frame_count == source.frame_count
+    at = forward_kinematics(motion)[1]
+    expected = forward_kinematics(source)[1][:, [names.index(n) for n in motion.skeleton.names]]
+    height = float(np.ptp(expected[0], axis=0).max())
+    assert np.abs(at - expected).max() < 0.005 * height
+    mapped = describable_body(motion).mapping
+    plain = describable_body(source).mapping
+    assert mapped is not None and plain is not None and not mapped.mirrored
+    got = [motion.skeleton.names[j] for j in mapped.joints]
+    want = [names[j] for j in plain.joints]
+    # The BVH's End Sites are no nodes of the FBX: a chain ends at its last joint there.
+    assert all(g == w or w == f"{g}_end" for g, w in zip(got, want, strict=True)), (got, want)

@@ -8,7 +8,8 @@ the binding takes the process with it.
   settings (``target_axes``, ``target_unit_meters``); ``length_unit`` says "metres".
 * Skeleton: the limb nodes and the bones skin clusters name, the joinable nodes between
   them (nulls limbs hang from) — see :mod:`app.motion.formats.scene`; meshes, cameras,
-  lights, markers and helper nulls that carry no bones are left out.
+  lights, markers and helper nulls that carry no bones are left out. A file with neither
+  limb nodes nor skin clusters: the nodes its animation turns (a skeleton of nulls).
 * Motion: every node's local transform baked by ufbx (pre/post rotation, pivots and offsets
   folded in, inherit modes compensated: ``inherit_mode_handling=COMPENSATE``) at the scene's
   frame rate, over the animation stack's time span.
@@ -88,6 +89,7 @@ class _Scene:
             raise ParseError(f"the file's frame rate {self.fps!r} is not usable")
         self.stacks = list(self.scene.anim_stacks)
         self.anims = [stack.anim for stack in self.stacks]
+        self.held: list[Any] = []  # other wrappers taken from the scene, kept as long as it
         names = unique_names(
             [stack.name for stack in self.stacks], blank="animation {i}", repeat="{name} ({n})"
         )
@@ -97,6 +99,48 @@ class _Scene:
             span = end - begin if np.isfinite(end - begin) and end >= begin else 0.0
             frames = int(np.floor(span * self.fps + 0.5)) + 1
             self.animations.append(Animation(name, frames, frames / self.fps))
+
+
+def _animated_plain_nodes(
+    loaded: _Scene, nodes: list[Any], parents: np.ndarray, joinable: np.ndarray
+) -> np.ndarray:
+    """``(N,)`` bool: for a file with neither bones nor skin clusters — a skeleton of Null
+    nodes, as Unity's FBX Exporter and some DCC and capture tools write one — the nodes an
+    animation turns (a ``Lcl Rotation`` curve in any layer) that are nothing else (no mesh,
+    camera or light), and the plain nodes below them (an end null). The mapper then decides
+    whether they make a person, as for a glTF animation exported without its skin."""
+    index = {node.element_id: i for i, node in enumerate(nodes)}
+    plain = joinable & np.array(
+        [node.mesh is None and node.camera is None and node.light is None for node in nodes],
+        dtype=bool,
+    )
+    animated = np.zeros(len(nodes), dtype=bool)
+    # Every wrapper the binding hands out is kept referenced with the scene (freeing one
+    # early crashes it, as for the stacks and their ``Anim`` objects).
+    for anim in loaded.anims:
+        layers = list(anim.layers)
+        loaded.held.append(layers)
+        for layer in layers:
+            props = list(layer.anim_props)
+            elements = [prop.element for prop in props]
+            loaded.held.append((props, elements))
+            for prop, element in zip(props, elements, strict=True):
+                if prop.prop_name == "Lcl Rotation":
+                    found = index.get(element.element_id)
+                    if found is not None:
+                        animated[found] = True
+    chosen = animated & plain
+    # Parents before children: the nodes by depth (each node's parent one level up).
+    depth = np.zeros(len(nodes), dtype=np.int64)
+    for i in range(len(nodes)):
+        j, steps = int(parents[i]), 0
+        while j >= 0 and steps <= len(nodes):
+            j, steps = int(parents[j]), steps + 1
+        depth[i] = steps
+    for i in np.argsort(depth, kind="stable"):
+        if plain[i] and parents[i] >= 0 and chosen[parents[i]]:
+            chosen[i] = True
+    return chosen
 
 
 def list_fbx_animations(data: bytes, *, limits: ParseLimits = DEFAULT_LIMITS) -> list[Animation]:
@@ -169,6 +213,8 @@ def read_fbx(
         ],
         dtype=bool,
     )
+    if not is_bone.any():
+        is_bone = _animated_plain_nodes(loaded, nodes, parents, joinable)
     if not is_bone.any():
         raise no_skeleton(loaded.animations, "no bones or skin clusters")
     # Only the skeleton's nodes are sampled and counted (meshes, props, other trees are not).
