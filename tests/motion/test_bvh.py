@@ -637,6 +637,20 @@ def test_nan_values_are_missing_data_filled_from_neighbours() -> None:
     assert "filled in" in motion.notes["warnings"][0]
 
 
+@pytest.mark.parametrize("written", ["1.#QNAN0", "-1.#IND00", "1.#SNAN", "-1.#ind"])
+def test_nan_as_old_msvc_runtimes_print_it_is_missing_data_too(written: str) -> None:
+    text = TINY + "2 92 4 0 0 0 0 0 90\n"
+    text = edit(edit(text, L_FRAMES, "Frames: 3"), L_FRAME_2, f"1 91 {written} 0 0 0 0 0 90")
+    motion = read_bvh(text)
+    np.testing.assert_allclose(motion.root_translation[:, 2], [0.0, 2.0, 4.0])
+    assert "filled in" in motion.notes["warnings"][0]
+
+
+def test_infinity_as_old_msvc_runtimes_print_it_is_still_damage() -> None:
+    with pytest.raises(ParseError, match=r"'1\.#INF00', is not a number"):
+        read_bvh(edit(TINY, L_FRAME_2, "1 91 1.#INF00 0 0 0 0 0 90"))
+
+
 # ------------------------------------------------------------------------------ limits
 
 

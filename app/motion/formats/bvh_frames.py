@@ -14,6 +14,7 @@ import contextlib
 import functools
 import io
 import math
+import re
 from typing import Any
 
 import numpy as np
@@ -172,6 +173,11 @@ def _polars_schema(columns: int) -> Any:
     return {f"c{i}": polars.Float64 for i in range(columns)}
 
 
+#: A NaN as C runtimes of Visual Studio before 2015 printed it (``1.#QNAN0``, ``-1.#IND00``,
+#: ``1.#SNAN``): missing data like ``nan``. Their ``1.#INF`` stays "not a number" (an
+#: infinite value is damage either way).
+_MSVC_NAN = re.compile(r"(?<!\S)[-+]?\d\.#(?:QNAN|SNAN|IND)\d*(?!\S)", re.IGNORECASE)
+
 #: A declared frame count is accepted when at least this share of its frames is complete.
 MIN_COMPLETE_SHARE = 0.9
 #: At most this many broken lines after the last complete frame are ignored as a tool's
@@ -201,6 +207,8 @@ def _frame_lines(
     for number, line in enumerate(block.split("\n"), start=first_line):
         if number % LINES_PER_CLOCK_CHECK == 0:
             limits.check_time()
+        if "#" in line:  # old MSVC runtimes print a NaN as 1.#QNAN0 or -1.#IND00
+            line = _MSVC_NAN.sub("nan", line)
         # maxsplit keeps a hostile 10 MB line from becoming millions of tokens
         tokens = line.split(None, channel_count)
         if not tokens:
