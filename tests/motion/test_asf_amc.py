@@ -366,7 +366,6 @@ def test_fast_and_line_by_line_passes_agree() -> None:
 ASF_REJECTIONS: list[tuple[str, str | bytes, int | None, str]] = [
     ("empty", b"", None, "empty"),
     ("not an ASF", "hello\n", 1, "not an ASF"),
-    ("not UTF-8", b":version 1\n:name \xff\n", 2, "not UTF-8"),
     (
         "unknown unit keyword",
         edit(TINY_ASF, A_UNITS_LENGTH, "  size 0.45"),

@@ -7,7 +7,8 @@ Public API
 ``read_asf_amc(asf, amc, *, limits, frame_time)``
     An Acclaim skeleton plus one motion of it (see :mod:`app.motion.formats.asf_amc`).
 
-Both accept ``bytes`` (decoded as UTF-8; a UTF-8 byte-order mark is fine) or ``str`` and raise
+Both accept ``bytes`` (decoded as UTF-8 — a byte-order mark is fine, UTF-16 with one too —, else
+as Shift-JIS or Windows' Western code page: see ``decode_text``) or ``str`` and raise
 :class:`~app.errors.ParseError` (with a 1-based line number where one applies) for anything
 that is not a well-formed file, or :class:`~app.errors.LimitExceeded` when a file is over the
 given :class:`~app.motion.model.ParseLimits`. They never raise anything else on bad input.
@@ -21,40 +22,44 @@ from app.motion.formats.bvh import parse_bvh
 from app.motion.formats.text import DEFAULT_LIMITS
 from app.motion.model import Motion, ParseLimits
 
-__all__ = ["DEFAULT_AMC_FRAME_TIME", "decode_text", "read_asf_amc", "read_bvh"]
+__all__ = ["DEFAULT_AMC_FRAME_TIME", "decode_text", "decoded_text", "read_asf_amc", "read_bvh"]
 
 
 def decode_text(data: bytes | str, *, source: str | None = None) -> str:
-    """The text of an uploaded motion file.
+    """The text of an uploaded motion file (:func:`decoded_text` without its note)."""
+    return decoded_text(data, source=source)[0]
+
+
+def decoded_text(data: bytes | str, *, source: str | None = None) -> tuple[str, str | None]:
+    """The text of an uploaded motion file, and a warning when it was not UTF-8.
 
     Parameters
     ----------
     data:
-        Raw bytes (must be UTF-8; plain ASCII is UTF-8) or already decoded text.
+        Raw bytes (UTF-8, or UTF-16 with its byte-order mark; other bytes as Shift-JIS or
+        Windows-1252, whose ASCII is the format's: only names differ) or decoded text.
     source:
         What to call the file in error messages (e.g. ``"ASF"``); ``None`` for a lone file.
 
     Raises
     ------
     ParseError
-        Not UTF-8, contains NUL bytes (a binary file), or empty / only whitespace.
+        Contains NUL bytes (a binary file), or empty / only whitespace.
     """
+    note = None
     if isinstance(data, bytes | bytearray | memoryview):
         raw = bytes(data)
-        if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
-            raise ParseError("the file is UTF-16 text; save it as UTF-8", source=source)
+        if raw.startswith((b"\xff\xfe", b"\xfe\xff")):  # UTF-16 with its byte-order mark
+            try:
+                raw = raw.decode("utf-16").encode("utf-8")
+            except UnicodeError:
+                raise ParseError("the file says UTF-16 but is not", source=source) from None
+            note = "the file is UTF-16 text: read as such"
         if b"\x00" in raw:
             raise ParseError("the file contains NUL bytes: binary data, not text", source=source)
-        try:
-            text = raw.decode("utf-8")
-        except UnicodeDecodeError as error:
-            line = raw.count(b"\n", 0, error.start) + 1
-            raise ParseError(
-                f"the file is not UTF-8 text (byte 0x{raw[error.start]:02x} at offset "
-                f"{error.start})",
-                line=line,
-                source=source,
-            ) from None
+        text, encoding = _decoded(raw)
+        if encoding != "utf-8" and note is None:
+            note = f"the file is not UTF-8: read as {encoding} (joint names may look wrong)"
     elif isinstance(data, str):
         text = data
         if "\x00" in text:
@@ -67,7 +72,24 @@ def decode_text(data: bytes | str, *, source: str | None = None) -> str:
         text = text[1:]
     if not text or text.isspace():
         raise ParseError("the file is empty", source=source)
-    return text
+    return text, note
+
+
+# What a text file that is not UTF-8 is read as, in order. The formats' own words and
+# numbers are ASCII in all of them; only joint names and comments differ: Shift-JIS (the
+# Japanese tools MikuMikuDance data comes from), else Windows' Western code page, which
+# gives every byte a character (names are hints: a wrong guess costs a hint, not the file).
+_FALLBACK_ENCODINGS = ("cp932", "cp1252", "latin-1")
+
+
+def _decoded(raw: bytes) -> tuple[str, str]:
+    """The text of ``raw`` and the encoding it was read in."""
+    for encoding in ("utf-8", *_FALLBACK_ENCODINGS):
+        try:
+            return raw.decode(encoding), encoding
+        except UnicodeDecodeError:
+            continue
+    raise AssertionError("latin-1 decodes every byte")  # pragma: no cover
 
 
 def read_bvh(data: bytes | str, *, limits: ParseLimits = DEFAULT_LIMITS) -> Motion:
@@ -91,10 +113,10 @@ def read_bvh(data: bytes | str, *, limits: ParseLimits = DEFAULT_LIMITS) -> Moti
     ------
     ParseError, LimitExceeded
     """
-    text = decode_text(data)
+    text, note = decoded_text(data)
     # ASCII bytes (most files) are read in place by the frame reader: no copy of the frames.
     raw = bytes(data) if isinstance(data, bytes | bytearray) and data.isascii() else None
-    return parse_bvh(text, limits=limits, raw=raw)
+    return _noted(parse_bvh(text, limits=limits, raw=raw), [note])
 
 
 def read_asf_amc(
@@ -128,9 +150,16 @@ def read_asf_amc(
         With ``source`` ``"ASF"`` or ``"AMC"`` saying which file is at fault.
     LimitExceeded
     """
-    return parse_asf_amc(
-        decode_text(asf, source="ASF"),
-        decode_text(amc, source="AMC"),
-        limits=limits,
-        frame_time=frame_time,
-    )
+    asf_text, asf_note = decoded_text(asf, source="ASF")
+    amc_text, amc_note = decoded_text(amc, source="AMC")
+    motion = parse_asf_amc(asf_text, amc_text, limits=limits, frame_time=frame_time)
+    return _noted(motion, [asf_note and f"ASF: {asf_note}", amc_note and f"AMC: {amc_note}"])
+
+
+def _noted(motion: Motion, notes: list[str | None]) -> Motion:
+    """``motion`` with the decoding's warnings first among its warnings."""
+    said = [note for note in notes if note]
+    if said:
+        before = motion.notes.get("warnings")
+        motion.notes["warnings"] = [*said, *(before if isinstance(before, list) else [])]
+    return motion

@@ -279,10 +279,14 @@ def _largest_skeleton(
         replace(joint, parent=joint.parent - begin if joint.parent >= 0 else -1)
         for joint in joints[begin:end]
     ]
-    others = ", ".join(repr(joints[r].name) for r in roots if r != begin)
+    others = ", ".join(
+        f"{joints[root].name!r} ({size} joints)"
+        for k, (root, size) in enumerate(zip(roots, sizes, strict=True))
+        if k != chosen
+    )
     warning = (
-        f"the file holds {len(roots)} skeletons; the largest, {joints[begin].name!r} "
-        f"({sizes[chosen]} joints), is read and {others} left out"
+        f"the file holds {len(roots)} skeletons (ROOTs); the largest, number {chosen + 1}, "
+        f"{joints[begin].name!r} ({sizes[chosen]} joints), is read and {others} left out"
     )
     return kept, values[:, first : first + sum(widths[begin:end])], warning
 
@@ -383,6 +387,7 @@ def _read_hierarchy(lines: _Lines, limits: ParseLimits) -> list[_Joint]:
                     return joints
                 if keyword == "ROOT":  # another skeleton (a second person, a prop)
                     root_closed = False
+                    names.clear()  # two people of one rig: a name is unique in its skeleton
                     continue
                 raise ParseError(
                     f"expected MOTION after the hierarchy, found {show(tokens[i])}", line=number
