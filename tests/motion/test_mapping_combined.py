@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from app.motion.formats import read_asf_amc, read_bvh
 from app.motion.kinematics import forward_kinematics
@@ -28,6 +29,7 @@ from app.motion.model import Motion, ParseLimits
 from app.services.parser_pool import parse_scene
 from bench.probe_mapping import PROBES, mapped_names, outcome
 from tests.motion.conftest import BANDAI_FIXTURE, CMU_BVH_FIXTURE, fixture_bytes
+from tests.motion.synthetic import grown
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
 
@@ -98,3 +100,27 @@ def test_a_figure_whose_hips_are_wider_than_its_shoulders_keeps_its_arms() -> No
     assert mapped_names(wide)[0] == expected
     for probe in ("nameless", "SMPL-like + nameless", "SMPL-like + nameless + axes of their own"):
         assert outcome(wide, dict(expected), mirrored, PROBES[probe]) == "same", probe
+
+
+def _head_top_as_a_leaf_bone_with_a_tail(motion: Motion, head_top: str) -> Motion:
+    """The End Site at the head's top written as a leaf *bone* (a ``HeadTop_End`` node) with a
+    tail exactly as long as it beyond (Blender's FBX export: a ``_end`` bone at the tail of
+    every leaf bone, given its parent's length), turned 30 degrees off that bone's line."""
+    skeleton = motion.skeleton
+    top = skeleton.names.index(head_top)
+    end_site = skeleton.end_site.copy()
+    end_site[top] = False
+    plain = dataclasses.replace(motion, skeleton=dataclasses.replace(skeleton, end_site=end_site))
+    tail = Rotation.from_rotvec([np.radians(30), 0, 0]).apply(skeleton.offsets[top])
+    return grown(plain, [top], [tail])
+
+
+def test_a_tool_s_tail_beyond_the_head_top_bone_is_not_the_head() -> None:
+    # Without names the head's top was read from the tail, and the head joint one joint high
+    # (the head-top bone): on main, Motive's and a Mixamo FBX's ``HeadEnd_end`` so.
+    motion = read_bvh(fixture_bytes(CMU_BVH_FIXTURE))
+    expected, mirrored = mapped_names(motion)
+    tailed = _head_top_as_a_leaf_bone_with_a_tail(motion, expected["head"])
+    assert mapped_names(tailed) == (expected, mirrored)
+    for probe in ("nameless", "nameless + axes of their own", "SMPL-like + nameless"):
+        assert outcome(tailed, dict(expected), mirrored, PROBES[probe]) == "same", probe

@@ -139,8 +139,14 @@ def _with_small_bones(motion: Motion, count: int, seed: int = 5) -> Motion:
 
 
 def _reach(skeleton: Skeleton) -> np.ndarray:
-    """``(J,)`` longest bone path from each joint down to a descendant."""
+    """``(J,)`` longest bone path from each joint down to a descendant. An End Site exactly as
+    long as the bone it ends is a tail a writer invented, no point of the body (the mapper
+    does not read it, docs/skeletons.md): counted, it doubled a Mixamo BVH head's reach, and
+    face chains grew past the head's top."""
     lengths = np.linalg.norm(skeleton.offsets, axis=1)
+    parent_lengths = lengths[np.maximum(skeleton.parents, 0)]
+    invented = skeleton.end_site & (np.abs(lengths - parent_lengths) <= 1e-4 * parent_lengths)
+    lengths[invented] = 0.0
     reach = np.zeros(skeleton.joint_count)
     for j in range(skeleton.joint_count - 1, 0, -1):
         p = int(skeleton.parents[j])

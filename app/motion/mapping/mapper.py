@@ -136,6 +136,15 @@ class _Mapper(_LimbRules, _SideRules):
             leaf = body.head
             while tree.lengths[leaf] == 0 and tree.parents[leaf] != body.chest:
                 leaf = int(tree.parents[leaf])
+            # A leaf copying its parent bone's length beyond the head's end bone is a tool's
+            # tail, no point of the body: read as if it were not there, so the head is the
+            # joint below that end bone, as on the rig's source. Only where the chain above
+            # the arms still holds a neck, a head joint and that end bone under the tail: a
+            # person has a neck, so a shorter chain's leaf is the head itself (a neck and a
+            # head bone of one length).
+            above = int(tree.parents[leaf])
+            if tree.tail_copy[leaf] and body.chest not in (above, int(tree.parents[above])):
+                leaf = above
             parent = int(tree.parents[leaf])
             long_end = tree.lengths[leaf] >= 2 * _HEAD_END_MIN * self.extent
             # A person has a neck: a leaf *joint* (not an End Site) one joint above the arms

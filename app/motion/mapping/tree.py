@@ -85,6 +85,20 @@ class _Tree:
             self.depth[j] = self.depth[p] + 1
             self.path[j] = self.path[p] + self.lengths[j]
         self.leaves = [j for j in range(count) if not self.children[j] and not self.void[j]]
+        # A leaf *joint* exactly as long as the bone it ends: the same invented tail as such
+        # an End Site, written as a node (Blender's FBX export adds a ``_end`` leaf bone at
+        # the tail of every leaf bone, whose length it took from the parent). It is kept
+        # (a hand's or a toe's farthest point may be one, as in the rig it came from), but
+        # the head's top is not read from it (:meth:`_Mapper.map_head`).
+        self.tail_copy = np.zeros(count, dtype=bool)
+        for j in self.leaves:
+            if skeleton.end_site[j] or j == 0:
+                continue
+            parent_length = self.lengths[int(self.parents[j])]
+            if parent_length > 0 and abs(self.lengths[j] - parent_length) <= (
+                _TAIL_COPY * parent_length
+            ):
+                self.tail_copy[j] = True
         self.bones = np.zeros(count, dtype=np.int64)  # non-zero bones from the root
         for j in range(1, count):
             self.bones[j] = self.bones[self.parents[j]] + (self.lengths[j] > 0)
