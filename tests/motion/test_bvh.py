@@ -1138,3 +1138,28 @@ def test_two_people_of_one_rig_read_as_the_first():
     read = read_bvh(text + "\n".join([*lines[:2], *rows]) + "\n")
     np.testing.assert_array_equal(read.local_rotations, read_bvh(TINY).local_rotations)
     assert "number 1, 'Hips' (2 joints), is read" in read.notes["warnings"][0]
+
+
+def test_numbers_with_decimal_commas_are_read_as_decimal_points():
+    """A tool under a European locale prints 12,5: the whole file is so (OFFSETs, frames)."""
+    text = re.sub(r"(\d)\.(\d)", r"\1,\2", TINY.replace("OFFSET 1 2 3", "OFFSET 1.5 2 3"))
+    plain = read_bvh(TINY.replace("OFFSET 1 2 3", "OFFSET 1.5 2 3"))
+    text = text.replace("0 90 0 10", "0,5 90 0 10")  # and a root position of 0.5
+    motion = read_bvh(text)
+    assert motion.frame_time == pytest.approx(0.04)
+    assert motion.skeleton.offsets[0, 0] == pytest.approx(1.5)
+    assert motion.root_translation[0, 0] == pytest.approx(0.5)
+    np.testing.assert_allclose(motion.local_rotations, plain.local_rotations)
+    assert "decimal commas" in motion.notes["warnings"][0]
+
+
+def test_commas_beside_decimal_points_are_still_not_numbers():
+    text = TINY.replace("OFFSET 0 10 0", "OFFSET 0 10,5 0").replace("0 90 0 10", "0.5 90 0 10")
+    with pytest.raises(ParseError, match="'10,5' is not a number"):
+        read_bvh(text)
+
+
+@pytest.mark.parametrize("written", ["Frame Time 0.04", "FrameTime: 0.04", "Frame Time= 0.04"])
+def test_frame_time_without_its_colon(written):
+    motion = read_bvh(TINY.replace("Frame Time: 0.04", written))
+    assert motion.frame_time == pytest.approx(0.04)

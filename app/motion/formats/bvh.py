@@ -64,8 +64,13 @@ MAX_HIERARCHY_LINE = 65_536
 
 _INTEGER_RE = re.compile(r"\+?\d+", re.ASCII)
 _SIGNED_INTEGER_RE = re.compile(r"[+-]?\d+", re.ASCII)
-_FRAMES_RE = re.compile(r"frames\s*:\s*(.*)", re.IGNORECASE)
-_FRAME_TIME_RE = re.compile(r"frame\s+time\s*:\s*(.*)", re.IGNORECASE)
+# The colon as writers put it, or leave it out or write ``=`` (``Frame Time 0.0333``,
+# ``FrameTime: 0.0333``): the word says what the number is.
+_FRAMES_RE = re.compile(r"frames\s*[:=]?\s*(.*)", re.IGNORECASE)
+_FRAME_TIME_RE = re.compile(r"frame\s*time\s*[:=]?\s*(.*)", re.IGNORECASE)
+# A number written with a decimal comma (a European locale's printf), and one with a point.
+_COMMA_NUMBER_RE = re.compile(r"[-+]?\d*,\d+(?:[eE][-+]?\d+)?")
+_POINT_NUMBER_RE = re.compile(r"[-+]?\d*\.\d+(?:[eE][-+]?\d+)?")
 
 # channel name (lower case) -> (kind, axis index)
 _CHANNELS: dict[str, tuple[str, int]] = {
@@ -226,6 +231,9 @@ def parse_bvh(
     if raw is not None and (normalised is not text or len(raw) != len(text)):
         raw = None  # line ends were rewritten: the bytes are not the text any more
     text = normalised
+    decimal_comma = _decimal_comma(text)
+    if decimal_comma:
+        text, raw = text.replace(",", "."), None
     lines = _Lines(text, limits)
     joints = _HIERARCHIES.read(lines, limits)
     frame_count, frames_line, frame_time = _read_motion_header(lines, len(joints))
@@ -239,7 +247,8 @@ def parse_bvh(
     )
     joints, values, several = _largest_skeleton(joints, values)
     motion = _build_motion(joints, values, frame_time, limits)
-    warnings = [*([several] if several else []), *warnings]
+    comma = "numbers written with decimal commas (a locale's way): read as decimal points"
+    warnings = [*([comma] if decimal_comma else []), *([several] if several else []), *warnings]
     if warnings:
         motion.notes["warnings"] = warnings
     return motion
@@ -248,13 +257,33 @@ def parse_bvh(
 def parse_bvh_rest(text: str, *, limits: ParseLimits = DEFAULT_LIMITS) -> Motion:
     """The hierarchy of a BVH file as one frame of its rest pose, whatever its MOTION section
     holds (``Frames: 0`` included): a rig to retarget onto. Raises like :func:`parse_bvh`."""
-    lines = _Lines(normalise_newlines(text))
+    text = normalise_newlines(text)
+    if _decimal_comma(text):
+        text = text.replace(",", ".")
+    lines = _Lines(text)
     joints = _HIERARCHIES.read(lines, limits)
     channel_count = sum(len(j.channels or ()) for j in joints)
     # Zero channels: no rotation, and position channels that read as "no change" from the
     # OFFSETs (see _positions_are_deltas), so the rest pose is the OFFSETs'.
     joints, values, _ = _largest_skeleton(joints, np.zeros((1, channel_count)))
     return _build_motion(joints, values, 1.0 / 30.0)
+
+
+def _decimal_comma(text: str) -> bool:
+    """Whether the file writes its numbers with decimal commas (``12,5``), as a tool under a
+    European locale does: the OFFSETs and the first frame line hold such numbers and none
+    with a decimal point. Read from the hierarchy's first 64 KB and the first frame line."""
+    head = text[: 64 * 1024]
+    motion = _MOTION_LINE_RE.search(head)
+    hierarchy = head[: motion.start()] if motion else head
+    tokens = [t for line in hierarchy.split("\n") if "OFFSET" in line.upper() for t in line.split()]
+    if motion:
+        after = head[motion.end() :].split("\n")
+        data = [line for line in after if line.strip()][2:3]  # past Frames: and Frame Time:
+        tokens += data[0].split() if data else []
+    if not any(_COMMA_NUMBER_RE.fullmatch(t) for t in tokens):
+        return False
+    return not any(_POINT_NUMBER_RE.fullmatch(t) for t in tokens)
 
 
 def _largest_skeleton(
