@@ -312,6 +312,8 @@ class Settings(BaseSettings):
         ),
     )
     clip_codes: str = Field(
+        # float32 by default: at a million clips sq8's lists scanned no faster (AVX2 wheels,
+        # as for the windows above) and the re-ranking added ~50 us a search (bench/README).
         default="float32",
         pattern="^(sq8|float32)$",
         description=(
