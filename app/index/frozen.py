@@ -19,7 +19,7 @@ vector). :meth:`merged` gives an ordinary (owned, writable) index of the current
 write as the next file.
 
 **Compressed lists** (``IndexIVFScalarQuantizer``, 8 bits a number, the vectors padded to a
-multiple of 8: the window indexes of a large library, ``MOCAP_WINDOW_CODES``): the lists
+multiple of 8: ``MOCAP_WINDOW_CODES``, ``MOCAP_CLIP_CODES``): the lists
 hold a quarter of the bytes, but their distances are approximate and their vectors lossy.
 The exact vectors then come with the index (``exact``, ``(N, D)`` float32 in the locator's
 order — by id — mapped from a file written beside the index): a search asks the lists for
