@@ -311,6 +311,20 @@ class Settings(BaseSettings):
             "rebuilds the window indexes from their vectors at the next start."
         ),
     )
+    clip_codes: str = Field(
+        # float32 by default: at a million clips sq8's lists scanned no faster (AVX2 wheels,
+        # as for the windows above) and the re-ranking added ~50 us a search (bench/README).
+        default="float32",
+        pattern="^(sq8|float32)$",
+        description=(
+            "What the IVF clip indexes of `GET /search` (a library from "
+            "MOCAP_INDEX_AUTO_THRESHOLD clips) hold of each clip: `float32` or `sq8` (8 bits "
+            "a number, a quarter of the lists' size; twice the candidates wanted are ranked "
+            "by their exact vectors, kept in a mapped file beside the index, so the distances "
+            "answered are exact). Changing it rebuilds the clip indexes from their vectors at "
+            "the next start."
+        ),
+    )
     index_auto_threshold: int = Field(
         default=100_000,
         gt=0,

@@ -5,13 +5,17 @@ Run it with ``mocap-index serve`` or ``uvicorn --factory app.main:create_app``.
 
 from __future__ import annotations
 
+import os
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from importlib.metadata import PackageNotFoundError, version
+from typing import Any
 
 from fastapi import FastAPI
 from fastapi.middleware.cors import CORSMiddleware
+from fastapi.telemetry import TelemetryConfig
 from fastapi_offline import FastAPIOffline
+from opentelemetry import _logs, metrics, trace
 from starlette.concurrency import run_in_threadpool
 
 from app.api import clips, exports, meta, moments, rigs, search, ui
@@ -57,6 +61,32 @@ def access_table(app: FastAPI) -> AccessTable:
     the same; building one's schema takes 0.3-1 s), unless routes were added to one after."""
     routes_key = (tuple(id(router) for router in ROUTERS), len(app.router.routes))
     return shared_access_table(routes_key, app.openapi)
+
+
+# The OpenTelemetry API's stand-ins for a provider nobody has set (its own classes).
+PLACEHOLDER_PROVIDERS = frozenset(
+    {"ProxyTracerProvider", "_ProxyMeterProvider", "ProxyLoggerProvider"}
+)
+
+
+def telemetry_signals(tracer: Any, meter: Any, logger: Any) -> TelemetryConfig:
+    """FastAPI's own OpenTelemetry signals (``FastAPI(telemetry=...)``) for these global
+    providers: each on when its provider is configured, off when it is the API's stand-in.
+
+    FastAPI asks the three global providers at every request whether one is configured, and
+    while none is, each question reads an environment variable (~10 us a request, for no
+    span). The answer is taken once, when the app is created — after OpenTelemetry's own
+    start-up (``opentelemetry-instrument``) has set any provider. With FastAPI's automatic
+    set-up (``FASTAPI_OTEL_AUTO_CONFIGURE=true``: its exporters are made at start), its
+    defaults are kept. A provider class this does not know counts as configured (the cost
+    stays, never a span lost)."""
+    if os.getenv("FASTAPI_OTEL_AUTO_CONFIGURE", "").lower() == "true":
+        return {}
+
+    def configured(provider: Any) -> bool:
+        return type(provider).__name__ not in PLACEHOLDER_PROVIDERS
+
+    return {"tracing": configured(tracer), "metrics": configured(meter), "logs": configured(logger)}
 
 
 def _version() -> str:
@@ -105,6 +135,9 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
         version=_version(),
         description=DESCRIPTION,
         lifespan=lifespan,
+        telemetry=telemetry_signals(
+            trace.get_tracer_provider(), metrics.get_meter_provider(), _logs.get_logger_provider()
+        ),
     )
     app.state.settings = settings
     install_error_handlers(app)

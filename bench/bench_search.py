@@ -30,7 +30,8 @@ server process) this whole-clip benchmark does not measure. ``--descriptor`` (de
 ``--baseline CHECKOUT`` (e.g. ``/work/main``, with its own ``.venv``) also serves the library
 with that checkout's ``mocap-index`` and measures it in the same rounds, right after this
 checkout's server: a change's effect is then a ratio of one run, not of two runs on a machine
-whose speed moves.
+whose speed moves. ``--baseline-data-dir`` gives it a copy of the library instead, for
+checkouts whose index files differ (each server would rebuild the other's at start).
 
 Targets (issue 23, the ones the script checks): >= 50 % of the floor's requests/s at 32
 connections, median <= 0.6 ms at 1 connection, recall@10 >= 0.99, RSS <= 1.5 GB, start-up
@@ -471,6 +472,13 @@ def main() -> int:
         type=Path,
         help="another checkout (with its .venv) whose server is measured in the same rounds",
     )
+    parser.add_argument(
+        "--baseline-data-dir",
+        type=Path,
+        help="a copy of the library for --baseline to serve (default: --data-dir): needed "
+        "when the two checkouts' index files differ (e.g. MOCAP_CLIP_CODES), or each server "
+        "would rebuild the other's",
+    )
     args = parser.parse_args()
     if shutil.which("wrk") is None:
         print("wrk is not installed (apt-get install -y wrk)", file=sys.stderr)
@@ -502,7 +510,8 @@ def main() -> int:
     floor = Floor(args.data_dir, log, MOCAP_WORKERS=str(args.workers))
     baseline = None
     if args.baseline is not None:
-        baseline = baseline_server(args.baseline, args.data_dir, log, **settings)
+        baseline_data = args.baseline_data_dir or args.data_dir
+        baseline = baseline_server(args.baseline, baseline_data, log, **settings)
         print(
             f"baseline {args.baseline}: started in {baseline.startup:.2f} s, "
             f"CPU {baseline.startup_cpu:.2f} s"

@@ -64,3 +64,12 @@ def test_migrate_and_reindex_commands(tmp_path: Path, capsys: pytest.CaptureFixt
 def test_bad_setting_on_the_command_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("MOCAP_MAX_UPLOAD_BYTES", "lots")
     assert main(["migrate", "--data-dir", str(tmp_path)]) == 2
+
+
+def test_clip_codes_are_float32_or_sq8(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    assert Settings(data_dir=tmp_path).clip_codes == "float32"
+    monkeypatch.setenv("MOCAP_CLIP_CODES", "sq8")
+    assert Settings(data_dir=tmp_path).clip_codes == "sq8"
+    monkeypatch.setenv("MOCAP_CLIP_CODES", "fp16")
+    with pytest.raises(ValidationError):
+        Settings(data_dir=tmp_path)

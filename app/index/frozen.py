@@ -19,7 +19,7 @@ vector). :meth:`merged` gives an ordinary (owned, writable) index of the current
 write as the next file.
 
 **Compressed lists** (``IndexIVFScalarQuantizer``, 8 bits a number, the vectors padded to a
-multiple of 8: the window indexes of a large library, ``MOCAP_WINDOW_CODES``): the lists
+multiple of 8: ``MOCAP_WINDOW_CODES``, ``MOCAP_CLIP_CODES``): the lists
 hold a quarter of the bytes, but their distances are approximate and their vectors lossy.
 The exact vectors then come with the index (``exact``, ``(N, D)`` float32 in the locator's
 order — by id — mapped from a file written beside the index): a search asks the lists for
@@ -40,7 +40,7 @@ from typing import Any
 import faiss
 import numpy as np
 
-from app.index import probe_cutoff
+from app.index import probe_cutoff, rerank
 from app.index.cells import (
     EFFORT_SAMPLES,
     GRAPH_MIN_CELLS,
@@ -379,8 +379,10 @@ class FrozenIVF:
                 faiss.swig_ptr(ids),
                 params,
             )
-        if self.exact is not None:
-            squared, ids = self._ranked(exact_queries, ids, k)
+        if self.exact is not None and count == 1:  # a search by clip or file
+            squared, ids = rerank.ranked_one(exact_queries[0], ids[0], k, self.exact, self.base_ids)
+        elif self.exact is not None:
+            squared, ids = rerank.ranked(exact_queries, ids, k, self.exact, self._base_rows)
         queries = exact_queries
         if not self.delta_total:
             return squared, ids
@@ -398,39 +400,6 @@ class FrozenIVF:
             np.take_along_axis(every_squared, order, axis=1),
             np.take_along_axis(every_ids, order, axis=1),
         )
-
-    def _ranked(
-        self, queries: np.ndarray, candidates: np.ndarray, k: int
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """The ``k`` nearest of each query's ``candidates`` ``(Q, C)`` (ids of the file, -1
-        padding) by their exact squared distances: ``(Q, k)`` float32 and ids (-1 padded)."""
-        count = candidates.shape[0]
-        squared = np.full((count, k), np.inf, np.float32)
-        ids = np.full((count, k), -1, np.int64)
-        assert self.exact is not None
-        valid = candidates >= 0
-        # Every candidate's row at once (one binary search), gathered in one copy.
-        rows = self._base_rows(candidates[valid])
-        vectors = np.ascontiguousarray(self.exact[rows], np.float32)
-        distances = np.empty(rows.size, np.float32)
-        ends = np.cumsum(valid.sum(axis=1))
-        for row in range(count):
-            first, stop = (int(ends[row - 1]) if row else 0), int(ends[row])
-            if stop == first:
-                continue
-            # FAISS's own kernel: the numbers an IVFFlat scan of these vectors gives
-            query = np.ascontiguousarray(queries[row], np.float32)
-            faiss.fvec_L2sqr_ny(  # type: ignore[attr-defined]
-                faiss.swig_ptr(distances[first:stop]),
-                faiss.swig_ptr(query),
-                faiss.swig_ptr(vectors[first:stop]),
-                self.dimension,
-                stop - first,
-            )
-            order = np.argsort(distances[first:stop], kind="stable")[:k]
-            squared[row, : order.size] = distances[first:stop][order]
-            ids[row, : order.size] = candidates[row][valid[row]][order]
-        return squared, ids
 
     def prepare(self, nprobe: int | None = None) -> None:
         """Decide the adaptive probe and build (or read) the cells' graph for searches of

@@ -113,6 +113,7 @@ class IndexFile:
         exact vectors — sorted ids ``(N,)`` and ``(N, D)`` vectors of compressed lists, written
         before the index file: it never lacks them — and its metadata, ``meta`` plus the
         file's sha256 and the time. Returns the metadata written."""
+        compressed = exact is not None
         try:
             fd = os.open(tmp, os.O_RDONLY)
             try:
@@ -133,6 +134,9 @@ class IndexFile:
         finally:
             tmp.unlink(missing_ok=True)
         self.write_meta(meta)
+        if not compressed:  # float32 lists now: exact vectors of earlier sq8 lists are no use
+            for left in self.directory.glob(f"{self.name}.exact.*"):
+                left.unlink(missing_ok=True)
         return meta
 
     def write_meta(self, meta: dict[str, Any]) -> None:

@@ -41,6 +41,7 @@ def index_options(settings: Settings) -> IndexOptions:
         auto_threshold=settings.index_auto_threshold,
         nlist=settings.ivf_nlist,
         nprobe=settings.ivf_nprobe,
+        codes=settings.clip_codes,
     )
 
 

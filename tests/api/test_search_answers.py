@@ -163,6 +163,22 @@ def test_search_answers_are_byte_identical(tmp_path: Path) -> None:
         assert (mine["status"], mine["body"]) == (theirs["status"], theirs["body"]), mine["request"]
 
 
+def test_clip_lists_of_8_bit_codes_answer_the_same_bytes(tmp_path: Path) -> None:
+    # MOCAP_CLIP_CODES=sq8 on IVF clip indexes (every cell scanned): the candidates re-ranked
+    # by their exact vectors answer the recorded searches, distances to the last digit.
+    recorded = json.loads(GOLDEN.read_text())
+    settings = Settings(
+        data_dir=tmp_path / "data", index_type="ivf", ivf_nprobe=1_000, clip_codes="sq8"
+    )
+    got = answers(settings)
+    for name in ("motion", "posture", "kinetic"):  # the lists were codes
+        assert json.loads((settings.index_dir / f"{name}.json").read_text())["codes"] == "sq8"
+    for mine, theirs in zip(got, recorded, strict=True):
+        if not str(mine["request"]).startswith("/search?"):
+            continue  # moments: window indexes, their own setting
+        assert (mine["status"], mine["body"]) == (theirs["status"], theirs["body"]), mine["request"]
+
+
 if __name__ == "__main__":
     import tempfile
 

@@ -10,10 +10,11 @@ from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
+from opentelemetry import _logs, metrics, trace
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from app.config import Settings
-from app.main import create_app
+from app.main import create_app, telemetry_signals
 from tests.api.test_search import library
 from tests.conftest import new_sqlite_settings
 from tests.services.fakes import FakeDescriber, fake_motion
@@ -110,3 +111,38 @@ def test_reads_needing_a_key_go_through_the_route(
 
 def fake(number: int) -> bytes:
     return fake_motion([number, 0, 0], kinetic=[number, 0])
+
+
+def test_a_search_asks_opentelemetry_nothing_when_it_is_not_set_up(
+    served: tuple[TestClient, Routed], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # FastAPI's own telemetry asked the three global providers at every request (reading an
+    # environment variable each while none is set): decided once when the app was created.
+    client, _ = served
+    ids = library(client)
+
+    def asked() -> None:
+        raise AssertionError("a request asked for an OpenTelemetry provider")
+
+    for name in ("get_tracer_provider", "get_meter_provider", "get_logger_provider"):
+        module = {"get_tracer_provider": trace, "get_meter_provider": metrics}.get(name, _logs)
+        monkeypatch.setattr(module, name, asked)
+    assert client.get(f"/search?clip={ids[0]}&k=3").status_code == 200
+    assert client.get(f"/search?clip=0{ids[0]}&k=3").status_code == 200  # FastAPI's route
+
+
+def test_telemetry_signals_follow_the_providers_configured_at_creation(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.delenv("FASTAPI_OTEL_AUTO_CONFIGURE", raising=False)
+    unset = (trace.get_tracer_provider(), metrics.get_meter_provider(), _logs.get_logger_provider())
+    assert telemetry_signals(*unset) == {"tracing": False, "metrics": False, "logs": False}
+    # A provider someone set (here the API's no-op one; an SDK's in a deployment)
+    tracer = trace.NoOpTracerProvider()
+    assert telemetry_signals(tracer, *unset[1:]) == {
+        "tracing": True,
+        "metrics": False,
+        "logs": False,
+    }
+    monkeypatch.setenv("FASTAPI_OTEL_AUTO_CONFIGURE", "true")  # FastAPI sets them up at start
+    assert telemetry_signals(*unset) == {}
