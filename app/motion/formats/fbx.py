@@ -44,6 +44,8 @@ from app.motion.formats.scene import (
 from app.motion.model import Motion, ParseLimits
 
 DEFAULT_LIMITS = ParseLimits()
+# ``ufbx.ElementType`` of a node that is nothing but a transform: no attribute (0), a Null (6).
+_PLAIN_ATTRIBUTES = frozenset({0, 6})
 MAX_SCENE_NODES = 100_000
 
 
@@ -110,9 +112,10 @@ def _animated_plain_nodes(
     camera or light), and the plain nodes below them (an end null). The mapper then decides
     whether they make a person, as for a glTF animation exported without its skin."""
     index = {node.element_id: i for i, node in enumerate(nodes)}
+    # By the attribute's type, a number: asking ``node.mesh`` hands out wrappers whose
+    # freeing crashed the binding at the scene's end (a file of meshes and no bones).
     plain = joinable & np.array(
-        [node.mesh is None and node.camera is None and node.light is None for node in nodes],
-        dtype=bool,
+        [int(node.attrib_type) in _PLAIN_ATTRIBUTES for node in nodes], dtype=bool
     )
     animated = np.zeros(len(nodes), dtype=bool)
     # Every wrapper the binding hands out is kept referenced with the scene (freeing one
