@@ -3,11 +3,13 @@
 The pelvis travels as the source's pelvis, scaled about the world origin by the ratio of the
 legs' bone paths, then moved up or down per frame so the target's foot points that are on
 the floor in the source (the standing foot) are where the source's are, and nothing is
-below the source's lowest point. A swinging foot whose toe would skim the floor is pitched
-up about its ankle (:func:`clear_swinging_toes`); the path's horizontal part is corrected so
-a planted foot moves over the floor as the source's does, and goes back toward the scaled
-source's where no foot is on the floor (:func:`planted_feet_offsets`); what that cannot hold
-the legs take up (:mod:`app.motion.retarget_feet`).
+below the source's lowest point. A planted foot longer for its legs than the source's first
+rolls over its toe as the source's does (:mod:`app.motion.retarget_stride`). A swinging
+foot whose toe would skim the floor is pitched up about its ankle
+(:func:`clear_swinging_toes`); the path's horizontal part is corrected so a planted foot
+moves over the floor as the source's does, and goes back toward the scaled source's where
+no foot is on the floor (:func:`planted_feet_offsets`); what that cannot hold the legs take
+up (:mod:`app.motion.retarget_feet`).
 """
 
 from __future__ import annotations

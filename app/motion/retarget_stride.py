@@ -83,7 +83,6 @@ def fit_planted_roll(
     heights = source_feet @ up  # (F, P)
     floor = float(heights.min())
     blend_frames = max(1, round(BLEND / frame_time))
-    changed = False
     ref_rot, ref_pos = reference
     hips = [int(mapping.joints[CANONICAL_INDEX[f"{side}_hip"]]) for side in ("l", "r")]
     across = ref_pos[hips[0]] - ref_pos[hips[1]]
@@ -120,8 +119,8 @@ def fit_planted_roll(
         wanted_behind = np.sum(source_foot * heading, axis=1) + longer
         side_part = foot - (foot @ up)[:, None] * up - behind[:, None] * heading
         span = np.sqrt(np.maximum(length**2 - np.sum(side_part**2, axis=1), 0.0))
-        w = weight[moving]  # blended in over the fade
-        reach = np.clip(w * wanted_behind + (1.0 - w) * behind, -span, span)
+        share = weight[moving]  # blended in over the fade
+        reach = np.clip(share * wanted_behind + (1.0 - share) * behind, -span, span)
         ok &= np.abs(reach - behind) > _TINY * np.maximum(length, _TINY)
         if not ok.any():
             continue
