@@ -52,6 +52,25 @@ def contact_weights(on_floor: np.ndarray, blend_frames: int) -> np.ndarray:
     return x * x * (3.0 - 2.0 * x)
 
 
+def _contact_starts(on_floor: np.ndarray) -> np.ndarray:
+    """``(F,)`` per frame the first frame of the run of ``on_floor`` ``(F,)`` frames nearest
+    to it (its own run's, or the nearer of the runs around a frame off the floor)."""
+    frames = len(on_floor)
+    index = np.arange(frames)
+    marked = np.flatnonzero(on_floor)
+    if not len(marked):
+        return index
+    first = np.flatnonzero(on_floor & ~np.concatenate([[False], on_floor[:-1]]))
+    run_start = first[np.searchsorted(first, marked, side="right") - 1]  # per marked frame
+    position = np.searchsorted(marked, index)
+    before = np.maximum(position - 1, 0)
+    after = np.minimum(position, len(marked) - 1)
+    nearer = np.where(
+        np.abs(index - marked[before]) <= np.abs(marked[after] - index), before, after
+    )
+    return run_start[nearer]
+
+
 def fit_planted_roll(
     kinematics: Callable[[Sequence[int]], Pose],
     mapping: SkeletonMap,
@@ -95,7 +114,8 @@ def fit_planted_roll(
             continue
         a_index = FOOT_POINTS.index(CANONICAL_INDEX[f"{side}_ankle"])
         t_index = FOOT_POINTS.index(CANONICAL_INDEX[f"{side}_toe"])
-        weight = contact_weights(heights[:, t_index] - floor < near, blend_frames)
+        on_floor = heights[:, t_index] - floor < near
+        weight = contact_weights(on_floor, blend_frames)
         moving = np.flatnonzero(weight > 0.0)
         if not len(moving):
             continue
@@ -116,7 +136,12 @@ def fit_planted_roll(
         ok = heading_length > _TINY * np.maximum(length, _TINY)
         heading = heading / np.maximum(heading_length, _TINY)[:, None]
         behind = np.sum(foot * heading, axis=1)  # signed, along the heading
-        wanted_behind = np.sum(source_foot * heading, axis=1) + longer
+        source_behind = np.sum(source_foot * heading, axis=1)
+        # Each contact starts from the rig's own foot; from there its ankle moves over the
+        # toe as the source's does.
+        start = _contact_starts(on_floor)[moving]
+        at_start = np.searchsorted(moving, start)
+        wanted_behind = source_behind + (behind - source_behind)[at_start]
         side_part = foot - (foot @ up)[:, None] * up - behind[:, None] * heading
         span = np.sqrt(np.maximum(length**2 - np.sum(side_part**2, axis=1), 0.0))
         share = weight[moving]  # blended in over the fade
