@@ -9,16 +9,21 @@ step, and since a walk is always on a foot, the pelvis path that keeps planted f
 sliding carries that on as travel: the Bandai walk went 12 % farther than its scaled source
 on those rigs (docs/export.md, "A walk's stride on a long foot").
 
-So while the source's toe is on the floor, the rig's foot is pitched so that its ankle lies
-as far behind its toe, over the floor, as the source's does (scaled) plus the constant
-difference of the two feet's lengths: a foot flat in the source is flat on the rig, and as
-the source's heel rises the rig's ankle comes forward over its toe by the source's distance,
-not more. A longer foot then pitches less (for small angles by ``sqrt(L_source / L_rig)``
-of the source's pitch) and its ankle rises less than the same pitch would lift it. Only the
-foot turns (about the ankle, heading kept): thigh and shin keep the source's directions, and
-the pitch fades in and out over :data:`~app.motion.retarget_feet.BLEND` around each contact
-so the foot does not pop. A rig whose foot is as long as the source's (scaled) or shorter
-is left alone: its toe rolls as the source's does or less, and the pelvis path holds it.
+So while the source's toe is on the floor, the rig's foot is pitched so that its ankle moves
+over the toe, along the floor, as the source's does (scaled): each contact starts from the
+rig's own foot (the pitch the copied directions give it when the toe lands), and from there
+the ankle comes forward over the toe by the source's distance, not more. A longer foot then
+pitches less than the source's as the heel rises, and its ankle rises less than the same
+pitch would lift it. Only the foot turns (about the ankle, heading and sideways lean kept):
+thigh, shin and everything above keep the source's rotations, and the pitch fades in and
+out over :data:`~app.motion.retarget_feet.BLEND` around each contact so the foot does not
+pop. A rig whose foot is as long as the source's (scaled) or shorter is left alone: its toe
+rolls as the source's does or less, and the pelvis path holds it.
+
+A first version gave each contact the source's distance plus the constant difference of the
+two feet's lengths, which also flattened the rig's standing foot wherever the source's
+stood; on stances that shift their weight (punches, martial arts) that moved the feet the
+pelvis path and the holds balance, and the sliding bar lost as many clips as it gained.
 """
 
 from __future__ import annotations
@@ -83,8 +88,8 @@ def fit_planted_roll(
     reference: Pose,
 ) -> bool:
     """Pitch each foot about its ankle (``local`` ``(F, J, 3, 3)`` changed in place) while
-    the source's toe is on the floor, so the ankle lies behind the toe over the floor as far
-    as the source's does plus the two feet's difference in length (the module docstring).
+    the source's toe is on the floor, so that from the start of each contact the ankle
+    moves over the toe, along the floor, as the source's does (the module docstring).
 
     ``kinematics`` gives the legs' joints' world rotations ``(F, 3, 3)`` and positions
     ``(F, 3)`` for the current ``local``; ``source_feet`` ``(F, 4, 3)`` are the source's foot
