@@ -70,8 +70,11 @@ stands, a slide where the source slides. Every bone keeps the source's direction
 with no foot point on the floor (a run's flight) the path goes back toward the scaled
 source's, evenly over the gap and no faster than the holds moved it: what the holds gathered
 over a contact does not carry over as travel the source never had
-(:func:`~app.motion.retarget_floor.planted_feet_offsets`). A walk, always on a foot, still
-travels as far as the rig's own legs carry it.
+(:func:`~app.motion.retarget_floor.planted_feet_offsets`). A walk is always on a foot, so
+what carries it is the stride: a foot longer for its legs than the source's (a toe tip
+where the source has the ball of its foot) first has its roll over the toe fitted, the
+ankle coming forward over the toe as far as the source's does, so the body is carried as
+far as the scaled source's (:func:`~app.motion.retarget_stride.fit_planted_roll`).
 
 What the pelvis cannot hold (two points down that disagree: both feet, or the heel and
 toe of a long foot) the legs take up: each planted foot (contact from the source) is held
@@ -94,7 +97,8 @@ This module is the public entry; the parts live beside it: which joints are driv
 (:mod:`app.motion.retarget_reference`), the per-joint rotation transfer
 (:mod:`app.motion.retarget_transfer`), the trunk's chord (:mod:`app.motion.retarget_trunk`),
 the pelvis's path and the feet on the floor
-(:mod:`app.motion.retarget_floor`, :mod:`app.motion.retarget_feet`).
+(:mod:`app.motion.retarget_floor`, :mod:`app.motion.retarget_feet`), a planted foot's roll
+(:mod:`app.motion.retarget_stride`).
 """
 
 from __future__ import annotations

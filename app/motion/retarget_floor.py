@@ -3,11 +3,13 @@
 The pelvis travels as the source's pelvis, scaled about the world origin by the ratio of the
 legs' bone paths, then moved up or down per frame so the target's foot points that are on
 the floor in the source (the standing foot) are where the source's are, and nothing is
-below the source's lowest point. A swinging foot whose toe would skim the floor is pitched
-up about its ankle (:func:`clear_swinging_toes`); the path's horizontal part is corrected so
-a planted foot moves over the floor as the source's does, and goes back toward the scaled
-source's where no foot is on the floor (:func:`planted_feet_offsets`); what that cannot hold
-the legs take up (:mod:`app.motion.retarget_feet`).
+below the source's lowest point. A planted foot longer for its legs than the source's first
+rolls over its toe as the source's does (:mod:`app.motion.retarget_stride`). A swinging
+foot whose toe would skim the floor is pitched up about its ankle
+(:func:`clear_swinging_toes`); the path's horizontal part is corrected so a planted foot
+moves over the floor as the source's does, and goes back toward the scaled source's where
+no foot is on the floor (:func:`planted_feet_offsets`); what that cannot hold the legs take
+up (:mod:`app.motion.retarget_feet`).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from app.motion.model import Motion
 from app.motion.retarget_feet import Pose, hold_planted_feet, planted_steps
 from app.motion.retarget_joints import between
 from app.motion.retarget_reference import leg_length, swing
+from app.motion.retarget_stride import fit_planted_roll
 from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap
 
 _TINY = 1e-9
@@ -96,6 +99,20 @@ def place_pelvis(
         return rotations, {int(j): positions[int(j)] + at for j in joints}
 
     refresh()
+    # A foot longer for its legs than the source's rolls over its toe as the source's does,
+    # so a walk's stride is the source's scaled (app.motion.retarget_stride).
+    if hold_feet and fit_planted_roll(
+        lambda joints: legs(joints, origin),
+        target_map,
+        parents,
+        local,
+        source.frame_time,
+        feet_s,
+        t_up,
+        near,
+        _reference_legs(target, leg_joints),
+    ):
+        refresh()
 
     def foot_points(at: np.ndarray) -> np.ndarray:
         """``(F, P, 3)`` the foot points with the pelvis at ``at``."""
@@ -154,6 +171,13 @@ def place_pelvis(
             lift = lift + onto(held + lift[:, None, None] * t_up, np.ones_like(stance))
             pelvis_at = pelvis_at + lift[:, None] * t_up
     return pelvis_at
+
+
+def _reference_legs(target: Motion, joints: Sequence[int]) -> Pose:
+    """World rotations ``(3, 3)`` and positions ``(3,)`` of the rig's ``joints`` in its
+    reference pose (frame 0 of ``target``)."""
+    rot, pos = forward_kinematics(target.slice_frames(0, 1), joints=list(joints))
+    return {int(j): rot[0, j] for j in joints}, {int(j): pos[0, j] for j in joints}
 
 
 def clear_swinging_toes(
