@@ -40,12 +40,11 @@ from app.motion.formats.scene import (
     scene_notes,
     skeleton_nodes,
     unique_names,
+    with_plain_nodes_below,
 )
 from app.motion.model import Motion, ParseLimits
 
 DEFAULT_LIMITS = ParseLimits()
-# ``ufbx.ElementType`` of a node that is nothing but a transform: no attribute (0), a Null (6).
-_PLAIN_ATTRIBUTES = frozenset({0, 6})
 MAX_SCENE_NODES = 100_000
 
 
@@ -114,9 +113,10 @@ def _animated_plain_nodes(
     index = {node.element_id: i for i, node in enumerate(nodes)}
     # By the attribute's type, a number: asking ``node.mesh`` hands out wrappers whose
     # freeing crashed the binding at the scene's end (a file of meshes and no bones).
-    plain = joinable & np.array(
-        [int(node.attrib_type) in _PLAIN_ATTRIBUTES for node in nodes], dtype=bool
-    )
+    import ufbx
+
+    nothing_else = {ufbx.ElementType.UNKNOWN, ufbx.ElementType.EMPTY}  # no attribute, a Null
+    plain = joinable & np.array([node.attrib_type in nothing_else for node in nodes], dtype=bool)
     animated = np.zeros(len(nodes), dtype=bool)
     # Every wrapper the binding hands out is kept referenced with the scene (freeing one
     # early crashes it, as for the stacks and their ``Anim`` objects).
@@ -132,18 +132,7 @@ def _animated_plain_nodes(
                     found = index.get(element.element_id)
                     if found is not None:
                         animated[found] = True
-    chosen = animated & plain
-    # Parents before children: the nodes by depth (each node's parent one level up).
-    depth = np.zeros(len(nodes), dtype=np.int64)
-    for i in range(len(nodes)):
-        j, steps = int(parents[i]), 0
-        while j >= 0 and steps <= len(nodes):
-            j, steps = int(parents[j]), steps + 1
-        depth[i] = steps
-    for i in np.argsort(depth, kind="stable"):
-        if plain[i] and parents[i] >= 0 and chosen[parents[i]]:
-            chosen[i] = True
-    return chosen
+    return with_plain_nodes_below(animated & plain, plain, parents)
 
 
 def list_fbx_animations(data: bytes, *, limits: ParseLimits = DEFAULT_LIMITS) -> list[Animation]:

@@ -41,6 +41,7 @@ from app.motion.formats.scene import (
     scene_notes,
     skeleton_nodes,
     unique_names,
+    with_plain_nodes_below,
 )
 from app.motion.model import Motion, ParseLimits
 
@@ -127,17 +128,10 @@ def _animated_nodes(document: Any, parents: np.ndarray) -> np.ndarray:
             path = getattr(channel.target, "path", None)
             if path in ("translation", "rotation") and isinstance(node, int) and node >= 0:
                 animated[node] = node < len(nodes)
-    chosen = animated.copy()
-    for i, node in enumerate(nodes):
-        if chosen[i] or any(getattr(node, key, None) is not None for key in _NOT_JOINT):
-            continue
-        j, steps = int(parents[i]), 0
-        while j >= 0 and steps <= len(nodes):  # (a cycle is refused later, by the caller)
-            if animated[j]:
-                chosen[i] = True
-                break
-            j, steps = int(parents[j]), steps + 1
-    return chosen
+    plain = np.array(
+        [all(getattr(node, key, None) is None for key in _NOT_JOINT) for node in nodes], dtype=bool
+    )
+    return with_plain_nodes_below(animated, plain, parents)
 
 
 class _Document:

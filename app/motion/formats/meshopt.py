@@ -5,8 +5,8 @@ glTF-Transform's ``optimize`` write), decoded as the extension's specification d
 
 Only what a skeleton and its animation use is decoded: mode 0 (keyframe times and values;
 the index modes 1 and 2 hold mesh indices, which this service never reads) with the
-``NONE``, ``OCTAHEDRAL``, ``QUATERNION`` and ``EXPONENTIAL`` filters. Every read is checked
-against the bytes there are: the files are untrusted input.
+``NONE``, ``QUATERNION`` and ``EXPONENTIAL`` filters (``OCTAHEDRAL`` holds normals). Every
+read is checked against the bytes there are: the files are untrusted input.
 """
 
 from __future__ import annotations
@@ -151,11 +151,12 @@ def apply_filter(elements: np.ndarray, name: str, what: str) -> np.ndarray:
     if name == "QUATERNION":  # three components and the largest's index, 16-bit
         if stride != 8:
             raise ParseError(f"{what}: the quaternion filter needs a stride of 8")
-        raw = elements.view("<i2").reshape(count, 4).astype(np.float64)
-        one = (elements.view("<i2").reshape(count, 4)[:, 3] | 3).astype(np.float64)
+        raw = elements.view("<i2").reshape(count, 4)
+        # The fourth component is 1.0 in K bits save its low two, the largest's index.
+        one = (raw[:, 3] | 3).astype(np.float64)
+        largest = raw[:, 3].astype(np.int64) & 3
         xyz = raw[:, :3] / one[:, None] * np.sqrt(0.5)
         w = np.sqrt(np.maximum(0.0, 1.0 - np.sum(xyz * xyz, axis=1)))
-        largest = elements.view("<i2").reshape(count, 4)[:, 3].astype(np.int64) & 3
         quaternion = np.empty((count, 4))
         rows = np.arange(count)
         for k in range(3):
@@ -171,24 +172,8 @@ def apply_filter(elements: np.ndarray, name: str, what: str) -> np.ndarray:
         exponent = words >> 24
         mantissa = ((words & 0xFFFFFF) ^ 0x800000) - 0x800000  # the low 24 bits, signed
         return np.ldexp(mantissa.astype(np.float64), exponent).astype("<f4").view(np.uint8)
-    if name == "OCTAHEDRAL":  # unit vectors: x, y over an explicit 1.0, and a fourth kept
-        if stride not in (4, 8):
-            raise ParseError(f"{what}: the octahedral filter needs a stride of 4 or 8")
-        kind = "i1" if stride == 4 else "<i2"
-        raw = elements.view(kind).reshape(count, 4)
-        one = raw[:, 2].astype(np.float64)
-        one = np.where(one == 0, 1.0, one)
-        x, y = raw[:, 0] / one, raw[:, 1] / one
-        z = 1.0 - np.abs(x) - np.abs(y)
-        t = np.minimum(z, 0.0)
-        x, y = x - np.copysign(t, x), y - np.copysign(t, y)
-        length = np.sqrt(x * x + y * y + z * z)
-        length = np.where(length > 0, length, 1.0)
-        top = float(np.iinfo(np.dtype(kind)).max)
-        unit = np.stack([x, y, z], axis=1) / length[:, None]
-        out = raw.copy()  # the fourth component passes through
-        out[:, :3] = np.round(np.clip(unit, -1.0, 1.0) * top).astype(kind)
-        return out.view(np.uint8)
+    if name == "OCTAHEDRAL":  # unit vectors: normals and tangents, never an animation's
+        raise ParseError(f"{what}: the octahedral filter holds normals, not animation")
     raise ParseError(f"{what}: unknown {EXTENSION} filter {name!r}")
 
 

@@ -307,6 +307,24 @@ def select_joints(parents: np.ndarray, is_bone: np.ndarray, joinable: np.ndarray
     return order
 
 
+def with_plain_nodes_below(
+    animated: np.ndarray, plain: np.ndarray, parents: np.ndarray
+) -> np.ndarray:
+    """``(N,)`` bool: the ``animated`` ``(N,)`` nodes and the ``plain`` ``(N,)`` ones (no mesh,
+    camera, light or skin) below any of them — a skeleton read from what an animation moves,
+    with its end bones, when a file names no bones (glTF without a skin, FBX of Null nodes).
+    ``parents`` ``(N,)``; a cycle is walked at most ``N`` steps (the caller refuses it)."""
+    chosen = animated.copy()
+    for i in np.flatnonzero(plain & ~animated):
+        j, steps = int(parents[i]), 0
+        while j >= 0 and steps <= len(parents):
+            if animated[j]:
+                chosen[i] = True
+                break
+            j, steps = int(parents[j]), steps + 1
+    return chosen
+
+
 def skeleton_nodes(parents: np.ndarray, is_bone: np.ndarray, joinable: np.ndarray) -> np.ndarray:
     """``(K,)`` sorted indices of the nodes the skeleton needs: its joints
     (:func:`select_joints`) and all their ancestors. The readers sample these nodes only
