@@ -5,6 +5,7 @@ stale or damaged exact-vectors file is noticed and the index rebuilt from the da
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -81,23 +82,34 @@ def test_reloaded_from_its_files_it_answers_the_same(tmp_path: Path) -> None:
     assert_same_answers(reopened, flat(ids, vectors, tmp_path / "flat"))
 
 
-@pytest.mark.parametrize("damage", ["missing", "damaged", "stale"])
-def test_a_bad_exact_vectors_file_is_rebuilt_from_the_database(tmp_path: Path, damage: str) -> None:
-    ids, vectors = library(2)
-    every_cell(tmp_path).replace_all(ids, vectors)
-    path = tmp_path / "windows-motion-1s.exact.arrays"
+def damage_exact_file(stem: Path, damage: str, write_other: Callable[[Path], object]) -> None:
+    """Spoil the exact vectors beside the index file ``stem`` (``<stem>.exact.arrays``):
+    ``missing``, ``damaged`` (one byte of one vector) or ``stale`` (another index file's,
+    which ``write_other`` writes as ``<dir>/other/<stem name>``: a save that died half way)."""
+    path = stem.with_name(stem.name + ".exact.arrays")
     if damage == "missing":
         path.unlink()
     elif damage == "damaged":
         data = bytearray(path.read_bytes())
         data[len(data) // 2] ^= 0xFF  # one number of one vector
         path.write_bytes(bytes(data))
-    else:  # the exact vectors of another index file (a save that died half way)
-        other_ids, other_vectors = library(3)
-        every_cell(tmp_path / "other").replace_all(other_ids, other_vectors)
+    else:
+        other = stem.parent / "other" / stem.name
+        write_other(other)
         for suffix in (".exact.arrays", ".exact.json"):
-            name = "windows-motion-1s" + suffix
-            (tmp_path / name).write_bytes((tmp_path / "other" / name).read_bytes())
+            name = stem.name + suffix
+            (stem.parent / name).write_bytes((other.parent / name).read_bytes())
+
+
+@pytest.mark.parametrize("damage", ["missing", "damaged", "stale"])
+def test_a_bad_exact_vectors_file_is_rebuilt_from_the_database(tmp_path: Path, damage: str) -> None:
+    ids, vectors = library(2)
+    every_cell(tmp_path).replace_all(ids, vectors)
+    damage_exact_file(
+        tmp_path / "windows-motion-1s",
+        damage,
+        lambda other: every_cell(other.parent).replace_all(*library(3)),
+    )
     reopened = every_cell(tmp_path)
     assert reopened.load_or_rebuild(_Source(ids, vectors)) is not None  # rebuilt
     assert reopened.codes == SQ8

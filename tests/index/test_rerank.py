@@ -15,6 +15,7 @@ from app.index.descriptor_index import DescriptorIndex
 from app.index.kinds import FLAT, FLOAT32, IVF, SQ8, IndexOptions
 from app.index.rerank import ranked, ranked_one
 from app.services.library_caches import index_options
+from tests.index.test_compressed import damage_exact_file
 from tests.index.test_frozen import _Source  # the database's view, of given vectors
 
 DIMENSION = 13  # padded to 16 in the lists
@@ -108,18 +109,11 @@ def test_the_file_says_sq8_and_a_second_opening_answers_alike(tmp_path: Path) ->
 def test_a_bad_exact_file_of_a_clip_index_is_rebuilt(tmp_path: Path, damage: str) -> None:
     ids, vectors = library(5)
     clip_index(tmp_path, nprobe=10_000).replace_all(ids, vectors)
-    path = tmp_path / "motion.exact.arrays"
-    if damage == "damaged":
-        data = bytearray(path.read_bytes())
-        data[len(data) // 2] ^= 0xFF  # one number of one vector
-        path.write_bytes(bytes(data))
-    else:  # the exact vectors of another index file (a save that died half way)
-        other_ids, other_vectors = library(6)
-        clip_index(tmp_path / "other", nprobe=10_000).replace_all(other_ids, other_vectors)
-        for suffix in (".exact.arrays", ".exact.json"):
-            (tmp_path / f"motion{suffix}").write_bytes(
-                (tmp_path / "other" / f"motion{suffix}").read_bytes()
-            )
+    damage_exact_file(
+        tmp_path / "motion",
+        damage,
+        lambda other: clip_index(other.parent, nprobe=10_000).replace_all(*library(6)),
+    )
     reopened = clip_index(tmp_path, nprobe=10_000)
     assert reopened.load_or_rebuild(_Source(ids, vectors)) is not None  # rebuilt
     assert reopened.codes == SQ8
