@@ -39,6 +39,7 @@ angle only and lifts the ankle by under 0.3 % of the leg at the limit.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from typing import NamedTuple
 
 import numpy as np
 
@@ -132,16 +133,26 @@ def hold_corrections(extra: np.ndarray, planted: np.ndarray, blend_frames: int) 
     return correction
 
 
+class FeetInputs(NamedTuple):
+    """What the feet passes of a retarget share (:func:`hold_planted_feet`,
+    :func:`~app.motion.retarget_stride.fit_planted_roll`,
+    :func:`~app.motion.retarget_floor.clear_swinging_toes`): the target's mapping and
+    ``(J,)`` parents, its ``(F, J, 3, 3)`` local rotations (each pass changes them in place),
+    the seconds a frame, the source's foot points ``(F, 4, 3)`` (scaled, in the target's
+    axes, :data:`~app.motion.ground.FOOT_POINTS` order), the target's ``(3,)`` up axis and
+    the on-floor distance, in the target's units."""
+
+    mapping: SkeletonMap
+    parents: np.ndarray
+    local: np.ndarray
+    frame_time: float
+    source_feet: np.ndarray
+    up: np.ndarray
+    near: float
+
+
 def hold_planted_feet(
-    kinematics: Callable[[Sequence[int]], Pose],
-    mapping: SkeletonMap,
-    parents: np.ndarray,
-    local: np.ndarray,
-    frame_time: float,
-    source_feet: np.ndarray,
-    up: np.ndarray,
-    near: float,
-    height: float,
+    kinematics: Callable[[Sequence[int]], Pose], passes: FeetInputs, height: float
 ) -> np.ndarray | None:
     """Hold each planted foot of the retarget where the source's stands (see the module
     docstring), changing its ``local`` rotations ``(F, J, 3, 3)`` in place.
@@ -151,21 +162,17 @@ def hold_planted_feet(
     kinematics:
         World rotations ``(F, 3, 3)`` and positions ``(F, 3)`` of the given joints (and
         those between them and the pelvis), by joint, for the current ``local``.
-    mapping, parents:
-        The target skeleton's mapping and parent indices.
-    source_feet:
-        ``(F, 4, 3)`` the source's foot points, scaled, in the target's axes, in
-        :data:`~app.motion.ground.FOOT_POINTS` order (left ankle, left toe, right ankle,
-        right toe).
-    up:
-        ``(3,)`` the target's up axis; ``near`` the on-floor distance and ``height`` the
-        body height, in the target's units.
+    passes:
+        The feet passes' shared inputs (:class:`FeetInputs`).
+    height:
+        The body height, in the target's units.
 
     Returns
     -------
     ``(F, 4, 3)`` the target's foot points after the hold (in ``source_feet``'s order; a
     turned leg moves its ankle a little up or down), or ``None`` when nothing changed.
     """
+    mapping, parents, local, frame_time, source_feet, up, near = passes
     frames = local.shape[0]
     if frames < 3:
         return None
@@ -223,6 +230,7 @@ def hold_planted_feet(
 __all__ = [
     "BLEND",
     "MAX_TURN",
+    "FeetInputs",
     "Pose",
     "hold_corrections",
     "hold_planted_feet",

@@ -22,7 +22,7 @@ from app.motion.body import body_height, count_lead_in_frames
 from app.motion.ground import FOOT_POINTS, ON_FLOOR
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion
-from app.motion.retarget_feet import Pose, hold_planted_feet, planted_steps
+from app.motion.retarget_feet import FeetInputs, Pose, hold_planted_feet, planted_steps
 from app.motion.retarget_joints import between
 from app.motion.retarget_reference import leg_length, swing
 from app.motion.retarget_stride import fit_planted_roll
@@ -101,16 +101,9 @@ def place_pelvis(
     refresh()
     # A foot longer for its legs than the source's rolls over its toe as the source's does,
     # so a walk's stride is the source's scaled (app.motion.retarget_stride).
+    passes = FeetInputs(target_map, parents, local, source.frame_time, feet_s, t_up, near)
     if hold_feet and fit_planted_roll(
-        lambda joints: legs(joints, origin),
-        target_map,
-        parents,
-        local,
-        source.frame_time,
-        feet_s,
-        t_up,
-        near,
-        _reference_legs(target, leg_joints),
+        lambda joints: legs(joints, origin), passes, _reference_legs(target, leg_joints)
     ):
         refresh()
 
@@ -139,9 +132,7 @@ def place_pelvis(
     pelvis_at = pelvis_at + lift[:, None] * t_up
     feet_t = feet_t + lift[:, None, None] * t_up
     # A swinging foot clears the floor as the source's does (a long foot points its toe lower).
-    if clear_swinging_toes(
-        lambda joints: legs(joints, pelvis_at), target_map, parents, local, feet_s, t_up, near
-    ):
+    if clear_swinging_toes(lambda joints: legs(joints, pelvis_at), passes):
         refresh()
         feet_t = foot_points(pelvis_at)
     # Then the lowest point is the source's lowest (feet neither sinking nor floating): this
@@ -153,17 +144,7 @@ def place_pelvis(
         feet_t, feet_s, t_up, near, lead_in=count_lead_in_frames(source)
     )
     if hold_feet:
-        held = hold_planted_feet(
-            lambda joints: legs(joints, pelvis_at),
-            target_map,
-            parents,
-            local,
-            source.frame_time,
-            feet_s,
-            t_up,
-            near,
-            near / ON_FLOOR,
-        )
+        held = hold_planted_feet(lambda joints: legs(joints, pelvis_at), passes, near / ON_FLOOR)
         if held is not None:
             # A leg turned about its hip raises or lowers its foot a little: the standing
             # foot goes back onto the floor, and nothing sinks below the source's lowest.
@@ -180,15 +161,7 @@ def _reference_legs(target: Motion, joints: Sequence[int]) -> Pose:
     return {int(j): rot[0, j] for j in joints}, {int(j): pos[0, j] for j in joints}
 
 
-def clear_swinging_toes(
-    kinematics: Callable[[Sequence[int]], Pose],
-    mapping: SkeletonMap,
-    parents: np.ndarray,
-    local: np.ndarray,
-    source_feet: np.ndarray,
-    up: np.ndarray,
-    near: float,
-) -> bool:
+def clear_swinging_toes(kinematics: Callable[[Sequence[int]], Pose], passes: FeetInputs) -> bool:
     """Pitch each foot up about its ankle (``local`` ``(F, J, 3, 3)`` changed in place)
     at frames where the source's toe is off the floor (``near`` or more above the lowest any
     source foot point gets) but the target's toe is not: on a foot longer for its leg than
@@ -196,9 +169,8 @@ def clear_swinging_toes(
     toe of a swinging foot on the floor, where it skims. The toe is raised until it is off
     the floor too (``near`` above it, or the source toe's height if that is lower; as near
     as the foot reaches); the foot keeps its heading. ``kinematics`` gives the legs' joints'
-    world rotations and positions for the current ``local``; ``source_feet`` ``(F, P, 3)``
-    are the source's foot points (scaled, target axes, :data:`FOOT_POINTS` order) at the
-    target's heights. Returns whether anything changed.
+    world rotations and positions for the current ``local``; ``passes`` the feet passes' shared
+    inputs (:class:`~app.motion.retarget_feet.FeetInputs`). Returns whether anything changed.
 
     Until 2026-11-27 the toe was raised to the source toe's height: the source's clearance,
     which on a foot long for its leg took a 30-50 degree pitch coming in within one frame at
@@ -206,6 +178,7 @@ def clear_swinging_toes(
     terms, the energy a re-upload is described by, doubled: walks and runs retargeted onto
     the Mixamo and Xsens rigs were 0.6-1.0 from their source, about two thirds of it the
     ankles (docs/export.md, "The round trip's misses")."""
+    mapping, parents, local, _, source_feet, up, near = passes
     source_floor = float((source_feet @ up).min())
     changed = False
     for side in ("l", "r"):

@@ -33,9 +33,9 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from app.motion.ground import FOOT_POINTS
-from app.motion.retarget_feet import BLEND, Pose
+from app.motion.retarget_feet import BLEND, FeetInputs, Pose
 from app.motion.retarget_reference import swing
-from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap
+from app.motion.skeleton_map import CANONICAL_INDEX
 
 _TINY = 1e-9
 
@@ -77,26 +77,17 @@ def _contact_starts(on_floor: np.ndarray) -> np.ndarray:
 
 
 def fit_planted_roll(
-    kinematics: Callable[[Sequence[int]], Pose],
-    mapping: SkeletonMap,
-    parents: np.ndarray,
-    local: np.ndarray,
-    frame_time: float,
-    source_feet: np.ndarray,
-    up: np.ndarray,
-    near: float,
-    reference: Pose,
+    kinematics: Callable[[Sequence[int]], Pose], passes: FeetInputs, reference: Pose
 ) -> bool:
     """Pitch each foot about its ankle (``local`` ``(F, J, 3, 3)`` changed in place) while
     the source's toe is on the floor, so that from the start of each contact the ankle
     moves over the toe, along the floor, as the source's does (the module docstring).
 
     ``kinematics`` gives the legs' joints' world rotations ``(F, 3, 3)`` and positions
-    ``(F, 3)`` for the current ``local``; ``source_feet`` ``(F, 4, 3)`` are the source's foot
-    points (scaled, target axes, :data:`FOOT_POINTS` order); ``up`` ``(3,)`` the target's
-    up axis, ``near`` the on-floor distance; ``reference`` the legs' joints' world rotations
-    ``(3, 3)`` and positions ``(3,)`` in the rig's reference pose (a standing figure). Returns
-    whether anything changed.
+    ``(F, 3)`` for the current ``local``; ``passes`` the feet passes' shared inputs
+    (:class:`~app.motion.retarget_feet.FeetInputs`); ``reference`` the legs' joints' world
+    rotations ``(3, 3)`` and positions ``(3,)`` in the rig's reference pose (a standing
+    figure). Returns whether anything changed.
 
     The ankle's distance behind the toe is signed, along the foot's heading: the direction
     across the foot (the hips' axis in the reference pose, carried by the ankle's rotation)
@@ -104,6 +95,7 @@ def fit_planted_roll(
     toe behind its ankle) then keeps its sign; measured from the foot's own horizontal
     direction the heading flipped there, and the rig's ankle jumped by twice the feet's
     difference in length in one frame."""
+    mapping, parents, local, frame_time, source_feet, up, near = passes
     heights = source_feet @ up  # (F, P)
     floor = float(heights.min())
     blend_frames = max(1, round(BLEND / frame_time))
