@@ -262,6 +262,26 @@ def test_every_animation_of_a_scene_file_is_a_clip_and_a_rerun_skips_them(
     assert not again.imported and len(again.duplicates) == 2
 
 
+def test_a_gltf_beside_its_bin_imports_and_a_missing_bin_is_a_refusal_naming_it(
+    tmp_path: Path, settings: Settings, fixtures_dir: Path
+) -> None:
+    from tests.api.test_scene_uploads import separate_gltf
+
+    vrma = (fixtures_dir / "three_vrm_test.vrma").read_bytes()
+    folder = tmp_path / "scenes"
+    (folder / "whole" / "buffers").mkdir(parents=True)
+    (folder / "broken").mkdir()
+    document, binary = separate_gltf(vrma, "buffers/test.bin")
+    (folder / "whole" / "test.gltf").write_bytes(document)
+    (folder / "whole" / "buffers" / "test.bin").write_bytes(binary)
+    outside, _ = separate_gltf(vrma, "../whole/buffers/test.bin")
+    (folder / "broken" / "test.gltf").write_bytes(outside)
+    result = run_import(settings, [folder], workers=1)
+    assert len(result.imported) == 1
+    assert [str(f.path.relative_to(folder)) for f in result.failed] == ["broken/test.gltf"]
+    assert "outside the document's folder" in result.failed[0].reason
+
+
 def test_the_import_saves_no_index_before_the_run_ends(settings: Settings) -> None:
     from app.importer.run import _open_library
 

@@ -24,6 +24,7 @@ from app.errors import MocapError
 from app.motion.model import ParseLimits
 from app.services.describe import Description, MotionDescriber
 from app.services.parser_pool import InlineParser
+from app.services.upload_files import Budget, FolderFiles
 from app.services.uploads import Upload
 
 if TYPE_CHECKING:
@@ -31,6 +32,7 @@ if TYPE_CHECKING:
 
 MIN_ANIMATION_FRAMES = 5  # shorter animations of a multi-animation file are not imported
 TASKS_PER_WORKER = 2  # in flight: one being described, one waiting
+MAX_RESOURCE_BYTES = 256 * 1024 * 1024  # a .gltf's files read (MOCAP_MAX_UPLOAD_BYTES's default)
 WORKER_NICENESS = 5
 
 
@@ -48,6 +50,8 @@ def read_upload(
     ``notes`` may give its ``source`` and ``licence``."""
     notes = notes or {}
     motion = (source.motion.name, source.motion.read_bytes())
+    # A .gltf's .bin and textures are read from its folder (and below), only those it names.
+    beside = source.motion.suffix.lower() == ".gltf"
     skeleton = (
         None if source.skeleton is None else (source.skeleton.name, source.skeleton.read_bytes())
     )
@@ -58,6 +62,7 @@ def read_upload(
         labels=labels,
         source=notes.get("source"),
         licence=notes.get("licence"),
+        resources=FolderFiles(source.motion.parent, Budget(MAX_RESOURCE_BYTES)) if beside else None,
     )
 
 

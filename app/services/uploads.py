@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import unicodedata
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import PurePosixPath, PureWindowsPath
@@ -25,6 +25,7 @@ from pathlib import PurePosixPath, PureWindowsPath
 from app.discovery import content_hash_of_animation, content_hash_of_digests
 from app.errors import InvalidInput, UnsupportedMediaType
 from app.labels import normalise_labels
+from app.motion.formats.gltf_pack import pack_gltf, refers_to_files
 from app.motion.formats.scene import Animation
 from app.text import checked_text
 
@@ -42,8 +43,8 @@ FILE_FORMATS = {".bvh": BVH, ".fbx": FBX, ".glb": GLTF, ".gltf": GLTF, ".vrma": 
 # Upload field -> the file extensions it takes.
 EXTENSIONS = {"file": tuple(FILE_FORMATS), "skeleton": (".asf",), "motion": (".amc",)}
 ACCEPTED = (
-    "supported: .bvh, .fbx, .glb, .gltf or .vrma as 'file', or .asf as 'skeleton' with .amc "
-    "as 'motion'"
+    "supported: .bvh, .fbx, .glb, .gltf or .vrma as 'file' (a .gltf with the files it refers "
+    "to as further 'file' fields), or .asf as 'skeleton' with .amc as 'motion'"
 )
 MAX_ANIMATION_NAME = 255
 
@@ -129,12 +130,15 @@ class Upload:
         source: str | None = None,
         licence: str | None = None,
         animation: str | None = None,
+        resources: Mapping[str, bytes] | None = None,
     ) -> Upload:
         """Check which parts were sent and their types.
 
-        Each part is ``(file name, bytes)``. Raises :class:`InvalidInput` for a missing or
-        surplus part (naming the field) and :class:`UnsupportedMediaType` for a file whose
-        extension does not fit its field.
+        Each part is ``(file name, bytes)``. ``resources`` are the files a ``.gltf`` refers
+        to, by name (further ``file`` fields, or a bulk import's folder): such a ``.gltf`` is
+        stored as the one ``.glb`` of it and them (:func:`pack_gltf`). Raises
+        :class:`InvalidInput` for a missing or surplus part (naming the field) and
+        :class:`UnsupportedMediaType` for a file whose extension does not fit its field.
         """
         if file is not None and (skeleton is not None or motion is not None):
             extra = "skeleton" if skeleton is not None else "motion"
@@ -169,6 +173,7 @@ class Upload:
             if not data:
                 raise InvalidInput(f"field '{role}': the file {filename!r} is empty")
             parts.append(UploadPart(role, filename, data))
+        parts = _packed(parts, resources or {})
         upload = cls(
             tuple(parts),
             normalise_name(name),
@@ -227,3 +232,20 @@ class Upload:
         if self.animation is not None and len(self.animations) > 1:
             return f"{stem} · {self.animation}"[:MAX_NAME_LENGTH]
         return stem
+
+
+def _packed(parts: list[UploadPart], resources: Mapping[str, bytes]) -> list[UploadPart]:
+    """The parts, a ``.gltf`` that refers to other files made one ``.glb`` of them."""
+    if len(parts) != 1 or FILE_FORMATS.get(PurePosixPath(parts[0].filename).suffix.lower()) != GLTF:
+        if resources:
+            raise InvalidInput(
+                "field 'file': send one motion file; more than one only for a .gltf and the "
+                f"files it refers to (got also {', '.join(repr(n) for n in list(resources)[:5])})"
+            )
+        return parts
+    part = parts[0]
+    if not refers_to_files(part.data):
+        return parts
+    packed = pack_gltf(part.data, resources, what=f"field 'file': {part.filename!r}")
+    name = PurePosixPath(part.filename).stem + ".glb"
+    return [UploadPart(part.role, name[-MAX_NAME_LENGTH:], packed)]

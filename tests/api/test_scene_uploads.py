@@ -18,7 +18,8 @@ from app.config import Settings
 from app.main import create_app
 from app.motion.formats import read_bvh
 from tests.conftest import FIXTURES_DIR
-from tests.motion.gltf_builder import gltf_parts, two_animation_glb
+from tests.motion.gltf_builder import two_animation_glb
+from tests.motion.test_gltf_pack import separate
 
 FBX = ("human_ik.fbx", (FIXTURES_DIR / "ufbx_maya_human_ik_7400_binary.fbx").read_bytes())
 VRMA = ("test.vrma", (FIXTURES_DIR / "three_vrm_test.vrma").read_bytes())
@@ -86,12 +87,48 @@ def test_a_vrm_animation_upload_and_an_fbx_search(live):
     assert found.status_code == 200 and found.json()["query"]["format"] == "fbx"
 
 
-def test_a_gltf_naming_another_file_is_refused(live):
-    document, _ = gltf_parts(read_bvh(BVH[1]))
-    document["buffers"][0]["uri"] = "../walk.bin"
-    response = live.post("/clips", files={"file": ("walk.gltf", json.dumps(document).encode())})
+def separate_gltf(glb: bytes, bin_name: str) -> tuple[bytes, bytes]:
+    """A GLB laid out as a .gltf document and the .bin it names (Blender's "glTF Separate")."""
+    document, binary = separate(glb, bin_name)
+    return json.dumps(document).encode(), binary
+
+
+def vectors_of(live: TestClient, clip_id: int) -> dict[str, list[float]]:
+    descriptors = live.get(f"/clips/{clip_id}?include=descriptors").json()["descriptors"]
+    return {name: d["vector"] for name, d in descriptors.items()}
+
+
+def test_a_gltf_with_its_bin_as_another_file_field_is_the_glb_clip(live):
+    document, binary = separate_gltf(VRMA[1], "test.bin")
+    response = live.post(
+        "/clips", files=[("file", ("test.bin", binary)), ("file", ("test.gltf", document))]
+    )
+    assert response.status_code == 201, response.text
+    clip = response.json()
+    # Stored as what it now is: one GLB (the original layout is not kept).
+    assert clip["format"] == "gltf" and clip["filenames"] == ["test.glb"]
+    glb = live.post("/clips", files={"file": ("packed.vrma", VRMA[1])}).json()
+    assert vectors_of(live, clip["id"]) == vectors_of(live, glb["id"])
+    stored = live.get(f"/clips/{clip['id']}/file")
+    assert stored.status_code == 200 and stored.content[:4] == b"glTF"
+
+
+def test_a_gltf_without_the_file_it_names_is_refused_naming_it(live):
+    document, _ = separate_gltf(VRMA[1], "anim/test.bin")
+    response = live.post("/clips", files={"file": ("test.gltf", document)})
     assert response.status_code == 422
-    assert "upload a .glb" in response.json()["detail"]
+    assert "'anim/test.bin', which was not sent" in response.json()["detail"]
+    outside, binary = separate_gltf(VRMA[1], "../walk.bin")
+    files = [("file", ("walk.gltf", outside)), ("file", ("walk.bin", binary))]
+    response = live.post("/clips", files=files)
+    assert response.status_code == 422
+    assert "outside the document's folder" in response.json()["detail"]
+
+
+def test_a_motion_file_with_files_it_does_not_refer_to_is_refused(live):
+    response = live.post("/clips", files=[("file", BVH), ("file", ("walk.bin", b"1234"))])
+    assert response.status_code == 422
+    assert "more than one only for a .gltf" in response.json()["detail"]
 
 
 def test_unsupported_extensions_are_listed(live):

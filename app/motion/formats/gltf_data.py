@@ -128,7 +128,7 @@ def buffers_of(document: Any, blob: bytes | None) -> Buffers:
                 raise ParseError(f"buffer {i} has no data (no uri and no GLB binary chunk)")
             out.append(blob)
             continue
-        out.append(_data_uri(uri, f"buffer {i}"))
+        out.append(data_uri_bytes(uri, f"buffer {i}"))
     for i, image in enumerate(document.images or []):
         uri = getattr(image, "uri", None)
         if uri is not None:
@@ -145,7 +145,7 @@ def _check_uri(uri: Any, what: str) -> None:
         )
 
 
-def _data_uri(uri: Any, what: str) -> bytes:
+def data_uri_bytes(uri: Any, what: str) -> bytes:
     _check_uri(uri, what)
     header, _, payload = uri.partition(",")
     if not header.endswith(";base64"):
