@@ -212,13 +212,15 @@ export function postForm(path, params, form, { onProgress, signal, quietAuth = f
 }
 
 /**
- * The form fields of one clip: {file} or {skeleton, motion}, plus labels, `fields` (source,
- * licence: empty ones left out) and (FBX/glTF) the animation to read (`clip.animation`).
+ * The form fields of one clip: {file} (a .gltf's buffers and textures, `clip.resources`, as
+ * further 'file' fields) or {skeleton, motion}, plus labels, `fields` (source, licence: empty
+ * ones left out) and (FBX/glTF) the animation to read (`clip.animation`).
  */
 export function clipForm(clip, labels = [], fields = {}) {
   const form = new FormData();
   if (clip.bvh) {
     form.append("file", clip.bvh, clip.bvh.name);
+    for (const resource of clip.resources || []) form.append("file", resource, resource.name);
   } else {
     form.append("skeleton", clip.asf, clip.asf.name);
     form.append("motion", clip.amc, clip.amc.name);

@@ -1,5 +1,6 @@
-// Upload: drop (or choose) BVH files and ASF+AMC pairs; each clip uploads with its own
-// progress bar, and the service's error is shown next to the file that caused it.
+// Upload: drop (or choose) BVH files, ASF+AMC pairs and the like (a .gltf with its .bin and
+// textures); each clip uploads with its own progress bar, and the service's error is shown
+// next to the file that caused it.
 
 import { clipForm, fileAnimations, licences as fetchLicences, mayHoldAnimations, postForm } from "./api.js";
 import { el, formatSeconds, nextId, plural } from "./util.js";
@@ -25,7 +26,9 @@ function extension(name) {
  */
 // Files uploaded alone as the 'file' field (kept under the item's `bvh` key, which api.js sends).
 export const SINGLE_FILE_EXTENSIONS = ["bvh", "fbx", "glb", "gltf", "vrma"];
-export const ACCEPT = ".bvh,.fbx,.glb,.gltf,.vrma,.asf,.amc";
+// Files a .gltf may refer to (its buffers and textures): sent with every .gltf dropped with them.
+export const RESOURCE_EXTENSIONS = ["bin", "png", "jpg", "jpeg", "webp", "ktx2"];
+export const ACCEPT = ".bvh,.fbx,.glb,.gltf,.vrma,.asf,.amc,.bin,.png,.jpg,.jpeg,.webp,.ktx2";
 
 export function groupFiles(files, remembered = rememberedSkeletons) {
   const items = [];
@@ -35,10 +38,22 @@ export function groupFiles(files, remembered = rememberedSkeletons) {
   }
   const used = new Set();
   const allSkeletons = new Map([...remembered, ...skeletons]);
+  const dropped = Array.from(files);
+  const resources = dropped.filter((file) => RESOURCE_EXTENSIONS.includes(extension(file.name)));
+  const gltfDropped = dropped.some((file) => extension(file.name) === "gltf");
   for (const file of files) {
     const ext = extension(file.name);
-    if (SINGLE_FILE_EXTENSIONS.includes(ext)) {
+    if (ext === "gltf" && resources.length) {
+      items.push({ name: file.name, bvh: file, resources });
+    } else if (SINGLE_FILE_EXTENSIONS.includes(ext)) {
       items.push({ name: file.name, bvh: file });
+    } else if (RESOURCE_EXTENSIONS.includes(ext)) {
+      if (!gltfDropped) {
+        items.push({
+          name: file.name,
+          error: "a .gltf's buffer or texture: drop it together with its .gltf file",
+        });
+      }
     } else if (ext === "amc") {
       const key = stem(file.name).toLowerCase();
       const candidates = [key, key.split("_")[0], key.split(/[_-]/)[0]];
@@ -185,7 +200,7 @@ export async function renderUpload(main) {
   const zone = el(
     "div",
     { class: "dropzone", "data-testid": "dropzone" },
-    el("p", { class: "dropzone-title" }, "Drop BVH, FBX, glTF or VRMA files, or ASF skeletons with their AMC motions, anywhere on this page"),
+    el("p", { class: "dropzone-title" }, "Drop BVH, FBX, glTF (a .gltf with its .bin) or VRMA files, or ASF skeletons with their AMC motions, anywhere on this page"),
     el("p", {}, fileInput, el("label", { for: inputId, class: "button" }, "Choose files…")),
     el("p", { class: "hint" }, "Several files at once are fine; each clip is uploaded and checked on its own."),
   );

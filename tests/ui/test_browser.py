@@ -30,7 +30,7 @@ import pytest
 from app.motion.body import build_body
 from app.motion.display import display_positions
 from app.motion.formats import read_bvh
-from tests.conftest import REPO_ROOT, shared_data_dir
+from tests.conftest import FIXTURES_DIR, REPO_ROOT, shared_data_dir
 
 pytestmark = pytest.mark.slow
 
@@ -312,6 +312,33 @@ def test_upload_search_and_map(
     page.get_by_label("Find", exact=True).fill("nothing like it")
     expect(cards).to_have_count(0)
     expect(page.locator("main .status")).to_have_text("No clip matches these filters.")
+
+
+def test_a_gltf_dropped_with_its_bin_and_texture_is_one_clip(page: Any, tmp_path: Path) -> None:
+    from playwright.sync_api import expect
+
+    from tests.api.test_scene_uploads import separate_gltf
+
+    vrma = (FIXTURES_DIR / "three_vrm_test.vrma").read_bytes()
+    document, binary = separate_gltf(vrma, "anim.bin")
+    files = {"anim.gltf": document, "anim.bin": binary, "skin.png": b"not read"}
+    for name, data in files.items():
+        (tmp_path / name).write_bytes(data)
+    (tmp_path / "alone").mkdir()
+    (tmp_path / "alone" / "stray.bin").write_bytes(binary)
+    page.goto("/#/upload")
+    expect(page).to_have_title("Upload · mocap-index")
+    page.set_input_files("input[type=file]", [str(tmp_path / name) for name in files])
+    row = upload_row(page, "anim.gltf")
+    expect(row).to_have_attribute("data-state", "done")
+    expect(row).to_contain_text("stored as clip #")
+    # The buffer and the texture went with it: no rows of their own.
+    expect(page.locator(".upload")).to_have_count(1)
+    # A buffer dropped without its document is said to belong with one.
+    page.set_input_files("input[type=file]", [str(tmp_path / "alone" / "stray.bin")])
+    stray = upload_row(page, "stray.bin")
+    expect(stray).to_have_attribute("data-state", "error")
+    expect(stray).to_contain_text("drop it together with its .gltf file")
 
 
 def test_stick_figure_matches_the_api_joint_positions(
