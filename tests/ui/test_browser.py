@@ -330,7 +330,8 @@ def test_a_gltf_dropped_with_its_bin_and_texture_is_one_clip(page: Any, tmp_path
     expect(page).to_have_title("Upload · mocap-index")
     page.set_input_files("input[type=file]", [str(tmp_path / name) for name in files])
     row = upload_row(page, "anim.gltf")
-    expect(row).to_have_attribute("data-state", "done")
+    # Read first in a parser worker (listing its animations), which may have to start.
+    expect(row).to_have_attribute("data-state", "done", timeout=3 * TIMEOUT_MS)
     expect(row).to_contain_text("stored as clip #")
     # The buffer and the texture went with it: no rows of their own.
     expect(page.locator(".upload")).to_have_count(1)
