@@ -8,7 +8,6 @@ routes never repeat that check; ``UploadDep`` reads and checks a multipart uploa
 from __future__ import annotations
 
 from collections.abc import AsyncIterator
-from pathlib import PurePosixPath
 from typing import Annotated, Literal
 
 from fastapi import Depends, File, Form, Query, Request, UploadFile
@@ -19,7 +18,7 @@ from app.db.clips import ClipRecord
 from app.errors import UnsupportedMediaType
 from app.services import clips as clip_service
 from app.services.library import Library
-from app.services.uploads import FILE_FORMATS, Upload, clean_filename
+from app.services.uploads import Upload, split_files
 
 
 def get_library(request: Request) -> Library:
@@ -113,7 +112,7 @@ async def read_upload(
         )
     async with describe_slots(request).hold():
         files = [await _read(part) for part in file or []]
-        main, resources = _main_file(files)
+        main, resources = split_files(files)
         yield Upload.from_files(
             file=main,
             resources=resources,
@@ -125,19 +124,6 @@ async def read_upload(
             licence=licence,
             animation=animation,
         )
-
-
-def _main_file(
-    files: list[tuple[str | None, bytes] | None],
-) -> tuple[tuple[str | None, bytes] | None, dict[str, bytes]]:
-    """The motion file of the ``file`` fields (the one with a motion file's extension, else
-    the first) and the others by file name: the files a ``.gltf`` refers to."""
-    sent = [f for f in files if f is not None]
-    if not sent:
-        return None, {}
-    motions = [f for f in sent if PurePosixPath(f[0] or "").suffix.lower() in FILE_FORMATS]
-    main = motions[0] if len(motions) == 1 else sent[0]
-    return main, {clean_filename(f[0], "file"): f[1] for f in sent if f is not main}
 
 
 UploadDep = Annotated[Upload, Depends(read_upload)]

@@ -16,6 +16,7 @@ from app.api.query_check import CheckedQueryRoute
 from app.errors import InvalidInput, UnsupportedMediaType
 from app.motion.units import unit_name
 from app.services import clips as clip_service
+from app.services.uploads import clean_filename, packed_file, split_files
 
 if TYPE_CHECKING:
     from app.db.rigs import RigRecord
@@ -91,12 +92,13 @@ def create_rig(
     library: LibraryDep,
     response: Response,
     file: Annotated[
-        UploadFile | None,
+        list[UploadFile] | None,
         File(
             description="A character's skeleton: BVH (`.bvh`, `Frames: 0` skeletons too), "
-            "Acclaim skeleton (`.asf`), FBX (`.fbx`), glTF (`.glb`, `.gltf`), VRM (`.vrm`) "
-            "or VRM animation (`.vrma`). A file with a mesh and no animation is a rig (its "
-            "bind pose is the rest pose); a clip file works too."
+            "Acclaim skeleton (`.asf`), FBX (`.fbx`), glTF (`.glb`, or `.gltf`: repeat the "
+            "field for the files it refers to), VRM (`.vrm`) or VRM animation (`.vrma`). A "
+            "file with a mesh and no animation is a rig (its bind pose is the rest pose); a "
+            "clip file works too."
         ),
     ] = None,
     name: Annotated[str | None, Form(description="Rig name; default: the file's name.")] = None,
@@ -122,9 +124,13 @@ def create_rig(
                 "send the rig as multipart/form-data with the file in 'file' (got "
                 f"{content_type or 'no content type'!r}), or use ?from_clip="
             )
-        if file is None:
+        main, resources = split_files(
+            [(part.filename, part.file.read()) for part in file or []], rig_service.RIG_FORMATS
+        )
+        if main is None:
             raise InvalidInput("field 'file': no upload; send a rig file as 'file'")
-        rig_id = rig_service.create_rig(library, file.filename, file.file.read(), name)
+        filename, data = packed_file(clean_filename(main[0], "file"), main[1], resources)
+        rig_id = rig_service.create_rig(library, filename, data, name)
     response.headers["Location"] = f"/rigs/{rig_id}"
     return RigOut.of(rig_service.get_rig(library, rig_id), details=True)
 

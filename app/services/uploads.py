@@ -27,6 +27,7 @@ from app.errors import InvalidInput, UnsupportedMediaType
 from app.labels import normalise_labels
 from app.motion.formats.gltf_pack import pack_gltf, refers_to_files
 from app.motion.formats.scene import Animation
+from app.services.upload_files import FolderFiles
 from app.text import checked_text
 
 MAX_NAME_LENGTH = 255
@@ -234,18 +235,39 @@ class Upload:
         return stem
 
 
+def split_files(
+    files: list[tuple[str | None, bytes] | None], suffixes: Iterable[str] = tuple(FILE_FORMATS)
+) -> tuple[tuple[str | None, bytes] | None, dict[str, bytes]]:
+    """The main file of an upload's repeated ``file`` fields (the one whose extension is in
+    ``suffixes``, else the first) and the others by file name: the files a ``.gltf`` refers
+    to."""
+    sent = [f for f in files if f is not None]
+    if not sent:
+        return None, {}
+    wanted = tuple(suffixes)
+    mains = [f for f in sent if PurePosixPath(f[0] or "").suffix.lower() in wanted]
+    main = mains[0] if len(mains) == 1 else sent[0]
+    return main, {clean_filename(f[0], "file"): f[1] for f in sent if f is not main}
+
+
+def packed_file(filename: str, data: bytes, resources: Mapping[str, bytes]) -> tuple[str, bytes]:
+    """``(filename, data)`` of an uploaded file: a ``.gltf`` that refers to other files made
+    the one ``.glb`` of it and ``resources`` (:func:`pack_gltf`), any other file as it is.
+    Files sent with one that refers to none are refused (422), naming them."""
+    if PurePosixPath(filename).suffix.lower() != ".gltf" or not refers_to_files(data):
+        if not isinstance(resources, FolderFiles) and resources:
+            raise InvalidInput(
+                f"field 'file': send one file; more than one only for a .gltf and the files it "
+                f"refers to (got also {', '.join(repr(n) for n in list(resources)[:5])})"
+            )
+        return filename, data
+    packed = pack_gltf(data, resources, what=f"field 'file': {filename!r}")
+    return (PurePosixPath(filename).stem + ".glb")[-MAX_NAME_LENGTH:], packed
+
+
 def _packed(parts: list[UploadPart], resources: Mapping[str, bytes]) -> list[UploadPart]:
     """The parts, a ``.gltf`` that refers to other files made one ``.glb`` of them."""
-    if len(parts) != 1 or FILE_FORMATS.get(PurePosixPath(parts[0].filename).suffix.lower()) != GLTF:
-        if resources:
-            raise InvalidInput(
-                "field 'file': send one motion file; more than one only for a .gltf and the "
-                f"files it refers to (got also {', '.join(repr(n) for n in list(resources)[:5])})"
-            )
+    if len(parts) != 1:
         return parts
-    part = parts[0]
-    if not refers_to_files(part.data):
-        return parts
-    packed = pack_gltf(part.data, resources, what=f"field 'file': {part.filename!r}")
-    name = PurePosixPath(part.filename).stem + ".glb"
-    return [UploadPart(part.role, name[-MAX_NAME_LENGTH:], packed)]
+    name, data = packed_file(parts[0].filename, parts[0].data, resources)
+    return parts if data is parts[0].data else [UploadPart(parts[0].role, name, data)]

@@ -10,7 +10,16 @@ import { clear, el, formatSeconds, nextId, plural } from "./util.js";
 const OPTIONS_KEY = "mocap-index.download-options";
 const DEFAULTS = Object.freeze({ format: "bvh", rig: "", root: "keep", units: "", fps: "" });
 /** The files a rig may be read from (POST /rigs). */
-export const RIG_ACCEPT = ".bvh,.asf,.fbx,.glb,.gltf,.vrm,.vrma";
+// A .gltf rig comes with the files it refers to (its .bin, textures): several may be chosen.
+export const RIG_ACCEPT = ".bvh,.asf,.fbx,.glb,.gltf,.vrm,.vrma,.bin,.png,.jpg,.jpeg,.webp,.ktx2";
+
+/** The form of a rig upload: every chosen file as 'file'; its name, the rig file's. */
+export function rigForm(files) {
+  const body = new FormData();
+  for (const file of files) body.append("file", file, file.name);
+  const main = [...files].find((file) => !/\.(bin|png|jpe?g|webp|ktx2)$/i.test(file.name)) || files[0];
+  return { body, name: main.name };
+}
 const UPLOAD_RIG = "upload"; // the rig select's "Upload a rig…" entry
 
 const FORMATS = [
@@ -124,7 +133,7 @@ export function openDownload(target) {
   const end = span ? el("input", { id: ids.end, type: "number", min: "0", step: "any", value: String(span[1]), inputmode: "decimal" }) : null;
 
   // "Upload a rig…": a file field in the dialog; the rig stored is then chosen.
-  const rigFile = el("input", { id: ids.rigFile, type: "file", accept: RIG_ACCEPT });
+  const rigFile = el("input", { id: ids.rigFile, type: "file", multiple: true, accept: RIG_ACCEPT });
   const rigStatus = el("p", { class: "hint", role: "status" });
   const storeRig = el("button", { type: "button", class: "small" }, "Store this rig");
   const rigUpload = el(
@@ -224,14 +233,12 @@ export function openDownload(target) {
   loadRigs(saved.rig);
 
   storeRig.addEventListener("click", async () => {
-    const file = rigFile.files[0];
-    if (!file) {
+    if (!rigFile.files.length) {
       rigStatus.textContent = "Choose the rig's file first.";
       return;
     }
-    const body = new FormData();
-    body.append("file", file, file.name);
-    rigStatus.textContent = `Reading ${file.name}…`;
+    const { body, name } = rigForm(rigFile.files);
+    rigStatus.textContent = `Reading ${name}…`;
     storeRig.disabled = true;
     try {
       const answer = await withKey(keyArea, () => postForm("/rigs", null, body, { quietAuth: true }), "store a rig");

@@ -4,14 +4,14 @@
 
 import { getJson, postForm, sendJson } from "./api.js";
 import { formatBadge } from "./clip.js";
-import { RIG_ACCEPT } from "./download.js";
+import { RIG_ACCEPT, rigForm } from "./download.js";
 import { withKey } from "./keys.js";
 import { drawRig, jointAt } from "./rigfigure.js";
 import { clear, deleteDialog, el, nextId, plural } from "./util.js";
 
 export async function renderRigs(main) {
   const ids = { file: nextId("rig-file"), name: nextId("rig-name"), clip: nextId("rig-clip") };
-  const fileInput = el("input", { id: ids.file, type: "file", accept: RIG_ACCEPT, required: true });
+  const fileInput = el("input", { id: ids.file, type: "file", multiple: true, accept: RIG_ACCEPT, required: true });
   const nameInput = el("input", { id: ids.name, type: "text", maxlength: "255", autocomplete: "off", placeholder: "default: the file's name" });
   const clipInput = el("input", { id: ids.clip, type: "number", min: "1", inputmode: "numeric", placeholder: "e.g. 7" });
   const keyArea = el("div", { class: "key-area" });
@@ -159,13 +159,11 @@ export async function renderRigs(main) {
 
   uploadForm.addEventListener("submit", async (event) => {
     event.preventDefault();
-    const file = fileInput.files[0];
-    if (!file) return;
-    const body = new FormData();
-    body.append("file", file, file.name);
+    if (!fileInput.files.length) return;
+    const { body, name } = rigForm(fileInput.files);
     if (nameInput.value.trim()) body.append("name", nameInput.value.trim());
     const send = () => postForm("/rigs", null, body, { quietAuth: true }).then((answer) => answer.body);
-    if (await store(send, file.name)) {
+    if (await store(send, name)) {
       uploadForm.reset();
     }
   });

@@ -190,6 +190,20 @@ def test_a_file_without_motion_is_a_rig(live: TestClient) -> None:
     assert skeleton_only.status_code == 201, skeleton_only.text
 
 
+def test_a_character_as_gltf_with_its_bin_is_a_rig(live: TestClient) -> None:
+    from tests.api.test_scene_uploads import separate_gltf
+
+    document, binary = separate_gltf(without_animation(GLB[1]), "character.bin")
+    files = [("file", ("character.bin", binary)), ("file", ("character.gltf", document))]
+    rig = live.post("/rigs", files=files)
+    assert rig.status_code == 201, rig.text
+    glb = live.post("/rigs", files={"file": ("character.glb", without_animation(GLB[1]))})
+    assert rig.json()["mapping"] == glb.json()["mapping"]
+    alone = live.post("/rigs", files={"file": ("character.gltf", document)})
+    assert alone.status_code == 422
+    assert "'character.bin', which was not sent" in alone.json()["detail"]
+
+
 @pytest.mark.parametrize(
     ("files", "status", "code"),
     [

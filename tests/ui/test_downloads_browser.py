@@ -341,3 +341,21 @@ def test_rigs_page_uploads_draws_and_deletes(browser: Any, tmp_path: Path) -> No
         listed = httpx.get(f"{base}/rigs", timeout=30).json()
         assert listed["items"][-1]["filename"] == clip["filenames"][0]
         expect(cards.nth(1).locator(".clip-name")).to_have_text(listed["items"][-1]["name"])
+
+        # A character as a .gltf with its .bin: both files chosen at once, one rig.
+        from app.motion.formats import read_bvh
+        from tests.api.test_scene_uploads import separate_gltf
+        from tests.motion.gltf_builder import build_glb
+
+        glb = build_glb(read_bvh(CMU_BVH.read_bytes()))
+        document, binary = separate_gltf(glb, "character.bin")
+        page.get_by_label(re.compile("^Rig file")).set_input_files(
+            files=[
+                {"name": "character.gltf", "mimeType": "model/gltf+json", "buffer": document},
+                {"name": "character.bin", "mimeType": "application/octet-stream", "buffer": binary},
+            ]
+        )
+        page.get_by_label("Name").fill("glTF character")
+        page.get_by_role("button", name="Store rig").click()
+        expect(cards).to_have_count(3, timeout=STORE_TIMEOUT_MS)
+        expect(cards.nth(2)).to_contain_text("glTF character")
