@@ -257,3 +257,51 @@ def test_synthetic_rigs_map_alike_in_a_take_that_never_stands() -> None:
     print(f"synthetic: {alike} of {len(SHAPES) * len(POSTURES)} map alike")
     assert not wrong, wrong
     assert alike >= RECORDED_SYNTHETIC
+
+
+# Kneeling on one knee, held (a genuflection, a proposal): the left thigh forward and its
+# shin down to the planted foot; the right thigh down to the knee on the floor and its shin
+# back, the ankle raised (toes tucked under): that lower leg points back up the trunk a
+# little, as no seated or crouched leg does. On main the take was refused (a lower leg not
+# carrying the body had to point away from the head).
+KNEELING = (("l_hip", -90.0), ("l_knee", 90.0), ("r_knee", 75.0))
+
+
+@pytest.mark.parametrize("fixture", [CMU_BVH_FIXTURE, BANDAI_FIXTURE])
+def test_a_take_kneeling_on_one_knee_maps_alike(fixture: str) -> None:
+    motion = read_bvh(fixture_bytes(fixture))
+    named = _named_mapping(motion)
+    held = frames_at(motion, np.zeros(motion.frame_count, dtype=np.int64))  # frame 0, held
+    probed = frame_as_rest(posed(held, named[0], KNEELING))
+    assert _outcome(named, probed) is None
+    assert any("no pose shows a standing figure" in w for w in map_clip(probed).warnings)
+
+
+def _toe_moved(motion: Motion, names: tuple[str, ...], scale: float) -> Motion:
+    """``motion`` with the left toe joint set ``scale`` times as far from its ankle (an
+    auto-rigger placing each joint on its own side's mesh), the rest unchanged."""
+    toe = _at(names, motion, "l_toe")
+    while motion.skeleton.end_site[toe]:  # the toe joint, not the End Site beyond it
+        toe = int(motion.skeleton.parents[toe])
+    offsets = motion.skeleton.offsets.copy()
+    offsets[toe] *= scale
+    translations = motion.local_translations
+    if translations is not None:
+        translations = translations.copy()
+        translations[:, toe] *= scale
+    skeleton = dataclasses.replace(motion.skeleton, offsets=offsets)
+    return dataclasses.replace(motion, skeleton=skeleton, local_translations=translations)
+
+
+@pytest.mark.parametrize("fixture", [CMU_BVH_FIXTURE, BANDAI_FIXTURE])
+def test_a_seated_take_with_one_foot_bone_a_third_longer_maps_alike(fixture: str) -> None:
+    """The legs are mirror images where their joints lie along them, not bone by bone: one
+    foot bone 35 % longer (a sumo figure's Mixamo rig has 1.33 against 1.04) moves that
+    joint a few hundredths of the leg. On main the seated take was refused (no legs)."""
+    motion = read_bvh(fixture_bytes(fixture))
+    names = _named_mapping(motion)[0]
+    moved = _toe_moved(motion, names, 1.35)
+    named = _named_mapping(moved)
+    assert named[0] == names  # standing, the rig maps as before
+    probed = frame_as_rest(posed(moved, names, "seated"))
+    assert _outcome(named, probed) is None
