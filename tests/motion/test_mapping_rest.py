@@ -29,7 +29,7 @@ from app.motion.skeleton_map import CANONICAL_INDEX
 from tests.motion.conftest import BANDAI_FIXTURE, CMU_BVH_FIXTURE, fixture_bytes
 from tests.motion.holds import frames_at
 from tests.motion.skeleton_trees import Humanoid, synthetic_humanoid
-from tests.motion.synthetic import walking
+from tests.motion.synthetic import bones_scaled, walking
 from tests.motion.test_mapping_probes import _named_mapping, frame_as_rest
 from tests.motion.test_nameless_real import FILES
 
@@ -283,14 +283,7 @@ def _toe_moved(motion: Motion, names: tuple[str, ...], scale: float) -> Motion:
     toe = _at(names, motion, "l_toe")
     while motion.skeleton.end_site[toe]:  # the toe joint, not the End Site beyond it
         toe = int(motion.skeleton.parents[toe])
-    offsets = motion.skeleton.offsets.copy()
-    offsets[toe] *= scale
-    translations = motion.local_translations
-    if translations is not None:
-        translations = translations.copy()
-        translations[:, toe] *= scale
-    skeleton = dataclasses.replace(motion.skeleton, offsets=offsets)
-    return dataclasses.replace(motion, skeleton=skeleton, local_translations=translations)
+    return bones_scaled(motion, [toe], scale)
 
 
 @pytest.mark.parametrize("fixture", [CMU_BVH_FIXTURE, BANDAI_FIXTURE])
