@@ -23,10 +23,11 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import multiprocessing
 import os
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
+from concurrent.futures import Future, ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 import numpy as np
@@ -444,6 +445,41 @@ def rig_key(job: tuple[str, object, int]) -> tuple[str, bytes | None]:
     return name, repr((skeleton.names, skeleton.parents.tolist(), rounded.tolist())).encode()
 
 
+def run_jobs(
+    work: Callable[[tuple], tuple[str, object]], jobs: Iterable[tuple], workers: int
+) -> tuple[dict[str, object], list[str]]:
+    """``work`` on every job (``job[0]`` its name) in ``workers`` niced processes: the
+    results by name, and the names whose process died (a segfault in a native reader).
+
+    ``multiprocessing.Pool`` waits forever for a result a dead worker never sends; an
+    executor reports the death (``BrokenProcessPool``) to every job it still held, so those
+    are run again one process each, and a job that kills its own process is the one that
+    crashed."""
+    results: dict[str, object] = {}
+    crashed: list[str] = []
+    pending = list(jobs)
+    alone = False  # after a death: each job in a process of its own, to find the culprit
+    while pending:
+        batch = [[job] for job in pending] if alone else [pending]
+        pending = []
+        for group in batch:
+            size = 1 if alone else workers
+            with ProcessPoolExecutor(size, initializer=os.nice, initargs=(5,)) as pool:
+                futures: dict[Future, tuple] = {pool.submit(work, job): job for job in group}
+                for future in as_completed(futures):
+                    try:
+                        name, value = future.result()
+                    except BrokenProcessPool:
+                        if alone:
+                            crashed.append(futures[future][0])
+                        else:
+                            pending.append(futures[future])
+                        continue
+                    results[name] = value
+        alone = True
+    return results, crashed
+
+
 def sources(only: list[str], skip: list[str]) -> list[tuple[str, object]]:
     data = shared_data()
     out: list[tuple[str, object]] = []
@@ -480,19 +516,24 @@ def main() -> None:
             if not any(word in probe for word in args.probes):
                 del PROBES[probe]
     jobs = [(name, source, args.frames) for name, source in sources(args.only, args.skip)]
-    with multiprocessing.Pool(args.workers, initializer=os.nice, initargs=(5,)) as pool:
-        keys = dict(pool.imap(rig_key, jobs))
-        first: dict[bytes, str] = {}
-        for name, key in keys.items():
-            if key is not None:
-                first.setdefault(key, name)
-        unique = set(first.values())
-        results = dict(pool.imap_unordered(rig_outcomes, [j for j in jobs if j[0] in unique]))
-    rigs = {k: v for k, v in sorted(results.items()) if v is not None}
+    keys, unread = run_jobs(rig_key, jobs, args.workers)
+    first: dict[bytes, str] = {}
+    for job in jobs:  # the files' order, so the rig's first file is the one probed
+        key = keys.get(job[0])
+        if isinstance(key, bytes):
+            first.setdefault(key, job[0])
+    unique = set(first.values())
+    results, crashed = run_jobs(rig_outcomes, [j for j in jobs if j[0] in unique], args.workers)
+    # A rig whose probing killed its process failed every probe (a 500 at least).
+    for name in crashed:
+        results[name] = {probe: "ERROR the process died" for probe in PROBES}
+    rigs = {k: v for k, v in sorted(results.items()) if isinstance(v, dict)}
     print(
         f"{len(rigs)} human rigs of {len(results)} distinct rigs, {len(jobs)} files; "
         f"load average {os.getloadavg()[0]:.2f}"
     )
+    for name in unread + crashed:
+        print(f"the process died on {name} ({'reading' if name in unread else 'probing'} it)")
     print("| probe | same / applicable | refused | differ | ERROR |")
     print("|---|---|---|---|---|")
     for probe in PROBES:

@@ -123,6 +123,19 @@ def grown(motion: Motion, parents: list[int], offsets: list[np.ndarray]) -> Moti
     )
 
 
+def bones_scaled(motion: Motion, joints: Sequence[int], scale: float) -> Motion:
+    """``motion`` with the bones ending at ``joints`` ``scale`` times as long (their rest
+    offsets and, where the clip has them, their translations), nothing else changed."""
+    offsets = motion.skeleton.offsets.copy()
+    offsets[list(joints)] *= scale
+    translations = motion.local_translations
+    if translations is not None:
+        translations = translations.copy()
+        translations[:, list(joints)] *= scale
+    skeleton = dataclasses.replace(motion.skeleton, offsets=offsets)
+    return dataclasses.replace(motion, skeleton=skeleton, local_translations=translations)
+
+
 def joint_oriented(motion: Motion) -> Motion:
     """``motion`` as a rig with joint orientation writes it (Maya's "orient joints", many
     pose-estimation exporters): every joint's frame turned so its first child lies along its

@@ -29,7 +29,7 @@ from app.motion.model import Motion, ParseLimits
 from app.services.parser_pool import parse_scene
 from bench.probe_mapping import PROBES, mapped_names, outcome
 from tests.motion.conftest import BANDAI_FIXTURE, CMU_BVH_FIXTURE, fixture_bytes
-from tests.motion.synthetic import grown
+from tests.motion.synthetic import bones_scaled, grown
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
 
@@ -79,14 +79,7 @@ def _hips_wider_than_shoulders(motion: Motion, expected: dict[str, str]) -> Moti
     shoulders = [names.index(expected[f"{side}_shoulder"]) for side in "lr"]
     scale = 1.3 * np.linalg.norm(at[0, shoulders[0]] - at[0, shoulders[1]])
     scale /= np.linalg.norm(at[0, hips[0]] - at[0, hips[1]])
-    offsets = motion.skeleton.offsets.copy()
-    offsets[hips] *= scale
-    translations = motion.local_translations
-    if translations is not None:
-        translations = translations.copy()
-        translations[:, hips] *= scale
-    skeleton = dataclasses.replace(motion.skeleton, offsets=offsets)
-    return dataclasses.replace(motion, skeleton=skeleton, local_translations=translations)
+    return bones_scaled(motion, hips, float(scale))
 
 
 def test_a_figure_whose_hips_are_wider_than_its_shoulders_keeps_its_arms() -> None:

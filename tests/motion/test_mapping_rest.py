@@ -29,7 +29,7 @@ from app.motion.skeleton_map import CANONICAL_INDEX
 from tests.motion.conftest import BANDAI_FIXTURE, CMU_BVH_FIXTURE, fixture_bytes
 from tests.motion.holds import frames_at
 from tests.motion.skeleton_trees import Humanoid, synthetic_humanoid
-from tests.motion.synthetic import walking
+from tests.motion.synthetic import bones_scaled, walking
 from tests.motion.test_mapping_probes import _named_mapping, frame_as_rest
 from tests.motion.test_nameless_real import FILES
 
@@ -257,3 +257,44 @@ def test_synthetic_rigs_map_alike_in_a_take_that_never_stands() -> None:
     print(f"synthetic: {alike} of {len(SHAPES) * len(POSTURES)} map alike")
     assert not wrong, wrong
     assert alike >= RECORDED_SYNTHETIC
+
+
+# Kneeling on one knee, held (a genuflection, a proposal): the left thigh forward and its
+# shin down to the planted foot; the right thigh down to the knee on the floor and its shin
+# back, the ankle raised (toes tucked under): that lower leg points back up the trunk a
+# little, as no seated or crouched leg does. On main the take was refused (a lower leg not
+# carrying the body had to point away from the head).
+KNEELING = (("l_hip", -90.0), ("l_knee", 90.0), ("r_knee", 75.0))
+
+
+@pytest.mark.parametrize("fixture", [CMU_BVH_FIXTURE, BANDAI_FIXTURE])
+def test_a_take_kneeling_on_one_knee_maps_alike(fixture: str) -> None:
+    motion = read_bvh(fixture_bytes(fixture))
+    named = _named_mapping(motion)
+    held = frames_at(motion, np.zeros(motion.frame_count, dtype=np.int64))  # frame 0, held
+    probed = frame_as_rest(posed(held, named[0], KNEELING))
+    assert _outcome(named, probed) is None
+    assert any("no pose shows a standing figure" in w for w in map_clip(probed).warnings)
+
+
+def _toe_moved(motion: Motion, names: tuple[str, ...], scale: float) -> Motion:
+    """``motion`` with the left toe joint set ``scale`` times as far from its ankle (an
+    auto-rigger placing each joint on its own side's mesh), the rest unchanged."""
+    toe = _at(names, motion, "l_toe")
+    while motion.skeleton.end_site[toe]:  # the toe joint, not the End Site beyond it
+        toe = int(motion.skeleton.parents[toe])
+    return bones_scaled(motion, [toe], scale)
+
+
+@pytest.mark.parametrize("fixture", [CMU_BVH_FIXTURE, BANDAI_FIXTURE])
+def test_a_seated_take_with_one_foot_bone_a_third_longer_maps_alike(fixture: str) -> None:
+    """The legs are mirror images where their joints lie along them, not bone by bone: one
+    foot bone 35 % longer (a sumo figure's Mixamo rig has 1.33 against 1.04) moves that
+    joint a few hundredths of the leg. On main the seated take was refused (no legs)."""
+    motion = read_bvh(fixture_bytes(fixture))
+    names = _named_mapping(motion)[0]
+    moved = _toe_moved(motion, names, 1.35)
+    named = _named_mapping(moved)
+    assert named[0] == names  # standing, the rig maps as before
+    probed = frame_as_rest(posed(moved, names, "seated"))
+    assert _outcome(named, probed) is None

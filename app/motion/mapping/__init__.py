@@ -8,7 +8,9 @@ facing, naming or extra joints (fingers, face, twist bones, props, IK targets, d
 
 0. **Points, not joints.** Leaves that add no point (zero-length End Sites, which a BVH
    writer appends to every leaf joint of an FBX or glTF rig) are not seen at all; nor is an
-   End Site exactly as long as its bone (a tail Blender invents for a leaf joint).
+   End Site exactly as long as its bone (a tail Blender invents for a leaf joint), nor a
+   bone hung along a sibling bone's line short of its end, with what hangs below it on that
+   line or as its End Site (twist helpers, a sleeve: :mod:`.along`).
 1. **Extremities.** Leaves at least two bones below the root (thigh and shin, upper arm and
    forearm: a hip may sit at the pelvis itself) and far apart along bones are found
    greedily (the farthest leaf from the ones already chosen, up to :data:`_CANDIDATES`);
@@ -96,7 +98,8 @@ is refused with :class:`~app.errors.SkeletonMappingError` saying what was found 
 missing.
 
 Modules, by responsibility: :mod:`.canonical` (the canonical joints, :class:`SkeletonMap`),
-:mod:`.tree` (the skeleton's tree, candidate limb ends), :mod:`.hypotheses` (head, hands and
+:mod:`.tree` (the skeleton's tree, candidate limb ends), :mod:`.along` (bones hung along
+another: not seen), :mod:`.hypotheses` (head, hands and
 feet: step 1), :mod:`.state`, :mod:`.runs` (a limb's straight runs), :mod:`.limbs` and
 :mod:`.sides` (steps 2-4 for one hypothesis),
 :mod:`.mapper` (one pose's mapping), :mod:`.held` (limb ends held by IK), :mod:`.take` (a

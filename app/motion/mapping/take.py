@@ -10,12 +10,14 @@ its reason in the body:
   crawls bends at the hips and the knees, and the thighs then point anywhere; what stays is
   the lower leg: below the knee a leg that carries the body goes down the trunk, away from
   the head (a seated or crouching person's shins hang under the knees, a kneeling one's lie
-  behind them), and the other leg, stretched out or kicking, does not point back up to the
-  head (:data:`_LOWER_LEG_OPPOSITE_SPINE`). Knee and ankle are found by where a person's lie
-  along the leg's bones (:data:`_KNEE_SHARE`).
-* **The bones, in every pose.** The legs are one leg and its mirror image, bone for bone (a
-  tail or another limb beside a leg is not), and the arms at least half as long as the legs
-  (:data:`_ARM_TO_LEG`: face bones or fingers taken for arms are not).
+  behind them), and the other leg, stretched out, kicking or kneeling, does not point
+  back up to the head more than a kneeling shin rises from the floor
+  (:data:`_LOWER_LEG_OPPOSITE_SPINE`, :data:`_KNEELING_SHIN_RISE`). Knee and ankle are
+  found by where a person's lie along the leg's bones (:data:`_KNEE_SHARE`).
+* **The bones, in every pose.** The legs are one leg and its mirror image, bone for bone
+  (each joint as far along its leg; a tail or another limb beside a leg is not), and the
+  arms at least half as long as the legs (:data:`_ARM_TO_LEG`: face bones or fingers taken
+  for arms are not).
 * **The world, over the take.** A bent person and a four-legged animal look alike in the
   body's own frame (a fox's shins slant back down its spine as a crouching person's do); the
   world tells them apart. Files are authored with a coordinate axis up, and along it both
@@ -61,13 +63,18 @@ from app.motion.mapping.hypotheses import (
 )
 from app.motion.mapping.limbs import _ALIKE
 from app.motion.mapping.mapper import _TRIED_CHOICES, _Mapper
+from app.motion.mapping.runs import _FOOT_TO_SHIN
 from app.motion.mapping.tree import _Tree
 from app.motion.mapping.vectors import _length, _unit
 
 # cos of the smallest angle between the spine and a lower leg that carries the body (120
 # degrees, as for whole legs in a standing figure: hypotheses._LEGS_OPPOSITE_SPINE); the
-# other may be stretched out or kick, but not point back up towards the head.
+# other may be stretched out or kick, but not point back up towards the head...
 _LOWER_LEG_OPPOSITE_SPINE = -0.5
+# ...more than a kneeling leg's shin does: its knee rests on the floor and its ankle behind
+# it at most a foot's length above (the toes tucked under), so along an upright trunk the
+# shin rises at most foot : shin of its length (runs._FOOT_TO_SHIN, Drillis & Contini).
+_KNEELING_SHIN_RISE = _FOOT_TO_SHIN
 # A person's arm, collar to fingertip, is about 0.75 of the leg, hip to toe tip, along the
 # bones (0.1 + 0.44 against 0.1 + 0.53 + 0.1 of the height, Drillis & Contini); under half,
 # the "arms" are face bones or fingers and the "legs" arms.
@@ -117,24 +124,40 @@ def _lower_leg(tree: _Tree, pelvis: int, foot: int) -> tuple[int, int]:
 
 
 def _mirror_legs(tree: _Tree, pelvis: int, feet: tuple[int, int]) -> bool:
-    """Whether the two legs are one leg and its mirror image, bone for bone (within
+    """Whether the two legs are one leg and its mirror image, bone for bone: as many bones,
+    each joint as far along its leg's bones from the pelvis as its mirror image (within
     :data:`_ALIKE`): a person's are; a tail or a creature's other limb beside a leg is not.
-    Kept on the tree, as :func:`_lower_leg`."""
+
+    Where along the leg, not each bone's own length: an auto-rigger places each joint on
+    its own side's mesh, and a short bone's end set a little off (a sumo figure's toe joints,
+    1.33 and 1.04 beyond ankles 7.5 and 7.1 along legs of 8) changes that bone by a quarter
+    but its joint's place along the leg by a few hundredths. Kept on the tree, as
+    :func:`_lower_leg`."""
     key = (pelvis, *feet)
     found = tree.mirror_legs.get(key)
     if found is None:
-        bones = [
-            [float(tree.lengths[j]) for j in tree.chain(pelvis, foot)[1:] if tree.lengths[j] > 0]
+        along = [
+            [
+                float(tree.path[j] - tree.path[pelvis])
+                for j in tree.chain(pelvis, foot)[1:]
+                if tree.lengths[j] > 0
+            ]
             for foot in feet
         ]
-        found = tree.mirror_legs[key] = len(bones[0]) == len(bones[1]) and all(
-            abs(math.log(a / b)) <= _ALIKE for a, b in zip(*bones, strict=True)
+        found = tree.mirror_legs[key] = len(along[0]) == len(along[1]) and all(
+            abs(math.log(a / b)) <= _ALIKE for a, b in zip(*along, strict=True)
         )
     return found
 
 
-def _check_bent(tree: _Tree, pose: np.ndarray, extent: float, choice: _Choice) -> _Body | None:
-    """``choice`` as a person whose hips and knees may bend in ``pose``, else None."""
+def _check_bent(
+    tree: _Tree, pose: np.ndarray, extent: float, choice: _Choice, rest: bool
+) -> _Body | None:
+    """``choice`` as a person whose hips and knees may bend in ``pose``, else None;
+    ``rest``: ``pose`` is the rest pose, which is not read kneeling on one knee (a bind pose
+    is built with the legs mirror images, so both sides skin alike: a rest pose kneeling on
+    one knee is a pose of the take, which the take's frames show too; and an odd rest pose,
+    bones in axes of their own, is no figure and must not pass for one)."""
     head, hands, feet, chest, pelvis, leg_lengths, arm_lengths, name_cost = choice
     up = trunk_up(pose, extent, head, chest, pelvis)
     if not _length(up) > 0:
@@ -148,7 +171,7 @@ def _check_bent(tree: _Tree, pose: np.ndarray, extent: float, choice: _Choice) -
         float(_unit(pose[ankle] - pose[knee]) @ up)
         for knee, ankle in (_lower_leg(tree, pelvis, foot) for foot in feet)
     )
-    if lower[0] > _LOWER_LEG_OPPOSITE_SPINE or not lower[1] < 0:
+    if lower[0] > _LOWER_LEG_OPPOSITE_SPINE or not lower[1] < (0 if rest else _KNEELING_SHIN_RISE):
         return None
     if float((pose[head] - pose[chest]) @ up) <= 0:
         return None
@@ -206,13 +229,14 @@ def map_take(known: _Known, poses: list[tuple[str, np.ndarray]]) -> SkeletonMap:
 
 
 def _check_on_one_leg(
-    tree: _Tree, pose: np.ndarray, extent: float, choice: _Choice
+    tree: _Tree, pose: np.ndarray, extent: float, choice: _Choice, rest: bool
 ) -> _Body | None:
     """``choice`` as a person standing on one leg in ``pose``, the other foot lifted, else
     None: the standing search's test with one foot lifted (hypotheses._LIFTED_FOOT_DROP),
     and the bones of a person (mirror-image legs, arms at least half as long: a tail beside a
     leg, or a creature's feathers for arms, is none; and arms shorter than the legs:
-    :data:`_ONE_LEG_ARM_TO_LEG`)."""
+    :data:`_ONE_LEG_ARM_TO_LEG`). ``rest`` changes nothing: a rest pose on one leg is read as
+    a frame is (the take votes)."""
     _, _, feet, _, pelvis, leg_lengths, arm_lengths, _ = choice
     if min(arm_lengths) < _ARM_TO_LEG * max(leg_lengths) or not _mirror_legs(tree, pelvis, feet):
         return None
@@ -240,7 +264,7 @@ def map_on_one_leg(known: _Known, poses: list[tuple[str, np.ndarray]]) -> Skelet
 def _voted(
     known: _Known,
     poses: list[tuple[str, np.ndarray]],
-    check: Callable[[_Tree, np.ndarray, float, _Choice], _Body | None],
+    check: Callable[[_Tree, np.ndarray, float, _Choice, bool], _Body | None],
     *,
     in_the_world: bool,
     how: str,
@@ -250,12 +274,12 @@ def _voted(
     from the first pose showing it, with the warning ``how``; else _NotHumanoid."""
     tree = known.tree
     shown: dict[int, list[tuple[int, _Body, float]]] = {}
-    for index, (_, pose) in enumerate(poses):
+    for index, (label, pose) in enumerate(poses):
         extent = float(np.linalg.norm(np.ptp(pose[tree.body_joints], axis=0)))
         if not extent > 0:
             continue
         for number, choice in enumerate(known.choices):
-            body = check(tree, pose, extent, choice)
+            body = check(tree, pose, extent, choice, label.startswith("rest pose"))
             if body is not None:
                 shown.setdefault(number, []).append((index, body, extent))
     need = _TAKE_MAJORITY * len(poses)

@@ -7,6 +7,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from app.motion.mapping.along import _twist_leaves
 from app.motion.mapping.canonical import rest_pose
 from app.motion.model import Skeleton
 from app.motion.skeleton_names import (
@@ -29,9 +30,6 @@ _LYING_NAMES = 2
 # Relative difference under which an End Site's length copies its parent bone's (a tail an
 # exporter invented, not a measured point): float32 rounding of the two is under 1e-6.
 _TAIL_COPY = 1e-4
-# Cosine between a leaf's bone and a longer sibling's above which the leaf lies on that
-# bone's line (2 degrees): rigs build twist bones along the bone, to float rounding.
-_ON_THE_LINE = float(np.cos(np.radians(2.0)))
 
 
 class _Tree:
@@ -73,7 +71,9 @@ class _Tree:
                 has_point[int(self.parents[j])] = True
             else:
                 self.void[j] = True
-        self.void |= _twist_leaves(skeleton.parents, skeleton.offsets, self.lengths, has_point)
+        self.void |= _twist_leaves(
+            skeleton.parents, self.rest, self.lengths, has_point, skeleton.end_site
+        )
         self.children: list[list[int]] = [[] for _ in range(count)]
         for j in range(1, count):
             if not self.void[j]:
@@ -245,26 +245,6 @@ class _Tree:
             if parts & {"head", "neck"}:
                 words.add("head")
         return words
-
-
-def _twist_leaves(
-    parents: np.ndarray, offsets: np.ndarray, lengths: np.ndarray, has_point: np.ndarray
-) -> np.ndarray:
-    """``(J,)`` bool: leaves that lie on the line of a sibling bone and short of its end —
-    the twist and roll helpers game rigs hang along the upper arm, forearm, thigh and shin.
-    No part of a body branches off along a bone's own line, so the mapper does not see them
-    (a limb with them must map as it does without). ``offsets`` ``(J, 3)``, ``lengths``
-    ``(J,)`` as the tree measures bones (0: no bone), ``has_point`` ``(J,)``: a joint with a
-    point below it."""
-    twist = np.zeros(len(parents), dtype=bool)
-    leaves = np.flatnonzero((lengths > 0) & ~has_point)
-    for leaf in leaves[leaves > 0]:
-        siblings = np.flatnonzero((parents == parents[leaf]) & (lengths > lengths[leaf]))
-        if not siblings.size:
-            continue
-        along = offsets[siblings] @ offsets[leaf] / (lengths[siblings] * lengths[leaf])
-        twist[leaf] = bool(np.any(along >= _ON_THE_LINE))
-    return twist
 
 
 def _chain_hints(parents: np.ndarray, hints: list[NameHint]) -> list[NameHint]:
