@@ -35,7 +35,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from app.errors import ParseError
-from app.motion.body_axes import frames_basis, pose_basis
+from app.motion.body_axes import frames_basis, pelvis_carries, pose_basis
 from app.motion.hand import palm
 from app.motion.kinematics import bone_lengths, forward_kinematics
 from app.motion.model import Motion
@@ -397,10 +397,14 @@ def pelvis_basis(motion: Motion, canonical: np.ndarray, *, rest_is_a_figure: boo
     trunk). A rest pose most
     frames agree with is kept, so a standing rig that merely starts seated reads as before;
     one frame agreeing is not enough (a rest pose in random axes points the trunk anywhere,
-    and a take that bends or turns the trunk meets it in some frame by chance).
+    and a take that bends or turns the trunk meets it in some frame by chance). Nor are the
+    frames asked where the bones the pelvis carries show the rest pose's axes
+    (:func:`~app.motion.body_axes.pelvis_carries`): every frame then shows them by its
+    pelvis, and a take whose trunk leans throughout (a sneak, a bow, a copy of a leaning
+    walk on such a rig) is read in the same axes as the skeleton's other takes.
     """
     rest = rest_pelvis_basis(motion, canonical)
-    if rest_is_a_figure:
+    if rest_is_a_figure or pelvis_carries(motion.skeleton, canonical, rest, within=_REST_SHOWN):
         return rest
     _, picked = _spread_frames(motion)
     rotations, positions = forward_kinematics(picked, joints=canonical)
@@ -417,6 +421,16 @@ def pelvis_basis(motion: Motion, canonical: np.ndarray, *, rest_is_a_figure: boo
         return frames_basis(positions, pelvis, canonical)
     except ParseError:  # some frame shows no body: the rest pose's axes, as before
         return rest
+
+
+def rest_axes_hold(motion: Motion, canonical: np.ndarray, *, rest_is_a_figure: bool) -> bool:
+    """Whether :func:`pelvis_basis` reads every take of ``motion``'s skeleton in its rest
+    pose's axes, whatever the take's frames do (the rest pose is a figure, or the bones the
+    pelvis carries show its axes); ``canonical`` ``(C,)`` the joint per canonical joint."""
+    if rest_is_a_figure:
+        return True
+    rest = rest_pelvis_basis(motion, canonical)
+    return pelvis_carries(motion.skeleton, canonical, rest, within=_REST_SHOWN)
 
 
 def rest_pelvis_basis(motion: Motion, canonical: np.ndarray) -> np.ndarray:

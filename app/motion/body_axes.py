@@ -4,7 +4,8 @@
 functions here read them from any ``(F, J, 3)`` poses with the pelvis's ``(F, 3, 3)`` world
 rotations in them: :func:`pose_basis` the legs' line and the trunk, :func:`frames_basis` the
 same for a take whose rest pose is no pose of the body, up then from the world's up when the
-take stands.
+take stands; and :func:`pelvis_carries` tells whether the bones the pelvis carries show a
+rest pose's axes, the same in every frame.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from app.errors import ParseError
+from app.motion.model import Skeleton
 from app.motion.skeleton_map import CANONICAL_INDEX, COINCIDENT
 
 # A pose stands when its trunk is upright, within 35 degrees of the world's up (the angle
@@ -109,6 +111,49 @@ def frames_basis(positions: np.ndarray, pelvis: np.ndarray, canonical: np.ndarra
     return np.stack([x, y, np.cross(x, y)], axis=1)
 
 
+def pelvis_carries(
+    skeleton: Skeleton, canonical: np.ndarray, rest: np.ndarray, *, within: float
+) -> bool:
+    """Whether the bones the pelvis itself carries show the rest pose's ``(3, 3)`` axes
+    (columns lateral, up, forward, in the pelvis joint's coordinates) in every frame.
+
+    A joint's offset from the pelvis is fixed in the pelvis's coordinates, whatever the
+    writer's bone axes and whatever a frame does: where both hips hang from the pelvis and
+    the rest pose's trunk is one straight line along the pelvis's own bone toward the neck
+    (every bone of the chain along it, and the rest's lateral and up each within ``within``,
+    a cosine, of the hips' line and that bone), the rest pose's axes are read from bones
+    every frame carries as the rest does, so every frame shows them by its pelvis, however
+    the spine bends above it (a trunk that leans throughout). A rest pose that is no figure
+    of the body does not pass: in random axes the chain above the pelvis's bone points
+    anywhere, and its chord can lie near that bone by chance, but not every bone of it.
+    """
+    parents, offsets = skeleton.parents, skeleton.offsets
+    pelvis = int(canonical[CANONICAL_INDEX["pelvis"]])
+    hips = [int(canonical[CANONICAL_INDEX[f"{side}_hip"]]) for side in "lr"]
+    if any(int(parents[hip]) != pelvis for hip in hips):
+        return False  # a hip below another joint: its line turns with that joint's axes
+    chain = [int(canonical[CANONICAL_INDEX["neck"]])]  # neck up to the pelvis's child
+    while chain[-1] >= 0 and int(parents[chain[-1]]) != pelvis:
+        chain.append(int(parents[chain[-1]]))
+    if chain[-1] < 0:
+        return False
+    size = float(np.linalg.norm(offsets, axis=1).max())
+    across = offsets[hips[0]] - offsets[hips[1]]
+    bone = offsets[chain[-1]]
+    lengths = np.linalg.norm(offsets[chain], axis=1)
+    if min(float(np.linalg.norm(across)), float(lengths[-1])) <= COINCIDENT * max(size, 1e-300):
+        return False  # hips or the pelvis's bone at the pelvis: they show no direction
+    along = offsets[chain] @ (bone / lengths[-1])
+    if not np.all(along >= within * lengths):
+        return False  # the rest's trunk bends above the pelvis's bone
+    x = across / np.linalg.norm(across)
+    up = bone - np.dot(bone, x) * x
+    if not float(np.linalg.norm(up)) > COINCIDENT * size:
+        return False  # the pelvis's bone lies along the hips' line
+    y = up / np.linalg.norm(up)
+    return float(rest[:, 0] @ x) >= within and float(rest[:, 1] @ y) >= within
+
+
 def _snapped(vector: np.ndarray) -> np.ndarray:
     """``(3,)`` the signed coordinate axis nearest to ``vector`` (``+Y`` for a zero vector)."""
     snapped = np.zeros(3)
@@ -120,4 +165,4 @@ def _snapped(vector: np.ndarray) -> np.ndarray:
     return snapped
 
 
-__all__ = ["frames_basis", "pose_basis"]
+__all__ = ["frames_basis", "pelvis_carries", "pose_basis"]

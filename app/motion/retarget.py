@@ -107,7 +107,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from app.motion.body import pelvis_basis
+from app.motion.body import pelvis_basis, rest_axes_hold
 from app.motion.ground import snap_axis
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion
@@ -214,8 +214,20 @@ def retarget(
         driven, limbs, s_rot, s_pos, s_ref_rot, s_ref_pos, t_ref_rot, t_ref_pos, body, world
     )
     parents = target.skeleton.parents
+    rest_axes = rest_axes_hold(
+        target, target_map.joints, rest_is_a_figure=target_map.pose == "rest pose"
+    )
     aim_trunk_chord(
-        driven, rotation, parents, t_ref_rot, t_ref_pos, s_pos, source_map, target_map, world
+        driven,
+        rotation,
+        parents,
+        t_ref_rot,
+        t_ref_pos,
+        s_pos,
+        source_map,
+        target_map,
+        world,
+        rest_axes=rest_axes,
     )
     rotations = target_rotations(driven, rotation, t_ref_rot, parents)
     local = rotations.local

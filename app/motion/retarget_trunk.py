@@ -29,12 +29,14 @@ shoulders kinetic energy the source's do not have (four Bandai bows on that char
 distance to the source: 0.017-0.031 on ``main``, 0.22-0.71 turning the chest, 0.024-0.105
 turning spine and chest as one; three of them 0.006-0.024 turning the spine alone).
 
-Not on a rig whose rest pose is no standing figure (its mapping read from a frame, as the
-Bandai rig): its re-upload is read back from its frames, which must show a standing body and
-give the body's axes; a bent trunk passed on whole is refused as a four-legged animal, or
-its lean read as upright (measured on the Bandai rig: the prototype's five re-uploads not
-read back; turning the spine alone, the two tried of them still not, and the biovision
-sample 0.137 -> 0.545 from its source).
+Not on a rig whose re-upload takes its body's axes from its frames (its rest pose no
+standing figure, and not shown by the bones its pelvis carries:
+:func:`app.motion.body.rest_axes_hold`): there a leaning trunk passed on is read as
+upright (measured on the Bandai rig before its pelvis's bones were read: the biovision
+sample 0.136 -> 0.545 from its source, CMU ``01_03`` 0.174 -> 0.507). The Bandai rig's rest
+is no figure, but its trunk is one straight line along the bone its pelvis carries, so its
+re-uploads keep the rest's axes and the chord is aimed there too ("The Bandai rig's trunk
+chord" in ``docs/export.md``).
 """
 
 from __future__ import annotations
@@ -58,14 +60,17 @@ def aim_trunk_chord(
     source_map: SkeletonMap,
     target_map: SkeletonMap,
     world: np.ndarray,
+    *,
+    rest_axes: bool,
 ) -> None:
     """Turn the rig's spine joint (with any driven joint between it and the chest) so its
     pelvis -> neck points as the source's, or as near as the spine's bone can bring it
     (``rotation`` ``(F, D, 3, 3)``, the ``driven`` joints' world rotations, changed in
     place). ``parents`` ``(J,)``, ``t_ref_rot`` ``(J, 3, 3)`` and ``t_ref_pos`` ``(J, 3)`` are
     the rig's hierarchy and reference pose, ``s_pos`` ``(F, J_s, 3)`` the source's
-    positions, ``world`` ``(3, 3)`` the rig's world axes onto the source's."""
-    if target_map.pose != "rest pose":
+    positions, ``world`` ``(3, 3)`` the rig's world axes onto the source's; ``rest_axes``:
+    the rig's takes are read in its rest pose's axes, whatever their frames do."""
+    if not rest_axes:
         return  # read back from its frames (module docstring): the bend is not passed on
     slot = {d.target: i for i, d in enumerate(driven)}
     t_pelvis, t_spine, t_chest, t_neck = (
