@@ -193,3 +193,62 @@ def test_an_animation_only_file_without_a_skin_is_read_by_its_animated_nodes(bvh
     assert bare.skeleton.names == skinned.skeleton.names
     np.testing.assert_array_equal(bare.local_rotations, skinned.local_rotations)
     np.testing.assert_array_equal(bare.root_translation, skinned.root_translation)
+
+
+def _as_pointers(document):
+    """``document`` with every channel's target written as a KHR_animation_pointer."""
+    for channel in document["animations"][0]["channels"]:
+        node, path = channel["target"]["node"], channel["target"]["path"]
+        channel["target"] = {
+            "path": "pointer",
+            "extensions": {"KHR_animation_pointer": {"pointer": f"/nodes/{node}/{path}"}},
+        }
+    document["extensionsUsed"] = ["KHR_animation_pointer"]
+    return document
+
+
+@pytest.mark.parametrize("skins", [True, False], ids=["skinned", "animation-only"])
+def test_animation_pointers_to_node_transforms_read_as_plain_channels(bvh_motion, skins):
+    """KHR_animation_pointer: a channel names ``/nodes/N/rotation`` by a JSON pointer instead
+    of target.node/path; the motion is the plain file's (with or without a skin)."""
+    document, binary = gltf_parts(bvh_motion, name="walk")
+    if not skins:
+        document["skins"] = []
+    plain = read_gltf(pack_glb(document, binary))[0]
+    pointed = read_gltf(pack_glb(_as_pointers(document), binary))[0]
+    assert pointed.skeleton.names == plain.skeleton.names
+    np.testing.assert_array_equal(pointed.local_rotations, plain.local_rotations)
+    np.testing.assert_array_equal(pointed.root_translation, plain.root_translation)
+    assert not pointed.notes.get("warnings")
+
+
+def test_animation_pointers_to_other_properties_are_left_out_with_a_warning(bvh_motion):
+    document, binary = gltf_parts(bvh_motion, name="walk")
+    _as_pointers(document)
+    animation = document["animations"][0]
+    colour = animation["samplers"][0]["output"]  # any VEC4 accessor: a colour's shape
+    animation["samplers"].append({"input": 0, "output": colour})
+    odd = [
+        "/materials/0/pbrMetallicRoughness/baseColorFactor",
+        "/nodes/01/rotation",  # not an array index (RFC 6901): not node 1
+        "/nodes/1/extensions/KHR_node_visibility/visible",
+        "/nodes/1/rotation/0",
+        "x" * 5000,
+    ]
+    for pointer in odd:
+        animation["channels"].append(
+            {
+                "sampler": len(animation["samplers"]) - 1,
+                "target": {
+                    "path": "pointer",
+                    "extensions": {"KHR_animation_pointer": {"pointer": pointer}},
+                },
+            }
+        )
+    animation["channels"].append({"sampler": 0, "target": {"path": "pointer"}})
+    plain = read_gltf(pack_glb(*gltf_parts(bvh_motion, name="walk")))[0]
+    motion = read_gltf(pack_glb(document, binary))[0]
+    np.testing.assert_array_equal(motion.local_rotations, plain.local_rotations)
+    (warning,) = motion.notes["warnings"]
+    assert "6 animation channel(s) of KHR_animation_pointer" in warning
+    assert "/materials/0/pbrMetallicRoughness/baseColorFactor" in warning and len(warning) < 300

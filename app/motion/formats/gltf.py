@@ -15,6 +15,10 @@ binary input.
   or, in a file with neither (an animation exported without its mesh), the nodes its channels
   turn or move and the plain nodes below them; plus the nodes between them
   (:mod:`app.motion.formats.scene`).
+* Channels: a node's ``translation``, ``rotation`` or ``scale``, named by ``target.node`` and
+  ``target.path`` or by a ``KHR_animation_pointer`` JSON pointer (``/nodes/3/rotation``);
+  pointers to anything else (materials, cameras, lights, extension properties) are not a
+  skeleton's and are left out with a warning, morph weights silently.
 * Motion: channels sampled with their interpolation (``LINEAR`` — quaternions slerped —,
   ``STEP``, ``CUBICSPLINE``) at the keyframe rate when the keys are evenly spaced (raised to
   a whole multiple of it of at least 24 fps, so every key is still a frame), else 30 fps.
@@ -24,6 +28,7 @@ binary input.
 
 from __future__ import annotations
 
+import re
 from typing import Any
 
 import numpy as np
@@ -43,6 +48,7 @@ from app.motion.formats.scene import (
     unique_names,
     with_plain_nodes_below,
 )
+from app.motion.formats.text import show
 from app.motion.model import Motion, ParseLimits
 
 DEFAULT_LIMITS = ParseLimits()
@@ -53,6 +59,12 @@ MAX_KEY_FPS = 240.0
 
 _PATHS = {"translation": 3, "rotation": 4, "scale": 3}
 _NOT_JOINT = ("mesh", "camera", "skin")  # node fields that make a node something else
+POINTER = "KHR_animation_pointer"
+# A JSON pointer (RFC 6901) to a node's transform or weights: an array index is "0" or has no
+# leading zero; these property names need no ~0/~1 escapes, so a pointer with one is another
+# property. Read only when short: a longer pointer never names a node property.
+_NODE_POINTER_RE = re.compile(r"/nodes/(0|[1-9][0-9]{0,8})/(translation|rotation|scale|weights)")
+_MAX_NODE_POINTER = 40
 
 
 def _node_transform(node: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -116,6 +128,38 @@ def _human_bones(document: Any) -> dict[int, str]:
     return out
 
 
+def channel_target(channel: Any) -> tuple[Any, Any, str | None]:
+    """``(node, path, other)`` a channel animates: its ``target.node`` and ``target.path``,
+    or for a ``KHR_animation_pointer`` channel (path ``"pointer"``, no node) the node index
+    and property its JSON pointer names. ``other`` is the pointer when it names anything
+    else (a material's colour, a camera's field of view...), with node and path ``None``."""
+    target = getattr(channel, "target", None)
+    path = getattr(target, "path", None)
+    if path != "pointer":
+        return getattr(target, "node", None), path, None
+    extensions = getattr(target, "extensions", None)
+    entry = extensions.get(POINTER) if isinstance(extensions, dict) else None
+    pointer = entry.get("pointer") if isinstance(entry, dict) else None
+    if not isinstance(pointer, str):
+        return None, None, "(a pointer channel without its pointer)"
+    match = None
+    if len(pointer) <= _MAX_NODE_POINTER:
+        match = _NODE_POINTER_RE.fullmatch(pointer)
+    if match is None:
+        return None, None, pointer
+    return int(match[1]), match[2], None
+
+
+def _pointer_warning(others: list[str]) -> list[str]:
+    """The warning for an animation's pointer channels that animate no node transform."""
+    if not others:
+        return []
+    return [
+        f"{len(others)} animation channel(s) of {POINTER} animate other properties than a "
+        f"node's translation, rotation or scale (first: {show(others[0], 80)}): left out"
+    ]
+
+
 def _animated_nodes(document: Any, parents: np.ndarray) -> np.ndarray:
     """``(N,)`` bool: for a file without skin (an animation exported without its mesh, by
     Blender or FBX2glTF), the nodes its channels turn or move, and the plain nodes (no mesh,
@@ -124,8 +168,7 @@ def _animated_nodes(document: Any, parents: np.ndarray) -> np.ndarray:
     animated = np.zeros(len(nodes), dtype=bool)
     for animation in document.animations or []:
         for channel in animation.channels or []:
-            node = getattr(channel.target, "node", None)
-            path = getattr(channel.target, "path", None)
+            node, path, _ = channel_target(channel)
             if path in ("translation", "rotation") and isinstance(node, int) and node >= 0:
                 animated[node] = node < len(nodes)
     plain = np.array(
@@ -264,12 +307,13 @@ def read_gltf(
     }
     gltf_animation = document.animations[chosen]
     samplers = gltf_animation.samplers or []
+    others: list[str] = []  # pointers to other properties than a node's transform
     for channel in gltf_animation.channels or []:
-        target = channel.target
-        path = getattr(target, "path", None)
-        node = getattr(target, "node", None)
+        node, path, other = channel_target(channel)
+        if other is not None:
+            others.append(other)
         if path not in _PATHS or not isinstance(node, int) or not 0 <= node < count:
-            continue  # morph weights, pointer extensions, or no node: not the skeleton's
+            continue  # morph weights, other properties, or no node: not the skeleton's
         if position[node] < 0:
             continue  # a mesh, a prop, a node of another tree: never part of the skeleton
         if not isinstance(channel.sampler, int) or not 0 <= channel.sampler < len(samplers):
@@ -303,7 +347,7 @@ def read_gltf(
         source_format="gltf",
         length_unit="metres (glTF)",
         limits=limits,
-        notes=scene_notes(info),
+        notes=scene_notes(info, _pointer_warning(others)),
     )
     return motion, loaded.animations, info.name
 

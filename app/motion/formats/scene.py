@@ -89,14 +89,18 @@ def pick_animation(animations: list[Animation], name: str | None, *, joints: int
     return chosen
 
 
-def scene_notes(animation: Animation) -> dict[str, object]:
-    """The notes of a motion read from ``animation``: its name, and a warning when it is a
-    single instant (stored as a one-frame still rather than refused as a rig)."""
+def scene_notes(animation: Animation, warnings: Sequence[str] = ()) -> dict[str, object]:
+    """The notes of a motion read from ``animation``: its name, and its warnings: a reader's
+    own (``warnings``), and one when it is a single instant (stored as a one-frame still
+    rather than refused as a rig)."""
     notes: dict[str, object] = {"animation": animation.name}
+    said = list(warnings)
     if animation.frame_count <= 1:
-        notes["warnings"] = [
-            f"the animation {animation.name!r} is a single instant: stored as a one-frame still"
-        ]
+        said.insert(
+            0, f"the animation {animation.name!r} is a single instant: stored as a one-frame still"
+        )
+    if said:
+        notes["warnings"] = said
     return notes
 
 
