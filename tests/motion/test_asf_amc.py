@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from app.errors import DescribeTimeout, LimitExceeded, NoAnimation, ParseError
 from app.motion import model as model_module
 from app.motion.formats import DEFAULT_AMC_FRAME_TIME, read_asf_amc, read_bvh
-from app.motion.formats import asf_amc as asf_amc_module
+from app.motion.formats import amc as amc_module
 from app.motion.formats import text as text_module
 from app.motion.model import Motion, ParseLimits
 from tests.motion.conftest import (
@@ -338,7 +338,7 @@ def test_regular_files_take_the_fast_path(monkeypatch: pytest.MonkeyPatch) -> No
         raise AssertionError("the line-by-line pass should not be needed")
 
     expected = read_asf_amc(fixture_bytes(CMU_ASF_FIXTURE), fixture_bytes(CMU_AMC_FIXTURE))
-    monkeypatch.setattr(asf_amc_module, "_read_amc_lines", refuse)
+    monkeypatch.setattr(amc_module, "_read_amc_lines", refuse)
     fast = read_asf_amc(fixture_bytes(CMU_ASF_FIXTURE), fixture_bytes(CMU_AMC_FIXTURE))
     np.testing.assert_array_equal(fast.local_rotations, expected.local_rotations)
 
