@@ -36,7 +36,9 @@ end), named after the bone; its offset is the parent bone's ``direction * length
 ``L_root = C_root @ M_root @ C_root.T`` with ``M_root`` from the ``RX RY RZ`` values in
 ``:root order``. Translation dofs give ``Motion.local_translations``.
 
-The AMC's lines are read into a table of values by :mod:`app.motion.formats.amc`.
+The AMC's lines are read into a table of values by :mod:`app.motion.formats.amc`. Either
+file may write its numbers with decimal commas (``0,45``, a tool under a European locale):
+each is read with points then, and a warning says which (as a BVH file so written is).
 """
 
 from __future__ import annotations
@@ -51,8 +53,11 @@ from app.errors import LimitExceeded, ParseError
 from app.motion.formats.amc import read_amc
 from app.motion.formats.bvh import matrices_from_euler
 from app.motion.formats.text import (
+    DECIMAL_COMMA_HEAD,
+    DECIMAL_COMMA_WARNING,
     DEFAULT_LIMITS,
     LINES_PER_CLOCK_CHECK,
+    decimal_comma,
     normalise_newlines,
     parse_float,
     show,
@@ -64,6 +69,8 @@ __all__ = ["DEFAULT_AMC_FRAME_TIME", "parse_asf_amc"]
 #: Seconds per frame of an AMC file: the CMU database is captured at 120 fps.
 DEFAULT_AMC_FRAME_TIME = 1.0 / 120.0
 
+# The ASF fields that hold numbers (``:units`` mass and length, ``:root`` and bone fields).
+_ASF_NUMBER_FIELDS = frozenset({"mass", "length", "direction", "axis", "position", "orientation"})
 _BONE_DOFS = frozenset({"rx", "ry", "rz", "tx", "ty", "tz", "l"})
 _ROOT_DOFS = frozenset({"rx", "ry", "rz", "tx", "ty", "tz"})
 _ANGLE_UNITS = {
@@ -139,6 +146,8 @@ def parse_asf_amc(
     if not (isinstance(frame_time, int | float) and math.isfinite(frame_time) and frame_time > 0):
         raise ParseError(f"frame_time must be a positive number of seconds, not {frame_time!r}")
     limits.check_time()
+    asf_text, asf_commas = _with_decimal_points(asf_text, _ASF_NUMBER_FIELDS)
+    amc_text, amc_commas = _with_decimal_points(amc_text, None)
     try:
         asf = _parse_asf(_split_lines(asf_text), limits)
         joints = _order_joints(asf, limits)
@@ -154,8 +163,13 @@ def parse_asf_amc(
         raise error.with_source("AMC") from None
     angle_unit = amc_angle_unit or asf.angle_unit
     motion = _build_motion(asf, joints, layout, values, angle_unit, frame_time, first_frame)
-    if warnings:
-        motion.notes["warnings"] = warnings
+    commas = [
+        f"{source}: {DECIMAL_COMMA_WARNING}"
+        for source, said in (("ASF", asf_commas), ("AMC", amc_commas))
+        if said
+    ]
+    if commas or warnings:
+        motion.notes["warnings"] = [*commas, *warnings]
     return motion
 
 
@@ -167,6 +181,7 @@ def parse_asf_rest(
 ) -> Motion:
     """An ASF skeleton alone, as one frame of its rest pose (every degree of freedom 0): a
     rig to retarget onto. Raises like :func:`parse_asf_amc` (``source="ASF"``)."""
+    asf_text, _ = _with_decimal_points(asf_text, _ASF_NUMBER_FIELDS)
     try:
         asf = _parse_asf(_split_lines(asf_text), limits)
         joints = _order_joints(asf, limits)
@@ -176,6 +191,25 @@ def parse_asf_rest(
     columns = sum(count for _, count in layout.values())
     values = np.zeros((1, columns))
     return _build_motion(asf, joints, layout, values, asf.angle_unit, frame_time, 1)
+
+
+def _with_decimal_points(text: str, fields: frozenset[str] | None) -> tuple[str, bool]:
+    """``text`` with decimal commas read as points when its numbers are written so (a tool
+    under a European locale: ``direction 0,5 -0,2 0,8``, AMC ``lfemur -12,5 3,1 0``), and
+    whether they were. The numbers looked at are those of the first lines
+    (:data:`DECIMAL_COMMA_HEAD`): every word after the first on the ASF lines whose first
+    word is one of ``fields``, or on every AMC line (``fields`` None) that is not a header
+    or comment. The words are ASCII either way, so a comma is never part of a name."""
+    tokens: list[str] = []
+    for line in text[:DECIMAL_COMMA_HEAD].split("\n"):
+        words = line.split()
+        if not words or words[0].startswith(("#", ":")):
+            continue
+        if fields is None or words[0].lower() in fields:
+            tokens += words[1:]
+    if not decimal_comma(tokens):
+        return text, False
+    return text.replace(",", "."), True
 
 
 def _split_lines(text: str) -> list[str]:
