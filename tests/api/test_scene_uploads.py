@@ -18,6 +18,7 @@ from app.config import Settings
 from app.main import create_app
 from app.motion.formats import read_bvh
 from tests.conftest import FIXTURES_DIR
+from tests.motion.fbx_ascii import FbxNode, ascii_fbx
 from tests.motion.gltf_builder import gltf_parts, two_animation_glb
 
 FBX = ("human_ik.fbx", (FIXTURES_DIR / "ufbx_maya_human_ik_7400_binary.fbx").read_bytes())
@@ -92,6 +93,19 @@ def test_a_gltf_naming_another_file_is_refused(live):
     response = live.post("/clips", files={"file": ("walk.gltf", json.dumps(document).encode())})
     assert response.status_code == 422
     assert "upload a .glb" in response.json()["detail"]
+
+
+def test_an_fbx_of_optical_markers_only_is_refused_as_markers(live):
+    rng = np.random.default_rng(0)
+    markers = [
+        FbxNode(f"M{i}", "Marker", translation=100 * rng.uniform(0, 1.8, size=(10, 3)))
+        for i in range(8)
+    ]
+    response = live.post("/clips", files={"file": ("capture.fbx", ascii_fbx(markers))})
+    assert response.status_code == 422, response.text
+    body = response.json()
+    assert body["error"] == "parse_error" and "capture.fbx" in body["detail"]
+    assert "8 moving points (motion-capture markers) and no skeleton" in body["detail"]
 
 
 def test_unsupported_extensions_are_listed(live):

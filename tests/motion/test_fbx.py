@@ -16,6 +16,7 @@ from app.motion.kinematics import forward_kinematics
 from app.motion.model import ParseLimits
 from tests.conftest import FIXTURES_DIR
 from tests.motion.canonical import check_canonical_body
+from tests.motion.fbx_ascii import FbxNode, ascii_fbx
 from tests.motion.shared import data_folder
 
 FBX = FIXTURES_DIR / "ufbx_maya_human_ik_7400_binary.fbx"
@@ -134,3 +135,43 @@ def test_a_skeleton_of_animated_null_nodes_is_read_and_maps_as_its_bvh() -> None
     want = [names[j] for j in plain.joints]
     # The BVH's End Sites are no nodes of the FBX: a chain ends at its last joint there.
     assert all(g == w or w == f"{g}_end" for g, w in zip(got, want, strict=True)), (got, want)
+
+
+def _marker_cloud(kind: str, *, turning: bool, chained: bool) -> bytes:
+    """Twelve points moving on a walking figure's scale (metres), as an optical capture
+    exports them: ``kind`` nodes, each keyed in translation (and rotation when ``turning``),
+    loose under one group null, or each below the previous when ``chained``."""
+    rng = np.random.default_rng(3)
+    frames = 30
+    path = np.linspace(0.0, 1.2, frames)[:, None] * np.array([0.0, 0.0, 1.0])
+    nodes = [FbxNode("Markers", "Null")]
+    for i in range(12):
+        place = rng.uniform([-0.3, 0.0, -0.1], [0.3, 1.8, 0.1])
+        wobble = 0.02 * np.sin(np.linspace(0, 6, frames))[:, None] * rng.normal(size=3)
+        nodes.append(
+            FbxNode(
+                f"LFHD{i}",
+                kind,
+                parent=i if chained else 0,
+                translation=100.0 * (place + path + wobble),
+                rotation=np.cumsum(rng.normal(size=(frames, 3)), axis=0) if turning else None,
+            )
+        )
+    return ascii_fbx(nodes)
+
+
+@pytest.mark.parametrize("kind", ["Marker", "Null"])
+@pytest.mark.parametrize("turning", [False, True], ids=["moving", "moving-and-turning"])
+def test_optical_markers_without_a_skeleton_are_refused_as_markers(kind, turning):
+    """A capture's raw markers (no bones, no skin): points that move, none below another,
+    so no skeleton; the refusal says so, never "no humanoid" nor "no skeleton" alone."""
+    with pytest.raises(ParseError) as raised:
+        read_fbx(_marker_cloud(kind, turning=turning, chained=False))
+    detail = raised.value.detail
+    assert "12 moving points (motion-capture markers) and no skeleton" in detail
+    assert "humanoid" not in detail and raised.value.code == "parse_error"
+
+
+def test_animated_nulls_that_hang_from_one_another_are_still_a_skeleton():
+    motion = read_fbx(_marker_cloud("Null", turning=True, chained=True))[0]
+    assert motion.skeleton.joint_count == 12 and motion.frame_count == 30

@@ -9,7 +9,8 @@ the binding takes the process with it.
 * Skeleton: the limb nodes and the bones skin clusters name, the joinable nodes between
   them (nulls limbs hang from) — see :mod:`app.motion.formats.scene`; meshes, cameras,
   lights, markers and helper nulls that carry no bones are left out. A file with neither
-  limb nodes nor skin clusters: the nodes its animation turns (a skeleton of nulls).
+  limb nodes nor skin clusters: the nodes its animation turns (a skeleton of nulls), unless
+  what it animates is loose points, none below another (optical markers: refused saying so).
 * Motion: every node's local transform baked by ufbx (pre/post rotation, pivots and offsets
   folded in, inherit modes compensated: ``inherit_mode_handling=COMPENSATE``) at the scene's
   frame rate, over the animation stack's time span.
@@ -30,10 +31,13 @@ import numpy as np
 
 from app.errors import LimitExceeded, ParseError
 from app.motion.formats.scene import (
+    MIN_MARKERS,
     Animation,
     NodeGraph,
     check_frame_budget,
     kept_parents,
+    loose_points,
+    markers_not_skeleton,
     motion_from_graph,
     no_skeleton,
     pick_animation,
@@ -103,21 +107,23 @@ class _Scene:
 
 
 def _animated_plain_nodes(
-    loaded: _Scene, nodes: list[Any], parents: np.ndarray, joinable: np.ndarray
-) -> np.ndarray:
-    """``(N,)`` bool: for a file with neither bones nor skin clusters — a skeleton of Null
-    nodes, as Unity's FBX Exporter and some DCC and capture tools write one — the nodes an
-    animation turns (a ``Lcl Rotation`` curve in any layer) that are nothing else (no mesh,
-    camera or light), and the plain nodes below them (an end null). The mapper then decides
-    whether they make a person, as for a glTF animation exported without its skin."""
+    loaded: _Scene, nodes: list[Any], joinable: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(N,)`` bools ``(plain, turned, moved)`` for a file with neither bones nor skin
+    clusters: the joinable nodes that are nothing else (no mesh, camera or light: a Null,
+    as Unity's FBX Exporter and some DCC and capture tools write a skeleton of them, or a
+    marker), and the nodes an animation turns (a ``Lcl Rotation`` curve in any layer) or
+    moves (``Lcl Translation``)."""
     index = {node.element_id: i for i, node in enumerate(nodes)}
     # By the attribute's type, a number: asking ``node.mesh`` hands out wrappers whose
     # freeing crashed the binding at the scene's end (a file of meshes and no bones).
     import ufbx
 
-    nothing_else = {ufbx.ElementType.UNKNOWN, ufbx.ElementType.EMPTY}  # no attribute, a Null
+    # no attribute, a Null (ufbx reads an optical "Marker" model so), an effector
+    nothing_else = {ufbx.ElementType.UNKNOWN, ufbx.ElementType.EMPTY, ufbx.ElementType.MARKER}
     plain = joinable & np.array([node.attrib_type in nothing_else for node in nodes], dtype=bool)
-    animated = np.zeros(len(nodes), dtype=bool)
+    turned = np.zeros(len(nodes), dtype=bool)
+    moved = np.zeros(len(nodes), dtype=bool)
     # Every wrapper the binding hands out is kept referenced with the scene (freeing one
     # early crashes it, as for the stacks and their ``Anim`` objects).
     for anim in loaded.anims:
@@ -128,11 +134,14 @@ def _animated_plain_nodes(
             elements = [prop.element for prop in props]
             loaded.held.append((props, elements))
             for prop, element in zip(props, elements, strict=True):
+                found = index.get(element.element_id)
+                if found is None:
+                    continue
                 if prop.prop_name == "Lcl Rotation":
-                    found = index.get(element.element_id)
-                    if found is not None:
-                        animated[found] = True
-    return with_plain_nodes_below(animated & plain, plain, parents)
+                    turned[found] = True
+                elif prop.prop_name == "Lcl Translation":
+                    moved[found] = True
+    return plain, turned, moved
 
 
 def list_fbx_animations(data: bytes, *, limits: ParseLimits = DEFAULT_LIMITS) -> list[Animation]:
@@ -206,7 +215,13 @@ def read_fbx(
         dtype=bool,
     )
     if not is_bone.any():
-        is_bone = _animated_plain_nodes(loaded, nodes, parents, joinable)
+        # No bones: the nodes an animation turns are a skeleton of nulls (with the plain
+        # nodes below them), unless what moves is loose points: optical markers.
+        plain, turned, moved = _animated_plain_nodes(loaded, nodes, joinable)
+        points = loose_points(plain & (turned | moved), parents)
+        if points >= MIN_MARKERS:
+            raise markers_not_skeleton(points)
+        is_bone = with_plain_nodes_below(turned & plain, plain, parents)
     if not is_bone.any():
         raise no_skeleton(loaded.animations, "no bones or skin clusters")
     # Only the skeleton's nodes are sampled and counted (meshes, props, other trees are not).

@@ -329,6 +329,40 @@ def with_plain_nodes_below(
     return chosen
 
 
+#: Loose animated points (no skeleton) from which a file is called a marker cloud.
+MIN_MARKERS = 3
+
+
+def loose_points(animated: np.ndarray, parents: np.ndarray) -> int:
+    """How many ``animated`` ``(N,)`` nodes there are when none of them hangs below another
+    (``parents`` ``(N,)``), else 0. A skeleton's animated nodes form chains (a forearm turns
+    below its upper arm); optical markers are loose points, each moved on its own. Nodes
+    not reached from a top-level one (a cycle) are not looked at."""
+    children: list[list[int]] = [[] for _ in parents]
+    stack = []
+    for i, parent in enumerate(parents.tolist()):
+        if 0 <= parent < len(parents):
+            children[parent].append(i)
+        else:
+            stack.append(i)
+    below = np.zeros(len(parents), dtype=bool)  # an animated node above it
+    while stack:
+        i = stack.pop()
+        for child in children[i]:
+            below[child] = below[i] or animated[i]
+            stack.append(child)
+    return 0 if (animated & below).any() else int(animated.sum())
+
+
+def markers_not_skeleton(count: int) -> ParseError:
+    """The error for a file whose only motion is ``count`` loose points (no skeleton)."""
+    return ParseError(
+        f"the file holds {count} moving points (motion-capture markers) and no skeleton: no "
+        "bones, skin or animated nodes that hang from one another. Markers are not a "
+        "skeleton; solve them onto one in the capture software and upload that"
+    )
+
+
 def skeleton_nodes(parents: np.ndarray, is_bone: np.ndarray, joinable: np.ndarray) -> np.ndarray:
     """``(K,)`` sorted indices of the nodes the skeleton needs: its joints
     (:func:`select_joints`) and all their ancestors. The readers sample these nodes only
