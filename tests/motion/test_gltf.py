@@ -252,3 +252,16 @@ def test_animation_pointers_to_other_properties_are_left_out_with_a_warning(bvh_
     (warning,) = motion.notes["warnings"]
     assert "6 animation channel(s) of KHR_animation_pointer" in warning
     assert "/materials/0/pbrMetallicRoughness/baseColorFactor" in warning and len(warning) < 300
+
+
+def test_textures_beside_a_gltf_are_never_read_nor_a_reason_to_refuse_it(bvh_motion):
+    """Only buffers hold skeleton and motion: a .gltf with embedded buffers whose images
+    (textures) lie beside it, or anywhere, is read; nothing of theirs is opened."""
+    document, binary = gltf_parts(bvh_motion)
+    document["buffers"][0]["uri"] = (
+        "data:application/octet-stream;base64," + base64.b64encode(binary).decode()
+    )
+    document["images"] = [{"uri": "skin.png"}, {"uri": "../../etc/passwd"}, {"uri": "http://x/y"}]
+    document["extensionsRequired"] = ["KHR_texture_transform", "KHR_texture_basisu"]
+    motion = read_gltf(json.dumps(document).encode())[0]
+    assert motion.frame_count == bvh_motion.frame_count

@@ -114,7 +114,7 @@ class Buffers:
 
 
 def buffers_of(document: Any, blob: bytes | None) -> Buffers:
-    """Every buffer's bytes; refuses any ``uri`` that is not a ``data:`` URI. A buffer
+    """Every buffer's bytes; refuses a buffer ``uri`` that is not a ``data:`` URI. A buffer
     without data that compressed views decode into (``EXT_meshopt_compression``'s fallback)
     holds no bytes."""
     out = []
@@ -129,10 +129,8 @@ def buffers_of(document: Any, blob: bytes | None) -> Buffers:
             out.append(blob)
             continue
         out.append(_data_uri(uri, f"buffer {i}"))
-    for i, image in enumerate(document.images or []):
-        uri = getattr(image, "uri", None)
-        if uri is not None:
-            _check_uri(uri, f"image {i}")
+    # Images (textures) are never read, wherever their ``uri`` points: a .gltf whose buffers
+    # are embedded but whose textures lie beside it is read as the skeleton and motion it is.
     return Buffers(out)
 
 
