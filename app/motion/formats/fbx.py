@@ -46,6 +46,7 @@ from app.motion.formats.scene import (
     unique_names,
     with_plain_nodes_below,
 )
+from app.motion.formats.text import refuse_lfs_pointer
 from app.motion.model import Motion, ParseLimits
 
 DEFAULT_LIMITS = ParseLimits()
@@ -53,6 +54,7 @@ MAX_SCENE_NODES = 100_000
 
 
 def _load(data: bytes, limits: ParseLimits) -> Any:
+    refuse_lfs_pointer(data, "FBX file")
     import ufbx
 
     options: dict[str, Any] = {

@@ -17,6 +17,7 @@ import numpy as np
 
 from app.errors import LimitExceeded, ParseError
 from app.motion.formats.meshopt import compressed_view, decode_view, is_fallback_buffer
+from app.motion.formats.text import refuse_lfs_pointer
 
 GLB_MAGIC = b"glTF"
 _COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
@@ -28,6 +29,7 @@ UPLOAD_GLB = "upload a .glb (binary glTF) with everything embedded instead"
 def load_document(data: bytes) -> tuple[Any, bytes | None]:
     """The JSON document and the GLB binary chunk (``None`` for JSON glTF)."""
     blob = None
+    refuse_lfs_pointer(data, "glTF file")
     try:
         if data[:4] == GLB_MAGIC:
             text, blob = _glb_chunks(data)

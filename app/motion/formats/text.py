@@ -53,6 +53,25 @@ def decimal_comma(tokens: Iterable[str]) -> bool:
     return not any(_POINT_NUMBER_RE.fullmatch(t) for t in short)
 
 
+# The first line of a Git LFS pointer file (the LFS spec; "hawser" was its first name).
+_LFS_POINTER_STARTS = (
+    b"version https://git-lfs.github.com/spec/",
+    b"version https://hawser.github.com/spec/",
+)
+
+
+def refuse_lfs_pointer(data: bytes | str, kind: str) -> None:
+    """:class:`ParseError` when ``data`` is a Git LFS pointer (a few lines naming a file
+    kept elsewhere, which a repository without LFS hands out in its place) rather than the
+    ``kind`` file itself (any format: a pointer is what a clone gives for every large file)."""
+    head = data[:64].encode("ascii", "replace") if isinstance(data, str) else bytes(data[:64])
+    if head.lstrip(b"\xef\xbb\xbf").startswith(_LFS_POINTER_STARTS):
+        raise ParseError(
+            f"the file is a Git LFS pointer (a short text naming where the real file is kept), "
+            f"not the {kind} itself: fetch the real file (git lfs pull) and upload that"
+        )
+
+
 def show(token: str, limit: int = 40) -> str:
     """``repr`` of a token from a file, shortened so a hostile token cannot flood a message."""
     if len(token) > limit:
