@@ -175,3 +175,11 @@ def test_optical_markers_without_a_skeleton_are_refused_as_markers(kind, turning
 def test_animated_nulls_that_hang_from_one_another_are_still_a_skeleton():
     motion = read_fbx(_marker_cloud("Null", turning=True, chained=True))[0]
     assert motion.skeleton.joint_count == 12 and motion.frame_count == 30
+
+
+def test_animated_lights_without_bones_are_no_skeleton_and_the_refusal_says_what_moves():
+    lights = [
+        FbxNode(f"Lamp{i}", "Light", parent=i - 1, rotation=np.zeros((10, 3)) + i) for i in range(3)
+    ]
+    with pytest.raises(ParseError, match="moves 3 meshes, cameras or lights, not bones"):
+        read_fbx(ascii_fbx(lights))

@@ -265,3 +265,13 @@ def test_textures_beside_a_gltf_are_never_read_nor_a_reason_to_refuse_it(bvh_mot
     document["extensionsRequired"] = ["KHR_texture_transform", "KHR_texture_basisu"]
     motion = read_gltf(json.dumps(document).encode())[0]
     assert motion.frame_count == bvh_motion.frame_count
+
+
+def test_a_morph_weights_animation_without_a_skeleton_says_so(bvh_motion):
+    """A creature or a face that deforms by blend shapes (three.js's horse, flamingo):
+    no skeleton, and the refusal says its animation changes only morph-target weights."""
+    document, binary = gltf_parts(bvh_motion)
+    for channel in document["animations"][0]["channels"]:
+        channel["target"]["path"] = "weights"
+    with pytest.raises(ParseError, match=r"no skeleton .*morph-target weights"):
+        read_gltf(pack_glb(dict(document, skins=[]), binary))

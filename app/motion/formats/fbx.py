@@ -216,6 +216,7 @@ def read_fbx(
         ],
         dtype=bool,
     )
+    what = "no bones or skin clusters"
     if not is_bone.any():
         # No bones: the nodes an animation turns are a skeleton of nulls (with the plain
         # nodes below them), unless what moves is loose points: optical markers.
@@ -224,8 +225,11 @@ def read_fbx(
         if points >= MIN_MARKERS:
             raise markers_not_skeleton(points)
         is_bone = with_plain_nodes_below(turned & plain, plain, parents)
+        objects = int(np.sum((turned | moved) & ~plain))
+        if objects:  # a prop or a lamp rig keyed object by object
+            what += f"; its animation moves {objects} meshes, cameras or lights, not bones"
     if not is_bone.any():
-        raise no_skeleton(loaded.animations, "no bones or skin clusters")
+        raise no_skeleton(loaded.animations, what)
     # Only the skeleton's nodes are sampled and counted (meshes, props, other trees are not).
     kept = skeleton_nodes(parents, is_bone, joinable)
     if not len(kept):

@@ -160,6 +160,20 @@ def _pointer_warning(others: list[str]) -> list[str]:
     ]
 
 
+def _nothing_turns(document: Any) -> str:
+    """What a file without a skeleton lacks, and what its animations change instead when
+    that is morph-target weights only (a face or a creature's mesh that deforms)."""
+    what = "no skin joints, VRM humanoid bones or animated nodes"
+    paths = {
+        channel_target(channel)[1]
+        for animation in document.animations or []
+        for channel in animation.channels or []
+    }
+    if "weights" in paths:
+        what += "; its animation changes morph-target weights (blend shapes), which move no joint"
+    return what
+
+
 def _animated_nodes(document: Any, parents: np.ndarray) -> np.ndarray:
     """``(N,)`` bool: for a file without skin (an animation exported without its mesh, by
     Blender or FBX2glTF), the nodes its channels turn or move, and the plain nodes (no mesh,
@@ -281,7 +295,7 @@ def read_gltf(
     if not is_bone.any():
         is_bone = _animated_nodes(document, parents)
     if not is_bone.any():
-        raise no_skeleton(loaded.animations, "no skin joints, VRM humanoid bones or animated nodes")
+        raise no_skeleton(loaded.animations, _nothing_turns(document))
     if not loaded.animations and still:  # a rig: its rest (bind) pose as one frame
         loaded.animations = [Animation("", 1, 0.0)]
         loaded.rates, loaded.spans = [DEFAULT_FPS], [(0.0, 0.0)]
