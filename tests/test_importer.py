@@ -262,6 +262,27 @@ def test_every_animation_of_a_scene_file_is_a_clip_and_a_rerun_skips_them(
     assert not again.imported and len(again.duplicates) == 2
 
 
+def test_an_animation_that_moves_nothing_is_not_imported(
+    tmp_path: Path, settings: Settings, fixtures_dir: Path
+) -> None:
+    from app.motion.formats import read_bvh
+    from tests.motion.gltf_builder import with_empty_take
+
+    folder = tmp_path / "scenes"
+    folder.mkdir()
+    motion = read_bvh((fixtures_dir / "cmu_mb_02_01_first41.bvh").read_bytes())
+    (folder / "walk.glb").write_bytes(with_empty_take(motion))
+    done = run_import(settings, [folder], workers=1)
+    assert not done.failed and len(done.imported) == 1
+    library = open_library(settings)
+    try:
+        with library.reads() as session:
+            (clip,) = clip_db.get_clips(session, [done.imported[0].clip_id]).values()
+    finally:
+        library.close()
+    assert clip.animation == "walk" and clip.frame_count == motion.frame_count
+
+
 def test_the_import_saves_no_index_before_the_run_ends(settings: Settings) -> None:
     from app.importer.run import _open_library
 

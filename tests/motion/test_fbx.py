@@ -183,3 +183,14 @@ def test_animated_lights_without_bones_are_no_skeleton_and_the_refusal_says_what
     ]
     with pytest.raises(ParseError, match="moves 3 meshes, cameras or lights, not bones"):
         read_fbx(ascii_fbx(lights))
+
+
+def test_an_empty_default_take_longer_than_the_real_one_is_not_read_by_default():
+    """Mixamo FBX with skin: the FBX SDK's "Take 001" (3.3 s, no curve) beside the 1 s
+    walk; read by default, the clip was 81 frames of a held bind pose."""
+    data = (data_folder("wild-more") / "mixamo-fbx/cedric-h_Walking.fbx").read_bytes()
+    animations = list_fbx_animations(data)
+    assert [(a.name, a.moves) for a in animations] == [("Take 001", False), ("mixamo.com", True)]
+    motion, _, chosen = read_fbx(data)
+    assert chosen == "mixamo.com" and motion.frame_count == 25
+    assert np.ptp(motion.local_rotations, axis=0).max() > 0.5  # its limbs swing

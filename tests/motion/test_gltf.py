@@ -19,7 +19,7 @@ from app.motion.model import ParseLimits
 from app.motion.skeleton_map import rest_pose
 from tests.conftest import FIXTURES_DIR
 from tests.motion.canonical import check_canonical_body
-from tests.motion.gltf_builder import build_glb, gltf_parts, pack_glb
+from tests.motion.gltf_builder import build_glb, gltf_parts, pack_glb, with_empty_take
 
 BVH = FIXTURES_DIR / "cmu_mb_02_01_first41.bvh"
 VRMA = FIXTURES_DIR / "three_vrm_test.vrma"
@@ -275,3 +275,19 @@ def test_a_morph_weights_animation_without_a_skeleton_says_so(bvh_motion):
         channel["target"]["path"] = "weights"
     with pytest.raises(ParseError, match=r"no skeleton .*morph-target weights"):
         read_gltf(pack_glb(dict(document, skins=[]), binary))
+
+
+def test_the_default_animation_is_the_longest_that_moves_a_node(bvh_motion):
+    """An empty take longer than the real one (the FBX SDK's "Take 001" beside Mixamo's
+    take) is not read by default: the clip would be a held bind pose, the motion lost."""
+    data = with_empty_take(bvh_motion)
+    animations = list_gltf_animations(data)
+    assert [(a.name, a.moves) for a in animations] == [("Take 001", False), ("walk", True)]
+    assert animations[0].frame_count > animations[1].frame_count
+    motion, _, chosen = read_gltf(data)
+    assert chosen == "walk" and motion.frame_count == bvh_motion.frame_count
+    (warning,) = motion.notes["warnings"]
+    assert "'walk', the longest that moves a node, is read" in warning
+    assert "moving nothing: 'Take 001'" in warning
+    still, _, _ = read_gltf(data, animation="Take 001")  # named: read as what it is
+    assert np.ptp(still.local_rotations, axis=0).max() == 0

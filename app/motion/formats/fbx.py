@@ -35,6 +35,7 @@ from app.motion.formats.scene import (
     Animation,
     NodeGraph,
     check_frame_budget,
+    choice_warnings,
     kept_parents,
     loose_points,
     markers_not_skeleton,
@@ -51,6 +52,7 @@ from app.motion.model import Motion, ParseLimits
 
 DEFAULT_LIMITS = ParseLimits()
 MAX_SCENE_NODES = 100_000
+_TRANSFORMS = frozenset({"Lcl Translation", "Lcl Rotation", "Lcl Scaling"})
 
 
 def _load(data: bytes, limits: ParseLimits) -> Any:
@@ -102,10 +104,18 @@ class _Scene:
         )
         self.spans = [(float(s.time_begin), float(s.time_end)) for s in self.stacks]
         self.animations = []
-        for name, (begin, end) in zip(names, self.spans, strict=True):
+        for name, (begin, end), anim in zip(names, self.spans, self.anims, strict=True):
             span = end - begin if np.isfinite(end - begin) and end >= begin else 0.0
             frames = int(np.floor(span * self.fps + 0.5)) + 1
-            self.animations.append(Animation(name, frames, frames / self.fps))
+            moves = self._moves(anim)
+            self.animations.append(Animation(name, frames, frames / self.fps, moves))
+
+    def _moves(self, anim: Any) -> bool:
+        """Whether a stack's layers animate any node's transform (an empty take does not)."""
+        layers = list(anim.layers)
+        props = [list(layer.anim_props) for layer in layers]
+        self.held.append((layers, props))  # kept with the scene (see the module docstring)
+        return any(prop.prop_name in _TRANSFORMS for each in props for prop in each)
 
 
 def _animated_plain_nodes(
@@ -238,11 +248,12 @@ def read_fbx(
     rest_t, rest_r, rest_s = _static(kept_nodes)
     if not loaded.animations and still:  # a rig: its rest pose as one frame
         loaded.animations = [Animation("", 1, 0.0)]
-        info = loaded.animations[0]
+        info, warnings = loaded.animations[0], []
         translation, rotation, scale = rest_t[None], rest_r[None], rest_s[None]
     else:
         chosen = pick_animation(loaded.animations, animation, joints=int(is_bone.sum()))
         info = loaded.animations[chosen]
+        warnings = choice_warnings(loaded.animations, chosen, animation)
         check_frame_budget(limits, info.frame_count, len(kept))
         begin = loaded.spans[chosen][0]
         times = begin + np.arange(info.frame_count) / loaded.fps
@@ -268,7 +279,7 @@ def read_fbx(
         source_format="fbx",
         length_unit="metres",
         limits=limits,
-        notes=scene_notes(info),
+        notes=scene_notes(info, warnings),
     )
     return motion, loaded.animations, info.name
 

@@ -39,6 +39,7 @@ from app.motion.formats.scene import (
     Animation,
     NodeGraph,
     check_frame_budget,
+    choice_warnings,
     kept_parents,
     motion_from_graph,
     no_skeleton,
@@ -209,10 +210,15 @@ class _Document:
         names = unique_names(
             [a.name or "" for a in animations], blank="animation {i}", repeat="{name} ({n})"
         )
+        count = len(nodes)
         for name, animation in zip(names, animations, strict=True):
             begin, end, rate = self._timing(animation)
             frames = int(np.floor((end - begin) * rate + 0.5)) + 1
-            self.animations.append(Animation(name, frames, frames / rate))
+            moves = any(  # a node's translation, rotation or scale, not morph weights only
+                path in _PATHS and isinstance(node, int) and 0 <= node < count
+                for node, path, _ in map(channel_target, animation.channels or [])
+            )
+            self.animations.append(Animation(name, frames, frames / rate, moves))
             self.rates.append(rate)
             self.spans.append((begin, end))
 
@@ -301,6 +307,7 @@ def read_gltf(
         loaded.rates, loaded.spans = [DEFAULT_FPS], [(0.0, 0.0)]
         document.replace("animations", [{}])
     chosen = pick_animation(loaded.animations, animation, joints=int(is_bone.sum()))
+    warnings = choice_warnings(loaded.animations, chosen, animation)
     info = loaded.animations[chosen]
     joinable = np.ones(count, dtype=bool)
     # Only the skeleton's nodes are sampled and counted (meshes, props, other trees are not).
@@ -361,7 +368,7 @@ def read_gltf(
         source_format="gltf",
         length_unit="metres (glTF)",
         limits=limits,
-        notes=scene_notes(info, _pointer_warning(others)),
+        notes=scene_notes(info, [*warnings, *_pointer_warning(others)]),
     )
     return motion, loaded.animations, info.name
 

@@ -37,12 +37,15 @@ from app.motion.model import Motion, ParseLimits, Skeleton
 
 @dataclass(frozen=True)
 class Animation:
-    """One animation of a file: its name, length in frames at the sampling rate, and the
-    seconds those frames cover (``frame_count / rate``: a clip's ``duration`` counts so)."""
+    """One animation of a file: its name, length in frames at the sampling rate, the
+    seconds those frames cover (``frame_count / rate``: a clip's ``duration`` counts so),
+    and whether it moves any node at all (the FBX SDK writes an empty ``Take 001`` beside a
+    Mixamo take, longer than it: a span of time that animates nothing)."""
 
     name: str
     frame_count: int
     duration: float
+    moves: bool = True
 
 
 def rig_without_animation(joints: int, why: str) -> NoAnimation:
@@ -67,7 +70,8 @@ def no_skeleton(animations: list[Animation], what: str) -> ParseError:
 
 
 def pick_animation(animations: list[Animation], name: str | None, *, joints: int = 0) -> int:
-    """Index of the animation called ``name``, else of the longest (first of equals).
+    """Index of the animation called ``name``, else of the longest that moves a node (first
+    of equals; the longest of all when none moves).
 
     A file without animations is a rig with no animation (:class:`NoAnimation`; ``joints``
     is the skeleton's size, for the message). A zero-length animation (one instant: a pose
@@ -76,8 +80,9 @@ def pick_animation(animations: list[Animation], name: str | None, *, joints: int
     if not animations:
         raise rig_without_animation(joints, "no animation")
     if name is None:
-        longest = max(a.frame_count for a in animations)
-        chosen = next(i for i, a in enumerate(animations) if a.frame_count == longest)
+        moving = [i for i, a in enumerate(animations) if a.moves] or range(len(animations))
+        longest = max(animations[i].frame_count for i in moving)
+        chosen = next(i for i in moving if animations[i].frame_count == longest)
     else:
         found = [i for i, animation in enumerate(animations) if animation.name == name]
         if not found:
@@ -87,6 +92,24 @@ def pick_animation(animations: list[Animation], name: str | None, *, joints: int
             )
         chosen = found[0]
     return chosen
+
+
+def choice_warnings(animations: list[Animation], chosen: int, name: str | None) -> list[str]:
+    """What a file of several animations read without a name says: which one was read and
+    why (see :func:`pick_animation`)."""
+    if name is not None or len(animations) < 2:
+        return []
+    read = animations[chosen]
+    passed = [a.name for a in animations if not a.moves and a.frame_count > read.frame_count]
+    why = "the longest that moves a node" if passed else "the longest"
+    warning = (
+        f"the file holds {len(animations)} animations: {read.name!r}, {why}, is read; name "
+        "another in the 'animation' field to read it"
+    )
+    if passed:
+        shown = ", ".join(repr(n) for n in passed[:5]) + (" ..." if len(passed) > 5 else "")
+        warning += f" (longer, but moving nothing: {shown})"
+    return [warning]
 
 
 def scene_notes(animation: Animation, warnings: Sequence[str] = ()) -> dict[str, object]:
