@@ -291,3 +291,17 @@ def test_the_default_animation_is_the_longest_that_moves_a_node(bvh_motion):
     assert "moving nothing: 'Take 001'" in warning
     still, _, _ = read_gltf(data, animation="Take 001")  # named: read as what it is
     assert np.ptp(still.local_rotations, axis=0).max() == 0
+
+
+@pytest.mark.parametrize(
+    "target", [{"node": 999, "path": "rotation"}, {"node": "0", "path": "scale"}]
+)
+def test_a_channel_aimed_at_a_node_that_does_not_exist_is_a_malformed_file(bvh_motion, target):
+    """The spec: a channel's target node is one of the file's nodes (the glTF validator's
+    unresolved_channel_target); such a file is damaged, not a skeleton missing a part."""
+    document, binary = gltf_parts(bvh_motion, name="walk")
+    document["animations"][0]["channels"][3]["target"] = target
+    with pytest.raises(
+        ParseError, match=r"'walk': channel 3 targets node .*, which does not exist"
+    ):
+        read_gltf(pack_glb(document, binary))

@@ -214,10 +214,15 @@ class _Document:
         for name, animation in zip(names, animations, strict=True):
             begin, end, rate = self._timing(animation)
             frames = int(np.floor((end - begin) * rate + 0.5)) + 1
-            moves = any(  # a node's translation, rotation or scale, not morph weights only
-                path in _PATHS and isinstance(node, int) and 0 <= node < count
-                for node, path, _ in map(channel_target, animation.channels or [])
-            )
+            targets = [channel_target(channel) for channel in animation.channels or []]
+            for k, (node, _, _) in enumerate(targets):
+                if node is not None and not (isinstance(node, int) and 0 <= node < count):
+                    raise ParseError(  # the spec: a target node is one of the file's nodes
+                        f"animation {name!r}: channel {k} targets node {show(str(node))}, "
+                        f"which does not exist (the file has {count} nodes)"
+                    )
+            # whether it moves a node (its translation, rotation or scale; not weights only)
+            moves = any(path in _PATHS and node is not None for node, path, _ in targets)
             self.animations.append(Animation(name, frames, frames / rate, moves))
             self.rates.append(rate)
             self.spans.append((begin, end))
