@@ -7,7 +7,9 @@ import shutil
 import signal
 import sqlite3
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -237,27 +239,37 @@ def test_a_task_for_a_worker_that_died_since_the_last_collect_is_not_sent(
         pool.close()
 
 
-def test_every_animation_of_a_scene_file_is_a_clip_and_a_rerun_skips_them(
-    tmp_path: Path, settings: Settings, fixtures_dir: Path
-) -> None:
+def _import_glb(
+    settings: Settings, folder: Path, fixtures_dir: Path, build: Callable[[Any], bytes]
+) -> tuple[Any, Any, list[Any]]:
+    """Import ``walk.glb`` built by ``build`` from the CMU BVH fixture's motion: the run, the
+    motion and the clips it stored."""
     from app.motion.formats import read_bvh
-    from tests.motion.gltf_builder import two_animation_glb
 
-    folder = tmp_path / "scenes"
     folder.mkdir()
     motion = read_bvh((fixtures_dir / "cmu_mb_02_01_first41.bvh").read_bytes())
-    (folder / "walk.glb").write_bytes(two_animation_glb(motion))
-    first = run_import(settings, [folder], workers=1)
-    assert not first.failed and len(first.imported) == 2
+    (folder / "walk.glb").write_bytes(build(motion))
+    done = run_import(settings, [folder], workers=1)
     library = open_library(settings)
     try:
         with library.reads() as session:
-            clips = clip_db.get_clips(session, [c.clip_id for c in first.imported])
+            clips = clip_db.get_clips(session, [c.clip_id for c in done.imported])
     finally:
         library.close()
-    assert sorted(c.name for c in clips.values()) == ["walk · start", "walk · walk"]
-    assert {c.animation for c in clips.values()} == {"walk", "start"}
-    assert len({c.content_hash for c in clips.values()}) == 2
+    return done, motion, list(clips.values())
+
+
+def test_every_animation_of_a_scene_file_is_a_clip_and_a_rerun_skips_them(
+    tmp_path: Path, settings: Settings, fixtures_dir: Path
+) -> None:
+    from tests.motion.gltf_builder import two_animation_glb
+
+    folder = tmp_path / "scenes"
+    first, _, clips = _import_glb(settings, folder, fixtures_dir, two_animation_glb)
+    assert not first.failed and len(first.imported) == 2
+    assert sorted(c.name for c in clips) == ["walk · start", "walk · walk"]
+    assert {c.animation for c in clips} == {"walk", "start"}
+    assert len({c.content_hash for c in clips}) == 2
     again = run_import(settings, [folder], workers=1)
     assert not again.imported and len(again.duplicates) == 2
 
@@ -280,6 +292,17 @@ def test_a_gltf_beside_its_bin_imports_and_a_missing_bin_is_a_refusal_naming_it(
     assert len(result.imported) == 1
     assert [str(f.path.relative_to(folder)) for f in result.failed] == ["broken/test.gltf"]
     assert "outside the document's folder" in result.failed[0].reason
+
+
+def test_an_animation_that_moves_nothing_is_not_imported(
+    tmp_path: Path, settings: Settings, fixtures_dir: Path
+) -> None:
+    from tests.motion.gltf_builder import with_empty_take
+
+    done, motion, clips = _import_glb(settings, tmp_path / "scenes", fixtures_dir, with_empty_take)
+    assert not done.failed and len(done.imported) == 1
+    (clip,) = clips
+    assert clip.animation == "walk" and clip.frame_count == motion.frame_count
 
 
 def test_the_import_saves_no_index_before_the_run_ends(settings: Settings) -> None:

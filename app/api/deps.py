@@ -98,7 +98,7 @@ async def read_upload(
         Form(
             description=(
                 "FBX/glTF: which animation of the file to read, by name (see the clip's "
-                "`animations`); default: the longest."
+                "`animations`); default: the longest that moves a node."
             )
         ),
     ] = None,

@@ -110,8 +110,8 @@ class InspectedAnimation(BaseModel):
     frame_count: int
     duration: float = Field(description="Seconds.")
     selected: bool = Field(
-        description="The one read: named in `animation`, else the longest (what `POST /clips` "
-        "stores without `animation`)."
+        description="The one read: named in `animation`, else the longest that moves a node "
+        "(what `POST /clips` stores without `animation`)."
     )
 
 

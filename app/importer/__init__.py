@@ -4,8 +4,8 @@ Pipeline
     :func:`app.discovery.discover` finds the clips (``.bvh`` files, ``.amc`` files paired with
     an ``.asf`` of their folder — an ``.amc`` without one is a failure —, and ``.fbx``,
     ``.glb``, ``.gltf``, ``.vrma`` files, whose every animation of at least
-    :data:`MIN_ANIMATION_FRAMES` frames becomes a clip named ``<file> · <animation>``; a file
-    with none that long gives its longest). Worker processes (one
+    :data:`MIN_ANIMATION_FRAMES` frames that moves a node becomes a clip named ``<file> ·
+    <animation>``; a file with none such gives the one an upload reads). Worker processes (one
     per core by default) read, parse and describe the clips, a few per task, and send back
     only the measurements, vectors and stored previews (the figure a page draws, made from
     the body the describer built: ~8 KB a second of motion). The main process meanwhile

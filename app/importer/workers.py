@@ -78,13 +78,19 @@ def describe_animations(
     describer: MotionDescriber, upload: Upload, limits: ParseLimits
 ) -> list[Description]:
     """Every clip of an upload: one, or for an FBX/glTF file one per animation of at least
-    :data:`MIN_ANIMATION_FRAMES` frames (the longest when none is that long)."""
+    :data:`MIN_ANIMATION_FRAMES` frames that moves a node (the default one when none does:
+    the longest that moves, else the longest). An animation that moves nothing, such as the
+    empty take an FBX SDK writes beside a real one, would be a held pose, not a clip."""
     first = describer.describe(upload, limits)
     if first.animation is None:
         return [first]
     described = {first.animation: first}
     for animation in first.animations:
-        if animation.frame_count < MIN_ANIMATION_FRAMES or animation.name in described:
+        if (
+            animation.frame_count < MIN_ANIMATION_FRAMES
+            or not animation.moves
+            or animation.name in described
+        ):
             continue
         chosen = dataclasses.replace(upload, animation=animation.name)
         described[animation.name] = describer.describe(chosen, limits)

@@ -18,6 +18,7 @@ from app.config import Settings
 from app.main import create_app
 from app.motion.formats import read_bvh
 from tests.conftest import FIXTURES_DIR
+from tests.motion.fbx_ascii import FbxNode, ascii_fbx
 from tests.motion.gltf_builder import two_animation_glb
 from tests.motion.test_gltf_pack import separate
 
@@ -129,6 +130,19 @@ def test_a_motion_file_with_files_it_does_not_refer_to_is_refused(live):
     response = live.post("/clips", files=[("file", BVH), ("file", ("walk.bin", b"1234"))])
     assert response.status_code == 422
     assert "more than one only for a .gltf" in response.json()["detail"]
+
+
+def test_an_fbx_of_optical_markers_only_is_refused_as_markers(live):
+    rng = np.random.default_rng(0)
+    markers = [
+        FbxNode(f"M{i}", "Marker", translation=100 * rng.uniform(0, 1.8, size=(10, 3)))
+        for i in range(8)
+    ]
+    response = live.post("/clips", files={"file": ("capture.fbx", ascii_fbx(markers))})
+    assert response.status_code == 422, response.text
+    body = response.json()
+    assert body["error"] == "parse_error" and "capture.fbx" in body["detail"]
+    assert "8 moving points (motion-capture markers) and no skeleton" in body["detail"]
 
 
 def test_unsupported_extensions_are_listed(live):

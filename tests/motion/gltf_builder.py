@@ -122,3 +122,30 @@ def multi_animation_glb(animations: dict[str, Motion]) -> bytes:
         binary += extra_binary
         document["buffers"][0]["byteLength"] = len(binary)
     return pack_glb(document, binary)
+
+
+def with_empty_take(motion: Motion, *, seconds: float = 10.0) -> bytes:
+    """``motion`` as a skinned GLB animation "walk", after an animation "Take 001" that lasts
+    ``seconds`` and moves no node (its one channel drives morph weights), as the FBX SDK
+    writes an empty default take beside a Mixamo one."""
+    document, binary = gltf_parts(motion, name="walk")
+    times = np.array([0.0, seconds], dtype=np.float32).tobytes()
+    weights = np.zeros(2, dtype=np.float32).tobytes()
+    for data, kind in ((times, "SCALAR"), (weights, "SCALAR")):
+        document["bufferViews"].append(
+            {"buffer": 0, "byteOffset": len(binary), "byteLength": len(data)}
+        )
+        accessor = {"bufferView": len(document["bufferViews"]) - 1, "componentType": 5126}
+        document["accessors"].append(accessor | {"count": 2, "type": kind})
+        binary += data
+    document["buffers"][0]["byteLength"] = len(binary)
+    last = len(document["accessors"]) - 1
+    document["animations"].insert(
+        0,
+        {
+            "name": "Take 001",
+            "samplers": [{"input": last - 1, "output": last}],
+            "channels": [{"sampler": 0, "target": {"node": 0, "path": "weights"}}],
+        },
+    )
+    return pack_glb(document, binary)

@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from app.errors import DescribeTimeout, LimitExceeded, NoAnimation, ParseError
 from app.motion import model as model_module
 from app.motion.formats import DEFAULT_AMC_FRAME_TIME, read_asf_amc, read_bvh
-from app.motion.formats import asf_amc as asf_amc_module
+from app.motion.formats import amc as amc_module
 from app.motion.formats import text as text_module
 from app.motion.model import Motion, ParseLimits
 from tests.motion.conftest import (
@@ -338,7 +338,7 @@ def test_regular_files_take_the_fast_path(monkeypatch: pytest.MonkeyPatch) -> No
         raise AssertionError("the line-by-line pass should not be needed")
 
     expected = read_asf_amc(fixture_bytes(CMU_ASF_FIXTURE), fixture_bytes(CMU_AMC_FIXTURE))
-    monkeypatch.setattr(asf_amc_module, "_read_amc_lines", refuse)
+    monkeypatch.setattr(amc_module, "_read_amc_lines", refuse)
     fast = read_asf_amc(fixture_bytes(CMU_ASF_FIXTURE), fixture_bytes(CMU_AMC_FIXTURE))
     np.testing.assert_array_equal(fast.local_rotations, expected.local_rotations)
 
@@ -866,3 +866,35 @@ def test_amc_matches_3dsmax_bvh(motion_data: Path) -> None:
             atol=1e-3,
             err_msg=f"{amc_joint} vs {bvh_joint}",
         )
+
+
+def _with_commas(text: str) -> str:
+    return re.sub(r"(\d)\.(\d)", r"\1,\2", text)
+
+
+@pytest.mark.parametrize("which", ["both", "amc", "asf"])
+def test_numbers_with_decimal_commas_are_read_as_decimal_points(which: str) -> None:
+    """A tool under a European locale writes 12,5: the CMU trial so written reads as it is
+    with points, and the warnings say which file was read so."""
+    asf, amc = fixture_text(CMU_ASF_FIXTURE), fixture_text(CMU_AMC_FIXTURE)
+    plain = read_asf_amc(asf, amc)
+    if which in ("both", "asf"):
+        asf = _with_commas(asf)
+    if which in ("both", "amc"):
+        amc = _with_commas(amc)
+    assert (which == "amc" or asf.count(",") > 200) and (which == "asf" or amc.count(",") > 1000)
+    motion = read_asf_amc(asf, amc)
+    np.testing.assert_array_equal(motion.skeleton.offsets, plain.skeleton.offsets)
+    np.testing.assert_array_equal(motion.local_rotations, plain.local_rotations)
+    np.testing.assert_array_equal(motion.root_translation, plain.root_translation)
+    said = [w.split(":")[0] for w in motion.notes["warnings"] if "decimal commas" in w]
+    assert said == {"both": ["ASF", "AMC"], "amc": ["AMC"], "asf": ["ASF"]}[which]
+
+
+def test_a_comma_beside_decimal_points_is_still_not_a_number() -> None:
+    amc = fixture_text(CMU_AMC_FIXTURE)
+    first = re.search(r"(?m)^lfemur (\S+)", amc)
+    assert first is not None and "." in first[1]
+    amc = amc[: first.start(1)] + first[1].replace(".", ",") + amc[first.end(1) :]
+    with pytest.raises(ParseError, match=r"AMC.*is not a number"):
+        read_asf_amc(fixture_text(CMU_ASF_FIXTURE), amc)

@@ -16,6 +16,7 @@ from app.motion.kinematics import forward_kinematics
 from app.motion.model import ParseLimits
 from tests.conftest import FIXTURES_DIR
 from tests.motion.canonical import check_canonical_body
+from tests.motion.fbx_ascii import FbxNode, ascii_fbx
 from tests.motion.shared import data_folder
 
 FBX = FIXTURES_DIR / "ufbx_maya_human_ik_7400_binary.fbx"
@@ -134,3 +135,62 @@ def test_a_skeleton_of_animated_null_nodes_is_read_and_maps_as_its_bvh() -> None
     want = [names[j] for j in plain.joints]
     # The BVH's End Sites are no nodes of the FBX: a chain ends at its last joint there.
     assert all(g == w or w == f"{g}_end" for g, w in zip(got, want, strict=True)), (got, want)
+
+
+def _marker_cloud(kind: str, *, turning: bool, chained: bool) -> bytes:
+    """Twelve points moving on a walking figure's scale (metres), as an optical capture
+    exports them: ``kind`` nodes, each keyed in translation (and rotation when ``turning``),
+    loose under one group null, or each below the previous when ``chained``."""
+    rng = np.random.default_rng(3)
+    frames = 30
+    path = np.linspace(0.0, 1.2, frames)[:, None] * np.array([0.0, 0.0, 1.0])
+    nodes = [FbxNode("Markers", "Null")]
+    for i in range(12):
+        place = rng.uniform([-0.3, 0.0, -0.1], [0.3, 1.8, 0.1])
+        wobble = 0.02 * np.sin(np.linspace(0, 6, frames))[:, None] * rng.normal(size=3)
+        nodes.append(
+            FbxNode(
+                f"LFHD{i}",
+                kind,
+                parent=i if chained else 0,
+                translation=100.0 * (place + path + wobble),
+                rotation=np.cumsum(rng.normal(size=(frames, 3)), axis=0) if turning else None,
+            )
+        )
+    return ascii_fbx(nodes)
+
+
+@pytest.mark.parametrize("kind", ["Marker", "Null"])
+@pytest.mark.parametrize("turning", [False, True], ids=["moving", "moving-and-turning"])
+def test_optical_markers_without_a_skeleton_are_refused_as_markers(kind, turning):
+    """A capture's raw markers (no bones, no skin): points that move, none below another,
+    so no skeleton; the refusal says so, never "no humanoid" nor "no skeleton" alone."""
+    with pytest.raises(ParseError) as raised:
+        read_fbx(_marker_cloud(kind, turning=turning, chained=False))
+    detail = raised.value.detail
+    assert "12 moving points (motion-capture markers) and no skeleton" in detail
+    assert "humanoid" not in detail and raised.value.code == "parse_error"
+
+
+def test_animated_nulls_that_hang_from_one_another_are_still_a_skeleton():
+    motion = read_fbx(_marker_cloud("Null", turning=True, chained=True))[0]
+    assert motion.skeleton.joint_count == 12 and motion.frame_count == 30
+
+
+def test_animated_lights_without_bones_are_no_skeleton_and_the_refusal_says_what_moves():
+    lights = [
+        FbxNode(f"Lamp{i}", "Light", parent=i - 1, rotation=np.zeros((10, 3)) + i) for i in range(3)
+    ]
+    with pytest.raises(ParseError, match="moves 3 meshes, cameras or lights, not bones"):
+        read_fbx(ascii_fbx(lights))
+
+
+def test_an_empty_default_take_longer_than_the_real_one_is_not_read_by_default():
+    """Mixamo FBX with skin: the FBX SDK's "Take 001" (3.3 s, no curve) beside the 1 s
+    walk; read by default, the clip was 81 frames of a held bind pose."""
+    data = (data_folder("wild-more") / "mixamo-fbx/cedric-h_Walking.fbx").read_bytes()
+    animations = list_fbx_animations(data)
+    assert [(a.name, a.moves) for a in animations] == [("Take 001", False), ("mixamo.com", True)]
+    motion, _, chosen = read_fbx(data)
+    assert chosen == "mixamo.com" and motion.frame_count == 25
+    assert np.ptp(motion.local_rotations, axis=0).max() > 0.5  # its limbs swing

@@ -19,7 +19,7 @@ from app.motion.model import ParseLimits
 from app.motion.skeleton_map import rest_pose
 from tests.conftest import FIXTURES_DIR
 from tests.motion.canonical import check_canonical_body
-from tests.motion.gltf_builder import build_glb, gltf_parts, pack_glb
+from tests.motion.gltf_builder import build_glb, gltf_parts, pack_glb, with_empty_take
 
 BVH = FIXTURES_DIR / "cmu_mb_02_01_first41.bvh"
 VRMA = FIXTURES_DIR / "three_vrm_test.vrma"
@@ -193,3 +193,115 @@ def test_an_animation_only_file_without_a_skin_is_read_by_its_animated_nodes(bvh
     assert bare.skeleton.names == skinned.skeleton.names
     np.testing.assert_array_equal(bare.local_rotations, skinned.local_rotations)
     np.testing.assert_array_equal(bare.root_translation, skinned.root_translation)
+
+
+def _as_pointers(document):
+    """``document`` with every channel's target written as a KHR_animation_pointer."""
+    for channel in document["animations"][0]["channels"]:
+        node, path = channel["target"]["node"], channel["target"]["path"]
+        channel["target"] = {
+            "path": "pointer",
+            "extensions": {"KHR_animation_pointer": {"pointer": f"/nodes/{node}/{path}"}},
+        }
+    document["extensionsUsed"] = ["KHR_animation_pointer"]
+    return document
+
+
+@pytest.mark.parametrize("skins", [True, False], ids=["skinned", "animation-only"])
+def test_animation_pointers_to_node_transforms_read_as_plain_channels(bvh_motion, skins):
+    """KHR_animation_pointer: a channel names ``/nodes/N/rotation`` by a JSON pointer instead
+    of target.node/path; the motion is the plain file's (with or without a skin)."""
+    document, binary = gltf_parts(bvh_motion, name="walk")
+    if not skins:
+        document["skins"] = []
+    plain = read_gltf(pack_glb(document, binary))[0]
+    pointed = read_gltf(pack_glb(_as_pointers(document), binary))[0]
+    assert pointed.skeleton.names == plain.skeleton.names
+    np.testing.assert_array_equal(pointed.local_rotations, plain.local_rotations)
+    np.testing.assert_array_equal(pointed.root_translation, plain.root_translation)
+    assert not pointed.notes.get("warnings")
+
+
+def test_animation_pointers_to_other_properties_are_left_out_with_a_warning(bvh_motion):
+    document, binary = gltf_parts(bvh_motion, name="walk")
+    _as_pointers(document)
+    animation = document["animations"][0]
+    colour = animation["samplers"][0]["output"]  # any VEC4 accessor: a colour's shape
+    animation["samplers"].append({"input": 0, "output": colour})
+    odd = [
+        "/materials/0/pbrMetallicRoughness/baseColorFactor",
+        "/nodes/01/rotation",  # not an array index (RFC 6901): not node 1
+        "/nodes/1/extensions/KHR_node_visibility/visible",
+        "/nodes/1/rotation/0",
+        "x" * 5000,
+    ]
+    for pointer in odd:
+        animation["channels"].append(
+            {
+                "sampler": len(animation["samplers"]) - 1,
+                "target": {
+                    "path": "pointer",
+                    "extensions": {"KHR_animation_pointer": {"pointer": pointer}},
+                },
+            }
+        )
+    animation["channels"].append({"sampler": 0, "target": {"path": "pointer"}})
+    plain = read_gltf(pack_glb(*gltf_parts(bvh_motion, name="walk")))[0]
+    motion = read_gltf(pack_glb(document, binary))[0]
+    np.testing.assert_array_equal(motion.local_rotations, plain.local_rotations)
+    (warning,) = motion.notes["warnings"]
+    assert "6 animation channel(s) of KHR_animation_pointer" in warning
+    assert "/materials/0/pbrMetallicRoughness/baseColorFactor" in warning and len(warning) < 300
+
+
+def test_textures_beside_a_gltf_are_never_read_nor_a_reason_to_refuse_it(bvh_motion):
+    """Only buffers hold skeleton and motion: a .gltf with embedded buffers whose images
+    (textures) lie beside it, or anywhere, is read; nothing of theirs is opened."""
+    document, binary = gltf_parts(bvh_motion)
+    document["buffers"][0]["uri"] = (
+        "data:application/octet-stream;base64," + base64.b64encode(binary).decode()
+    )
+    document["images"] = [{"uri": "skin.png"}, {"uri": "../../etc/passwd"}, {"uri": "http://x/y"}]
+    document["extensionsRequired"] = ["KHR_texture_transform", "KHR_texture_basisu"]
+    motion = read_gltf(json.dumps(document).encode())[0]
+    assert motion.frame_count == bvh_motion.frame_count
+
+
+def test_a_morph_weights_animation_without_a_skeleton_says_so(bvh_motion):
+    """A creature or a face that deforms by blend shapes (three.js's horse, flamingo):
+    no skeleton, and the refusal says its animation changes only morph-target weights."""
+    document, binary = gltf_parts(bvh_motion)
+    for channel in document["animations"][0]["channels"]:
+        channel["target"]["path"] = "weights"
+    with pytest.raises(ParseError, match=r"no skeleton .*morph-target weights"):
+        read_gltf(pack_glb(dict(document, skins=[]), binary))
+
+
+def test_the_default_animation_is_the_longest_that_moves_a_node(bvh_motion):
+    """An empty take longer than the real one (the FBX SDK's "Take 001" beside Mixamo's
+    take) is not read by default: the clip would be a held bind pose, the motion lost."""
+    data = with_empty_take(bvh_motion)
+    animations = list_gltf_animations(data)
+    assert [(a.name, a.moves) for a in animations] == [("Take 001", False), ("walk", True)]
+    assert animations[0].frame_count > animations[1].frame_count
+    motion, _, chosen = read_gltf(data)
+    assert chosen == "walk" and motion.frame_count == bvh_motion.frame_count
+    (warning,) = motion.notes["warnings"]
+    assert "'walk', the longest that moves a node, is read" in warning
+    assert "moving nothing: 'Take 001'" in warning
+    still, _, _ = read_gltf(data, animation="Take 001")  # named: read as what it is
+    assert np.ptp(still.local_rotations, axis=0).max() == 0
+
+
+@pytest.mark.parametrize(
+    "target", [{"node": 999, "path": "rotation"}, {"node": "0", "path": "scale"}]
+)
+def test_a_channel_aimed_at_a_node_that_does_not_exist_is_a_malformed_file(bvh_motion, target):
+    """The spec: a channel's target node is one of the file's nodes (the glTF validator's
+    unresolved_channel_target); such a file is damaged, not a skeleton missing a part."""
+    document, binary = gltf_parts(bvh_motion, name="walk")
+    document["animations"][0]["channels"][3]["target"] = target
+    with pytest.raises(
+        ParseError, match=r"'walk': channel 3 targets node .*, which does not exist"
+    ):
+        read_gltf(pack_glb(document, binary))

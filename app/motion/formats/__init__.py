@@ -19,7 +19,7 @@ from __future__ import annotations
 from app.errors import ParseError
 from app.motion.formats.asf_amc import DEFAULT_AMC_FRAME_TIME, parse_asf_amc
 from app.motion.formats.bvh import parse_bvh
-from app.motion.formats.text import DEFAULT_LIMITS
+from app.motion.formats.text import DEFAULT_LIMITS, refuse_lfs_pointer
 from app.motion.model import Motion, ParseLimits
 
 __all__ = ["DEFAULT_AMC_FRAME_TIME", "decode_text", "decoded_text", "read_asf_amc", "read_bvh"]
@@ -44,9 +44,15 @@ def decoded_text(data: bytes | str, *, source: str | None = None) -> tuple[str, 
     Raises
     ------
     ParseError
-        Contains NUL bytes (a binary file), or empty / only whitespace.
+        Contains NUL bytes (a binary file), is empty / only whitespace, or is a Git LFS
+        pointer instead of the file.
     """
     note = None
+    if isinstance(data, bytes | bytearray | memoryview | str):
+        try:
+            refuse_lfs_pointer(data, "motion file")
+        except ParseError as error:
+            raise error.with_source(source) if source else error from None
     if isinstance(data, bytes | bytearray | memoryview):
         raw = bytes(data)
         if raw.startswith((b"\xff\xfe", b"\xfe\xff")):  # UTF-16 with its byte-order mark

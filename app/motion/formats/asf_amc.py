@@ -36,12 +36,10 @@ end), named after the bone; its offset is the parent bone's ``direction * length
 ``L_root = C_root @ M_root @ C_root.T`` with ``M_root`` from the ``RX RY RZ`` values in
 ``:root order``. Translation dofs give ``Motion.local_translations``.
 
-Parsing strategy
-----------------
-CMU AMC files repeat the same bone order every frame, so the fast path slices the lines into
-one column of lines per bone and reads each with one numpy C call. Anything irregular (other
-bone orders, comments, errors) falls back to a line-by-line pass that accepts every valid
-file and names the exact line of the first problem.
+The AMC's lines are read into a table of values by :mod:`app.motion.formats.amc`, and the
+motion is built from it by :mod:`app.motion.formats.asf_build`. Either
+file may write its numbers with decimal commas (``0,45``, a tool under a European locale):
+each is read with points then, and a warning says which (as a BVH file so written is).
 """
 
 from __future__ import annotations
@@ -49,29 +47,31 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, field
-from itertools import islice
 
 import numpy as np
 
-from app.errors import LimitExceeded, NoAnimation, ParseError
-from app.motion.formats.bvh import matrices_from_euler
+from app.errors import LimitExceeded, ParseError
+from app.motion.formats.amc import read_amc
+from app.motion.formats.asf_build import build_motion
 from app.motion.formats.text import (
+    DECIMAL_COMMA_HEAD,
+    DECIMAL_COMMA_WARNING,
     DEFAULT_LIMITS,
     LINES_PER_CLOCK_CHECK,
+    decimal_comma,
     normalise_newlines,
     parse_float,
     show,
 )
-from app.motion.model import Motion, ParseLimits, Skeleton
+from app.motion.model import Motion, ParseLimits
 
 __all__ = ["DEFAULT_AMC_FRAME_TIME", "parse_asf_amc"]
 
 #: Seconds per frame of an AMC file: the CMU database is captured at 120 fps.
 DEFAULT_AMC_FRAME_TIME = 1.0 / 120.0
 
-# An AMC of headers and comments only: the skeleton is a rig with no animation.
-_NO_FRAMES = "the AMC file has no frames: the skeleton has no animation to describe"
-_FRAME_NUMBER_RE = re.compile(r"[+-]?\d{1,12}", re.ASCII)
+# The ASF fields that hold numbers (``:units`` mass and length, ``:root`` and bone fields).
+_ASF_NUMBER_FIELDS = frozenset({"mass", "length", "direction", "axis", "position", "orientation"})
 _BONE_DOFS = frozenset({"rx", "ry", "rz", "tx", "ty", "tz", "l"})
 _ROOT_DOFS = frozenset({"rx", "ry", "rz", "tx", "ty", "tz"})
 _ANGLE_UNITS = {
@@ -147,22 +147,30 @@ def parse_asf_amc(
     if not (isinstance(frame_time, int | float) and math.isfinite(frame_time) and frame_time > 0):
         raise ParseError(f"frame_time must be a positive number of seconds, not {frame_time!r}")
     limits.check_time()
+    asf_text, asf_commas = _with_decimal_points(asf_text, _ASF_NUMBER_FIELDS)
+    amc_text, amc_commas = _with_decimal_points(amc_text, None)
     try:
         asf = _parse_asf(_split_lines(asf_text), limits)
         joints = _order_joints(asf, limits)
     except ParseError as error:
         raise error.with_source("ASF") from None
     layout = _column_layout(asf)
+    dofs = {bone.name: bone.dof for bone in (asf.root, *asf.bones.values())}
     try:
-        values, first_frame, amc_angle_unit, warnings = _parse_amc(
-            _split_lines(amc_text), asf, layout, len(joints), limits
+        values, first_frame, amc_angle_unit, warnings = read_amc(
+            _split_lines(amc_text), dofs, layout, len(joints), limits
         )
     except ParseError as error:
         raise error.with_source("AMC") from None
     angle_unit = amc_angle_unit or asf.angle_unit
-    motion = _build_motion(asf, joints, layout, values, angle_unit, frame_time, first_frame)
-    if warnings:
-        motion.notes["warnings"] = warnings
+    motion = build_motion(asf, joints, layout, values, angle_unit, frame_time, first_frame)
+    commas = [
+        f"{source}: {DECIMAL_COMMA_WARNING}"
+        for source, said in (("ASF", asf_commas), ("AMC", amc_commas))
+        if said
+    ]
+    if commas or warnings:
+        motion.notes["warnings"] = [*commas, *warnings]
     return motion
 
 
@@ -174,6 +182,7 @@ def parse_asf_rest(
 ) -> Motion:
     """An ASF skeleton alone, as one frame of its rest pose (every degree of freedom 0): a
     rig to retarget onto. Raises like :func:`parse_asf_amc` (``source="ASF"``)."""
+    asf_text, _ = _with_decimal_points(asf_text, _ASF_NUMBER_FIELDS)
     try:
         asf = _parse_asf(_split_lines(asf_text), limits)
         joints = _order_joints(asf, limits)
@@ -182,7 +191,26 @@ def parse_asf_rest(
     layout = _column_layout(asf)
     columns = sum(count for _, count in layout.values())
     values = np.zeros((1, columns))
-    return _build_motion(asf, joints, layout, values, asf.angle_unit, frame_time, 1)
+    return build_motion(asf, joints, layout, values, asf.angle_unit, frame_time, 1)
+
+
+def _with_decimal_points(text: str, fields: frozenset[str] | None) -> tuple[str, bool]:
+    """``text`` with decimal commas read as points when its numbers are written so (a tool
+    under a European locale: ``direction 0,5 -0,2 0,8``, AMC ``lfemur -12,5 3,1 0``), and
+    whether they were. The numbers looked at are those of the first lines
+    (:data:`DECIMAL_COMMA_HEAD`): every word after the first on the ASF lines whose first
+    word is one of ``fields``, or on every AMC line (``fields`` None) that is not a header
+    or comment. The words are ASCII either way, so a comma is never part of a name."""
+    tokens: list[str] = []
+    for line in text[:DECIMAL_COMMA_HEAD].split("\n"):
+        words = line.split()
+        if not words or words[0].startswith(("#", ":")):
+            continue
+        if fields is None or words[0].lower() in fields:
+            tokens += words[1:]
+    if not decimal_comma(tokens):
+        return text, False
+    return text.replace(",", "."), True
 
 
 def _split_lines(text: str) -> list[str]:
@@ -476,374 +504,3 @@ def _column_layout(asf: _Asf) -> dict[str, tuple[int, int]]:
             layout[bone.name] = (column, len(bone.dof))
             column += len(bone.dof)
     return layout
-
-
-# ---------------------------------------------------------------------------------------- AMC
-
-
-def _parse_amc(
-    lines: list[str],
-    asf: _Asf,
-    layout: dict[str, tuple[int, int]],
-    joint_count: int,
-    limits: ParseLimits,
-) -> tuple[np.ndarray, int, str | None, list[str]]:
-    """Returns the ``(F, D)`` values, the first frame number, any header angle unit and
-    warnings about repairs."""
-    angle_unit: str | None = None
-    start = 0
-    while start < len(lines):
-        line = lines[start].strip()
-        if line and not line.startswith(("#", ":")):
-            break
-        keyword = line.upper()
-        if keyword == ":DEGREES":
-            angle_unit = "deg"
-        elif keyword == ":RADIANS":
-            angle_unit = "rad"
-        start += 1
-    end = len(lines)
-    while end > start and not lines[end - 1].strip():
-        end -= 1
-    if start == end:
-        raise NoAnimation(_NO_FRAMES)
-    body = lines[start:end]
-    body, warnings = _drop_cut_last_frame(body, start + 1, layout)
-    column_count = sum(count for _, count in layout.values())
-    fast = _read_regular_amc(body, layout, column_count, joint_count, limits)
-    if fast is not None:
-        return fast[0], fast[1], angle_unit, warnings
-    values, first_frame = _read_amc_lines(
-        body, start + 1, asf, layout, column_count, joint_count, limits
-    )
-    return values, first_frame, angle_unit, warnings
-
-
-def _drop_cut_last_frame(
-    body: list[str], first_line: int, layout: dict[str, tuple[int, int]]
-) -> tuple[list[str], list[str]]:
-    """``body`` without a last frame cut short (a truncated download), and a warning.
-
-    The last frame counts as cut when its lines are all whole lines of known bones except
-    that bones are missing at its end or its last line is short; anything else in it is left
-    for the readers to report. The first frame is never dropped.
-    """
-    # Only the last frame's number line matters, and that there is one before it: found from
-    # the ends (matching every line of a long take was a third of reading an AMC).
-    last = next((i for i in range(len(body) - 1, -1, -1) if _is_frame_number(body[i])), None)
-    if last is None or not any(_is_frame_number(line) for line in islice(body, last)):
-        return body, []
-    entries = [line.split() for line in body[last + 1 :]]
-    entries = [tokens for tokens in entries if tokens and not tokens[0].startswith("#")]
-    seen = [tokens[0] for tokens in entries]
-    if any(name not in layout for name in seen) or len(set(seen)) != len(seen):
-        return body, []
-    whole = [len(tokens) - 1 == layout[tokens[0]][1] for tokens in entries]
-    if all(whole) and len(seen) == len(layout):
-        return body, []
-    if not all(whole[:-1]):
-        return body, []
-    return body[:last], [
-        f"the last frame ({body[last].strip()}, line {first_line + last}) was cut short: dropped"
-    ]
-
-
-def _is_frame_number(line: str) -> bool:
-    return _FRAME_NUMBER_RE.fullmatch(line.strip()) is not None
-
-
-def _check_amc_limits(
-    frame_count: int, column_count: int, joint_count: int, limits: ParseLimits, line: int
-) -> None:
-    problem = limits.frame_budget_problem(frame_count, column_count, joint_count)
-    if problem is not None:
-        raise LimitExceeded(f"AMC line {line}: {problem}")
-
-
-def _read_regular_amc(
-    body: list[str],
-    layout: dict[str, tuple[int, int]],
-    column_count: int,
-    joint_count: int,
-    limits: ParseLimits,
-) -> tuple[np.ndarray, int] | None:
-    """Fast path for files that repeat one bone order every frame; ``None`` if not regular."""
-    if not _is_frame_number(body[0]):
-        return None
-    bone_order: list[str] = []
-    for line in body[1:]:
-        tokens = line.split(None, 1)
-        if not tokens or len(bone_order) > len(layout):
-            return None
-        if _is_frame_number(line):
-            break
-        bone_order.append(tokens[0])
-    if sorted(bone_order) != sorted(layout):
-        return None
-    period = 1 + len(bone_order)
-    frame_count, remainder = divmod(len(body), period)
-    if remainder:
-        return None
-    if limits.max_frames is not None and frame_count > limits.max_frames:
-        return None  # the line-by-line pass raises at the exact line
-    produced = frame_count * max(column_count, 9 * joint_count)
-    if limits.max_values is not None and produced > limits.max_values:
-        return None
-    try:
-        numbers = np.loadtxt(body[0::period], dtype=np.int64, comments=None, ndmin=1)
-    except ValueError:
-        return None
-    if numbers.shape != (frame_count,):
-        return None
-    small = (numbers > -(10**12)) & (numbers < 10**12)  # no wrap-around in the difference
-    if not small.all() or (frame_count > 1 and not (np.diff(numbers) == 1).all()):
-        return None
-    values = np.empty((frame_count, column_count))
-    for slot, name in enumerate(bone_order, start=1):
-        first, count = layout[name]
-        # one row per frame: the bone name (checked) then its values
-        row_type = np.dtype([("name", f"U{len(name) + 1}"), ("values", np.float64, (count,))])
-        try:
-            rows = np.loadtxt(body[slot::period], dtype=row_type, comments=None, ndmin=1)
-        except ValueError:
-            return None
-        if rows.shape != (frame_count,) or not (rows["name"] == name).all():
-            return None
-        limits.check_time()  # one C read of one bone's lines per look
-        values[:, first : first + count] = rows["values"].reshape(frame_count, count)
-    if not np.isfinite(values).all():
-        return None
-    return values, int(numbers[0])
-
-
-def _read_amc_lines(
-    body: list[str],
-    first_line: int,
-    asf: _Asf,
-    layout: dict[str, tuple[int, int]],
-    column_count: int,
-    joint_count: int,
-    limits: ParseLimits,
-) -> tuple[np.ndarray, int]:
-    """Line-by-line AMC reading: any bone order, ``#`` comments; exact errors."""
-    rows: list[list[float]] = []
-    row: list[float] = []
-    seen: set[str] = set()
-    frame_number = 0
-    first_frame = 0
-    frame_line = 0
-    no_dof_bones = {name for name, bone in asf.bones.items() if not bone.dof}
-    if not asf.root.dof:
-        no_dof_bones.add("root")
-    most_values = max((count for _, count in layout.values()), default=0)
-
-    def finish_frame() -> None:
-        if len(seen) != len(layout):
-            missing = [name for name in layout if name not in seen]
-            raise ParseError(
-                f"frame {frame_number} has no values for bone {missing[0]!r}"
-                + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""),
-                line=frame_line,
-            )
-        rows.append(row)
-
-    for number, raw in enumerate(body, start=first_line):
-        if number % LINES_PER_CLOCK_CHECK == 0:
-            limits.check_time()
-        # maxsplit bounds the work on a hostile long line
-        tokens = raw.split(None, most_values + 1)
-        if not tokens or tokens[0].startswith("#"):
-            continue
-        if len(tokens) == 1 and _FRAME_NUMBER_RE.fullmatch(tokens[0]) is not None:
-            if frame_line:
-                finish_frame()
-                if int(tokens[0]) != frame_number + 1:
-                    raise ParseError(
-                        f"frame numbers must be consecutive: expected {frame_number + 1}, "
-                        f"found {tokens[0]}",
-                        line=number,
-                    )
-            else:
-                first_frame = int(tokens[0])
-            frame_number = int(tokens[0])
-            frame_line = number
-            _check_amc_limits(len(rows) + 1, column_count, joint_count, limits, number)
-            row = [0.0] * column_count
-            seen = set()
-            continue
-        name = tokens[0]
-        if not frame_line:
-            raise ParseError(f"expected a frame number, found {show(name)}", line=number)
-        entry = layout.get(name)
-        if entry is None:
-            if name in no_dof_bones:
-                if len(tokens) == 1:
-                    continue  # a bone without dof listed with no values: harmless
-                raise ParseError(
-                    f"bone {name!r} has no dof in the ASF but the AMC gives it values",
-                    line=number,
-                )
-            if _FRAME_NUMBER_RE.fullmatch(name) is not None:
-                raise ParseError(
-                    f"frame number line has extra text after {show(name)}", line=number
-                )
-            raise ParseError(f"bone {show(name)} is not in the ASF skeleton", line=number)
-        if name in seen:
-            raise ParseError(f"bone {name!r} appears twice in frame {frame_number}", line=number)
-        seen.add(name)
-        first, count = entry
-        if len(tokens) - 1 != count:
-            found = f"more than {count}" if len(tokens) - 1 > most_values else len(tokens) - 1
-            dof = asf.root.dof if name == "root" else asf.bones[name].dof
-            raise ParseError(
-                f"bone {name!r} needs {count} values ({' '.join(dof)}), found {found}",
-                line=number,
-            )
-        for k, token in enumerate(tokens[1:]):
-            row[first + k] = parse_float(token, what=f"bone {name!r}", line=number)
-    if not frame_line:
-        raise NoAnimation(_NO_FRAMES, line=first_line)
-    finish_frame()
-    return np.array(rows, dtype=np.float64).reshape(len(rows), column_count), first_frame
-
-
-# ----------------------------------------------------------------------------------- building
-
-
-def _build_motion(
-    asf: _Asf,
-    joints: list[_JointPlan],
-    layout: dict[str, tuple[int, int]],
-    values: np.ndarray,
-    angle_unit: str,
-    frame_time: float,
-    first_frame: int,
-) -> Motion:
-    """The skeleton, ``(F, D)`` AMC values and ASF axis frames -> :class:`Motion`."""
-    frame_count = values.shape[0]
-    joint_count = len(joints)
-    scale = 1.0 / asf.length_multiplier
-    asf_to_radians = math.pi / 180.0 if asf.angle_unit == "deg" else 1.0
-    amc_to_radians = math.pi / 180.0 if angle_unit == "deg" else 1.0
-    index_of = {j.name: i for i, j in enumerate(joints) if not j.end_site}
-
-    # Rest skeleton: a bone's joint sits at its parent bone's tip.
-    bone_vectors = {
-        name: np.array(bone.direction, dtype=np.float64) * (bone.length or 0.0) * scale
-        for name, bone in asf.bones.items()
-    }
-    bone_vectors["root"] = np.zeros(3)
-    offsets = np.zeros((joint_count, 3))
-    for index, joint in enumerate(joints):
-        if joint.end_site:
-            offsets[index] = bone_vectors[joint.bone]
-        elif joint.parent >= 0:
-            offsets[index] = bone_vectors[joints[joint.parent].bone]
-
-    # Axis frames C_b, (3, 3) each.
-    axis_frames = {
-        name: matrices_from_euler(
-            bone.axis_order.lower(), np.array(bone.axis_angles) * asf_to_radians
-        )
-        for name, bone in asf.bones.items()
-    }
-    axis_frames["root"] = matrices_from_euler(
-        asf.root.axis_order.lower(), np.array(asf.root_orientation) * asf_to_radians
-    )
-
-    rotations = np.zeros((frame_count, joint_count, 3, 3))
-    rotations[..., 0, 0] = rotations[..., 1, 1] = rotations[..., 2, 2] = 1.0
-    # Group bones by their rotation dof sequence so each group is one vectorised call.
-    groups: dict[str, list[tuple[str, list[int]]]] = {}
-    for bone in (asf.root, *asf.bones.values()):
-        if bone.name not in layout:
-            continue
-        first, _ = layout[bone.name]
-        sequence = "".join(d[1] for d in bone.dof if d.startswith("r"))
-        columns = [first + k for k, d in enumerate(bone.dof) if d.startswith("r")]
-        if sequence:
-            groups.setdefault(sequence, []).append((bone.name, columns))
-    for sequence, members in groups.items():
-        names = [name for name, _ in members]
-        angles = values[:, np.array([columns for _, columns in members])] * amc_to_radians
-        frames = np.stack([axis_frames[name] for name in names])  # (G, 3, 3)
-        # L = C @ M @ C.T with M extrinsic in dof order, (F, G, 3, 3)
-        local = matrices_from_euler(sequence, angles, frames=frames)
-        rotations[:, [index_of[name] for name in names]] = local
-
-    root_translation = np.repeat(np.array(asf.root_position)[None] * scale, frame_count, axis=0)
-    if "root" in layout:
-        first, _ = layout["root"]
-        for k, dof in enumerate(asf.root.dof):
-            if dof.startswith("t"):
-                root_translation[:, "xyz".index(dof[1])] += values[:, first + k] * scale
-
-    local_translations = _bone_translations(
-        asf, joints, layout, values, offsets, axis_frames, scale
-    )
-    if local_translations is not None:
-        local_translations[:, 0] = root_translation
-
-    skeleton = Skeleton(
-        names=tuple(j.name for j in joints),
-        parents=np.array([j.parent for j in joints], dtype=np.int64),
-        offsets=offsets,
-        end_site=np.array([j.end_site for j in joints], dtype=bool),
-    )
-    multiplier = asf.length_multiplier
-    if math.isclose(multiplier, 0.45):
-        length_unit = "inches (ASF length / 0.45)"
-    elif multiplier == 1.0:
-        length_unit = "ASF units"
-    else:
-        length_unit = f"ASF units / {multiplier:g}"
-    return Motion(
-        skeleton=skeleton,
-        frame_time=float(frame_time),
-        root_translation=root_translation,
-        local_rotations=rotations,
-        local_translations=local_translations,
-        source_format="asf/amc",
-        length_unit=length_unit,
-        notes={
-            "asf_name": asf.name,
-            "length_multiplier": multiplier,
-            "angle_unit": angle_unit,
-            "amc_first_frame": first_frame,
-        },
-    )
-
-
-def _bone_translations(
-    asf: _Asf,
-    joints: list[_JointPlan],
-    layout: dict[str, tuple[int, int]],
-    values: np.ndarray,
-    offsets: np.ndarray,
-    axis_frames: dict[str, np.ndarray],
-    scale: float,
-) -> np.ndarray | None:
-    """``(F, J, 3)`` offsets moved by bone ``tx ty tz`` and ``l`` dofs, or ``None`` if none."""
-    moving = [
-        bone for bone in asf.bones.values() if any(d.startswith("t") or d == "l" for d in bone.dof)
-    ]
-    if not moving:
-        return None
-    frame_count = values.shape[0]
-    translations = np.repeat(offsets[None], frame_count, axis=0)
-    for bone in moving:
-        first, _ = layout[bone.name]
-        shift = np.zeros((frame_count, 3))
-        for k, dof in enumerate(bone.dof):
-            if dof.startswith("t"):
-                shift[:, "xyz".index(dof[1])] = values[:, first + k] * scale
-        bone_joint = next(i for i, j in enumerate(joints) if j.bone == bone.name)
-        # translations are along the bone's own axes
-        translations[:, bone_joint] += shift @ axis_frames[bone.name].T
-        if "l" in bone.dof:
-            stretch = values[:, first + bone.dof.index("l")] * scale
-            direction = np.array(bone.direction, dtype=np.float64)
-            for child, joint in enumerate(joints):
-                if joint.parent == bone_joint:
-                    translations[:, child] += stretch[:, None] * direction
-    return translations

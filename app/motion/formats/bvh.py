@@ -43,8 +43,11 @@ import numpy as np
 from app.errors import LimitExceeded, NoAnimation, ParseError
 from app.motion.formats.bvh_frames import read_frames
 from app.motion.formats.text import (
+    DECIMAL_COMMA_HEAD,
+    DECIMAL_COMMA_WARNING,
     DEFAULT_LIMITS,
     LINES_PER_CLOCK_CHECK,
+    decimal_comma,
     normalise_newlines,
     parse_float,
     show,
@@ -68,9 +71,6 @@ _SIGNED_INTEGER_RE = re.compile(r"[+-]?\d+", re.ASCII)
 # ``FrameTime: 0.0333``): the word says what the number is.
 _FRAMES_RE = re.compile(r"frames\s*[:=]?\s*(.*)", re.IGNORECASE)
 _FRAME_TIME_RE = re.compile(r"frame\s*time\s*[:=]?\s*(.*)", re.IGNORECASE)
-# A number written with a decimal comma (a European locale's printf), and one with a point.
-_COMMA_NUMBER_RE = re.compile(r"[-+]?\d*,\d+(?:[eE][-+]?\d+)?")
-_POINT_NUMBER_RE = re.compile(r"[-+]?\d*\.\d+(?:[eE][-+]?\d+)?")
 
 # channel name (lower case) -> (kind, axis index)
 _CHANNELS: dict[str, tuple[str, int]] = {
@@ -231,8 +231,8 @@ def parse_bvh(
     if raw is not None and (normalised is not text or len(raw) != len(text)):
         raw = None  # line ends were rewritten: the bytes are not the text any more
     text = normalised
-    decimal_comma = _decimal_comma(text)
-    if decimal_comma:
+    commas = _decimal_comma(text)
+    if commas:
         text, raw = text.replace(",", "."), None
     lines = _Lines(text, limits)
     joints = _HIERARCHIES.read(lines, limits)
@@ -247,8 +247,8 @@ def parse_bvh(
     )
     joints, values, several = _largest_skeleton(joints, values)
     motion = _build_motion(joints, values, frame_time, limits)
-    comma = "numbers written with decimal commas (a locale's way): read as decimal points"
-    warnings = [*([comma] if decimal_comma else []), *([several] if several else []), *warnings]
+    comma = DECIMAL_COMMA_WARNING
+    warnings = [*([comma] if commas else []), *([several] if several else []), *warnings]
     if warnings:
         motion.notes["warnings"] = warnings
     return motion
@@ -273,7 +273,7 @@ def _decimal_comma(text: str) -> bool:
     """Whether the file writes its numbers with decimal commas (``12,5``), as a tool under a
     European locale does: the OFFSETs and the first frame line hold such numbers and none
     with a decimal point. Read from the hierarchy's first 64 KB and the first frame line."""
-    head = text[: 64 * 1024]
+    head = text[:DECIMAL_COMMA_HEAD]
     motion = _MOTION_LINE_RE.search(head)
     hierarchy = head[: motion.start()] if motion else head
     tokens = [t for line in hierarchy.split("\n") if "OFFSET" in line.upper() for t in line.split()]
@@ -281,9 +281,7 @@ def _decimal_comma(text: str) -> bool:
         after = head[motion.end() :].split("\n")
         data = [line for line in after if line.strip()][2:3]  # past Frames: and Frame Time:
         tokens += data[0].split() if data else []
-    if not any(_COMMA_NUMBER_RE.fullmatch(t) for t in tokens):
-        return False
-    return not any(_POINT_NUMBER_RE.fullmatch(t) for t in tokens)
+    return decimal_comma(tokens)
 
 
 def _largest_skeleton(

@@ -9,7 +9,8 @@ the binding takes the process with it.
 * Skeleton: the limb nodes and the bones skin clusters name, the joinable nodes between
   them (nulls limbs hang from) — see :mod:`app.motion.formats.scene`; meshes, cameras,
   lights, markers and helper nulls that carry no bones are left out. A file with neither
-  limb nodes nor skin clusters: the nodes its animation turns (a skeleton of nulls).
+  limb nodes nor skin clusters: the nodes its animation turns (a skeleton of nulls), unless
+  what it animates is loose points, none below another (optical markers: refused saying so).
 * Motion: every node's local transform baked by ufbx (pre/post rotation, pivots and offsets
   folded in, inherit modes compensated: ``inherit_mode_handling=COMPENSATE``) at the scene's
   frame rate, over the animation stack's time span.
@@ -30,10 +31,14 @@ import numpy as np
 
 from app.errors import LimitExceeded, ParseError
 from app.motion.formats.scene import (
+    MIN_MARKERS,
     Animation,
     NodeGraph,
     check_frame_budget,
+    choice_warnings,
     kept_parents,
+    loose_points,
+    markers_not_skeleton,
     motion_from_graph,
     no_skeleton,
     pick_animation,
@@ -42,13 +47,16 @@ from app.motion.formats.scene import (
     unique_names,
     with_plain_nodes_below,
 )
+from app.motion.formats.text import refuse_lfs_pointer
 from app.motion.model import Motion, ParseLimits
 
 DEFAULT_LIMITS = ParseLimits()
 MAX_SCENE_NODES = 100_000
+_TRANSFORMS = frozenset({"Lcl Translation", "Lcl Rotation", "Lcl Scaling"})
 
 
 def _load(data: bytes, limits: ParseLimits) -> Any:
+    refuse_lfs_pointer(data, "FBX file")
     import ufbx
 
     options: dict[str, Any] = {
@@ -96,28 +104,38 @@ class _Scene:
         )
         self.spans = [(float(s.time_begin), float(s.time_end)) for s in self.stacks]
         self.animations = []
-        for name, (begin, end) in zip(names, self.spans, strict=True):
+        for name, (begin, end), anim in zip(names, self.spans, self.anims, strict=True):
             span = end - begin if np.isfinite(end - begin) and end >= begin else 0.0
             frames = int(np.floor(span * self.fps + 0.5)) + 1
-            self.animations.append(Animation(name, frames, frames / self.fps))
+            moves = self._moves(anim)
+            self.animations.append(Animation(name, frames, frames / self.fps, moves))
+
+    def _moves(self, anim: Any) -> bool:
+        """Whether a stack's layers animate any node's transform (an empty take does not)."""
+        layers = list(anim.layers)
+        props = [list(layer.anim_props) for layer in layers]
+        self.held.append((layers, props))  # kept with the scene (see the module docstring)
+        return any(prop.prop_name in _TRANSFORMS for each in props for prop in each)
 
 
 def _animated_plain_nodes(
-    loaded: _Scene, nodes: list[Any], parents: np.ndarray, joinable: np.ndarray
-) -> np.ndarray:
-    """``(N,)`` bool: for a file with neither bones nor skin clusters — a skeleton of Null
-    nodes, as Unity's FBX Exporter and some DCC and capture tools write one — the nodes an
-    animation turns (a ``Lcl Rotation`` curve in any layer) that are nothing else (no mesh,
-    camera or light), and the plain nodes below them (an end null). The mapper then decides
-    whether they make a person, as for a glTF animation exported without its skin."""
+    loaded: _Scene, nodes: list[Any], joinable: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(N,)`` bools ``(plain, turned, moved)`` for a file with neither bones nor skin
+    clusters: the joinable nodes that are nothing else (no mesh, camera or light: a Null,
+    as Unity's FBX Exporter and some DCC and capture tools write a skeleton of them, or a
+    marker), and the nodes an animation turns (a ``Lcl Rotation`` curve in any layer) or
+    moves (``Lcl Translation``)."""
     index = {node.element_id: i for i, node in enumerate(nodes)}
     # By the attribute's type, a number: asking ``node.mesh`` hands out wrappers whose
     # freeing crashed the binding at the scene's end (a file of meshes and no bones).
     import ufbx
 
-    nothing_else = {ufbx.ElementType.UNKNOWN, ufbx.ElementType.EMPTY}  # no attribute, a Null
+    # no attribute, a Null (ufbx reads an optical "Marker" model so), an effector
+    nothing_else = {ufbx.ElementType.UNKNOWN, ufbx.ElementType.EMPTY, ufbx.ElementType.MARKER}
     plain = joinable & np.array([node.attrib_type in nothing_else for node in nodes], dtype=bool)
-    animated = np.zeros(len(nodes), dtype=bool)
+    turned = np.zeros(len(nodes), dtype=bool)
+    moved = np.zeros(len(nodes), dtype=bool)
     # Every wrapper the binding hands out is kept referenced with the scene (freeing one
     # early crashes it, as for the stacks and their ``Anim`` objects).
     for anim in loaded.anims:
@@ -128,11 +146,14 @@ def _animated_plain_nodes(
             elements = [prop.element for prop in props]
             loaded.held.append((props, elements))
             for prop, element in zip(props, elements, strict=True):
+                found = index.get(element.element_id)
+                if found is None:
+                    continue
                 if prop.prop_name == "Lcl Rotation":
-                    found = index.get(element.element_id)
-                    if found is not None:
-                        animated[found] = True
-    return with_plain_nodes_below(animated & plain, plain, parents)
+                    turned[found] = True
+                elif prop.prop_name == "Lcl Translation":
+                    moved[found] = True
+    return plain, turned, moved
 
 
 def list_fbx_animations(data: bytes, *, limits: ParseLimits = DEFAULT_LIMITS) -> list[Animation]:
@@ -205,10 +226,20 @@ def read_fbx(
         ],
         dtype=bool,
     )
+    what = "no bones or skin clusters"
     if not is_bone.any():
-        is_bone = _animated_plain_nodes(loaded, nodes, parents, joinable)
+        # No bones: the nodes an animation turns are a skeleton of nulls (with the plain
+        # nodes below them), unless what moves is loose points: optical markers.
+        plain, turned, moved = _animated_plain_nodes(loaded, nodes, joinable)
+        points = loose_points(plain & (turned | moved), parents)
+        if points >= MIN_MARKERS:
+            raise markers_not_skeleton(points)
+        is_bone = with_plain_nodes_below(turned & plain, plain, parents)
+        objects = int(np.sum((turned | moved) & ~plain))
+        if objects:  # a prop or a lamp rig keyed object by object
+            what += f"; its animation moves {objects} meshes, cameras or lights, not bones"
     if not is_bone.any():
-        raise no_skeleton(loaded.animations, "no bones or skin clusters")
+        raise no_skeleton(loaded.animations, what)
     # Only the skeleton's nodes are sampled and counted (meshes, props, other trees are not).
     kept = skeleton_nodes(parents, is_bone, joinable)
     if not len(kept):
@@ -217,11 +248,12 @@ def read_fbx(
     rest_t, rest_r, rest_s = _static(kept_nodes)
     if not loaded.animations and still:  # a rig: its rest pose as one frame
         loaded.animations = [Animation("", 1, 0.0)]
-        info = loaded.animations[0]
+        info, warnings = loaded.animations[0], []
         translation, rotation, scale = rest_t[None], rest_r[None], rest_s[None]
     else:
         chosen = pick_animation(loaded.animations, animation, joints=int(is_bone.sum()))
         info = loaded.animations[chosen]
+        warnings = choice_warnings(loaded.animations, chosen, animation)
         check_frame_budget(limits, info.frame_count, len(kept))
         begin = loaded.spans[chosen][0]
         times = begin + np.arange(info.frame_count) / loaded.fps
@@ -247,7 +279,7 @@ def read_fbx(
         source_format="fbx",
         length_unit="metres",
         limits=limits,
-        notes=scene_notes(info),
+        notes=scene_notes(info, warnings),
     )
     return motion, loaded.animations, info.name
 

@@ -15,6 +15,10 @@ binary input.
   or, in a file with neither (an animation exported without its mesh), the nodes its channels
   turn or move and the plain nodes below them; plus the nodes between them
   (:mod:`app.motion.formats.scene`).
+* Channels: a node's ``translation``, ``rotation`` or ``scale``, named by ``target.node`` and
+  ``target.path`` or by a ``KHR_animation_pointer`` JSON pointer (``/nodes/3/rotation``);
+  pointers to anything else (materials, cameras, lights, extension properties) are not a
+  skeleton's and are left out with a warning, morph weights silently.
 * Motion: channels sampled with their interpolation (``LINEAR`` — quaternions slerped —,
   ``STEP``, ``CUBICSPLINE``) at the keyframe rate when the keys are evenly spaced (raised to
   a whole multiple of it of at least 24 fps, so every key is still a frame), else 30 fps.
@@ -24,6 +28,7 @@ binary input.
 
 from __future__ import annotations
 
+import re
 from typing import Any
 
 import numpy as np
@@ -34,6 +39,7 @@ from app.motion.formats.scene import (
     Animation,
     NodeGraph,
     check_frame_budget,
+    choice_warnings,
     kept_parents,
     motion_from_graph,
     no_skeleton,
@@ -43,6 +49,7 @@ from app.motion.formats.scene import (
     unique_names,
     with_plain_nodes_below,
 )
+from app.motion.formats.text import show
 from app.motion.model import Motion, ParseLimits
 
 DEFAULT_LIMITS = ParseLimits()
@@ -53,6 +60,12 @@ MAX_KEY_FPS = 240.0
 
 _PATHS = {"translation": 3, "rotation": 4, "scale": 3}
 _NOT_JOINT = ("mesh", "camera", "skin")  # node fields that make a node something else
+POINTER = "KHR_animation_pointer"
+# A JSON pointer (RFC 6901) to a node's transform or weights: an array index is "0" or has no
+# leading zero; these property names need no ~0/~1 escapes, so a pointer with one is another
+# property. Read only when short: a longer pointer never names a node property.
+_NODE_POINTER_RE = re.compile(r"/nodes/(0|[1-9][0-9]{0,8})/(translation|rotation|scale|weights)")
+_MAX_NODE_POINTER = 40
 
 
 def _node_transform(node: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -116,6 +129,52 @@ def _human_bones(document: Any) -> dict[int, str]:
     return out
 
 
+def channel_target(channel: Any) -> tuple[Any, Any, str | None]:
+    """``(node, path, other)`` a channel animates: its ``target.node`` and ``target.path``,
+    or for a ``KHR_animation_pointer`` channel (path ``"pointer"``, no node) the node index
+    and property its JSON pointer names. ``other`` is the pointer when it names anything
+    else (a material's colour, a camera's field of view...), with node and path ``None``."""
+    target = getattr(channel, "target", None)
+    path = getattr(target, "path", None)
+    if path != "pointer":
+        return getattr(target, "node", None), path, None
+    extensions = getattr(target, "extensions", None)
+    entry = extensions.get(POINTER) if isinstance(extensions, dict) else None
+    pointer = entry.get("pointer") if isinstance(entry, dict) else None
+    if not isinstance(pointer, str):
+        return None, None, "(a pointer channel without its pointer)"
+    match = None
+    if len(pointer) <= _MAX_NODE_POINTER:
+        match = _NODE_POINTER_RE.fullmatch(pointer)
+    if match is None:
+        return None, None, pointer
+    return int(match[1]), match[2], None
+
+
+def _pointer_warning(others: list[str]) -> list[str]:
+    """The warning for an animation's pointer channels that animate no node transform."""
+    if not others:
+        return []
+    return [
+        f"{len(others)} animation channel(s) of {POINTER} animate other properties than a "
+        f"node's translation, rotation or scale (first: {show(others[0], 80)}): left out"
+    ]
+
+
+def _nothing_turns(document: Any) -> str:
+    """What a file without a skeleton lacks, and what its animations change instead when
+    that is morph-target weights only (a face or a creature's mesh that deforms)."""
+    what = "no skin joints, VRM humanoid bones or animated nodes"
+    paths = {
+        channel_target(channel)[1]
+        for animation in document.animations or []
+        for channel in animation.channels or []
+    }
+    if "weights" in paths:
+        what += "; its animation changes morph-target weights (blend shapes), which move no joint"
+    return what
+
+
 def _animated_nodes(document: Any, parents: np.ndarray) -> np.ndarray:
     """``(N,)`` bool: for a file without skin (an animation exported without its mesh, by
     Blender or FBX2glTF), the nodes its channels turn or move, and the plain nodes (no mesh,
@@ -124,8 +183,7 @@ def _animated_nodes(document: Any, parents: np.ndarray) -> np.ndarray:
     animated = np.zeros(len(nodes), dtype=bool)
     for animation in document.animations or []:
         for channel in animation.channels or []:
-            node = getattr(channel.target, "node", None)
-            path = getattr(channel.target, "path", None)
+            node, path, _ = channel_target(channel)
             if path in ("translation", "rotation") and isinstance(node, int) and node >= 0:
                 animated[node] = node < len(nodes)
     plain = np.array(
@@ -152,10 +210,20 @@ class _Document:
         names = unique_names(
             [a.name or "" for a in animations], blank="animation {i}", repeat="{name} ({n})"
         )
+        count = len(nodes)
         for name, animation in zip(names, animations, strict=True):
             begin, end, rate = self._timing(animation)
             frames = int(np.floor((end - begin) * rate + 0.5)) + 1
-            self.animations.append(Animation(name, frames, frames / rate))
+            targets = [channel_target(channel) for channel in animation.channels or []]
+            for k, (node, _, _) in enumerate(targets):
+                if node is not None and not (isinstance(node, int) and 0 <= node < count):
+                    raise ParseError(  # the spec: a target node is one of the file's nodes
+                        f"animation {name!r}: channel {k} targets node {show(str(node))}, "
+                        f"which does not exist (the file has {count} nodes)"
+                    )
+            # whether it moves a node (its translation, rotation or scale; not weights only)
+            moves = any(path in _PATHS and node is not None for node, path, _ in targets)
+            self.animations.append(Animation(name, frames, frames / rate, moves))
             self.rates.append(rate)
             self.spans.append((begin, end))
 
@@ -238,12 +306,13 @@ def read_gltf(
     if not is_bone.any():
         is_bone = _animated_nodes(document, parents)
     if not is_bone.any():
-        raise no_skeleton(loaded.animations, "no skin joints, VRM humanoid bones or animated nodes")
+        raise no_skeleton(loaded.animations, _nothing_turns(document))
     if not loaded.animations and still:  # a rig: its rest (bind) pose as one frame
         loaded.animations = [Animation("", 1, 0.0)]
         loaded.rates, loaded.spans = [DEFAULT_FPS], [(0.0, 0.0)]
         document.replace("animations", [{}])
     chosen = pick_animation(loaded.animations, animation, joints=int(is_bone.sum()))
+    warnings = choice_warnings(loaded.animations, chosen, animation)
     info = loaded.animations[chosen]
     joinable = np.ones(count, dtype=bool)
     # Only the skeleton's nodes are sampled and counted (meshes, props, other trees are not).
@@ -264,12 +333,13 @@ def read_gltf(
     }
     gltf_animation = document.animations[chosen]
     samplers = gltf_animation.samplers or []
+    others: list[str] = []  # pointers to other properties than a node's transform
     for channel in gltf_animation.channels or []:
-        target = channel.target
-        path = getattr(target, "path", None)
-        node = getattr(target, "node", None)
+        node, path, other = channel_target(channel)
+        if other is not None:
+            others.append(other)
         if path not in _PATHS or not isinstance(node, int) or not 0 <= node < count:
-            continue  # morph weights, pointer extensions, or no node: not the skeleton's
+            continue  # morph weights, other properties, or no node: not the skeleton's
         if position[node] < 0:
             continue  # a mesh, a prop, a node of another tree: never part of the skeleton
         if not isinstance(channel.sampler, int) or not 0 <= channel.sampler < len(samplers):
@@ -303,7 +373,7 @@ def read_gltf(
         source_format="gltf",
         length_unit="metres (glTF)",
         limits=limits,
-        notes=scene_notes(info),
+        notes=scene_notes(info, [*warnings, *_pointer_warning(others)]),
     )
     return motion, loaded.animations, info.name
 

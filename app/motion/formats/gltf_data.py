@@ -17,6 +17,7 @@ import numpy as np
 
 from app.errors import LimitExceeded, ParseError
 from app.motion.formats.meshopt import compressed_view, decode_view, is_fallback_buffer
+from app.motion.formats.text import refuse_lfs_pointer
 
 GLB_MAGIC = b"glTF"
 _COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
@@ -28,6 +29,7 @@ UPLOAD_GLB = "upload a .glb (binary glTF) with everything embedded instead"
 def load_document(data: bytes) -> tuple[Any, bytes | None]:
     """The JSON document and the GLB binary chunk (``None`` for JSON glTF)."""
     blob = None
+    refuse_lfs_pointer(data, "glTF file")
     try:
         if data[:4] == GLB_MAGIC:
             text, blob = _glb_chunks(data)
@@ -114,7 +116,7 @@ class Buffers:
 
 
 def buffers_of(document: Any, blob: bytes | None) -> Buffers:
-    """Every buffer's bytes; refuses any ``uri`` that is not a ``data:`` URI. A buffer
+    """Every buffer's bytes; refuses a buffer ``uri`` that is not a ``data:`` URI. A buffer
     without data that compressed views decode into (``EXT_meshopt_compression``'s fallback)
     holds no bytes."""
     out = []
@@ -129,10 +131,8 @@ def buffers_of(document: Any, blob: bytes | None) -> Buffers:
             out.append(blob)
             continue
         out.append(data_uri_bytes(uri, f"buffer {i}"))
-    for i, image in enumerate(document.images or []):
-        uri = getattr(image, "uri", None)
-        if uri is not None:
-            _check_uri(uri, f"image {i}")
+    # Images (textures) are never read, wherever their ``uri`` points: a .gltf whose buffers
+    # are embedded but whose textures lie beside it is read as the skeleton and motion it is.
     return Buffers(out)
 
 

@@ -37,12 +37,15 @@ from app.motion.model import Motion, ParseLimits, Skeleton
 
 @dataclass(frozen=True)
 class Animation:
-    """One animation of a file: its name, length in frames at the sampling rate, and the
-    seconds those frames cover (``frame_count / rate``: a clip's ``duration`` counts so)."""
+    """One animation of a file: its name, length in frames at the sampling rate, the
+    seconds those frames cover (``frame_count / rate``: a clip's ``duration`` counts so),
+    and whether it moves any node at all (the FBX SDK writes an empty ``Take 001`` beside a
+    Mixamo take, longer than it: a span of time that animates nothing)."""
 
     name: str
     frame_count: int
     duration: float
+    moves: bool = True
 
 
 def rig_without_animation(joints: int, why: str) -> NoAnimation:
@@ -67,7 +70,8 @@ def no_skeleton(animations: list[Animation], what: str) -> ParseError:
 
 
 def pick_animation(animations: list[Animation], name: str | None, *, joints: int = 0) -> int:
-    """Index of the animation called ``name``, else of the longest (first of equals).
+    """Index of the animation called ``name``, else of the longest that moves a node (first
+    of equals; the longest of all when none moves).
 
     A file without animations is a rig with no animation (:class:`NoAnimation`; ``joints``
     is the skeleton's size, for the message). A zero-length animation (one instant: a pose
@@ -76,8 +80,9 @@ def pick_animation(animations: list[Animation], name: str | None, *, joints: int
     if not animations:
         raise rig_without_animation(joints, "no animation")
     if name is None:
-        longest = max(a.frame_count for a in animations)
-        chosen = next(i for i, a in enumerate(animations) if a.frame_count == longest)
+        moving = [i for i, a in enumerate(animations) if a.moves] or range(len(animations))
+        longest = max(animations[i].frame_count for i in moving)
+        chosen = next(i for i in moving if animations[i].frame_count == longest)
     else:
         found = [i for i, animation in enumerate(animations) if animation.name == name]
         if not found:
@@ -89,14 +94,36 @@ def pick_animation(animations: list[Animation], name: str | None, *, joints: int
     return chosen
 
 
-def scene_notes(animation: Animation) -> dict[str, object]:
-    """The notes of a motion read from ``animation``: its name, and a warning when it is a
-    single instant (stored as a one-frame still rather than refused as a rig)."""
+def choice_warnings(animations: list[Animation], chosen: int, name: str | None) -> list[str]:
+    """What a file of several animations read without a name says: which one was read and
+    why (see :func:`pick_animation`)."""
+    if name is not None or len(animations) < 2:
+        return []
+    read = animations[chosen]
+    passed = [a.name for a in animations if not a.moves and a.frame_count > read.frame_count]
+    why = "the longest that moves a node" if passed else "the longest"
+    warning = (
+        f"the file holds {len(animations)} animations: {read.name!r}, {why}, is read; name "
+        "another in the 'animation' field to read it"
+    )
+    if passed:
+        shown = ", ".join(repr(n) for n in passed[:5]) + (" ..." if len(passed) > 5 else "")
+        warning += f" (longer, but moving nothing: {shown})"
+    return [warning]
+
+
+def scene_notes(animation: Animation, warnings: Sequence[str] = ()) -> dict[str, object]:
+    """The notes of a motion read from ``animation``: its name, and its warnings: a reader's
+    own (``warnings``), and one when it is a single instant (stored as a one-frame still
+    rather than refused as a rig)."""
     notes: dict[str, object] = {"animation": animation.name}
+    said = list(warnings)
     if animation.frame_count <= 1:
-        notes["warnings"] = [
-            f"the animation {animation.name!r} is a single instant: stored as a one-frame still"
-        ]
+        said.insert(
+            0, f"the animation {animation.name!r} is a single instant: stored as a one-frame still"
+        )
+    if said:
+        notes["warnings"] = said
     return notes
 
 
@@ -323,6 +350,40 @@ def with_plain_nodes_below(
                 break
             j, steps = int(parents[j]), steps + 1
     return chosen
+
+
+#: Loose animated points (no skeleton) from which a file is called a marker cloud.
+MIN_MARKERS = 3
+
+
+def loose_points(animated: np.ndarray, parents: np.ndarray) -> int:
+    """How many ``animated`` ``(N,)`` nodes there are when none of them hangs below another
+    (``parents`` ``(N,)``), else 0. A skeleton's animated nodes form chains (a forearm turns
+    below its upper arm); optical markers are loose points, each moved on its own. Nodes
+    not reached from a top-level one (a cycle) are not looked at."""
+    children: list[list[int]] = [[] for _ in parents]
+    stack = []
+    for i, parent in enumerate(parents.tolist()):
+        if 0 <= parent < len(parents):
+            children[parent].append(i)
+        else:
+            stack.append(i)
+    below = np.zeros(len(parents), dtype=bool)  # an animated node above it
+    while stack:
+        i = stack.pop()
+        for child in children[i]:
+            below[child] = below[i] or animated[i]
+            stack.append(child)
+    return 0 if (animated & below).any() else int(animated.sum())
+
+
+def markers_not_skeleton(count: int) -> ParseError:
+    """The error for a file whose only motion is ``count`` loose points (no skeleton)."""
+    return ParseError(
+        f"the file holds {count} moving points (motion-capture markers) and no skeleton: no "
+        "bones, skin or animated nodes that hang from one another. Markers are not a "
+        "skeleton; solve them onto one in the capture software and upload that"
+    )
 
 
 def skeleton_nodes(parents: np.ndarray, is_bone: np.ndarray, joinable: np.ndarray) -> np.ndarray:

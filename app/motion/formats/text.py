@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Iterable
 
 from app.errors import ParseError
 from app.motion.model import ParseLimits
@@ -28,6 +29,47 @@ NUMBER_RE = re.compile(
     r"[+-]?+(?:(?:\d++(?:\.\d*+)?+|\.\d++)(?:[eE][+-]?+\d++)?+|nan|inf|infinity)",
     re.ASCII | re.IGNORECASE,
 )
+
+
+# A number written with a decimal comma (a European locale's printf), and one with a point.
+_COMMA_NUMBER_RE = re.compile(r"[-+]?\d*,\d+(?:[eE][-+]?\d+)?", re.ASCII)
+_POINT_NUMBER_RE = re.compile(r"[-+]?\d*\.\d+(?:[eE][-+]?\d+)?", re.ASCII)
+#: Characters of a text file's beginning that :func:`decimal_comma` callers look at.
+DECIMAL_COMMA_HEAD = 64 * 1024
+#: The warning of a file whose decimal commas were read as points.
+DECIMAL_COMMA_WARNING = (
+    "numbers written with decimal commas (a locale's way): read as decimal points"
+)
+
+
+def decimal_comma(tokens: Iterable[str]) -> bool:
+    """Whether a file's number ``tokens`` are written with decimal commas (``12,5``), as a
+    tool under a European locale writes them: some are, and none has a decimal point (a
+    file of points with a stray comma is not one). Tokens too long to be a number are not
+    looked at."""
+    short = [t for t in tokens if len(t) <= MAX_NUMBER_TOKEN]
+    if not any(_COMMA_NUMBER_RE.fullmatch(t) for t in short):
+        return False
+    return not any(_POINT_NUMBER_RE.fullmatch(t) for t in short)
+
+
+# The first line of a Git LFS pointer file (the LFS spec; "hawser" was its first name).
+_LFS_POINTER_STARTS = (
+    b"version https://git-lfs.github.com/spec/",
+    b"version https://hawser.github.com/spec/",
+)
+
+
+def refuse_lfs_pointer(data: bytes | str, kind: str) -> None:
+    """:class:`ParseError` when ``data`` is a Git LFS pointer (a few lines naming a file
+    kept elsewhere, which a repository without LFS hands out in its place) rather than the
+    ``kind`` file itself (any format: a pointer is what a clone gives for every large file)."""
+    head = data[:64].encode("ascii", "replace") if isinstance(data, str) else bytes(data[:64])
+    if head.lstrip(b"\xef\xbb\xbf").startswith(_LFS_POINTER_STARTS):
+        raise ParseError(
+            f"the file is a Git LFS pointer (a short text naming where the real file is kept), "
+            f"not the {kind} itself: fetch the real file (git lfs pull) and upload that"
+        )
 
 
 def show(token: str, limit: int = 40) -> str:
