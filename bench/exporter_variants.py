@@ -37,7 +37,7 @@ from app.motion.pipeline import analyse  # noqa: E402
 from app.services.parser_pool import parse_scene  # noqa: E402
 
 # Written by Blender in a subprocess: ``python - SOURCE OUT`` with this program on stdin.
-BLENDER_EXPORTS = r'''
+BLENDER_EXPORTS = r"""
 import sys
 from pathlib import Path
 import bpy
@@ -83,7 +83,7 @@ bpy.context.view_layer.objects.active = armatures[0]
 armatures[0].select_set(True)
 for name, options in {"zyx": dict(rotate_mode="ZYX"), "yxz": dict(rotate_mode="YXZ")}.items():
     bpy.ops.export_anim.bvh(filepath=str(out / f"{stem}__bvh-{name}.bvh"), **options)
-'''
+"""
 GLTF_TRANSFORM = ("resample", "meshopt", "optimize", "sparse", "quantize", "flatten", "center")
 
 
