@@ -194,3 +194,32 @@ def test_an_empty_default_take_longer_than_the_real_one_is_not_read_by_default()
     motion, _, chosen = read_fbx(data)
     assert chosen == "mixamo.com" and motion.frame_count == 25
     assert np.ptp(motion.local_rotations, axis=0).max() > 0.5  # its limbs swing
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="known gap (docs/skeletons.md, exporter variants): the rest pose is each bone's "
+    "default transform, which Blender writes as the frame its scene was on, and the body axes "
+    "are read in the rest pose; reading the bind pose instead lets a creature through",
+)
+def test_a_skinned_file_saved_on_another_frame_describes_as_its_source() -> None:
+    """Blender writes each bone's default transform as the pose of the frame its scene was
+    on, and the pose the mesh was bound in as the bind pose (the fixture: the CMU BVH fixture
+    skinned and saved on its middle frame, tests/fixtures/bound_mesh_fbx.py). Same world
+    motion as its source, so it should describe as its source does; today its vectors are
+    0.31 / 0.15 / 0.55 of their length off (motion / posture / kinetic)."""
+    from app.motion.formats.bvh import parse_bvh
+    from app.motion.pipeline import analyse
+
+    motion = read_fbx((FIXTURES_DIR / "cmu_mb_02_01_bound.fbx").read_bytes())[0]
+    source = parse_bvh((FIXTURES_DIR / "cmu_mb_02_01_first41.bvh").read_text())
+    at = forward_kinematics(motion)[1]
+    names = source.skeleton.names
+    expected = forward_kinematics(source)[1][:, [names.index(n) for n in motion.skeleton.names]]
+    height = float(np.ptp(expected[0], axis=0).max())
+    scale = float(np.ptp(at[0], axis=0).max()) / height  # metres against the BVH's units
+    assert np.abs(at / scale - expected).max() < 0.005 * height  # the same motion
+    wanted, read = analyse(source).descriptors, analyse(motion).descriptors
+    for name, vector in wanted.items():
+        distance = np.linalg.norm(read[name] - vector) / np.linalg.norm(vector)
+        assert distance <= 0.01, (name, distance)
