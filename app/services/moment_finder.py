@@ -112,6 +112,18 @@ def _to_nearest(keys: np.ndarray, marks: np.ndarray) -> np.ndarray:
     return np.minimum(np.abs(keys - below), np.abs(keys - above))
 
 
+def _same_moments(groups: np.ndarray, placed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct moments among ``(groups, placed)`` ``(N,)`` (clip rows, starts): the row
+    of each ``(K,)``, and which of them every moment is ``(N,)``."""
+    order = np.lexsort((placed, groups))
+    in_order = groups[order], placed[order]
+    new = np.ones(groups.size, bool)
+    new[1:] = (in_order[0][1:] != in_order[0][:-1]) | (in_order[1][1:] != in_order[1][:-1])
+    again = np.empty(groups.size, np.int64)
+    again[order] = np.cumsum(new) - 1
+    return order[new], again
+
+
 def _probes(query: np.ndarray, target: float, most: int) -> tuple[np.ndarray, float]:
     """The parts that search the index — from the middle one, each next the part farthest
     from those chosen, until every part lies within ``target`` of one or ``most`` are
@@ -151,8 +163,7 @@ class MomentFinder:
         self.scale = library.scales.of(
             self.name, self.index, lambda ids: ids >> window_db.WINDOW_ID_BITS
         )
-        typical = float(np.median(self.scale.distances)) if self.scale.distances.size else 0.0
-        self.probes, cover = _probes(self.query, PROBE_COVER * typical, MAX_PROBES)
+        self.probes, cover = _probes(self.query, PROBE_COVER * self.scale.median, MAX_PROBES)
         # Every part lies within this of a probe (a hair more: float noise).
         self.cover = cover * (1 + 1e-6) + 1e-9
         self.facts = _Known(2)  # clip id -> frame time, frame count
@@ -204,11 +215,10 @@ class MomentFinder:
         clips = _distinct(hits >> bits)
         held, facts = self.facts.find(clips)
         if not held.all():  # no SQL: the catalogue (clips deleted meanwhile are not there)
-            listed = self.library.catalogue.frames(clips[~held].tolist())
-            if listed:
-                self.facts.add(
-                    np.fromiter(listed, np.int64, len(listed)), np.array(list(listed.values()))
-                )
+            unknown = clips[~held]
+            listed, rows = self.library.catalogue.frame_arrays(unknown)
+            if rows.size:
+                self.facts.add(unknown[listed], rows)
             held, facts = self.facts.find(clips)
             clips, facts = clips[held], facts[held]
         if not clips.size:
@@ -259,16 +269,20 @@ class MomentFinder:
                 placed = starts[fresh] - self.parts.offsets[part]
             placed = np.clip(placed, 0.0, durations - spans)
             if not self.whole:
+                # Seeds placing the very same moment (a clip no longer than the query is
+                # one moment, whichever window placed it) share its fit: the same windows
+                # and parts, so the same number.
+                first, again = _same_moments(group[fresh], placed)
                 distance = self._fits_in_blocks(
-                    placed,
-                    spans,
+                    placed[first],
+                    spans[first],
                     group[window],
                     starts[window],
                     stops[window],
                     frame_time[window],
-                    position[fresh],
+                    position[fresh[first]],
                     stored,
-                )
+                )[again]
             moments = np.stack([clips[group[fresh]], placed, placed + spans, distance], axis=1)
             self._placed.add(rows.ids[fresh], moments)
         known, found = self._placed.find(rows.ids[seeds])
