@@ -216,9 +216,9 @@ class MomentFinder:
         held, facts = self.facts.find(clips)
         if not held.all():  # no SQL: the catalogue (clips deleted meanwhile are not there)
             unknown = clips[~held]
-            listed, rows = self.library.catalogue.frame_arrays(unknown)
-            if rows.size:
-                self.facts.add(unknown[listed], rows)
+            listed, listed_facts = self.library.catalogue.frame_arrays(unknown)
+            if listed_facts.size:
+                self.facts.add(unknown[listed], listed_facts)
             held, facts = self.facts.find(clips)
             clips, facts = clips[held], facts[held]
         if not clips.size:
@@ -272,15 +272,15 @@ class MomentFinder:
                 # Seeds placing the very same moment (a clip no longer than the query is
                 # one moment, whichever window placed it) share its fit: the same windows
                 # and parts, so the same number.
-                first, again = _same_moments(group[fresh], placed)
+                distinct, again = _same_moments(group[fresh], placed)
                 distance = self._fits_in_blocks(
-                    placed[first],
-                    spans[first],
+                    placed[distinct],
+                    spans[distinct],
                     group[window],
                     starts[window],
                     stops[window],
                     frame_time[window],
-                    position[fresh[first]],
+                    position[fresh[distinct]],
                     stored,
                 )[again]
             moments = np.stack([clips[group[fresh]], placed, placed + spans, distance], axis=1)
