@@ -118,8 +118,12 @@ def _serve(args: argparse.Namespace, settings: Settings) -> int:
         if value is not None:
             os.environ[f"MOCAP_{name.upper()}"] = str(value)
     print(f"mocap-index: {settings.workers} worker processes", file=sys.stderr)
-    if _fork_workers():
-        import app.main  # noqa: F401  once, here: every worker is a copy of this process
+    if _fork_workers():  # every worker is a copy of this process: what it holds, they hold
+        from app.main import access_table, create_app
+
+        # The guard's table, built from the app's OpenAPI schema (0.3-1 s of CPU): else each
+        # worker builds it at its first request. No library is opened here.
+        access_table(create_app(settings))
     uvicorn.run(
         "app.main:app_from_environment",
         factory=True,
