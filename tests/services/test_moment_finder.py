@@ -9,13 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.services.moment_finder import (
-    DIRECT_PARTS,
-    MomentFinder,
-    _Known,
-    _same_moments,
-    pair_distances_of,
-)
+from app.services.moment_arrays import same_moments
+from app.services.moment_finder import DIRECT_PARTS, MomentFinder, pair_distances_of
 
 DIMENSION = 135  # the motion descriptor's windows
 
@@ -51,20 +46,6 @@ def test_few_parts_give_every_pairs_numbers(seed: int) -> None:
         expected = every_pair(query, windows)
         assert np.array_equal(found[0], expected[0])
         assert np.array_equal(found[1], expected[1])
-
-
-def test_known_rows_merge_in_id_order_whatever_order_they_come_in() -> None:
-    rng = np.random.default_rng(0)
-    known = _Known(2)
-    every = rng.permutation(1000)[:300].astype(np.int64)
-    for batch in np.array_split(every, 7):
-        known.add(batch, np.stack([batch * 2.0, batch * 3.0], axis=1))
-    assert np.array_equal(known.ids, np.sort(every))
-    asked = np.array([every[5], 5000, every[200], -1])
-    held, rows = known.find(asked)
-    assert held.tolist() == [True, False, True, False]
-    assert np.array_equal(rows[held], np.stack([asked[held] * 2.0, asked[held] * 3.0], axis=1))
-    assert np.isnan(rows[~held]).all()
 
 
 class _Windows:
@@ -129,7 +110,7 @@ def test_seeds_placing_one_moment_share_its_fit_to_the_last_digit(seed: int) -> 
     placed = np.clip(placed, 0.0, durations - spans)
     fit = MomentFinder._fits  # type: ignore[arg-type]
     every = fit(finder, placed, spans, group, starts, stops, frame_time, seeds, stored)
-    distinct, again = _same_moments(group[seeds], placed)
+    distinct, again = same_moments(group[seeds], placed)
     assert distinct.size < seeds.size
     assert len({(int(group[s]), float(p)) for s, p in zip(seeds, placed, strict=True)}) == (
         distinct.size
