@@ -599,9 +599,10 @@ def recall(args: argparse.Namespace) -> int:
 
 def alternate(args: argparse.Namespace) -> int:
     """Main's moments search and this checkout's in one process on one library, alternating
-    query by query: ``--baseline``'s ``moments.py``, ``moment_finder.py`` and
-    ``moment_parts.py`` loaded under other names. Thread CPU of the search, answers compared
-    by SHA-1 of (clip, start, end, distance), (part, window) measurements counted. Each query
+    query by query: ``--baseline``'s ``moments.py``, ``moment_finder.py``,
+    ``moment_parts.py`` (and ``moment_arrays.py`` where it has one) loaded under other
+    names. Thread CPU of the search, answers compared by SHA-1 of (clip, start, end,
+    distance), (part, window) measurements counted. Each query
     runs once by both untimed first: a clip with a stored file is described from its file at
     its first query (a span cache per module), which would land on whichever ran first."""
     import hashlib
@@ -621,7 +622,11 @@ def alternate(args: argparse.Namespace) -> int:
         return module
 
     load("base_moment_parts", base_dir / "moment_parts.py", {})
-    base_finder = load("base_moment_finder", base_dir / "moment_finder.py", {})
+    finder_names: dict[str, str] = {}
+    if (base_dir / "moment_arrays.py").exists():  # the finder's bookkeeping, split off later
+        load("base_moment_arrays", base_dir / "moment_arrays.py", {})
+        finder_names["app.services.moment_arrays"] = "base_moment_arrays"
+    base_finder = load("base_moment_finder", base_dir / "moment_finder.py", finder_names)
     base = load(
         "base_moments",
         base_dir / "moments.py",

@@ -209,6 +209,27 @@ class Catalogue:
             found.update(zip(kept, zip(times, counts, strict=True), strict=True))
         return found
 
+    def frame_arrays(self, clip_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`frames` as arrays: which of ``clip_ids`` ``(M,)`` exist ``(M,)`` bool, and
+        their ``(K, 2)`` float64 rows of (frame_time, frame_count), in the order of
+        ``clip_ids``. Without an overlay, no Python object a clip (a moments search asks
+        for hundreds of clips a round)."""
+        state = self._state
+        ids = np.asarray(clip_ids, np.int64)
+        if state.overlay:
+            listed = self.frames(ids.tolist())
+            held = np.array([i in listed for i in ids.tolist()], bool)
+            rows = [listed[i] for i in ids[held].tolist()]
+            return held, np.array(rows, np.float64).reshape(-1, 2)
+        base = state.base
+        at = base.rows(ids)
+        held = at >= 0
+        kept = at[held]
+        facts = np.empty((kept.size, 2))
+        facts[:, 0] = base.frame_times[kept]
+        facts[:, 1] = base.frame_counts[kept]
+        return held, facts
+
     def ids(self) -> np.ndarray:
         """``(N,)`` int64 sorted ids of every clip."""
         state = self._state

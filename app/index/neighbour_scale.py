@@ -70,6 +70,12 @@ class Scale:
     def _typical(self) -> list[float]:
         return self.distances.tolist()
 
+    @cached_property
+    def median(self) -> float:
+        """The median typical distance (0 when the scale is empty): a moments search asks
+        for it at every search, and it never changes."""
+        return float(np.median(self.distances)) if self.distances.size else 0.0
+
 
 def _stale(scale: Scale | None, size: int) -> bool:
     return scale is None or abs(size - scale.size) > REFRESH_SHARE * scale.size

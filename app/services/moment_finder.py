@@ -20,6 +20,7 @@ from app.index.places import Places
 from app.services.describe import WINDOW_LENGTHS
 from app.services.library import Library
 from app.services.library_caches import window_index_name
+from app.services.moment_arrays import Known, distinct, members, same_moments, to_nearest
 from app.services.moment_parts import Parts
 
 PROBE_AHEAD = 2  # a probe search asks for this many times the windows a round needs
@@ -57,59 +58,6 @@ class PlacedMoments:
     def empty(cls) -> PlacedMoments:
         nothing = np.zeros(0)
         return cls(np.zeros(0, np.int64), nothing, nothing, nothing)
-
-
-class _Known:
-    """Numbers measured per window id, kept across a search's rounds: ``(N, C)`` float64
-    rows, looked up by binary search."""
-
-    def __init__(self, columns: int) -> None:
-        self.ids = np.zeros(0, np.int64)
-        self.values = np.zeros((0, columns))
-
-    def find(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Which of ``ids`` ``(M,)`` are known ``(M,)`` bool, and their rows ``(M, C)``
-        (nan where unknown)."""
-        at = np.minimum(np.searchsorted(self.ids, ids), max(self.ids.size - 1, 0))
-        known = self.ids[at] == ids if self.ids.size else np.zeros(ids.size, bool)
-        rows = np.full((ids.size, self.values.shape[1]), np.nan)
-        rows[known] = self.values[at[known]]
-        return known, rows
-
-    def add(self, ids: np.ndarray, values: np.ndarray) -> None:
-        """Keep rows ``values`` ``(M, C)`` of ``ids`` ``(M,)`` (none known yet): merged into
-        place, not sorted again with every id known (a round adds hundreds to thousands)."""
-        if ids.size > 1 and bool((ids[1:] < ids[:-1]).any()):
-            order = np.argsort(ids, kind="stable")
-            ids, values = ids[order], values[order]
-        at = np.searchsorted(self.ids, ids, side="right")
-        self.ids = np.insert(self.ids, at, ids)
-        self.values = np.insert(self.values, at, values, axis=0)
-
-
-def _members(values: np.ndarray, keys: np.ndarray) -> np.ndarray:
-    """Which of ``values`` ``(N,)`` are among ``keys`` ``(M,)`` (sorted, unique): ``(N,)``
-    bool (``np.isin`` without its sort)."""
-    if not keys.size:
-        return np.zeros(values.size, bool)
-    at = np.minimum(np.searchsorted(keys, values), keys.size - 1)
-    return keys[at] == values
-
-
-def _distinct(ordered: np.ndarray) -> np.ndarray:
-    """The distinct values of ``ordered`` ``(N,)`` (ascending): ``np.unique`` without its
-    sort."""
-    if ordered.size < 2:
-        return ordered.copy()
-    return ordered[np.r_[True, ordered[1:] != ordered[:-1]]]
-
-
-def _to_nearest(keys: np.ndarray, marks: np.ndarray) -> np.ndarray:
-    """For each of ``keys`` ``(N,)``, how far the nearest of ``marks`` ``(M,)`` (ascending,
-    M >= 1) is."""
-    at = np.clip(np.searchsorted(marks, keys), 1, max(marks.size - 1, 1))
-    below, above = marks[np.maximum(at - 1, 0)], marks[np.minimum(at, marks.size - 1)]
-    return np.minimum(np.abs(keys - below), np.abs(keys - above))
 
 
 def _probes(query: np.ndarray, target: float, most: int) -> tuple[np.ndarray, float]:
@@ -151,14 +99,13 @@ class MomentFinder:
         self.scale = library.scales.of(
             self.name, self.index, lambda ids: ids >> window_db.WINDOW_ID_BITS
         )
-        typical = float(np.median(self.scale.distances)) if self.scale.distances.size else 0.0
-        self.probes, cover = _probes(self.query, PROBE_COVER * typical, MAX_PROBES)
+        self.probes, cover = _probes(self.query, PROBE_COVER * self.scale.median, MAX_PROBES)
         # Every part lies within this of a probe (a hair more: float noise).
         self.cover = cover * (1 + 1e-6) + 1e-9
-        self.facts = _Known(2)  # clip id -> frame time, frame count
+        self.facts = Known(2)  # clip id -> frame time, frame count
         self._probed: tuple[np.ndarray, np.ndarray] | None = None  # distances, ids
-        self._nearest = _Known(2)  # window id -> its nearest part, distance
-        self._placed = _Known(4)  # seed window id -> clip id, start, end, distance
+        self._nearest = Known(2)  # window id -> its nearest part, distance
+        self._placed = Known(4)  # seed window id -> clip id, start, end, distance
         self._hits = np.zeros(0, np.int64)  # the hits placed so far (see found)
         self._found = PlacedMoments.empty()  # ... and their clips' moments
 
@@ -183,11 +130,11 @@ class MomentFinder:
         only the clips holding new hits placed again: a clip's moments depend on its own
         hits alone (a wider round adds hits to a few of the clips it had)."""
         bits = window_db.WINDOW_ID_BITS
-        new = hits[~_members(hits, self._hits)]
-        changed = _distinct(new >> bits)  # window ids hold their clip's id in the high bits
+        new = hits[~members(hits, self._hits)]
+        changed = distinct(new >> bits)  # window ids hold their clip's id in the high bits
         kept = self._found
-        keep = ~_members(kept.clips, changed)
-        placed = self.moments(hits[_members(hits >> bits, changed)])
+        keep = ~members(kept.clips, changed)
+        placed = self.moments(hits[members(hits >> bits, changed)])
         self._hits = hits
         self._found = PlacedMoments(
             np.concatenate([kept.clips[keep], placed.clips]),
@@ -201,14 +148,13 @@ class MomentFinder:
         """The moments placed by the seeds near the hits (within a query's length of one, in
         its clip), with their distances."""
         bits = window_db.WINDOW_ID_BITS
-        clips = _distinct(hits >> bits)
+        clips = distinct(hits >> bits)
         held, facts = self.facts.find(clips)
         if not held.all():  # no SQL: the catalogue (clips deleted meanwhile are not there)
-            listed = self.library.catalogue.frames(clips[~held].tolist())
-            if listed:
-                self.facts.add(
-                    np.fromiter(listed, np.int64, len(listed)), np.array(list(listed.values()))
-                )
+            unknown = clips[~held]
+            listed, listed_facts = self.library.catalogue.frame_arrays(unknown)
+            if listed_facts.size:
+                self.facts.add(unknown[listed], listed_facts)
             held, facts = self.facts.find(clips)
             clips, facts = clips[held], facts[held]
         if not clips.size:
@@ -221,10 +167,10 @@ class MomentFinder:
         # Seconds from each window to the nearest hit of its clip (clips kept far apart).
         apart = 4.0 * (float(np.max(frames * frame_time)) + self.seconds + 1.0)
         keys = group * apart + starts  # ascending: clips in order, their windows by start
-        marked = _members(rows.ids, hits)
+        marked = members(rows.ids, hits)
         if not marked.any():  # their clips deleted meanwhile
             return PlacedMoments.empty()
-        to_hit = _to_nearest(keys, keys[marked])
+        to_hit = to_nearest(keys, keys[marked])
         slack = float(frame_time.max())
         seed_reach = max(self.seconds - self.length, 0.0) + slack
         nothing = np.zeros((0, self.query.shape[1]), np.float32)
@@ -243,7 +189,7 @@ class MomentFinder:
         if fresh.size:
             # Windows a moment placed by a fresh seed may hold (in its clip, a query's
             # length around it), with their vectors.
-            near = np.flatnonzero(_to_nearest(keys, keys[fresh]) <= self.seconds + slack)
+            near = np.flatnonzero(to_nearest(keys, keys[fresh]) <= self.seconds + slack)
             held, stored = self._vectors(rows.ids, near, *gathered)
             window = near[held]
             position = np.full(len(rows), -1)
@@ -259,16 +205,20 @@ class MomentFinder:
                 placed = starts[fresh] - self.parts.offsets[part]
             placed = np.clip(placed, 0.0, durations - spans)
             if not self.whole:
+                # Seeds placing the very same moment (a clip no longer than the query is
+                # one moment, whichever window placed it) share its fit: the same windows
+                # and parts, so the same number.
+                one_each, again = same_moments(group[fresh], placed)
                 distance = self._fits_in_blocks(
-                    placed,
-                    spans,
+                    placed[one_each],
+                    spans[one_each],
                     group[window],
                     starts[window],
                     stops[window],
                     frame_time[window],
-                    position[fresh],
+                    position[fresh[one_each]],
                     stored,
-                )
+                )[again]
             moments = np.stack([clips[group[fresh]], placed, placed + spans, distance], axis=1)
             self._placed.add(rows.ids[fresh], moments)
         known, found = self._placed.find(rows.ids[seeds])

@@ -1,5 +1,6 @@
-"""``mocap-index serve --workers 2``: two processes answer on one port, each holding its own
-indexes, and whichever answers a request sees every acknowledged upload and delete (within
+"""``mocap-index serve --workers 2``: two processes answer on one port (forked from the
+server's process after it imported the application), each holding its own indexes, and
+whichever answers a request sees every acknowledged upload and delete (within
 ``MOCAP_INDEX_REFRESH_SECONDS``), for clip and moment searches alike; stopping the server
 stops both."""
 
@@ -22,13 +23,14 @@ QUERIES = 12  # each on a new connection: the kernel hands them to either worker
 
 def workers_of(pid: int) -> list[int]:
     """The worker processes of server ``pid`` (its children but multiprocessing's resource
-    tracker), once both have started."""
+    tracker, if any: the workers are forked copies of the server's process), once both have
+    started."""
     deadline = time.monotonic() + 60
     while True:
         found = []
         for child in Path(f"/proc/{pid}/task/{pid}/children").read_text().split():
             command = Path(f"/proc/{child}/cmdline").read_bytes()
-            if b"spawn_main" in command and b"resource_tracker" not in command:
+            if b"resource_tracker" not in command:
                 found.append(int(child))
         if len(found) >= 2 or time.monotonic() > deadline:
             return found
@@ -58,6 +60,10 @@ def test_two_workers_answer_alike_and_stop_together(tmp_path: Path) -> None:
         assert server.process is not None
         workers = workers_of(server.process.pid)
         assert len(workers) == 2, server.log()
+        # Forked from the server's process, which imported the application once (a spawned
+        # worker runs multiprocessing's spawn_main and imports it all again: issue 23).
+        own = Path(f"/proc/{server.process.pid}/cmdline").read_bytes()
+        assert all(Path(f"/proc/{w}/cmdline").read_bytes() == own for w in workers)
         ids = []
         with httpx.Client(base_url=server.url, timeout=30) as client:
             for n in range(CLIPS):

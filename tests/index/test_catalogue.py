@@ -96,6 +96,13 @@ def check_against(catalogue: Catalogue, model: dict[int, ClipEntry]) -> None:
     assert catalogue.frames(range(62)) == {
         i: (e.frame_time, e.frame_count) for i, e in model.items()
     }
+    asked = np.array([61, *range(62), 3], np.int64)  # any order, repeats, absent ids
+    held, facts = catalogue.frame_arrays(asked)
+    assert held.tolist() == [int(i) in model for i in asked]
+    assert facts.dtype == np.float64
+    assert facts.tolist() == [
+        [model[i].frame_time, model[i].frame_count] for i in asked.tolist() if i in model
+    ]
     for labels in (["walk"], ["WALK", "happy"], ["run"], ["nobody"], ["sad", "jump", "walk"]):
         assert catalogue.ids_with_labels(labels).tolist() == model_ids_with(model, labels)
     assert catalogue.ids_with_labels(None).tolist() == sorted(model)

@@ -158,3 +158,11 @@ def test_a_scale_far_from_the_index_s_size_is_not_served(tmp_path: Path) -> None
     index.add(np.arange(100, 130), points, persist=False)
     scale = scales.of("posture", index)
     assert scale.size == 31 and scale.similarities([0.75])[0] < 100.0
+
+
+def test_the_median_kept_with_a_scale_is_numpys() -> None:
+    rng = np.random.default_rng(3)
+    for size in (0, 1, 2, 7, 1000):
+        distances = np.sort(rng.uniform(0, 5, size))
+        expected = float(np.median(distances)) if size else 0.0
+        assert Scale(distances, size).median == expected

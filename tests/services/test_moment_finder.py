@@ -1,14 +1,16 @@
 """A window's nearest query part (``MomentFinder._nearest_parts``) for a query of few parts is
 chosen from the expanded form and measured for that pair only: the very numbers — part and
 distance, to the last digit — of measuring every (part, window) pair from its difference,
-also with windows that copy a part, near ties, a query repeating itself and any scale."""
+also with windows that copy a part, near ties, a query repeating itself and any scale. Seeds
+placing the very same moment share one fit, with the numbers of fitting each."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from app.services.moment_finder import DIRECT_PARTS, MomentFinder, _Known, pair_distances_of
+from app.services.moment_arrays import same_moments
+from app.services.moment_finder import DIRECT_PARTS, MomentFinder, pair_distances_of
 
 DIMENSION = 135  # the motion descriptor's windows
 
@@ -46,20 +48,6 @@ def test_few_parts_give_every_pairs_numbers(seed: int) -> None:
         assert np.array_equal(found[1], expected[1])
 
 
-def test_known_rows_merge_in_id_order_whatever_order_they_come_in() -> None:
-    rng = np.random.default_rng(0)
-    known = _Known(2)
-    every = rng.permutation(1000)[:300].astype(np.int64)
-    for batch in np.array_split(every, 7):
-        known.add(batch, np.stack([batch * 2.0, batch * 3.0], axis=1))
-    assert np.array_equal(known.ids, np.sort(every))
-    asked = np.array([every[5], 5000, every[200], -1])
-    held, rows = known.find(asked)
-    assert held.tolist() == [True, False, True, False]
-    assert np.array_equal(rows[held], np.stack([asked[held] * 2.0, asked[held] * 3.0], axis=1))
-    assert np.isnan(rows[~held]).all()
-
-
 class _Windows:
     """What ``_vectors`` reads of a finder: the query's width and the window index."""
 
@@ -90,3 +78,58 @@ def test_vectors_gathered_this_round_are_not_read_again() -> None:
     assert held.tolist() == [int(ids[r]) in stored for r in wanted]
     expected = np.stack([stored[int(ids[r])] for r in wanted[held]]).astype(np.float64)
     assert vectors.dtype == np.float64 and np.array_equal(vectors, expected)
+
+
+class _Fitting:
+    """What ``_fits`` reads of a finder: the query's parts, their offsets and its length."""
+
+    def __init__(self, query: np.ndarray, offsets: np.ndarray, seconds: float) -> None:
+        self.query, self.seconds = query, seconds
+        self.parts = type("Parts", (), {"offsets": offsets})()
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_seeds_placing_one_moment_share_its_fit_to_the_last_digit(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    hop, length, frame = 0.25, 1.0, 1 / 30
+    counts = rng.integers(4, 30, 5)  # five clips' windows, in clip and start order
+    group = np.repeat(np.arange(counts.size), counts)
+    starts = np.concatenate([np.arange(c) * hop for c in counts])
+    stops = starts + length
+    frame_time = np.full(group.size, frame)
+    stored = rng.normal(size=(group.size, DIMENSION)) * 10.0 ** rng.uniform(-2, 2)
+    offsets = np.arange(int(rng.integers(1, 9))) * hop
+    seconds = float(offsets[-1] + length)
+    finder = _Fitting(rng.normal(size=(offsets.size, DIMENSION)), offsets, seconds)
+    # Seeds anywhere, many placing the very same moment (whole short clips, clipped starts).
+    seeds = rng.integers(0, group.size, 200)
+    placed = np.round(rng.uniform(-1, 4, seeds.size) / frame) * frame
+    placed[::3] = 0.0
+    durations = counts[group[seeds]] * hop + length - hop
+    spans = np.minimum(seconds, durations)
+    placed = np.clip(placed, 0.0, durations - spans)
+    fit = MomentFinder._fits  # type: ignore[arg-type]
+    every = fit(finder, placed, spans, group, starts, stops, frame_time, seeds, stored)
+    distinct, again = same_moments(group[seeds], placed)
+    assert distinct.size < seeds.size
+    assert len({(int(group[s]), float(p)) for s, p in zip(seeds, placed, strict=True)}) == (
+        distinct.size
+    )
+    shared = fit(
+        finder,
+        placed[distinct],
+        spans[distinct],
+        group,
+        starts,
+        stops,
+        frame_time,
+        seeds[distinct],
+        stored,
+    )[again]
+    assert np.array_equal(shared, every)
+    for row in rng.choice(seeds.size, 10, replace=False):  # and alone, as any block gives
+        one = slice(row, row + 1)
+        alone = fit(
+            finder, placed[one], spans[one], group, starts, stops, frame_time, seeds[one], stored
+        )
+        assert alone[0] == every[row]
