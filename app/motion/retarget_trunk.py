@@ -33,7 +33,7 @@ Not on a rig whose re-upload takes its body's axes from its frames (its rest pos
 standing figure, and not shown by the bones its pelvis carries:
 :func:`app.motion.body.rest_axes_hold`): there a leaning trunk passed on is read as
 upright (measured on the Bandai rig before its pelvis's bones were read: the biovision
-sample 0.136 -> 0.545 from its source, CMU ``01_03`` 0.174 -> 0.507). The Bandai rig's rest
+sample 0.136 -> 0.545 from its source, a CMU trial 0.174 -> 0.507). The Bandai rig's rest
 is no figure, but its trunk is one straight line along the bone its pelvis carries, so its
 re-uploads keep the rest's axes and the chord is aimed there too ("The Bandai rig's trunk
 chord" in ``docs/export.md``).
