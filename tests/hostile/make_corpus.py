@@ -599,7 +599,7 @@ def scene_cases() -> list[Case]:
             {"file": ("r.gltf", with_buffer("walk.bin"))},
             422,
             P,
-            "upload a .glb",
+            "which was not sent",
         ),
         Case(
             "gltf_parent_uri",
@@ -607,7 +607,7 @@ def scene_cases() -> list[Case]:
             {"file": ("p.gltf", with_buffer("../../etc/passwd"))},
             422,
             P,
-            "upload a .glb",
+            "outside the document's folder",
         ),
         Case(
             "gltf_absolute_uri",
@@ -615,7 +615,7 @@ def scene_cases() -> list[Case]:
             {"file": ("a.gltf", with_buffer("/etc/passwd"))},
             422,
             P,
-            "upload a .glb",
+            "outside the document's folder",
         ),
         Case(
             "gltf_http_uri",
@@ -623,7 +623,7 @@ def scene_cases() -> list[Case]:
             {"file": ("h.gltf", with_buffer("http://127.0.0.1:9/a.bin"))},
             422,
             P,
-            "upload a .glb",
+            "outside the document's folder",
         ),
         Case(
             "gltf_bad_base64",

@@ -6,8 +6,6 @@ are untrusted input (read in a parser worker, :mod:`app.services.parser_pool`)."
 
 from __future__ import annotations
 
-import base64
-import binascii
 import json
 import struct
 from dataclasses import dataclass, field
@@ -16,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from app.errors import LimitExceeded, ParseError
+from app.motion.formats.gltf_pack import decode_data_uri
 from app.motion.formats.meshopt import compressed_view, decode_view, is_fallback_buffer
 from app.motion.formats.text import refuse_lfs_pointer
 
@@ -23,7 +22,10 @@ GLB_MAGIC = b"glTF"
 _COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 _DTYPES = {5120: "i1", 5121: "u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}
 _NORMALISE = {5120: 127.0, 5121: 255.0, 5122: 32767.0, 5123: 65535.0}
-UPLOAD_GLB = "upload a .glb (binary glTF) with everything embedded instead"
+UPLOAD_GLB = (
+    "send the files it names with it (further 'file' fields) or a .glb (binary glTF) with "
+    "everything embedded"
+)
 
 
 def load_document(data: bytes) -> tuple[Any, bytes | None]:
@@ -147,13 +149,7 @@ def _check_uri(uri: Any, what: str) -> None:
 
 def data_uri_bytes(uri: Any, what: str) -> bytes:
     _check_uri(uri, what)
-    header, _, payload = uri.partition(",")
-    if not header.endswith(";base64"):
-        raise ParseError(f"{what}: only base64 data URIs are supported")
-    try:
-        return base64.b64decode(payload, validate=True)
-    except (binascii.Error, ValueError):
-        raise ParseError(f"{what}: the base64 data URI is damaged") from None
+    return decode_data_uri(uri, what)
 
 
 def accessor_values(document: Any, buffers: Buffers, index: Any) -> np.ndarray:

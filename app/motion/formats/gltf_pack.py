@@ -16,6 +16,7 @@ naming it (the motion is in the buffers).
 from __future__ import annotations
 
 import base64
+import binascii
 import json
 import re
 import struct
@@ -25,7 +26,6 @@ from typing import Any
 from urllib.parse import unquote, urlsplit
 
 from app.errors import ParseError
-from app.motion.formats.gltf_data import data_uri_bytes
 
 GLB_MAGIC = b"glTF"
 ALIGN = 8  # every part of the binary chunk starts at a multiple of this (doubles, too)
@@ -177,15 +177,26 @@ def _content(uri: Any, resources: Mapping[str, bytes], what: str) -> bytes:
     if not isinstance(uri, str):
         raise ParseError(f"{what}: its uri is not a string")
     if uri.startswith("data:"):
-        return data_uri_bytes(uri, what)
+        return decode_data_uri(uri, what)
     path = _path(uri, what)
     content = _lookup(path, resources)
     if content is None:
         raise ParseError(
             f"{what} is in {_shown(uri)}, which was not sent: send it with the .gltf (another "
-            "'file' field), or the folder as a .zip, or a .glb"
+            "'file' field), or a .glb"
         )
     return content
+
+
+def decode_data_uri(uri: str, what: str) -> bytes:
+    """The bytes of a base64 ``data:`` URI (``what`` names it in errors)."""
+    header, _, payload = uri.partition(",")
+    if not header.endswith(";base64"):
+        raise ParseError(f"{what}: only base64 data URIs are supported")
+    try:
+        return base64.b64decode(payload, validate=True)
+    except (binascii.Error, ValueError):
+        raise ParseError(f"{what}: the base64 data URI is damaged") from None
 
 
 def _image_type(uri: str) -> str:
