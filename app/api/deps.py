@@ -111,7 +111,7 @@ async def read_upload(
             f"send the files as multipart/form-data (got {content_type or 'no content type'!r})"
         )
     async with describe_slots(request).hold():
-        files = [await _read(part) for part in file or []]
+        files = [(part.filename, await part.read()) for part in file or []]
         main, resources = split_files(files)
         yield Upload.from_files(
             file=main,

@@ -21,10 +21,11 @@ from typing import TYPE_CHECKING, Any
 
 from app.discovery import ClipSource
 from app.errors import MocapError
+from app.motion.formats.gltf_pack import refers_to_files
 from app.motion.model import ParseLimits
 from app.services.describe import Description, MotionDescriber
 from app.services.parser_pool import InlineParser
-from app.services.upload_files import Budget, FolderFiles
+from app.services.upload_files import FolderFiles
 from app.services.uploads import Upload
 
 if TYPE_CHECKING:
@@ -32,7 +33,7 @@ if TYPE_CHECKING:
 
 MIN_ANIMATION_FRAMES = 5  # shorter animations of a multi-animation file are not imported
 TASKS_PER_WORKER = 2  # in flight: one being described, one waiting
-MAX_RESOURCE_BYTES = 256 * 1024 * 1024  # a .gltf's files read (MOCAP_MAX_UPLOAD_BYTES's default)
+MAX_RESOURCE_BYTES = 256 * 1024 * 1024  # a .gltf's files, at most (as MOCAP_MAX_UPLOAD_BYTES)
 WORKER_NICENESS = 5
 
 
@@ -51,7 +52,7 @@ def read_upload(
     notes = notes or {}
     motion = (source.motion.name, source.motion.read_bytes())
     # A .gltf's .bin and textures are read from its folder (and below), only those it names.
-    beside = source.motion.suffix.lower() == ".gltf"
+    beside = source.motion.suffix.lower() == ".gltf" and refers_to_files(motion[1])
     skeleton = (
         None if source.skeleton is None else (source.skeleton.name, source.skeleton.read_bytes())
     )
@@ -62,7 +63,7 @@ def read_upload(
         labels=labels,
         source=notes.get("source"),
         licence=notes.get("licence"),
-        resources=FolderFiles(source.motion.parent, Budget(MAX_RESOURCE_BYTES)) if beside else None,
+        resources=FolderFiles(source.motion.parent, MAX_RESOURCE_BYTES) if beside else None,
     )
 
 

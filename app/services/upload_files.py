@@ -3,7 +3,7 @@
 A ``.gltf`` names its buffers and images by relative path. Over HTTP they come as further
 ``file`` fields (already in memory, within the request's size limit); a bulk import reads them
 from the folder beside the document, through :class:`FolderFiles`: a read-only mapping from
-such a name to bytes, read when the document asks for it and only then, within a budget of
+such a name to bytes, read when the document asks for it and only then, within a limit of
 bytes, never outside the folder. :func:`app.motion.formats.gltf_pack.pack_gltf` then makes
 one GLB of them.
 """
@@ -16,30 +16,15 @@ from pathlib import Path
 from app.errors import PayloadTooLarge
 
 
-class Budget:
-    """Bytes still allowed to be read for one upload."""
-
-    def __init__(self, limit: int) -> None:
-        self.left = limit
-        self.limit = limit
-
-    def take(self, size: int, what: str) -> None:
-        if size > self.left:
-            raise PayloadTooLarge(
-                f"{what}: reading it would pass {self.limit} bytes "
-                "(MOCAP_MAX_UPLOAD_BYTES), the most one upload may hold"
-            )
-        self.left -= size
-
-
 class FolderFiles(Mapping[str, bytes]):
     """The files in ``folder`` and below it by relative path, read on demand (a bulk
-    import's ``.gltf``); nothing outside the folder is ever read (a link leading out of it
-    counts as missing)."""
+    import's ``.gltf``), at most ``max_bytes`` of them in all; nothing outside the folder is
+    ever read (a link leading out of it counts as missing)."""
 
-    def __init__(self, folder: Path, budget: Budget) -> None:
+    def __init__(self, folder: Path, max_bytes: int) -> None:
         self.folder = folder.resolve()
-        self.budget = budget
+        self.max_bytes = max_bytes
+        self.read = 0
 
     def _path(self, name: str) -> Path | None:
         path = (self.folder / name).resolve()
@@ -51,7 +36,13 @@ class FolderFiles(Mapping[str, bytes]):
         path = self._path(name)
         if path is None:
             raise KeyError(name)
-        self.budget.take(path.stat().st_size, str(path))
+        size = path.stat().st_size
+        if self.read + size > self.max_bytes:
+            raise PayloadTooLarge(
+                f"{path}: reading it would pass {self.max_bytes} bytes, the most the files one "
+                ".gltf refers to may hold"
+            )
+        self.read += size
         return path.read_bytes()
 
     def __contains__(self, name: object) -> bool:

@@ -27,7 +27,6 @@ from app.errors import InvalidInput, UnsupportedMediaType
 from app.labels import normalise_labels
 from app.motion.formats.gltf_pack import pack_gltf, refers_to_files
 from app.motion.formats.scene import Animation
-from app.services.upload_files import FolderFiles
 from app.text import checked_text
 
 MAX_NAME_LENGTH = 255
@@ -174,7 +173,7 @@ class Upload:
             if not data:
                 raise InvalidInput(f"field '{role}': the file {filename!r} is empty")
             parts.append(UploadPart(role, filename, data))
-        parts = _packed(parts, resources or {})
+        parts = _packed(parts, {} if resources is None else resources)
         upload = cls(
             tuple(parts),
             normalise_name(name),
@@ -236,12 +235,11 @@ class Upload:
 
 
 def split_files(
-    files: list[tuple[str | None, bytes] | None], suffixes: Iterable[str] = tuple(FILE_FORMATS)
+    sent: list[tuple[str | None, bytes]], suffixes: Iterable[str] = tuple(FILE_FORMATS)
 ) -> tuple[tuple[str | None, bytes] | None, dict[str, bytes]]:
     """The main file of an upload's repeated ``file`` fields (the one whose extension is in
     ``suffixes``, else the first) and the others by file name: the files a ``.gltf`` refers
     to."""
-    sent = [f for f in files if f is not None]
     if not sent:
         return None, {}
     wanted = tuple(suffixes)
@@ -255,7 +253,7 @@ def packed_file(filename: str, data: bytes, resources: Mapping[str, bytes]) -> t
     the one ``.glb`` of it and ``resources`` (:func:`pack_gltf`), any other file as it is.
     Files sent with one that refers to none are refused (422), naming them."""
     if PurePosixPath(filename).suffix.lower() != ".gltf" or not refers_to_files(data):
-        if not isinstance(resources, FolderFiles) and resources:
+        if resources:
             raise InvalidInput(
                 f"field 'file': send one file; more than one only for a .gltf and the files it "
                 f"refers to (got also {', '.join(repr(n) for n in list(resources)[:5])})"
