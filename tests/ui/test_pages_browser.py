@@ -201,6 +201,9 @@ def test_a_failed_search_looks_like_an_error(browser: Any, library: dict[str, An
             expect(hint).to_contain_text(kind)
         status = page.locator("main .status")
         expect(status).not_to_have_class("status error")
+        # The page is ready (its first status said) before the file is dropped: a drop while it
+        # still loads had its answer written over by that first status (a run at load 8).
+        expect(status).to_contain_text("Pick a clip")
         drop_files(page, "main h1", [("broken.bvh", b"HIERARCHY\nROOT Hips\n{\n")])
         expect(status).to_contain_text("Search with broken.bvh failed")
         expect(status).to_have_class("status error")
