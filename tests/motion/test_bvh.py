@@ -1163,3 +1163,20 @@ def test_commas_beside_decimal_points_are_still_not_numbers():
 def test_frame_time_without_its_colon(written):
     motion = read_bvh(TINY.replace("Frame Time: 0.04", written))
     assert motion.frame_time == pytest.approx(0.04)
+
+
+def test_braces_glued_to_words_are_braces():
+    """Hand-written exporters glue a brace to the word before it ("End Site{", "JOINT Chest{",
+    "}}"): the same hierarchy as written with spaces."""
+    glued = (
+        TINY.replace("ROOT Hips\n{", "ROOT Hips{")
+        .replace("JOINT Chest\n  {", "JOINT Chest{")
+        .replace("End Site\n    {", "End Site{")
+        .replace("    }\n  }\n}", "    }}}")
+    )
+    assert "Site{" in glued and "}}}" in glued
+    motion, plain = read_bvh(glued), read_bvh(TINY)
+    assert motion.skeleton.names == plain.skeleton.names
+    np.testing.assert_array_equal(motion.skeleton.parents, plain.skeleton.parents)
+    np.testing.assert_array_equal(motion.skeleton.offsets, plain.skeleton.offsets)
+    np.testing.assert_array_equal(motion.local_rotations, plain.local_rotations)

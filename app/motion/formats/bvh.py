@@ -54,6 +54,8 @@ from app.motion.formats.text import (
 )
 from app.motion.model import Motion, ParseLimits, Skeleton
 
+_HIERARCHY_TOKEN = re.compile(r"[{}]|[^\s{}]+")
+
 __all__ = ["matrices_from_euler", "parse_bvh", "parse_bvh_rest"]
 
 
@@ -403,7 +405,9 @@ def _read_hierarchy(lines: _Lines, limits: ParseLimits) -> list[_Joint]:
                 f"hierarchy line is {len(text_line)} characters long; not a BVH hierarchy",
                 line=number,
             )
-        tokens = text_line.split()
+        # A brace is a token of its own even when a writer glues it to a word
+        # ("End Site{", "JOINT Hips{", "}}"), as hand-written exporters do.
+        tokens = _HIERARCHY_TOKEN.findall(text_line)
         i = 0
         while i < len(tokens):
             keyword = tokens[i].upper()
