@@ -1159,7 +1159,9 @@ def test_commas_beside_decimal_points_are_still_not_numbers():
         read_bvh(text)
 
 
-@pytest.mark.parametrize("written", ["Frame Time 0.04", "FrameTime: 0.04", "Frame Time= 0.04"])
+@pytest.mark.parametrize(
+    "written", ["Frame Time 0.04", "FrameTime: 0.04", "Frame Time= 0.04", "Frame Times: 0.04"]
+)
 def test_frame_time_without_its_colon(written):
     motion = read_bvh(TINY.replace("Frame Time: 0.04", written))
     assert motion.frame_time == pytest.approx(0.04)

@@ -70,9 +70,9 @@ MAX_HIERARCHY_LINE = 65_536
 _INTEGER_RE = re.compile(r"\+?\d+", re.ASCII)
 _SIGNED_INTEGER_RE = re.compile(r"[+-]?\d+", re.ASCII)
 # The colon as writers put it, or leave it out or write ``=`` (``Frame Time 0.0333``,
-# ``FrameTime: 0.0333``): the word says what the number is.
+# ``FrameTime: 0.0333``, ``Frame Times: 0.0333``): the words say what the number is.
 _FRAMES_RE = re.compile(r"frames\s*[:=]?\s*(.*)", re.IGNORECASE)
-_FRAME_TIME_RE = re.compile(r"frame\s*time\s*[:=]?\s*(.*)", re.IGNORECASE)
+_FRAME_TIME_RE = re.compile(r"frame\s*times?\s*[:=]?\s*(.*)", re.IGNORECASE)
 
 # channel name (lower case) -> (kind, axis index)
 _CHANNELS: dict[str, tuple[str, int]] = {
