@@ -35,7 +35,13 @@ from typing import Any, TypeVar
 import numpy as np
 
 from app.errors import ParseError
-from app.motion.body_axes import frames_basis, pelvis_carries, pose_basis
+from app.motion.body_axes import (
+    frames_basis,
+    frames_from_positions,
+    pelvis_carries,
+    pelvis_turns_with_hips,
+    pose_basis,
+)
 from app.motion.hand import palm
 from app.motion.kinematics import bone_lengths, forward_kinematics
 from app.motion.model import Motion
@@ -203,6 +209,12 @@ def build_body(motion: Motion) -> Body:
     frames = _pelvis_frames(
         motion, mapping.joints, canon_rot, rest_is_a_figure=mapping.pose == "rest pose"
     )
+    if not pelvis_turns_with_hips(frames, canon_pos, within=_REST_SHOWN, share=_REST_SHARE):
+        frames = frames_from_positions(canon_pos, frames)
+        warnings.append(
+            "the pelvis joint's rotation does not carry the hips (joints at the pelvis turn "
+            "them back): the body's axes are read from the joints' positions"
+        )
     return Body(
         positions=canon_pos,
         rotations=canon_rot,

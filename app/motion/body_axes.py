@@ -4,8 +4,10 @@
 functions here read them from any ``(F, J, 3)`` poses with the pelvis's ``(F, 3, 3)`` world
 rotations in them: :func:`pose_basis` the legs' line and the trunk, :func:`frames_basis` the
 same for a take whose rest pose is no pose of the body, up then from the world's up when the
-take stands; and :func:`pelvis_carries` tells whether the bones the pelvis carries show a
-rest pose's axes, the same in every frame.
+take stands; :func:`pelvis_carries` tells whether the bones the pelvis carries show a
+rest pose's axes, the same in every frame; :func:`pelvis_turns_with_hips` whether the pelvis
+joint's rotation moves the body at all, and :func:`frames_from_positions` the body's frames
+from the joints alone where it does not.
 """
 
 from __future__ import annotations
@@ -154,6 +156,73 @@ def pelvis_carries(
     return float(rest[:, 0] @ x) >= within and float(rest[:, 1] @ y) >= within
 
 
+def _hips_line(positions: np.ndarray) -> np.ndarray:
+    """``(F, 3)`` right to left across the legs of ``(F, C, 3)`` canonical positions: the
+    hips, or where the legs part when both hip joints sit at the pelvis (zero where none)."""
+    size = float(np.ptp(positions, axis=1).max())
+    for part in ("hip", "knee", "ankle"):
+        across = (
+            positions[:, CANONICAL_INDEX[f"l_{part}"]] - positions[:, CANONICAL_INDEX[f"r_{part}"]]
+        )
+        if float(np.median(np.linalg.norm(across, axis=1))) > COINCIDENT * max(size, 1e-300):
+            return across
+    return np.zeros((len(positions), 3))
+
+
+def pelvis_turns_with_hips(
+    frames: np.ndarray, positions: np.ndarray, *, within: float, share: float
+) -> bool:
+    """Whether the ``(F, 3, 3)`` pelvis frames turn with the hips in the ``(F, C, 3)`` poses.
+
+    The pelvis joint's rotation is the body's only when it moves the body: its lateral
+    axis then follows the line across the hips, exactly where the hips hang from it and
+    within a few degrees where a hip joint between them turns a little. A writer that puts
+    every child of the pelvis at the pelvis and gives each its own rotation can turn the
+    pelvis anywhere and turn the children back (a pose network's output: the pelvis turned
+    90 degrees while the body stands): its rotation moves no bone, and its lateral axis and
+    the hips' line part by more than ``within`` (a cosine) in more than ``share`` of the
+    frames. Only the hips are asked: the trunk bends away from the pelvis by the take's own
+    lean, and where both hips sit at the pelvis the line where the legs part swings with the
+    knees — no landmark of the pelvis (its rotation is then kept).
+    """
+    size = float(np.ptp(positions, axis=1).max())
+    hips = positions[:, CANONICAL_INDEX["l_hip"]] - positions[:, CANONICAL_INDEX["r_hip"]]
+    length = np.linalg.norm(hips, axis=1)
+    seen = length > COINCIDENT * max(size, 1e-300)
+    if not seen.sum() > 0.5 * len(seen):
+        return True
+    across = np.einsum("fa,fa->f", frames[seen, :, 0], hips[seen]) / length[seen]
+    return float(np.mean(across >= within)) >= share
+
+
+def _trunk_up(positions: np.ndarray) -> np.ndarray:
+    """``(F, 3)`` pelvis -> neck of ``(F, C, 3)`` canonical positions, without its part along
+    the hips' line (zero where the legs show no line)."""
+    lateral = _hips_line(positions)
+    length = np.linalg.norm(lateral, axis=1, keepdims=True)
+    x = np.where(length > 0, lateral / np.maximum(length, 1e-300), 0.0)
+    trunk = positions[:, CANONICAL_INDEX["neck"]] - positions[:, CANONICAL_INDEX["pelvis"]]
+    return trunk - np.einsum("fa,fa->f", trunk, x)[:, None] * x
+
+
+def frames_from_positions(positions: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    """``(F, 3, 3)`` body frames from ``(F, C, 3)`` canonical positions alone: lateral across
+    the hips (or where the legs part), up from the pelvis toward the neck (orthogonalised),
+    forward = lateral x up; a frame where they are parallel or missing keeps ``fallback``.
+
+    Up then carries the spine's bend, which the pelvis's own axes do not: the reading for a
+    pelvis whose rotation carries nothing, not a better one for the others."""
+    lateral, up = _hips_line(positions), _trunk_up(positions)
+    lateral_length = np.linalg.norm(lateral, axis=1, keepdims=True)
+    up_length = np.linalg.norm(up, axis=1, keepdims=True)
+    x = lateral / np.maximum(lateral_length, 1e-300)
+    y = up / np.maximum(up_length, 1e-300)
+    frames = np.stack([x, y, np.cross(x, y)], axis=2)
+    size = float(np.ptp(positions, axis=1).max())
+    good = (lateral_length[:, 0] > 0) & (up_length[:, 0] > 1e-9 * max(size, 1e-300))
+    return np.where(good[:, None, None], frames, fallback)
+
+
 def _snapped(vector: np.ndarray) -> np.ndarray:
     """``(3,)`` the signed coordinate axis nearest to ``vector`` (``+Y`` for a zero vector)."""
     snapped = np.zeros(3)
@@ -165,4 +234,10 @@ def _snapped(vector: np.ndarray) -> np.ndarray:
     return snapped
 
 
-__all__ = ["frames_basis", "pelvis_carries", "pose_basis"]
+__all__ = [
+    "frames_basis",
+    "frames_from_positions",
+    "pelvis_carries",
+    "pelvis_turns_with_hips",
+    "pose_basis",
+]

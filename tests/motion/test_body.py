@@ -1,10 +1,16 @@
+from dataclasses import replace
+from pathlib import Path
+
 import numpy as np
 
 from app.motion import transforms
 from app.motion.body import build_body, count_lead_in_frames, pelvis_basis
+from app.motion.formats import read_bvh
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion
+from app.motion.pipeline import analyse
 from app.motion.skeleton_map import CANONICAL_INDEX
+from tests.motion.canonical import check_canonical_body
 from tests.motion.skeleton_trees import Humanoid, synthetic_humanoid
 from tests.motion.synthetic import walker_motion, walking
 from tests.motion.test_mapping_probes import frame_as_rest
@@ -121,3 +127,34 @@ def test_a_rest_pose_only_one_frame_shows_is_not_the_bodys_rest():
     up = rotations[1:, canonical[CANONICAL_INDEX["pelvis"]]] @ basis[:, 1]  # (F-1, 3)
     agreement = np.einsum("fa,fa->f", up, body.pelvis_frames[1:, :, 1])
     assert float(agreement.min()) > np.cos(np.radians(30.0))
+
+
+def test_a_pelvis_whose_children_turn_it_back_reads_its_axes_from_the_joints():
+    """A pose network's BVH: every child of the pelvis sits at the pelvis with a rotation of
+    its own, and the pelvis turned 90 degrees is turned back by its children, so the same
+    world motion has a pelvis rotation that moves no bone. Read from that rotation the body
+    lies on its side; read from the joints it stands as the capture does."""
+    capture = read_bvh(
+        (Path(__file__).parents[1] / "fixtures/cmu_mb_02_01_first41.bvh").read_bytes()
+    )
+    turn = transforms.rotation_about(np.array([0.0, 0.0, 1.0]), 90.0)
+    pelvis = int(np.flatnonzero(capture.skeleton.parents < 0)[0])
+    children = np.flatnonzero(capture.skeleton.parents == pelvis)
+    assert np.all(capture.skeleton.offsets[children] == 0)  # CMU's hip joints and lower back
+    rotations = capture.local_rotations.copy()
+    rotations[:, pelvis] = rotations[:, pelvis] @ turn
+    rotations[:, children] = turn.T @ rotations[:, children]
+    network = replace(capture, local_rotations=rotations)
+    np.testing.assert_allclose(
+        forward_kinematics(network)[1], forward_kinematics(capture)[1], atol=1e-9
+    )
+    body = build_body(network)
+    check_canonical_body(body, "pelvis turned back by its children", upright=True)
+    assert any("does not carry the hips" in warning for warning in body.warnings)
+    assert not any("does not carry the hips" in w for w in build_body(capture).warnings)
+    # Posture (joints in the body frame) as the capture's but for the spine's bend the
+    # joints' up carries (0.16 of its length; 1.2 read from the turned pelvis). The energies
+    # are the file's own angles, which differ: `kinetic` and `motion`'s energy blocks do.
+    plain, turned = analyse(capture), analyse(network)
+    a, b = plain.descriptors["posture"], turned.descriptors["posture"]
+    assert np.linalg.norm(a - b) <= 0.25 * np.linalg.norm(a)
