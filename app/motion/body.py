@@ -209,6 +209,10 @@ def build_body(motion: Motion) -> Body:
     frames = _pelvis_frames(
         motion, mapping.joints, canon_rot, rest_is_a_figure=mapping.pose == "rest pose"
     )
+    if _holds_one_pose(canon_pos):
+        # A rig's template or a pose saved as a clip: stored, as what it is.
+        held = "one frame" if len(canon_pos) == 1 else f"all {len(canon_pos)} frames the same"
+        warnings.append(f"a still pose ({held}): no motion, stored as a pose")
     if not pelvis_turns_with_hips(frames, canon_pos, within=_REST_SHOWN, share=_REST_SHARE):
         frames = frames_from_positions(canon_pos, frames)
         warnings.append(
@@ -227,6 +231,13 @@ def build_body(motion: Motion) -> Body:
         mapping=mapping,
         warnings=tuple(warnings),
     )
+
+
+def _holds_one_pose(positions: np.ndarray) -> bool:
+    """Whether every frame of ``(F, C, 3)`` canonical positions is the first (to a
+    millionth of the body's extent: what float32 text files round to); one frame too."""
+    extent = float(np.ptp(positions[0], axis=0).max())
+    return bool(np.all(np.abs(positions - positions[:1]) <= 1e-6 * max(extent, 1e-300)))
 
 
 def implausible_frames(positions: np.ndarray, height: float) -> np.ndarray:

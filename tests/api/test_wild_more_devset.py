@@ -117,8 +117,9 @@ def test_what_is_not_a_person_is_refused_naming_the_problem(uploaded, path):
 @pytest.mark.parametrize("path", _files("rig-only"))
 def test_a_rig_without_motion_says_so_or_is_a_still(uploaded, path):
     status, body = uploaded[path]
-    if status == 201:
-        return  # stored as a still: allowed
+    if status == 201:  # stored as a still: allowed, when it says so
+        assert any("still pose" in warning for warning in body["warnings"]), (path, body)
+        return
     assert status == 422, (path, body)
     assert "no animation" in body["detail"] or "without motion" in body["detail"], body
 

@@ -158,3 +158,20 @@ def test_a_pelvis_whose_children_turn_it_back_reads_its_axes_from_the_joints():
     plain, turned = analyse(capture), analyse(network)
     a, b = plain.descriptors["posture"], turned.descriptors["posture"]
     assert np.linalg.norm(a - b) <= 0.25 * np.linalg.norm(a)
+
+
+def test_a_still_pose_is_stored_as_what_it_is():
+    """A rig's template written with frames that all hold one pose (or a single frame) is
+    described, and said to be a still pose; a capture is not."""
+    capture = read_bvh(
+        (Path(__file__).parents[1] / "fixtures/cmu_mb_02_01_first41.bvh").read_bytes()
+    )
+    held = capture.slice_frames(5, 6)
+    still = replace(
+        held,
+        local_rotations=np.repeat(held.local_rotations, 28, axis=0),
+        root_translation=np.repeat(held.root_translation, 28, axis=0),
+    )
+    assert any("a still pose (all 28 frames the same)" in w for w in analyse(still).warnings)
+    assert any("a still pose (one frame)" in w for w in analyse(held).warnings)
+    assert not any("still pose" in w for w in analyse(capture).warnings)
