@@ -1182,3 +1182,15 @@ def test_braces_glued_to_words_are_braces():
     np.testing.assert_array_equal(motion.skeleton.parents, plain.skeleton.parents)
     np.testing.assert_array_equal(motion.skeleton.offsets, plain.skeleton.offsets)
     np.testing.assert_array_equal(motion.local_rotations, plain.local_rotations)
+
+
+def test_frames_zero_with_values_after_it_is_a_rig_that_says_so():
+    """'Frames: 0' is a rig with no animation (the count is a claim: lines beyond it are not
+    read), and when values follow, the refusal says where they start."""
+    counted_none = TINY.replace("Frames: 2", "Frames: 0")
+    with pytest.raises(NoAnimation, match=r"the values from line 19 on are not read") as e:
+        read_bvh(counted_none)
+    assert e.value.line == L_FRAMES
+    rig = counted_none.split("0 90 0 10")[0]
+    with pytest.raises(NoAnimation, match=r"no motion to describe$"):
+        read_bvh(rig)

@@ -594,10 +594,19 @@ def _read_motion_header(lines: _Lines, joint_count: int) -> tuple[int, int, floa
     # a 10**18 stand-in for absurdly long numbers is caught by the frame limit
     frame_count = int(token) if len(token) <= 18 else (10**18 if token[0] != "-" else -1)
     if frame_count == 0:
+        zero_line = lines.line
+        lines.next_nonblank()  # Frame Time:, if written
+        # Frames: is a claim (lines beyond it are ignored): values after a count of none
+        # are not read, and the refusal says they are there.
+        beyond = (
+            f"; the values from line {lines.line} on are not read (Frames: says 0)"
+            if lines.next_nonblank() is not None
+            else ""
+        )
         raise NoAnimation(
             f"Frames: 0 — the file is a rig with no animation (a skeleton of {joint_count} "
-            "joints and no frames), so there is no motion to describe",
-            line=lines.line,
+            f"joints and no frames), so there is no motion to describe{beyond}",
+            line=zero_line,
         )
     if frame_count < 0:
         raise ParseError("Frames: must be at least 1", line=lines.line)
