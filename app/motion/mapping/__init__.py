@@ -50,12 +50,15 @@ facing, naming or extra joints (fingers, face, twist bones, props, IK targets, d
    ending at the knees) is mapped, when nothing else maps, with each foot hung from the knee
    it stays at one distance from while the knee bends (:attr:`SkeletonMap.held`). Names
    whole-matched by :mod:`app.motion.skeleton_names` choose among joints when they name one
-   in the chain. Where the rest pose leaves joints in one line to choose among (a collar
-   bone in line with a T-posed arm, whose long forearm makes the proportions prefer it; a
-   wrist among a straight hand's joints), the clip's frames decide: a bone does not bend,
-   so a joint that turns inside the upper or lower part of the chosen limb is a joint of
-   the limb (the shoulder below the collar, the wrist above a finger), and the nearest to
-   proportions of the choices with no such joint is taken
+   in the chain, unless the limb they name is no person's (its forearm or shin less than
+   half a person's share for its upper part: names shifted one joint down the limb) and the
+   geometry finds one; a warning then says the names were not followed. Where the rest pose
+   leaves joints in one line to choose among (a collar bone in line with a T-posed arm,
+   whose long forearm makes the proportions prefer it; a wrist among a straight hand's
+   joints), the clip's frames decide: a bone does not bend, so a joint that turns inside the
+   upper or lower part of the chosen limb is a joint of the limb (the shoulder below the
+   collar, the wrist above a finger), and the nearest to proportions of the choices with no
+   such joint is taken
    (:attr:`SkeletonMap.limbs_open`).
 3. **End effectors** (Miura et al.: "end effectors are hereafter regarded as joints"): the
    canonical ``head`` point is the first point of non-zero length on the single chain
@@ -100,8 +103,10 @@ missing.
 Modules, by responsibility: :mod:`.canonical` (the canonical joints, :class:`SkeletonMap`),
 :mod:`.tree` (the skeleton's tree, candidate limb ends), :mod:`.along` (bones hung along
 another: not seen), :mod:`.hypotheses` (head, hands and
-feet: step 1), :mod:`.state`, :mod:`.runs` (a limb's straight runs), :mod:`.limbs` and
-:mod:`.sides` (steps 2-4 for one hypothesis),
+feet: step 1), :mod:`.state`, :mod:`.runs` (a limb's straight runs),
+:mod:`.named` (names along a limb weighed against its proportions), :mod:`.limbs` (legs,
+and what arms share with them), :mod:`.arms` and :mod:`.sides` (steps 2-4 for one
+hypothesis),
 :mod:`.mapper` (one pose's mapping), :mod:`.held` (limb ends held by IK), :mod:`.take` (a
 take that never stands) and :mod:`.skeleton`
 (:func:`map_skeleton`: rest pose, then frames, kept per skeleton). Callers import the public

@@ -9,9 +9,10 @@ import math
 import numpy as np
 
 from app.motion.mapping.hypotheses import _NotHumanoid
-from app.motion.mapping.runs import _ARM, _LEG, _LimbKind, _RunRules
+from app.motion.mapping.named import NAMES_NOT_FOLLOWED, _NamedRules
+from app.motion.mapping.runs import _ARM, _LEG, _LimbKind
 from app.motion.mapping.state import _EFFECTOR_COS, _Limb
-from app.motion.mapping.tree import _branches_below, _farthest_descendant, _is_thumb
+from app.motion.mapping.tree import _branches_below, _farthest_descendant
 from app.motion.mapping.vectors import _length, _unit
 
 # A later limb top must fit the proportions this much better (log ratio) to be taken.
@@ -27,12 +28,9 @@ _ALIKE = 0.15
 _FINGERS_BRANCH = "structure: where the fingers"
 # How a wrist found where a hand of one chain begins.
 _ONE_CHAIN = "structure: where a hand of one chain starts"
-# Bones from the arms' branch point to the wrist, at least: upper arm, forearm and the first
-# bone off the spine (a collar, or the upper arm itself).
-_WRIST_DEPTH = 3
 
 
-class _LimbRules(_RunRules):
+class _LimbRules(_NamedRules):
     """Places the joints of one leg or arm."""
 
     def check_share(self, limb: _Limb, kind: _LimbKind, trunk: int) -> None:
@@ -64,13 +62,57 @@ class _LimbRules(_RunRules):
         chain ``above`` that ends at the ankle or wrist: by name when both names are there
         in order, else the straight run's start and its split nearest the ``kind``'s
         upper : lower ratio (among those whose parts do not bend in the clip's frames, when
-        the frames show which)."""
-        parts, ratio, what = kind.parts[:2], kind.upper, kind.what
-        top, middle = (self.named(above[1:-1], part) for part in parts)
-        if top is not None and middle is not None and above.index(top) < above.index(middle):
-            for part, joint in zip(parts, (top, middle), strict=True):
-                limb.joints[part], limb.how[part] = joint, "name"
+        the frames show which). Names that make no person's limb (:meth:`no_person`: names
+        shifted one joint down it) give way to that geometric reading when it makes one,
+        and the top's ``how`` says they were not followed."""
+        parts = kind.parts[:2]
+        named = self.named_pair(above, kind)
+        wrong = None if named is None else self.no_person(*named, above[-1], kind)
+        if named is not None and wrong is None:
+            self.place(limb, parts, named, ("name", "name"))
             return
+        found: tuple[int, int]
+        try:
+            top, middle = self.straight_split(above, kind)
+            found = (
+                self.deepest_coincident(above[top], above),
+                self.deepest_coincident(above[middle], above),
+            )
+        except _NotHumanoid:
+            if named is None:
+                raise
+            found = named  # no middle joint by the geometry: the names stand
+        if named is not None and self.no_person(*found, above[-1], kind) is not None:
+            # The geometric reading is no person's limb either: the names stand.
+            found, wrong = named, None
+        if found is named:
+            self.place(limb, parts, named, ("name", "name"))
+            return
+        note = "" if wrong is None else f" ({NAMES_NOT_FOLLOWED}: {wrong})"
+        hows = (
+            f"geometry: top of the straight {kind.what}{note}",
+            f"geometry: middle of the {kind.what}",
+        )
+        self.place(limb, parts, found, hows)
+
+    @staticmethod
+    def joints(limb: _Limb, kind: _LimbKind) -> tuple[int, int, int]:
+        """The limb's top, middle and end joints."""
+        top, middle, end = kind.parts
+        return limb[top], limb[middle], limb[end]
+
+    @staticmethod
+    def place(
+        limb: _Limb, parts: tuple[str, ...], joints: tuple[int, ...], hows: tuple[str, ...]
+    ) -> None:
+        """Put ``joints`` as the limb's ``parts``, found as ``hows`` say."""
+        for part, joint, how in zip(parts, joints, hows, strict=True):
+            limb.joints[part], limb.how[part] = joint, how
+
+    def straight_split(self, above: list[int], kind: _LimbKind) -> tuple[int, int]:
+        """Indices in ``above`` of the limb's top and middle joints read from the geometry
+        (:meth:`upper_and_middle`); _NotHumanoid when the chain holds no middle joint."""
+        parts, ratio, what = kind.parts[:2], kind.upper, kind.what
         end = len(above) - 1
         # The top joint is never at the trunk joint's own place (a zero-length clavicle).
         first = next((i for i in range(1, end) if not self.same_place(above[i], above[0])), 1)
@@ -147,10 +189,7 @@ class _LimbRules(_RunRules):
                 f"the {what} ending at {self.tree.names[above[-1]]!r} has no {parts[1]} between "
                 f"its {parts[0]} and its end"
             )
-        limb.joints[parts[0]] = self.deepest_coincident(above[start], above)
-        limb.joints[parts[1]] = self.deepest_coincident(above[split], above)
-        limb.how[parts[0]] = f"geometry: top of the straight {what}"
-        limb.how[parts[1]] = f"geometry: middle of the {what}"
+        return start, split
 
     def wide_in_motion(self, joint: int) -> bool:
         """Whether ``joint`` lies as far from the spine's line as a hip from the pelvis in
@@ -315,38 +354,13 @@ class _LimbRules(_RunRules):
             return options[1][1]
         return options[0][1]
 
-    def map_leg(self, foot: int) -> _Limb:
-        tree, pose, up = self.tree, self.pose, self.body.up
-        chain = tree.chain(self.body.pelvis, foot)
-        # The sole: points after the lowest one that rise again are end sites pointing
-        # nowhere in particular (SMPL exports), not the foot.
-        heights = pose[chain] @ up
-        sole = len(chain) - 1
-        while sole > 1 and (
-            heights[sole] > heights.min() + 0.03 * self.extent or self.doubles_back(chain, sole)
-        ):
-            sole -= 1
-        foot = chain[sole]
-        chain = chain[: sole + 1]
-        # Ankle: where the chain, having come down the leg, turns most towards the toes.
-        turned: int | None = None
-        best_turn = np.radians(_ANKLE_TURN_DEG)
-        previous = 0
-        for i in range(1, len(chain) - 1):
-            incoming = _unit(pose[chain[i]] - pose[chain[previous]])
-            if not _length(incoming):
-                continue
-            previous = i
-            outgoing = _unit(pose[foot] - pose[chain[i]])
-            # Coming down the leg, leaving more level than it came.
-            if float(incoming @ up) > -0.5 or float(outgoing @ up) < float(incoming @ up) + 0.2:
-                continue
-            turn = float(np.arccos(np.clip(incoming @ outgoing, -1.0, 1.0)))
-            if turn > best_turn:
-                turned, best_turn = i, turn
-        # Names choose among the joints next to the geometric ankle (``foot`` is the ankle in
-        # most rigs and the ball of the foot in some), or alone when the foot never turns.
-        named_ankles = [i for i, j in enumerate(chain) if i > 0 and "ankle" in tree.hints[j].parts]
+    def ankles(
+        self, chain: list[int], turned: int | None, named_ankles: list[int]
+    ) -> list[tuple[int, str]]:
+        """The ankle choices on the leg's ``chain`` (pelvis to sole; ``turned``: index where
+        the foot turns forward, if it does; ``named_ankles``: indices of joints named as
+        the ankle), each with how it was found, for :meth:`best_ankle`."""
+        tree = self.tree
         near = [i for i in named_ankles if turned is not None and abs(i - turned) <= 1]
         if turned is not None and near:
             ankles = [(chain[min(near, key=lambda i: (abs(i - turned), i))], "name")]
@@ -395,7 +409,58 @@ class _LimbRules(_RunRules):
                 )
                 for i in range(last, max(last - 3, 0), -1)
             ]
-        limb = self.best_ankle(chain, ankles)
+        return ankles
+
+    def map_leg(self, foot: int) -> _Limb:
+        tree, pose, up = self.tree, self.pose, self.body.up
+        chain = tree.chain(self.body.pelvis, foot)
+        # The sole: points after the lowest one that rise again are end sites pointing
+        # nowhere in particular (SMPL exports), not the foot.
+        heights = pose[chain] @ up
+        sole = len(chain) - 1
+        while sole > 1 and (
+            heights[sole] > heights.min() + 0.03 * self.extent or self.doubles_back(chain, sole)
+        ):
+            sole -= 1
+        foot = chain[sole]
+        chain = chain[: sole + 1]
+        # Ankle: where the chain, having come down the leg, turns most towards the toes.
+        turned: int | None = None
+        best_turn = np.radians(_ANKLE_TURN_DEG)
+        previous = 0
+        for i in range(1, len(chain) - 1):
+            incoming = _unit(pose[chain[i]] - pose[chain[previous]])
+            if not _length(incoming):
+                continue
+            previous = i
+            outgoing = _unit(pose[foot] - pose[chain[i]])
+            # Coming down the leg, leaving more level than it came.
+            if float(incoming @ up) > -0.5 or float(outgoing @ up) < float(incoming @ up) + 0.2:
+                continue
+            turn = float(np.arccos(np.clip(incoming @ outgoing, -1.0, 1.0)))
+            if turn > best_turn:
+                turned, best_turn = i, turn
+        # Names choose among the joints next to the geometric ankle (``foot`` is the ankle in
+        # most rigs and the ball of the foot in some), or alone when the foot never turns.
+        named_ankles = [i for i, j in enumerate(chain) if i > 0 and "ankle" in tree.hints[j].parts]
+        by_name = self.ankles(chain, turned, named_ankles)
+        # Names along the leg that make no person's leg (shifted one joint down it) name no
+        # ankle either: the structure finds it, the names standing only where it finds none.
+        wrong = None
+        if by_name[0][1] == "name":
+            wrong = self.misnamed_end(chain, by_name[0][0], _LEG)
+        limb: _Limb | None = None
+        if wrong is not None:
+            try:
+                limb = self.best_ankle(chain, self.ankles(chain, turned, []))
+            except _NotHumanoid:
+                limb = None
+            if limb is not None and self.no_person(*self.joints(limb, _LEG), _LEG) is None:
+                limb.how["ankle"] += f" ({NAMES_NOT_FOLLOWED}: {wrong})"
+            else:
+                limb = None
+        if limb is None:
+            limb = self.best_ankle(chain, by_name)
         ankle = limb["ankle"]
         ankle_i = chain.index(ankle)
         result, how = limb.joints, limb.how
@@ -421,124 +486,3 @@ class _LimbRules(_RunRules):
             result["toe"] = _farthest_descendant(tree, ankle)
             how["toe"] = "derived: farthest point beyond the ankle"
         return _Limb(result, how)
-
-    def map_arm(self, hand: int) -> _Limb:
-        tree = self.tree
-        chain = tree.chain(self.body.chest, hand)
-        named_wrist = self.named(chain[1:], "wrist")
-        if named_wrist is not None:
-            wrists = [(named_wrist, "name")]
-        else:
-            # Where the fingers branch (the last branching joint first: a twist bone beside
-            # the upper arm branches too), the joint before the hand's end, the arm's end (a
-            # rig without hand bones, glTF and FBX joints being points without tails): the
-            # one whose arm comes nearest human proportions.
-            wrists = [
-                (j, f"{_FINGERS_BRANCH} branch")
-                for j in chain[-2:0:-1]
-                if sum(1 for c in tree.children[j] if tree.lengths[c] > 0 or tree.children[c]) >= 2
-            ]
-            # Fingers may also start from sibling joints at one place (a palm bone per finger).
-            wrists += [
-                (j, f"{_FINGERS_BRANCH} start together")
-                for j in chain[-2:1:-1]
-                if tree.children[j]
-                and any(
-                    s != j and tree.children[s] and self.same_place(s, j)
-                    for s in tree.children[int(tree.parents[j])]
-                )
-            ]
-            last = len(chain) - 1
-            while last > 1 and tree.lengths[chain[last]] == 0:
-                last -= 1
-            if not wrists:
-                # Nothing branches: the hand (if any) is one chain of bones.
-                one_chain = self.one_chain_wrist(chain, last)
-                if one_chain is not None:
-                    wrists.append((chain[one_chain], _ONE_CHAIN))
-            # (Two before it: a hand bone closed by an End Site, as SMPL exports write it.)
-            wrists += [
-                (chain[i], "structure: the joint before the hand's end")
-                for i in range(last - 1, max(last - 3, 1), -1)
-            ]
-            wrists.append((chain[last], "structure: the arm's end, no hand"))
-        options: list[tuple[float, _Limb]] = []
-        limb = self.best_limb(chain, wrists, _ARM, options)
-        self.arm_options[hand] = (chain, options)
-        return self.with_hand_tip(limb)
-
-    def one_chain_wrist(self, chain: list[int], last: int) -> int | None:
-        """Index in ``chain`` (the arms' branch point to the hand's end, ``chain[last]``
-        its last bone's end) of the wrist of a hand that is one chain of bones (a single
-        finger, as some exports keep), or None.
-
-        A hand (wrist to fingertip, 0.108 of the height) is shorter than the upper arm
-        (0.186), while forearm and hand together (0.254) are longer than any bone above the
-        elbow (upper arm, collar): the wrist is the highest joint at least
-        :data:`_WRIST_DEPTH` bones below the branch point whose reach (the chain below it)
-        is no longer than the longest bone above its parent, with at least two bones below
-        it (a hand of one chain; the joint above a single hand bone, or an arm's end with no
-        hand, is no such wrist)."""
-        tree = self.tree
-        longest = 0.0  # the longest bone above chain[i]'s parent
-        bones = 0  # bones of non-zero length from the branch point to chain[i]
-        for i in range(1, last - 1):
-            bones += bool(tree.lengths[chain[i]] > 0)
-            if bones >= _WRIST_DEPTH and 0 < tree.reach[chain[i]] <= longest:
-                return i
-            longest = max(longest, float(tree.lengths[chain[i]]))
-        return None
-
-    def with_hand_tip(self, limb: _Limb) -> _Limb:
-        """``limb`` (an arm) with its hand tip: the farthest point beyond the wrist."""
-        result, how = dict(limb.joints), dict(limb.how)
-        result["hand_tip"] = _farthest_descendant(self.tree, limb["wrist"], skip=_is_thumb)
-        how["hand_tip"] = "derived: farthest point beyond the wrist"
-        return _Limb(result, how)
-
-    def part_lengths(self, limb: _Limb, kind: _LimbKind) -> tuple[float, float]:
-        """The limb's upper and lower part lengths along the bones (thigh and shin, upper
-        arm and forearm)."""
-        path = self.tree.path
-        top, middle, end = (limb[part] for part in kind.parts)
-        return float(path[middle] - path[top]), float(path[end] - path[middle])
-
-    def unlike(self, a: _Limb, b: _Limb, kind: _LimbKind) -> float:
-        """How far two limbs of a pair are from one length: the largest ``|log|`` ratio of
-        their upper and of their lower parts."""
-        return max(
-            abs(math.log(max(x, 1e-12) / max(y, 1e-12)))
-            for x, y in zip(self.part_lengths(a, kind), self.part_lengths(b, kind), strict=True)
-        )
-
-    def alike_arms(self, arms: list[_Limb], hands: tuple[int, int]) -> list[_Limb]:
-        """The two arms, each found on its own, made a pair: a person's left and right
-        upper arms (forearms) are one length, so when the two found differ by more than
-        :data:`_ALIKE` and one arm's other choices hold one as long as the arm found on the
-        other side (part for part), that one is taken — the cheapest in proportions over the
-        pair when several are. An arm found a joint too high on one side (the collar taken for
-        the shoulder) or too low (its end on a fingertip) is set right by the other side; two
-        arms found alike, or no alike choice, stay as they are."""
-        if self.unlike(arms[0], arms[1], _ARM) <= _ALIKE:
-            return arms
-        best: tuple[float, int, _Limb] | None = None
-        for keep in (0, 1):
-            other = 1 - keep
-            chain, options = self.arm_options[hands[other]]
-            kept_cost = self.limb_proportions(arms[keep], _ARM)
-            for cost, option in options:
-                if option.joints == {p: arms[other][p] for p in _ARM.parts}:
-                    continue
-                if self.unlike(arms[keep], option, _ARM) > _ALIKE:
-                    continue
-                if self.motion() and self.limb_bends(chain, option, _ARM):
-                    continue  # the frames show a joint inside it: no arm
-                if best is None or cost + kept_cost < best[0]:
-                    best = (cost + kept_cost, other, option)
-        if best is None:
-            return arms
-        _, other, option = best
-        how = {part: f"{option.how[part]} (as long as the other arm)" for part in _ARM.parts}
-        paired = list(arms)
-        paired[other] = self.with_hand_tip(_Limb(dict(option.joints), how))
-        return paired

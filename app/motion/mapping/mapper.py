@@ -6,9 +6,11 @@ from collections.abc import Callable
 
 import numpy as np
 
+from app.motion.mapping.arms import _ArmRules
 from app.motion.mapping.canonical import CANONICAL_JOINTS, SkeletonMap, detect_family
 from app.motion.mapping.hypotheses import _hypotheses, _Known, _NotHumanoid
-from app.motion.mapping.limbs import _ARM, _LEG, _LimbRules
+from app.motion.mapping.named import NAMES_NOT_FOLLOWED
+from app.motion.mapping.runs import _ARM, _LEG
 from app.motion.mapping.sides import _SideRules
 from app.motion.mapping.state import _HEAD_END_MIN, _Limb
 from app.motion.mapping.vectors import _length, _unit
@@ -46,7 +48,7 @@ def _map_pose(
     raise first
 
 
-class _Mapper(_LimbRules, _SideRules):
+class _Mapper(_ArmRules, _SideRules):
     """Places every canonical joint once head, hands and feet are known."""
 
     def run(self) -> SkeletonMap:
@@ -78,6 +80,10 @@ class _Mapper(_LimbRules, _SideRules):
         for limbs, kind, trunk in ((legs, _LEG, body.pelvis), (arms, _ARM, body.chest)):
             for limb in limbs:
                 self.check_share(limb, kind, trunk)
+                for how in limb.how.values():
+                    note = how[how.find(NAMES_NOT_FOLLOWED) :].rstrip(")")
+                    if NAMES_NOT_FOLLOWED in how and note not in self.warnings:
+                        self.warnings.append(note)
         mirrored, axis = self.assign_sides(legs, arms)
         joints = np.array([self.found[name] for name in CANONICAL_JOINTS], dtype=np.int64)
         end_sites = tuple(
