@@ -1,0 +1,46 @@
+"""The held-out judge (``bench/held_out.py``) on small real fixtures: a person is as expected
+as a human, not as a nonhuman; a rig is as expected refused; the names' sides."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from bench.held_out import judge, manifest, named_side
+
+FIXTURES = Path(__file__).parents[1] / "fixtures"
+CMU = FIXTURES / "cmu_mb_02_01_first41.bvh"
+
+
+@pytest.mark.parametrize(
+    ("name", "side"),
+    [
+        ("LeftUpLeg", "l"),
+        ("mixamorig:RightArm", "r"),
+        ("lShldr", "l"),
+        ("Bip01 R Thigh", "r"),
+        ("UpperLeg.L", "l"),
+        ("HandRight", "r"),
+        ("left_knee", "l"),
+        ("Hips", None),
+        ("Spine1", None),
+    ],
+)
+def test_the_names_say_a_side(name: str, side: str | None) -> None:
+    assert named_side(name) == side
+
+
+def test_a_person_is_as_expected_only_as_a_human() -> None:
+    assert judge(CMU, "human")["ok"] is True
+    assert judge(CMU, "nonhuman")["ok"] is False
+
+
+def test_a_rig_is_as_expected_refused(tmp_path: Path) -> None:
+    text = CMU.read_text()
+    rig = tmp_path / "rig.bvh"
+    rig.write_text(text.split("MOTION")[0] + "MOTION\nFrames: 0\nFrame Time: 0.008333\n")
+    refused = judge(rig, "rig-only")
+    assert refused["outcome"] == "refused" and refused["ok"] is True
+    (tmp_path / "manifest.tsv").write_text("# header\nrig.bvh\to/r\trig.bvh\tabc\trig-only\tnote\n")
+    assert manifest(tmp_path) == {"rig.bvh": "rig-only"}
