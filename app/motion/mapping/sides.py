@@ -46,6 +46,11 @@ class _SideRules(_MapperState):
             forward += step - (step @ up) * up
         if _length(forward) < 0.02 * self.extent:
             for leg in legs:
+                thigh = pose[leg["knee"]] - pose[leg["hip"]]
+                shin = pose[leg["ankle"]] - pose[leg["knee"]]
+                if _length(_cross(thigh, shin)) <= _BENT_KNEE * _length(thigh) * _length(shin):
+                    continue  # a knee this straight says nothing of front and back (a rest
+                    # pose's knee sits a little ahead or behind its leg's line by the rig)
                 mid = 0.5 * (pose[leg["hip"]] + pose[leg["ankle"]])
                 step = pose[leg["knee"]] - mid
                 forward += step - (step @ up) * up
