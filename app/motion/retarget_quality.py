@@ -44,11 +44,10 @@ from app.motion.ground import (
     canonical_positions,
     foot_heights,
     horizontal,
-    up_axis,
 )
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion
-from app.motion.retarget import axis_change, leg_length
+from app.motion.retarget import axis_change, leg_length, world_up
 from app.motion.retarget_floor import rig_foot_points
 from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap
 from app.motion.transforms import reflect
@@ -138,7 +137,9 @@ def retarget_quality(
     )
     s = canonical_positions(source, source_map)
     t = canonical_positions(result, result_map)
-    s_up, t_up = up_axis(s), up_axis(t)
+    # Up as the retarget and the describer read it (the pelvis frame's): the trunk's mean
+    # direction is the forward axis in a clip bent over for most of its frames.
+    s_up, t_up = world_up(source, source_map), world_up(result, result_map)
     world = axis_change(t_up, s_up)
     s = s @ world  # the source in the target's axes
     t_height = body_height(result, result_map.joints, head_joint=result_map.head_joint)
