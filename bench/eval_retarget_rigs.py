@@ -28,16 +28,17 @@ UNSEEN = Path("/work/unseen")
 
 
 def read_rig_motion(path: Path, pool: ParserPool, *, rig: bool = False) -> Motion:
-    """The motion (or, for a rig file, the rest pose) of a BVH, ASF, FBX or glTF file, as
-    :func:`app.services.rigs.read_rig_file` reads an upload; ``rig`` reads an FBX/glTF's
-    bind pose."""
+    """The motion of a BVH, ASF, FBX or glTF file; with ``rig``, as
+    :func:`app.services.rigs.read_rig_file` reads an uploaded rig: a BVH with ``Frames: 0``
+    as its rest pose, an FBX/glTF's bind pose. (A clip with no frames is refused, as the
+    service refuses it: the library holds no rest-only templates.)"""
     suffix = path.suffix.lower()
     limits = ParseLimits()
     if suffix == ".bvh":
         try:
             return read_bvh(path.read_bytes(), limits=limits)
         except ParseError as error:
-            if "Frames: 0" not in error.reason:
+            if not rig or "Frames: 0" not in error.reason:
                 raise
             return parse_bvh_rest(path.read_text(errors="replace"), limits=limits)
     if suffix == ".asf":

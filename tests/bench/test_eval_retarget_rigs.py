@@ -4,6 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
+from app.errors import NoAnimation
 from app.services.parser_pool import ParserPool
 from bench.eval_retarget_rigs import family, read_rig_motion, rig_file_name, spread_sample
 from tests.motion.conftest import BANDAI_FIXTURE
@@ -33,7 +36,10 @@ def test_a_rig_file_is_read_as_an_upload_also_without_frames(tmp_path: Path) -> 
     pool = ParserPool(1)
     try:
         motion = read_rig_motion(rest_only, pool, rig=True)
+        assert motion.frame_count == 1
+        # As a clip it is refused, as the service refuses it (no rest-only clips).
+        with pytest.raises(NoAnimation):
+            read_rig_motion(rest_only, pool)
     finally:
         pool.close()
-    assert motion.frame_count == 1
     assert rig_file_name(rest_only) == "file: rest.bvh"
