@@ -2,10 +2,11 @@
 
 The seven development rigs are where the retarget's rules were developed; ``--rig-file PATH``
 (repeatable) evaluates onto any other rig file, read as the service reads an uploaded rig
-(BVH, also one with ``Frames: 0``; ASF; FBX, glTF/GLB through the parser workers), in the
-same table row. ``--sample N`` retargets a seeded spread of N clips over the data's families
-(folders) rather than every clip, while the round trip still looks each re-upload up among
-every clip's vector: a quick look whose figures mean what the full sweep's do.
+(BVH, also one with ``Frames: 0`` or no MOTION section; ASF; FBX, glTF/GLB through the
+parser workers), in the same table row. ``--sample N`` retargets a seeded spread of N clips
+over the data's families (folders) rather than every clip, while the round trip still looks
+each re-upload up among every clip's vector: a quick look whose figures mean what the full
+sweep's do.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.errors import ParseError
+from app.errors import NoAnimation
 from app.motion.formats import read_bvh
 from app.motion.formats.asf_amc import parse_asf_rest
 from app.motion.formats.bvh import parse_bvh_rest
@@ -30,15 +31,15 @@ UNSEEN = Path("/work/unseen")
 def read_rig_motion(path: Path, pool: ParserPool, *, rig: bool = False) -> Motion:
     """The motion of a BVH, ASF, FBX or glTF file; with ``rig``, as
     :func:`app.services.rigs.read_rig_file` reads an uploaded rig: a BVH with ``Frames: 0``
-    as its rest pose, an FBX/glTF's bind pose. (A clip with no frames is refused, as the
-    service refuses it: the library holds no rest-only templates.)"""
+    or no MOTION section as its rest pose, an FBX/glTF's bind pose. (A clip with no frames
+    is refused, as the service refuses it: the library holds no rest-only templates.)"""
     suffix = path.suffix.lower()
     limits = ParseLimits()
     if suffix == ".bvh":
         try:
             return read_bvh(path.read_bytes(), limits=limits)
-        except ParseError as error:
-            if not rig or "Frames: 0" not in error.reason:
+        except NoAnimation:  # Frames: 0, or no MOTION section
+            if not rig:
                 raise
             return parse_bvh_rest(path.read_text(errors="replace"), limits=limits)
     if suffix == ".asf":
