@@ -1,6 +1,7 @@
 """Retarget quality and round trip on rigs from the development data (issue 22).
 
     .venv/bin/python bench/eval_retarget.py [--limit N] [--dump FILE.npz]   # ../shared/data
+    .venv/bin/python bench/eval_retarget.py --rig-file RIG.bvh [--rig-file ...] [--sample N]
     .venv/bin/python bench/eval_retarget.py generalise [--round-trip FILE.npz]
     .venv/bin/python bench/eval_retarget.py compare BEFORE.npz AFTER.npz   # two --dump files
 
@@ -18,7 +19,10 @@ than the source, or holds the source's vector to float rounding (the same motion
 twice under other names, or rigs holding one rest pose: a copy that lands on that vector
 is nearer one of them by rounding); the count of such clips is printed first, the ceiling
 no retarget can pass.
-Per rig the retarget quality of :mod:`app.motion.retarget_quality` is summarised. FBX and
+Per rig the retarget quality of :mod:`app.motion.retarget_quality` is summarised.
+``--rig-file`` evaluates onto any rig file instead (or, with ``--rig``, as well), ``--sample``
+on a seeded spread of the clips (:mod:`bench.eval_retarget_rigs`); ``compare`` lives in
+:mod:`bench.eval_retarget_compare`. FBX and
 glTF files are read in parser
 worker processes, as the service reads them.
 """
@@ -40,16 +44,17 @@ from app.discovery import discover
 from app.errors import MocapError
 from app.motion.body import build_body
 from app.motion.formats import read_asf_amc, read_bvh
-from app.motion.formats.asf_amc import parse_asf_rest
 from app.motion.formats.bvh_writer import write_bvh
 from app.motion.kinematics import forward_kinematics
-from app.motion.model import Motion, ParseLimits
+from app.motion.model import Motion
 from app.motion.pipeline import analyse
 from app.motion.retarget import reference_pose, retarget
 from app.motion.retarget_quality import RetargetQuality, retarget_quality
 from app.motion.skeleton_map import SkeletonMap, map_skeleton
 from app.services.parser_pool import ParserPool
 from bench.common import machine, shared_data
+from bench.eval_retarget_compare import capture, compare, is_tie
+from bench.eval_retarget_rigs import read_rig_motion, rig_file_name, spread_sample
 from bench.rig_variants import Draft, unseen_variants
 
 RIGS = {
@@ -72,19 +77,6 @@ class Clip:
     vector: np.ndarray
 
 
-def read_file(path: Path, pool: ParserPool, *, rig: bool = False) -> Motion:
-    suffix = path.suffix.lower()
-    limits = ParseLimits()
-    if suffix == ".bvh":
-        return read_bvh(path.read_bytes(), limits=limits)
-    if suffix == ".asf":
-        return parse_asf_rest(path.read_text(), limits=limits)
-    kind = "fbx" if suffix == ".fbx" else "gltf"
-    return pool.parse(
-        f"{kind}-rig" if rig else kind, path.read_bytes(), animation=None, limits=limits
-    ).motion
-
-
 def load_clips(pool: ParserPool, limit: int | None, seconds: float) -> list[Clip]:
     found = discover([shared_data()], scenes=True)
     clips: list[Clip] = []
@@ -94,7 +86,7 @@ def load_clips(pool: ParserPool, limit: int | None, seconds: float) -> list[Clip
                 assert source.skeleton is not None
                 motion = read_asf_amc(source.skeleton.read_bytes(), source.motion.read_bytes())
             else:
-                motion = read_file(source.motion, pool)
+                motion = read_rig_motion(source.motion, pool)
             keep = max(1, round(seconds / motion.frame_time))
             if motion.frame_count > keep:
                 motion = motion.slice_frames(0, keep)
@@ -115,29 +107,12 @@ def load_clips(pool: ParserPool, limit: int | None, seconds: float) -> list[Clip
 
 
 def load_rig(path: Path, pool: ParserPool) -> tuple[Motion, SkeletonMap]:
-    motion = read_file(path, pool, rig=True)
+    motion = read_rig_motion(path, pool, rig=True)
     body = build_body(motion)
     assert body.mapping is not None
     rig = reference_pose(motion, body.mapping)
     _, positions = forward_kinematics(rig)
     return rig, map_skeleton(rig.skeleton, poses=[("frame 0", positions[0])])
-
-
-def is_tie(vectors: np.ndarray, distances: np.ndarray, index: int, nearest: int) -> bool:
-    """Whether the ``nearest`` clip to a re-upload (``distances`` ``(N,)`` to the library's
-    ``vectors`` ``(N, D)``) is no nearer than its source ``index``, or holds the source's
-    vector (to 1e-6 of its length, as the count of clips sharing a vector reads it): a copy
-    within float rounding of two identical vectors lands nearer one of them by rounding."""
-    if distances[index] <= distances[nearest] * (1 + 1e-9):
-        return True
-    apart = np.linalg.norm(vectors[index] - vectors[nearest])
-    return bool(apart <= 1e-6 * np.linalg.norm(vectors[index]))
-
-
-def capture(name: str) -> str:
-    """The capture a clip is of: its file stem (the CMU trials, the FBX/BVH pairs are one
-    capture in several formats and folders, under one stem)."""
-    return Path(name).stem.lower()
 
 
 def summary(
@@ -180,6 +155,20 @@ def main() -> None:
         "--rig", action="append", help="only these rigs (by the start of their name)"
     )
     parser.add_argument(
+        "--rig-file",
+        type=Path,
+        action="append",
+        default=[],
+        help="also (without --rig: only) this rig file, BVH/ASF/FBX/GLB, read as an upload",
+    )
+    parser.add_argument(
+        "--sample",
+        type=int,
+        help="retarget only a seeded spread of N clips over the families (every clip is "
+        "still described: the round trip looks up among all)",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="the --sample's seed")
+    parser.add_argument(
         "--dump",
         type=Path,
         help="save every clip's name and vector and every re-upload's vector to this .npz "
@@ -204,19 +193,34 @@ def main() -> None:
             f"{int(identical.sum())} clips share their `motion` vector with another clip "
             "(no re-upload can be nearer to them than to it)"
         )
-        if not args.rig or "Mixamo" in args.rig:
-            print(
-                "| rig | joints | clips | round trip: source is nearest (or a twin: same "
-                "capture in another format; or tied with an identical clip) | bones (max error, "
-                "body heights) | left stays left | feet within 2 % | sliding <= source + 1 %/s "
-                "| finite | limb directions within 5 deg in 99 % of frames | net travel off the "
-                "source's, leg lengths/s (median / max) |"
-            )
-            print("|---|---|---|---|---|---|---|---|---|---|---|")
-        for rig_name, relative in RIGS.items():
-            if args.rig and not any(rig_name.startswith(r) for r in args.rig):
+        rigs: dict[str, Path] = {
+            name: shared_data() / relative
+            for name, relative in RIGS.items()
+            if (args.rig and any(name.startswith(r) for r in args.rig))
+            or not (args.rig or args.rig_file)
+        }
+        rigs.update((rig_file_name(path), path) for path in args.rig_file)
+        chosen = (
+            set(spread_sample([c.name for c in clips], args.sample, args.seed))
+            if args.sample
+            else set(range(len(clips)))
+        )
+        if args.sample:
+            print(f"{len(chosen)} clips retargeted (seed {args.seed})")
+        print(
+            "| rig | joints | clips | round trip: source is nearest (or a twin: same "
+            "capture in another format; or tied with an identical clip) | bones (max error, "
+            "body heights) | left stays left | feet within 2 % | sliding <= source + 1 %/s "
+            "| finite | limb directions within 5 deg in 99 % of frames | net travel off the "
+            "source's, leg lengths/s (median / max) |"
+        )
+        print("|---|---|---|---|---|---|---|---|---|---|---|")
+        for rig_name, path in rigs.items():
+            try:
+                rig, rig_map = load_rig(path, pool)
+            except (MocapError, AssertionError) as error:
+                print(f"| {rig_name} | not a rig: {getattr(error, 'detail', error)} |")
                 continue
-            rig, rig_map = load_rig(shared_data() / relative, pool)
             found: list[bool] = []
             twin: list[bool] = []
             tied: list[bool] = []
@@ -224,6 +228,8 @@ def main() -> None:
             failures: list[str] = []
             uploads = np.full_like(vectors, np.nan)
             for index, clip in enumerate(clips):
+                if index not in chosen:
+                    continue
                 try:
                     out = retarget(clip.motion, clip.mapping, rig, rig_map)
                     again = read_bvh(write_bvh(out))
@@ -254,7 +260,7 @@ def main() -> None:
                 flush=True,
             )
             for failure in failures:
-                print(f"  failed: {failure}", file=sys.stderr)
+                print(f"  failed [{rig_name}]: {failure}", file=sys.stderr)
             if args.dump:
                 dumped[f"rig: {rig_name}"] = uploads
                 np.savez_compressed(args.dump, **dumped)  # per rig: a stopped run keeps some
@@ -331,7 +337,7 @@ def generalise(argv: list[str]) -> None:
                 asf = next(path.parent.glob("*.asf"))
                 motion = read_asf_amc(asf.read_bytes(), path.read_bytes())
             else:
-                motion = read_file(path, pool)
+                motion = read_rig_motion(path, pool)
             keep = max(1, round(args.seconds / motion.frame_time))
             motion = motion.slice_frames(0, min(keep, motion.frame_count))
             analysis = analyse(motion, descriptors=["motion"])
@@ -434,88 +440,6 @@ def round_trip(library: Any, name: str, out: Motion) -> tuple[bool, bool, bool]:
 def every_trip(trips: dict[str, list[tuple[bool, bool, bool]]]) -> list[tuple[bool, bool, bool]]:
     """The round trips of every rewrite (not the rigs as read)."""
     return [t for kind, found in trips.items() if kind != "as read" for t in found]
-
-
-# --- `compare`: two `--dump` files, clip by clip --------------------------------------
-
-
-def outcomes(dump: Path) -> tuple[list[str], dict[str, list[tuple[str, float]]]]:
-    """Per rig of a ``--dump``, each clip's outcome strictly — ``found``, ``twin`` (the same
-    capture in another format is nearest), ``tie`` (the nearest clip is no nearer than the
-    source: its vector is the source's), ``miss`` (another clip is nearer), ``unread`` (not
-    read back) — and its distance to the source; as the table counts them."""
-    data = np.load(dump)
-    names = [str(n) for n in data["names"]]
-    vectors = data["vectors"]
-    out: dict[str, list[tuple[str, float]]] = {}
-    for key in (k for k in data.files if k.startswith("rig: ")):
-        rows = []
-        for index, upload in enumerate(data[key]):
-            if not np.all(np.isfinite(upload)):
-                rows.append(("unread", float("nan")))
-                continue
-            distances = np.linalg.norm(vectors - upload, axis=1)
-            nearest = int(np.argmin(distances))
-            if nearest == index:
-                kind = "found"
-            elif capture(names[nearest]) == capture(names[index]):
-                kind = "twin"
-            elif is_tie(vectors, distances, index, nearest):
-                kind = "tie"
-            else:
-                kind = "miss"
-            rows.append((kind, float(distances[index])))
-        out[key.removeprefix("rig: ")] = rows
-    return names, out
-
-
-def compare(argv: list[str]) -> None:
-    """Per rig: strictly found (or twin; or tied) and the strict misses by kind, before ->
-    after; per data folder of the clip (pairs over the rigs both dumps hold); the clips whose
-    outcome changed."""
-    before_names, before = outcomes(Path(argv[0]))
-    names, after = outcomes(Path(argv[1]))
-    assert names == before_names, "the two dumps hold other clips"
-    rigs = [r for r in after if r in before]
-
-    def shares(rows: list[tuple[str, float]]) -> str:
-        kinds = [k for k, _ in rows]
-        found = np.mean([k == "found" for k in kinds]) * 100
-        twin = np.mean([k in ("found", "twin") for k in kinds]) * 100
-        tied = np.mean([k in ("found", "twin", "tie") for k in kinds]) * 100
-        missed = ", ".join(f"{k} {kinds.count(k)}" for k in ("twin", "tie", "miss", "unread"))
-        return f"{found:.1f} % ({twin:.1f}; {tied:.1f}) [{missed}]"
-
-    print("| rig | before: strictly (twin; tied) [strict misses] | after | median distance |")
-    print("|---|---|---|---|")
-    for rig in rigs:
-        medians = [np.nanmedian([d for _, d in rows]) for rows in (before[rig], after[rig])]
-        print(
-            f"| {rig} | {shares(before[rig])} | {shares(after[rig])} | "
-            f"{medians[0]:.3f} -> {medians[1]:.3f} |"
-        )
-    print("| data folder | pairs | strictly: before -> after | found, twin or tied |")
-    print("|---|---|---|---|")
-    folders = [n.split("/")[0] for n in names]
-    for folder in sorted(set(folders)):
-        clips = [i for i, f in enumerate(folders) if f == folder]
-        pairs = len(clips) * len(rigs)
-        counts = [
-            sum(run[r][i][0] in kinds for r in rigs for i in clips)
-            for kinds in (("found",), ("found", "twin", "tie"))
-            for run in (before, after)
-        ]
-        print(
-            f"| {folder} | {pairs} | {100 * counts[0] / pairs:.1f} % -> "
-            f"{100 * counts[1] / pairs:.1f} % ({counts[0]} -> {counts[1]}) | "
-            f"{100 * counts[2] / pairs:.1f} % -> {100 * counts[3] / pairs:.1f} % |"
-        )
-    for rig in rigs:
-        for name, (was, dist_was), (now, dist_now) in zip(
-            names, before[rig], after[rig], strict=True
-        ):
-            if was != now:
-                print(f"  {rig} | {name}: {was} -> {now} ({dist_was:.3f} -> {dist_now:.3f})")
 
 
 if __name__ == "__main__":

@@ -203,10 +203,12 @@ def retarget(
     b_source = s_ref_rot[s_pelvis] @ _pelvis_axes(source, source_map)
     b_target = t_ref_rot[t_pelvis] @ _pelvis_axes(target, target_map)
     body = b_source @ b_target.T  # target reference body -> source reference body
-    s_up_vec = s_canon[:, CANONICAL_INDEX["neck"]] - s_canon[:, CANONICAL_INDEX["pelvis"]]
-    s_up = snap_axis(
-        (s_up_vec / np.maximum(np.linalg.norm(s_up_vec, axis=1, keepdims=True), _TINY)).mean(axis=0)
-    )
+    # The source's world up as the describer reads it (app.motion.body's world_up): the
+    # coordinate axis nearest the pelvis frame's mean up. The trunk's mean direction
+    # (pelvis -> neck) snapped to the forward axis in a clip bent over for most of its
+    # frames (a sneak, a crawl, a fall: 45+ degrees), which stood the output on its face:
+    # a quarter turn off on a rig of the other up axis, the re-upload read as a quadruped.
+    s_up = world_up(source, source_map, s_rot[:, s_pelvis])
     t_up = snap_axis(b_target[:, 1])
     world = axis_change(t_up, s_up)  # target world axes -> source world axes
 
@@ -295,6 +297,21 @@ def _assemble(
     )
 
 
+def world_up(
+    motion: Motion, mapping: SkeletonMap, pelvis_rotations: np.ndarray | None = None
+) -> np.ndarray:
+    """``(3,)`` the world's up in ``motion`` as :mod:`app.motion.body` reads it: the signed
+    coordinate axis nearest the pelvis frame's mean up over the frames (``pelvis_rotations``
+    ``(F, 3, 3)``, the pelvis joint's world rotations, when already computed). Not the
+    trunk's mean direction: a clip bent over for most of its frames (a sneak, a fall) has
+    its pelvis -> neck nearer the forward axis than the up one."""
+    if pelvis_rotations is None:
+        pelvis = int(mapping.joints[CANONICAL_INDEX["pelvis"]])
+        pelvis_rotations = forward_kinematics(motion, joints=[pelvis])[0][:, pelvis]
+    ups = (pelvis_rotations @ _pelvis_axes(motion, mapping))[:, :, 1]
+    return snap_axis(ups.mean(axis=0))
+
+
 def _pelvis_axes(motion: Motion, mapping: SkeletonMap) -> np.ndarray:
     """``(3, 3)`` body axes (columns lateral, up, forward) in ``motion``'s pelvis joint
     coordinates, as :func:`app.motion.body.build_body` finds them for the clip's pelvis
@@ -321,4 +338,5 @@ __all__ = [
     "reference_pose",
     "retarget",
     "swing",
+    "world_up",
 ]

@@ -140,8 +140,11 @@ def place_pelvis(
     lift = onto(feet_t, np.ones_like(stance))
     pelvis_at = pelvis_at + lift[:, None] * t_up
     feet_t = feet_t + lift[:, None, None] * t_up
+    # Held over the floor: only the foot points the rig has (a rig with no toe stands on
+    # its ankles, which move as the source's ankles do).
+    points = rig_foot_points(target_map)
     pelvis_at = pelvis_at + planted_feet_offsets(
-        feet_t, feet_s, t_up, near, lead_in=count_lead_in_frames(source)
+        feet_t[:, points], feet_s[:, points], t_up, near, lead_in=count_lead_in_frames(source)
     )
     if hold_feet:
         held = hold_planted_feet(lambda joints: legs(joints, pelvis_at), passes, near / ON_FLOOR)
@@ -152,6 +155,27 @@ def place_pelvis(
             lift = lift + onto(held + lift[:, None, None] * t_up, np.ones_like(stance))
             pelvis_at = pelvis_at + lift[:, None] * t_up
     return pelvis_at
+
+
+def rig_foot_points(mapping: SkeletonMap) -> list[int]:
+    """Indices into :data:`~app.motion.ground.FOOT_POINTS` of the foot points the skeleton
+    mapped as ``mapping`` has: both ankles, and each toe unless it is the ankle itself.
+
+    A rig with no toe joint (a video pose's 17 joints end each leg at the ankle) has its
+    canonical toe on the ankle. Held against the source's toe, that ankle was kept still
+    while the source's heel rose and its ankle rolled forward over the toe, every step:
+    the body lost the roll's travel (an in-place-looking walk, the pelvis up to 3 leg
+    lengths per second off the source's) and the ankle, measured as the rig's "toe", slid
+    on the way back. The rig's ankle is held as the source's ankle instead."""
+    out = []
+    for index, canonical in enumerate(FOOT_POINTS):
+        name = next(n for n, i in CANONICAL_INDEX.items() if i == canonical)
+        if name.endswith("_toe"):
+            ankle = CANONICAL_INDEX[name.replace("_toe", "_ankle")]
+            if mapping.joints[canonical] == mapping.joints[ankle]:
+                continue
+        out.append(index)
+    return out
 
 
 def _reference_legs(target: Motion, joints: Sequence[int]) -> Pose:
@@ -321,4 +345,10 @@ def _given_back(
     return offsets
 
 
-__all__ = ["below", "clear_swinging_toes", "place_pelvis", "planted_feet_offsets"]
+__all__ = [
+    "below",
+    "clear_swinging_toes",
+    "place_pelvis",
+    "planted_feet_offsets",
+    "rig_foot_points",
+]

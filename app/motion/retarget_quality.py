@@ -16,6 +16,10 @@ quarter turn the retarget used) and in body heights of each skeleton:
   height in the foot has other steps within 2 % of its floor (a cartwheel's slow standing
   steps dropped, fast landing ones added), which failed retargets moving every planted
   point as the source's and passed walks whose feet slid more than the source's;
+  since 2026-11-28 only over the points the rig has: a rig with no toe joint (its toe
+  point is its ankle) is measured at its ankles against the source's ankles, not its
+  ankle against the source's toe (a point it does not have, which rolls while the ankle
+  rises);
 (the source measured at the retarget's scale, the ratio of the legs, in the target's body
 heights: the retarget scales travel and height by that ratio, as the issue asks);
 * ``travel`` / ``source_travel``: the pelvis's net horizontal displacement, first frame to
@@ -40,11 +44,11 @@ from app.motion.ground import (
     canonical_positions,
     foot_heights,
     horizontal,
-    up_axis,
 )
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion
-from app.motion.retarget import axis_change, leg_length
+from app.motion.retarget import axis_change, leg_length, world_up
+from app.motion.retarget_floor import rig_foot_points
 from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap
 from app.motion.transforms import reflect
 
@@ -83,20 +87,29 @@ class RetargetQuality:
         )
 
 
-def _on_floor(canonical: np.ndarray, up: np.ndarray, height: float) -> np.ndarray:
-    """``(F - 1, 4)`` whether each foot point of ``canonical`` ``(F, C, 3)`` is within
-    :data:`CONTACT` body heights of the lowest any of them gets, at both ends of a step."""
-    heights = canonical[:, list(FOOT_POINTS)] @ up  # (F, 4)
+def _on_floor(
+    canonical: np.ndarray, up: np.ndarray, height: float, points: list[int]
+) -> np.ndarray:
+    """``(F - 1, P)`` whether each foot point ``points`` (indices into ``FOOT_POINTS``) of
+    ``canonical`` ``(F, C, 3)`` is within :data:`CONTACT` body heights of the lowest any of
+    them gets, at both ends of a step."""
+    heights = canonical[:, [FOOT_POINTS[p] for p in points]] @ up  # (F, P)
     near = heights - heights.min() < CONTACT * height
     return near[1:] & near[:-1]
 
 
 def _slide(
-    canonical: np.ndarray, up: np.ndarray, height: float, frame_time: float, steps: np.ndarray
+    canonical: np.ndarray,
+    up: np.ndarray,
+    height: float,
+    frame_time: float,
+    steps: np.ndarray,
+    points: list[int],
 ) -> float:
-    """Mean horizontal speed (body heights / s) of the foot points of ``canonical``
-    ``(F, C, 3)`` over the (step, point) pairs marked in ``steps`` ``(F - 1, 4)``."""
-    feet = canonical[:, list(FOOT_POINTS)]  # (F, 4, 3)
+    """Mean horizontal speed (body heights / s) of the foot ``points`` (indices into
+    ``FOOT_POINTS``) of ``canonical`` ``(F, C, 3)`` over the (step, point) pairs marked in
+    ``steps`` ``(F - 1, P)``."""
+    feet = canonical[:, [FOOT_POINTS[p] for p in points]]  # (F, P, 3)
     speed = np.linalg.norm(horizontal(np.diff(feet, axis=0), up), axis=2) / frame_time
     if not steps.any():
         return 0.0
@@ -124,7 +137,9 @@ def retarget_quality(
     )
     s = canonical_positions(source, source_map)
     t = canonical_positions(result, result_map)
-    s_up, t_up = up_axis(s), up_axis(t)
+    # Up as the retarget and the describer read it (the pelvis frame's): the trunk's mean
+    # direction is the forward axis in a clip bent over for most of its frames.
+    s_up, t_up = world_up(source, source_map), world_up(result, result_map)
     world = axis_change(t_up, s_up)
     s = s @ world  # the source in the target's axes
     t_height = body_height(result, result_map.joints, head_joint=result_map.head_joint)
@@ -157,14 +172,16 @@ def retarget_quality(
             np.linalg.norm(sb, axis=1) * np.linalg.norm(tb, axis=1), 1e-12
         )
         worst = min(worst, float(np.mean(cos >= np.cos(np.radians(DIRECTION_DEG)))))
-    # Sliding: both over the same steps, where the source has the point on its floor.
-    contact = _on_floor(s * scale, t_up, t_height)
+    # Sliding: both over the same steps, where the source has the point on its floor; only
+    # the points the rig has (a rig with no toe: its ankles, against the source's ankles).
+    points = rig_foot_points(result_map)
+    contact = _on_floor(s * scale, t_up, t_height, points)
     return RetargetQuality(
         bone_error=bone_error,
         left_ok=float(agree.mean()),
         feet_error=feet_error,
-        slide=_slide(t, t_up, t_height, result.frame_time, contact),
-        source_slide=_slide(s * scale, t_up, t_height, source.frame_time, contact),
+        slide=_slide(t, t_up, t_height, result.frame_time, contact, points),
+        source_slide=_slide(s * scale, t_up, t_height, source.frame_time, contact, points),
         finite=finite,
         direction_ok=worst,
         travel=_travel(t, t_up, leg_length(result, result_map), result.frame_time),

@@ -25,6 +25,7 @@ from app.db.clips import ClipRecord
 from app.errors import (
     InvalidInput,
     LimitExceeded,
+    NoAnimation,
     NotFound,
     ParseError,
     StorageUnavailable,
@@ -99,9 +100,7 @@ def read_rig_file(library: Library, filename: str, data: bytes) -> tuple[str, Mo
             return "asf/amc", parse_asf_rest(text, limits=limits)
         try:
             return "bvh", parse_bvh(text, limits=limits)
-        except ParseError as error:
-            if "Frames: 0" not in error.reason:
-                raise
+        except NoAnimation:  # Frames: 0, or no MOTION section: the skeleton is the rig
             return "bvh", parse_bvh_rest(text, limits=limits)
     except ParseError as error:
         raise ParseError(error.reason, line=error.line, source=f"file {filename!r}") from None

@@ -182,6 +182,12 @@ def test_a_file_without_motion_is_a_rig(live: TestClient) -> None:
     assert live.post("/clips", files={"file": template}).status_code == 422
     rig = live.post("/rigs", files={"file": template})
     assert rig.status_code == 201, rig.text
+    # A skeleton exported alone: the hierarchy and no MOTION section at all.
+    hierarchy_only = ("skeleton.bvh", frames_zero(BVH[1]).split(b"MOTION")[0])
+    assert live.post("/clips", files={"file": hierarchy_only}).status_code == 422
+    alone = live.post("/rigs", files={"file": hierarchy_only})
+    assert alone.status_code == 201, alone.text
+    assert alone.json()["mapping"] == rig.json()["mapping"]
     character = ("character.glb", without_animation(GLB[1]))
     rig = live.post("/rigs", files={"file": character})
     assert rig.status_code == 201, rig.text

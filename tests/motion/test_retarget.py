@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from app.motion.body import build_body
+from app.motion.body import build_body, pelvis_basis
 from app.motion.descriptors.kinetic import KINETIC_JOINTS, mean_energies
 from app.motion.formats import read_asf_amc, read_bvh
 from app.motion.ground import FOOT_POINTS, ON_FLOOR, canonical_positions
@@ -283,3 +283,30 @@ def test_the_head_turns_as_the_source_s_head_whatever_lies_beyond_it(rig_source:
     source_head = mean_energies(build_body(source))[0][head].sum()  # its three DOFs summed
     assert source_head > 0.05
     assert mean_energies(build_body(out))[0][head].sum() == pytest.approx(source_head, rel=1e-6)
+
+
+def test_a_clip_bent_over_in_every_frame_stays_upright_on_the_rig() -> None:
+    """The Bandai walk with its spine bent 80 degrees forward in every frame (a sneak, a
+    crawl): the trunk's mean direction (pelvis -> neck) is nearer the forward axis than the
+    up one, the pelvis frame's is not. Until 2026-11-28 the retarget took the source's world
+    up from the trunk, so it turned the clip a quarter turn onto the rig: the re-upload's up
+    was the rig's forward axis (a real sneak walk onto the Bandai rig was then refused as a
+    four-legged animal). Now the rig's up is the output's, as for the upright walk."""
+    walk = read_bvh(fixture_bytes(BANDAI_FIXTURE))
+    walk_map = mapped(walk)
+    spine = int(walk_map.joints[CANONICAL_INDEX["spine"]])
+    assert walk.skeleton.parents[spine] == walk_map.joints[CANONICAL_INDEX["pelvis"]]
+    # About the body's lateral axis in the pelvis joint's coordinates (the spine's parent).
+    lateral = pelvis_basis(walk, walk_map.joints, rest_is_a_figure=False)[:, 0]
+    bent = walk.local_rotations.copy()
+    bent[:, spine] = Rotation.from_rotvec(np.radians(80.0) * lateral).as_matrix() @ bent[:, spine]
+    sneak = dataclasses.replace(walk, local_rotations=bent)
+    canonical = canonical_positions(sneak, walk_map)
+    trunk = canonical[:, CANONICAL_INDEX["neck"]] - canonical[:, CANONICAL_INDEX["pelvis"]]
+    trunk /= np.linalg.norm(trunk, axis=1, keepdims=True)
+    assert np.argmax(np.abs(trunk.mean(axis=0))) != 1  # the trunk leans more than 45 deg
+    assert build_body(sneak).world_up.tolist() == [0.0, 1.0, 0.0]
+    rig, rig_map = rig_of(walk)
+    out = retarget(sneak, walk_map, rig, rig_map)
+    assert build_body(out).world_up.tolist() == [0.0, 1.0, 0.0]
+    assert retarget_quality(sneak, walk_map, out, rig_map).passes()

@@ -6,10 +6,14 @@ from __future__ import annotations
 import numpy as np
 
 from app.motion.formats import read_asf_amc, read_bvh
+from app.motion.model import Motion
 from app.motion.retarget import retarget
-from app.motion.retarget_floor import planted_feet_offsets
+from app.motion.retarget_floor import planted_feet_offsets, rig_foot_points
 from app.motion.retarget_quality import retarget_quality
 from app.motion.root_motion import in_place
+from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap
+from bench.rig_variants import Draft
+from tests.motion.conftest import BANDAI_FIXTURE, fixture_bytes
 from tests.motion.test_retarget import mapped, rig_of
 
 _UP = np.array([0.0, 1.0, 0.0])
@@ -79,4 +83,34 @@ def test_an_in_place_run_on_a_long_footed_rig_stays_in_place(shared_data) -> Non
     quality = retarget_quality(source, mapped(source), out, rig_map)
     assert quality.source_travel < 1e-6
     assert quality.travel < 0.005, quality
+    assert quality.passes(), quality
+
+
+def _without_toes(rig: Motion, mapping: SkeletonMap) -> tuple[Motion, SkeletonMap]:
+    """``rig`` with everything below its ankles dropped: each leg ends at the ankle, as a
+    video pose's 17 joints do (its canonical toe is then its ankle)."""
+    draft = Draft.of(rig)
+    drop: set[int] = set()
+    for side in ("l", "r"):
+        ankle = int(mapping.joints[CANONICAL_INDEX[f"{side}_ankle"]])
+        for child in (j for j, p in enumerate(draft.parents) if p == ankle):
+            drop.update(draft.below(child))
+    for joint in sorted(drop, reverse=True):
+        draft.remove(joint)
+    return draft.rig()
+
+
+def test_a_rig_without_toes_keeps_the_walks_travel_and_its_ankles_move_as_the_sources() -> None:
+    """The Bandai walk onto its own rig with the toes cut off. Before 2026-11-28 the rig's
+    ankle (its canonical toe) was held against the source's toe: still while the source's
+    heel rose and its ankle rolled forward, so the body lost each step's roll — net travel
+    1.33 against the source's 1.44 leg lengths per second over these 40 frames — and that
+    ankle, measured as the rig's toe, slid 0.225 body heights per second against the
+    source's 0.196. Held as the source's ankles, they move as the source's do."""
+    clip = read_bvh(fixture_bytes(BANDAI_FIXTURE))
+    rig, rig_map = _without_toes(*rig_of(clip))
+    assert rig_foot_points(rig_map) == [0, 2]  # the two ankles only
+    out = retarget(clip, mapped(clip), rig, rig_map)
+    quality = retarget_quality(clip, mapped(clip), out, rig_map)
+    assert abs(quality.travel - quality.source_travel) < 1e-3 * quality.source_travel, quality
     assert quality.passes(), quality

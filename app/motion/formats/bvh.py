@@ -258,12 +258,18 @@ def parse_bvh(
 
 def parse_bvh_rest(text: str, *, limits: ParseLimits = DEFAULT_LIMITS) -> Motion:
     """The hierarchy of a BVH file as one frame of its rest pose, whatever its MOTION section
-    holds (``Frames: 0`` included): a rig to retarget onto. Raises like :func:`parse_bvh`."""
+    holds (``Frames: 0`` included, or no MOTION section at all: a skeleton exported alone):
+    a rig to retarget onto. Raises like :func:`parse_bvh`."""
     text = normalise_newlines(text)
     if _decimal_comma(text):
         text = text.replace(",", ".")
     lines = _Lines(text)
-    joints = _HIERARCHIES.read(lines, limits)
+    try:
+        joints = _HIERARCHIES.read(lines, limits)
+    except NoAnimation:
+        # A whole hierarchy and nothing after it: the skeleton is all a rig needs.
+        lines = _Lines(text.rstrip("\n") + "\nMOTION\n")
+        joints = _HIERARCHIES.read(lines, limits)
     channel_count = sum(len(j.channels or ()) for j in joints)
     # Zero channels: no rotation, and position channels that read as "no change" from the
     # OFFSETs (see _positions_are_deltas), so the rest pose is the OFFSETs'.
