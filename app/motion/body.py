@@ -213,8 +213,9 @@ def build_body(motion: Motion) -> Body:
         # A rig's template or a pose saved as a clip: stored, as what it is.
         held = "one frame" if len(canon_pos) == 1 else f"all {len(canon_pos)} frames the same"
         warnings.append(f"a still pose ({held}): no motion, stored as a pose")
-    if not pelvis_turns_with_hips(frames, canon_pos, within=_REST_SHOWN, share=_REST_SHARE):
-        frames = frames_from_positions(canon_pos, frames)
+    carried = carried_frames(frames, canon_pos)
+    if carried is not frames:
+        frames = carried
         warnings.append(
             "the pelvis joint's rotation does not carry the hips (joints at the pelvis turn "
             "them back): the body's axes are read from the joints' positions"
@@ -231,6 +232,16 @@ def build_body(motion: Motion) -> Body:
         mapping=mapping,
         warnings=tuple(warnings),
     )
+
+
+def carried_frames(frames: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """The ``(F, 3, 3)`` pelvis frames, or where the pelvis joint's rotation does not carry
+    the hips in the ``(F, C, 3)`` canonical positions (its children turn it back), the
+    frames read from the positions (:func:`~app.motion.body_axes.pelvis_turns_with_hips`,
+    each within 30 degrees in most frames, as the rest pose is asked)."""
+    if pelvis_turns_with_hips(frames, positions, within=_REST_SHOWN, share=_REST_SHARE):
+        return frames
+    return frames_from_positions(positions, frames)
 
 
 def _holds_one_pose(positions: np.ndarray) -> bool:
@@ -500,4 +511,4 @@ def _world_up(pelvis_frames: np.ndarray) -> np.ndarray:
     return snapped
 
 
-__all__ = ["CANONICAL_JOINTS", "Body", "build_body", "count_lead_in_frames"]
+__all__ = ["CANONICAL_JOINTS", "Body", "build_body", "carried_frames", "count_lead_in_frames"]

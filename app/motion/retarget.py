@@ -107,7 +107,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from app.motion.body import pelvis_basis, rest_axes_hold
+from app.motion.body import carried_frames, pelvis_basis, rest_axes_hold
 from app.motion.ground import snap_axis
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion
@@ -208,7 +208,7 @@ def retarget(
     # (pelvis -> neck) snapped to the forward axis in a clip bent over for most of its
     # frames (a sneak, a crawl, a fall: 45+ degrees), which stood the output on its face:
     # a quarter turn off on a rig of the other up axis, the re-upload read as a quadruped.
-    s_up = world_up(source, source_map, s_rot[:, s_pelvis])
+    s_up = world_up(source, source_map, s_rot[:, s_pelvis], s_canon)
     t_up = snap_axis(b_target[:, 1])
     world = axis_change(t_up, s_up)  # target world axes -> source world axes
 
@@ -298,18 +298,25 @@ def _assemble(
 
 
 def world_up(
-    motion: Motion, mapping: SkeletonMap, pelvis_rotations: np.ndarray | None = None
+    motion: Motion,
+    mapping: SkeletonMap,
+    pelvis_rotations: np.ndarray | None = None,
+    positions: np.ndarray | None = None,
 ) -> np.ndarray:
     """``(3,)`` the world's up in ``motion`` as :mod:`app.motion.body` reads it: the signed
     coordinate axis nearest the pelvis frame's mean up over the frames (``pelvis_rotations``
-    ``(F, 3, 3)``, the pelvis joint's world rotations, when already computed). Not the
-    trunk's mean direction: a clip bent over for most of its frames (a sneak, a fall) has
-    its pelvis -> neck nearer the forward axis than the up one."""
-    if pelvis_rotations is None:
-        pelvis = int(mapping.joints[CANONICAL_INDEX["pelvis"]])
-        pelvis_rotations = forward_kinematics(motion, joints=[pelvis])[0][:, pelvis]
-    ups = (pelvis_rotations @ _pelvis_axes(motion, mapping))[:, :, 1]
-    return snap_axis(ups.mean(axis=0))
+    ``(F, 3, 3)``, the pelvis joint's world rotations, and ``positions`` ``(F, C, 3)``, the
+    canonical joints' world positions, when already computed). Not the trunk's mean
+    direction: a clip bent over for most of its frames (a sneak, a fall) has its pelvis ->
+    neck nearer the forward axis than the up one. A pelvis whose rotation moves no bone
+    (its children turn it back) is read from the joints, as the describer reads it
+    (:func:`~app.motion.body.carried_frames`)."""
+    if pelvis_rotations is None or positions is None:
+        rotations, world = forward_kinematics(motion, joints=mapping.joints)
+        pelvis_rotations = rotations[:, int(mapping.joints[CANONICAL_INDEX["pelvis"]])]
+        positions = world[:, mapping.joints]
+    frames = carried_frames(pelvis_rotations @ _pelvis_axes(motion, mapping), positions)
+    return snap_axis(frames[:, :, 1].mean(axis=0))
 
 
 def _pelvis_axes(motion: Motion, mapping: SkeletonMap) -> np.ndarray:

@@ -310,3 +310,22 @@ def test_a_clip_bent_over_in_every_frame_stays_upright_on_the_rig() -> None:
     out = retarget(sneak, walk_map, rig, rig_map)
     assert build_body(out).world_up.tolist() == [0.0, 1.0, 0.0]
     assert retarget_quality(sneak, walk_map, out, rig_map).passes()
+
+
+def test_a_pelvis_turned_back_by_its_children_keeps_the_world_up_on_the_rig() -> None:
+    """A pose network's BVH: the CMU capture with its pelvis turned 90 degrees about its
+    forward axis and turned back by its children (all at the pelvis), the same world motion.
+    The describer reads its axes from the joints; the retarget reads the world's up as the
+    describer does, so the output stands on the rig (on the old reading: the pelvis's turned
+    up, the world's X, and the output lay on its side)."""
+    capture = read_bvh(fixture_bytes(CMU_BVH_FIXTURE))
+    turn = rotation_about(np.array([0.0, 0.0, 1.0]), 90.0)
+    children = np.flatnonzero(capture.skeleton.parents == 0)
+    rotations = capture.local_rotations.copy()
+    rotations[:, 0] = rotations[:, 0] @ turn
+    rotations[:, children] = turn.T @ rotations[:, children]
+    network = dataclasses.replace(capture, local_rotations=rotations)
+    assert build_body(network).world_up.tolist() == build_body(capture).world_up.tolist()
+    rig, rig_map = rig_of(capture)
+    out = retarget(network, mapped(network), rig, rig_map)
+    assert build_body(out).world_up.tolist() == build_body(capture).world_up.tolist()
