@@ -210,7 +210,8 @@ def build_body(motion: Motion) -> Body:
         motion, mapping.joints, canon_rot, rest_is_a_figure=mapping.pose == "rest pose"
     )
     if _holds_one_pose(canon_pos):
-        # A rig's template or a pose saved as a clip: stored, as what it is.
+        # A rig saved with frames that all hold one pose, or a pose saved as a clip: stored,
+        # as what it is.
         held = "one frame" if len(canon_pos) == 1 else f"all {len(canon_pos)} frames the same"
         warnings.append(f"a still pose ({held}): no motion, stored as a pose")
     carried = carried_frames(frames, canon_pos)
