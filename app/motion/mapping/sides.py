@@ -71,7 +71,7 @@ class _SideRules(_MapperState):
             if self.rest
             else (hips, ("shoulder",))
         )
-        voters = [(pose, left, keys)]
+        voters = [(pose, left, keys, up)]
         # The clip's other poses vote with this one: always when the mapping comes from a frame
         # (one frame can mislead); from the rest pose when it shows no side at all (straight
         # knees, no feet: the motion's bent knees do), or shows it by bent knees: a person at
@@ -86,7 +86,9 @@ class _SideRules(_MapperState):
                     spine = other[self.body.head] - other[self.body.pelvis]
                 other_up = _unit(spine)
                 if _length(other_up) > 0:
-                    voters.append((other, self.left(other, other_up, legs), (hips, ("shoulder",))))
+                    voters.append(
+                        (other, self.left(other, other_up, legs), (hips, ("shoulder",)), other_up)
+                    )
         axis = next((int(np.argmax(np.abs(v[1]))) for v in voters if _length(v[1])), 0)
 
         def name_of(limb: _Limb, top: int) -> str | None:
@@ -105,16 +107,26 @@ class _SideRules(_MapperState):
 
         def order(pair: list[_Limb], limb: int, top: int) -> tuple[list[_Limb], bool | None, bool]:
             """(pair as [left, right] by geometry, names agree?, geometry known?)"""
+            named = {name_of(one, top) for one in pair} == {"l", "r"}
             votes = 0
-            for voter, voter_left, voter_keys in voters:
-                lateral = (
-                    sum(
-                        float((voter[pair[0][k]] - voter[pair[1][k]]) @ voter_left)
-                        for k in voter_keys[limb]
-                    )
-                    if _length(voter_left)
-                    else 0.0
-                )
+            for voter, voter_left, voter_keys, voter_up in voters:
+                if not _length(voter_left):
+                    continue
+                apart = sum(voter[pair[0][k]] - voter[pair[1][k]] for k in voter_keys[limb])
+                lateral = float(apart @ voter_left)
+                # A person's hips and shoulders, fixed to the trunk, lie side by side (knees
+                # and hands part front to back in a stride or a swing): a named pair whose
+                # hips or shoulders are set apart more front to back than across (a rest
+                # pose in bone-local axes that passed for a standing figure) shows no side,
+                # whatever its small sideways part says, and its names break the tie.
+                # Without names it is still the only reading there is.
+                base_key = voter_keys[limb][0]
+                if named and base_key in ("hip", "shoulder"):
+                    base = voter[pair[0][base_key]] - voter[pair[1][base_key]]
+                    across = base - (base @ voter_left) * voter_left
+                    ahead = float(_length(across - (across @ voter_up) * voter_up))
+                    if ahead > abs(float(base @ voter_left)):
+                        continue
                 if abs(lateral) > COINCIDENT * self.extent:
                     votes += 1 if lateral > 0 else -1
             known = votes != 0  # a tie tells nothing
