@@ -31,10 +31,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from app.errors import MocapError
+from app.importer.workers import MAX_RESOURCE_BYTES
 from app.motion.formats import read_asf_amc, read_bvh
+from app.motion.formats.gltf_pack import pack_gltf, refers_to_files
 from app.motion.model import Motion, ParseLimits
 from app.motion.pipeline import analyse
 from app.services.parser_pool import parse_scene
+from app.services.upload_files import FolderFiles
 from tests.motion.canonical import check_canonical_body
 
 FORMATS = (".bvh", ".asf", ".fbx", ".glb", ".gltf", ".vrma")
@@ -54,15 +57,20 @@ def named_side(name: str) -> str | None:
 
 def read(path: Path) -> Motion:
     """The clip the service would store from ``path`` (an ASF with the first AMC beside it
-    whose name starts with its stem)."""
+    whose name starts with its stem; a ``.gltf`` with the files it names from its folder, as
+    ``mocap-index import`` reads them)."""
     suffix = path.suffix.lower()
     if suffix == ".bvh":
         return read_bvh(path.read_bytes())
     if suffix == ".asf":
         amc = next(path.parent.glob(path.stem + "*.amc"))
         return read_asf_amc(path.read_bytes(), amc.read_bytes())
+    data = path.read_bytes()
+    if suffix == ".gltf" and refers_to_files(data):
+        files = FolderFiles(path.parent, MAX_RESOURCE_BYTES)
+        data = pack_gltf(data, files, what=path.name)
     kind = "fbx" if suffix == ".fbx" else "gltf"
-    return parse_scene(kind, path.read_bytes(), None, ParseLimits()).motion
+    return parse_scene(kind, data, None, ParseLimits()).motion
 
 
 def judge(path: Path, expected: str) -> dict[str, object]:

@@ -3,14 +3,17 @@ as a human, not as a nonhuman; a rig is as expected refused; the names' sides.""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
 
 from bench.held_out import judge, manifest, named_side
+from tests.motion.test_gltf_pack import separate
 
 FIXTURES = Path(__file__).parents[1] / "fixtures"
 CMU = FIXTURES / "cmu_mb_02_01_first41.bvh"
+VRMA = FIXTURES / "three_vrm_test.vrma"
 
 
 @pytest.mark.parametrize(
@@ -44,3 +47,16 @@ def test_a_rig_is_as_expected_refused(tmp_path: Path) -> None:
     assert refused["outcome"] == "refused" and refused["ok"] is True
     (tmp_path / "manifest.tsv").write_text("# header\nrig.bvh\to/r\trig.bvh\tabc\trig-only\tnote\n")
     assert manifest(tmp_path) == {"rig.bvh": "rig-only"}
+
+
+def test_a_gltf_is_judged_with_the_files_it_names(tmp_path: Path) -> None:
+    """Blender's "glTF Separate" and sample folders keep the buffers beside the document; the
+    judge reads them from the folder as ``mocap-index import`` does (it refused every such
+    file before: "refers to an external file")."""
+    document, binary = separate(VRMA.read_bytes(), "anim.bin")
+    (tmp_path / "anim.bin").write_bytes(binary)
+    (tmp_path / "anim.gltf").write_text(json.dumps(document))
+    whole = judge(VRMA, "human")
+    separated = judge(tmp_path / "anim.gltf", "human")
+    assert separated["outcome"] == whole["outcome"] == "accepted", separated
+    assert separated["family"] == whole["family"]
