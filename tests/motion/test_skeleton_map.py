@@ -705,3 +705,35 @@ def test_a_head_leaf_joint_one_joint_above_the_arms_is_the_head_on_its_neck(end_
     assert got == {"neck": truth["neck"], "head": truth["head"]}
     assert skeleton.names[mapping.head_joint] == truth["head"]
     assert "neck derived from the head's parent" not in mapping.warnings
+
+
+def _with_tails(skeleton: Skeleton) -> Skeleton:
+    """``skeleton`` with two alike tails from its pelvis, pointing straight back (along -z,
+    opposite a trunk tipped to +z), one above the other, each 0.8 of a leg long."""
+    pelvis = skeleton.index("Hips")
+    leg = sum(
+        float(np.linalg.norm(skeleton.offsets[skeleton.index(n)]))
+        for n in ("LeftLeg", "LeftFoot", "LeftToeBase")
+    )
+    names, parents = list(skeleton.names), list(skeleton.parents)
+    offsets, end_site = list(skeleton.offsets), list(skeleton.end_site)
+    for tail, lift in (("TailA", 0.02), ("TailB", -0.02)):
+        parent = pelvis
+        for k in range(5):
+            names.append(f"{tail}{k}" if k < 4 else f"{tail}_end")
+            parents.append(parent)
+            offsets.append(np.array([0.0, lift * leg if k == 0 else 0.0, -0.2 * leg * 0.8]))
+            end_site.append(k == 4)
+            parent = len(names) - 1
+    return Skeleton(
+        tuple(names), np.array(parents), np.array(offsets), np.array(end_site, dtype=bool)
+    )
+
+
+def test_an_animal_with_two_tails_is_refused_as_four_legged():
+    """Two tails pointing back from an animal's hips, opposite its level spine, pass for a
+    person's legs (lying down) while its hind legs, longer, hang down. A person stands on
+    the longest limbs hanging from the pelvis: the animal reading wins (on main the tails
+    were taken for legs and the animal stored as a person)."""
+    message = _refused(_with_tails(_quadruped(_cmu_bvh().skeleton)))
+    assert "four-legged" in message

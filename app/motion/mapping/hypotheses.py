@@ -27,6 +27,10 @@ _LEG_DROP_RATIO = 0.5
 _LIFTED_FOOT_DROP = -0.25
 # cos of the smallest angle between the spine and the legs of a standing biped (120 deg).
 _LEGS_OPPOSITE_SPINE = -0.5
+# How far :func:`_check_pose` gets with a choice refused as four-legged.
+_FOUR_LEGGED = 3
+# cos of the widest angle between one of four legs an animal stands on and their mean.
+_ONE_WAY = 0.5
 
 
 class _NotHumanoid(Exception):
@@ -215,15 +219,72 @@ def _hypotheses(
     # The choices share heads, chests, pelvises and feet: what the pose says of each is read
     # once for all of them.
     facts = _PoseFacts(pose, extent)
+    four_legged: list[tuple[_Choice, str]] = []
     for choice in known.choices:
         body, why, progress = _check_pose(
             known.tree, pose, extent, *choice, lifted=lifted, facts=facts
         )
         if body is not None:
             valid.append(body)
-        elif progress > best_partial:
-            best_partial, reason = progress, why
+        else:
+            if progress == _FOUR_LEGGED and _hang_one_way(pose, choice):
+                four_legged.append((choice, why))
+            if progress > best_partial:
+                best_partial, reason = progress, why
+    if four_legged and valid:
+        kept = [b for b in valid if _on_shorter_limbs(known.tree, b, four_legged) is None]
+        if not kept:
+            reason = _on_shorter_limbs(known.tree, valid[0], four_legged) or reason
+        valid = kept
     return valid, reason
+
+
+def _four_legged_choices(
+    known: _Known, pose: np.ndarray, extent: float
+) -> list[tuple[_Choice, str]]:
+    """The choices ``pose`` shows as a four-legged animal (the spine level, the limbs
+    hanging down), each with that reason."""
+    facts = _PoseFacts(pose, extent)
+    found = []
+    for choice in known.choices:
+        _, why, progress = _check_pose(known.tree, pose, extent, *choice, facts=facts)
+        if progress == _FOUR_LEGGED and _hang_one_way(pose, choice):
+            found.append((choice, why))
+    return found
+
+
+def _hang_one_way(pose: np.ndarray, choice: _Choice) -> bool:
+    """Whether the four limbs of ``choice`` in ``pose`` (``(J, 3)``: legs from the pelvis,
+    arms from the chest) all hang one way, each within 60 degrees of their mean, as an
+    animal's four legs stand (props or IK chains pointing anywhere do not)."""
+    _, hands, feet, chest, pelvis = choice[:5]
+    ways = np.array(
+        [_unit(pose[f] - pose[pelvis]) for f in feet]
+        + [_unit(pose[h] - pose[chest]) for h in hands]
+    )
+    mean = _unit(ways.sum(axis=0))
+    return bool(_length(mean) > 0 and (ways @ mean > _ONE_WAY).all())
+
+
+def _on_shorter_limbs(
+    tree: _Tree, body: _Body, four_legged: list[tuple[_Choice, str]]
+) -> str | None:
+    """The four-legged reason that overrules ``body``, else None. A person stands on the
+    longest limbs hanging from the pelvis; where a choice from the same pelvis, on legs that
+    do not hang from the chest and are both longer than either leg of ``body``, is read as
+    four-legged (the spine level, those limbs hanging down), ``body`` stands on shorter
+    chains (two tails pointing back from an animal's hips pass for legs opposite its level
+    spine): the animal reading wins. Copies of the legs are as long, not longer, and do not
+    overrule this way. The reason named is that of the likeliest animal (:func:`pair_cost`)."""
+    legs = max(tree.path[f] - tree.path[body.pelvis] for f in body.feet)
+    against = [
+        (pair_cost(choice[5], choice[6], choice[7]), why)
+        for choice, why in four_legged
+        if choice[4] == body.pelvis
+        and not any(tree.is_ancestor(body.chest, f) for f in choice[2])
+        and min(choice[5]) > legs
+    ]
+    return min(against)[1] if against else None
 
 
 class _PoseFacts:
@@ -341,7 +402,7 @@ def _check_pose(
             None,
             "the spine is horizontal with the limbs hanging down "
             f"({names}): a four-legged animal, not a humanoid",
-            3,
+            _FOUR_LEGGED,
         )
     ratios = [
         facts.drop(head, chest, pelvis, f, up) / length

@@ -56,8 +56,10 @@ from app.motion.mapping.hypotheses import (
     _Body,
     _check_pose,
     _Choice,
+    _four_legged_choices,
     _Known,
     _NotHumanoid,
+    _on_shorter_limbs,
     pair_cost,
     trunk_up,
 )
@@ -278,9 +280,15 @@ def _voted(
         extent = float(np.linalg.norm(np.ptp(pose[tree.body_joints], axis=0)))
         if not extent > 0:
             continue
+        four_legged: list[tuple[_Choice, str]] | None = None
         for number, choice in enumerate(known.choices):
             body = check(tree, pose, extent, choice, label.startswith("rest pose"))
-            if body is not None:
+            if body is None:
+                continue
+            # As in the standing search: an animal on longer limbs than these legs wins.
+            if four_legged is None:
+                four_legged = _four_legged_choices(known, pose, extent)
+            if _on_shorter_limbs(tree, body, four_legged) is None:
                 shown.setdefault(number, []).append((index, body, extent))
     need = _TAKE_MAJORITY * len(poses)
     at = [pose for _, pose in poses]
