@@ -279,6 +279,29 @@ def test_a_head_alone_is_refused():
     assert "not a whole humanoid" in message
 
 
+def _without(skeleton: Skeleton, top: int) -> Skeleton:
+    """``skeleton`` without joint ``top`` and everything below it."""
+    keep = [j for j in range(skeleton.joint_count) if not _under(skeleton, j, top)]
+    index = {j: i for i, j in enumerate(keep)}
+    parents = np.array([index.get(int(skeleton.parents[j]), -1) for j in keep])
+    return Skeleton(
+        tuple(skeleton.names[j] for j in keep),
+        parents,
+        skeleton.offsets[keep].copy(),
+        skeleton.end_site[keep],
+    )
+
+
+def test_a_body_without_a_head_is_refused_saying_so():
+    """A humanoid robot's rig often has no head joint (the head is part of the torso): the
+    refusal says the head is what is missing and where it was looked for, not why the first
+    combination of limb ends tried fails ("the legs hang from the arms' branch point")."""
+    skeleton = _cmu_bvh().skeleton
+    headless = _without(skeleton, skeleton.index("Neck"))
+    message = _refused(headless)
+    assert "no head" in message and "(Spine1)" in message, message
+
+
 def test_all_zero_offsets_are_refused():
     skeleton = _cmu_bvh().skeleton
     flat = Skeleton(

@@ -17,6 +17,10 @@ _LIMB_PARTNER = 0.6
 # Fractions of the pose's extent (its bounding-box diagonal, about body height).
 _MIN_LEG = 0.15  # a leg chain is at least this long
 _MIN_ARM = 0.15  # an arm chain is at least this long
+# A person's arm, collar to fingertip, is about 0.75 of the leg, hip to toe tip, along the
+# bones (0.1 + 0.44 against 0.1 + 0.53 + 0.1 of the height, Drillis & Contini); under half,
+# the "arms" are face bones or fingers and the "legs" arms.
+_ARM_TO_LEG = 0.5
 # Feet lie below the pelvis by at least this fraction of the leg chain's length.
 _LEG_DROP_RATIO = 0.5
 # ...but when a person stands on one leg (read only when no pose shows two feet down: see
@@ -97,6 +101,7 @@ def _structure(tree: _Tree, count: int) -> _Known:
     order = {c: i for i, c in enumerate(candidates)}
     keyed: list[tuple[tuple[int, ...], _Choice]] = []
     alike_failed = False
+    headless: int | None = None  # a branch point of two arms, legs below, and no head
     for hands in itertools.combinations(candidates, 2):
         chest = tree.lca(*hands)
         if chest in hands:
@@ -113,6 +118,8 @@ def _structure(tree: _Tree, count: int) -> _Known:
         ]
         lower = [c for c in others if not tree.is_ancestor(chest, c)]
         if not heads:
+            if headless is None and _two_legs_below(tree, chest, hands, lower):
+                headless = chest
             continue
         for feet in itertools.combinations(lower, 2):
             hips = tree.lca(*feet)
@@ -135,6 +142,12 @@ def _structure(tree: _Tree, count: int) -> _Known:
     best_partial = -1
     if alike_failed:
         best_partial, reason = 1, _NOT_ALIKE
+    elif headless is not None and not choices:
+        best_partial = 1
+        reason = (
+            "no head: nothing but the two arms leaves the joint where they branch off "
+            f"({tree.names[headless]}): missing head"
+        )
     else:
         first = _first_misfit(tree, candidates)
         if first is not None:
@@ -143,6 +156,25 @@ def _structure(tree: _Tree, count: int) -> _Known:
 
 
 _NOT_ALIKE = "no two limbs of a pair alike: missing legs or arms"
+
+
+def _two_legs_below(tree: _Tree, chest: int, hands: tuple[int, int], lower: list[int]) -> bool:
+    """Whether two of the limb ends ``lower`` (not below ``chest``) make a pair of legs with
+    the arms ``hands`` as the tree allows (their own hips, limbs alike) and as a person's
+    proportions do (arms at least :data:`_ARM_TO_LEG` of the legs: two fingers of one hand
+    are no arms)."""
+    arms = min(tree.path[h] - tree.path[chest] for h in hands)
+    for feet in itertools.combinations(lower, 2):
+        hips = tree.lca(*feet)
+        pelvis = tree.lca(hips, chest)
+        legs = max(tree.path[f] - tree.path[pelvis] for f in feet)
+        if (
+            hips not in feet
+            and arms >= _ARM_TO_LEG * legs
+            and _pairs_alike(tree, chest, hands, hips, feet)
+        ):
+            return True
+    return False
 
 
 def _first_misfit(tree: _Tree, candidates: list[int]) -> str | None:

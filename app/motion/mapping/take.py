@@ -51,6 +51,7 @@ import numpy as np
 
 from app.motion.mapping.canonical import SkeletonMap
 from app.motion.mapping.hypotheses import (
+    _ARM_TO_LEG,
     _MIN_ARM,
     _MIN_LEG,
     _Body,
@@ -77,10 +78,6 @@ _LOWER_LEG_OPPOSITE_SPINE = -0.5
 # it at most a foot's length above (the toes tucked under), so along an upright trunk the
 # shin rises at most foot : shin of its length (runs._FOOT_TO_SHIN, Drillis & Contini).
 _KNEELING_SHIN_RISE = _FOOT_TO_SHIN
-# A person's arm, collar to fingertip, is about 0.75 of the leg, hip to toe tip, along the
-# bones (0.1 + 0.44 against 0.1 + 0.53 + 0.1 of the height, Drillis & Contini); under half,
-# the "arms" are face bones or fingers and the "legs" arms.
-_ARM_TO_LEG = 0.5
 # ...and standing on one leg, at most 0.9 of them: with the other foot off the ground, one
 # pose of a person (a kick, a knee raised) and of a four-legged animal in a gallop look
 # alike, but an animal's fore and hind legs both carry it and are about as long (a dog's or
