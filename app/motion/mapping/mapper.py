@@ -69,13 +69,17 @@ class _Mapper(_ArmRules, _SideRules):
             raise _NotHumanoid(
                 "the two legs share their hip: no two separate legs below the pelvis"
             )
-        # How far apart the legs start: at the hips, or, in a rest pose whose hip joints
-        # both sit at the pelvis, at the knees (at rest a person's knees stand about as far
-        # apart as the hip joints; a gap of zero would let a collar's root pass for a
-        # shoulder). Not in a frame of the take: a stride parts the knees much farther.
+        # How far apart the legs start: at the hips, or, where the hip joints both sit at
+        # the pelvis, at the knees (at rest a person's knees stand about as far apart as the
+        # hip joints; a gap of zero would let a collar's root pass for a shoulder).
         coincide = self.same_place(legs[0]["hip"], legs[1]["hip"])
-        part = "knee" if coincide and self.rest else "hip"
-        self.hip_half_gap = 0.5 * _length(self.pose[legs[0][part]] - self.pose[legs[1][part]])
+        part = "knee" if coincide else "hip"
+        poses = [self.pose] if self.rest or not coincide else [self.pose, *self.motion()]
+        # In a frame the knees part front to back in a stride; where they pass each other
+        # (the nearest they come in the clip) they stand about as far apart as the hips.
+        self.hip_half_gap = 0.5 * min(
+            _length(pose[legs[0][part]] - pose[legs[1][part]]) for pose in poses
+        )
         arms = self.alike_arms([self.map_arm(h) for h in body.hands], body.hands)
         for limbs, kind, trunk in ((legs, _LEG, body.pelvis), (arms, _ARM, body.chest)):
             for limb in limbs:
