@@ -1,0 +1,92 @@
+"""Heel or toe: a game rig's heel bone (a chain from the ankle, or from the knee beside the
+foot, pointing back) may reach farther along the bones and lower than the toes, so the
+leaf taken for the foot is the heel's. A person's foot points forward, the way the knee
+bends: where the pose or the clip's frames bend the knee, a toe pointing against that bend
+is a heel, and a leaf below the knee pointing with it is the toe (issue 20)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from app.motion.mapping.hypotheses import _NotHumanoid
+from app.motion.mapping.state import _Limb, _MapperState
+from app.motion.mapping.vectors import _unit_rows
+
+# A knee bent this much (sine of the angle between thigh and shin, 10 degrees) shows which
+# way is forward for its leg.
+_BENT = np.sin(np.radians(10))
+# Mean cosine between a foot (ankle to toe) and its knee's forward bend: below minus this
+# the foot points back (a heel), above it forward (a toe). Toes point within 45 degrees of
+# the knee's bend when walking, a heel bone back and down (cosines of -0.5 and lower).
+_POINTS = 0.3
+# How the toe reads when the foot's only branch is a heel: the ankle stands for the toe.
+HEEL_ONLY = "derived: the ankle (the foot's only branch points back against the knee's bend)"
+
+
+class _FootRules(_MapperState):
+    """Chooses the foot's branch that points forward."""
+
+    def leg_to(self, foot: int) -> _Limb:
+        """The leg ending at the leaf ``foot`` (:class:`~app.motion.mapping.limbs._LimbRules`)."""
+        raise NotImplementedError
+
+    def knee_fronts(self, limb: _Limb) -> tuple[np.ndarray, np.ndarray]:
+        """``(P, J, 3)`` poses where ``limb``'s knee is bent and ``(P, 3)`` the unit way it
+        bends in each (the knee's step off the hip-ankle line: forward for a person): this
+        pose when it bends the knee, else the clip's frames that do."""
+        hip, knee, ankle = limb["hip"], limb["knee"], limb["ankle"]
+        poses = self.pose[None]
+        for attempt in range(2):
+            if attempt:
+                frames = self.motion()
+                if not frames:
+                    break
+                poses = np.stack(frames)
+            thigh = poses[:, knee] - poses[:, hip]  # (P, 3)
+            shin = poses[:, ankle] - poses[:, knee]
+            sine = np.linalg.norm(np.cross(thigh, shin), axis=1)
+            bent = sine > _BENT * np.linalg.norm(thigh, axis=1) * np.linalg.norm(shin, axis=1)
+            if bent.any():
+                line = _unit_rows(poses[bent, ankle] - poses[bent, hip])
+                step = poses[bent, knee] - 0.5 * (poses[bent, hip] + poses[bent, ankle])
+                step -= np.sum(step * line, axis=1, keepdims=True) * line
+                return poses[bent], _unit_rows(step)
+        return np.zeros((0, *self.pose.shape)), np.zeros((0, 3))
+
+    @staticmethod
+    def pointing(poses: np.ndarray, fronts: np.ndarray, ankle: int, toe: int) -> float:
+        """Mean cosine between the foot ``ankle`` -> ``toe`` and the knee's bend ``fronts``
+        over ``poses`` (0 for a toe at the ankle)."""
+        foot = _unit_rows(poses[:, toe] - poses[:, ankle])  # (P, 3)
+        return float(np.mean(np.sum(foot * fronts, axis=1)))
+
+    def forward_foot(self, limb: _Limb, foot: int) -> _Limb:
+        """``limb`` (the leg ending at the leaf ``foot``), or, when its toe points back
+        against the knee's bend (a heel), the leg ending at another leaf below the knee
+        whose toe points with it; with none, the ankle holds and the heel is no toe
+        (:data:`HEEL_ONLY`). A knee that never bends shows no front: ``limb`` stands."""
+        ankle, toe = limb["ankle"], limb["toe"]
+        if toe == ankle:
+            return limb
+        poses, fronts = self.knee_fronts(limb)
+        if not len(poses) or self.pointing(poses, fronts, ankle, toe) >= -_POINTS:
+            return limb
+        tree = self.tree
+        own = set(tree.chain(limb["knee"], foot))
+        best: tuple[float, _Limb] | None = None
+        for leaf in tree.leaves:
+            if leaf in own or not tree.is_ancestor(limb["knee"], leaf):
+                continue
+            try:
+                other = self.leg_to(leaf)
+            except _NotHumanoid:
+                continue
+            if (other["hip"], other["knee"]) != (limb["hip"], limb["knee"]):
+                continue
+            score = self.pointing(poses, fronts, other["ankle"], other["toe"])
+            if score > _POINTS and (best is None or score > best[0]):
+                best = (score, other)
+        if best is not None:
+            return best[1]
+        limb.joints["toe"], limb.how["toe"] = ankle, HEEL_ONLY
+        return limb
