@@ -15,9 +15,10 @@ from app.motion.mapping.vectors import _unit_rows
 # A knee bent this much (sine of the angle between thigh and shin, 10 degrees) shows which
 # way is forward for its leg.
 _BENT = np.sin(np.radians(10))
-# Mean cosine between a foot (ankle to toe) and its knee's forward bend: below minus this
-# the foot points back (a heel), above it forward (a toe). Toes point within 45 degrees of
-# the knee's bend when walking, a heel bone back and down (cosines of -0.5 and lower).
+# Mean cosine between a foot (ankle to toe) and the front of its shin: below minus this the
+# foot points back (a heel), above it forward (a toe). A person's foot leaves the shin at
+# 90 degrees give or take the ankle's flex (50 degrees down, 20 up): cosines of 0.6 and
+# more; a heel bone leaves it backwards.
 _POINTS = 0.3
 # How the toe reads when the foot's only branch is a heel: the ankle stands for the toe.
 HEEL_ONLY = "derived: the ankle (the foot's only branch points back against the knee's bend)"
@@ -31,9 +32,12 @@ class _FootRules(_MapperState):
         raise NotImplementedError
 
     def knee_fronts(self, limb: _Limb) -> tuple[np.ndarray, np.ndarray]:
-        """``(P, J, 3)`` poses where ``limb``'s knee is bent and ``(P, 3)`` the unit way it
-        bends in each (the knee's step off the hip-ankle line: forward for a person): this
-        pose when it bends the knee, else the clip's frames that do."""
+        """``(P, J, 3)`` poses where ``limb``'s knee is bent and ``(P, 3)`` the front of the
+        shin in each: the thigh's direction off the shin's line. The knee folds the shin
+        back behind the thigh only, so in the shin's own frame the thigh leans to its front,
+        the side a person's toes point to at any flex of the ankle, however the body lies
+        (standing, crouching, kneeling). This pose when it bends the knee, else the clip's
+        frames that do."""
         hip, knee, ankle = limb["hip"], limb["knee"], limb["ankle"]
         poses = self.pose[None]
         for attempt in range(2):
@@ -47,15 +51,14 @@ class _FootRules(_MapperState):
             sine = np.linalg.norm(np.cross(thigh, shin), axis=1)
             bent = sine > _BENT * np.linalg.norm(thigh, axis=1) * np.linalg.norm(shin, axis=1)
             if bent.any():
-                line = _unit_rows(poses[bent, ankle] - poses[bent, hip])
-                step = poses[bent, knee] - 0.5 * (poses[bent, hip] + poses[bent, ankle])
-                step -= np.sum(step * line, axis=1, keepdims=True) * line
-                return poses[bent], _unit_rows(step)
+                along = _unit_rows(shin[bent])
+                front = thigh[bent] - np.sum(thigh[bent] * along, axis=1, keepdims=True) * along
+                return poses[bent], _unit_rows(front)
         return np.zeros((0, *self.pose.shape)), np.zeros((0, 3))
 
     @staticmethod
     def pointing(poses: np.ndarray, fronts: np.ndarray, ankle: int, toe: int) -> float:
-        """Mean cosine between the foot ``ankle`` -> ``toe`` and the knee's bend ``fronts``
+        """Mean cosine between the foot ``ankle`` -> ``toe`` and the shin's ``fronts``
         over ``poses`` (0 for a toe at the ankle)."""
         foot = _unit_rows(poses[:, toe] - poses[:, ankle])  # (P, 3)
         return float(np.mean(np.sum(foot * fronts, axis=1)))
