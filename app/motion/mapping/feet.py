@@ -69,7 +69,9 @@ class _FootRules(_MapperState):
         whose toe points with it; with none, the ankle holds and the heel is no toe
         (:data:`HEEL_ONLY`). A knee that never bends shows no front: ``limb`` stands."""
         ankle, toe = limb["ankle"], limb["toe"]
-        if toe == ankle:
+        if toe == ankle or limb.how["toe"].startswith("derived"):
+            # No bone of the foot (an End Site on the ankle, which a writer may point
+            # anywhere): it tells nothing of the foot's direction, nor of a heel.
             return limb
         poses, fronts = self.knee_fronts(limb)
         if not len(poses) or self.pointing(poses, fronts, ankle, toe) >= -_POINTS:
