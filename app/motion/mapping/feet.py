@@ -10,7 +10,7 @@ import numpy as np
 
 from app.motion.mapping.hypotheses import _NotHumanoid
 from app.motion.mapping.state import _Limb, _MapperState
-from app.motion.mapping.vectors import _unit_rows
+from app.motion.mapping.vectors import _length, _unit_rows
 
 # A knee bent this much (sine of the angle between thigh and shin, 10 degrees) shows which
 # way is forward for its leg.
@@ -20,6 +20,10 @@ _BENT = np.sin(np.radians(10))
 # 90 degrees give or take the ankle's flex (50 degrees down, 20 up): cosines of 0.6 and
 # more; a heel bone leaves it backwards.
 _POINTS = 0.3
+# A person's foot reaches from the ankle to the toe tip about 0.6 of the shin's length (0.152
+# against 0.246 of the height); a heel sticks out behind the ankle by a quarter of the foot
+# (0.15 of the shin). A foot's only branch shorter than this and pointing back is a heel.
+_HEEL_SHIN = 0.35
 # How the toe reads when the foot's only branch is a heel: the ankle stands for the toe.
 HEEL_ONLY = "derived: the ankle (the foot's only branch points back against the knee's bend)"
 
@@ -66,8 +70,8 @@ class _FootRules(_MapperState):
     def forward_foot(self, limb: _Limb, foot: int) -> _Limb:
         """``limb`` (the leg ending at the leaf ``foot``), or, when its toe points back
         against the knee's bend (a heel), the leg ending at another leaf below the knee
-        whose toe points with it; with none, the ankle holds and the heel is no toe
-        (:data:`HEEL_ONLY`). A knee that never bends shows no front: ``limb`` stands."""
+        whose toe points with it; with none, a branch short as a heel is no toe and the
+        ankle holds (:data:`HEEL_ONLY`). A knee that never bends shows no front: ``limb`` stands."""
         ankle, toe = limb["ankle"], limb["toe"]
         if toe == ankle or limb.how["toe"].startswith("derived"):
             # No bone of the foot (an End Site on the ankle, which a writer may point
@@ -93,5 +97,9 @@ class _FootRules(_MapperState):
                 best = (score, other)
         if best is not None:
             return best[1]
-        limb.joints["toe"], limb.how["toe"] = ankle, HEEL_ONLY
+        shin = _length(self.pose[ankle] - self.pose[limb["knee"]])
+        if _length(self.pose[toe] - self.pose[ankle]) < _HEEL_SHIN * shin:
+            # Short as a heel, too: no toe. (A foot as long as a person's stands: knees
+            # bending backwards in a take are the take's artefact, not a heel.)
+            limb.joints["toe"], limb.how["toe"] = ankle, HEEL_ONLY
         return limb
