@@ -22,7 +22,8 @@ _BENT = np.sin(np.radians(10))
 _POINTS = 0.3
 # A person's foot reaches from the ankle to the toe tip about 0.6 of the shin's length (0.152
 # against 0.246 of the height); a heel sticks out behind the ankle by a quarter of the foot
-# (0.15 of the shin). A foot's only branch shorter than this and pointing back is a heel.
+# (0.15 of the shin). A foot's only branch shorter than this and pointing back is a heel;
+# a branch beside it pointing forward is the toes' only when longer.
 _HEEL_SHIN = 0.35
 # How the toe reads when the foot's only branch is a heel: the ankle stands for the toe.
 HEEL_ONLY = "derived: the ankle (the foot's only branch points back against the knee's bend)"
@@ -67,6 +68,13 @@ class _FootRules(_MapperState):
         foot = _unit_rows(poses[:, toe] - poses[:, ankle])  # (P, 3)
         return float(np.mean(np.sum(foot * fronts, axis=1)))
 
+    def foot_long(self, limb: _Limb) -> bool:
+        """Whether ``limb``'s toe lies as far from its ankle as a person's toes do, for
+        the shin (:data:`_HEEL_SHIN`): farther than a heel sticks out behind."""
+        ankle = self.pose[limb["ankle"]]
+        shin = _length(ankle - self.pose[limb["knee"]])
+        return _length(self.pose[limb["toe"]] - ankle) >= _HEEL_SHIN * shin
+
     def forward_foot(self, limb: _Limb, foot: int) -> _Limb:
         """``limb`` (the leg ending at the leaf ``foot``), or, when its toe points back
         against the knee's bend (a heel), the leg ending at another leaf below the knee
@@ -92,13 +100,14 @@ class _FootRules(_MapperState):
                 continue
             if (other["hip"], other["knee"]) != (limb["hip"], limb["knee"]):
                 continue
+            if not self.foot_long(other):
+                continue  # a small bone (a helper, a face-like nub) on the foot is no toe
             score = self.pointing(poses, fronts, other["ankle"], other["toe"])
             if score > _POINTS and (best is None or score > best[0]):
                 best = (score, other)
         if best is not None:
             return best[1]
-        shin = _length(self.pose[ankle] - self.pose[limb["knee"]])
-        if _length(self.pose[toe] - self.pose[ankle]) < _HEEL_SHIN * shin:
+        if not self.foot_long(limb):
             # Short as a heel, too: no toe. (A foot as long as a person's stands: knees
             # bending backwards in a take are the take's artefact, not a heel.)
             limb.joints["toe"], limb.how["toe"] = ankle, HEEL_ONLY
