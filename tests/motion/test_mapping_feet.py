@@ -6,6 +6,8 @@ sides turned with it. A person's foot points the way the knee bends (issue 20)."
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -83,4 +85,25 @@ def test_a_short_heel_beside_the_toes_leaves_the_foot_alone() -> None:
     for side in "lr":
         toe = names.index(truth[f"{side}_ankle"]) + 1
         assert got[f"{side}_ankle"] == truth[f"{side}_ankle"], side
+        assert got[f"{side}_toe"] in (names[toe], names[toe + 1]), side
+
+
+def test_knees_bending_backwards_in_a_take_keep_a_foot_long_toe() -> None:
+    # A retargeting artefact (a dev clip's knees bend backwards in most frames) turns the
+    # shin's front against real toes: a foot as long as a person's is no heel, and small
+    # bones on it pointing the other way are no toes.
+    skeleton, truth = synthetic_humanoid(Humanoid(names="anon"))
+    motion = walking(skeleton, truth)
+    rotations = motion.local_rotations.copy()
+    for side in "lr":
+        knee = skeleton.index(truth[f"{side}_knee"])
+        rotations[:, knee] = np.swapaxes(rotations[:, knee], -1, -2)  # the bend reversed
+    motion = dataclasses.replace(motion, local_rotations=rotations)
+    parents = [skeleton.index(truth[f"{side}_ankle"]) for side in "lr"]
+    nub = np.array([0.0, 0.0, -0.04])  # a small bone from the ankle, pointing back
+    motion = grown(motion, parents, [nub, nub])
+    got, _ = _mapped(motion)
+    names = motion.skeleton.names
+    for side in "lr":
+        toe = names.index(truth[f"{side}_ankle"]) + 1
         assert got[f"{side}_toe"] in (names[toe], names[toe + 1]), side
