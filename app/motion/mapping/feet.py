@@ -68,32 +68,45 @@ class _FootRules(_MapperState):
         foot = _unit_rows(poses[:, toe] - poses[:, ankle])  # (P, 3)
         return float(np.mean(np.sum(foot * fronts, axis=1)))
 
-    def foot_long(self, limb: _Limb) -> bool:
-        """Whether ``limb``'s toe lies as far from its ankle as a person's toes do, for
-        the shin (:data:`_HEEL_SHIN`): farther than a heel sticks out behind."""
+    def foot_long(self, limb: _Limb, toe: int | None = None) -> bool:
+        """Whether ``toe`` (``limb``'s own by default) lies as far from ``limb``'s ankle as
+        a person's toes do, for the shin (:data:`_HEEL_SHIN`): farther than a heel sticks
+        out behind."""
         ankle = self.pose[limb["ankle"]]
         shin = _length(ankle - self.pose[limb["knee"]])
-        return _length(self.pose[limb["toe"]] - ankle) >= _HEEL_SHIN * shin
+        reach = _length(self.pose[limb["toe"] if toe is None else toe] - ankle)
+        return reach >= _HEEL_SHIN * shin
 
     def forward_foot(self, limb: _Limb, foot: int) -> _Limb:
         """``limb`` (the leg ending at the leaf ``foot``), or, when its toe points back
         against the knee's bend (a heel), the leg ending at another leaf below the knee
         whose toe points with it; with none, a branch short as a heel is no toe and the
-        ankle holds (:data:`HEEL_ONLY`). A knee that never bends shows no front: ``limb`` stands."""
+        ankle holds (:data:`HEEL_ONLY`). A knee that never bends shows no front: ``limb``
+        stands. Asked only where the foot's structure makes it a question (a foot-long
+        leaf beside the foot, or a foot short as a heel): an ordinary foot reads no frame."""
         ankle, toe = limb["ankle"], limb["toe"]
         if toe == ankle or limb.how["toe"].startswith("derived"):
             # No bone of the foot (an End Site on the ankle, which a writer may point
             # anywhere): it tells nothing of the foot's direction, nor of a heel.
             return limb
+        tree = self.tree
+        own = set(tree.chain(limb["knee"], foot))
+        # Leaves below the knee beside the foot reaching as far as toes from the ankle: a
+        # small bone (a helper, a face-like nub) on the foot is no toe.
+        beside = [
+            leaf
+            for leaf in tree.leaves
+            if leaf not in own
+            and tree.is_ancestor(limb["knee"], leaf)
+            and self.foot_long(limb, leaf)
+        ]
+        if not beside and self.foot_long(limb):
+            return limb
         poses, fronts = self.knee_fronts(limb)
         if not len(poses) or self.pointing(poses, fronts, ankle, toe) >= -_POINTS:
             return limb
-        tree = self.tree
-        own = set(tree.chain(limb["knee"], foot))
         best: tuple[float, _Limb] | None = None
-        for leaf in tree.leaves:
-            if leaf in own or not tree.is_ancestor(limb["knee"], leaf):
-                continue
+        for leaf in beside:
             try:
                 other = self.leg_to(leaf)
             except _NotHumanoid:
@@ -101,7 +114,7 @@ class _FootRules(_MapperState):
             if (other["hip"], other["knee"]) != (limb["hip"], limb["knee"]):
                 continue
             if not self.foot_long(other):
-                continue  # a small bone (a helper, a face-like nub) on the foot is no toe
+                continue
             score = self.pointing(poses, fronts, other["ankle"], other["toe"])
             if score > _POINTS and (best is None or score > best[0]):
                 best = (score, other)
