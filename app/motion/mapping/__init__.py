@@ -67,7 +67,9 @@ facing, naming or extra joints (fingers, face, twist bones, props, IK targets, d
    when there is one, else the head joint (a leaf *joint* one joint above the arms is
    the head on its neck, not the top of a head sitting on the shoulders: a person has a
    neck); ``toe`` likewise beyond the toe joint (else the toe joint, else the farthest
-   point beyond the ankle); ``hand_tip`` is the farthest point
+   point beyond the ankle); a foot whose toe points back against the shin's front where
+   the knee bends (a heel bone beside the foot) ends instead at a foot-long leaf beside it
+   pointing forward, or, short as a heel with none, at the ankle; ``hand_tip`` is the farthest point
    beyond the wrist, thumbs skipped (the wrist itself on a rig without hand bones).
    :attr:`SkeletonMap.head_joint` keeps the head *joint* for body height.
 4. **Sides.** Left is where bent knees' hinge axes (thigh x shin) point, else ``up x
@@ -104,7 +106,8 @@ Modules, by responsibility: :mod:`.canonical` (the canonical joints, :class:`Ske
 :mod:`.tree` (the skeleton's tree, candidate limb ends), :mod:`.along` (bones hung along
 another: not seen), :mod:`.hypotheses` (head, hands and
 feet: step 1), :mod:`.state`, :mod:`.runs` (a limb's straight runs),
-:mod:`.named` (names along a limb weighed against its proportions), :mod:`.limbs` (legs,
+:mod:`.named` (names along a limb weighed against its proportions), :mod:`.feet` (a heel
+beside the foot), :mod:`.limbs` (legs,
 and what arms share with them), :mod:`.arms` and :mod:`.sides` (steps 2-4 for one
 hypothesis),
 :mod:`.mapper` (one pose's mapping), :mod:`.held` (limb ends held by IK), :mod:`.take` (a

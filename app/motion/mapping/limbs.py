@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 
+from app.motion.mapping.feet import _FootRules
 from app.motion.mapping.hypotheses import _NotHumanoid
 from app.motion.mapping.named import NAMES_NOT_FOLLOWED, _NamedRules
 from app.motion.mapping.runs import _ARM, _LEG, _LimbKind
@@ -30,7 +31,7 @@ _FINGERS_BRANCH = "structure: where the fingers"
 _ONE_CHAIN = "structure: where a hand of one chain starts"
 
 
-class _LimbRules(_NamedRules):
+class _LimbRules(_NamedRules, _FootRules):
     """Places the joints of one leg or arm."""
 
     def check_share(self, limb: _Limb, kind: _LimbKind, trunk: int) -> None:
@@ -412,6 +413,11 @@ class _LimbRules(_NamedRules):
         return ankles
 
     def map_leg(self, foot: int) -> _Limb:
+        """The leg ending at the leaf ``foot``, or beside it where that foot is a heel
+        (:meth:`forward_foot`)."""
+        return self.forward_foot(self.leg_to(foot), foot)
+
+    def leg_to(self, foot: int) -> _Limb:
         tree, pose, up = self.tree, self.pose, self.body.up
         chain = tree.chain(self.body.pelvis, foot)
         # The sole: points after the lowest one that rise again are end sites pointing
