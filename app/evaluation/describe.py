@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.cli_progress import ProgressBar
+from app.cli.progress import ProgressBar
 from app.discovery import ClipSource, content_hash
 from app.errors import InvalidInput
 
@@ -146,7 +146,7 @@ ProgressCallback = Callable[[int], None]
 
 @contextlib.contextmanager
 def _progress_bar(total: int, enabled: bool) -> Iterator[ProgressCallback]:
-    """The long commands' progress bar (:class:`app.cli_progress.ProgressBar`), advanced by
+    """The long commands' progress bar (:class:`app.cli.progress.ProgressBar`), advanced by
     the number of clips each call reports."""
     if not enabled or total == 0:
         yield lambda _n: None
