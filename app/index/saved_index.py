@@ -20,6 +20,7 @@ from typing import Any
 
 import faiss
 
+from app.index.delayed_save import DelayedSave
 from app.index.frozen import FrozenIVF
 from app.index.held_index import HeldIndex
 from app.index.index_file import IndexFile
@@ -29,7 +30,7 @@ from app.index.locks import directory_lock
 log = logging.getLogger(__name__)
 
 
-class SavedIndex(HeldIndex):
+class SavedIndex(HeldIndex, DelayedSave):
     """The index of one descriptor saved to its files; what it holds and its searches are
     :class:`HeldIndex`'s.
 
@@ -66,11 +67,8 @@ class SavedIndex(HeldIndex):
         self.version = version
         self.directory = directory
         self.file = IndexFile(name, dimension, version, directory)
-        self._synced_to = 0
-        self._unsaved = 0
+        self._init_saving()
         self.autosave = True  # False: changes are saved only by an explicit save()
-        self._timer: threading.Timer | None = None
-        self._timer_lock = threading.Lock()
         self._save_lock = threading.Lock()
 
     @property
@@ -81,19 +79,6 @@ class SavedIndex(HeldIndex):
     def meta_path(self) -> Path:
         return self.file.meta_path
 
-    @property
-    def synced_to(self) -> int:
-        """The largest database clip id whose vector this index reflects."""
-        return self._synced_to
-
-    @property
-    def unsaved_changes(self) -> int:
-        return self._unsaved
-
-    def mark_synced(self, position: int) -> None:
-        """Nothing changed up to feed position ``position``: the index reflects it."""
-        self._synced_to = max(self._synced_to, int(position))
-
     def _autosave(self, persist: bool | None) -> None:
         if persist:
             self.try_save()
@@ -101,31 +86,7 @@ class SavedIndex(HeldIndex):
             if self.options.save_delay <= 0:
                 self.try_save()
             else:
-                self._schedule_save()
-
-    def _schedule_save(self) -> None:
-        """Save in ``save_delay`` seconds (once for every change made meanwhile): a file per
-        upload would cost more than describing the upload."""
-        with self._timer_lock:
-            if self._timer is not None:
-                return
-            self._timer = threading.Timer(self.options.save_delay, self._timed_save)
-            self._timer.daemon = True
-            self._timer.start()
-
-    def _timed_save(self) -> None:
-        with self._timer_lock:
-            self._timer = None
-        self.try_save()
-
-    def flush(self) -> None:
-        """Save now if anything is unsaved (a pending delayed save is done now instead)."""
-        with self._timer_lock:
-            timer, self._timer = self._timer, None
-        if timer is not None:
-            timer.cancel()
-        if self._unsaved:
-            self.try_save()
+                self._schedule_save(self.options.save_delay)
 
     def try_save(self) -> bool:
         """:meth:`save`, logging instead of raising when the file cannot be written (the
