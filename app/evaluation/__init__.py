@@ -5,8 +5,9 @@ Follows the protocol of Miura et al. (2013): leave-one-out 1-nearest-neighbour a
 F-measure (plus the adjusted Rand index), and adds a check that the same capture stored in
 different file formats (CMU's ASF/AMC and its BVH conversions) gets the same descriptor.
 
-Modules: :mod:`~app.evaluation.metrics` (pure numbers), :mod:`~app.evaluation.runner`
-(clips -> cached descriptor vectors -> scores), :mod:`~app.evaluation.report` (table, JSON,
+Modules: :mod:`~app.evaluation.metrics` (pure numbers), :mod:`~app.evaluation.describe`
+(clips -> cached descriptor vectors), :mod:`~app.evaluation.runner`
+(labels and scores), :mod:`~app.evaluation.report` (table, JSON,
 figures) and :mod:`~app.evaluation.cli` (the ``eval`` subcommand).
 """
 

@@ -27,8 +27,9 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from app.evaluation.describe import descriptor_versions
 from app.evaluation.metrics import LooResult, TwinPairScore, format_order
-from app.evaluation.runner import FORMAT, TRIAL, EvalResult, KindScore, descriptor_versions
+from app.evaluation.runner import FORMAT, TRIAL, EvalResult, KindScore
 
 JSON_NAME = "results.json"
 SCHEMA_VERSION = 1

@@ -39,6 +39,7 @@ import numpy as np
 from app.db.entries import ClipEntry
 from app.index.array_file import read_arrays, verify_arrays, write_arrays
 from app.index.catalogue_base import CODED, CatalogueBase
+from app.index.delayed_save import DelayedSave
 from app.labels import label_filter, label_key
 
 log = logging.getLogger(__name__)
@@ -93,7 +94,7 @@ class _State:
             object.__setattr__(self, "size", int(self.base.ids.size))
 
 
-class Catalogue:
+class Catalogue(DelayedSave):
     """The display data of every clip (see the module docstring), persisted in ``directory``.
 
     ``autosave_below``, ``save_delay``: a catalogue of at most that many clips is saved that
@@ -110,30 +111,14 @@ class Catalogue:
         self.autosave = True  # False: changes are saved only by an explicit save() or flush()
         self._unchecked: tuple[dict[str, np.ndarray], dict[str, Any]] | None = None
         self._state = _State(CatalogueBase.empty())
-        self._synced_to = 0
-        self._unsaved = 0
+        self._init_saving()
         self._changing = threading.Lock()
         self._save_lock = threading.Lock()
-        self._timer: threading.Timer | None = None
-        self._timer_lock = threading.Lock()
 
     # -- reads -----------------------------------------------------------------------------
 
     def __len__(self) -> int:
         return self._state.size
-
-    @property
-    def synced_to(self) -> int:
-        """The change-feed position the catalogue reflects."""
-        return self._synced_to
-
-    @property
-    def unsaved_changes(self) -> int:
-        return self._unsaved
-
-    def mark_synced(self, position: int) -> None:
-        """Nothing changed up to feed position ``position``: the index reflects it."""
-        self._synced_to = max(self._synced_to, int(position))
 
     def get(self, clip_id: int) -> ClipEntry | None:
         state = self._state
@@ -379,32 +364,13 @@ class Catalogue:
             return False
         return True
 
-    def flush(self) -> None:
-        """Save now if anything is unsaved (a pending delayed save is done now instead)."""
-        with self._timer_lock:
-            timer, self._timer = self._timer, None
-        if timer is not None:
-            timer.cancel()
-        if self._unsaved:
-            self.try_save()
-
     def _autosave(self) -> None:
         if not self.autosave or len(self) > self.autosave_below:
             return
         if self.save_delay <= 0:
             self.try_save()
             return
-        with self._timer_lock:
-            if self._timer is not None:
-                return
-            self._timer = threading.Timer(self.save_delay, self._timed_save)
-            self._timer.daemon = True
-            self._timer.start()
-
-    def _timed_save(self) -> None:
-        with self._timer_lock:
-            self._timer = None
-        self.try_save()
+        self._schedule_save(self.save_delay)
 
     def read_file(
         self, *, verify: bool = True

@@ -4,8 +4,8 @@ A :class:`HeldIndex` is a flat index (``IndexIDMap2(IndexFlatL2)``), an ``IndexI
 a :class:`~app.index.frozen.FrozenIVF` (an IVF file mapped, with the changes since), ids being
 database keys. It answers which ids it holds (sorted, kept up to date as ids come and go),
 the vectors held under ids, and searches: one query, a batch, filtered to some ids or not.
-Keeping it in step with the database and its files is :class:`DescriptorIndex`'s work
-(:mod:`app.index.descriptor_index`), which builds on this class.
+Its files are :class:`~app.index.saved_index.SavedIndex`'s work, and keeping it in step with
+the database :class:`~app.index.descriptor_index.DescriptorIndex`'s, which build on this class.
 
 Concurrency: searches share the read lock, changes take the write lock, so a search sees a
 clip either entirely or not at all.

@@ -44,6 +44,7 @@ from app.motion.body_axes import (
 )
 from app.motion.hand import palm
 from app.motion.kinematics import bone_lengths, forward_kinematics
+from app.motion.lead_in import count_lead_in_frames, implausible_frames, plausible_span
 from app.motion.model import Motion
 from app.motion.skeleton_map import (
     CANONICAL_INDEX,
@@ -55,17 +56,6 @@ from app.motion.transforms import reflect
 
 T = TypeVar("T")
 
-# A clip starts from the rest pose when its first frame's local rotations (non-root joints)
-# are on average within this angle of the identity.
-_REST_MEAN_ANGLE_DEG = 5.0
-# A converter's jump or blend from the rest pose into the motion lasts at most this long...
-_MAX_BLEND_SECONDS = 0.1
-# ...and changes the pose this many times faster than the clip's median frame-to-frame change.
-_BLEND_SPEED_FACTOR = 2.0
-# A joint this many body heights from the pelvis is a sentinel value, not a pose...
-_MAX_REACH = 3.0
-# ...and a pelvis jumping this many body heights from one frame to the next teleports.
-_TELEPORT = 2.0
 # Frames offered to the skeleton mapper when the rest pose is not a standing figure; the
 # first that shows a humanoid is used (a leg kicked high in one frame is not in the next).
 _POSE_FRAMES = 12
@@ -104,8 +94,8 @@ class Body:
         Naming convention of the source skeleton.
     lead_in_frames:
         Frames dropped from the start of the clip: converter lead-in (rest pose) frames and
-        implausible frames (:func:`implausible_frames`). Implausible frames dropped from the
-        end are only reported in ``warnings``.
+        implausible frames (:func:`~app.motion.lead_in.implausible_frames`). Implausible
+        frames dropped from the end are only reported in ``warnings``.
     mapping:
         How the source skeleton's joints became the canonical ones.
     warnings:
@@ -189,7 +179,7 @@ def build_body(motion: Motion) -> Body:
     # Implausible frames (sentinel values, a teleporting root) at either end go like lead-in
     # frames; in the middle they are kept and reported.
     implausible = implausible_frames(canon_pos, height)
-    start, stop = _plausible_span(implausible)
+    start, stop = plausible_span(implausible)
     if start or stop < len(implausible):
         motion = motion.slice_frames(start, stop)
     lead_in = count_lead_in_frames(motion)
@@ -252,55 +242,6 @@ def _holds_one_pose(positions: np.ndarray) -> bool:
     return bool(np.all(np.abs(positions - positions[:1]) <= 1e-6 * max(extent, 1e-300)))
 
 
-def implausible_frames(positions: np.ndarray, height: float) -> np.ndarray:
-    """``(F,)`` bool: frames no body can take.
-
-    ``positions`` is ``(F, C, 3)`` canonical joints. A frame is implausible when a joint is
-    more than :data:`_MAX_REACH` body heights from the pelvis (a rigid skeleton cannot; per-
-    joint position channels holding sentinel values can), or when it lies outside the
-    longest stretch of frames without a teleport, a pelvis jump of more than
-    :data:`_TELEPORT` body heights between two frames (a root thrown to a sentinel position
-    and back). A subject walking far away is not a teleport: each step is small.
-    """
-    pelvis = positions[:, CANONICAL_INDEX["pelvis"]]
-    reach = np.linalg.norm(positions - pelvis[:, None], axis=2).max(axis=1) / height
-    jumps = np.linalg.norm(np.diff(pelvis, axis=0), axis=1) / height > _TELEPORT
-    starts = [0, *(np.flatnonzero(jumps) + 1).tolist()]
-    ends = [*starts[1:], len(pelvis)]
-    # Stretches that continue one another (the root came back from its excursion) form one
-    # trajectory; the one with the most frames is the clip.
-    group_of: list[int] = []
-    group_end: list[int] = []  # last frame of each trajectory so far
-    for start, end in zip(starts, ends, strict=True):
-        for g, last in enumerate(group_end):
-            step = np.linalg.norm(pelvis[start] - pelvis[last]) / height
-            if step <= _TELEPORT * (start - last):
-                group_of.append(g)
-                group_end[g] = end - 1
-                break
-        else:
-            group_of.append(len(group_end))
-            group_end.append(end - 1)
-    frames_in = np.zeros(len(group_end), dtype=np.int64)
-    for g, start, end in zip(group_of, starts, ends, strict=True):
-        frames_in[g] += end - start
-    main = int(np.argmax(frames_in))
-    outside = np.ones(len(pelvis), dtype=bool)
-    for g, start, end in zip(group_of, starts, ends, strict=True):
-        if g == main:
-            outside[start:end] = False
-    return np.asarray((reach > _MAX_REACH) | outside)
-
-
-def _plausible_span(implausible: np.ndarray) -> tuple[int, int]:
-    """``(start, stop)`` without the implausible runs at both ends (whole clip if none is
-    plausible: then there is nothing sensible to keep, and the error is elsewhere)."""
-    plausible = np.flatnonzero(~implausible)
-    if len(plausible) == 0:
-        raise ParseError("every frame is implausible (joints far from the body)")
-    return int(plausible[0]), int(plausible[-1]) + 1
-
-
 def _spread_frames(motion: Motion, count: int = _POSE_FRAMES) -> tuple[list[int], Motion]:
     """Up to ``count`` frames evenly spread over the clip (first and last included), and the
     clip cut down to them."""
@@ -361,49 +302,6 @@ def body_height(
 
     legs = [path_length(f"{s}_hip", f"{s}_ankle") for s in ("l", "r")]
     return float(np.mean(legs)) + path_length("pelvis", "head")
-
-
-# Frame-to-frame turns below this (radians) are a held pose: arccos of a rounded 1 is ~2e-8.
-_STILL_RADIANS = 1e-6
-
-
-def count_lead_in_frames(motion: Motion) -> int:
-    """Number of converter-added frames at the start of ``motion``.
-
-    Converters of CMU data prepend the rest pose: MotionBuilder one T-pose frame, then a jump
-    into the motion; DAZ a T-pose that blends into the motion over about four frames. Both
-    show as a first frame near the rest pose (mean local rotation of the non-root joints
-    within 5 degrees of the identity) followed by frame-to-frame pose changes far above the
-    median of the clip's moving frames (frames held still do not count: a long hold would
-    make every move look like a jump). Such leading frames are dropped while the change stays
-    above twice that median, for at most 0.1 s and never more than half of the clip.
-    """
-    frames = motion.frame_count
-    if frames < 4:
-        return 0
-    local = motion.local_rotations[:, 1:]
-    trace0 = np.trace(local[0], axis1=-2, axis2=-1)
-    mean_angle0 = np.degrees(np.arccos(np.clip((trace0 - 1.0) / 2.0, -1.0, 1.0))).mean()
-    if mean_angle0 > _REST_MEAN_ANGLE_DEG:
-        return 0
-    change = _pose_change(local)
-    # What moving looks like in this clip: frames held exactly still (an idle, a hold) are
-    # no evidence of it, and a long hold must not make every move look like a jump.
-    moving = change[change > _STILL_RADIANS]
-    typical = float(np.median(moving)) if len(moving) else 0.0
-    threshold = _BLEND_SPEED_FACTOR * max(typical, _STILL_RADIANS)
-    limit = min(frames // 2, max(1, round(_MAX_BLEND_SECONDS / motion.frame_time)))
-    lead_in = 0
-    while lead_in < limit and change[lead_in] > threshold:
-        lead_in += 1
-    return lead_in
-
-
-def _pose_change(local: np.ndarray) -> np.ndarray:
-    """``(F-1,)`` largest rotation angle between consecutive frames over joints, radians."""
-    relative_trace = np.einsum("fjab,fjab->fj", local[:-1], local[1:])
-    cos_angle = np.clip((relative_trace - 1.0) / 2.0, -1.0, 1.0)
-    return np.arccos(cos_angle.min(axis=1))
 
 
 def _pelvis_frames(
@@ -512,4 +410,4 @@ def _world_up(pelvis_frames: np.ndarray) -> np.ndarray:
     return snapped
 
 
-__all__ = ["CANONICAL_JOINTS", "Body", "build_body", "carried_frames", "count_lead_in_frames"]
+__all__ = ["CANONICAL_JOINTS", "Body", "build_body", "carried_frames"]

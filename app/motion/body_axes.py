@@ -12,6 +12,9 @@ from the joints alone where it does not.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
 
 from app.errors import ParseError
@@ -51,13 +54,12 @@ def _basis(
     """:func:`pose_basis` from the poses' trunk-and-legs positions ``at`` already read."""
     size = float(np.ptp(positions[:, canonical], axis=1).max())
     local = np.swapaxes(pelvis, -1, -2)
-    # Some rigs put both hip joints at the pelvis and separate the legs only at the next
-    # joint down: the legs then show the sides where they part.
-    for part in ("hip", "knee", "ankle"):
-        across = np.einsum("fab,fb->fa", local, at[f"l_{part}"] - at[f"r_{part}"])
-        if float(np.linalg.norm(across, axis=1).min()) > COINCIDENT * size:
-            break
-    else:
+    across = _legs_across(
+        lambda part: np.einsum("fab,fb->fa", local, at[f"l_{part}"] - at[f"r_{part}"]),
+        size,
+        np.min,  # every pose must show the sides
+    )
+    if across is None:
         raise ParseError("the left and right legs coincide; cannot tell left from right")
     lateral = (across / np.linalg.norm(across, axis=1, keepdims=True)).sum(axis=0)
     x = lateral / np.linalg.norm(lateral)
@@ -156,17 +158,34 @@ def pelvis_carries(
     return float(rest[:, 0] @ x) >= within and float(rest[:, 1] @ y) >= within
 
 
+def _legs_across(
+    across: Callable[[str], np.ndarray],
+    size: float,
+    statistic: Callable[[np.ndarray], np.floating[Any]],
+) -> np.ndarray | None:
+    """``(F, 3)`` right to left across the legs: ``across(part)`` for the first of hip, knee
+    and ankle whose ``statistic`` of the ``(F,)`` lengths is above ``COINCIDENT`` x ``size``,
+    or None. Some rigs put both hip joints at the pelvis and separate the legs only at the
+    next joint down: the legs then show the sides where they part."""
+    for part in ("hip", "knee", "ankle"):
+        line = across(part)
+        if float(statistic(np.linalg.norm(line, axis=1))) > COINCIDENT * size:
+            return line
+    return None
+
+
 def _hips_line(positions: np.ndarray) -> np.ndarray:
     """``(F, 3)`` right to left across the legs of ``(F, C, 3)`` canonical positions: the
     hips, or where the legs part when both hip joints sit at the pelvis (zero where none)."""
     size = float(np.ptp(positions, axis=1).max())
-    for part in ("hip", "knee", "ankle"):
-        across = (
+    across = _legs_across(
+        lambda part: (
             positions[:, CANONICAL_INDEX[f"l_{part}"]] - positions[:, CANONICAL_INDEX[f"r_{part}"]]
-        )
-        if float(np.median(np.linalg.norm(across, axis=1))) > COINCIDENT * max(size, 1e-300):
-            return across
-    return np.zeros((len(positions), 3))
+        ),
+        max(size, 1e-300),
+        np.median,  # most frames must show the sides
+    )
+    return np.zeros((len(positions), 3)) if across is None else across
 
 
 def pelvis_turns_with_hips(

@@ -18,9 +18,10 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from app.motion.body import body_height, count_lead_in_frames
+from app.motion.body import body_height
 from app.motion.ground import FOOT_POINTS, ON_FLOOR
 from app.motion.kinematics import forward_kinematics
+from app.motion.lead_in import count_lead_in_frames
 from app.motion.model import Motion
 from app.motion.retarget_feet import FeetInputs, Pose, hold_planted_feet, planted_steps
 from app.motion.retarget_joints import between
@@ -276,7 +277,7 @@ def planted_feet_offsets(
     planted foot points moves the path back by the mean of their extra horizontal movement;
     a step with none (in the air) gives back what the steps on the floor gathered
     (:func:`_given_back`) — in the air also by the floor of the frames after the first
-    ``lead_in`` (a converter's rest-pose frames, :func:`~app.motion.body.count_lead_in_frames`,
+    ``lead_in`` (a converter's rest-pose frames, :func:`~app.motion.lead_in.count_lead_in_frames`,
     whose feet can sit below every later contact and make the contact bands call a standing
     foot's steps in the air; measured on CMU MotionBuilder takes); the lead-in's own
     corrections stay as they are. Contact is the source's

@@ -41,7 +41,6 @@ from app.motion.body import body_height
 from app.motion.ground import (
     FOOT_POINTS,
     ON_FLOOR,
-    canonical_positions,
     foot_heights,
     horizontal,
 )
@@ -135,22 +134,27 @@ def retarget_quality(
     finite = bool(
         np.isfinite(result.local_rotations).all() and np.isfinite(result.root_translation).all()
     )
-    s = canonical_positions(source, source_map)
-    t = canonical_positions(result, result_map)
+    # Forward kinematics once per clip: the canonical joints, the pelvis rotations for the
+    # world's up, and (the result's, every joint) the bone lengths.
+    s_rotations, s_positions = forward_kinematics(source, joints=source_map.joints)
+    rotations, positions = forward_kinematics(result)
+    s = s_positions[:, source_map.joints]
+    t = positions[:, result_map.joints]
     # Up as the retarget and the describer read it (the pelvis frame's): the trunk's mean
     # direction is the forward axis in a clip bent over for most of its frames.
-    s_up, t_up = world_up(source, source_map), world_up(result, result_map)
+    s_pelvis = int(source_map.joints[CANONICAL_INDEX["pelvis"]])
+    t_pelvis = int(result_map.joints[CANONICAL_INDEX["pelvis"]])
+    s_up = world_up(source, source_map, s_rotations[:, s_pelvis], s)
+    t_up = world_up(result, result_map, rotations[:, t_pelvis], t)
     world = axis_change(t_up, s_up)
     s = s @ world  # the source in the target's axes
     t_height = body_height(result, result_map.joints, head_joint=result_map.head_joint)
 
-    _, positions = forward_kinematics(result)
     parents = result.skeleton.parents
     lengths = np.linalg.norm(positions[:, 1:] - positions[:, parents[1:]], axis=2)
     rig = np.linalg.norm(result.skeleton.offsets[1:], axis=1)
-    pelvis = int(result_map.joints[CANONICAL_INDEX["pelvis"]])
     movable = np.ones(len(rig), dtype=bool)
-    movable[pelvis - 1] = pelvis == 0  # the pelvis's own offset carries the travel
+    movable[t_pelvis - 1] = t_pelvis == 0  # the pelvis's own offset carries the travel
     bone_error = float(np.abs(lengths[:, movable] - rig[movable]).max(initial=0.0) / t_height)
 
     def side(points: np.ndarray, name: str) -> np.ndarray:

@@ -22,7 +22,7 @@ from app.motion.body import Body
 from app.motion.descriptors import REGISTRY
 from app.motion.display import DisplayMotion, stored_preview_of
 from app.motion.formats import read_asf_amc, read_bvh
-from app.motion.formats.scene import Animation
+from app.motion.formats.scene_animation import Animation
 from app.motion.model import Motion, ParseLimits
 from app.motion.pipeline import analyse, describable_body
 from app.motion.windows import (

@@ -50,7 +50,7 @@ from app.errors import (
     UnknownAnimation,
     UnreadableFile,
 )
-from app.motion.formats.scene import Animation
+from app.motion.formats.scene_animation import Animation
 from app.motion.model import Motion, ParseLimits
 
 if TYPE_CHECKING:

@@ -26,7 +26,7 @@ from app.discovery import content_hash_of_animation, content_hash_of_digests
 from app.errors import InvalidInput, UnsupportedMediaType
 from app.labels import normalise_labels
 from app.motion.formats.gltf_pack import pack_gltf, refers_to_files
-from app.motion.formats.scene import Animation
+from app.motion.formats.scene_animation import Animation
 from app.text import checked_text
 
 MAX_NAME_LENGTH = 255

@@ -5,21 +5,16 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shutil
 from pathlib import Path
-from typing import Any
 
-import numpy as np
 import pytest
 
-from app.discovery import ClipSource, discover
-from app.evaluation import runner
+from app.discovery import ClipSource
 from app.evaluation.cli import add_eval_parser, run_eval
-from app.evaluation.runner import VectorCache, builtin_labels, clip_format, describe_clips
-from app.motion.descriptors import REGISTRY
-from tests.conftest import FIXTURES_DIR, shared_data_dir
+from app.evaluation.runner import builtin_labels, clip_format
+from tests.conftest import shared_data_dir
+from tests.evaluation.clips import clip_tree
 
-REAL_DESCRIBE = runner.describe_source
 BANDAI_REGEX = r"dataset-1_(?P<content>[^_]+)_(?P<style>[^_]+)_\d+"
 DESCRIPTORS = ("posture", "kinetic", "motion")
 FIXTURE_FILES = (
@@ -28,42 +23,6 @@ FIXTURE_FILES = (
     "cmu_02.asf",
     "cmu_02_01_first40.amc",
 )
-
-
-def _fixture(name: str) -> Path:
-    path = FIXTURES_DIR / name
-    if not path.is_file():
-        pytest.skip(f"test fixture {path} is absent")
-    return path
-
-
-def _shorter_bvh(source: Path, target: Path, frames: int) -> None:
-    """A copy of a BVH keeping only its first ``frames`` frames (a second, different clip)."""
-    lines = source.read_text().splitlines(keepends=True)
-    start = next(i for i, line in enumerate(lines) if line.startswith("Frames:"))
-    lines[start] = f"Frames: {frames}\n"
-    target.write_text("".join(lines[: start + 2 + frames]))
-
-
-def _clip_tree(root: Path) -> Path:
-    """A small library: one CMU trial as ASF/AMC and as MotionBuilder BVH, two Bandai-named
-    clips, an unreadable BVH and an AMC without a skeleton."""
-    clips = root / "clips"
-    for folder in ("asf-amc/02", "bvh-mb/02", "bandai", "orphan"):
-        (clips / folder).mkdir(parents=True)
-    shutil.copy(_fixture("cmu_02.asf"), clips / "asf-amc/02/02.asf")
-    shutil.copy(_fixture("cmu_02_01_first40.amc"), clips / "asf-amc/02/02_01.amc")
-    shutil.copy(_fixture("cmu_02_01_first40.amc"), clips / "orphan/09_01.amc")
-    shutil.copy(_fixture("cmu_mb_02_01_first41.bvh"), clips / "bvh-mb/02/02_01.bvh")
-    bandai = _fixture("bandai_walk_normal_001_first40.bvh")
-    shutil.copy(bandai, clips / "bandai/dataset-1_walk_normal_001.bvh")
-    _shorter_bvh(bandai, clips / "bandai/dataset-1_walk_happy_001.bvh", 25)
-    (clips / "bandai/broken.bvh").write_text("HIERARCHY\nROOT Hips\n{\n")
-    (root / "labels.tsv").write_text(
-        "clip\taction\n02_01\twalk\ndataset-1_walk_normal_001\twalk\n"
-        "dataset-1_walk_happy_001\trun\nbroken\twalk\n"
-    )
-    return clips
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
@@ -97,94 +56,11 @@ def test_format_and_trial_labels(tmp_path: Path, relative: str, kind: str, expec
     assert builtin_labels(source) == {"trial": source.motion.stem, "format": expected}
 
 
-# ---------------------------------------------------------------------------- describing
-
-
-def test_describe_skips_bad_clips_and_caches(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    clips = _clip_tree(tmp_path)
-    sources = discover([clips]).sources
-    assert len(sources) == 5
-    cache = tmp_path / "cache"
-    done, skipped = describe_clips(sources, DESCRIPTORS, cache_dir=cache, workers=1)
-    assert [s.path.name for s in skipped] == ["broken.bvh"]
-    assert skipped[0].reason
-    assert len(done) == 4
-    for _source, digest, vectors in done:
-        assert set(vectors) == {*DESCRIPTORS, "three_man"}
-        assert vectors["three_man"].shape == (3,)
-        assert np.all(np.isfinite(vectors["kinetic"]))
-        code = runner.motion_code_fingerprint()
-        assert (
-            cache
-            / "v1"
-            / digest[:2]
-            / digest
-            / f"three_man-kinetic-v{REGISTRY['kinetic'].version}-{code}.npy"
-        ).is_file()
-
-    # A second run reads every vector from the cache: describing is never called.
-    def fail(*_args: Any) -> Any:
-        raise AssertionError("described again despite the cache")
-
-    good = [s for s in sources if s.motion.name != "broken.bvh"]
-    monkeypatch.setattr(runner, "describe_source", fail)
-    again, skipped_again = describe_clips(good, DESCRIPTORS, cache_dir=cache, workers=1)
-    assert not skipped_again
-    for (_s1, h1, v1), (_s2, h2, v2) in zip(done, again, strict=True):
-        assert h1 == h2
-        for name in v1:
-            np.testing.assert_array_equal(v1[name], v2[name])
-
-
-def test_describe_in_worker_processes(tmp_path: Path) -> None:
-    clips = _clip_tree(tmp_path)
-    sources = discover([clips]).sources
-    serial, _ = describe_clips(sources, ("kinetic",), cache_dir=None, workers=1, progress=False)
-    parallel, skipped = describe_clips(
-        sources, ("kinetic",), cache_dir=None, workers=2, progress=False
-    )
-    assert [s.path.name for s in skipped] == ["broken.bvh"]
-    assert [s.motion for s, _, _ in parallel] == [s.motion for s, _, _ in serial]
-    for (_, _, a), (_, _, b) in zip(serial, parallel, strict=True):
-        np.testing.assert_allclose(a["kinetic"], b["kinetic"])
-
-
-def crash_on_broken(kind: str, paths: tuple[str, ...], names: tuple[str, ...]) -> Any:
-    """``describe_source``, except that the worker process dies on ``broken.bvh``."""
-    if paths[-1].endswith("broken.bvh"):
-        os._exit(3)
-    return REAL_DESCRIBE(kind, paths, names)
-
-
-def test_a_dying_worker_costs_only_its_clip(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    clips = _clip_tree(tmp_path)
-    sources = discover([clips]).sources
-    # Runs in the worker processes: they import this module, not the monkeypatched runner.
-    monkeypatch.setattr(runner, "describe_source", crash_on_broken)
-    done, skipped = describe_clips(sources, ("kinetic",), cache_dir=None, workers=2)
-    assert [(s.path.name, s.reason) for s in skipped] == [
-        ("broken.bvh", "the worker process describing it died")
-    ]
-    assert len(done) == 4
-
-
-def test_unwritable_cache_only_warns(tmp_path: Path) -> None:
-    blocker = tmp_path / "file"
-    blocker.write_text("not a folder")
-    cache = VectorCache(blocker)
-    cache.store("ab" * 32, {"x": "x-v1"}, {"x": np.zeros(2)})
-    assert cache.load("ab" * 32, {"x": "x-v1"}) is None
-
-
 # ------------------------------------------------------------------------ the command
 
 
 def test_eval_command_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    clips = _clip_tree(tmp_path)
+    clips = clip_tree(tmp_path)
     out = tmp_path / "out"
     args = _parse(
         [
@@ -255,7 +131,7 @@ def test_eval_command_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture[s
 
 
 def test_eval_command_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    clips = _clip_tree(tmp_path)
+    clips = clip_tree(tmp_path)
     common = ["--out", str(tmp_path / "out"), "--cache-dir", str(tmp_path / "c"), "--workers", "1"]
     assert run_eval(_parse([str(clips), "--labels-regex", "(?P<x", *common])) == 2
     assert "invalid labels regex" in capsys.readouterr().err
@@ -271,7 +147,7 @@ def test_eval_command_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str])
 
 
 def test_builtin_kinds_without_label_sources(tmp_path: Path) -> None:
-    clips = _clip_tree(tmp_path)
+    clips = clip_tree(tmp_path)
     out = tmp_path / "out"
     args = _parse(
         [str(clips), "--out", str(out), "--cache-dir", str(tmp_path / "c"), "--workers", "1",

@@ -4,9 +4,10 @@ from pathlib import Path
 import numpy as np
 
 from app.motion import transforms
-from app.motion.body import build_body, count_lead_in_frames, pelvis_basis
+from app.motion.body import build_body, pelvis_basis
 from app.motion.formats import read_bvh
 from app.motion.kinematics import forward_kinematics
+from app.motion.lead_in import count_lead_in_frames
 from app.motion.model import Motion
 from app.motion.pipeline import analyse
 from app.motion.skeleton_map import CANONICAL_INDEX

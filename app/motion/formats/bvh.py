@@ -263,13 +263,8 @@ def parse_bvh_rest(text: str, *, limits: ParseLimits = DEFAULT_LIMITS) -> Motion
     text = normalise_newlines(text)
     if _decimal_comma(text):
         text = text.replace(",", ".")
-    lines = _Lines(text)
-    try:
-        joints = _HIERARCHIES.read(lines, limits)
-    except NoAnimation:
-        # A whole hierarchy and nothing after it: the skeleton is all a rig needs.
-        lines = _Lines(text.rstrip("\n") + "\nMOTION\n")
-        joints = _HIERARCHIES.read(lines, limits)
+    # A whole hierarchy and nothing after it is read too: the skeleton is all a rig needs.
+    joints = _HIERARCHIES.read(_Lines(text), limits, motion_optional=True)
     channel_count = sum(len(j.channels or ()) for j in joints)
     # Zero channels: no rotation, and position channels that read as "no change" from the
     # OFFSETs (see _positions_are_deltas), so the rest pose is the OFFSETs'.
@@ -344,8 +339,11 @@ class _HierarchyMemo:
         self._read: dict[tuple[str, ParseLimits], tuple[list[_Joint], int]] = {}
         self._lock = threading.Lock()
 
-    def read(self, lines: _Lines, limits: ParseLimits) -> list[_Joint]:
-        """:func:`_read_hierarchy` of ``lines`` (from their start), remembered."""
+    def read(
+        self, lines: _Lines, limits: ParseLimits, *, motion_optional: bool = False
+    ) -> list[_Joint]:
+        """:func:`_read_hierarchy` of ``lines`` (from their start), remembered (only up to a
+        ``MOTION`` line: ``motion_optional`` changes nothing there)."""
         found = _MOTION_LINE_RE.search(lines.text, 0, self.MAX_TEXT)
         key = None if found is None else (lines.text[: found.end()], limits)
         if key is not None:
@@ -355,7 +353,7 @@ class _HierarchyMemo:
                 joints, line_count = known
                 lines.pos, lines.line = found.end(), line_count  # type: ignore[union-attr]
                 return joints
-        joints = _read_hierarchy(lines, limits)
+        joints = _read_hierarchy(lines, limits, motion_optional=motion_optional)
         if key is not None and lines.pos == found.end():  # type: ignore[union-attr]
             with self._lock:
                 if len(self._read) >= self.MAX_ENTRIES:
@@ -367,8 +365,13 @@ class _HierarchyMemo:
 _HIERARCHIES = _HierarchyMemo()
 
 
-def _read_hierarchy(lines: _Lines, limits: ParseLimits) -> list[_Joint]:
-    """Read from ``HIERARCHY`` to the ``MOTION`` line; joints in depth-first file order."""
+def _read_hierarchy(
+    lines: _Lines, limits: ParseLimits, *, motion_optional: bool = False
+) -> list[_Joint]:
+    """Read from ``HIERARCHY`` to the ``MOTION`` line; joints in depth-first file order.
+
+    A whole hierarchy ending the file is a rig with no animation (:class:`NoAnimation`), or
+    with ``motion_optional`` (a rig is wanted) simply the joints."""
     first = lines.next_nonblank()
     if first is None:
         raise ParseError("the file is empty")
@@ -400,6 +403,8 @@ def _read_hierarchy(lines: _Lines, limits: ParseLimits) -> list[_Joint]:
                     f"(opened on line {where.line}); missing '}}'",
                     line=number,
                 )
+            if root_closed and motion_optional:
+                return joints
             if root_closed:  # a whole hierarchy and nothing after it: a rig
                 raise NoAnimation(
                     f"the file is a rig with no animation: a skeleton of {len(joints)} joints "

@@ -32,20 +32,22 @@ import numpy as np
 from app.errors import LimitExceeded, ParseError
 from app.motion.formats.scene import (
     MIN_MARKERS,
-    Animation,
     NodeGraph,
-    check_frame_budget,
-    choice_warnings,
     kept_parents,
     loose_points,
     markers_not_skeleton,
     motion_from_graph,
-    no_skeleton,
-    pick_animation,
-    scene_notes,
     skeleton_nodes,
     unique_names,
     with_plain_nodes_below,
+)
+from app.motion.formats.scene_animation import (
+    Animation,
+    check_frame_budget,
+    choice_warnings,
+    no_skeleton,
+    pick_animation,
+    scene_notes,
 )
 from app.motion.formats.text import refuse_lfs_pointer
 from app.motion.model import Motion, ParseLimits

@@ -36,18 +36,20 @@ import numpy as np
 from app.errors import LimitExceeded, ParseError
 from app.motion.formats.gltf_data import accessor_values, buffers_of, load_document
 from app.motion.formats.scene import (
-    Animation,
     NodeGraph,
-    check_frame_budget,
-    choice_warnings,
     kept_parents,
     motion_from_graph,
-    no_skeleton,
-    pick_animation,
-    scene_notes,
     skeleton_nodes,
     unique_names,
     with_plain_nodes_below,
+)
+from app.motion.formats.scene_animation import (
+    Animation,
+    check_frame_budget,
+    choice_warnings,
+    no_skeleton,
+    pick_animation,
+    scene_notes,
 )
 from app.motion.formats.text import show
 from app.motion.model import Motion, ParseLimits

@@ -1,7 +1,7 @@
 """``mocap-index import``: its options (folders, labels from a table, a pattern or the command
 line, workers, batches, progress) and the run: every clip under the folders imported in
 parallel by :func:`app.importer.run_import`, a report printed, and the exit status
-(:func:`import_status`). :mod:`app.cli` registers the command.
+(:func:`import_status`). :mod:`app.cli` lists the command.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from app.cli_progress import ProgressBar
+from app.cli.progress import ProgressBar
 from app.config import Settings
 
 
