@@ -66,6 +66,36 @@ def test_a_uri_that_is_not_embedded_is_refused_without_touching_it(bvh_motion, u
         read_gltf(json.dumps(document).encode())
 
 
+def _split_by_node(document: dict) -> dict:
+    """``document`` with its one animation written as one unnamed animation per node (how
+    COLLADA2GLTF writes a take), each with its own samplers."""
+    (whole,) = document["animations"]
+    parts: dict[int, dict] = {}
+    for channel in whole["channels"]:
+        part = parts.setdefault(channel["target"]["node"], {"channels": [], "samplers": []})
+        part["samplers"].append(whole["samplers"][channel["sampler"]])
+        part["channels"].append({**channel, "sampler": len(part["samplers"]) - 1})
+    return {**document, "animations": list(parts.values())}
+
+
+def test_a_take_written_as_one_animation_per_node_is_read_whole(bvh_motion):
+    """A converter that writes each node's channels as an animation of its own (Khronos's
+    COLLADA2GLTF sample figures) holds one take: read alone, the first animation was a
+    still pose of a body that moves. The parts read together give the whole take, exactly."""
+    document, binary = gltf_parts(bvh_motion, name="walk")
+    split = _split_by_node(document)
+    assert len(split["animations"]) > 2
+    data = pack_glb(split, binary)
+    (animation,) = list_gltf_animations(data)
+    assert animation.name.endswith(f"(one take over {len(split['animations'])} animations)")
+    whole, split_read = read_gltf(pack_glb(document, binary))[0], read_gltf(data)[0]
+    np.testing.assert_array_equal(split_read.local_rotations, whole.local_rotations)
+    np.testing.assert_array_equal(split_read.root_translation, whole.root_translation)
+    # Two of the parts moving one node are takes of their own: not joined.
+    split["animations"].append(json.loads(json.dumps(split["animations"][0])))
+    assert len(list_gltf_animations(pack_glb(split, binary))) == len(split["animations"])
+
+
 def test_several_animations_are_listed_and_one_is_read_by_name(bvh_motion):
     document, binary = gltf_parts(bvh_motion, name="long")
     short = json.loads(json.dumps(document["animations"][0]))

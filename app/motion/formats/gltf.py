@@ -207,14 +207,17 @@ class _Document:
         self.animations: list[Animation] = []
         self.rates: list[float] = []
         self.spans: list[tuple[float, float]] = []
+        # The file's animations each exposed animation reads (one, or a take split by node).
+        self.parts: list[list[int]] = []
         self._inputs: dict[int, np.ndarray] = {}
         animations = self.document.animations or []
         names = unique_names(
             [a.name or "" for a in animations], blank="animation {i}", repeat="{name} ({n})"
         )
         count = len(nodes)
+        moved: list[set[int]] = []  # the nodes each animation moves
         for name, animation in zip(names, animations, strict=True):
-            begin, end, rate = self._timing(animation)
+            begin, end, rate = self._timing([animation])
             frames = int(np.floor((end - begin) * rate + 0.5)) + 1
             targets = [channel_target(channel) for channel in animation.channels or []]
             for k, (node, _, _) in enumerate(targets):
@@ -224,10 +227,34 @@ class _Document:
                         f"which does not exist (the file has {count} nodes)"
                     )
             # whether it moves a node (its translation, rotation or scale; not weights only)
-            moves = any(path in _PATHS and node is not None for node, path, _ in targets)
-            self.animations.append(Animation(name, frames, frames / rate, moves))
+            moved.append({node for node, path, _ in targets if path in _PATHS and node is not None})
+            self.animations.append(Animation(name, frames, frames / rate, bool(moved[-1])))
             self.rates.append(rate)
             self.spans.append((begin, end))
+            self.parts.append([len(self.parts)])
+        self._join_split_take(moved)
+
+    def _join_split_take(self, moved: list[set[int]]) -> None:
+        """One take written as one animation per node or part (COLLADA2GLTF's layout: each
+        animation moves nodes no other moves, all over one span of time) is read as one
+        animation: apart, each is a part of the body's motion and none is a clip (read
+        alone, the first would be a still pose of a body that moves)."""
+        if len(moved) < 2 or not all(moved):
+            return
+        seen: set[int] = set()
+        for nodes in moved:
+            if nodes & seen:
+                return  # two animations move one node: takes of their own
+            seen |= nodes
+        animations = self.document.animations
+        begin, end, rate = self._timing(animations)
+        if any(abs(b - begin) > 0.5 / rate or abs(e - end) > 0.5 / rate for b, e in self.spans):
+            return  # spans of their own: takes of their own
+        frames = int(np.floor((end - begin) * rate + 0.5)) + 1
+        first, last = self.animations[0].name, self.animations[-1].name
+        name = f"{first} .. {last} (one take over {len(moved)} animations)"
+        self.animations = [Animation(name, frames, frames / rate, True)]
+        self.rates, self.spans, self.parts = [rate], [(begin, end)], [list(range(len(moved)))]
 
     def times(self, index: int) -> np.ndarray:
         if index not in self._inputs:
@@ -239,11 +266,12 @@ class _Document:
             self._inputs[index] = keys
         return self._inputs[index]
 
-    def _timing(self, animation: Any) -> tuple[float, float, float]:
-        """First and last key time and the sampling rate of one animation."""
+    def _timing(self, animations: list[Any]) -> tuple[float, float, float]:
+        """First and last key time and the sampling rate of ``animations`` read as one."""
         keys = []
-        for sampler in animation.samplers or []:
-            keys.append(self.times(sampler.input))
+        for animation in animations:
+            for sampler in animation.samplers or []:
+                keys.append(self.times(sampler.input))
         if not keys or all(k.size == 0 for k in keys):
             return 0.0, 0.0, DEFAULT_FPS
         every = np.unique(np.concatenate(keys))
@@ -311,7 +339,7 @@ def read_gltf(
         raise no_skeleton(loaded.animations, _nothing_turns(document))
     if not loaded.animations and still:  # a rig: its rest (bind) pose as one frame
         loaded.animations = [Animation("", 1, 0.0)]
-        loaded.rates, loaded.spans = [DEFAULT_FPS], [(0.0, 0.0)]
+        loaded.rates, loaded.spans, loaded.parts = [DEFAULT_FPS], [(0.0, 0.0)], [[0]]
         document.replace("animations", [{}])
     chosen = pick_animation(loaded.animations, animation, joints=int(is_bone.sum()))
     warnings = choice_warnings(loaded.animations, chosen, animation)
@@ -333,10 +361,13 @@ def read_gltf(
         "rotation": np.broadcast_to(rest_r, (len(times), len(kept), 4)).copy(),
         "scale": np.broadcast_to(rest_s, (len(times), len(kept), 3)).copy(),
     }
-    gltf_animation = document.animations[chosen]
-    samplers = gltf_animation.samplers or []
     others: list[str] = []  # pointers to other properties than a node's transform
-    for channel in gltf_animation.channels or []:
+    channels = [
+        (channel, document.animations[part].samplers or [])
+        for part in loaded.parts[chosen]
+        for channel in document.animations[part].channels or []
+    ]
+    for channel, samplers in channels:
         node, path, other = channel_target(channel)
         if other is not None:
             others.append(other)
