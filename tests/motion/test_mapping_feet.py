@@ -107,3 +107,26 @@ def test_knees_bending_backwards_in_a_take_keep_a_foot_long_toe() -> None:
     for side in "lr":
         toe = names.index(truth[f"{side}_ankle"]) + 1
         assert got[f"{side}_toe"] in (names[toe], names[toe + 1]), side
+
+
+def test_of_two_end_sites_on_the_ankle_the_one_pointing_with_the_knee_is_the_toe() -> None:
+    # A video-pose writer hangs two End Sites of one length on each ankle, toe and heel,
+    # the heel last: the farthest point was the heel by the file's order, the rest pose's
+    # feet then pointed back and the sides were turned with them.
+    skeleton, truth = synthetic_humanoid(Humanoid(names="anon", toes=False))
+    motion = walking(skeleton, truth)
+    parents = [skeleton.index(truth[f"{side}_ankle"]) for side in "lr" for _ in range(2)]
+    toe, heel = np.array([0.0, -0.06, 0.14]), np.array([0.0, -0.06, -0.14])
+    motion = grown(motion, parents, [toe, heel, toe, heel])
+    ends = motion.skeleton.end_site.copy()
+    ends[-4:] = True
+    motion = dataclasses.replace(
+        motion, skeleton=dataclasses.replace(motion.skeleton, end_site=ends)
+    )
+    got, body = _mapped(motion)
+    names = motion.skeleton.names
+    for side, toe_end in zip("lr", names[-4::2], strict=True):
+        assert got[f"{side}_ankle"] == truth[f"{side}_ankle"], side
+        assert got[f"{side}_toe"] == toe_end, side
+    assert not body.mapping.mirrored
+    check_canonical_body(body, "two end sites", upright=True)

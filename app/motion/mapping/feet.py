@@ -85,10 +85,13 @@ class _FootRules(_MapperState):
         stands. Asked only where the foot's structure makes it a question (a foot-long
         leaf beside the foot, or a foot short as a heel): an ordinary foot reads no frame."""
         ankle, toe = limb["ankle"], limb["toe"]
-        if toe == ankle or limb.how["toe"].startswith("derived"):
-            # No bone of the foot (an End Site on the ankle, which a writer may point
-            # anywhere): it tells nothing of the foot's direction, nor of a heel.
+        if toe == ankle:
             return limb
+        if limb.how["toe"].startswith("derived"):
+            # No bone of the foot: End Sites on the ankle, which a writer may point
+            # anywhere. One alone tells nothing of a heel; of several (a heel's and a
+            # toe's), the one pointing with the knee's bend is the toe.
+            return self.forward_end(limb)
         tree = self.tree
         own = set(tree.chain(limb["knee"], foot))
         # Leaves below the knee beside the foot reaching as far as toes from the ankle: a
@@ -124,4 +127,28 @@ class _FootRules(_MapperState):
             # Short as a heel, too: no toe. (A foot as long as a person's stands: knees
             # bending backwards in a take are the take's artefact, not a heel.)
             limb.joints["toe"], limb.how["toe"] = ankle, HEEL_ONLY
+        return limb
+
+    def forward_end(self, limb: _Limb) -> _Limb:
+        """``limb`` with its derived toe (the farthest End Site beyond the ankle) swapped
+        for another End Site on the ankle, as far as toes reach, that points with the
+        knee's bend where the toe points against it (a heel's and a toe's End Site, alike
+        in length: which one the farthest is was the file's order)."""
+        ankle, toe = limb["ankle"], limb["toe"]
+        tree = self.tree
+        ends = [
+            leaf
+            for leaf in tree.children[ankle]
+            if leaf != toe and tree.skeleton.end_site[leaf] and self.foot_long(limb, leaf)
+        ]
+        if not ends or not self.foot_long(limb):
+            return limb
+        poses, fronts = self.knee_fronts(limb)
+        if not len(poses) or self.pointing(poses, fronts, ankle, toe) >= -_POINTS:
+            return limb
+        scores = [(self.pointing(poses, fronts, ankle, leaf), leaf) for leaf in ends]
+        score, leaf = max(scores)
+        if score > _POINTS:
+            limb.joints["toe"] = leaf
+            limb.how["toe"] = "derived: the End Site beyond the ankle pointing with the knee"
         return limb
