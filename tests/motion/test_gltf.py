@@ -96,6 +96,29 @@ def test_a_take_written_as_one_animation_per_node_is_read_whole(bvh_motion):
     assert len(list_gltf_animations(pack_glb(split, binary))) == len(split["animations"])
 
 
+def test_rigid_parts_keyed_one_by_one_are_refused_as_no_body(bvh_motion):
+    """A modelling tool's animated model (Blockbench: groups, each holding meshes, turned on
+    their own under one root, no skin) has no skeleton; it was refused "every joint of the
+    pose is at one point", which is not what is wrong with it. A skeleton without a skin
+    (joints hanging from joints) still reads."""
+    document, binary = gltf_parts(bvh_motion)
+    parts = ["wheel", "eye", "mouth", "body"]
+    nodes = [{"name": "root", "children": list(range(1, 1 + len(parts)))}]
+    nodes += [{"name": p, "children": [1 + len(parts) + i]} for i, p in enumerate(parts)]
+    nodes += [{"name": f"{p} cube", "mesh": 0} for p in parts]
+    channels = document["animations"][0]["channels"][: len(parts)]
+    for i, channel in enumerate(channels):
+        channel["target"]["node"] = 1 + i
+    document.update(nodes=nodes, scenes=[{"nodes": [0]}], meshes=[{"primitives": []}])
+    document["animations"][0]["channels"] = channels
+    del document["skins"]
+    with pytest.raises(ParseError, match=r"moves 4 parts \(wheel, eye, mouth, body\) each on"):
+        read_gltf(pack_glb(document, binary))
+    skinless, binary = gltf_parts(bvh_motion)
+    del skinless["skins"]
+    assert read_gltf(pack_glb(skinless, binary))[0].skeleton.joint_count > 20
+
+
 def test_several_animations_are_listed_and_one_is_read_by_name(bvh_motion):
     document, binary = gltf_parts(bvh_motion, name="long")
     short = json.loads(json.dumps(document["animations"][0]))

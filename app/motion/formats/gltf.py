@@ -36,8 +36,10 @@ import numpy as np
 from app.errors import LimitExceeded, ParseError
 from app.motion.formats.gltf_data import accessor_values, buffers_of, load_document
 from app.motion.formats.scene import (
+    MIN_MARKERS,
     NodeGraph,
     kept_parents,
+    loose_points,
     motion_from_graph,
     skeleton_nodes,
     unique_names,
@@ -180,7 +182,8 @@ def _nothing_turns(document: Any) -> str:
 def _animated_nodes(document: Any, parents: np.ndarray) -> np.ndarray:
     """``(N,)`` bool: for a file without skin (an animation exported without its mesh, by
     Blender or FBX2glTF), the nodes its channels turn or move, and the plain nodes (no mesh,
-    camera or skin) below them, such as a head's end bone."""
+    camera or skin) below them, such as a head's end bone. Loose parts, each moved on its
+    own and none below another, are no skeleton (:class:`ParseError`)."""
     nodes = document.nodes or []
     animated = np.zeros(len(nodes), dtype=bool)
     for animation in document.animations or []:
@@ -191,7 +194,43 @@ def _animated_nodes(document: Any, parents: np.ndarray) -> np.ndarray:
     plain = np.array(
         [all(getattr(node, key, None) is None for key in _NOT_JOINT) for node in nodes], dtype=bool
     )
+    # Nodes keyed one by one, none below another, each carrying meshes and no joint-like
+    # (plain) node: rigid parts or props (a Blockbench model's groups), no body.
+    carried = _carried(parents, animated)  # (N,) the animated node each node hangs from
+    parts = 0
+    if not (plain & (carried >= 0)).any() and set(carried[carried >= 0]) == set(
+        np.flatnonzero(animated)
+    ):
+        parts = loose_points(animated, parents)
+    if parts >= MIN_MARKERS:
+        shown = [nodes[i].name or f"node {i}" for i in np.flatnonzero(animated)[:5]]
+        raise ParseError(
+            f"the animation moves {parts} parts ({', '.join(shown)}"
+            f"{' ...' if parts > 5 else ''}) each on its own, and the file has no skeleton: "
+            "no skin, and no animated nodes that hang from one another (rigid parts or props "
+            "keyed one by one, not a body)"
+        )
     return with_plain_nodes_below(animated, plain, parents)
+
+
+def _carried(parents: np.ndarray, animated: np.ndarray) -> np.ndarray:
+    """``(N,)`` for each node below an ``animated`` node the nearest such ancestor, else -1
+    (one walk from the top nodes down; nodes in a cycle are not reached)."""
+    out = np.full(len(parents), -1, dtype=np.int64)
+    children: list[list[int]] = [[] for _ in parents]
+    stack = []
+    for i, parent in enumerate(parents.tolist()):
+        if 0 <= parent < len(parents):
+            children[parent].append(i)
+        else:
+            stack.append(i)
+    while stack:
+        node = stack.pop()
+        carrier = node if animated[node] else int(out[node])
+        for child in children[node]:
+            out[child] = carrier
+            stack.append(child)
+    return out
 
 
 class _Document:
