@@ -54,6 +54,14 @@ _LIMB_BONES = frozenset(
 )
 
 
+# The pelvis's own bones to the hip joints: one rigid bone in the body (the pelvis), which
+# rigs split at places of their own (a hip bone from the pelvis's centre, a buttock joint at
+# the hip's side). Their joints turn as the source's do, but are not aimed: aimed, a rig's
+# hip bone took the direction of another segment (both hips down and back from the pelvis's
+# centre, the hip joints brought together).
+_GIRDLE = frozenset(("pelvis", f"{side}_hip") for side in ("l", "r"))
+
+
 @dataclass(frozen=True)
 class Driven:
     """One driven target joint and where its rotation comes from."""
@@ -146,7 +154,10 @@ def driven_joints(
             t_path.append(t_stops[i])
             s_path.append(s_stops[i])
         for i in range(len(t_path) - 1):
-            add(t_path[i], s_path[i], t_path[i + 1], s_path[i + 1], None)
+            if (base, end) in _GIRDLE and i > 0:
+                add(t_path[i], s_path[i], None, None, None)
+            else:
+                add(t_path[i], s_path[i], t_path[i + 1], s_path[i + 1], None)
     # The head joint turns as the other's head joint does (a chain's end is only aimed at,
     # and a head joint with no end effector beyond it ends the chain): it carries the face,
     # whatever points lie beyond it. Its reference alignment takes its up (head joint -> top

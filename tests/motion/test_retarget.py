@@ -329,3 +329,39 @@ def test_a_pelvis_turned_back_by_its_children_keeps_the_world_up_on_the_rig() ->
     rig, rig_map = rig_of(capture)
     out = retarget(network, mapped(network), rig, rig_map)
     assert build_body(out).world_up.tolist() == build_body(capture).world_up.tolist()
+
+
+def _buttocks(motion: Motion) -> Motion:
+    """The CMU clip with its hip bones split where a DAZ figure splits them: the joint
+    between the pelvis and the thigh (``LHipJoint``) moved out to the hip's side, the thigh
+    hanging a short way down and back from it; the thighs stay where they were at rest."""
+    skeleton = motion.skeleton
+    offsets = skeleton.offsets.copy()
+    for side in ("L", "R"):
+        mid = skeleton.index(f"{side}HipJoint")
+        thigh = skeleton.index(f"{'Left' if side == 'L' else 'Right'}UpLeg")
+        step = np.array([0.0, -0.1, -0.12]) * np.linalg.norm(offsets[thigh])
+        offsets[mid] = offsets[mid] + offsets[thigh] - step
+        offsets[thigh] = step
+    return dataclasses.replace(motion, skeleton=dataclasses.replace(skeleton, offsets=offsets))
+
+
+def test_a_rig_s_hip_bones_stay_with_its_pelvis_whatever_the_source_splits() -> None:
+    """The pelvis is one rigid bone that rigs split at places of their own. Paired one by
+    one, the rig's hip bone (from the pelvis's centre) took the direction of the source's
+    buttock-to-thigh step (down and back): both hip joints were brought together and left
+    and right told nothing (the CMU ASF rig from a DAZ clip: left stays left 48 %)."""
+    source = _buttocks(read_bvh(fixture_bytes(CMU_BVH_FIXTURE)))
+    source_map = mapped(source)
+    rig, rig_map = rig_of(read_bvh(fixture_bytes(CMU_BVH_FIXTURE)))
+    out = retarget(source, source_map, rig, rig_map)
+    quality = retarget_quality(source, source_map, out, rig_map, skip=1)
+    assert quality.left_ok == 1.0
+    # The rig's hips stay as far apart as at its rest, in every frame.
+    pair = [rig_map.joints[CANONICAL_INDEX[f"{side}_hip"]] for side in "lr"]
+    _, positions = forward_kinematics(out)
+    _, rest = forward_kinematics(rig)
+    width = np.linalg.norm(positions[:, pair[0]] - positions[:, pair[1]], axis=1)
+    np.testing.assert_allclose(
+        width, np.linalg.norm(rest[0, pair[0]] - rest[0, pair[1]]), rtol=1e-6
+    )
