@@ -38,6 +38,7 @@ from app.motion.formats.gltf_data import accessor_values, buffers_of, load_docum
 from app.motion.formats.scene import (
     MIN_MARKERS,
     NodeGraph,
+    carriers,
     kept_parents,
     loose_points,
     motion_from_graph,
@@ -196,7 +197,7 @@ def _animated_nodes(document: Any, parents: np.ndarray) -> np.ndarray:
     )
     # Nodes keyed one by one, none below another, each carrying meshes and no joint-like
     # (plain) node: rigid parts or props (a Blockbench model's groups), no body.
-    carried = _carried(parents, animated)  # (N,) the animated node each node hangs from
+    carried = carriers(parents, animated)  # (N,) the animated node each node hangs from
     parts = 0
     if not (plain & (carried >= 0)).any() and set(carried[carried >= 0]) == set(
         np.flatnonzero(animated)
@@ -211,26 +212,6 @@ def _animated_nodes(document: Any, parents: np.ndarray) -> np.ndarray:
             "keyed one by one, not a body)"
         )
     return with_plain_nodes_below(animated, plain, parents)
-
-
-def _carried(parents: np.ndarray, animated: np.ndarray) -> np.ndarray:
-    """``(N,)`` for each node below an ``animated`` node the nearest such ancestor, else -1
-    (one walk from the top nodes down; nodes in a cycle are not reached)."""
-    out = np.full(len(parents), -1, dtype=np.int64)
-    children: list[list[int]] = [[] for _ in parents]
-    stack = []
-    for i, parent in enumerate(parents.tolist()):
-        if 0 <= parent < len(parents):
-            children[parent].append(i)
-        else:
-            stack.append(i)
-    while stack:
-        node = stack.pop()
-        carrier = node if animated[node] else int(out[node])
-        for child in children[node]:
-            out[child] = carrier
-            stack.append(child)
-    return out
 
 
 class _Document:

@@ -263,6 +263,13 @@ def loose_points(animated: np.ndarray, parents: np.ndarray) -> int:
     (``parents`` ``(N,)``), else 0. A skeleton's animated nodes form chains (a forearm turns
     below its upper arm); optical markers are loose points, each moved on its own. Nodes
     not reached from a top-level one (a cycle) are not looked at."""
+    return 0 if (animated & (carriers(parents, animated) >= 0)).any() else int(animated.sum())
+
+
+def carriers(parents: np.ndarray, animated: np.ndarray) -> np.ndarray:
+    """``(N,)`` for each node below an ``animated`` node the nearest such ancestor, else -1
+    (one walk from the top nodes down; nodes in a cycle are not reached)."""
+    out = np.full(len(parents), -1, dtype=np.int64)
     children: list[list[int]] = [[] for _ in parents]
     stack = []
     for i, parent in enumerate(parents.tolist()):
@@ -270,13 +277,13 @@ def loose_points(animated: np.ndarray, parents: np.ndarray) -> int:
             children[parent].append(i)
         else:
             stack.append(i)
-    below = np.zeros(len(parents), dtype=bool)  # an animated node above it
     while stack:
-        i = stack.pop()
-        for child in children[i]:
-            below[child] = below[i] or animated[i]
+        node = stack.pop()
+        carrier = node if animated[node] else int(out[node])
+        for child in children[node]:
+            out[child] = carrier
             stack.append(child)
-    return 0 if (animated & below).any() else int(animated.sum())
+    return out
 
 
 def markers_not_skeleton(count: int) -> ParseError:
