@@ -248,7 +248,8 @@ def _known(skeleton: Skeleton, candidates: int) -> _Known:
     rest = tree.rest.copy()  # what rest_pose(skeleton) gives: the tree computed it
     if float(np.linalg.norm(np.ptp(rest, axis=0))) <= 0.0 or not np.any(tree.lengths > 0):
         raise SkeletonMappingError(
-            "every OFFSET is 0: the skeleton has no shape to map "
+            "every joint sits at one point (in a BVH: every OFFSET is 0; in FBX or glTF: "
+            "every bone's translation is 0): the skeleton has no shape to map "
             f"({skeleton.joint_count} joints collapse to one point)"
         )
     known = _structure(tree, candidates)
