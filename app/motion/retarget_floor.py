@@ -27,7 +27,7 @@ from app.motion.retarget_feet import FeetInputs, Pose, hold_planted_feet, plante
 from app.motion.retarget_joints import between
 from app.motion.retarget_reference import leg_length, swing
 from app.motion.retarget_stride import fit_planted_roll
-from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap
+from app.motion.skeleton_map import CANONICAL_INDEX, CANONICAL_JOINTS, SkeletonMap
 
 _TINY = 1e-9
 
@@ -170,7 +170,7 @@ def rig_foot_points(mapping: SkeletonMap) -> list[int]:
     on the way back. The rig's ankle is held as the source's ankle instead."""
     out = []
     for index, canonical in enumerate(FOOT_POINTS):
-        name = next(n for n, i in CANONICAL_INDEX.items() if i == canonical)
+        name = CANONICAL_JOINTS[canonical]
         if name.endswith("_toe"):
             ankle = CANONICAL_INDEX[name.replace("_toe", "_ankle")]
             if mapping.joints[canonical] == mapping.joints[ankle]:

@@ -40,7 +40,6 @@ from app.motion.formats.scene import (
     NodeGraph,
     carriers,
     kept_parents,
-    loose_points,
     motion_from_graph,
     skeleton_nodes,
     unique_names,
@@ -198,11 +197,13 @@ def _animated_nodes(document: Any, parents: np.ndarray) -> np.ndarray:
     # Nodes keyed one by one, none below another, each carrying meshes and no joint-like
     # (plain) node: rigid parts or props (a Blockbench model's groups), no body.
     carried = carriers(parents, animated)  # (N,) the animated node each node hangs from
-    parts = 0
-    if not (plain & (carried >= 0)).any() and set(carried[carried >= 0]) == set(
-        np.flatnonzero(animated)
-    ):
-        parts = loose_points(animated, parents)
+    below = carried >= 0
+    rigid = (
+        not (animated & below).any()  # loose: none below another
+        and not (plain & below).any()
+        and set(carried[below]) == set(np.flatnonzero(animated))  # each carries something
+    )
+    parts = int(animated.sum()) if rigid else 0
     if parts >= MIN_MARKERS:
         shown = [nodes[i].name or f"node {i}" for i in np.flatnonzero(animated)[:5]]
         raise ParseError(

@@ -77,6 +77,14 @@ class _FootRules(_MapperState):
         reach = _length(self.pose[limb["toe"] if toe is None else toe] - ankle)
         return reach >= _HEEL_SHIN * shin
 
+    def toe_points_back(self, limb: _Limb) -> tuple[np.ndarray, np.ndarray] | None:
+        """:meth:`knee_fronts` of ``limb`` where its toe points back against the knee's
+        bend in them (a heel), else None (it points with it, or no pose bends the knee)."""
+        poses, fronts = self.knee_fronts(limb)
+        if not len(poses) or self.pointing(poses, fronts, limb["ankle"], limb["toe"]) >= -_POINTS:
+            return None
+        return poses, fronts
+
     def forward_foot(self, limb: _Limb, foot: int) -> _Limb:
         """``limb`` (the leg ending at the leaf ``foot``), or, when its toe points back
         against the knee's bend (a heel), the leg ending at another leaf below the knee
@@ -105,9 +113,10 @@ class _FootRules(_MapperState):
         ]
         if not beside and self.foot_long(limb):
             return limb
-        poses, fronts = self.knee_fronts(limb)
-        if not len(poses) or self.pointing(poses, fronts, ankle, toe) >= -_POINTS:
+        bent = self.toe_points_back(limb)
+        if bent is None:
             return limb
+        poses, fronts = bent
         best: tuple[float, _Limb] | None = None
         for leaf in beside:
             try:
@@ -143,9 +152,10 @@ class _FootRules(_MapperState):
         ]
         if not ends or not self.foot_long(limb):
             return limb
-        poses, fronts = self.knee_fronts(limb)
-        if not len(poses) or self.pointing(poses, fronts, ankle, toe) >= -_POINTS:
+        bent = self.toe_points_back(limb)
+        if bent is None:
             return limb
+        poses, fronts = bent
         scores = [(self.pointing(poses, fronts, ankle, leaf), leaf) for leaf in ends]
         score, leaf = max(scores)
         if score > _POINTS:

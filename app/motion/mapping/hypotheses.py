@@ -259,14 +259,15 @@ def _hypotheses(
         if body is not None:
             valid.append(body)
         else:
-            if progress == _FOUR_LEGGED and _hang_one_way(pose, choice):
+            if _animal(pose, choice, progress):
                 four_legged.append((choice, why))
             if progress > best_partial:
                 best_partial, reason = progress, why
     if four_legged and valid:
-        kept = [b for b in valid if _on_shorter_limbs(known.tree, b, four_legged) is None]
+        overruled = [_on_shorter_limbs(known.tree, b, four_legged) for b in valid]
+        kept = [b for b, why in zip(valid, overruled, strict=True) if why is None]
         if not kept:
-            reason = _on_shorter_limbs(known.tree, valid[0], four_legged) or reason
+            reason = overruled[0] or reason
         valid = kept
     return valid, reason
 
@@ -280,15 +281,18 @@ def _four_legged_choices(
     found = []
     for choice in known.choices:
         _, why, progress = _check_pose(known.tree, pose, extent, *choice, facts=facts)
-        if progress == _FOUR_LEGGED and _hang_one_way(pose, choice):
+        if _animal(pose, choice, progress):
             found.append((choice, why))
     return found
 
 
-def _hang_one_way(pose: np.ndarray, choice: _Choice) -> bool:
-    """Whether the four limbs of ``choice`` in ``pose`` (``(J, 3)``: legs from the pelvis,
-    arms from the chest) all hang one way, each within 60 degrees of their mean, as an
-    animal's four legs stand (props or IK chains pointing anywhere do not)."""
+def _animal(pose: np.ndarray, choice: _Choice, progress: int) -> bool:
+    """Whether ``choice``, refused in ``pose`` (``(J, 3)``) after ``progress`` steps of
+    :func:`_check_pose`, was refused as four-legged with its four limbs (legs from the
+    pelvis, arms from the chest) all hanging one way, each within 60 degrees of their mean,
+    as an animal's four legs stand (props or IK chains pointing anywhere do not)."""
+    if progress != _FOUR_LEGGED:
+        return False
     _, hands, feet, chest, pelvis = choice[:5]
     ways = np.array(
         [_unit(pose[f] - pose[pelvis]) for f in feet]
