@@ -213,8 +213,11 @@ class DescriptorIndex(SavedIndex):
         kind = kind or self.options.kind_for(int(ids_.size))
         fresh = build_index(ids_, array, kind, self.options, threads=threads)
         if kind_of(fresh) == IVF and codes_of(fresh) == SQ8:  # its exact vectors beside it
-            order = np.argsort(ids_, kind="stable")
-            fresh = FrozenIVF(fresh, array[order], ids_[order])
+            if np.all(ids_[1:] > ids_[:-1]):  # already in id order (the database's): no copy
+                fresh = FrozenIVF(fresh, array, ids_)
+            else:
+                order = np.argsort(ids_, kind="stable")
+                fresh = FrozenIVF(fresh, array[order], ids_[order])
         self.file.drop_unchecked()  # that file is no longer used
         with self._lock.write():
             self._index = fresh
