@@ -356,20 +356,15 @@ class FrozenIVF:
                     faiss.swig_ptr(nearest),
                     None,
                 )
+            every_cell = nearest.copy() if cutoff is not None else nearest
             if cutoff is not None:
                 probe_cutoff.skip_far_cells(to_cells, nearest, cutoff)
             # FAISS's own search after its scan of the centroids
-            self.base.search_preassigned_c(
-                count,
-                faiss.swig_ptr(queries),
-                fetch,
-                faiss.swig_ptr(nearest),
-                faiss.swig_ptr(to_cells),
-                faiss.swig_ptr(squared),
-                faiss.swig_ptr(ids),
-                False,
-                params,
-            )
+            self._search_cells(queries, fetch, nearest, to_cells, squared, ids, params)
+            if cutoff is not None and (ids[:, -1] < 0).any():
+                # The decisive cells held fewer than ``fetch`` vectors (a query in a small
+                # cell, a large k): every cell, as the full search, never fewer hits than it.
+                self._search_cells(queries, fetch, every_cell, to_cells, squared, ids, params)
         else:
             self.base.search_c(
                 count,
@@ -449,6 +444,30 @@ class FrozenIVF:
         sample = np.sort(rng.choice(self.base_ids, min(count, self.base_ids.size), False))
         _, vectors = self.vectors(sample)
         return sample, padded(vectors, self.width)
+
+    def _search_cells(
+        self,
+        queries: np.ndarray,
+        fetch: int,
+        cells: np.ndarray,
+        to_cells: np.ndarray,
+        squared: np.ndarray,
+        ids: np.ndarray,
+        params: Any,
+    ) -> None:
+        """FAISS's search of ``cells`` ``(Q, nprobe)`` (-1: skipped) at ``to_cells``, into
+        ``squared`` and ``ids`` ``(Q, fetch)``."""
+        self.base.search_preassigned_c(
+            int(queries.shape[0]),
+            faiss.swig_ptr(queries),
+            fetch,
+            faiss.swig_ptr(cells),
+            faiss.swig_ptr(to_cells),
+            faiss.swig_ptr(squared),
+            faiss.swig_ptr(ids),
+            False,
+            params,
+        )
 
     def cutoff(self, nprobe: int) -> float | None:
         """The ratio beyond which an adaptive search of ``nprobe`` cells skips a cell (None:
