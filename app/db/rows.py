@@ -17,7 +17,7 @@ from datetime import UTC, datetime
 from typing import Any
 
 import numpy as np
-from sqlalchemy import Connection, insert
+from sqlalchemy import Connection, func, insert, select
 from sqlalchemy.orm import Session
 
 VECTOR_DTYPE = np.dtype("<f4")
@@ -82,14 +82,18 @@ STREAM_ROWS = 50_000  # rows a fetch when a whole table of vectors is read
 
 
 def streamed_vector_arrays(
-    session: Executor, query: Any, dimension: int, expected: int
+    session: Executor, query: Any, dimension: int, expected: int | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Like :func:`vector_arrays` for every (id, vector bytes) row of ``query``, read
-    :data:`STREAM_ROWS` rows at a time into arrays sized for ``expected`` rows (grown when
-    more come: a count taken before the query may be stale). Holding every row first, then
-    their bytes joined, then the floats took three copies of the table: ~21 GB for the 12 M
-    one-second windows of a 1,000-hour library (bench/README.md). On PostgreSQL the rows
-    come from a server-side cursor (``yield_per``), not the whole result at once."""
+    """Like :func:`vector_arrays` for every (id, vector bytes) row of ``query`` (ordered),
+    read :data:`STREAM_ROWS` rows at a time into arrays sized for ``expected`` rows (default:
+    counted first; grown when more come, since the count may be stale by then). Holding
+    every row first, then their bytes joined, then the floats took three copies of the
+    table: ~21 GB for the 12 M one-second windows of a 1,000-hour library, ~2 GB for a
+    million clips' vectors (bench/README.md). On PostgreSQL the rows come from a server-side
+    cursor (``yield_per``), not the whole result at once."""
+    if expected is None:
+        counted = select(func.count()).select_from(query.order_by(None).subquery())
+        expected = int(session.scalar(counted) or 0)
     ids = np.empty(expected, dtype=np.int64)
     vectors = np.empty((expected, dimension), dtype=np.float32)
     filled = 0

@@ -88,8 +88,7 @@ def window_ids(session: Executor, key: WindowKey) -> np.ndarray:
 def load_windows(session: Executor, key: WindowKey) -> tuple[np.ndarray, np.ndarray]:
     """Window ids ``(N,)`` int64 and vectors ``(N, D)`` float32 of ``key``, in id order."""
     query = select(ClipWindow.id, ClipWindow.vector).where(_window_filter(key))
-    expected = count_windows(session, key)
-    return streamed_vector_arrays(session, query.order_by(ClipWindow.id), key.dimension, expected)
+    return streamed_vector_arrays(session, query.order_by(ClipWindow.id), key.dimension)
 
 
 def load_windows_of(

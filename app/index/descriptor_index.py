@@ -45,6 +45,7 @@ from __future__ import annotations
 import logging
 from typing import Any, Protocol
 
+import faiss
 import numpy as np
 
 from app.index.frozen import FrozenIVF
@@ -213,6 +214,8 @@ class DescriptorIndex(SavedIndex):
         kind = kind or self.options.kind_for(int(ids_.size))
         fresh = build_index(ids_, array, kind, self.options, threads=threads)
         if kind_of(fresh) == IVF and codes_of(fresh) == SQ8:  # its exact vectors beside it
+            # Its vectors are read from the exact rows: no id hash table (~40 bytes a vector)
+            fresh.set_direct_map_type(faiss.DirectMap.NoMap)  # type: ignore[attr-defined]
             if np.all(ids_[1:] > ids_[:-1]):  # already in id order (the database's): no copy
                 fresh = FrozenIVF(fresh, array, ids_)
             else:
