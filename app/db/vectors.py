@@ -15,7 +15,14 @@ from sqlalchemy import delete, func, select
 from sqlalchemy.orm import Session
 
 from app.db.models import Clip, ClipDescriptor
-from app.db.rows import Executor, decode_vector, encode_vector, select_in, vector_arrays
+from app.db.rows import (
+    Executor,
+    decode_vector,
+    encode_vector,
+    select_in,
+    streamed_vector_arrays,
+    vector_arrays,
+)
 
 
 @dataclass(frozen=True)
@@ -126,8 +133,7 @@ def load_vectors(
         query = query.where(ClipDescriptor.clip_id > after)
     if upto is not None:
         query = query.where(ClipDescriptor.clip_id <= upto)
-    rows = session.execute(query.order_by(ClipDescriptor.clip_id)).all()
-    return vector_arrays(rows, dimension)
+    return streamed_vector_arrays(session, query.order_by(ClipDescriptor.clip_id), dimension)
 
 
 def load_vectors_of(

@@ -12,7 +12,14 @@ from sqlalchemy import delete, func, select
 from sqlalchemy.orm import Session
 
 from app.db.models import Clip, ClipFile, ClipWindow
-from app.db.rows import VECTOR_DTYPE, Executor, insert_values, select_in, vector_arrays
+from app.db.rows import (
+    VECTOR_DTYPE,
+    Executor,
+    insert_values,
+    select_in,
+    streamed_vector_arrays,
+    vector_arrays,
+)
 
 
 @dataclass(frozen=True)
@@ -81,8 +88,7 @@ def window_ids(session: Executor, key: WindowKey) -> np.ndarray:
 def load_windows(session: Executor, key: WindowKey) -> tuple[np.ndarray, np.ndarray]:
     """Window ids ``(N,)`` int64 and vectors ``(N, D)`` float32 of ``key``, in id order."""
     query = select(ClipWindow.id, ClipWindow.vector).where(_window_filter(key))
-    rows = session.execute(query.order_by(ClipWindow.id)).all()
-    return vector_arrays(rows, key.dimension)
+    return streamed_vector_arrays(session, query.order_by(ClipWindow.id), key.dimension)
 
 
 def load_windows_of(

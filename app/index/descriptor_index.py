@@ -45,6 +45,7 @@ from __future__ import annotations
 import logging
 from typing import Any, Protocol
 
+import faiss
 import numpy as np
 
 from app.index.frozen import FrozenIVF
@@ -213,8 +214,13 @@ class DescriptorIndex(SavedIndex):
         kind = kind or self.options.kind_for(int(ids_.size))
         fresh = build_index(ids_, array, kind, self.options, threads=threads)
         if kind_of(fresh) == IVF and codes_of(fresh) == SQ8:  # its exact vectors beside it
-            order = np.argsort(ids_, kind="stable")
-            fresh = FrozenIVF(fresh, array[order], ids_[order])
+            # Its vectors are read from the exact rows: no id hash table (~40 bytes a vector)
+            fresh.set_direct_map_type(faiss.DirectMap.NoMap)  # type: ignore[attr-defined]
+            if np.all(ids_[1:] > ids_[:-1]):  # already in id order (the database's): no copy
+                fresh = FrozenIVF(fresh, array, ids_)
+            else:
+                order = np.argsort(ids_, kind="stable")
+                fresh = FrozenIVF(fresh, array[order], ids_[order])
         self.file.drop_unchecked()  # that file is no longer used
         with self._lock.write():
             self._index = fresh

@@ -255,6 +255,8 @@ class FrozenIVF:
     def all_vectors(self) -> tuple[np.ndarray, np.ndarray]:
         """Every ``(ids (N,), vectors (N, D))`` held (ids ascending)."""
         ids = self.ids()
+        if self.exact is not None and not self.gone.size and not self.delta_total:
+            return ids, self.exact  # the rows are the ids' order: no copy (12 M windows: 6.6 GB)
         if self.exact is not None:  # rows of the file's order, then the delta's one by one
             rows = self._base_rows(ids)
             vectors = np.empty((ids.size, self.dimension), np.float32)
@@ -356,20 +358,15 @@ class FrozenIVF:
                     faiss.swig_ptr(nearest),
                     None,
                 )
+            every_cell = nearest.copy() if cutoff is not None else nearest
             if cutoff is not None:
                 probe_cutoff.skip_far_cells(to_cells, nearest, cutoff)
             # FAISS's own search after its scan of the centroids
-            self.base.search_preassigned_c(
-                count,
-                faiss.swig_ptr(queries),
-                fetch,
-                faiss.swig_ptr(nearest),
-                faiss.swig_ptr(to_cells),
-                faiss.swig_ptr(squared),
-                faiss.swig_ptr(ids),
-                False,
-                params,
-            )
+            self._search_cells(queries, fetch, nearest, to_cells, squared, ids, params)
+            if cutoff is not None and (ids[:, -1] < 0).any():
+                # The decisive cells held fewer than ``fetch`` vectors (a query in a small
+                # cell, a large k): every cell, as the full search, never fewer hits than it.
+                self._search_cells(queries, fetch, every_cell, to_cells, squared, ids, params)
         else:
             self.base.search_c(
                 count,
@@ -450,6 +447,30 @@ class FrozenIVF:
         _, vectors = self.vectors(sample)
         return sample, padded(vectors, self.width)
 
+    def _search_cells(
+        self,
+        queries: np.ndarray,
+        fetch: int,
+        cells: np.ndarray,
+        to_cells: np.ndarray,
+        squared: np.ndarray,
+        ids: np.ndarray,
+        params: Any,
+    ) -> None:
+        """FAISS's search of ``cells`` ``(Q, nprobe)`` (-1: skipped) at ``to_cells``, into
+        ``squared`` and ``ids`` ``(Q, fetch)``."""
+        self.base.search_preassigned_c(
+            int(queries.shape[0]),
+            faiss.swig_ptr(queries),
+            fetch,
+            faiss.swig_ptr(cells),
+            faiss.swig_ptr(to_cells),
+            faiss.swig_ptr(squared),
+            faiss.swig_ptr(ids),
+            False,
+            params,
+        )
+
     def cutoff(self, nprobe: int) -> float | None:
         """The ratio beyond which an adaptive search of ``nprobe`` cells skips a cell (None:
         none skipped): read from beside the file, else measured from the file's vectors and
@@ -482,7 +503,11 @@ class FrozenIVF:
     # -- the next file ---------------------------------------------------------------------
 
     def merged(self) -> Any:
-        """An owned, writable copy of the base with the changes applied."""
+        """The base with the changes applied, to be written: an owned, writable copy, or
+        the base itself when there are no changes (a copy would be a second 2.3 GB of
+        8-bit lists at 1,000 hours of windows, bench/README.md)."""
+        if not self.gone.size and not self.delta_total:
+            return self.base
         index = faiss.deserialize_index(faiss.serialize_index(self.base))
         if self.gone.size:
             index.remove_ids(faiss.IDSelectorArray(self.gone.size, faiss.swig_ptr(self.gone)))

@@ -138,9 +138,9 @@ def build_index(
     ``options.codes`` SQ8 the lists hold 8-bit codes of the vectors padded to
     :func:`padded_width` (the caller keeps the exact vectors: :class:`FrozenIVF`).
     """
-    if kind != FLAT and options.codes == SQ8:
-        vectors = padded(vectors, padded_width(int(vectors.shape[1])))
     dimension = int(vectors.shape[1])
+    if kind != FLAT and options.codes == SQ8:  # padded a block at a time: no second copy
+        dimension = padded_width(dimension)
     if kind == FLAT:
         flat = empty_flat(dimension)
         if ids.size:
@@ -169,11 +169,11 @@ def build_index(
     before = faiss.omp_get_max_threads()
     faiss.omp_set_num_threads(threads or os.cpu_count() or 1)
     try:
-        index.train(np.ascontiguousarray(sample))
+        index.train(padded(sample, dimension))
         with_id_map(index)
         for start in range(0, int(ids.size), 262_144):
             stop = start + 262_144
-            index.add_with_ids(vectors[start:stop], ids[start:stop])
+            index.add_with_ids(padded(vectors[start:stop], dimension), ids[start:stop])
     finally:
         faiss.omp_set_num_threads(before)
     index.nprobe = options.nprobe or calibrate_nprobe(
@@ -195,7 +195,8 @@ def calibrate_nprobe(
     """The smallest ``nprobe`` of 1, 2, 3, 4, 6, 8, 12, 16, 24, ... (powers of two and half
     way between; at most ``nlist``) whose recall@10 against exact search reaches ``target``
     for ``samples`` stored vectors used as queries, each excluding itself as a search by
-    clip does. Exact neighbours come from ``faiss.knn`` over ``vectors`` (no copy). The
+    clip does. Exact neighbours come from ``faiss.knn`` over ``vectors`` (no copy; the
+    index's lists may be wider, :func:`padded_width`, the queries are padded for it). The
     steps between powers of two matter: at a million clips a search's time is mostly the
     cells it scans, and 12 cells where 16 were the next power of two is a quarter less."""
     rng = np.random.default_rng(seed)
@@ -216,7 +217,7 @@ def calibrate_nprobe(
             if codes_of(index) == SQ8:  # ranked by exact distances, as FrozenIVF searches
                 _, found = _reranked(index, queries, vectors, ids, 11, params)
             else:
-                _, found = index.search(queries, 11, params=params)
+                _, found = index.search(padded(queries, index.d), 11, params=params)
             hits = sum(
                 len(want & {int(i) for i in row if i != ids[own]})
                 for own, want, row in zip(rows, truth, found, strict=True)
@@ -235,8 +236,8 @@ def _reranked(
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(Q, k)`` squared distances and ids of the nearest of :data:`RERANK` times ``k``
     candidates of compressed lists, ranked by their exact distances (``vectors`` ``(N, D)``
-    under ``ids`` ``(N,)``, the index's contents)."""
-    _, candidates = index.search(queries, k * RERANK, params=params)
+    under ``ids`` ``(N,)``, the index's contents, unpadded)."""
+    _, candidates = index.search(padded(queries, index.d), k * RERANK, params=params)
     order = np.argsort(ids, kind="stable")
     valid = candidates >= 0
     rows = order[np.searchsorted(ids, np.where(valid, candidates, ids[order[0]]), sorter=order)]

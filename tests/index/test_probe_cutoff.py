@@ -101,6 +101,21 @@ def test_a_measured_ratio_keeps_the_full_searchs_hits_for_other_queries(tmp_path
     assert kept / found >= 0.99
 
 
+def test_decisive_cells_too_small_for_k_mean_every_cell(tmp_path: Path) -> None:
+    """A skipping search never answers fewer hits than the full one: where the decisive
+    cells hold fewer than ``k`` vectors (~200 a cluster here, k = 300), every cell is
+    searched. At a million clips one kinetic search of ~30,000 answered 6 hits of 10."""
+    vectors = clustered(8_000, seed=1)
+    frozen = FrozenIVF.open(ivf_file(tmp_path, vectors))
+    assert frozen.cutoff(NPROBE) in CUTOFFS
+    for query in vectors[:100]:
+        full = frozen.search(query[None], 300, nprobe=NPROBE)
+        squared, adaptive = frozen.search(query[None], 300, nprobe=NPROBE, adaptive=True)
+        assert (full[1] >= 0).all() and (adaptive >= 0).all()
+        exact = ((vectors[adaptive[0] - 1] - query) ** 2).sum(axis=1)
+        np.testing.assert_allclose(squared[0], exact, rtol=1e-4, atol=1e-4)
+
+
 def test_too_small_a_saving_means_every_cell_and_the_same_answers(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
