@@ -138,7 +138,9 @@ export async function renderRigs(main) {
     return node;
   }
 
-  async function store(send, what) {
+  /** Store a rig; ``stored()`` clears its form as soon as the service has it, before the
+   * list is fetched again: a next file chosen meanwhile must not be cleared with it. */
+  async function store(send, what, stored) {
     say(`Reading ${what}…`);
     try {
       const answer = await withKey(keyArea, send, "store a rig");
@@ -147,6 +149,7 @@ export async function renderRigs(main) {
         return false;
       }
       const rig = answer;
+      stored();
       const found = Object.keys((rig.mapping && rig.mapping.joints) || {}).length;
       say(`Stored rig #${rig.id} “${rig.name}”: ${plural(rig.joint_count, "joint")}, ${found} of them mapped.`);
       await load();
@@ -163,9 +166,7 @@ export async function renderRigs(main) {
     const { body, name } = rigForm(fileInput.files);
     if (nameInput.value.trim()) body.append("name", nameInput.value.trim());
     const send = () => postForm("/rigs", null, body, { quietAuth: true }).then((answer) => answer.body);
-    if (await store(send, name)) {
-      uploadForm.reset();
-    }
+    await store(send, name, () => uploadForm.reset());
   });
   clipForm.addEventListener("submit", async (event) => {
     event.preventDefault();
@@ -175,7 +176,7 @@ export async function renderRigs(main) {
       return;
     }
     const send = () => sendJson("POST", "/rigs", undefined, { params: { from_clip: id }, quietAuth: true });
-    if (await store(send, `clip #${id}`)) clipForm.reset();
+    await store(send, `clip #${id}`, () => clipForm.reset());
   });
 
   await load();
