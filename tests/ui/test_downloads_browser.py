@@ -253,7 +253,7 @@ def test_a_file_chosen_while_the_rigs_load_again_is_kept(browser: Any, tmp_path:
     """Storing a rig says so, then lists the rigs again; before 2026-11-28 the form was
     cleared only once that list had come back, so a next file chosen in between (the status
     already said "Stored") was cleared with it and the next "Store rig" did nothing (the
-    file field is required): a flaky CI failure of the test above under load. The list's
+    file field is required): a flaky CI failure of the test below under load. The list's
     answer is held here until the next file and name are chosen."""
     from playwright.sync_api import expect
 
@@ -274,7 +274,10 @@ def test_a_file_chosen_while_the_rigs_load_again_is_kept(browser: Any, tmp_path:
         expect(page.locator("main .status")).to_contain_text(
             "Stored rig #", timeout=STORE_TIMEOUT_MS
         )
-        page.wait_for_timeout(200)  # the list's request reaches the route
+        for _ in range(600):  # the list's request reaches the route (events pumped meanwhile)
+            if held:
+                break
+            page.wait_for_timeout(50)
         assert len(held) == 1
         page.get_by_label(re.compile("^Rig file")).set_input_files(str(CMU_ASF))
         page.get_by_label("Name").fill("CMU subject 02")
