@@ -143,20 +143,17 @@ export async function renderRigs(main) {
   async function store(send, what, stored) {
     say(`Reading ${what}…`);
     try {
-      const answer = await withKey(keyArea, send, "store a rig");
-      if (answer === undefined) {
+      const rig = await withKey(keyArea, send, "store a rig");
+      if (rig === undefined) {
         say("Not stored.");
-        return false;
+        return;
       }
-      const rig = answer;
       stored();
       const found = Object.keys((rig.mapping && rig.mapping.joints) || {}).length;
       say(`Stored rig #${rig.id} “${rig.name}”: ${plural(rig.joint_count, "joint")}, ${found} of them mapped.`);
       await load();
-      return true;
     } catch (error) {
       say(`Not stored: ${error.code && error.code !== "http_error" ? `${error.code.replace(/_/g, " ")}: ` : ""}${error.detail || error.message}`, { error: true });
-      return false;
     }
   }
 

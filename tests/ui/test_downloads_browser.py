@@ -274,7 +274,7 @@ def test_a_file_chosen_while_the_rigs_load_again_is_kept(browser: Any, tmp_path:
         expect(page.locator("main .status")).to_contain_text(
             "Stored rig #", timeout=STORE_TIMEOUT_MS
         )
-        for _ in range(600):  # the list's request reaches the route (events pumped meanwhile)
+        for _ in range(STORE_TIMEOUT_MS // 50):  # the list's request reaches the route
             if held:
                 break
             page.wait_for_timeout(50)
