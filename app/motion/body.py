@@ -22,7 +22,10 @@ canonical joints only, and works out from the skeleton itself:
 * ``world_up`` — the world's vertical axis, needed to split root speed into horizontal and
   vertical parts: the coordinate axis (with sign) nearest to the clip's mean body-up
   direction. Motion-capture files are authored with a coordinate axis up, and a body that
-  leans (a dash leans 30-40 degrees on average) must not tilt the floor.
+  leans (a dash leans 30-40 degrees on average) must not tilt the floor. A take that mostly
+  lies along the floor (a crawl, a fall) has its mean body up along the floor: there a
+  standing rest pose's axis is the vertical where the body's lowest point keeps its height
+  clearly better along it (:mod:`app.motion.gravity`).
 """
 
 from __future__ import annotations
@@ -42,6 +45,7 @@ from app.motion.body_axes import (
     pelvis_turns_with_hips,
     pose_basis,
 )
+from app.motion.gravity import rest_up, resting_up
 from app.motion.hand import palm
 from app.motion.kinematics import bone_lengths, forward_kinematics
 from app.motion.lead_in import count_lead_in_frames, implausible_frames, plausible_span
@@ -217,7 +221,12 @@ def build_body(motion: Motion) -> Body:
         frame_time=motion.frame_time,
         height=height,
         pelvis_frames=frames,
-        world_up=_world_up(frames),
+        world_up=resting_up(
+            _world_up(frames),
+            rest_up(motion.skeleton, mapping.joints) if mapping.pose == "rest pose" else None,
+            canon_pos,
+            height,
+        ),
         skeleton_family=mapping.family,
         lead_in_frames=lead_in,
         mapping=mapping,

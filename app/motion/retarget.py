@@ -107,7 +107,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from app.motion.body import carried_frames, pelvis_basis, rest_axes_hold
+from app.motion.body import body_height, carried_frames, pelvis_basis, rest_axes_hold
+from app.motion.gravity import rest_up, resting_up
 from app.motion.ground import snap_axis
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion
@@ -308,7 +309,9 @@ def world_up(
     ``(F, 3, 3)``, the pelvis joint's world rotations, and ``positions`` ``(F, C, 3)``, the
     canonical joints' world positions, when already computed). Not the trunk's mean
     direction: a clip bent over for most of its frames (a sneak, a fall) has its pelvis ->
-    neck nearer the forward axis than the up one. A pelvis whose rotation moves no bone
+    neck nearer the forward axis than the up one; a take lying along the floor (a crawl)
+    takes its standing rest pose's axis where the floor says so (:mod:`app.motion.gravity`),
+    as the describer does. A pelvis whose rotation moves no bone
     (its children turn it back) is read from the joints, as the describer reads it
     (:func:`~app.motion.body.carried_frames`)."""
     if pelvis_rotations is None or positions is None:
@@ -316,7 +319,9 @@ def world_up(
         pelvis_rotations = rotations[:, int(mapping.joints[CANONICAL_INDEX["pelvis"]])]
         positions = world[:, mapping.joints]
     frames = carried_frames(pelvis_rotations @ _pelvis_axes(motion, mapping), positions)
-    return snap_axis(frames[:, :, 1].mean(axis=0))
+    standing = rest_up(motion.skeleton, mapping.joints) if mapping.pose == "rest pose" else None
+    height = body_height(motion, mapping.joints, head_joint=mapping.head_joint, held=mapping.held)
+    return resting_up(snap_axis(frames[:, :, 1].mean(axis=0)), standing, positions, height)
 
 
 def _pelvis_axes(motion: Motion, mapping: SkeletonMap) -> np.ndarray:
