@@ -11,11 +11,11 @@ Gravity tells the two apart. A body rests on a floor, so along the true up its l
 keeps one height from frame to frame (a foot, a knee, a hand, the back: whatever touches the
 floor); along a horizontal axis the lowest point is the body's rearmost or leftmost part,
 which moves as the body turns, bends and travels. Where a standing rest pose (the head above
-the pelvis above the ankles) names another axis than the take's mean up, the one whose
-lowest point keeps its height clearly better is the vertical. A take that stands, walks or
-jumps keeps its own axis (its floor is steadier along it, whatever a rest pose says: writers
-that turn a Y-up rest into a Z-up world at the root), and so does a take with no floor to
-read (one frame, a still pose, a flight: both floors steady, or both moving).
+the pelvis above the ankles) names another axis than the take's mean up, the axis the body
+rests on (its lowest point on the floor in most frames, and moving clearly less) is the
+vertical. A take that stands, walks or jumps keeps its own axis (it rests on its floor along
+it, whatever a rest pose says: writers that turn a Y-up rest into a Z-up world at the root),
+and so does a take with no floor to read (one frame, a still pose, a flight).
 
 Shapes: canonical positions ``(F, C, 3)`` as :data:`~app.motion.skeleton_map.CANONICAL_JOINTS`.
 """
@@ -27,20 +27,27 @@ import numpy as np
 from app.motion.model import Skeleton
 from app.motion.skeleton_map import CANONICAL_INDEX, rest_pose
 
-# The rest pose's axis wins only when its floor moves at most this share of the take's: the
-# takes read on their side move their floor 6-30 times as much along the take's axis, a
-# take that stands moves it 5 times as much along the rest's, or more.
+# Body heights: the lowest point of a frame this near the take's lowest is on the floor (a
+# foot flat on it reaches the ankle at ~0.04).
+ON_FLOOR = 0.05
+# A body rests on its floor in most frames: the take's axis is left when its lowest point is
+# on its floor in fewer than this share of the frames and the rest pose's is in at least it.
+RESTS = 0.5
+# ... and the lowest point along the rest pose's axis moves at most this share of what it
+# moves along the take's.
 STEADIER = 0.5
-# ... and the take's floor moves more than this (body heights; a walk's lowest point rises
-# and falls with the toes by ~0.015): a floor that barely moves along either axis is no
-# reading (a still pose, a turn on the spot).
-MOVING_FLOOR = 0.02
+# ... but more than this (body heights): a coordinate held exactly in every frame is a
+# writer's frozen value (a pose estimator's depth), not a floor, which a contact's roll moves.
+HELD = 1e-3
 
 
-def floor_spread(positions: np.ndarray, up: np.ndarray, height: float) -> float:
-    """How much the body's lowest point along ``up`` ``(3,)`` moves over the ``(F, C, 3)``
-    frames: its standard deviation, in body heights."""
-    return float(np.std((positions @ up).min(axis=1))) / height
+def floor_spread(positions: np.ndarray, up: np.ndarray, height: float) -> tuple[float, float]:
+    """Along ``up`` ``(3,)``, how much the body's lowest point moves over the ``(F, C, 3)``
+    frames (its standard deviation, in body heights) and the share of the frames in which it
+    is on the floor (within :data:`ON_FLOOR` of the take's lowest)."""
+    lowest = (positions @ up).min(axis=1)
+    on_floor = float(np.mean(lowest - lowest.min() <= ON_FLOOR * height))
+    return float(np.std(lowest)) / height, on_floor
 
 
 def rest_up(skeleton: Skeleton, joints: np.ndarray) -> np.ndarray | None:
@@ -65,16 +72,16 @@ def resting_up(
     take_up: np.ndarray, standing_up: np.ndarray | None, positions: np.ndarray, height: float
 ) -> np.ndarray:
     """The world's vertical: ``take_up`` (the axis of the take's mean body up), or the
-    standing rest pose's axis ``standing_up`` where the body's lowest point keeps its height
-    clearly better along it (see the module docstring)."""
-    if standing_up is None or np.array_equal(standing_up, take_up) or len(positions) < 2:
+    standing rest pose's axis ``standing_up`` where the body rests on a floor along it and
+    not along ``take_up`` (see the module docstring). Never the opposite of ``take_up``: a
+    body upside down in a whole take is read as its frames show it."""
+    if standing_up is None or len(positions) < 2 or abs(float(standing_up @ take_up)) > 0.5:
         return take_up
-    along_take = floor_spread(positions, take_up, height)
-    if along_take > MOVING_FLOOR and floor_spread(positions, standing_up, height) <= (
-        STEADIER * along_take
-    ):
+    take_spread, take_rests = floor_spread(positions, take_up, height)
+    rest_spread, rest_rests = floor_spread(positions, standing_up, height)
+    if rest_rests >= RESTS > take_rests and HELD < rest_spread <= STEADIER * take_spread:
         return standing_up
     return take_up
 
 
-__all__ = ["MOVING_FLOOR", "STEADIER", "floor_spread", "rest_up", "resting_up"]
+__all__ = ["HELD", "ON_FLOOR", "RESTS", "STEADIER", "floor_spread", "rest_up", "resting_up"]
