@@ -226,6 +226,7 @@ def build_body(motion: Motion) -> Body:
             rest_up(motion.skeleton, mapping.joints) if mapping.pose == "rest pose" else None,
             canon_pos,
             height,
+            frames[:, :, 1],
         ),
         skeleton_family=mapping.family,
         lead_in_frames=lead_in,

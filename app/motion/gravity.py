@@ -11,11 +11,13 @@ Gravity tells the two apart. A body rests on a floor, so along the true up its l
 keeps one height from frame to frame (a foot, a knee, a hand, the back: whatever touches the
 floor); along a horizontal axis the lowest point is the body's rearmost or leftmost part,
 which moves as the body turns, bends and travels. Where a standing rest pose (the head above
-the pelvis above the ankles) names another axis than the take's mean up, the axis the body
-rests on (its lowest point on the floor in most frames, and moving clearly less) is the
-vertical. A take that stands, walks or jumps keeps its own axis (it rests on its floor along
-it, whatever a rest pose says: writers that turn a Y-up rest into a Z-up world at the root),
-and so does a take with no floor to read (one frame, a still pose, a flight).
+the pelvis above the ankles) names another axis than the take's mean up, or the body itself
+stands up along another axis for a part of the take (the start of a fall, the end of a
+get-up: a writer's rest pose may lie or be no figure at all), the axis the body rests on (its
+lowest point on the floor in most frames, and moving clearly less) is the vertical. A take
+that stands, walks or jumps keeps its own axis (it rests on its floor along it, whatever a
+rest pose says: writers that turn a Y-up rest into a Z-up world at the root), and so does a
+take with no floor to read (one frame, a still pose, a flight).
 
 Shapes: canonical positions ``(F, C, 3)`` as :data:`~app.motion.skeleton_map.CANONICAL_JOINTS`.
 """
@@ -36,6 +38,11 @@ RESTS = 0.5
 # ... and the lowest point along the rest pose's axis moves at most this share of what it
 # moves along the take's.
 STEADIER = 0.5
+# The body stands along an axis in a frame where its pelvis -> neck is within 30 degrees of
+# it, and stands along it for a part of the take in at least this share of the frames (a fall
+# starts standing, a get-up ends so); the floor then decides, as for a rest pose's axis.
+STANDS_WITHIN = float(np.cos(np.radians(30.0)))
+STANDS = 0.1
 # ... but more than this (body heights): a coordinate held exactly in every frame is a
 # writer's frozen value (a pose estimator's depth), not a floor, which a contact's roll moves.
 HELD = 1e-3
@@ -68,20 +75,59 @@ def rest_up(skeleton: Skeleton, joints: np.ndarray) -> np.ndarray | None:
     return up
 
 
+def standing_axes(body_ups: np.ndarray, take_up: np.ndarray) -> list[np.ndarray]:
+    """The signed coordinate axes across ``take_up`` ``(3,)`` along which the body stands in
+    at least :data:`STANDS` of the frames; ``body_ups`` ``(F, 3)``: the pelvis -> neck unit
+    direction of each frame."""
+    return [
+        axis
+        for axis in np.concatenate([np.eye(3), -np.eye(3)])
+        if abs(float(axis @ take_up)) < 0.5 and np.mean(body_ups @ axis >= STANDS_WITHIN) >= STANDS
+    ]
+
+
 def resting_up(
-    take_up: np.ndarray, standing_up: np.ndarray | None, positions: np.ndarray, height: float
+    take_up: np.ndarray,
+    standing_up: np.ndarray | None,
+    positions: np.ndarray,
+    height: float,
+    body_ups: np.ndarray,
 ) -> np.ndarray:
-    """The world's vertical: ``take_up`` (the axis of the take's mean body up), or the
-    standing rest pose's axis ``standing_up`` where the body rests on a floor along it and
-    not along ``take_up`` (see the module docstring). Never the opposite of ``take_up``: a
-    body upside down in a whole take is read as its frames show it."""
-    if standing_up is None or len(positions) < 2 or abs(float(standing_up @ take_up)) > 0.5:
+    """The world's vertical: ``take_up`` (the axis of the take's mean body up), or another
+    axis the body rests on a floor along, and not along ``take_up``: the standing rest
+    pose's axis ``standing_up``, or one along which the body stands in a part of the take
+    (``body_ups`` ``(F, 3)``, see :func:`standing_axes`); see the module docstring. Never the
+    opposite of ``take_up``: a body upside down in a whole take is read as its frames show
+    it."""
+    if len(positions) < 2:
+        return take_up
+    candidates = standing_axes(body_ups, take_up)
+    if (
+        standing_up is not None
+        and abs(float(standing_up @ take_up)) < 0.5
+        and not any(np.array_equal(standing_up, axis) for axis in candidates)
+    ):
+        candidates.insert(0, standing_up)
+    if not candidates:
         return take_up
     take_spread, take_rests = floor_spread(positions, take_up, height)
-    rest_spread, rest_rests = floor_spread(positions, standing_up, height)
-    if rest_rests >= RESTS > take_rests and HELD < rest_spread <= STEADIER * take_spread:
-        return standing_up
-    return take_up
+    best, best_spread = take_up, np.inf
+    for axis in candidates:
+        spread, rests = floor_spread(positions, axis, height)
+        steadier = HELD < spread <= STEADIER * take_spread and spread < best_spread
+        if steadier and rests >= RESTS > take_rests:
+            best, best_spread = axis, spread
+    return best
 
 
-__all__ = ["HELD", "ON_FLOOR", "RESTS", "STEADIER", "floor_spread", "rest_up", "resting_up"]
+__all__ = [
+    "HELD",
+    "ON_FLOOR",
+    "RESTS",
+    "STANDS",
+    "STEADIER",
+    "floor_spread",
+    "rest_up",
+    "resting_up",
+    "standing_axes",
+]

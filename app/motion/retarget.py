@@ -321,7 +321,9 @@ def world_up(
     frames = carried_frames(pelvis_rotations @ _pelvis_axes(motion, mapping), positions)
     standing = rest_up(motion.skeleton, mapping.joints) if mapping.pose == "rest pose" else None
     height = body_height(motion, mapping.joints, head_joint=mapping.head_joint, held=mapping.held)
-    return resting_up(snap_axis(frames[:, :, 1].mean(axis=0)), standing, positions, height)
+    return resting_up(
+        snap_axis(frames[:, :, 1].mean(axis=0)), standing, positions, height, frames[:, :, 1]
+    )
 
 
 def _pelvis_axes(motion: Motion, mapping: SkeletonMap) -> np.ndarray:

@@ -6,6 +6,7 @@ import dataclasses
 
 import numpy as np
 
+from app.motion import transforms
 from app.motion.body import build_body
 from app.motion.formats import read_bvh
 from app.motion.gravity import floor_spread, rest_up
@@ -13,6 +14,7 @@ from app.motion.model import Motion
 from app.motion.pipeline import analyse
 from app.motion.retarget import world_up
 from tests.motion.conftest import CMU_BVH_FIXTURE, fixture_bytes
+from tests.motion.test_mapping_probes import rebased
 
 _UP = np.array([0.0, 1.0, 0.0])  # the CMU fixture's rest pose and world: Y up
 
@@ -81,3 +83,38 @@ def test_one_frame_has_no_floor_to_read() -> None:
     walk = read_bvh(fixture_bytes(CMU_BVH_FIXTURE))
     lying = _on_the_back(walk).slice_frames(0, 1)
     np.testing.assert_array_equal(build_body(lying).world_up, [0.0, 0.0, -1.0])
+
+
+def _a_fall(walk: Motion, standing: int = 10) -> Motion:
+    """The walk's first ``standing`` frames upright, the rest laid on its back and dragged
+    (:func:`_on_the_back`): a take that starts standing and lies for most of its frames."""
+    lying = _on_the_back(walk)
+    return dataclasses.replace(
+        walk,
+        local_rotations=np.concatenate(
+            [walk.local_rotations[:standing], lying.local_rotations[standing:]]
+        ),
+        root_translation=np.concatenate(
+            [walk.root_translation[:standing], lying.root_translation[standing:]]
+        ),
+    )
+
+
+def test_a_take_that_stands_for_a_part_reads_its_floor_whatever_its_rest_pose() -> None:
+    """A fall whose writer's rest pose lies (every joint's axes turned: the rest pose's
+    head -> ankles runs along the take's mean body up, -Z) reads the vertical from the frames
+    in which the body stands, as the same take with a standing rest pose does. Before, only a
+    standing rest pose named the other axis, and the copy was stored on its side (-Z)."""
+    fall = _a_fall(read_bvh(fixture_bytes(CMU_BVH_FIXTURE)))
+    turn = transforms.rotation_about([1.0, 0.0, 0.0], 90.0)
+    lying_rest = rebased(fall, np.broadcast_to(turn, (fall.skeleton.joint_count, 3, 3)).copy())
+    for take in (fall, lying_rest):
+        body = build_body(take)
+        assert body.pelvis_frames[:, :, 1].mean(axis=0) @ [0.0, 0.0, -1.0] > 0.5
+        np.testing.assert_array_equal(body.world_up, _UP)
+        np.testing.assert_array_equal(world_up(take, body.mapping), _UP)
+    assert rest_up(lying_rest.skeleton, build_body(lying_rest).mapping.joints).tolist() == [
+        0.0,
+        0.0,
+        -1.0,
+    ]
