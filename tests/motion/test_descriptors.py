@@ -424,3 +424,24 @@ def test_motion_measures_travel_in_leg_lengths() -> None:
     np.testing.assert_allclose(
         blocks[0]["energy"][:, -2:], blocks[1]["energy"][:, -2:], rtol=1e-9, atol=1e-12
     )
+
+
+def _turns_per_frame(heading: np.ndarray) -> np.ndarray:
+    """``(F - 1,)`` degrees the ``(F, 3)`` unit heading turns from frame to frame."""
+    cosines = np.einsum("fa,fa->f", heading[1:], heading[:-1])
+    return np.degrees(np.arccos(np.clip(cosines, -1.0, 1.0)))
+
+
+def test_a_body_lying_on_its_back_heads_as_steadily_as_standing() -> None:
+    """The walk laid on its back (tests/motion/test_gravity.py): its forward points at the
+    sky, and the floor part of it (a fifth of its length) turned 4.1 times as much per frame
+    as the upright walk's heading (``motion`` 4). The heading square to the hips' axis
+    (``motion`` 5) turns about as much lying as standing."""
+    from app.motion.descriptors.motion import heading_frames
+    from tests.motion.conftest import CMU_BVH_FIXTURE, fixture_bytes
+    from tests.motion.test_gravity import _on_the_back
+
+    walk = read_bvh(fixture_bytes(CMU_BVH_FIXTURE))
+    standing = _turns_per_frame(heading_frames(build_body(walk))[0]).mean()
+    lying = _turns_per_frame(heading_frames(build_body(_on_the_back(walk)))[0]).mean()
+    assert lying <= 1.5 * standing, (lying, standing)

@@ -18,7 +18,8 @@ in the pelvis-fixed body frame of :mod:`app.motion.body` (x = left, y = up, z = 
     sum over the 16 joints), as ``log(share + 1e-4)``. A style makes a whole motion more or
     less vigorous (tired, active, giant); which parts carry the motion is the action's.
 ``travel`` (8 numbers)
-    Root motion in the body's own heading frame (forward projected on the floor): mean
+    Root motion in the body's own heading frame (the floor direction square to the hips'
+    axis, see :func:`heading_frames`): mean
     forward and lateral velocity (signed: walking back or to the left is negative forward /
     positive lateral), mean signed turning rate (rad/s, positive = turning left), mean
     horizontal speed, std of forward and lateral velocity, rms vertical velocity and the
@@ -58,9 +59,10 @@ an idle, a motionless finger rig, a one- or two-frame clip):
   window sits among near-still ones rather than apart from them. Shares are otherwise in
   ``[0, 1]`` and the floor keeps the logarithm finite;
 * ``travel``: a still body has zero velocities, turning rate and displacement; the heading
-  of a body whose forward axis is vertical (lying, bent over) falls back to its lateral axis
-  turned about the vertical; ``sideways`` divides by the mean speed only through the gate,
-  which is 0 at speed 0;
+  of a body lying on its back or front, or bent over, is its lateral axis turned about the
+  vertical (version 5; before, its forward's short floor part, which turned with every
+  breath); ``sideways`` divides by the mean speed only through the gate, which is 0 at
+  speed 0;
 * ``limbs``: a segment of zero length (two canonical joints at one point) has direction 0.
 """
 
@@ -145,18 +147,28 @@ def parts_from_energies(joints: np.ndarray) -> np.ndarray:
 
 
 def heading_frames(body: Body) -> tuple[np.ndarray, np.ndarray]:
-    """Per-frame floor-plane heading: ``(F, 3)`` forward and ``(F, 3)`` left unit vectors."""
+    """Per-frame floor-plane heading: ``(F, 3)`` forward and ``(F, 3)`` left unit vectors.
+
+    The heading is the floor direction square to the lateral (hip to hip) axis, which a
+    body keeps when it bends, falls or lies on its back or front (a turn about that axis): a
+    body lying on its back, whose forward points at the sky, heads where it faced before it
+    fell, and its heading is as steady as its hips. Where the lateral axis stands near
+    vertical (a body on its side, a cartwheel) its floor part is short, and the forward
+    axis's floor part, long there, takes over in the measure the lateral's is lost. An
+    upright body's heading is its forward's either way."""
     up = body.world_up
-    forward = body.pelvis_frames[:, :, 2]
-    forward = forward - (forward @ up)[:, None] * up
-    norms = np.linalg.norm(forward, axis=1, keepdims=True)
-    # Lying or bent so far that forward is vertical: fall back to the lateral axis turned.
     lateral = body.pelvis_frames[:, :, 0]
-    fallback = np.cross(lateral, up)
-    forward = np.where(norms > 1e-6, forward / np.maximum(norms, 1e-12), fallback)
-    forward /= np.maximum(np.linalg.norm(forward, axis=1, keepdims=True), 1e-12)
-    left = np.cross(up, forward)
-    return forward, left
+    forward = body.pelvis_frames[:, :, 2]
+    from_lateral = np.cross(lateral, up)  # length: the lateral axis's floor part
+    level = np.linalg.norm(from_lateral, axis=1, keepdims=True)
+    from_forward = forward - (forward @ up)[:, None] * up
+    heading = from_lateral + (1.0 - np.minimum(level, 1.0)) * from_forward
+    norms = np.linalg.norm(heading, axis=1, keepdims=True)
+    # The two cancel only upside down and on the side at once: the forward's floor part then.
+    heading = np.where(norms > 1e-6, heading, from_forward)
+    heading /= np.maximum(np.linalg.norm(heading, axis=1, keepdims=True), 1e-12)
+    left = np.cross(up, heading)
+    return heading, left
 
 
 def leg_length(body: Body) -> float:
@@ -291,7 +303,7 @@ DESCRIPTOR = Descriptor(
     + PARTS_DIMENSION
     + TRAVEL_DIMENSION
     + SIDEWAYS_DIMENSION,
-    version=4,
+    version=5,
     description="The best all-round choice (the default): what the body does — where the "
     "limbs point, which parts move and how hard, and how the body travels (ahead, back, to "
     "the side, turning). Finds the same action across actors, styles and skeletons.",
