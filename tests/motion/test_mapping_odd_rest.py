@@ -321,16 +321,20 @@ def dev_outcomes(probe: str) -> dict[Path, tuple[str, bool, bool, bool]]:
 # lead-in frame the original drops; tests/motion/test_body_axes.py): what tells it apart is the
 # body's pitch, 5-29 degrees, which a rest pose that is no writer's rest cannot tell
 # (docs/skeletons.md, "2026-11-27, what tells an odd-rest copy from its original").
+# Raised 2026-11-28 to the counts measured with the floor's vertical and ``motion`` 5's heading
+# square to the hips (docs/skeletons.md, "a fall whose rest pose lies, and a lying body's
+# heading"): found first by motion +1 under signed axes, random axes and the middle frame as
+# rest; one frame / two frames in random axes had one to spare in three counts already.
 RECORDED: dict[str, tuple[int, int, int, int]] = {
-    "a: bones along signed axes": (62, 61, 46, 61),
-    "a: bones in random axes": (60, 55, 35, 59),
+    "a: bones along signed axes": (62, 61, 47, 62),
+    "a: bones in random axes": (60, 55, 36, 60),
     "b: rest pose lying": (66, 66, 66, 66),
-    "b: middle frame as rest": (61, 56, 39, 58),
+    "b: middle frame as rest": (61, 56, 39, 59),
     "c: one frame": (66, 66, 66, 66),
     "c: one frame, it as rest": (59, 54, 42, 56),
-    "c: one frame, random axes": (59, 58, 34, 57),
+    "c: one frame, random axes": (60, 59, 35, 58),
     "c: two frames, first as rest": (60, 55, 40, 58),
-    "c: two frames, random axes": (59, 57, 37, 59),
+    "c: two frames, random axes": (60, 58, 38, 59),
     "d: take lying, first frame as rest": (62, 56, 41, 60),
     "d: take lying, rest pose lying": (66, 66, 66, 66),
     "e: left-handed": (64, 64, 64, 64),
