@@ -898,3 +898,27 @@ def test_a_comma_beside_decimal_points_is_still_not_a_number() -> None:
     amc = amc[: first.start(1)] + first[1].replace(".", ",") + amc[first.end(1) :]
     with pytest.raises(ParseError, match=r"AMC.*is not a number"):
         read_asf_amc(fixture_text(CMU_ASF_FIXTURE), amc)
+
+
+def test_numpy_s_reader_is_given_ascii_lines_only(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A fuzzed AMC with characters beyond the BMP in its frame lines crashed the process
+    inside ``np.loadtxt`` (a segmentation fault about once in 60,000 reads; numpy 2.4.6), and
+    AMC is read in the server's own process. Such lines now take the line-by-line pass: the
+    same clip with a frame number followed by such a character is refused, naming the
+    line."""
+    given_text: list[str] = []
+    loadtxt = np.loadtxt
+
+    def watched(lines, *args, **kwargs):  # type: ignore[no-untyped-def]
+        given_text.extend(lines)
+        return loadtxt(lines, *args, **kwargs)
+
+    monkeypatch.setattr(amc_module.np, "loadtxt", watched)
+    amc = re.sub(r"(?m)^3(\r?)$", "3\U000988a7\\1", fixture_text(CMU_AMC_FIXTURE), count=1)
+    assert "\U000988a7" in amc
+    with pytest.raises(ParseError) as refused:
+        read_asf_amc(fixture_bytes(CMU_ASF_FIXTURE), amc.encode("utf-8"))
+    assert refused.value.line is not None
+    assert all(line.isascii() for line in given_text)
+    read_asf_amc(fixture_bytes(CMU_ASF_FIXTURE), fixture_bytes(CMU_AMC_FIXTURE))
+    assert given_text  # the fast path still reads a real file

@@ -1194,3 +1194,27 @@ def test_frames_zero_with_values_after_it_is_a_rig_that_says_so():
     rig = counted_none.split("0 90 0 10")[0]
     with pytest.raises(NoAnimation, match=r"no motion to describe$"):
         read_bvh(rig)
+
+
+def test_numpy_s_reader_is_given_ascii_text_only(monkeypatch: pytest.MonkeyPatch) -> None:
+    """numpy's C text reader crashed the process on a fuzzed file with characters beyond the
+    BMP (tests/motion/test_asf_amc.py). A BVH whose frame lines are spaced by an ideographic
+    space (U+3000) is read by the line pass and given to numpy as ASCII: the same values."""
+    given_text: list[str] = []
+    loadtxt = np.loadtxt
+
+    def watched(source, *args, **kwargs):  # type: ignore[no-untyped-def]
+        text = source.getvalue()
+        given_text.append(text)
+        return loadtxt(source, *args, **kwargs)
+
+    monkeypatch.setattr(np, "loadtxt", watched)
+    text = fixture_bytes(CMU_BVH_FIXTURE).decode("ascii")
+    head, frames = text.split("Frame Time:", 1)
+    first, rest = frames.split("\n", 1)
+    spaced = head + "Frame Time:" + first + "\n" + rest.replace(" ", "\u3000", 5)
+    motion = read_bvh(spaced.encode("utf-8"))
+    np.testing.assert_allclose(
+        motion.local_rotations, read_bvh(fixture_bytes(CMU_BVH_FIXTURE)).local_rotations
+    )
+    assert given_text and all(text.isascii() for text in given_text)

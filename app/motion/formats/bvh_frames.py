@@ -53,10 +53,13 @@ def read_frames(
             values = read_spaced_numbers(encoded, 0, len(encoded), frame_count, channel_count)
             del encoded
         if values is None:
-            with contextlib.suppress(ValueError):
-                values = np.loadtxt(
-                    io.StringIO(text[start:end]), dtype=np.float64, comments=None, ndmin=2
-                )
+            block = text[start:end]
+            if block.isascii():  # numpy's C reader is given ASCII only (see below)
+                with contextlib.suppress(ValueError):
+                    values = np.loadtxt(
+                        io.StringIO(block), dtype=np.float64, comments=None, ndmin=2
+                    )
+            del block
         if (
             values is not None
             and values.shape == (frame_count, channel_count)
@@ -67,8 +70,14 @@ def read_frames(
     lines, warnings = _frame_lines(
         text[start:end], first_line, frame_count, frames_line, channel_count, limits
     )
+    block = "\n".join(lines)
+    if not block.isascii():
+        # Every token is an ASCII number (the line pass checked); only whitespace is not.
+        # numpy's C reader is given ASCII only: it crashed the process on a fuzzed file
+        # with characters beyond the BMP (app/motion/formats/amc.py, _read_regular_amc).
+        block = "\n".join(" ".join(line.split()) for line in lines)
     try:
-        values = np.loadtxt(io.StringIO("\n".join(lines)), dtype=np.float64, comments=None, ndmin=2)
+        values = np.loadtxt(io.StringIO(block), dtype=np.float64, comments=None, ndmin=2)
     except ValueError as error:  # the line pass is stricter than numpy's reader
         raise ParseError(f"the frame data could not be read ({error})", line=first_line) from None
     if values.shape != (len(lines), channel_count):
