@@ -66,15 +66,6 @@ def snap_axis(vector: np.ndarray) -> np.ndarray:
     return out
 
 
-def up_axis(canonical: np.ndarray) -> np.ndarray:
-    """``(3,)`` the world's vertical axis: the coordinate axis nearest the mean body up
-    (pelvis -> neck) over the ``(F, C, 3)`` frames."""
-    up = canonical[:, CANONICAL_INDEX["neck"]] - canonical[:, CANONICAL_INDEX["pelvis"]]
-    norms = np.linalg.norm(up, axis=1, keepdims=True)
-    mean = (up / np.where(norms > 1e-12, norms, 1.0)).mean(axis=0)
-    return snap_axis(mean)
-
-
 def foot_heights(canonical: np.ndarray, up: np.ndarray) -> np.ndarray:
     """``(F,)`` height of the lowest foot point (ankles, toes) along ``up`` per frame."""
     return (canonical[:, FOOT_POINTS] @ up).min(axis=1)
@@ -138,6 +129,5 @@ __all__ = [
     "map_clip",
     "sample_frames",
     "snap_axis",
-    "up_axis",
     "yaw_matrices",
 ]

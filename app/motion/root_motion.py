@@ -11,7 +11,9 @@
   every joint's world position is exactly what it was. A joint already called ``root`` keeps
   its place under the new one, renamed ``root_source``.
 
-"Horizontal", "up" and "floor" come from :mod:`app.motion.ground`.
+"Horizontal" and "floor" come from :mod:`app.motion.ground`; "up" is the world's vertical as
+the describer reads it (:func:`app.motion.retarget.world_up`: the floor's axis for a take done
+on the floor, not its trunk's mean), unless the caller gives it.
 """
 
 from __future__ import annotations
@@ -26,11 +28,12 @@ from app.motion.ground import (
     facing,
     floor_height,
     horizontal,
-    up_axis,
+    sample_frames,
     yaw_matrices,
 )
 from app.motion.kinematics import forward_kinematics, rest_positions
 from app.motion.model import Motion, Skeleton
+from app.motion.retarget import world_up
 from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap
 
 ROOT_NAME = "root"
@@ -65,10 +68,16 @@ def shift_joint(motion: Motion, joint: int, shift: np.ndarray) -> Motion:
     return replace(motion, local_translations=local)
 
 
-def in_place(motion: Motion, mapping: SkeletonMap) -> Motion:
-    """``motion`` without the pelvis's horizontal travel (see the module docstring)."""
+def vertical(motion: Motion, mapping: SkeletonMap) -> np.ndarray:
+    """``(3,)`` the world's up in ``motion`` as the describer reads it, from sampled frames."""
+    return world_up(sample_frames(motion), mapping)
+
+
+def in_place(motion: Motion, mapping: SkeletonMap, up: np.ndarray | None = None) -> Motion:
+    """``motion`` without the pelvis's horizontal travel (see the module docstring); ``up``
+    ``(3,)``: the world's vertical, :func:`vertical` when not given."""
     canonical = canonical_positions(motion, mapping)
-    up = up_axis(canonical)
+    up = vertical(motion, mapping) if up is None else up
     pelvis = canonical[:, CANONICAL_INDEX["pelvis"]]
     carrier = translation_carrier(motion, int(mapping.joints[CANONICAL_INDEX["pelvis"]]))
     return shift_joint(motion, carrier, -horizontal(pelvis, up))
@@ -89,11 +98,12 @@ def _rest_facing(motion: Motion, mapping: SkeletonMap, up: np.ndarray) -> np.nda
     return forward / norm
 
 
-def extract_root(motion: Motion, mapping: SkeletonMap) -> Motion:
+def extract_root(motion: Motion, mapping: SkeletonMap, up: np.ndarray | None = None) -> Motion:
     """``motion`` under a new ``root`` joint carrying travel and facing (see the module
-    docstring). The result has one joint more than ``motion``."""
+    docstring; ``up`` as for :func:`in_place`). The result has one joint more than
+    ``motion``."""
     canonical = canonical_positions(motion, mapping)
-    up = up_axis(canonical)
+    up = vertical(motion, mapping) if up is None else up
     floor = floor_height(canonical, up)
     pelvis = canonical[:, CANONICAL_INDEX["pelvis"]]
     root_at = horizontal(pelvis, up) + floor * up  # (F, 3)
@@ -137,4 +147,11 @@ def extract_root(motion: Motion, mapping: SkeletonMap) -> Motion:
     )
 
 
-__all__ = ["ROOT_NAME", "extract_root", "in_place", "shift_joint", "translation_carrier"]
+__all__ = [
+    "ROOT_NAME",
+    "extract_root",
+    "in_place",
+    "shift_joint",
+    "translation_carrier",
+    "vertical",
+]

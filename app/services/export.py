@@ -36,11 +36,11 @@ from app.errors import InvalidInput, LimitExceeded, MocapError, NoStoredFile
 from app.motion.body import body_height
 from app.motion.formats.bvh_writer import write_bvh
 from app.motion.formats.gltf_writer import write_glb
-from app.motion.ground import canonical_positions, map_clip, sample_frames, up_axis
+from app.motion.ground import map_clip
 from app.motion.model import Motion
 from app.motion.resampling import MAX_FPS, MIN_FPS, resample_to_rate, sample_times
 from app.motion.retarget import axis_change, retarget
-from app.motion.root_motion import extract_root, in_place
+from app.motion.root_motion import extract_root, in_place, vertical
 from app.motion.transforms import rescale, rotate
 from app.motion.units import METRIC_FORMATS, UNITS, metres_per_unit
 from app.services.describe import read_motion, span_frames
@@ -219,11 +219,13 @@ def prepare_motion(motion: Motion, options: ExportOptions, rig: LoadedRig | None
         height = body_height(motion, mapping.joints, head_joint=mapping.head_joint)
         metres = metres_per_unit(motion.source_format, height)
         unit_format = motion.source_format
-    up = up_axis(canonical_positions(sample_frames(out), mapping))
+    # One vertical for the root's travel and the file's axes: the describer's (a crawl's is
+    # its floor's, not its trunk's mean, which lies along the floor).
+    up = vertical(out, mapping)
     if options.root == "in-place":
-        out = in_place(out, mapping)
+        out = in_place(out, mapping, up)
     elif options.root == "extract":
-        out = extract_root(out, mapping)
+        out = extract_root(out, mapping, up)
     if options.fps is not None:
         out = resample_to_rate(out, options.fps)
     if options.format != "glb":

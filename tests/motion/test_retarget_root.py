@@ -10,10 +10,10 @@ from scipy.spatial.transform import Rotation
 
 from app.motion.body import build_body
 from app.motion.formats import read_asf_amc, read_bvh
-from app.motion.ground import canonical_positions, horizontal, up_axis
+from app.motion.ground import canonical_positions, horizontal
 from app.motion.kinematics import forward_kinematics
 from app.motion.resampling import resample_to_rate, sample_times
-from app.motion.root_motion import RENAMED_ROOT, ROOT_NAME, extract_root, in_place
+from app.motion.root_motion import RENAMED_ROOT, ROOT_NAME, extract_root, in_place, vertical
 from app.motion.skeleton_map import CANONICAL_INDEX
 from app.motion.units import metres_per_unit
 from tests.motion.conftest import (
@@ -24,12 +24,15 @@ from tests.motion.conftest import (
     fixture_bytes,
 )
 from tests.motion.synthetic import walker_motion
+from tests.motion.test_gravity import _on_the_back
 
 CLIPS = {
     "cmu-bvh": lambda: read_bvh(fixture_bytes(CMU_BVH_FIXTURE)),
     "bandai": lambda: read_bvh(fixture_bytes(BANDAI_FIXTURE)),  # static root, moving Hips
     "asf": lambda: read_asf_amc(fixture_bytes(CMU_ASF_FIXTURE), fixture_bytes(CMU_AMC_FIXTURE)),
     "walker": lambda: walker_motion(frames=120),
+    # Dragged head first along a Y-up floor: the trunk's mean lies along the floor (-Z).
+    "on its back": lambda: _on_the_back(read_bvh(fixture_bytes(CMU_BVH_FIXTURE))),
 }
 
 
@@ -40,7 +43,7 @@ def test_in_place_removes_the_horizontal_travel_only(name: str) -> None:
     placed = in_place(motion, body.mapping)  # type: ignore[arg-type]
     before = canonical_positions(motion, body.mapping)  # type: ignore[arg-type]
     after = canonical_positions(placed, body.mapping)  # type: ignore[arg-type]
-    up = up_axis(before)
+    up = vertical(motion, body.mapping)  # type: ignore[arg-type]
     pelvis = CANONICAL_INDEX["pelvis"]
     travel = horizontal(after[:, pelvis], up)
     assert np.abs(travel).max() <= 1e-6 * body.height
@@ -68,7 +71,7 @@ def test_extract_puts_travel_and_yaw_on_a_new_root_at_floor_level(name: str) -> 
     # Every original joint's world position unchanged (so the hips are where they were).
     np.testing.assert_allclose(positions[:, 1:], before, atol=1e-9 * body.height)
     canonical = canonical_positions(motion, mapping)
-    up = up_axis(canonical)
+    up = vertical(motion, mapping)
     pelvis = canonical[:, CANONICAL_INDEX["pelvis"]]
     root = positions[:, 0]
     np.testing.assert_allclose(horizontal(root - pelvis, up), 0.0, atol=1e-9 * body.height)
@@ -140,3 +143,25 @@ def test_units_are_inferred_from_the_body(name: str, expected: float) -> None:
     motion = CLIPS[name]()
     assert metres_per_unit(motion.source_format, build_body(motion).height) == expected
     assert metres_per_unit("fbx", 1.0) == metres_per_unit("gltf", 123.0) == 1.0
+
+
+def test_a_take_on_the_floor_goes_in_place_and_into_the_engine_upright() -> None:
+    """The root options and the file's axes use the describer's vertical (the floor's, since
+    2026-11-28). Before, exports read the trunk's mean: for a take dragged along the floor on
+    its back that lies along the floor (-Z), so ``in-place`` kept the travel and flattened the
+    height, and a GLB or FBX stood the body on the floor's edge."""
+    from app.services.export import ExportOptions, prepare_motion
+
+    motion = CLIPS["on its back"]()
+    body = build_body(motion)
+    assert body.mapping is not None
+    np.testing.assert_array_equal(vertical(motion, body.mapping), [0.0, 1.0, 0.0])
+    np.testing.assert_array_equal(vertical(motion, body.mapping), body.world_up)
+    before = canonical_positions(motion, body.mapping)[:, CANONICAL_INDEX["pelvis"]]
+    assert np.ptp(before[:, 2]) > 0.5 * body.height  # it travels along the floor
+    placed = canonical_positions(in_place(motion, body.mapping), body.mapping)
+    pelvis = placed[:, CANONICAL_INDEX["pelvis"]]
+    assert np.abs(pelvis[:, [0, 2]]).max() <= 1e-6 * body.height
+    np.testing.assert_allclose(pelvis[:, 1], before[:, 1], atol=1e-9)
+    prepared = prepare_motion(motion, ExportOptions(format="glb", root="in-place"), None)
+    np.testing.assert_allclose(prepared.up_rotation @ [0.0, 1.0, 0.0], [0.0, 1.0, 0.0])
