@@ -136,7 +136,7 @@ def zip_bench() -> None:
     files = sorted((shared_data() / "bandai-ds1/data").glob("*.bvh"))[:100]
     with tempfile.TemporaryDirectory() as folder:
         settings = Settings(data_dir=Path(folder) / "data", max_export_clips=100)
-        with TestClient(create_app(settings)) as client:
+        with TestClient(create_app(settings), base_url="http://127.0.0.1") as client:
             for path in files:
                 response = client.post(
                     "/clips",
