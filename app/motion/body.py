@@ -23,9 +23,10 @@ canonical joints only, and works out from the skeleton itself:
   vertical parts: the coordinate axis (with sign) nearest to the clip's mean body-up
   direction. Motion-capture files are authored with a coordinate axis up, and a body that
   leans (a dash leans 30-40 degrees on average) must not tilt the floor. A take that mostly
-  lies along the floor (a crawl, a fall) has its mean body up along the floor: there a
-  standing rest pose's axis is the vertical where the body's lowest point keeps its height
-  clearly better along it (:mod:`app.motion.gravity`).
+  lies along the floor (a crawl, a fall) has its mean body up along the floor: there
+  another axis (a standing rest pose's, or one the body stands along for a part of the
+  take) is the vertical where the body's lowest point keeps its height clearly better along
+  it (:mod:`app.motion.gravity`).
 """
 
 from __future__ import annotations

@@ -310,8 +310,9 @@ def world_up(
     canonical joints' world positions, when already computed). Not the trunk's mean
     direction: a clip bent over for most of its frames (a sneak, a fall) has its pelvis ->
     neck nearer the forward axis than the up one; a take lying along the floor (a crawl)
-    takes its standing rest pose's axis where the floor says so (:mod:`app.motion.gravity`),
-    as the describer does. A pelvis whose rotation moves no bone
+    takes another axis (its standing rest pose's, or one it stands along for a part of the
+    take) where the floor says so (:mod:`app.motion.gravity`), as the describer does; exports
+    read it too (:func:`app.motion.root_motion.vertical`). A pelvis whose rotation moves no bone
     (its children turn it back) is read from the joints, as the describer reads it
     (:func:`~app.motion.body.carried_frames`)."""
     if pelvis_rotations is None or positions is None:
