@@ -46,7 +46,7 @@ from app.motion.body_axes import (
     pelvis_turns_with_hips,
     pose_basis,
 )
-from app.motion.gravity import rest_up, resting_up
+from app.motion.gravity import clip_vertical
 from app.motion.hand import palm
 from app.motion.kinematics import bone_lengths, forward_kinematics
 from app.motion.lead_in import count_lead_in_frames, implausible_frames, plausible_span
@@ -222,12 +222,8 @@ def build_body(motion: Motion) -> Body:
         frame_time=motion.frame_time,
         height=height,
         pelvis_frames=frames,
-        world_up=resting_up(
-            _world_up(frames),
-            rest_up(motion.skeleton, mapping.joints) if mapping.pose == "rest pose" else None,
-            canon_pos,
-            height,
-            frames[:, :, 1],
+        world_up=clip_vertical(
+            _world_up(frames), motion.skeleton, mapping, canon_pos, height, frames[:, :, 1]
         ),
         skeleton_family=mapping.family,
         lead_in_frames=lead_in,

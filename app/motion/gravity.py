@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from app.motion.model import Skeleton
-from app.motion.skeleton_map import CANONICAL_INDEX, rest_pose
+from app.motion.skeleton_map import CANONICAL_INDEX, SkeletonMap, rest_pose
 
 # Body heights: the lowest point of a frame this near the take's lowest is on the floor (a
 # foot flat on it reaches the ankle at ~0.04).
@@ -120,12 +120,28 @@ def resting_up(
     return best
 
 
+def clip_vertical(
+    take_up: np.ndarray,
+    skeleton: Skeleton,
+    mapping: SkeletonMap,
+    positions: np.ndarray,
+    height: float,
+    body_ups: np.ndarray,
+) -> np.ndarray:
+    """:func:`resting_up` of a mapped clip, the rest pose's axis read where the mapping comes
+    from the rest pose: the one reading of the describer (app/motion/body.py) and of the
+    retarget and exports (app/motion/retarget.py ``world_up``), which must agree."""
+    standing = rest_up(skeleton, mapping.joints) if mapping.pose == "rest pose" else None
+    return resting_up(take_up, standing, positions, height, body_ups)
+
+
 __all__ = [
     "HELD",
     "ON_FLOOR",
     "RESTS",
     "STANDS",
     "STEADIER",
+    "clip_vertical",
     "floor_spread",
     "rest_up",
     "resting_up",

@@ -108,7 +108,7 @@ from dataclasses import replace
 import numpy as np
 
 from app.motion.body import body_height, carried_frames, pelvis_basis, rest_axes_hold
-from app.motion.gravity import rest_up, resting_up
+from app.motion.gravity import clip_vertical
 from app.motion.ground import snap_axis
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion
@@ -320,11 +320,9 @@ def world_up(
         pelvis_rotations = rotations[:, int(mapping.joints[CANONICAL_INDEX["pelvis"]])]
         positions = world[:, mapping.joints]
     frames = carried_frames(pelvis_rotations @ _pelvis_axes(motion, mapping), positions)
-    standing = rest_up(motion.skeleton, mapping.joints) if mapping.pose == "rest pose" else None
     height = body_height(motion, mapping.joints, head_joint=mapping.head_joint, held=mapping.held)
-    return resting_up(
-        snap_axis(frames[:, :, 1].mean(axis=0)), standing, positions, height, frames[:, :, 1]
-    )
+    take_up = snap_axis(frames[:, :, 1].mean(axis=0))
+    return clip_vertical(take_up, motion.skeleton, mapping, positions, height, frames[:, :, 1])
 
 
 def _pelvis_axes(motion: Motion, mapping: SkeletonMap) -> np.ndarray:
