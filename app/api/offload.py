@@ -49,6 +49,11 @@ class Offload:
         measured)."""
         return self._seconds.get(kind)
 
+    def quick(self, kind: Hashable) -> bool:
+        """Whether calls of ``kind`` have been quick enough to run on the loop."""
+        estimate = self._seconds.get(kind)
+        return estimate is not None and estimate < self._inline_below
+
     def _measured(self, kind: Hashable, seconds: float) -> None:
         before = self._seconds.get(kind)
         self._seconds[kind] = seconds if before is None else before + WEIGHT * (seconds - before)

@@ -30,6 +30,7 @@ from app.api.schemas import (
     UploadedClipOut,
     UploadSearchResponse,
 )
+from app.api.search_lane import SearchLane
 from app.errors import InvalidInput, MocapError
 from app.services import search as search_service
 from app.services.library import Library
@@ -111,10 +112,19 @@ async def plain_search_body(
     if descriptor is None:
         descriptor = library.default_descriptor
     name = descriptor
-    return await SEARCHES.run(
-        (name, False, False, k > QUICK_K),  # the route's kind of search (see search_by_clip)
-        lambda: _plain_search(library, clip, name, k),
-    )
+    kind = (name, False, False, k > QUICK_K)  # the route's kind of search (see search_by_clip)
+    LANE.in_flight += 1
+    try:
+        if SEARCHES.quick(kind) and LANE.wanted():
+            # Other searches are in flight: this one's scan runs in the lane, beside the
+            # loop's work on them (app/api/search_lane.py); the rest runs here.
+            query, vector = search_service.plain_query(library, clip, name, k)
+            found = await LANE.nearest(library.indexes[name], vector, k, clip)
+            answer = search_service.plain_answer(library, query, clip, vector, name, k, found)
+            return render.plain_clip_search(answer, name, k)
+        return await SEARCHES.run(kind, lambda: _plain_search(library, clip, name, k))
+    finally:
+        LANE.in_flight -= 1
 
 
 def _plain_search(library: Library, clip: int, descriptor: str, k: int) -> bytes:
@@ -165,6 +175,7 @@ router.add_api_route(
 
 # Slow searches running at once: more threads than cores only fight over the GIL.
 SEARCHES = Offload(anyio.CapacityLimiter(4))
+LANE = SearchLane()  # quick plain searches' scans while others are in flight
 QUICK_K = 100  # more hits than this are searches of another kind (more to show)
 
 

@@ -363,10 +363,24 @@ class FrozenIVF:
                 probe_cutoff.skip_far_cells(to_cells, nearest, cutoff)
             # FAISS's own search after its scan of the centroids
             self._search_cells(queries, fetch, nearest, to_cells, squared, ids, params)
-            if cutoff is not None and (ids[:, -1] < 0).any():
+            short = np.flatnonzero(ids[:, -1] < 0) if cutoff is not None else ()
+            if len(short):
                 # The decisive cells held fewer than ``fetch`` vectors (a query in a small
-                # cell, a large k): every cell, as the full search, never fewer hits than it.
-                self._search_cells(queries, fetch, every_cell, to_cells, squared, ids, params)
+                # cell, a large k): every cell, as the full search, never fewer hits than it —
+                # for those queries only, so that a query's answer is the same in any batch.
+                rows = np.asarray(short)
+                more_squared = np.empty((rows.size, fetch), np.float32)
+                more_ids = np.empty((rows.size, fetch), np.int64)
+                self._search_cells(
+                    np.ascontiguousarray(queries[rows]),
+                    fetch,
+                    np.ascontiguousarray(every_cell[rows]),
+                    np.ascontiguousarray(to_cells[rows]),
+                    more_squared,
+                    more_ids,
+                    params,
+                )
+                squared[rows], ids[rows] = more_squared, more_ids
         else:
             self.base.search_c(
                 count,

@@ -289,12 +289,36 @@ def find_plain(library: Library, clip_id: int, descriptor: str, k: int) -> Plain
     asks — with the same hits, errors and checks, and less per-request work: the neighbours
     as Python numbers (:meth:`DescriptorIndex.nearest`), the hits' headings instead of
     their whole entries."""
-    clip, vector = _query_clip(library, clip_id, descriptor, k)
+    clip, vector = plain_query(library, clip_id, descriptor, k)
+    found = library.indexes[descriptor].nearest(vector, k, exclude=clip_id)
+    return plain_answer(library, clip, clip_id, vector, descriptor, k, found)
+
+
+def plain_query(
+    library: Library, clip_id: int, descriptor: str, k: int
+) -> tuple[ClipEntry, np.ndarray]:
+    """The first part of :func:`find_plain`: its checks, the query clip and its vector
+    ``(dims,)`` (to search with ``library.indexes[descriptor].nearest(vector, k,
+    exclude=clip_id)``, here or in the search lane, app/api/search_lane.py)."""
+    return _query_clip(library, clip_id, descriptor, k)
+
+
+def plain_answer(
+    library: Library,
+    clip: ClipEntry,
+    clip_id: int,
+    vector: np.ndarray,
+    descriptor: str,
+    k: int,
+    found: list[tuple[int, float]],
+) -> PlainAnswer:
+    """The rest of :func:`find_plain` from the index's neighbours ``found`` of ``vector``."""
     index = library.indexes[descriptor]
     catalogue = library.catalogue
     wanted = k
-    for _ in range(MAX_ATTEMPTS):
-        found = index.nearest(vector, wanted, exclude=clip_id)
+    for attempt in range(MAX_ATTEMPTS):
+        if attempt:
+            found = index.nearest(vector, wanted, exclude=clip_id)
         headings = catalogue.headings([i for i, _ in found])
         # Equal distances in id order, as _nearest; a clip the catalogue does not hold yet is
         # skipped and as many more asked for (see _nearest).

@@ -5,6 +5,7 @@ and every other request — errors included — still FastAPI's."""
 from __future__ import annotations
 
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -13,6 +14,8 @@ from fastapi.testclient import TestClient
 from opentelemetry import _logs, metrics, trace
 from starlette.types import ASGIApp, Receive, Scope, Send
 
+from app.api.search import LANE
+from app.api.search_lane import PROBE_EVERY
 from app.config import Settings
 from app.main import create_app, telemetry_signals
 from tests.api.test_search import library
@@ -146,3 +149,30 @@ def test_telemetry_signals_follow_the_providers_configured_at_creation(
     }
     monkeypatch.setenv("FASTAPI_OTEL_AUTO_CONFIGURE", "true")  # FastAPI sets them up at start
     assert telemetry_signals(*unset) == {}
+
+
+def test_searches_at_once_have_their_scans_batched_and_answer_as_alone(
+    served: tuple[TestClient, Routed],
+) -> None:
+    """Plain searches in flight together hand their index scans to the search lane
+    (app/api/search_lane.py), which scans those waiting in one FAISS call: every answer
+    is the bytes the same search gives alone."""
+    client, _ = served
+    ids = library(client)
+    queries = [f"/search?clip={i}&k={k}" for i in ids for k in (1, 3, 10)]
+    queries += [f"/search?clip={i}&descriptor=kinetic" for i in ids]
+    before = LANE.scanned
+    alone = {query: client.get(query) for query in queries * 2}  # and the kinds measured quick
+    # one after another, each runs inline but for the lane's probe now and then
+    assert LANE.scanned - before <= len(queries * 2) // PROBE_EVERY + 1
+    before = LANE.scanned
+    with ThreadPoolExecutor(16) as pool:  # the client's requests share its event loop
+        together = list(pool.map(client.get, queries * 8))
+    assert LANE.scanned > before
+    for query, response in zip(queries * 8, together, strict=True):
+        assert response.status_code == 200
+        assert response.content == alone[query].content, query
+    # a search of a missing clip among them is still FastAPI's 404
+    with ThreadPoolExecutor(8) as pool:
+        mixed = list(pool.map(client.get, [f"/search?clip={max(ids) + 50}", *queries[:20]]))
+    assert mixed[0].status_code == 404 and all(r.status_code == 200 for r in mixed[1:])

@@ -278,3 +278,36 @@ def test_prepared_searches_measure_once_then_searches_read_the_decision(
     assert measures == [1, 1]
     assert [held.search(vector, 5).ids.tolist() for vector in vectors[:20]] == expected
     assert measures == [1, 1]
+
+
+def test_a_query_gets_the_same_answer_in_a_batch_as_alone(tmp_path: Path) -> None:
+    """The search lane (app/api/search_lane.py) scans the plain searches waiting at once in
+    one call: each must get what it gets alone — also where some of the batch's decisive
+    cells are too small for ``k`` (those are searched again in every cell) and others not.
+    Before, a batch with one such query searched every query of it in every cell."""
+    vectors = clustered(8_000, seed=1)
+    frozen = FrozenIVF.open(ivf_file(tmp_path, vectors))
+    assert frozen.cutoff(NPROBE) in CUTOFFS
+    queries = np.concatenate([vectors[:40], clustered(40, seed=9)])
+    for k in (10, 300):  # 300: more than a cluster's ~200, so some rows go to every cell
+        batch_squared, batch_ids = frozen.search(queries, k, nprobe=NPROBE, adaptive=True)
+        for row, query in enumerate(queries):
+            squared, ids = frozen.search(query[None], k, nprobe=NPROBE, adaptive=True)
+            assert batch_ids[row].tolist() == ids[0].tolist(), (k, row)
+            assert batch_squared[row].tolist() == squared[0].tolist(), (k, row)
+    # ... and the batch's rows that kept their decisive cells did not search every cell
+    _, full_ids = frozen.search(queries, 300, nprobe=NPROBE)
+    _, adaptive_ids = frozen.search(queries, 300, nprobe=NPROBE, adaptive=True)
+    assert (adaptive_ids != full_ids).any(axis=1).any()
+
+
+def test_nearest_many_answers_each_query_as_nearest_does(tmp_path: Path) -> None:
+    vectors = clustered(8_000, seed=3)
+    held = HeldIndex(DIMENSION, FrozenIVF.open(ivf_file(tmp_path, vectors)))
+    rows = np.arange(0, 8_000, 97)
+    excludes = [int(row) + 1 for row in rows]  # each query is a stored clip, left out
+    many = held.nearest_many(vectors[rows], 10, excludes)
+    assert len(many) == rows.size
+    for answer, row, exclude in zip(many, rows, excludes, strict=True):
+        assert answer == held.nearest(vectors[row], 10, exclude=exclude)
+        assert len(answer) == 10 and exclude not in [i for i, _ in answer]
