@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 from typing import Annotated
 
@@ -115,9 +116,11 @@ async def plain_search_body(
     kind = (name, False, False, k > QUICK_K)  # the route's kind of search (see search_by_clip)
     LANE.in_flight += 1
     try:
-        if SEARCHES.quick(kind) and LANE.wanted():
-            # Other searches are in flight: this one's scan runs in the lane, beside the
-            # loop's work on them (app/api/search_lane.py); the rest runs here.
+        if SEARCHES.quick(kind) and library.settings.workers < CORES and LANE.wanted():
+            # Other searches are in flight and a core is to spare beside the server's
+            # processes: this one's scan runs in the lane, beside the loop's work on them
+            # (app/api/search_lane.py); the rest runs here. With a process per core the
+            # lane measured no faster and doubled the p99 (bench/README.md).
             query, vector = search_service.plain_query(library, clip, name, k)
             found = await LANE.nearest(library.indexes[name], vector, k, clip)
             answer = search_service.plain_answer(library, query, clip, vector, name, k, found)
@@ -176,6 +179,7 @@ router.add_api_route(
 # Slow searches running at once: more threads than cores only fight over the GIL.
 SEARCHES = Offload(anyio.CapacityLimiter(4))
 LANE = SearchLane()  # quick plain searches' scans while others are in flight
+CORES = len(os.sched_getaffinity(0))  # the cores this process may run on
 QUICK_K = 100  # more hits than this are searches of another kind (more to show)
 
 

@@ -81,8 +81,8 @@ class SearchLane:
     async def nearest(self, index: HeldIndex, vector: np.ndarray, k: int, exclude: int) -> Answer:
         """``index.nearest(vector, k, exclude=exclude)``, scanned in the lane."""
         future: asyncio.Future[Answer] = asyncio.get_running_loop().create_future()
-        if self._pid != os.getpid():  # the first search of this process (or a forked one)
-            self._start()
+        if self._pid != os.getpid() or self._thread is None or not self._thread.is_alive():
+            self._start()  # the first search of this process (or a forked one)
         with self._lock:
             self._waiting.append((index, vector, k, exclude, future))
             first = len(self._waiting) == 1
@@ -110,8 +110,12 @@ class SearchLane:
             with self._lock:
                 batch, self._waiting = self._waiting, []
                 self._wake.clear()
-            if batch:
+            if not batch:
+                continue
+            try:
                 self._scan(batch)
+            except BaseException as error:  # never a search left waiting, never a dead lane
+                _hand_back([(entry[4], None, error) for entry in batch])
 
     def _scan(self, batch: list[tuple[HeldIndex, np.ndarray, int, int, Any]]) -> None:
         # One FAISS call per index and k (searches of another descriptor or k wait together
@@ -134,15 +138,18 @@ class SearchLane:
             answers.extend(
                 (future, answer, None) for future, answer in zip(futures, found, strict=True)
             )
-        by_loop: dict[Any, list[tuple[Any, Answer | None, BaseException | None]]] = defaultdict(
-            list
-        )
-        for answer in answers:
-            by_loop[answer[0].get_loop()].append(answer)
-        for loop, delivered in by_loop.items():
-            # RuntimeError: the loop is closed (the server stopping), nobody waits
-            with contextlib.suppress(RuntimeError):
-                loop.call_soon_threadsafe(_deliver, delivered)
+        _hand_back(answers)
+
+
+def _hand_back(answers: list[tuple[Any, Answer | None, BaseException | None]]) -> None:
+    """From the lane: the answers (or errors) to their searches' loops, one call a loop."""
+    by_loop: dict[Any, list[tuple[Any, Answer | None, BaseException | None]]] = defaultdict(list)
+    for answer in answers:
+        by_loop[answer[0].get_loop()].append(answer)
+    for loop, delivered in by_loop.items():
+        # RuntimeError: the loop is closed (the server stopping), nobody waits
+        with contextlib.suppress(RuntimeError):
+            loop.call_soon_threadsafe(_deliver, delivered)
 
 
 def _deliver(answers: list[tuple[Any, Answer | None, BaseException | None]]) -> None:
