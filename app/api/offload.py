@@ -61,9 +61,7 @@ class Offload:
     def _timed(self, kind: Hashable, call: Callable[[], T]) -> T:
         calls = self._calls.get(kind, 0)
         self._calls[kind] = calls + 1
-        estimate = self._seconds.get(kind)
-        inline = estimate is not None and estimate < self._inline_below
-        if inline and calls >= FIRST_MEASURED and calls % SAMPLE_EVERY:
+        if self.quick(kind) and calls >= FIRST_MEASURED and calls % SAMPLE_EVERY:
             return call()
         # CPU time of this thread, not wall time: on a loaded machine (or behind the GIL in
         # a thread) a 0.3-ms search can take 3 ms of wall time, and would never run inline.
@@ -75,7 +73,6 @@ class Offload:
 
     async def run(self, kind: Hashable, call: Callable[[], T]) -> T:
         """``call()``: inline when calls of ``kind`` have been quick, else in a thread."""
-        estimate = self._seconds.get(kind)
-        if estimate is not None and estimate < self._inline_below:
+        if self.quick(kind):
             return self._timed(kind, call)
         return await anyio.to_thread.run_sync(self._timed, kind, call, limiter=self._limiter)

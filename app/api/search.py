@@ -121,9 +121,9 @@ async def plain_search_body(
             # processes: this one's scan runs in the lane, beside the loop's work on them
             # (app/api/search_lane.py); the rest runs here. With a process per core the
             # lane measured no faster and doubled the p99 (bench/README.md).
-            query, vector = search_service.plain_query(library, clip, name, k)
+            query, vector = search_service.query_clip(library, clip, name, k)
             found = await LANE.nearest(library.indexes[name], vector, k, clip)
-            answer = search_service.plain_answer(library, query, clip, vector, name, k, found)
+            answer = search_service.plain_answer(library, query, vector, name, k, found)
             return render.plain_clip_search(answer, name, k)
         return await SEARCHES.run(kind, lambda: _plain_search(library, clip, name, k))
     finally:

@@ -363,12 +363,11 @@ class FrozenIVF:
                 probe_cutoff.skip_far_cells(to_cells, nearest, cutoff)
             # FAISS's own search after its scan of the centroids
             self._search_cells(queries, fetch, nearest, to_cells, squared, ids, params)
-            short = np.flatnonzero(ids[:, -1] < 0) if cutoff is not None else ()
-            if len(short):
+            rows = np.flatnonzero(ids[:, -1] < 0) if cutoff is not None else None
+            if rows is not None and rows.size:
                 # The decisive cells held fewer than ``fetch`` vectors (a query in a small
                 # cell, a large k): every cell, as the full search, never fewer hits than it —
                 # for those queries only, so that a query's answer is the same in any batch.
-                rows = np.asarray(short)
                 more_squared = np.empty((rows.size, fetch), np.float32)
                 more_ids = np.empty((rows.size, fetch), np.int64)
                 self._search_cells(

@@ -240,20 +240,7 @@ class HeldIndex:
         ``(id, Euclidean distance)`` pairs, nearest first, ``exclude`` (the query clip)
         left out: the same hits and the same numbers, without the arrays around them (the
         plain ``GET /search``, app/services/search.py)."""
-        wanted = min(k + 1, self.size)
-        if wanted <= 0:
-            return []
-        q = np.ascontiguousarray(query, np.float32).reshape(1, -1)
-        if q.shape[1] != self.dimension:
-            raise ValueError(f"expected a vector of {self.dimension} numbers, got {query.shape}")
-        squared, ids = self._search_selected(q, wanted, None, adaptive=True)
-        sqrt = math.sqrt
-        found = [
-            (i, sqrt(max(s, 0.0)))  # as search()
-            for i, s in zip(ids[0].tolist(), squared[0].tolist(), strict=True)
-            if i >= 0 and i != exclude  # FAISS pads with -1 past the vectors
-        ]
-        return found[:k]
+        return self.nearest_many(np.reshape(query, (1, -1)), k, [exclude])[0]
 
     def nearest_many(
         self, queries: np.ndarray, k: int, excludes: list[int]
@@ -261,7 +248,8 @@ class HeldIndex:
         """:meth:`nearest` of each of ``queries`` ``(Q, D)`` float32 (stored vectors), leaving
         out ``excludes[q]`` from the answer of query ``q``, in one FAISS call: each answer is
         the one :meth:`nearest` gives that query alone (FAISS answers the queries of a batch
-        each by itself), at a fraction of the calls (app/api/search_lane.py)."""
+        each by itself), at a fraction of the calls (app/api/search_lane.py); one query is
+        :meth:`nearest`."""
         wanted = min(k + 1, self.size)
         if wanted <= 0:
             return [[] for _ in excludes]
@@ -269,13 +257,8 @@ class HeldIndex:
         if q.ndim != 2 or q.shape[1] != self.dimension:
             raise ValueError(f"expected vectors of {self.dimension} numbers, got {q.shape}")
         squared, ids = self._search_selected(q, wanted, None, adaptive=True)
-        sqrt = math.sqrt
         return [
-            [
-                (i, sqrt(max(s, 0.0)))
-                for i, s in zip(row_ids, row_squared, strict=True)
-                if i >= 0 and i != exclude
-            ][:k]
+            _neighbours(row_ids, row_squared, exclude, k)
             for row_ids, row_squared, exclude in zip(
                 ids.tolist(), squared.tolist(), excludes, strict=True
             )
@@ -417,3 +400,17 @@ class HeldIndex:
             flat: Any = faiss.downcast_index(self._index.index)
             data = faiss.rev_swig_ptr(flat.get_xb(), n * self.dimension) if n else np.empty(0)
             return ids, np.asarray(data, dtype=np.float32).reshape(n, self.dimension).copy()
+
+
+def _neighbours(
+    ids: list[int], squared: list[float], exclude: int, k: int
+) -> list[tuple[int, float]]:
+    """One query's FAISS answer (``ids`` and ``squared`` distances, nearest first) as the
+    first ``k`` ``(id, Euclidean distance)`` pairs without ``exclude`` and FAISS's padding."""
+    sqrt = math.sqrt
+    found = [
+        (i, sqrt(max(s, 0.0)))  # as search()
+        for i, s in zip(ids, squared, strict=True)
+        if i >= 0 and i != exclude  # FAISS pads with -1 past the vectors
+    ]
+    return found[:k]

@@ -225,7 +225,7 @@ def search_by_clip_id(
     return answer.clip, answer.hits
 
 
-def _query_clip(
+def query_clip(
     library: Library, clip_id: int, descriptor: str, k: int
 ) -> tuple[ClipEntry, np.ndarray]:
     """The checks every search by a stored clip makes, then the clip and its ``descriptor``
@@ -256,7 +256,7 @@ def find_by_clip(
     """``GET /search``: the stored clip ``clip_id`` and its neighbours (never the clip
     itself), read from the indexes and the catalogue. :class:`NotFound` when there is no
     such clip."""
-    clip, vector = _query_clip(library, clip_id, descriptor, k)
+    clip, vector = query_clip(library, clip_id, descriptor, k)
     hits, query_others = _nearest(
         library,
         descriptor,
@@ -289,36 +289,27 @@ def find_plain(library: Library, clip_id: int, descriptor: str, k: int) -> Plain
     asks — with the same hits, errors and checks, and less per-request work: the neighbours
     as Python numbers (:meth:`DescriptorIndex.nearest`), the hits' headings instead of
     their whole entries."""
-    clip, vector = plain_query(library, clip_id, descriptor, k)
+    clip, vector = query_clip(library, clip_id, descriptor, k)
     found = library.indexes[descriptor].nearest(vector, k, exclude=clip_id)
-    return plain_answer(library, clip, clip_id, vector, descriptor, k, found)
-
-
-def plain_query(
-    library: Library, clip_id: int, descriptor: str, k: int
-) -> tuple[ClipEntry, np.ndarray]:
-    """The first part of :func:`find_plain`: its checks, the query clip and its vector
-    ``(dims,)`` (to search with ``library.indexes[descriptor].nearest(vector, k,
-    exclude=clip_id)``, here or in the search lane, app/api/search_lane.py)."""
-    return _query_clip(library, clip_id, descriptor, k)
+    return plain_answer(library, clip, vector, descriptor, k, found)
 
 
 def plain_answer(
     library: Library,
     clip: ClipEntry,
-    clip_id: int,
     vector: np.ndarray,
     descriptor: str,
     k: int,
     found: list[tuple[int, float]],
 ) -> PlainAnswer:
-    """The rest of :func:`find_plain` from the index's neighbours ``found`` of ``vector``."""
+    """The rest of :func:`find_plain` from the index's neighbours ``found`` of the query
+    clip's ``vector`` (searched here, or in the search lane: app/api/search_lane.py)."""
     index = library.indexes[descriptor]
     catalogue = library.catalogue
     wanted = k
     for attempt in range(MAX_ATTEMPTS):
         if attempt:
-            found = index.nearest(vector, wanted, exclude=clip_id)
+            found = index.nearest(vector, wanted, exclude=clip.id)
         headings = catalogue.headings([i for i, _ in found])
         # Equal distances in id order, as _nearest; a clip the catalogue does not hold yet is
         # skipped and as many more asked for (see _nearest).

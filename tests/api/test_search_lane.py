@@ -29,7 +29,7 @@ def test_scans_handed_at_once_answer_as_alone(indexes: list[DescriptorIndex]) ->
     lane = SearchLane()
     ids, vectors = make_data(60, seed=0)
 
-    async def searches() -> list[object]:
+    async def searches() -> list[list[tuple[int, float]]]:
         calls = [
             lane.nearest(indexes[at % 2], vectors[at], 1 + at % 4, int(ids[at])) for at in range(40)
         ]
@@ -37,8 +37,9 @@ def test_scans_handed_at_once_answer_as_alone(indexes: list[DescriptorIndex]) ->
 
     answers = asyncio.run(searches())
     for at, answer in enumerate(answers):
-        alone = indexes[at % 2].nearest(vectors[at], 1 + at % 4, exclude=int(ids[at]))
-        assert answer == alone
+        alone = indexes[at % 2].search(vectors[at], 1 + at % 4, exclude=int(ids[at]))
+        assert [i for i, _ in answer] == alone.ids.tolist()
+        assert [d for _, d in answer] == alone.distances.tolist()
     assert lane.scanned == 40 and lane.calls < 40  # batched: fewer calls than searches
 
 

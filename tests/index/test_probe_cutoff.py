@@ -309,5 +309,7 @@ def test_nearest_many_answers_each_query_as_nearest_does(tmp_path: Path) -> None
     many = held.nearest_many(vectors[rows], 10, excludes)
     assert len(many) == rows.size
     for answer, row, exclude in zip(many, rows, excludes, strict=True):
-        assert answer == held.nearest(vectors[row], 10, exclude=exclude)
+        alone = held.search(vectors[row], 10, exclude=exclude)  # the general one-query path
+        assert [i for i, _ in answer] == alone.ids.tolist()
+        assert [d for _, d in answer] == alone.distances.tolist()
         assert len(answer) == 10 and exclude not in [i for i, _ in answer]
