@@ -339,9 +339,9 @@ class Settings(BaseSettings):
         default=0,
         ge=0,
         description=(
-            "Cells an IVF search scans (more: higher recall, slower); 0 = the smallest of "
-            "1, 2, 3, 4, 6, 8, 12, 16, 24, ... reaching recall@10 >= 0.995 against exact "
-            "search on a sample, measured when the index is built. A search filtered by label "
+            "Cells an IVF search scans (more: higher recall, slower); 0 = the smallest number "
+            "reaching recall@10 >= 0.995 against exact search on a sample, measured when the "
+            "index is built. A search filtered by label "
             "scans every cell and stays exact."
         ),
     )
