@@ -74,7 +74,7 @@ def test_several_buffers_become_one_and_every_view_points_into_it() -> None:
     for view in views[len(views) // 2 :]:
         view["buffer"], view["byteOffset"] = 1, view.get("byteOffset", 0) - cut
     packed = pack_gltf(text(document), {"a.bin": binary[:cut] + b"extra bytes are left out"})
-    packed_document, _ = load_document(packed)
+    packed_document, _, _ = load_document(packed)
     assert [b.byteLength for b in packed_document.buffers] == [len(binary) + (-cut % 8)]
     same_motion(packed, glb)
 
@@ -85,7 +85,7 @@ def test_images_sent_are_embedded_and_images_not_sent_become_a_placeholder() -> 
     document["textures"] = [{"source": 0}, {"source": 1}]
     jpeg = b"\xff\xd8\xff\xe0 not really a jpeg"
     packed = pack_gltf(text(document), {"scene.bin": binary, "eyes.jpg": jpeg})
-    out, blob = load_document(packed)
+    out, blob, _ = load_document(packed)
     assert blob is not None
     shown = []
     for image in out.images:

@@ -126,7 +126,7 @@ def test_gltfpacks_own_output_decodes_to_a_smooth_face_take(shared_data) -> None
     """A real gltfpack 0.16 file (a face capture: head and eyes turn): keyframe times
     increase evenly, rotations are unit quaternions that change little from key to key."""
     path = shared_data("wild-more", "threejs-examples", "danielrmz18_facecap.glb")
-    document, blob = load_document(path.read_bytes())
+    document, blob, _ = load_document(path.read_bytes())
     buffers = buffers_of(document, blob)
     assert buffers.data[1] == b""  # the fallback buffer holds nothing
     for sampler in document.animations[0].samplers:

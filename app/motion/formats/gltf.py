@@ -35,6 +35,7 @@ import numpy as np
 
 from app.errors import LimitExceeded, ParseError
 from app.motion.formats.gltf_data import accessor_values, buffers_of, load_document
+from app.motion.formats.gltf_schema import check_node_transform
 from app.motion.formats.scene import (
     MIN_MARKERS,
     NodeGraph,
@@ -217,7 +218,7 @@ def _animated_nodes(document: Any, parents: np.ndarray) -> np.ndarray:
 
 class _Document:
     def __init__(self, data: bytes, limits: ParseLimits) -> None:
-        self.document, blob = load_document(data)
+        self.document, blob, self.broken = load_document(data)
         self.buffers = buffers_of(self.document, blob)
         nodes = self.document.nodes or []
         if len(nodes) > MAX_NODES:
@@ -235,18 +236,12 @@ class _Document:
         names = unique_names(
             [a.name or "" for a in animations], blank="animation {i}", repeat="{name} ({n})"
         )
-        count = len(nodes)
         moved: list[set[int]] = []  # the nodes each animation moves
         for name, animation in zip(names, animations, strict=True):
             begin, end, rate = self._timing([animation])
             frames = int(np.floor((end - begin) * rate + 0.5)) + 1
+            # (A target node is one of the file's nodes: gltf_schema.check_document.)
             targets = [channel_target(channel) for channel in animation.channels or []]
-            for k, (node, _, _) in enumerate(targets):
-                if node is not None and not (isinstance(node, int) and 0 <= node < count):
-                    raise ParseError(  # the spec: a target node is one of the file's nodes
-                        f"animation {name!r}: channel {k} targets node {show(str(node))}, "
-                        f"which does not exist (the file has {count} nodes)"
-                    )
             # whether it moves a node (its translation, rotation or scale; not weights only)
             moved.append({node for node, path, _ in targets if path in _PATHS and node is not None})
             self.animations.append(Animation(name, frames, frames / rate, bool(moved[-1])))
@@ -357,13 +352,22 @@ def read_gltf(
     if not is_bone.any():
         is_bone = _animated_nodes(document, parents)
     if not is_bone.any():
+        for i, problem in loaded.broken.items():  # its nodes moved in an animation not read
+            raise ParseError(f"animation {loaded.animations[i].name!r}: {problem}")
         raise no_skeleton(loaded.animations, _nothing_turns(document))
     if not loaded.animations and still:  # a rig: its rest (bind) pose as one frame
         loaded.animations = [Animation("", 1, 0.0)]
         loaded.rates, loaded.spans, loaded.parts = [DEFAULT_FPS], [(0.0, 0.0)], [[0]]
         document.replace("animations", [{}])
     chosen = pick_animation(loaded.animations, animation, joints=int(is_bone.sum()))
+    for part in loaded.parts[chosen]:
+        if part in loaded.broken:
+            raise ParseError(f"animation {loaded.animations[chosen].name!r}: {loaded.broken[part]}")
     warnings = choice_warnings(loaded.animations, chosen, animation)
+    warnings += [  # the file's other animations that could not be read: said, not fatal
+        f"animation {loaded.animations[i].name!r} was not read: {problem}"
+        for i, problem in loaded.broken.items()  # (a take joined over animations has none)
+    ]
     info = loaded.animations[chosen]
     joinable = np.ones(count, dtype=bool)
     # Only the skeleton's nodes are sampled and counted (meshes, props, other trees are not).
@@ -371,6 +375,8 @@ def read_gltf(
     check_frame_budget(limits, info.frame_count, len(kept))
     position = np.full(count, -1, dtype=np.int64)  # node -> index among the kept ones
     position[kept] = np.arange(len(kept))
+    for i in kept:
+        check_node_transform(nodes[i].raw, int(i))
     rest = [_node_transform(nodes[i]) for i in kept]
     rest_t = np.array([r[0] for r in rest]).reshape(-1, 3)
     rest_r = np.array([r[1] for r in rest]).reshape(-1, 4)

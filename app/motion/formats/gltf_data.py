@@ -15,6 +15,12 @@ import numpy as np
 
 from app.errors import LimitExceeded, ParseError
 from app.motion.formats.gltf_pack import decode_data_uri
+from app.motion.formats.gltf_schema import (
+    check_accessor,
+    check_buffer_view,
+    check_document,
+    sizes_of,
+)
 from app.motion.formats.meshopt import compressed_view, decode_view, is_fallback_buffer
 from app.motion.formats.text import refuse_lfs_pointer
 
@@ -28,8 +34,10 @@ UPLOAD_GLB = (
 )
 
 
-def load_document(data: bytes) -> tuple[Any, bytes | None]:
-    """The JSON document and the GLB binary chunk (``None`` for JSON glTF)."""
+def load_document(data: bytes) -> tuple[Any, bytes | None, dict[int, str]]:
+    """The JSON document, the GLB binary chunk (``None`` for JSON glTF) and the animations
+    that break the specification's rules, emptied (index -> what is wrong; see
+    :func:`~app.motion.formats.gltf_schema.check_document`)."""
     blob = None
     refuse_lfs_pointer(data, "glTF file")
     try:
@@ -53,7 +61,8 @@ def load_document(data: bytes) -> tuple[Any, bytes | None]:
         value = document.get(key, [])
         if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
             raise ParseError(f"not a usable glTF file ('{key}' is not a list of objects)")
-    return _Doc(document), blob
+    broken = check_document(document)
+    return _Doc(document), blob, broken
 
 
 class _Doc:
@@ -66,6 +75,11 @@ class _Doc:
 
     def __init__(self, raw: dict[str, Any]) -> None:
         self._raw = raw
+
+    @property
+    def raw(self) -> dict[str, Any]:
+        """The JSON object itself (a property: found before any key of the object)."""
+        return self._raw
 
     def __getattr__(self, key: str) -> Any:
         if key.startswith("__"):  # copy, pickle and friends ask for these
@@ -159,6 +173,7 @@ def accessor_values(document: Any, buffers: Buffers, index: Any) -> np.ndarray:
     if not isinstance(index, int) or not 0 <= index < len(accessors):
         raise ParseError(f"accessor {index!r} does not exist")
     accessor = accessors[index]
+    check_accessor(accessor.raw, sizes_of(document.raw), index)
     components = _COMPONENTS.get(accessor.type)
     dtype = _DTYPES.get(accessor.componentType)
     count = accessor.count
@@ -203,6 +218,7 @@ def _view_items(
     if not isinstance(view_index, int) or not 0 <= view_index < len(views):
         raise ParseError(f"{what}: buffer view {view_index!r} does not exist")
     view = views[view_index]
+    check_buffer_view(view.raw, sizes_of(document.raw), view_index)
     data = _view_bytes(view, view_index, buffers, what)
     item = np.dtype(dtype).itemsize * components
     compressed = compressed_view(view)
