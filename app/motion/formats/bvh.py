@@ -42,6 +42,7 @@ import numpy as np
 
 from app.errors import LimitExceeded, NoAnimation, ParseError
 from app.motion.formats.bvh_frames import read_frames
+from app.motion.formats.leaf_bones import without_detached_leaves
 from app.motion.formats.text import (
     DECIMAL_COMMA_HEAD,
     DECIMAL_COMMA_WARNING,
@@ -727,6 +728,9 @@ def _build_motion(
         local_translations[:, joint_index[~on_root], axis_index[~on_root]] = channel_values
         local_translations[:, 0] = root_translation
 
+    offsets, local_translations, leaf_warning = without_detached_leaves(
+        offsets, np.asarray(parents), names, local_translations
+    )
     skeleton = Skeleton(names=names, parents=parents, offsets=offsets, end_site=end_site)
     return Motion(
         skeleton=skeleton,
@@ -736,6 +740,7 @@ def _build_motion(
         local_translations=local_translations,
         source_format="bvh",
         length_unit="file units",
+        notes={"warnings": [leaf_warning]} if leaf_warning else {},
     )
 
 

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.errors import LimitExceeded, ParseError
+from app.motion.formats.leaf_bones import without_detached_leaves
 from app.motion.model import Motion, ParseLimits, Skeleton
 
 # A child whose offset in its parent's frame moves by more than this fraction of the body's
@@ -451,6 +452,13 @@ def motion_from_graph(
     size = float(np.ptp(rest_at, axis=0).max()) if count > 1 else 0.0
     moved = float(np.abs(per_frame[:, 1:] - offsets[1:]).max()) if count > 1 else 0.0
     local_translations = per_frame if moved > OFFSET_TOLERANCE * max(size, 1e-9) else None
+    notes = dict(notes or {})
+    offsets, local_translations, leaf_warning = without_detached_leaves(
+        offsets, np.asarray(joint_parents), joint_names, local_translations
+    )
+    if leaf_warning:
+        said = notes.get("warnings")
+        notes["warnings"] = [*(said if isinstance(said, list | tuple) else ()), leaf_warning]
     skeleton = Skeleton(
         names=unique_names([names[n] for n in joints]),
         parents=joint_parents,
@@ -465,5 +473,5 @@ def motion_from_graph(
         local_translations=local_translations,
         source_format=source_format,
         length_unit=length_unit,
-        notes=dict(notes or {}),
+        notes=notes,
     )
