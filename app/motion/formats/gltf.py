@@ -352,8 +352,9 @@ def read_gltf(
     if not is_bone.any():
         is_bone = _animated_nodes(document, parents)
     if not is_bone.any():
-        for i, problem in loaded.broken.items():  # its nodes moved in an animation not read
-            raise ParseError(f"animation {loaded.animations[i].name!r}: {problem}")
+        if loaded.broken:  # what moved its nodes is an animation that could not be read
+            first, problem = next(iter(loaded.broken.items()))
+            raise ParseError(f"animation {loaded.animations[first].name!r}: {problem}")
         raise no_skeleton(loaded.animations, _nothing_turns(document))
     if not loaded.animations and still:  # a rig: its rest (bind) pose as one frame
         loaded.animations = [Animation("", 1, 0.0)]
@@ -403,7 +404,8 @@ def read_gltf(
         if position[node] < 0:
             continue  # a mesh, a prop, a node of another tree: never part of the skeleton
         if not isinstance(channel.sampler, int) or not 0 <= channel.sampler < len(samplers):
-            raise ParseError(f"a channel names sampler {channel.sampler!r}, which does not exist")
+            named = show(repr(channel.raw.get("sampler")))  # the JSON, not its wrapper
+            raise ParseError(f"a channel names sampler {named}, which does not exist")
         sampler = samplers[channel.sampler]
         keys = loaded.times(sampler.input)
         values = accessor_values(document, loaded.buffers, sampler.output)
