@@ -257,8 +257,13 @@ class HeldIndex:
         if q.ndim != 2 or q.shape[1] != self.dimension:
             raise ValueError(f"expected vectors of {self.dimension} numbers, got {q.shape}")
         squared, ids = self._search_selected(q, wanted, None, adaptive=True)
+        sqrt = math.sqrt
         return [
-            _neighbours(row_ids, row_squared, exclude, k)
+            [
+                (i, sqrt(max(s, 0.0)))  # as search()
+                for i, s in zip(row_ids, row_squared, strict=True)
+                if i >= 0 and i != exclude  # FAISS pads with -1 past the vectors
+            ][:k]
             for row_ids, row_squared, exclude in zip(
                 ids.tolist(), squared.tolist(), excludes, strict=True
             )
@@ -400,17 +405,3 @@ class HeldIndex:
             flat: Any = faiss.downcast_index(self._index.index)
             data = faiss.rev_swig_ptr(flat.get_xb(), n * self.dimension) if n else np.empty(0)
             return ids, np.asarray(data, dtype=np.float32).reshape(n, self.dimension).copy()
-
-
-def _neighbours(
-    ids: list[int], squared: list[float], exclude: int, k: int
-) -> list[tuple[int, float]]:
-    """One query's FAISS answer (``ids`` and ``squared`` distances, nearest first) as the
-    first ``k`` ``(id, Euclidean distance)`` pairs without ``exclude`` and FAISS's padding."""
-    sqrt = math.sqrt
-    found = [
-        (i, sqrt(max(s, 0.0)))  # as search()
-        for i, s in zip(ids, squared, strict=True)
-        if i >= 0 and i != exclude  # FAISS pads with -1 past the vectors
-    ]
-    return found[:k]

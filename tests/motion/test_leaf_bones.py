@@ -13,6 +13,7 @@ from app.motion.formats import read_bvh
 from app.motion.formats.gltf import read_gltf
 from app.motion.formats.leaf_bones import detached_leaves
 from app.motion.kinematics import forward_kinematics
+from app.motion.model import Skeleton
 from app.motion.pipeline import analyse
 from tests.conftest import FIXTURES_DIR
 from tests.motion.gltf_builder import build_glb
@@ -87,9 +88,9 @@ def test_ends_of_a_figures_size_are_kept() -> None:
     _, at = forward_kinematics(motion.slice_frames(0, 1))
     figure = float(np.ptp(at[0][~skeleton.end_site], axis=0).max())
     offsets[hand_end] *= 0.6 * figure / np.linalg.norm(offsets[hand_end])
-    assert detached_leaves(offsets, np.asarray(skeleton.parents)).size == 0
+    assert detached_leaves(dataclasses.replace(skeleton, offsets=offsets)).size == 0
     offsets[hand_end] *= 4.0  # now longer than the figure
-    assert detached_leaves(offsets, np.asarray(skeleton.parents)).tolist() == [hand_end]
+    assert detached_leaves(dataclasses.replace(skeleton, offsets=offsets)).tolist() == [hand_end]
 
 
 def test_a_rig_of_too_few_inner_joints_is_left_as_it_is() -> None:
@@ -108,4 +109,16 @@ def test_a_rig_of_too_few_inner_joints_is_left_as_it_is() -> None:
         ],
         dtype=float,
     )
-    assert detached_leaves(offsets, parents).size == 0
+    names = tuple(f"j{j}" for j in range(len(parents)))
+    skeleton = Skeleton(names, parents, offsets, np.zeros(len(parents), dtype=bool))
+    assert detached_leaves(skeleton).size == 0
+
+
+def test_the_warning_stays_beside_the_readers_other_warnings() -> None:
+    """The BVH reader's own warnings (here decimal commas) are added to the end bones', not
+    put in their place (they were, before this test: the end bones' warning was lost)."""
+    text = _stretched_end_sites(BVH.read_text(), STRETCH)
+    motion = read_bvh(text.replace(".", ",").encode())
+    warnings = motion.notes["warnings"]
+    assert any("decimal commas" in w for w in warnings), warnings
+    assert any("longer than the whole figure" in w for w in warnings), warnings

@@ -251,7 +251,9 @@ def parse_bvh(
     joints, values, several = _largest_skeleton(joints, values)
     motion = _build_motion(joints, values, frame_time, limits)
     comma = DECIMAL_COMMA_WARNING
+    built = motion.notes.get("warnings")  # _build_motion's own (end bones left out)
     warnings = [*([comma] if commas else []), *([several] if several else []), *warnings]
+    warnings += built if isinstance(built, list) else []
     if warnings:
         motion.notes["warnings"] = warnings
     return motion
@@ -728,10 +730,10 @@ def _build_motion(
         local_translations[:, joint_index[~on_root], axis_index[~on_root]] = channel_values
         local_translations[:, 0] = root_translation
 
-    offsets, local_translations, leaf_warning = without_detached_leaves(
-        offsets, np.asarray(parents), names, local_translations
-    )
     skeleton = Skeleton(names=names, parents=parents, offsets=offsets, end_site=end_site)
+    skeleton, local_translations, leaf_warning = without_detached_leaves(
+        skeleton, local_translations
+    )
     return Motion(
         skeleton=skeleton,
         frame_time=frame_time,

@@ -35,7 +35,7 @@ import numpy as np
 
 from app.errors import LimitExceeded, ParseError
 from app.motion.formats.gltf_data import accessor_values, buffers_of, load_document
-from app.motion.formats.gltf_schema import check_node_transform
+from app.motion.formats.gltf_schema import check_node_transform, shown
 from app.motion.formats.scene import (
     MIN_MARKERS,
     NodeGraph,
@@ -76,7 +76,7 @@ _MAX_NODE_POINTER = 40
 def _node_transform(node: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A node's rest local translation, rotation ``(x, y, z, w)`` and scale."""
     matrix = getattr(node, "matrix", None)
-    if matrix is not None and len(matrix) == 16:
+    if matrix is not None:
         m = np.asarray(matrix, dtype=np.float64).reshape(4, 4).T  # column-major
         translation = m[:3, 3].copy()
         linear = m[:3, :3]
@@ -88,14 +88,8 @@ def _node_transform(node: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     t = node.translation if node.translation is not None else [0.0, 0.0, 0.0]
     r = node.rotation if node.rotation is not None else [0.0, 0.0, 0.0, 1.0]
     s = node.scale if node.scale is not None else [1.0, 1.0, 1.0]
-    try:
-        return (
-            np.asarray(t, dtype=np.float64).reshape(3),
-            np.asarray(r, dtype=np.float64).reshape(4),
-            np.asarray(s, dtype=np.float64).reshape(3),
-        )
-    except (TypeError, ValueError):
-        raise ParseError(f"node {node.name!r}: malformed translation/rotation/scale") from None
+    # (3, 4 and 3 numbers: gltf_schema.check_node_transform, asked before)
+    return np.asarray(t, np.float64), np.asarray(r, np.float64), np.asarray(s, np.float64)
 
 
 def _matrix_quaternion(m: np.ndarray) -> np.ndarray:
@@ -334,9 +328,7 @@ def read_gltf(
     count = len(nodes)
     parents = np.full(count, -1, dtype=np.int64)
     for i, node in enumerate(nodes):
-        for child in node.children or []:
-            if not isinstance(child, int) or not 0 <= child < count:
-                raise ParseError(f"node {i} has a child {child!r} that does not exist")
+        for child in node.children or []:  # node indices: gltf_schema.check_document
             if parents[child] >= 0 or child == i:
                 raise ParseError(f"node {child} has two parents (or is its own child)")
             parents[child] = i
@@ -404,7 +396,7 @@ def read_gltf(
         if position[node] < 0:
             continue  # a mesh, a prop, a node of another tree: never part of the skeleton
         if not isinstance(channel.sampler, int) or not 0 <= channel.sampler < len(samplers):
-            named = show(repr(channel.raw.get("sampler")))  # the JSON, not its wrapper
+            named = shown(channel.raw.get("sampler"))  # the JSON value, not its wrapper
             raise ParseError(f"a channel names sampler {named}, which does not exist")
         sampler = samplers[channel.sampler]
         keys = loaded.times(sampler.input)

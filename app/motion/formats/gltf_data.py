@@ -177,7 +177,7 @@ def accessor_values(document: Any, buffers: Buffers, index: Any) -> np.ndarray:
     components = _COMPONENTS.get(accessor.type)
     dtype = _DTYPES.get(accessor.componentType)
     count = accessor.count
-    if components is None or dtype is None or not isinstance(count, int) or count < 0:
+    if components is None or dtype is None:  # (count: gltf_schema.check_accessor)
         raise ParseError(f"accessor {index}: unknown type or component type")
     what = f"accessor {index}"
     if accessor.bufferView is None:
@@ -214,10 +214,7 @@ def _view_items(
 ) -> np.ndarray:
     """``(count, components)`` items of ``dtype`` read from buffer view ``view_index``
     (its stride honoured), every byte checked to lie inside the view and its buffer."""
-    views = document.bufferViews or []
-    if not isinstance(view_index, int) or not 0 <= view_index < len(views):
-        raise ParseError(f"{what}: buffer view {view_index!r} does not exist")
-    view = views[view_index]
+    view = document.bufferViews[view_index]  # an index of them: gltf_schema.check_accessor
     check_buffer_view(view.raw, sizes_of(document.raw), view_index)
     data = _view_bytes(view, view_index, buffers, what)
     item = np.dtype(dtype).itemsize * components
@@ -247,9 +244,7 @@ def _view_bytes(view: Any, view_index: int, buffers: Buffers, what: str) -> byte
     """The bytes a buffer view's offsets point into: its buffer's, or for a compressed view
     its own decoded bytes (decoded once a file)."""
     compressed = compressed_view(view)
-    if compressed is None:
-        if not isinstance(view.buffer, int) or not 0 <= view.buffer < len(buffers.data):
-            raise ParseError(f"{what}: buffer {view.buffer!r} does not exist")
+    if compressed is None:  # ``buffer`` an index of the buffers: check_buffer_view
         return buffers.data[view.buffer]
     decoded = buffers.decoded_views.get(view_index)
     if decoded is None:

@@ -55,24 +55,24 @@ _NODE_TRANSFORM = {
 _SKIN = {"joints": ("list", "required")}  # an entry that is no node is passed over
 _ACCESSOR = {
     "bufferView": ("index", "bufferViews"),
-    "byteOffset": ("count",),
-    "componentType": ("count", "required"),
-    "count": ("count", "required"),
+    "byteOffset": ("non-negative",),
+    "componentType": ("non-negative", "required"),
+    "count": ("non-negative", "required"),
     "type": ("string", "required"),
     "normalized": ("boolean",),
 }
 _BUFFER_VIEW = {
     "buffer": ("index", "buffers", "required"),
-    "byteOffset": ("count",),
-    "byteLength": ("count", "required"),
-    "byteStride": ("count",),
+    "byteOffset": ("non-negative",),
+    "byteLength": ("non-negative", "required"),
+    "byteStride": ("non-negative",),
 }
 _SAMPLER = {
     "input": ("index", "accessors", "required"),
     "output": ("index", "accessors", "required"),
     "interpolation": ("string", "or absent"),
 }
-_SPARSE_PART = {"bufferView": ("index", "bufferViews", "required"), "byteOffset": ("count",)}
+_SPARSE_PART = {"bufferView": ("index", "bufferViews", "required"), "byteOffset": ("non-negative",)}
 
 
 def sizes_of(document: dict[str, Any]) -> dict[str, int]:
@@ -138,7 +138,7 @@ def _check_animation(animation: dict[str, Any], sizes: dict[str, int], where: st
         _check_object(sampler, _SAMPLER, sizes, f"{where}.samplers[{j}]")
     channels = animation.get("channels")
     if not isinstance(channels, list):
-        raise ParseError(f"glTF {where}.channels: expected a list, found {_shown(channels)}")
+        raise ParseError(f"glTF {where}.channels: expected a list, found {shown(channels)}")
     for j, channel in enumerate(channels):
         at = f"{where}.channels[{j}]"
         target = channel.get("target") if isinstance(channel, dict) else None
@@ -155,15 +155,15 @@ def _check_animation(animation: dict[str, Any], sizes: dict[str, int], where: st
 
 def _check_sparse(sparse: Any, sizes: dict[str, int], where: str) -> None:
     if not isinstance(sparse, dict):
-        raise ParseError(f"glTF {where}: expected an object, found {_shown(sparse)}")
-    _check_object(sparse, {"count": ("count", "required")}, sizes, where)
+        raise ParseError(f"glTF {where}: expected an object, found {shown(sparse)}")
+    _check_object(sparse, {"count": ("non-negative", "required")}, sizes, where)
     for part, rules in (
-        ("indices", {**_SPARSE_PART, "componentType": ("count", "required")}),
+        ("indices", {**_SPARSE_PART, "componentType": ("non-negative", "required")}),
         ("values", _SPARSE_PART),
     ):
         value = sparse.get(part)
         if not isinstance(value, dict):
-            raise ParseError(f"glTF {where}.{part}: expected an object, found {_shown(value)}")
+            raise ParseError(f"glTF {where}.{part}: expected an object, found {shown(value)}")
         _check_object(value, rules, sizes, f"{where}.{part}")
 
 
@@ -171,7 +171,7 @@ def _objects(parent: dict[str, Any], key: str, where: str) -> list[dict[str, Any
     """``parent[key]``, required to be a list of objects."""
     value = parent.get(key)
     if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
-        raise ParseError(f"glTF {where}.{key}: expected a list of objects, found {_shown(value)}")
+        raise ParseError(f"glTF {where}.{key}: expected a list of objects, found {shown(value)}")
     return value
 
 
@@ -191,16 +191,16 @@ def _check_object(
         elif kind == "indices":
             if not isinstance(value, list):
                 raise ParseError(
-                    f"glTF {at}: expected a list of {rule[1]} indices, found {_shown(value)}"
+                    f"glTF {at}: expected a list of {rule[1]} indices, found {shown(value)}"
                 )
             item[field] = [
                 _index(v, sizes[rule[1]], f"{at}[{k}]", rule[1]) for k, v in enumerate(value)
             ]
-        elif kind == "count":
+        elif kind == "non-negative":
             number = _integer(value)
             if number is None or number < 0:
                 raise ParseError(
-                    f"glTF {at}: expected a non-negative integer, found {_shown(value)}"
+                    f"glTF {at}: expected a non-negative integer, found {shown(value)}"
                 )
             item[field] = number
         elif kind == "numbers":
@@ -209,23 +209,23 @@ def _check_object(
                 and len(value) == rule[1]
                 and all(_is_number(v) for v in value)
             ):
-                raise ParseError(f"glTF {at}: expected {rule[1]} numbers, found {_shown(value)}")
+                raise ParseError(f"glTF {at}: expected {rule[1]} numbers, found {shown(value)}")
         elif kind == "string" and not isinstance(value, str):
             if "or absent" in rule:  # its default then (the sampler's LINEAR)
                 del item[field]
                 continue
-            raise ParseError(f"glTF {at}: expected a string, found {_shown(value)}")
+            raise ParseError(f"glTF {at}: expected a string, found {shown(value)}")
         elif kind == "list" and not isinstance(value, list):
-            raise ParseError(f"glTF {at}: expected a list, found {_shown(value)}")
+            raise ParseError(f"glTF {at}: expected a list, found {shown(value)}")
         elif kind == "boolean" and not isinstance(value, bool):
-            raise ParseError(f"glTF {at}: expected true or false, found {_shown(value)}")
+            raise ParseError(f"glTF {at}: expected true or false, found {shown(value)}")
 
 
 def _index(value: Any, size: int, at: str, of: str) -> int:
     number = _integer(value)
     if number is None or not 0 <= number < size:
         have = f"0-{size - 1}" if size else "none"
-        raise ParseError(f"glTF {at}: expected an index of {of} ({have}), found {_shown(value)}")
+        raise ParseError(f"glTF {at}: expected an index of {of} ({have}), found {shown(value)}")
     return number
 
 
@@ -249,6 +249,8 @@ def _drop_bad_name(item: dict[str, Any]) -> None:
         del item["name"]  # no name: the reader names it as it does any unnamed item
 
 
-def _shown(value: Any) -> str:
+def shown(value: Any) -> str:
+    """A JSON value of the file as a message shows it, shortened (a hostile value cannot
+    flood the message)."""
     text = repr(value)
     return text if len(text) <= 60 else text[:57] + "..."

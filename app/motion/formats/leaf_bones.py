@@ -17,12 +17,17 @@ has one, set to zero), and the clip's warnings say which. A leaf of a figure's s
 not leaves are too few to span a body (:data:`MIN_INNER`: limbs of one bone, a lamp,
 markers on one joint).
 
-Shapes: ``offsets`` ``(J, 3)``; ``parents`` ``(J,)``; ``local_translations`` ``(F, J, 3)``.
+Shapes: ``local_translations`` ``(F, J, 3)``.
 """
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
+
+from app.motion.model import Skeleton
+from app.motion.skeleton_map import rest_pose
 
 _SHOWN = 4  # leaf names a warning lists
 # The joints that are not leaves span a body only when they hold its limbs: at least two
@@ -31,51 +36,39 @@ _SHOWN = 4  # leaf names a warning lists
 MIN_INNER = 8
 
 
-def detached_leaves(offsets: np.ndarray, parents: np.ndarray) -> np.ndarray:
+def detached_leaves(skeleton: Skeleton) -> np.ndarray:
     """Indices of the leaf joints whose bone is longer than the figure (see above)."""
-    count = len(parents)
-    has_child = np.zeros(count, dtype=bool)
+    parents = skeleton.parents
+    has_child = np.zeros(skeleton.joint_count, dtype=bool)
     has_child[parents[parents >= 0]] = True
     leaves = np.flatnonzero(~has_child & (parents >= 0))
     inner = np.flatnonzero(has_child)
     if leaves.size == 0 or inner.size < MIN_INNER:
         return np.zeros(0, dtype=np.int64)
-    rest = np.zeros((count, 3))
-    placed = parents < 0
-    rest[placed] = offsets[placed]
-    while not placed.all():  # a level of the tree at a time, in whatever order joints come
-        ready = ~placed & placed[np.maximum(parents, 0)]
-        if not ready.any():
-            return np.zeros(0, dtype=np.int64)  # a cycle: not a tree, not this module's to say
-        rest[ready] = rest[parents[ready]] + offsets[ready]
-        placed |= ready
-    extent = float(np.ptp(rest[inner], axis=0).max())
+    extent = float(np.ptp(rest_pose(skeleton)[inner], axis=0).max())
     if not extent > 0:
         return np.zeros(0, dtype=np.int64)
-    lengths = np.linalg.norm(offsets[leaves], axis=1)
+    lengths = np.linalg.norm(skeleton.offsets[leaves], axis=1)
     return leaves[lengths > extent]
 
 
 def without_detached_leaves(
-    offsets: np.ndarray,
-    parents: np.ndarray,
-    names: tuple[str, ...] | list[str],
-    local_translations: np.ndarray | None,
-) -> tuple[np.ndarray, np.ndarray | None, str | None]:
-    """``offsets`` and ``local_translations`` with the detached leaves ending at their
+    skeleton: Skeleton, local_translations: np.ndarray | None
+) -> tuple[Skeleton, np.ndarray | None, str | None]:
+    """``skeleton`` and ``local_translations`` with the detached leaves ending at their
     joints (copies where changed), and the warning that says so (None: none)."""
-    found = detached_leaves(offsets, parents)
+    found = detached_leaves(skeleton)
     if found.size == 0:
-        return offsets, local_translations, None
-    offsets = offsets.copy()
+        return skeleton, local_translations, None
+    offsets = skeleton.offsets.copy()
     offsets[found] = 0.0
     if local_translations is not None:
         local_translations = local_translations.copy()
         local_translations[:, found] = 0.0
-    shown = ", ".join(repr(names[j]) for j in found[:_SHOWN])
+    shown = ", ".join(repr(skeleton.names[j]) for j in found[:_SHOWN])
     more = f" and {found.size - _SHOWN} more" if found.size > _SHOWN else ""
     warning = (
         f"{found.size} end bone(s) longer than the whole figure ({shown}{more}) read as "
         "ending at their joint: an exporter's invented bone ends, no part of the body"
     )
-    return offsets, local_translations, warning
+    return dataclasses.replace(skeleton, offsets=offsets), local_translations, warning

@@ -452,19 +452,19 @@ def motion_from_graph(
     size = float(np.ptp(rest_at, axis=0).max()) if count > 1 else 0.0
     moved = float(np.abs(per_frame[:, 1:] - offsets[1:]).max()) if count > 1 else 0.0
     local_translations = per_frame if moved > OFFSET_TOLERANCE * max(size, 1e-9) else None
-    notes = dict(notes or {})
-    offsets, local_translations, leaf_warning = without_detached_leaves(
-        offsets, np.asarray(joint_parents), joint_names, local_translations
-    )
-    if leaf_warning:
-        said = notes.get("warnings")
-        notes["warnings"] = [*(said if isinstance(said, list | tuple) else ()), leaf_warning]
     skeleton = Skeleton(
         names=unique_names([names[n] for n in joints]),
         parents=joint_parents,
         offsets=offsets,
         end_site=np.zeros(count, dtype=bool),
     )
+    skeleton, local_translations, leaf_warning = without_detached_leaves(
+        skeleton, local_translations
+    )
+    notes = dict(notes or {})
+    if leaf_warning:
+        said = notes.get("warnings")
+        notes["warnings"] = [*(said if isinstance(said, list | tuple) else ()), leaf_warning]
     return Motion(
         skeleton=skeleton,
         frame_time=frame_time,
