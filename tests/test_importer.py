@@ -305,6 +305,25 @@ def test_an_animation_that_moves_nothing_is_not_imported(
     assert clip.animation == "walk" and clip.frame_count == motion.frame_count
 
 
+def test_a_take_written_split_over_stacks_is_one_clip(
+    tmp_path: Path, settings: Settings, fixtures_dir: Path
+) -> None:
+    """Blender's per-object stacks (tests/fixtures/split_takes_fbx.py): one clip, the joined
+    take; neither part, nor the stack that moves no node of the skeleton, is a clip."""
+    folder = tmp_path / "scenes"
+    folder.mkdir()
+    shutil.copy(fixtures_dir / "cmu_mb_02_01_split.fbx", folder / "walk.fbx")
+    done = run_import(settings, [folder], workers=1)
+    assert not done.failed and len(done.imported) == 1
+    library = open_library(settings)
+    try:
+        with library.reads() as session:
+            (clip,) = clip_db.get_clips(session, [done.imported[0].clip_id]).values()
+    finally:
+        library.close()
+    assert " + " in (clip.animation or "") and clip.frame_count == 41
+
+
 def test_the_import_saves_no_index_before_the_run_ends(settings: Settings) -> None:
     from app.importer.run import _open_library
 

@@ -81,16 +81,19 @@ def describe_animations(
     """Every clip of an upload: one, or for an FBX/glTF file one per animation of at least
     :data:`MIN_ANIMATION_FRAMES` frames that moves a node (the default one when none does:
     the longest that moves, else the longest). An animation that moves nothing, such as the
-    empty take an FBX SDK writes beside a real one, would be a held pose, not a clip."""
+    empty take an FBX SDK writes beside a real one, would be a held pose, not a clip; one that
+    is a part of a take the file wrote split (``Animation.parts``) is in that take's clip."""
     first = describer.describe(upload, limits)
     if first.animation is None:
         return [first]
     described = {first.animation: first}
+    parts = {part for animation in first.animations for part in animation.parts}
     for animation in first.animations:
         if (
             animation.frame_count < MIN_ANIMATION_FRAMES
             or not animation.moves
             or animation.name in described
+            or animation.name in parts
         ):
             continue
         chosen = dataclasses.replace(upload, animation=animation.name)

@@ -223,3 +223,40 @@ def test_a_skinned_file_saved_on_another_frame_describes_as_its_source() -> None
     for name, vector in wanted.items():
         distance = np.linalg.norm(read[name] - vector) / np.linalg.norm(vector)
         assert distance <= 0.01, (name, distance)
+
+
+def test_a_take_written_split_over_stacks_is_read_joined_by_default() -> None:
+    """Blender's FBX exporter with its defaults writes a stack per animated object: the
+    fixture's armature hangs from an empty that travels and turns
+    (tests/fixtures/split_takes_fbx.py), so one stack carries the travel, another the bones,
+    and a third the empty's action written on the armature (it moves nothing there). Read by
+    default, the file is the take the scene plays: the same joints in the same places as the
+    same scene written as one stack; each stack alone is not."""
+    split = (FIXTURES_DIR / "cmu_mb_02_01_split.fbx").read_bytes()
+    whole = read_fbx((FIXTURES_DIR / "cmu_mb_02_01_whole.fbx").read_bytes())[0]
+    motion, animations, chosen = read_fbx(split)
+    stacks = [a.name for a in animations if not a.parts]
+    assert len(stacks) == 3
+    (joined,) = (a for a in animations if a.parts)
+    assert chosen == joined.name == " + ".join(joined.parts) and len(joined.parts) == 2
+    assert animations.index(joined) == 0  # the default read, and listed first
+    assert [a.moves for a in animations] == [True, True, True, False]  # the third moves nothing
+    assert any("joins 2 animations" in w for w in motion.notes["warnings"])
+    expected = forward_kinematics(whole)[1]
+    height = float(np.ptp(expected[0], axis=0).max())
+    assert motion.skeleton.names == whole.skeleton.names
+    assert np.abs(forward_kinematics(motion)[1] - expected).max() < 0.001 * height
+    for part in joined.parts:  # each part alone: a figure gliding, or walking on the spot
+        alone = read_fbx(split, animation=part)[0]
+        assert np.abs(forward_kinematics(alone)[1] - expected).max() > 0.05 * height
+    assert read_fbx(split, animation=joined.name)[2] == joined.name  # askable by its name
+
+
+def test_stacks_that_move_no_node_of_the_skeleton_are_not_read_by_default() -> None:
+    """The same split file: the empty's action written on the armature object moves none of
+    the skeleton's nodes, so it is no take of it (it is still listed, and read when named)."""
+    split = (FIXTURES_DIR / "cmu_mb_02_01_split.fbx").read_bytes()
+    _, animations, _ = read_fbx(split)
+    (still,) = (a for a in animations if not a.moves)
+    motion = read_fbx(split, animation=still.name)[0]
+    assert np.ptp(motion.local_rotations, axis=0).max() < 1e-6

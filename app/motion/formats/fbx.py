@@ -24,6 +24,7 @@ list and each ``.anim`` are taken once and kept referenced until the end; parent
 
 from __future__ import annotations
 
+from dataclasses import replace
 from itertools import chain
 from typing import Any
 
@@ -49,11 +50,15 @@ from app.motion.formats.scene_animation import (
     pick_animation,
     scene_notes,
 )
+from app.motion.formats.split_takes import TakeTracks, joined_take, moving_nodes
+from app.motion.formats.split_takes import join as join_takes
 from app.motion.formats.text import refuse_lfs_pointer
 from app.motion.model import Motion, ParseLimits
 
 DEFAULT_LIMITS = ParseLimits()
 MAX_SCENE_NODES = 100_000
+# Frames of each stack looked at for what it moves (spread over the stack).
+_LOOKED_AT = 256
 _TRANSFORMS = frozenset({"Lcl Translation", "Lcl Rotation", "Lcl Scaling"})
 
 
@@ -105,12 +110,18 @@ class _Scene:
             [stack.name for stack in self.stacks], blank="animation {i}", repeat="{name} ({n})"
         )
         self.spans = [(float(s.time_begin), float(s.time_end)) for s in self.stacks]
+        self.joined: dict[str, list[Any]] = {}  # a take split over stacks: its stacks' anims
         self.animations = []
         for name, (begin, end), anim in zip(names, self.spans, self.anims, strict=True):
             span = end - begin if np.isfinite(end - begin) and end >= begin else 0.0
             frames = int(np.floor(span * self.fps + 0.5)) + 1
             moves = self._moves(anim)
             self.animations.append(Animation(name, frames, frames / self.fps, moves))
+
+    def frame_times(self, index: int) -> np.ndarray:
+        """``(F,)`` the times, in seconds, at which animation ``index`` is sampled."""
+        begin = self.spans[index][0]
+        return begin + np.arange(self.animations[index].frame_count) / self.fps
 
     def _moves(self, anim: Any) -> bool:
         """Whether a stack's layers animate any node's transform (an empty take does not)."""
@@ -248,6 +259,9 @@ def read_fbx(
         raise no_skeleton(loaded.animations, "no bones or skin clusters")
     kept_nodes = [nodes[i] for i in kept]
     rest_t, rest_r, rest_s = _static(kept_nodes)
+    kept_ids = {node.typed_id: i for i, node in enumerate(kept_nodes)}
+    kept_depths = np.array([depths[i] for i in kept])
+    _settle_takes(loaded, kept_ids, kept_depths, (rest_t, rest_r, rest_s), limits)
     if not loaded.animations and still:  # a rig: its rest pose as one frame
         loaded.animations = [Animation("", 1, 0.0)]
         info, warnings = loaded.animations[0], []
@@ -257,12 +271,13 @@ def read_fbx(
         info = loaded.animations[chosen]
         warnings = choice_warnings(loaded.animations, chosen, animation)
         check_frame_budget(limits, info.frame_count, len(kept))
-        begin = loaded.spans[chosen][0]
-        times = begin + np.arange(info.frame_count) / loaded.fps
-        kept_ids = {node.typed_id: i for i, node in enumerate(kept_nodes)}
-        translation, rotation, scale = _baked(
-            scene, loaded.anims[chosen], kept_ids, times, loaded.fps, rest_t, rest_r, rest_s
+        times, rest = loaded.frame_times(chosen), (rest_t, rest_r, rest_s)
+        parts = loaded.joined.get(info.name, [loaded.anims[chosen]])
+        takes = [TakeTracks(*_baked(scene, p, kept_ids, times, loaded.fps, *rest)) for p in parts]
+        take = (
+            takes[0] if len(takes) == 1 else join_takes(takes, [*range(len(takes))], _size(rest_t))
         )
+        translation, rotation, scale = take.translation, take.rotation, take.scale
     graph = NodeGraph(
         names=[node.name for node in kept_nodes],
         parents=kept_parents(parents, kept),
@@ -284,6 +299,70 @@ def read_fbx(
         notes=scene_notes(info, warnings),
     )
     return motion, loaded.animations, info.name
+
+
+def _settle_takes(
+    loaded: _Scene,
+    node_ids: dict[int, int],
+    depths: np.ndarray,
+    rest: tuple[np.ndarray, np.ndarray, np.ndarray],
+    limits: ParseLimits,
+) -> None:
+    """With several stacks that animate something, look at what each moves of the skeleton
+    (the nodes of ``node_ids``; ``depths`` ``(N,)``: their depths in the scene) and settle
+    ``loaded``'s animations from it:
+
+    * a stack that moves no node of the skeleton (a prop's, a camera's, a control's) does
+      not move: it is not read by default, and not a clip of its own;
+    * stacks of one span that each move their own part of the skeleton are one take written
+      split (:mod:`app.motion.formats.split_takes`): it is added, named after them joined by
+      " + " and placed before the first of them, so it is what the file is read as by
+      default; each stays readable by name.
+
+    Looked at on frames spread over each stack; skipped (the stacks as they are) when
+    sampling every stack would cost more than reading the longest take may."""
+    candidates = [i for i, a in enumerate(loaded.animations) if a.moves and a.frame_count > 1]
+    frames = sum(min(loaded.animations[i].frame_count, _LOOKED_AT) for i in candidates)
+    if len(candidates) < 2 or limits.frame_budget_problem(frames, 0, len(node_ids)):
+        return
+    size = _size(rest[0])
+    scene, fps = loaded.scene, loaded.fps
+    looked: dict[int, TakeTracks] = {}
+    for i in candidates:
+        times = loaded.frame_times(i)
+        times = times[np.unique(np.linspace(0, len(times) - 1, _LOOKED_AT).astype(int))]
+        looked[i] = TakeTracks(*_baked(scene, loaded.anims[i], node_ids, times, fps, *rest))
+        if not moving_nodes(looked[i], size).any():
+            loaded.animations[i] = replace(loaded.animations[i], moves=False)
+            del looked[i]
+    spans: dict[tuple[int, int], list[int]] = {}  # (first frame, frames) -> stacks
+    for i in looked:
+        key = (round(loaded.spans[i][0] * fps), loaded.animations[i].frame_count)
+        spans.setdefault(key, []).append(i)
+    joined: list[tuple[int, Animation, list[Any]]] = []
+    for (_, count), group in spans.items():
+        parts = [group[p] for p in joined_take([looked[i] for i in group], size, depths)]
+        if not parts or limits.frame_budget_problem(count * len(parts), 0, len(node_ids)):
+            continue
+        names = tuple(loaded.animations[i].name for i in parts)
+        animation = Animation(" + ".join(names), count, count / fps, True, parts=names)
+        joined.append((parts[0], animation, [loaded.anims[i] for i in parts]))
+    for first, animation, anims in sorted(joined, key=lambda j: -j[0]):  # later ones first
+        name = unique_names(
+            [a.name for a in loaded.animations] + [animation.name],
+            blank="animation {i}",
+            repeat="{name} ({n})",
+        )[-1]
+        loaded.joined[name] = anims
+        loaded.animations.insert(first, replace(animation, name=name))
+        loaded.spans.insert(first, loaded.spans[first])
+        loaded.anims.insert(first, None)
+
+
+def _size(rest_translation: np.ndarray) -> float:
+    """A figure's size from its ``(N, 3)`` rest offsets: the longest (what "still" is
+    measured against, :func:`app.motion.formats.split_takes.moving_nodes`)."""
+    return float(np.linalg.norm(rest_translation, axis=1).max(initial=0.0))
 
 
 def _static(nodes: list[Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

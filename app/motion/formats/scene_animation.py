@@ -24,12 +24,15 @@ class Animation:
     """One animation of a file: its name, length in frames at the sampling rate, the
     seconds those frames cover (``frame_count / rate``: a clip's ``duration`` counts so),
     and whether it moves any node at all (the FBX SDK writes an empty ``Take 001`` beside a
-    Mixamo take, longer than it: a span of time that animates nothing)."""
+    Mixamo take, longer than it: a span of time that animates nothing). ``parts``: the
+    animations it joins, when it is one take the file wrote split over several
+    (:mod:`app.motion.formats.split_takes`); each is also listed by itself."""
 
     name: str
     frame_count: int
     duration: float
     moves: bool = True
+    parts: tuple[str, ...] = ()  # a take written split over these animations, joined
 
 
 def rig_without_animation(joints: int, why: str) -> NoAnimation:
@@ -93,6 +96,11 @@ def choice_warnings(animations: list[Animation], chosen: int, name: str | None) 
     if passed:
         shown = ", ".join(repr(n) for n in passed[:5]) + (" ..." if len(passed) > 5 else "")
         warning += f" (longer, but moving nothing: {shown})"
+    if read.parts:
+        warning += (
+            f"; it joins {len(read.parts)} animations of one span that each move their own part "
+            "of the skeleton (one take written split, one per animated object)"
+        )
     return [warning]
 
 
