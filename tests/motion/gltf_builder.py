@@ -149,3 +149,33 @@ def with_empty_take(motion: Motion, *, seconds: float = 10.0) -> bytes:
         },
     )
     return pack_glb(document, binary)
+
+
+def with_prop_take(motion: Motion, *, seconds: float = 10.0) -> bytes:
+    """``motion`` as a skinned GLB animation "walk", after an animation "prop" that lasts
+    ``seconds`` and moves a node outside the skeleton (a second scene root, no joint), as
+    Blender writes one animation per animated object of a scene."""
+    document, binary = gltf_parts(motion, name="walk")
+    times = np.array([0.0, seconds], dtype=np.float32).tobytes()
+    places = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]], dtype=np.float32).tobytes()
+    for data, kind in ((times, "SCALAR"), (places, "VEC3")):
+        document["bufferViews"].append(
+            {"buffer": 0, "byteOffset": len(binary), "byteLength": len(data)}
+        )
+        accessor = {"bufferView": len(document["bufferViews"]) - 1, "componentType": 5126}
+        document["accessors"].append(accessor | {"count": 2, "type": kind})
+        binary += data
+    document["buffers"][0]["byteLength"] = len(binary)
+    document["nodes"].append({"name": "prop"})
+    document["scenes"][0]["nodes"].append(len(document["nodes"]) - 1)
+    last = len(document["accessors"]) - 1
+    prop = len(document["nodes"]) - 1
+    document["animations"].insert(
+        0,
+        {
+            "name": "prop",
+            "samplers": [{"input": last - 1, "output": last}],
+            "channels": [{"sampler": 0, "target": {"node": prop, "path": "translation"}}],
+        },
+    )
+    return pack_glb(document, binary)

@@ -19,7 +19,13 @@ from app.motion.model import ParseLimits
 from app.motion.skeleton_map import rest_pose
 from tests.conftest import FIXTURES_DIR
 from tests.motion.canonical import check_canonical_body
-from tests.motion.gltf_builder import build_glb, gltf_parts, pack_glb, with_empty_take
+from tests.motion.gltf_builder import (
+    build_glb,
+    gltf_parts,
+    pack_glb,
+    with_empty_take,
+    with_prop_take,
+)
 
 BVH = FIXTURES_DIR / "cmu_mb_02_01_first41.bvh"
 VRMA = FIXTURES_DIR / "three_vrm_test.vrma"
@@ -344,6 +350,16 @@ def test_the_default_animation_is_the_longest_that_moves_a_node(bvh_motion):
     assert "moving nothing: 'Take 001'" in warning
     still, _, _ = read_gltf(data, animation="Take 001")  # named: read as what it is
     assert np.ptp(still.local_rotations, axis=0).max() == 0
+
+
+def test_an_animation_of_a_node_outside_the_skeleton_is_not_read_by_default(bvh_motion):
+    """Blender writes an animation per animated object: a prop's, longer than the body's,
+    moves no node of the skeleton, so the clip would be a held pose; the body's is read."""
+    data = with_prop_take(bvh_motion)
+    motion, animations, chosen = read_gltf(data)
+    assert [(a.name, a.moves) for a in animations] == [("prop", False), ("walk", True)]
+    assert chosen == "walk" and motion.frame_count == bvh_motion.frame_count
+    assert "moving nothing: 'prop'" in motion.notes["warnings"][0]
 
 
 @pytest.mark.parametrize(

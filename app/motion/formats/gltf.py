@@ -29,6 +29,7 @@ binary input.
 from __future__ import annotations
 
 import re
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -210,6 +211,19 @@ def _animated_nodes(document: Any, parents: np.ndarray) -> np.ndarray:
     return with_plain_nodes_below(animated, plain, parents)
 
 
+def _without_skeleton_moves(loaded: _Document, kept: np.ndarray) -> None:
+    """Mark as not moving each animation that moves no node of the skeleton (``kept``: its
+    joints and their ancestors): a prop's, a camera's, or a control's, as Blender writes one
+    animation per animated object. It is then not read by default, nor a clip of its own."""
+    skeleton = set(kept.tolist())
+    loaded.animations = [
+        replace(animation, moves=False)
+        if animation.moves and not any(loaded.moved[p] & skeleton for p in parts)
+        else animation
+        for animation, parts in zip(loaded.animations, loaded.parts, strict=True)
+    ]
+
+
 class _Document:
     def __init__(self, data: bytes, limits: ParseLimits) -> None:
         self.document, blob, self.broken = load_document(data)
@@ -242,6 +256,7 @@ class _Document:
             self.rates.append(rate)
             self.spans.append((begin, end))
             self.parts.append([len(self.parts)])
+        self.moved = moved
         self._join_split_take(moved)
 
     def _join_split_take(self, moved: list[set[int]]) -> None:
@@ -352,6 +367,10 @@ def read_gltf(
         loaded.animations = [Animation("", 1, 0.0)]
         loaded.rates, loaded.spans, loaded.parts = [DEFAULT_FPS], [(0.0, 0.0)], [[0]]
         document.replace("animations", [{}])
+    joinable = np.ones(count, dtype=bool)
+    # Only the skeleton's nodes are sampled and counted (meshes, props, other trees are not).
+    kept = skeleton_nodes(parents, is_bone, joinable)
+    _without_skeleton_moves(loaded, kept)
     chosen = pick_animation(loaded.animations, animation, joints=int(is_bone.sum()))
     for part in loaded.parts[chosen]:
         if part in loaded.broken:
@@ -362,9 +381,6 @@ def read_gltf(
         for i, problem in loaded.broken.items()  # (a take joined over animations has none)
     ]
     info = loaded.animations[chosen]
-    joinable = np.ones(count, dtype=bool)
-    # Only the skeleton's nodes are sampled and counted (meshes, props, other trees are not).
-    kept = skeleton_nodes(parents, is_bone, joinable)
     check_frame_budget(limits, info.frame_count, len(kept))
     position = np.full(count, -1, dtype=np.int64)  # node -> index among the kept ones
     position[kept] = np.arange(len(kept))
