@@ -129,16 +129,7 @@ def with_empty_take(motion: Motion, *, seconds: float = 10.0) -> bytes:
     ``seconds`` and moves no node (its one channel drives morph weights), as the FBX SDK
     writes an empty default take beside a Mixamo one."""
     document, binary = gltf_parts(motion, name="walk")
-    times = np.array([0.0, seconds], dtype=np.float32).tobytes()
-    weights = np.zeros(2, dtype=np.float32).tobytes()
-    for data, kind in ((times, "SCALAR"), (weights, "SCALAR")):
-        document["bufferViews"].append(
-            {"buffer": 0, "byteOffset": len(binary), "byteLength": len(data)}
-        )
-        accessor = {"bufferView": len(document["bufferViews"]) - 1, "componentType": 5126}
-        document["accessors"].append(accessor | {"count": 2, "type": kind})
-        binary += data
-    document["buffers"][0]["byteLength"] = len(binary)
+    binary = _two_keys(document, binary, np.zeros(2), "SCALAR", seconds)
     last = len(document["accessors"]) - 1
     document["animations"].insert(
         0,
@@ -156,16 +147,8 @@ def with_prop_take(motion: Motion, *, seconds: float = 10.0) -> bytes:
     ``seconds`` and moves a node outside the skeleton (a second scene root, no joint), as
     Blender writes one animation per animated object of a scene."""
     document, binary = gltf_parts(motion, name="walk")
-    times = np.array([0.0, seconds], dtype=np.float32).tobytes()
-    places = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]], dtype=np.float32).tobytes()
-    for data, kind in ((times, "SCALAR"), (places, "VEC3")):
-        document["bufferViews"].append(
-            {"buffer": 0, "byteOffset": len(binary), "byteLength": len(data)}
-        )
-        accessor = {"bufferView": len(document["bufferViews"]) - 1, "componentType": 5126}
-        document["accessors"].append(accessor | {"count": 2, "type": kind})
-        binary += data
-    document["buffers"][0]["byteLength"] = len(binary)
+    places = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+    binary = _two_keys(document, binary, places, "VEC3", seconds)
     document["nodes"].append({"name": "prop"})
     document["scenes"][0]["nodes"].append(len(document["nodes"]) - 1)
     last = len(document["accessors"]) - 1
@@ -179,3 +162,20 @@ def with_prop_take(motion: Motion, *, seconds: float = 10.0) -> bytes:
         },
     )
     return pack_glb(document, binary)
+
+
+def _two_keys(
+    document: dict[str, Any], binary: bytes, values: np.ndarray, kind: str, seconds: float
+) -> bytes:
+    """Append accessors of two key times (0 and ``seconds``) and of ``values`` (two, of
+    glTF type ``kind``) to ``document``; the binary buffer with them."""
+    times = np.array([0.0, seconds], dtype=np.float32).tobytes()
+    for data, of in ((times, "SCALAR"), (np.asarray(values, dtype=np.float32).tobytes(), kind)):
+        document["bufferViews"].append(
+            {"buffer": 0, "byteOffset": len(binary), "byteLength": len(data)}
+        )
+        accessor = {"bufferView": len(document["bufferViews"]) - 1, "componentType": 5126}
+        document["accessors"].append(accessor | {"count": 2, "type": of})
+        binary += data
+    document["buffers"][0]["byteLength"] = len(binary)
+    return binary
