@@ -57,8 +57,10 @@ from app.motion.model import Motion, ParseLimits
 
 DEFAULT_LIMITS = ParseLimits()
 MAX_SCENE_NODES = 100_000
-# Frames of each stack looked at for what it moves (spread over the stack).
+# Frames of each stack looked at for what it moves (spread over the stack), and the most
+# stacks looked at (~0.7 ms each; Blender writes n objects' actions as about n x n stacks).
 _LOOKED_AT = 256
+_MAX_STACKS_LOOKED_AT = 2048
 _TRANSFORMS = frozenset({"Lcl Translation", "Lcl Rotation", "Lcl Scaling"})
 
 
@@ -319,11 +321,14 @@ def _settle_takes(
       " + " and placed before the first of them, so it is what the file is read as by
       default; each stays readable by name.
 
-    Looked at on frames spread over each stack; skipped (the stacks as they are) when
-    sampling every stack would cost more than reading the longest take may."""
+    Looked at on frames spread over each stack; skipped (the stacks as they are) when there
+    are more than :data:`_MAX_STACKS_LOOKED_AT` or sampling every stack would cost more than
+    reading the longest take may."""
     candidates = [i for i, a in enumerate(loaded.animations) if a.moves and a.frame_count > 1]
     frames = sum(min(loaded.animations[i].frame_count, _LOOKED_AT) for i in candidates)
-    if len(candidates) < 2 or limits.frame_budget_problem(frames, 0, len(node_ids)):
+    if not 2 <= len(candidates) <= _MAX_STACKS_LOOKED_AT:
+        return
+    if limits.frame_budget_problem(frames, 0, len(node_ids)):
         return
     size = _size(rest[0])
     scene, fps = loaded.scene, loaded.fps
