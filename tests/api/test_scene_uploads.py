@@ -80,6 +80,24 @@ def test_the_longest_animation_or_the_named_one(live):
     assert on_bvh.status_code == 422 and "animation" in on_bvh.json()["detail"]
 
 
+def test_a_take_blender_wrote_split_over_stacks_is_one_clip_that_downloads(live):
+    """Blender's per-object stacks (tests/fixtures/split_takes_fbx.py): the clip is the
+    joined take, listed first and selected; its name is what the file is read by again, for
+    a download as for a second upload."""
+    split = ("walk.fbx", (FIXTURES_DIR / "cmu_mb_02_01_split.fbx").read_bytes())
+    response = live.post("/clips", files={"file": split})
+    assert response.status_code == 201, response.text
+    clip = response.json()
+    listed = [(a["name"], a["selected"]) for a in clip["animations"]]
+    assert len(listed) == 4 and listed[0][1] and " + " in listed[0][0]
+    assert clip["name"] == f"walk · {listed[0][0]}" and clip["frame_count"] == 41
+    again = live.post("/clips", files={"file": split}, data={"animation": listed[0][0]})
+    assert again.status_code == 200 and again.json()["id"] == clip["id"]
+    download = live.get(f"/clips/{clip['id']}/file", params={"format": "bvh"})
+    assert download.status_code == 200, download.text
+    assert read_bvh(download.content).frame_count == 41
+
+
 def test_a_vrm_animation_upload_and_an_fbx_search(live):
     response = live.post("/clips", files={"file": VRMA})
     assert response.status_code in (200, 201), response.text
