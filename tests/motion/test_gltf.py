@@ -362,6 +362,14 @@ def test_an_animation_of_a_node_outside_the_skeleton_is_not_read_by_default(bvh_
     assert "moving nothing: 'prop'" in motion.notes["warnings"][0]
 
 
+def test_a_rig_without_animation_is_read_as_its_rest_pose_when_asked(bvh_motion):
+    """``still``: a GLB character with no animation is one frame of its rest pose (a rig
+    for retargeting), with nothing to mark as moving or not."""
+    document, binary = gltf_parts(bvh_motion)
+    motion, animations, _ = read_gltf(pack_glb(dict(document, animations=[]), binary), still=True)
+    assert motion.frame_count == 1 and [a.frame_count for a in animations] == [1]
+
+
 @pytest.mark.parametrize(
     "target", [{"node": 999, "path": "rotation"}, {"node": "0", "path": "scale"}]
 )

@@ -325,9 +325,9 @@ def _settle_takes(
     are more than :data:`_MAX_STACKS_LOOKED_AT` or sampling every stack would cost more than
     reading the longest take may."""
     candidates = [i for i, a in enumerate(loaded.animations) if a.moves and a.frame_count > 1]
-    frames = sum(min(loaded.animations[i].frame_count, _LOOKED_AT) for i in candidates)
     if not 2 <= len(candidates) <= _MAX_STACKS_LOOKED_AT:
         return
+    frames = sum(min(loaded.animations[i].frame_count, _LOOKED_AT) for i in candidates)
     if limits.frame_budget_problem(frames, 0, len(node_ids)):
         return
     size = _size(rest[0])

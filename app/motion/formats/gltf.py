@@ -363,14 +363,14 @@ def read_gltf(
             first, problem = next(iter(loaded.broken.items()))
             raise ParseError(f"animation {loaded.animations[first].name!r}: {problem}")
         raise no_skeleton(loaded.animations, _nothing_turns(document))
-    if not loaded.animations and still:  # a rig: its rest (bind) pose as one frame
-        loaded.animations = [Animation("", 1, 0.0)]
-        loaded.rates, loaded.spans, loaded.parts = [DEFAULT_FPS], [(0.0, 0.0)], [[0]]
-        document.replace("animations", [{}])
     joinable = np.ones(count, dtype=bool)
     # Only the skeleton's nodes are sampled and counted (meshes, props, other trees are not).
     kept = skeleton_nodes(parents, is_bone, joinable)
     _without_skeleton_moves(loaded, kept)
+    if not loaded.animations and still:  # a rig: its rest (bind) pose as one frame
+        loaded.animations = [Animation("", 1, 0.0)]
+        loaded.rates, loaded.spans, loaded.parts = [DEFAULT_FPS], [(0.0, 0.0)], [[0]]
+        document.replace("animations", [{}])
     chosen = pick_animation(loaded.animations, animation, joints=int(is_bone.sum()))
     for part in loaded.parts[chosen]:
         if part in loaded.broken:
