@@ -12,6 +12,10 @@ move far either lost information in the exporter (key reduction, leaf bones adde
 cut to the scene's range) or shows a reader or mapper that depends on a writer's choice.
 
     .venv/bin/python bench/exporter_variants.py SOURCE... [--out DIR] [--gltf-transform]
+    .venv/bin/python bench/exporter_variants.py --pairs PAIRS   # variants another tool wrote
+
+``bench/threejs_bvh_to_glb.mjs`` is such a tool: three.js's BVHLoader and GLTFExporter, as
+web converters use them (see its header).
 
 Blender runs in a subprocess per source (its scene state is global). Findings: docs/skeletons.md
 ("Exporter variants").
@@ -127,30 +131,48 @@ def variants(source: Path, out: Path, gltf_transform: bool) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.suffix.lower() in kinds)
 
 
+def compare(original: dict[str, np.ndarray], variant: Path, table: dict[str, object]) -> None:
+    """Describe ``variant`` and record (and print) its distance from ``original``'s vectors."""
+    try:
+        vectors = describe(variant)
+    except Exception as error:  # a refusal is a result here
+        table[variant.name] = str(error)[:200]
+        print(f"{variant.name}: REFUSED {str(error)[:200]}")
+        return
+    distances = {
+        name: float(np.linalg.norm(vectors[name] - v) / max(np.linalg.norm(v), 1e-12))
+        for name, v in original.items()
+    }
+    table[variant.name] = distances
+    shown = " ".join(f"{name} {d:.4f}" for name, d in distances.items())
+    print(f"{variant.name}: {shown}", flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("sources", nargs="+", type=Path)
+    parser.add_argument("sources", nargs="*", type=Path)
     parser.add_argument("--out", type=Path, default=Path("/tmp/exporter-variants"))
     parser.add_argument("--gltf-transform", action="store_true")
+    parser.add_argument(
+        "--pairs",
+        type=Path,
+        help="compare the variants another tool wrote instead: lines 'SOURCE VARIANT'",
+    )
     parser.add_argument("--json", type=Path, help="write every distance here")
     args = parser.parse_args()
-    table = {}
+    table: dict[str, object] = {}
     for source in args.sources:
         original = describe(source)
         for variant in variants(source, args.out, args.gltf_transform):
-            try:
-                vectors = describe(variant)
-            except Exception as error:  # a refusal is a result here
-                table[variant.name] = str(error)[:200]
-                print(f"{variant.name}: REFUSED {str(error)[:200]}")
-                continue
-            distances = {
-                name: float(np.linalg.norm(vectors[name] - v) / max(np.linalg.norm(v), 1e-12))
-                for name, v in original.items()
-            }
-            table[variant.name] = distances
-            shown = " ".join(f"{name} {d:.4f}" for name, d in distances.items())
-            print(f"{variant.name}: {shown}", flush=True)
+            compare(original, variant, table)
+    for line in args.pairs.read_text().splitlines() if args.pairs else []:
+        source, variant = (Path(p) for p in line.split())
+        try:
+            original = describe(source)
+        except Exception as error:  # the source itself refused: nothing to compare with
+            print(f"{source.name}: source REFUSED {str(error)[:200]}")
+            continue
+        compare(original, variant, table)
     if args.json:
         args.json.write_text(json.dumps(table, indent=1))
 
