@@ -21,13 +21,13 @@ def test_fill_to_a_count_with_ivf_indexes(
     monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    # 7 real clips to start from: 2 BVH, 1 ASF/AMC, 3 FBX, 1 VRM animation.
+    # 9 real clips to start from: 2 BVH, 1 ASF/AMC, 5 FBX, 1 VRM animation.
     run_import(settings, [fixtures_dir], workers=1)
     monkeypatch.setenv("MOCAP_INDEX_AUTO_THRESHOLD", "2000")
     argv = ["fill-synthetic", "--count", "3000", "--data-dir", str(settings.data_dir)]
     assert main(argv) == 0
     out = capsys.readouterr().out
-    assert "added 2993 synthetic clips" in out and "holds 3000 clips" in out
+    assert "added 2991 synthetic clips" in out and "holds 3000 clips" in out
     assert "posture ivf" in out
     assert main(argv) == 0  # already full: nothing added
     assert "added 0 synthetic clips" in capsys.readouterr().out
@@ -47,7 +47,7 @@ def test_fill_to_a_count_with_ivf_indexes(
         ).fetchone()[0]
     finally:
         db.close()
-    assert synthetic == (2993, 2993, "synthetic-0000008") and labelled == 2993 and files == 0
+    assert synthetic == (2991, 2991, "synthetic-0000010") and labelled == 2991 and files == 0
     meta = json.loads((settings.data_dir / "indexes" / "posture.json").read_text())
     assert meta["kind"] == "ivf" and meta["count"] == 3000 and meta["nprobe"] >= 1
 

@@ -148,29 +148,29 @@ def test_the_server_sees_clips_imported_by_another_process(
         assert done.returncode == 0, done.stderr.decode()
         assert "skipped 1 as duplicates" in done.stdout.decode()
 
-        # 2 copies + 7 fixture clips (2 BVH, 1 ASF/AMC, 3 FBX, 1 VRMA) more, no restart.
+        # 2 copies + 9 fixture clips (2 BVH, 1 ASF/AMC, 5 FBX, 1 VRMA) more, no restart.
         deadline = time.monotonic() + 10
         while True:
-            found = client.get("/search", params={"clip": uploaded, "k": 10}).json()
-            if len(found["results"]) == 9 or time.monotonic() > deadline:
+            found = client.get("/search", params={"clip": uploaded, "k": 20}).json()
+            if len(found["results"]) == 11 or time.monotonic() > deadline:
                 break
             time.sleep(0.1)
-        assert len(found["results"]) == 9
+        assert len(found["results"]) == 11
         names = {hit["name"] for hit in found["results"]}
         assert {"take_0001", "take_0002", "cmu_02_01_first40", "cmu_mb_02_01_first41"} <= names
         # The copies differ only by trailing newlines: the same motion, distance 0.
         assert found["results"][0]["distance"] == pytest.approx(0, abs=1e-6)
         for descriptor in ("kinetic", "motion"):
             other = client.get(
-                "/search", params={"clip": uploaded, "k": 10, "descriptor": descriptor}
+                "/search", params={"clip": uploaded, "k": 20, "descriptor": descriptor}
             )
-            assert len(other.json()["results"]) == 9
+            assert len(other.json()["results"]) == 11
         health = client.get("/health").json()
-        assert health["clips"] == 10
-        assert {index["size"] for index in health["indexes"].values()} == {10}
+        assert health["clips"] == 12
+        assert {index["size"] for index in health["indexes"].values()} == {12}
         # An upload after the import gets the next id and is found too.
         late = unique_copies(fixtures_dir / FIXTURE, tmp_path / "late", 5)[-1]
         response = client.post("/clips", files={"file": (late.name, late.read_bytes())})
-        assert response.status_code == 201 and response.json()["id"] == 11
-        found = client.get("/search", params={"clip": 11, "k": 10}).json()["results"]
-        assert len(found) == 10
+        assert response.status_code == 201 and response.json()["id"] == 13
+        found = client.get("/search", params={"clip": 13, "k": 20}).json()["results"]
+        assert len(found) == 12
