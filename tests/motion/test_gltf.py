@@ -362,6 +362,18 @@ def test_an_animation_of_a_node_outside_the_skeleton_is_not_read_by_default(bvh_
     assert "moving nothing: 'prop'" in motion.notes["warnings"][0]
 
 
+def test_an_animation_without_keyframes_on_a_skinless_file_is_named_in_the_refusal(bvh_motion):
+    """three.js's GLTFExporter drops the tracks it cannot bind (names with a ':') and writes
+    the animation empty: the file's bones are plain nodes that nothing moves. Refused as a
+    static model, naming the animation that holds nothing rather than saying there is none."""
+    document, binary = gltf_parts(bvh_motion)
+    empty = {"name": "animation", "channels": [], "samplers": []}
+    with pytest.raises(ParseError, match=r"no animation \(its animations 'animation' hold no"):
+        read_gltf(pack_glb(dict(document, skins=[], animations=[empty]), binary))
+    with pytest.raises(ParseError, match=r"and no animation: a static model"):
+        read_gltf(pack_glb(dict(document, skins=[], animations=[]), binary))
+
+
 def test_a_rig_without_animation_is_read_as_its_rest_pose_when_asked(bvh_motion):
     """``still``: a GLB character with no animation is one frame of its rest pose (a rig
     for retargeting), with nothing to mark as moving or not."""

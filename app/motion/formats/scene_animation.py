@@ -49,9 +49,17 @@ def no_skeleton(animations: list[Animation], what: str) -> ParseError:
     a mesh without bones — which is not a person to map (:class:`SkeletonMappingError`), and
     the message says there is no animation as well; it is not a rig (no bones to drive)."""
     if all(a.frame_count <= 1 for a in animations):
+        # An animation of no keyframes over time is said by name: an exporter that could
+        # not bind its tracks (three.js's GLTFExporter drops those of "mixamorig:" names)
+        # writes one, and "no animation" would hide that the file meant to hold one.
+        moves = "no animation"
+        if animations:
+            shown = ", ".join(repr(a.name) for a in animations[:5])
+            more = " ..." if len(animations) > 5 else ""
+            moves = f"no animation (its animations {shown}{more} hold no keyframes over time)"
         return SkeletonMappingError(
-            f"not a whole humanoid: the file has no skeleton ({what}) and no animation: a "
-            "static model, nothing moves"
+            f"not a whole humanoid: the file has no skeleton ({what}) and {moves}: a static "
+            "model, nothing moves"
         )
     return ParseError(f"the file has no skeleton ({what})")
 
