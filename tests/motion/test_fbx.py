@@ -260,3 +260,26 @@ def test_stacks_that_move_no_node_of_the_skeleton_are_not_read_by_default() -> N
     (still,) = (a for a in animations if not a.moves)
     motion = read_fbx(split, animation=still.name)[0]
     assert np.ptp(motion.local_rotations, axis=0).max() < 1e-6
+
+
+def test_what_the_stacks_move_is_looked_at_once_per_file(monkeypatch) -> None:
+    """The import reads a file once per animation: reading the split file again, by
+    default or by a stack's name, settles its stacks as the first read did, without baking
+    every stack again."""
+    from app.motion.formats import fbx
+
+    split = (FIXTURES_DIR / "cmu_mb_02_01_split.fbx").read_bytes()
+    real, looks = fbx._look_at_takes, []
+
+    def counted(*args, **kwargs):
+        looks.append(1)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(fbx, "_look_at_takes", counted)
+    limits = ParseLimits(max_values=123_456_789)  # a key no other read has used
+    first = read_fbx(split, limits=limits)[1]
+    again = read_fbx(split, animation=first[1].name, limits=limits)[1]
+    assert len(looks) == 1
+    assert [(a.name, a.moves, a.parts) for a in again] == [
+        (a.name, a.moves, a.parts) for a in first
+    ]

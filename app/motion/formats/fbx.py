@@ -24,7 +24,9 @@ list and each ``.anim`` are taken once and kept referenced until the end; parent
 
 from __future__ import annotations
 
-from dataclasses import replace
+import hashlib
+from collections import OrderedDict
+from dataclasses import dataclass, replace
 from itertools import chain
 from typing import Any
 
@@ -263,7 +265,7 @@ def read_fbx(
     rest_t, rest_r, rest_s = _static(kept_nodes)
     kept_ids = {node.typed_id: i for i, node in enumerate(kept_nodes)}
     kept_depths = np.array([depths[i] for i in kept])
-    _settle_takes(loaded, kept_ids, kept_depths, (rest_t, rest_r, rest_s), limits)
+    _settle_takes(loaded, data, kept_ids, kept_depths, (rest_t, rest_r, rest_s), limits)
     if not loaded.animations and still:  # a rig: its rest pose as one frame
         loaded.animations = [Animation("", 1, 0.0)]
         info, warnings = loaded.animations[0], []
@@ -303,65 +305,103 @@ def read_fbx(
     return motion, loaded.animations, info.name
 
 
+@dataclass(frozen=True)
+class _Settled:
+    """What :func:`_look_at_takes` found in a file's stacks (by index in file order)."""
+
+    still: frozenset[int]  # stacks that move no node of the skeleton
+    joined: tuple[tuple[int, ...], ...]  # the stacks of each take written split over several
+
+
+# The import reads a file once per animation, in one worker process: what its stacks move
+# is looked at once per file (key: the file's digest and the frame budget), not per read.
+_SETTLED: OrderedDict[tuple[bytes, int | None], _Settled] = OrderedDict()
+_SETTLED_FILES = 16
+
+
 def _settle_takes(
     loaded: _Scene,
+    data: bytes,
     node_ids: dict[int, int],
     depths: np.ndarray,
     rest: tuple[np.ndarray, np.ndarray, np.ndarray],
     limits: ParseLimits,
 ) -> None:
-    """With several stacks that animate something, look at what each moves of the skeleton
-    (the nodes of ``node_ids``; ``depths`` ``(N,)``: their depths in the scene) and settle
-    ``loaded``'s animations from it:
+    """With several stacks that animate something, settle ``loaded``'s animations from what
+    each moves of the skeleton (:func:`_look_at_takes`, once per file ``data``):
 
     * a stack that moves no node of the skeleton (a prop's, a camera's, a control's) does
       not move: it is not read by default, and not a clip of its own;
     * stacks of one span that each move their own part of the skeleton are one take written
       split (:mod:`app.motion.formats.split_takes`): it is added, named after them joined by
       " + " and placed before the first of them, so it is what the file is read as by
-      default; each stays readable by name.
-
-    Looked at on frames spread over each stack; skipped (the stacks as they are) when there
-    are more than :data:`_MAX_STACKS_LOOKED_AT` or sampling every stack would cost more than
-    reading the longest take may."""
+      default; each stays readable by name."""
     candidates = [i for i, a in enumerate(loaded.animations) if a.moves and a.frame_count > 1]
     if not 2 <= len(candidates) <= _MAX_STACKS_LOOKED_AT:
         return
+    key = (hashlib.blake2b(data, digest_size=16).digest(), limits.max_values)
+    settled = _SETTLED.get(key)
+    if settled is None:
+        settled = _look_at_takes(loaded, candidates, node_ids, depths, rest, limits)
+        _SETTLED[key] = settled
+        while len(_SETTLED) > _SETTLED_FILES:
+            _SETTLED.popitem(last=False)
+    for i in settled.still:
+        loaded.animations[i] = replace(loaded.animations[i], moves=False)
+    for parts in sorted(settled.joined, key=lambda p: -p[0]):  # later ones first
+        names = tuple(loaded.animations[i].name for i in parts)
+        name = unique_names(
+            [a.name for a in loaded.animations] + [" + ".join(names)],
+            blank="animation {i}",
+            repeat="{name} ({n})",
+        )[-1]
+        first, count = parts[0], loaded.animations[parts[0]].frame_count
+        loaded.joined[name] = [loaded.anims[i] for i in parts]
+        loaded.animations.insert(
+            first, Animation(name, count, count / loaded.fps, True, parts=names)
+        )
+        loaded.spans.insert(first, loaded.spans[first])
+        loaded.anims.insert(first, None)
+
+
+def _look_at_takes(
+    loaded: _Scene,
+    candidates: list[int],
+    node_ids: dict[int, int],
+    depths: np.ndarray,
+    rest: tuple[np.ndarray, np.ndarray, np.ndarray],
+    limits: ParseLimits,
+) -> _Settled:
+    """Which of the ``candidates`` stacks move no node of the skeleton (the nodes of
+    ``node_ids``; ``depths`` ``(N,)``: their depths in the scene), and which are one take
+    written split. Looked at on frames spread over each stack; nothing found (the stacks
+    as they are) when sampling every stack would cost more than reading the longest take
+    may."""
     frames = sum(min(loaded.animations[i].frame_count, _LOOKED_AT) for i in candidates)
     if limits.frame_budget_problem(frames, 0, len(node_ids)):
-        return
+        return _Settled(frozenset(), ())
     size = _size(rest[0])
     scene, fps = loaded.scene, loaded.fps
     looked: dict[int, TakeTracks] = {}
+    still = set()
     for i in candidates:
         times = loaded.frame_times(i)
         times = times[np.unique(np.linspace(0, len(times) - 1, _LOOKED_AT).astype(int))]
-        looked[i] = TakeTracks(*_baked(scene, loaded.anims[i], node_ids, times, fps, *rest))
-        if not moving_nodes(looked[i], size).any():
-            loaded.animations[i] = replace(loaded.animations[i], moves=False)
-            del looked[i]
+        take = TakeTracks(*_baked(scene, loaded.anims[i], node_ids, times, fps, *rest))
+        if moving_nodes(take, size).any():
+            looked[i] = take
+        else:
+            still.add(i)
     spans: dict[tuple[int, int], list[int]] = {}  # (first frame, frames) -> stacks
     for i in looked:
         key = (round(loaded.spans[i][0] * fps), loaded.animations[i].frame_count)
         spans.setdefault(key, []).append(i)
-    joined: list[tuple[int, Animation, list[Any]]] = []
+    joined = []
     for (_, count), group in spans.items():
-        parts = [group[p] for p in joined_take([looked[i] for i in group], size, depths)]
-        if not parts or limits.frame_budget_problem(count * len(parts), 0, len(node_ids)):
-            continue
-        names = tuple(loaded.animations[i].name for i in parts)
-        animation = Animation(" + ".join(names), count, count / fps, True, parts=names)
-        joined.append((parts[0], animation, [loaded.anims[i] for i in parts]))
-    for first, animation, anims in sorted(joined, key=lambda j: -j[0]):  # later ones first
-        name = unique_names(
-            [a.name for a in loaded.animations] + [animation.name],
-            blank="animation {i}",
-            repeat="{name} ({n})",
-        )[-1]
-        loaded.joined[name] = anims
-        loaded.animations.insert(first, replace(animation, name=name))
-        loaded.spans.insert(first, loaded.spans[first])
-        loaded.anims.insert(first, None)
+        parts = tuple(group[p] for p in joined_take([looked[i] for i in group], size, depths))
+        if parts and not limits.frame_budget_problem(count * len(parts), 0, len(node_ids)):
+            joined.append(parts)
+    return _Settled(frozenset(still), tuple(joined))
 
 
 def _size(rest_translation: np.ndarray) -> float:
