@@ -46,7 +46,7 @@ def _written_on(take: TakeTracks, source: int, target: int) -> TakeTracks:
 def test_parts_that_each_move_their_own_nodes_are_one_take() -> None:
     travel, body = _moving([0], 1), _moving([2, 3, 4, 5], 2)
     assert joined_take([travel, _still(), body], SIZE, DEPTHS) == [0, 2]
-    take = join([travel, _still(), body], [0, 2], SIZE)
+    take = join([travel, body], SIZE)
     assert np.array_equal(take.rotation[:, 0], travel.rotation[:, 0])
     assert np.array_equal(take.rotation[:, 2:], body.rotation[:, 2:])
 

@@ -278,9 +278,7 @@ def read_fbx(
         times, rest = loaded.frame_times(chosen), (rest_t, rest_r, rest_s)
         parts = loaded.joined.get(info.name, [loaded.anims[chosen]])
         takes = [TakeTracks(*_baked(scene, p, kept_ids, times, loaded.fps, *rest)) for p in parts]
-        take = (
-            takes[0] if len(takes) == 1 else join_takes(takes, [*range(len(takes))], _size(rest_t))
-        )
+        take = takes[0] if len(takes) == 1 else join_takes(takes, _size(rest_t))
         translation, rotation, scale = take.translation, take.rotation, take.scale
     graph = NodeGraph(
         names=[node.name for node in kept_nodes],

@@ -91,21 +91,21 @@ def joined_take(takes: list[TakeTracks], size: float, depths: np.ndarray) -> lis
     return sorted(kept)
 
 
-def join(takes: list[TakeTracks], parts: list[int], size: float) -> TakeTracks:
-    """The one take of ``parts`` (see :func:`joined_take`): every node as the part that moves
-    it has it; a node none moves as the part that moves most has it."""
-    moving = {i: moving_nodes(takes[i], size) for i in parts}
-    main = max(parts, key=lambda i: (int(moving[i].sum()), -i))
-    translation = takes[main].translation.copy()
-    rotation = takes[main].rotation.copy()
-    scale = takes[main].scale.copy()
-    for i in parts:
+def join(parts: list[TakeTracks], size: float) -> TakeTracks:
+    """The one take the ``parts`` are (see :func:`joined_take`): every node as the part that
+    moves it has it; a node none moves as the part that moves most has it."""
+    moving = [moving_nodes(part, size) for part in parts]
+    main = max(range(len(parts)), key=lambda i: (int(moving[i].sum()), -i))
+    translation = parts[main].translation.copy()
+    rotation = parts[main].rotation.copy()
+    scale = parts[main].scale.copy()
+    for i, take in enumerate(parts):
         if i == main:
             continue
         nodes = moving[i]
-        translation[:, nodes] = takes[i].translation[:, nodes]
-        rotation[:, nodes] = takes[i].rotation[:, nodes]
-        scale[:, nodes] = takes[i].scale[:, nodes]
+        translation[:, nodes] = take.translation[:, nodes]
+        rotation[:, nodes] = take.rotation[:, nodes]
+        scale[:, nodes] = take.scale[:, nodes]
     return TakeTracks(translation, rotation, scale)
 
 
