@@ -56,3 +56,47 @@ def test_limbs_set_apart_front_to_back_show_no_side() -> None:
     names = odd.names
     for part in ("l_hip", "l_shoulder", "r_knee", "r_wrist"):
         assert names[mapping.joints[CANONICAL_INDEX[part]]] == truth[part]
+
+
+def test_knees_bent_out_of_the_legs_plane_show_no_side() -> None:
+    """A knee bends about the line across the hips. A pose (a first frame written as the
+    rest pose) whose shins lean sideways out of the thighs' line, both to one side, with the
+    pelvis turned 30 degrees against the legs, bends its "knees" about the forward axis;
+    read as the hinge of a bend, that axis put the left leg on the right (a nameless rig:
+    no names to correct it). Those knees now show no side, and the feet decide."""
+    skeleton, truth = synthetic_humanoid(Humanoid(names="anon"))
+    names, parents = skeleton.names, skeleton.parents
+    world = np.zeros_like(skeleton.offsets)
+    for j in range(len(parents)):
+        world[j] = skeleton.offsets[j] + (world[parents[j]] if parents[j] >= 0 else 0.0)
+
+    def below(joint: int) -> list[int]:
+        out, frontier = [joint], [joint]
+        while frontier:
+            frontier = [j for j in range(len(parents)) if parents[j] in frontier]
+            out += frontier
+        return out
+
+    def turned(points: np.ndarray, about: np.ndarray, angle: float, axis: int) -> np.ndarray:
+        c, s = np.cos(np.radians(angle)), np.sin(np.radians(angle))
+        a, b = [(1, 2), (2, 0), (0, 1)][axis]
+        moved = points - about
+        out = moved.copy()
+        out[:, a], out[:, b] = c * moved[:, a] - s * moved[:, b], s * moved[:, a] + c * moved[:, b]
+        return out + about
+
+    pelvis = world[names.index(truth["pelvis"])]
+    for side in "lr":
+        hip, knee = names.index(truth[f"{side}_hip"]), names.index(truth[f"{side}_knee"])
+        leg = below(hip)
+        spot = turned(world[[hip]], pelvis, 30.0, 1)[0]  # the pelvis turned against the legs
+        world[leg] += spot - world[hip]
+        shin = below(names.index(truth[f"{side}_ankle"]))
+        world[shin] = turned(world[shin], world[knee], 20.0, 2)  # the shin leans to +x
+    offsets = world - np.where(parents[:, None] >= 0, world[np.maximum(parents, 0)], 0.0)
+    offsets[0] = world[0]
+    posed = dataclasses.replace(skeleton, offsets=offsets)
+    mapping = map_skeleton(posed)
+    assert not mapping.mirrored, mapping.warnings
+    for part in ("l_hip", "l_ankle", "r_knee", "l_shoulder", "r_wrist"):
+        assert names[mapping.joints[CANONICAL_INDEX[part]]] == truth[part], part

@@ -11,6 +11,7 @@ from app.motion.mapping.tree import COINCIDENT
 from app.motion.mapping.vectors import _cross, _length, _unit
 
 _BENT_KNEE = np.sin(np.radians(10))  # a knee bent this much shows its hinge axis
+_HINGE_ACROSS = np.cos(np.radians(45))  # ...when that axis lies this near the hips' line
 
 
 class _SideRules(_MapperState):
@@ -20,12 +21,22 @@ class _SideRules(_MapperState):
         """``(3,)`` the unit hinge axis (thigh x shin, across ``up``) of the knees bent in
         ``pose``, when at least one is bent and the two agree; else zero."""
         hinge = np.zeros(3)
+        across = pose[legs[0]["hip"]] - pose[legs[1]["hip"]]
+        across -= (across @ up) * up
         for leg in legs:
             thigh = pose[leg["knee"]] - pose[leg["hip"]]
             shin = pose[leg["ankle"]] - pose[leg["knee"]]
             axis = _cross(thigh, shin)
-            if _length(axis) > _BENT_KNEE * _length(thigh) * _length(shin):
-                hinge += axis / _length(axis)
+            if _length(axis) <= _BENT_KNEE * _length(thigh) * _length(shin):
+                continue
+            # A knee bends about the line across the hips (turned by the hip's rotation, a
+            # toe-out); a shin bent out or in of the thigh's line (knock-knees, legs apart,
+            # a twisted or noisy leg) turns about the forward axis and shows no side.
+            if _length(across) > COINCIDENT * self.extent and abs(
+                float(_unit(axis) @ _unit(across))
+            ) < _HINGE_ACROSS:
+                continue
+            hinge += axis / _length(axis)
         hinge -= (hinge @ up) * up
         return _unit(hinge) if _length(hinge) > 0.5 else np.zeros(3)
 
