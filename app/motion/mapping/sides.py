@@ -32,9 +32,10 @@ class _SideRules(_MapperState):
             # A knee bends about the line across the hips (turned by the hip's rotation, a
             # toe-out); a shin bent out or in of the thigh's line (knock-knees, legs apart,
             # a twisted or noisy leg) turns about the forward axis and shows no side.
-            if _length(across) > COINCIDENT * self.extent and abs(
-                float(_unit(axis) @ _unit(across))
-            ) < _HINGE_ACROSS:
+            if (
+                _length(across) > COINCIDENT * self.extent
+                and abs(float(_unit(axis) @ _unit(across))) < _HINGE_ACROSS
+            ):
                 continue
             hinge += axis / _length(axis)
         hinge -= (hinge @ up) * up
