@@ -50,7 +50,6 @@ import numpy as np
 
 from app.db import clips as clip_db
 from app.errors import InvalidInput, NoStoredFile, ParseError
-from app.motion.body import build_body
 from app.motion.display import (
     RATE_SLACK,
     STORE_FPS,
@@ -60,6 +59,7 @@ from app.motion.display import (
     resample,
 )
 from app.motion.model import Motion, ParseLimits
+from app.motion.pipeline import describable_body
 from app.motion.skeleton_map import CANONICAL_BONES, CANONICAL_INDEX, CANONICAL_JOINTS
 from app.services.clips import stored_upload
 from app.services.describe import read_motion, span_frames
@@ -167,8 +167,11 @@ def upload_display_motion(
 
 
 def display_motion(motion: Motion) -> DisplayMotion:
-    """A motion's canonical joints in the display frame at the file's own rate."""
-    return body_display(build_body(motion))
+    """A motion's canonical joints in the display frame at the file's own rate, from the
+    body an upload would be described from (:func:`~app.motion.pipeline.describable_body`:
+    a frame no body can take, a 1e308 in the file, is refused as it is on upload, not
+    drawn into a payload no JSON can hold)."""
+    return body_display(describable_body(motion))
 
 
 def preview_version(library: Library) -> str:

@@ -326,6 +326,25 @@ def test_skeleton_of_a_broken_upload_names_the_file(ui_client: TestClient) -> No
     assert response.status_code == 415
 
 
+def test_skeleton_of_an_upload_with_an_overflowed_number_is_refused_as_its_upload_is(
+    ui_client: TestClient, fixtures_dir: Path
+) -> None:
+    """Found by the upload fuzz: a frame value of 1e308 puts a hand 1e305 body heights out,
+    finite, until the preview's reach overflowed to inf, which no JSON holds: a 500. The
+    preview now takes the body an upload is described from, and its verdict."""
+    text = (fixtures_dir / BANDAI).read_text()
+    head, frames = text.split("Frame Time:")
+    lines = frames.split("\n")
+    values = lines[20].split()
+    values[56] = "1e308"  # frame 20: a joint's Zposition (every Bandai joint has six channels)
+    lines[20] = " ".join(values)
+    damaged = (head + "Frame Time:" + "\n".join(lines)).encode()
+    response = ui_client.post("/skeleton", files={"file": ("b.bvh", damaged)})
+    assert response.status_code == 422, response.text
+    detail = response.json()["detail"]
+    assert "frame 20" in detail and "'b.bvh'" in detail, detail
+
+
 @pytest.mark.slow
 def test_skeleton_of_a_whole_cmu_clip(ui_client: TestClient, shared_data: SharedData) -> None:
     path = shared_data("cmu", "bvh-mb", "02", "02_01.bvh")
