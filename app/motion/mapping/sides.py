@@ -10,16 +10,26 @@ from app.motion.mapping.state import _Limb, _MapperState
 from app.motion.mapping.tree import COINCIDENT
 from app.motion.mapping.vectors import _cross, _length, _unit
 
-_BENT_KNEE = np.sin(np.radians(10))  # a knee bent this much shows its hinge axis
+_BENT_KNEE = np.radians(10)  # a knee bent this much shows its hinge axis
 _HINGE_ACROSS = np.cos(np.radians(45))  # ...when that axis lies this near the hips' line
 
 
 class _SideRules(_MapperState):
     """Puts the mapped limbs on their sides."""
 
-    def knee_hinge(self, pose: np.ndarray, up: np.ndarray, legs: list[_Limb]) -> np.ndarray:
+    @staticmethod
+    def knee_bend(pose: np.ndarray, leg: _Limb) -> float:
+        """The knee's bend in ``pose``: radians between thigh and shin (0: straight)."""
+        thigh = pose[leg["knee"]] - pose[leg["hip"]]
+        shin = pose[leg["ankle"]] - pose[leg["knee"]]
+        return float(np.arctan2(_length(_cross(thigh, shin)), float(thigh @ shin)))
+
+    def knee_hinge(
+        self, pose: np.ndarray, up: np.ndarray, legs: list[_Limb], least: float = _BENT_KNEE
+    ) -> np.ndarray:
         """``(3,)`` the unit hinge axis (thigh x shin, across ``up``) of the knees bent in
-        ``pose``, when at least one is bent and the two agree; else zero."""
+        ``pose`` more than ``least`` radians, when at least one is and the two agree; else
+        zero."""
         hinge = np.zeros(3)
         across = pose[legs[0]["hip"]] - pose[legs[1]["hip"]]
         across -= (across @ up) * up
@@ -27,7 +37,7 @@ class _SideRules(_MapperState):
             thigh = pose[leg["knee"]] - pose[leg["hip"]]
             shin = pose[leg["ankle"]] - pose[leg["knee"]]
             axis = _cross(thigh, shin)
-            if _length(axis) <= _BENT_KNEE * _length(thigh) * _length(shin):
+            if self.knee_bend(pose, leg) <= least:
                 continue
             # A knee bends about the line across the hips (turned by the hip's rotation, a
             # toe-out); a shin bent out or in of the thigh's line (knock-knees, legs apart,
@@ -41,15 +51,17 @@ class _SideRules(_MapperState):
         hinge -= (hinge @ up) * up
         return _unit(hinge) if _length(hinge) > 0.5 else np.zeros(3)
 
-    def left(self, pose: np.ndarray, up: np.ndarray, legs: list[_Limb]) -> np.ndarray:
+    def left(
+        self, pose: np.ndarray, up: np.ndarray, legs: list[_Limb], least: float = _BENT_KNEE
+    ) -> np.ndarray:
         """The subject's left in ``pose`` (zero when it shows none).
 
         A bent knee's hinge axis, thigh x shin, points to the subject's left whichever way
         the subject faces and whatever the feet do (the shin folds back); in a mirrored
         capture it points to the mirror image's left, as ``up x forward`` does. Knees too
         straight to show it leave ``up x forward``, forward from the feet, else the knees'
-        bend."""
-        hinge = self.knee_hinge(pose, up, legs)
+        bend. Knees bent ``least`` radians or less show no hinge."""
+        hinge = self.knee_hinge(pose, up, legs, least)
         if _length(hinge):
             return hinge
         forward = np.zeros(3)
@@ -58,9 +70,7 @@ class _SideRules(_MapperState):
             forward += step - (step @ up) * up
         if _length(forward) < 0.02 * self.extent:
             for leg in legs:
-                thigh = pose[leg["knee"]] - pose[leg["hip"]]
-                shin = pose[leg["ankle"]] - pose[leg["knee"]]
-                if _length(_cross(thigh, shin)) <= _BENT_KNEE * _length(thigh) * _length(shin):
+                if self.knee_bend(pose, leg) <= _BENT_KNEE:
                     continue  # a knee this straight says nothing of front and back (a rest
                     # pose's knee sits a little ahead or behind its leg's line by the rig)
                 mid = 0.5 * (pose[leg["hip"]] + pose[leg["ankle"]])
@@ -92,15 +102,26 @@ class _SideRules(_MapperState):
         posed = bool(_length(self.knee_hinge(pose, up, legs)))
         if not self.rest or not _length(left) or posed:
             self.sides_open = self.rest
+            others = []
             for other in self.others():
                 spine = other[self.body.chest] - other[self.body.pelvis]
                 if _length(spine) < COINCIDENT * self.extent:
                     spine = other[self.body.head] - other[self.body.pelvis]
                 other_up = _unit(spine)
                 if _length(other_up) > 0:
-                    voters.append(
-                        (other, self.left(other, other_up, legs), (hips, ("shoulder",)), other_up)
-                    )
+                    others.append((other, other_up))
+            # A knee bends one way, and far (a lifted or folded leg: 60-140 degrees); it
+            # straightens to a little past straight at most. Mild bends the other way (a
+            # depth tracker's stance, a rig whose shin does not fit the data) must not
+            # outvote the take's deep ones: a pose whose knees bend less than half the
+            # take's deepest shows its side by the feet.
+            deepest = max(self.knee_bend(p, leg) for p, _ in [(pose, up), *others] for leg in legs)
+            least = max(_BENT_KNEE, deepest / 2)
+            voters = [(pose, self.left(pose, up, legs, least), keys, up)]
+            voters += [
+                (other, self.left(other, other_up, legs, least), (hips, ("shoulder",)), other_up)
+                for other, other_up in others
+            ]
         axis = next((int(np.argmax(np.abs(v[1]))) for v in voters if _length(v[1])), 0)
 
         def name_of(limb: _Limb, top: int) -> str | None:
