@@ -181,6 +181,19 @@ def build_body(motion: Motion) -> Body:
         raise ParseError(
             "the skeleton has zero height (all bones between ankle and head are empty)"
         )
+    if not np.isfinite(height):
+        # A bone longer than any float (1e308 in an offset or a position channel): every
+        # check made in body heights would pass, and the descriptors overflow.
+        with np.errstate(over="ignore", invalid="ignore"):
+            lengths = bone_lengths(motion)
+        longest = int(np.argmax(np.nan_to_num(lengths, nan=np.inf)))
+        size = float(lengths[longest])
+        amount = f"{size:.3g} units long" if np.isfinite(size) else "longer than any number"
+        raise ParseError(
+            f"the bone to joint {motion.skeleton.names[longest]!r} is {amount} in the first "
+            "frame, so the body's height is no finite number: an overflowed value (such as "
+            "1e308) in its offset or position channel"
+        )
     # Implausible frames (sentinel values, a teleporting root) at either end go like lead-in
     # frames; in the middle they are kept and reported.
     implausible = implausible_frames(canon_pos, height)

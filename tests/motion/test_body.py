@@ -2,7 +2,9 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pytest
 
+from app.errors import ParseError
 from app.motion import transforms
 from app.motion.body import build_body, pelvis_basis
 from app.motion.formats import read_bvh
@@ -15,6 +17,8 @@ from tests.motion.canonical import check_canonical_body
 from tests.motion.skeleton_trees import Humanoid, synthetic_humanoid
 from tests.motion.synthetic import walker_motion, walking
 from tests.motion.test_mapping_probes import frame_as_rest
+
+FIXTURES = Path(__file__).parents[1] / "fixtures"
 
 
 def _leaning(motion: Motion, degrees: float) -> Motion:
@@ -176,3 +180,19 @@ def test_a_still_pose_is_stored_as_what_it_is():
     assert any("a still pose (all 28 frames the same)" in w for w in analyse(still).warnings)
     assert any("a still pose (one frame)" in w for w in analyse(held).warnings)
     assert not any("still pose" in w for w in analyse(capture).warnings)
+
+
+def test_a_bone_no_float_can_measure_in_the_first_frame_is_named() -> None:
+    """Found by fuzzing a dev file: a neck position channel set to 1e308 in a clip's first
+    frame made the body's height (a sum of bone lengths) infinite. Every check made in body
+    heights then passed, and the `motion` vector came out NaN ("degenerate"). The bone and its
+    joint are named instead."""
+    text = (FIXTURES / "bandai_walk_normal_001_first40.bvh").read_text()
+    head, frames = text.split("Frame Time:")
+    lines = frames.split("\n")
+    values = lines[1].split()
+    values[4 * 6 + 1] = "1e308"  # the first frame's Neck Yposition (six channels a joint)
+    lines[1] = " ".join(values)
+    motion = read_bvh((head + "Frame Time:" + "\n".join(lines)).encode())
+    with pytest.raises(ParseError, match="the bone to joint 'Neck' is"):
+        analyse(motion)
