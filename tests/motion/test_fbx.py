@@ -6,6 +6,8 @@ tests/services/test_parser_pool.py); the fixture is one ufbx reads cleanly.
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -283,3 +285,15 @@ def test_what_the_stacks_move_is_looked_at_once_per_file(monkeypatch) -> None:
     assert [(a.name, a.moves, a.parts) for a in again] == [
         (a.name, a.moves, a.parts) for a in first
     ]
+
+
+def test_a_key_at_no_time_is_refused_before_the_bake(shared_data) -> None:
+    """Found by fuzzing the dev files: an FBX 6 ASCII curve whose key time is ``nan`` sent
+    ufbx's bake on for as long as the parser worker's time limit allowed (past 20 s here).
+    The curve is named before any bake starts."""
+    folder = shared_data("fbx-gltf", "ufbx-testdata")
+    text = next(folder.glob("blender_279_*_ascii.fbx")).read_text()
+    damaged, count = re.subn(r"(Key: \n\s*)[-0-9.e]+,", r"\1nan,", text, count=1)
+    assert count == 1
+    with pytest.raises(ParseError, match=r"animation curve \d+ of \d+ .* not a number"):
+        read_fbx(damaged.encode())

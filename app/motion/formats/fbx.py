@@ -99,6 +99,23 @@ def _ufbx_message(error: Exception) -> str:
     return (text[0] if text else type(error).__name__)[:300]
 
 
+def _check_key_times(scene: Any, held: list[Any]) -> None:
+    """:class:`ParseError` naming the first animation curve whose keys start or end at a
+    time that is no number: ufbx's bake samples from the first key to the last, and a NaN
+    or infinite time there sends it on for as long as the parser's time limit allows. The
+    curve wrappers go to ``held`` (kept with the scene: freeing one early crashes the
+    binding)."""
+    curves = list(scene.anim_curves)
+    held.append(curves)
+    for number, curve in enumerate(curves, start=1):
+        first, last = float(curve.min_time), float(curve.max_time)
+        if not (np.isfinite(first) and np.isfinite(last)):
+            raise ParseError(
+                f"animation curve {number} of {len(curves)} ({curve.name or 'unnamed'!r}) has a "
+                f"key at a time that is not a number ({first!r} to {last!r} seconds)"
+            )
+
+
 class _Scene:
     """A loaded scene with its stacks and their ``Anim`` objects taken exactly once."""
 
@@ -107,9 +124,10 @@ class _Scene:
         self.fps = float(self.scene.settings.frames_per_second) or 30.0
         if not np.isfinite(self.fps) or not 1.0 <= self.fps <= 1000.0:
             raise ParseError(f"the file's frame rate {self.fps!r} is not usable")
+        self.held: list[Any] = []  # other wrappers taken from the scene, kept as long as it
+        _check_key_times(self.scene, self.held)
         self.stacks = list(self.scene.anim_stacks)
         self.anims = [stack.anim for stack in self.stacks]
-        self.held: list[Any] = []  # other wrappers taken from the scene, kept as long as it
         names = unique_names(
             [stack.name for stack in self.stacks], blank="animation {i}", repeat="{name} ({n})"
         )
