@@ -15,7 +15,7 @@ from typing import Any
 from sqlalchemy import Select, delete, func, insert, select
 from sqlalchemy.orm import Session, selectinload
 
-from app.db.clip_filters import ClipFilter, clip_conditions
+from app.db.clip_filters import MAX_ID, ClipFilter, clip_conditions
 from app.db.label_filters import LabelFilter
 from app.db.models import Clip, ClipDescriptor, ClipFile, ClipLabel, ClipWindow
 from app.db.rows import Executor, chunks, encode_vector, insert_values, utc
@@ -225,13 +225,16 @@ def _records(executor: Executor, rows: Sequence[Any]) -> dict[int, ClipRecord]:
 
 
 def get_clip(session: Executor, clip_id: int) -> ClipRecord | None:
+    if not 0 < clip_id <= MAX_ID:  # names no clip, and no database driver can send it
+        return None
     rows = session.execute(_clip_rows().where(Clip.id == clip_id)).all()
     return _records(session, rows).get(clip_id)
 
 
 def get_clips(session: Executor, clip_ids: Iterable[int]) -> dict[int, ClipRecord]:
-    """The clips among ``clip_ids`` that exist, by id."""
-    ids = sorted({int(i) for i in clip_ids})
+    """The clips among ``clip_ids`` that exist, by id (an id past the databases' signed 64
+    bits names none, and no driver can send it)."""
+    ids = sorted({int(i) for i in clip_ids if 0 < int(i) <= MAX_ID})
     rows: list[Any] = []
     for chunk in chunks(ids):
         rows.extend(session.execute(_clip_rows().where(Clip.id.in_(chunk))).all())

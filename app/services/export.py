@@ -32,7 +32,6 @@ from pathlib import PurePosixPath
 import numpy as np
 
 from app.db import clips as clip_db
-from app.db.clip_filters import MAX_ID
 from app.errors import InvalidInput, LimitExceeded, MocapError, NoStoredFile
 from app.motion.body import body_height
 from app.motion.formats.bvh_writer import write_bvh
@@ -355,11 +354,8 @@ def export_items(
             f"{what}: {len(wanted)} clips, more than the limit of {limit} for one export "
             "(MOCAP_MAX_EXPORT_CLIPS)"
         )
-    # An id past the databases' signed 64 bits names no clip (and no driver can send it).
     with library.reads() as session:
-        records = clip_db.get_clips(
-            session, {clip_id for clip_id, _, _ in wanted if 0 < clip_id <= MAX_ID}
-        )
+        records = clip_db.get_clips(session, {clip_id for clip_id, _, _ in wanted})
     missing = [clip_id for clip_id, _, _ in wanted if clip_id not in records]
     if missing:
         from app.errors import NotFound

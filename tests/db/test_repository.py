@@ -64,6 +64,17 @@ def test_insert_get_and_vectors_round_trip(engine: Engine) -> None:
         assert vector_db.load_vectors(session, "posture", 1, 13)[0].size == 0
 
 
+def test_ids_no_database_holds_name_no_clip(engine: Engine) -> None:
+    """An id past signed 64 bits (or below 1) names no clip: a driver cannot even send it
+    (SQLite's: "Python int too large to convert to SQLite INTEGER", a 500 of POST /exports)."""
+    with write_sessions(engine).begin() as session:
+        clip_id = clip_db.insert_clip(session, new_clip("h1"))
+    with read_sessions(engine)() as session:
+        for no_id in (2**63, 13161610185593134776320, 0, -18573):
+            assert clip_db.get_clip(session, no_id) is None
+        assert list(clip_db.get_clips(session, [clip_id, 2**63, -1, 2**80])) == [clip_id]
+
+
 def test_content_hash_is_unique(engine: Engine) -> None:
     with write_sessions(engine).begin() as session:
         clip_db.insert_clip(session, new_clip("same"))
