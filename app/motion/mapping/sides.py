@@ -3,6 +3,8 @@ clip's frames when one pose can mislead); the names decide a mirrored capture.""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from app.motion.mapping.canonical import SIDES
@@ -22,7 +24,7 @@ class _SideRules(_MapperState):
         """The knee's bend in ``pose``: radians between thigh and shin (0: straight)."""
         thigh = pose[leg["knee"]] - pose[leg["hip"]]
         shin = pose[leg["ankle"]] - pose[leg["knee"]]
-        return float(np.arctan2(_length(_cross(thigh, shin)), float(thigh @ shin)))
+        return math.atan2(_length(_cross(thigh, shin)), float(thigh @ shin))
 
     def knee_hinge(
         self, pose: np.ndarray, up: np.ndarray, legs: list[_Limb], least: float = _BENT_KNEE
@@ -37,7 +39,7 @@ class _SideRules(_MapperState):
             thigh = pose[leg["knee"]] - pose[leg["hip"]]
             shin = pose[leg["ankle"]] - pose[leg["knee"]]
             axis = _cross(thigh, shin)
-            if self.knee_bend(pose, leg) <= least:
+            if math.atan2(_length(axis), float(thigh @ shin)) <= least:  # the knee's bend
                 continue
             # A knee bends about the line across the hips (turned by the hip's rotation, a
             # toe-out); a shin bent out or in of the thigh's line (knock-knees, legs apart,
@@ -117,7 +119,9 @@ class _SideRules(_MapperState):
             # take's deepest shows its side by the feet.
             deepest = max(self.knee_bend(p, leg) for p, _ in [(pose, up), *others] for leg in legs)
             least = max(_BENT_KNEE, deepest / 2)
-            voters = [(pose, self.left(pose, up, legs, least), keys, up)]
+            if least > _BENT_KNEE:  # else this pose's left, read above, stands
+                left = self.left(pose, up, legs, least)
+            voters = [(pose, left, keys, up)]
             voters += [
                 (other, self.left(other, other_up, legs, least), (hips, ("shoulder",)), other_up)
                 for other, other_up in others
