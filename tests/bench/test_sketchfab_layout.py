@@ -21,7 +21,7 @@ def test_the_layout_changes_names_and_parents_not_the_motion() -> None:
     source = write_glb(read_bvh(CMU.read_bytes()))
     plain = parse_scene("gltf", source, None, ParseLimits()).motion
     moved = parse_scene("gltf", relaid(source), None, ParseLimits()).motion
-    assert "Sketchfab_model" not in plain.skeleton.names
+    assert set(plain.skeleton.names).isdisjoint(moved.skeleton.names)  # every node renamed
     assert any(name.startswith("GLTF_created_0_rootJoint") for name in moved.skeleton.names)
     before, after = analyse(plain).descriptors, analyse(moved).descriptors
     for name, vector in before.items():
