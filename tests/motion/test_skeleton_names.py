@@ -149,9 +149,23 @@ def test_the_lower_of_two_joints_naming_one_part_is_not_it() -> None:
     bone beyond; a better word below a worse one stays (Mixamo's LeftShoulder -> LeftArm)."""
     names = ["Pelvis", "L_Hip", "L_Knee", "L_Ankle", "L_Foot", "LeftShoulder", "LeftArm"]
     parents = np.array([-1, 0, 1, 2, 3, 0, 5])
-    hints = _chain_hints(parents, [name_hint(n) for n in names])
+    hints = _chain_hints(parents, [name_hint(n) for n in names], np.zeros(len(names), bool))
     assert "ankle" in hints[3].parts and "ankle" not in hints[4].parts
     assert "shoulder" in hints[6].parts
+
+
+def test_a_connector_on_its_parents_place_claims_no_part_below_it() -> None:
+    """A joint of no length at the trunk's point named after the limb (``Pelvis_L_Hip``)
+    leaves the part's name to the joint set apart below it (``L_Hip``); one set apart keeps
+    it from the joint below (``L_Ankle`` above ``L_Foot``, as above)."""
+    names = ["Pelvis", "Pelvis_L_Hip", "L_Hip", "L_Knee", "L_Ankle", "L_Foot"]
+    parents = np.array([-1, 0, 1, 2, 3, 4])
+    on_parent = np.array([False, True, False, False, False, False])
+    hints = _chain_hints(parents, [name_hint(n) for n in names], on_parent)
+    assert "hip" in hints[1].parts and "hip" in hints[2].parts
+    assert "ankle" in hints[4].parts and "ankle" not in hints[5].parts
+    apart = _chain_hints(parents, [name_hint(n) for n in names], np.zeros(len(names), bool))
+    assert "hip" not in apart[2].parts
 
 
 def test_names_the_tree_contradicts_are_not_read() -> None:

@@ -11,7 +11,7 @@ import numpy as np
 from app.motion.mapping.feet import _FootRules
 from app.motion.mapping.hypotheses import _NotHumanoid
 from app.motion.mapping.named import NAMES_NOT_FOLLOWED, _NamedRules
-from app.motion.mapping.runs import _ARM, _LEG, _LimbKind
+from app.motion.mapping.runs import _ARM, _FOOT_TO_SHIN, _LEG, _LimbKind
 from app.motion.mapping.state import _EFFECTOR_COS, _Limb
 from app.motion.mapping.tree import _branches_below, _farthest_descendant
 from app.motion.mapping.vectors import _length, _unit
@@ -410,6 +410,18 @@ class _LimbRules(_NamedRules, _FootRules):
                 )
                 for i in range(last, max(last - 3, 0), -1)
             ]
+            # A leg with no foot bones ends at the ankle itself (an End Site: the 3-joint
+            # legs of pose generators), as an arm may end at the wrist. Its last bone is then
+            # the shin, longer than any person's foot could be for the bone above it (a foot
+            # pointing down is shorter: ankle to toe tip 0.62 of the shin); offered last, so
+            # the proportions take it only where it makes the nearer person.
+            end = chain[-1]
+            if (
+                last == len(chain) - 2
+                and tree.skeleton.end_site[end]
+                and tree.lengths[end] > _FOOT_TO_SHIN * tree.lengths[chain[last]] > 0
+            ):
+                ankles.append((end, "structure: the leg's end, no foot"))
         return ankles
 
     def map_leg(self, foot: int) -> _Limb:

@@ -11,6 +11,7 @@ import numpy as np
 from app.motion.mapping.hypotheses import _Body
 from app.motion.mapping.tree import COINCIDENT, _Tree
 from app.motion.mapping.vectors import _length, _unit_rows
+from app.motion.skeleton_names import SIDED_PARTS
 
 # An end effector continues its joint's direction (up for the head, forward for the toes)
 # within this cosine (45 degrees): a helper nub pointing elsewhere is not the toe tip.
@@ -82,13 +83,27 @@ class _MapperState:
         return chain[i]
 
     def named(self, chain: Sequence[int], part: str) -> int | None:
-        """The joint of ``chain`` whose name says ``part`` best (nearest the root on ties)."""
-        best: tuple[int, int] | None = None
+        """The joint of ``chain`` whose name says ``part`` best; on ties, for a limb's part,
+        one that sits apart from its parent before one on its parent's place; then the one
+        nearest the root.
+
+        A limb's joints sit apart from the trunk and from each other: writers that give each
+        limb a connector at the trunk's point (``Pelvis_L_Hip`` at the pelvis, then ``L_Hip``
+        where the thigh starts) name both after the part, and the joint where the part starts
+        is the one set apart (a twist bone on its limb joint's place loses to that joint
+        alike). On the trunk's line joints do share places: a neck that starts at the top of
+        the chest (``Neck`` on ``Spine1``'s place, then ``Neck1``) is the first."""
+        best: tuple[int, bool, int] | None = None
+        tree = self.tree
+        limb = part in SIDED_PARTS
         for i, j in enumerate(chain):
-            rank = self.tree.hints[j].parts.get(part)
-            if rank is not None and (best is None or rank < best[0]):
-                best = (rank, i)
-        return None if best is None else chain[best[1]]
+            rank = tree.hints[j].parts.get(part)
+            if rank is None:
+                continue
+            on_parent = limb and bool(tree.parents[j] >= 0 and tree.lengths[j] == 0)
+            if best is None or (rank, on_parent) < best[:2]:
+                best = (rank, on_parent, i)
+        return None if best is None else chain[best[2]]
 
     def motion(self) -> list[np.ndarray]:
         """The clip's other poses (``(J, 3)`` each) that show how the limbs move; none when

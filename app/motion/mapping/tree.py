@@ -121,7 +121,7 @@ class _Tree:
         # wrongly): the rig is mapped as if it had none, never worse than without names.
         self.names_trusted = contradicted_names(skeleton.parents, hints) < _LYING_NAMES
         self.hints: list[NameHint] = (
-            _chain_hints(skeleton.parents, hints)
+            _chain_hints(skeleton.parents, hints, self.lengths == 0)
             if self.names_trusted
             else [NameHint(None, {})] * count
         )
@@ -247,12 +247,18 @@ class _Tree:
         return words
 
 
-def _chain_hints(parents: np.ndarray, hints: list[NameHint]) -> list[NameHint]:
+def _chain_hints(
+    parents: np.ndarray, hints: list[NameHint], on_parent: np.ndarray
+) -> list[NameHint]:
     """``hints`` without the part a joint's name shares with an ancestor's that names it as
     well or better: two joints of one chain are not both the ankle (SMPL's ``L_Ankle`` above
     ``L_Foot``, Kinect's ``WristLeft`` above ``HandLeft``: the lower one is the bone beyond
     the joint), and a twist or bend segment below its limb bone (``upperleg02``,
-    ``DEF-forearm.L.001``) is not the joint either."""
+    ``DEF-forearm.L.001``) is not the joint either. An ancestor on its own parent's place
+    (``on_parent`` ``(J,)``: a bone of no length) claims nothing for the joints below it: a
+    connector a writer puts at the trunk's point for each limb (``Pelvis_L_Hip`` at the
+    pelvis above ``L_Hip``) bears the part's name without being where the part starts
+    (:meth:`~app.motion.mapping.state._MapperState.named` then prefers the joint set apart)."""
     above: list[dict[str, int]] = []  # part -> best rank among a joint's ancestors
     out = []
     for j, hint in enumerate(hints):
@@ -265,7 +271,7 @@ def _chain_hints(parents: np.ndarray, hints: list[NameHint]) -> list[NameHint]:
         }
         out.append(hint if len(kept) == len(hint.parts) else NameHint(hint.side, kept))
         sided = {part: rank for part, rank in hint.parts.items() if part in SIDED_PARTS}
-        if sided:
+        if sided and not (p >= 0 and on_parent[j]):
             inherited = dict(inherited)
             for part, rank in sided.items():
                 inherited[part] = min(rank, inherited.get(part, rank))
