@@ -23,6 +23,7 @@ from __future__ import annotations
 import asyncio
 import math
 import os
+import time
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
@@ -193,17 +194,35 @@ UPLOAD_ROUTES = frozenset(
 )
 
 
+# How fast an upload let in by the gate must send its body (it holds part of the gate's
+# budget meanwhile): anything in its first 10 s, then at least 64 KiB/s on average (a
+# 512 kbit/s line; 256 MiB, the default size limit, in 68 minutes). Slower gets 408. Fixed:
+# a client that cannot keep this up holds back every other client's uploads.
+BODY_GRACE_SECONDS = 10.0
+BODY_MIN_BYTES_PER_SECOND = 64 * 1024
+
+
 class DescribeGate:
     """Pure ASGI middleware: an upload (POST to :data:`UPLOAD_ROUTES`) whose body would take
     the bodies let in past ``slots.size x max_bytes`` gets 503 ``busy`` before its body is
     parsed (drained unread, so the client reads the answer); a body without a length counts
     as ``max_bytes``. One upload is always let in."""
 
-    def __init__(self, app: ASGIApp, slots: Slots, max_bytes: int) -> None:
+    def __init__(
+        self,
+        app: ASGIApp,
+        slots: Slots,
+        max_bytes: int,
+        *,
+        grace_seconds: float = BODY_GRACE_SECONDS,
+        min_bytes_per_second: int = BODY_MIN_BYTES_PER_SECOND,
+    ) -> None:
         self.app = app
         self.slots = slots
         self.budget = slots.size * max_bytes
         self.max_bytes = max_bytes
+        self.grace_seconds = grace_seconds
+        self.min_bytes_per_second = min_bytes_per_second
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         gated = (
@@ -231,7 +250,47 @@ class DescribeGate:
         slots.admitted += 1
         slots.admitted_bytes += size
         try:
-            await self.app(scope, receive, send)
+            await self.app(scope, self._paced(receive, declared), send)
         finally:
             slots.admitted -= 1
             slots.admitted_bytes -= size
+
+    def _paced(self, receive: Receive, declared: int | None) -> Receive:
+        """``receive`` of an admitted upload, which must keep its body coming: by
+        ``grace_seconds`` + (bytes received) / ``min_bytes_per_second`` after it was let in
+        the next bytes must have arrived, else 408 and the budget it reserved is free again.
+        Without this one client that sends a head declaring a large body and then stalls
+        (or sends a byte now and then) held the whole budget for as long as it liked, and
+        every other upload of every client was answered 503 ``busy``."""
+        started = time.monotonic()
+        received = 0
+        complete = False
+
+        async def paced_receive() -> Message:
+            nonlocal received, complete
+            if complete:  # the body is in: a later receive waits for a disconnect, unbounded
+                return await receive()
+            deadline = started + self.grace_seconds + received / self.min_bytes_per_second
+            try:
+                message = await asyncio.wait_for(
+                    receive(), timeout=max(0.0, deadline - time.monotonic())
+                )
+            except TimeoutError:
+                elapsed = time.monotonic() - started
+                of = "" if declared is None else f" of {declared}"
+                raise HTTPException(
+                    408,
+                    detail=(
+                        f"the upload's body came too slowly: {received}{of} bytes in "
+                        f"{elapsed:.0f} s; after its first {self.grace_seconds:g} s an upload "
+                        f"must arrive at {self.min_bytes_per_second // 1024} KiB/s or more"
+                    ),
+                ) from None
+            if message["type"] == "http.request":
+                received += len(message.get("body", b""))
+                complete = not message.get("more_body", False)
+            else:
+                complete = True
+            return message
+
+        return paced_receive

@@ -4,6 +4,8 @@ chunked body streams in."""
 
 from __future__ import annotations
 
+import socket
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -139,3 +141,42 @@ def test_chunked_body_over_the_limit_is_cut_off_while_streaming(small_server: Li
     health = httpx.get(f"{small_server.url}/health", timeout=10)
     assert health.status_code == 200 and health.json()["clips"] == 0
     assert not list(Path(small_server.data_dir / "files").glob("*/*"))
+
+
+def test_a_stalled_upload_does_not_hold_back_every_other_upload(tmp_path: Path) -> None:
+    """A client that sends the head of an upload declaring a large body, a few bytes of it,
+    then nothing more, is cut off (408) once the grace is over; other uploads, answered 503
+    ``busy`` while it held the gate's whole budget, go in again. Before: it held the budget
+    for as long as its connection stayed open (90 s and more measured), and every upload of
+    every client got 503."""
+    from app.api.limits import BODY_GRACE_SECONDS
+
+    env = {"MOCAP_MAX_CONCURRENT_DESCRIBES": "1", "MOCAP_MAX_UPLOAD_BYTES": "1000000"}
+    with LiveServer(tmp_path / "data", env) as server:
+        head = (
+            b"POST /search HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+            b"Content-Type: multipart/form-data; boundary=xx\r\n"
+            b"Content-Length: 1000000\r\n\r\n"  # the whole budget of the one slot
+            b'--xx\r\nContent-Disposition: form-data; name="file"; filename="a.bvh"\r\n\r\n'
+        )
+        started = time.monotonic()
+        with socket.create_connection(("127.0.0.1", server.port), timeout=60) as stalled:
+            stalled.sendall(head + b"HIERARCHY\n")
+            time.sleep(0.5)  # let in by the gate
+            with httpx.Client(base_url=server.url, timeout=30) as client:
+                meanwhile = client.post("/search", files=unique_upload(1))
+                assert_error(meanwhile, 503, "busy")
+                answer = b""
+                while b"\r\n\r\n" not in answer or not answer.rstrip().endswith(b"}"):
+                    data = stalled.recv(65536)
+                    if not data:
+                        break
+                    answer += data
+                waited = time.monotonic() - started
+                assert answer.startswith(b"HTTP/1.1 408"), answer[:300]
+                assert b"request_timeout" in answer and b"came too slowly" in answer, answer
+                assert BODY_GRACE_SECONDS - 1 < waited < BODY_GRACE_SECONDS + 10, waited
+                after = client.post("/search", files=unique_upload(2))
+                assert after.status_code == 200, after.text
+                stored = client.post("/clips", files=unique_upload(3))
+                assert stored.status_code == 201, stored.text
