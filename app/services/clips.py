@@ -145,18 +145,21 @@ def delete_clip(library: Library, clip_id: int) -> None:
         _tidy_after_delete(library, [clip_id], shas, hashes)
 
 
-def _deletion(selection: ClipFilter | label_db.LabelFilter) -> ClipFilter:
+def _deletion(selection: ClipFilter | label_db.LabelFilter, doing: str = "delete") -> ClipFilter:
     if not isinstance(selection, ClipFilter):
         selection = ClipFilter.of(label=selection)
     if not selection:
-        raise InvalidInput("label: name the label(s) (or id, licence, q) of the clips to delete")
+        raise InvalidInput(f"label: name the label(s) (or id, licence, q) of the clips to {doing}")
     return selection
 
 
-def clips_with_labels(library: Library, selection: ClipFilter | label_db.LabelFilter) -> list[int]:
+def clips_with_labels(
+    library: Library, selection: ClipFilter | label_db.LabelFilter, *, doing: str = "delete"
+) -> list[int]:
     """Ids of the clips ``selection`` keeps — the clips carrying every label of it, when it
-    is a label filter (see :func:`delete_clips_with`)."""
-    chosen = _deletion(selection)
+    is a label filter (see :func:`delete_clips_with`); an empty one is refused, saying what
+    the clips were chosen to ``doing``."""
+    chosen = _deletion(selection, doing)
     with library.reads() as session:
         return selected_ids(session, chosen)
 

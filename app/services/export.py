@@ -336,7 +336,9 @@ def export_items(
     elif labels is not None:
         from app.services.clips import clips_with_labels
 
-        wanted = [(clip_id, None, None) for clip_id in clips_with_labels(library, labels)]
+        wanted = [
+            (clip_id, None, None) for clip_id in clips_with_labels(library, labels, doing="export")
+        ]
         what = "label"
     else:
         assert search is not None

@@ -321,6 +321,11 @@ def test_too_many_clips_or_none_is_422(live, clips) -> None:
         "/exports", json={"clips": [clips["bvh"]["id"]], "format": "glb", "units": "cm"}
     )
     assert bad.status_code == 422 and bad.json()["detail"].startswith("units:")
+    # An empty label filter names no clip: said of an export, not of a delete (it was).
+    for labels in ([], [""], [" , "]):
+        empty = live.post("/exports", json={"label": labels})
+        assert empty.status_code == 422, (labels, empty.text)
+        assert empty.json()["detail"].endswith("of the clips to export"), empty.text
 
 
 def test_the_export_command_writes_a_folder(live, clips, rig, tmp_path, capsys) -> None:
