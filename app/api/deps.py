@@ -15,7 +15,7 @@ from fastapi import Depends, File, Form, Query, Request, UploadFile
 from app.api.limits import Slots
 from app.config import Settings
 from app.db.clips import ClipRecord
-from app.errors import UnsupportedMediaType
+from app.errors import InvalidInput, UnsupportedMediaType
 from app.services import clips as clip_service
 from app.services.library import Library
 from app.services.uploads import Upload, split_files
@@ -110,6 +110,12 @@ async def read_upload(
         raise UnsupportedMediaType(
             f"send the files as multipart/form-data (got {content_type or 'no content type'!r})"
         )
+    form = await request.form()  # parsed already for the fields above: the same object
+    for field in ("skeleton", "motion"):
+        parts = form.getlist(field)
+        if len(parts) > 1:  # a single-file field keeps the last: the others were dropped
+            names = ", ".join(repr(getattr(part, "filename", part)) for part in parts[:5])
+            raise InvalidInput(f"field '{field}': send one file, not {len(parts)} ({names})")
     async with describe_slots(request).hold():
         files = [(part.filename, await part.read()) for part in file or []]
         main, resources = split_files(files)

@@ -113,8 +113,29 @@ def _location(loc: tuple[Any, ...]) -> str:
     return ".".join(parts) or "request"
 
 
+def _message(error: Mapping[str, Any]) -> str:
+    # pydantic's words for a text value where a file part belongs are its internals
+    # ("Value error, Expected UploadFile, received: <class 'str'>"): say it in the API's.
+    message = str(error.get("msg"))
+    if "Expected UploadFile" in message:
+        return "must be a file: a multipart part with a file name, not a text value"
+    return message
+
+
 def describe_validation_error(exc: RequestValidationError) -> str:
-    return "; ".join(f"{_location(tuple(e.get('loc', ())))}: {e.get('msg')}" for e in exc.errors())
+    return "; ".join(f"{_location(tuple(e.get('loc', ())))}: {_message(e)}" for e in exc.errors())
+
+
+def _invalid_json(exc: RequestValidationError) -> str | None:
+    """What is wrong with a body that is not JSON at all, or ``None`` (FastAPI reports it as
+    a validation error at ``("body", <character>)``)."""
+    for error in exc.errors():
+        if error.get("type") == "json_invalid":
+            loc = tuple(error.get("loc", ()))
+            where = f" at character {loc[-1]}" if len(loc) > 1 else ""
+            reason = (error.get("ctx") or {}).get("error")
+            return f"body: not valid JSON{where}" + (f" ({reason})" if reason else "")
+    return None
 
 
 def response_for(error: MocapError) -> JSONResponse:
@@ -135,6 +156,9 @@ async def _on_domain_error(_request: Request, exc: Exception) -> JSONResponse:
 
 async def _on_validation_error(_request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, RequestValidationError)
+    invalid_json = _invalid_json(exc)
+    if invalid_json is not None:  # malformed, like a body nested too deep to parse: 400
+        return error_json(400, code_for_status(400), invalid_json)
     return error_json(422, InvalidInput.code, describe_validation_error(exc))
 
 

@@ -102,6 +102,55 @@ def assert_error(response: Any, status: int, code: str, *words: str) -> dict[str
             (),
         ),
         ("post", "/search?k=0", {"files": {"file": GOOD}}, 422, "invalid_input", ("k",)),
+        # A text value where a file belongs: the API's words, not pydantic's class names.
+        (
+            "post",
+            "/clips",
+            {"files": {"file": (None, b"HIERARCHY")}},
+            422,
+            "invalid_input",
+            ("file", "must be a file"),
+        ),
+        # A second skeleton or motion was dropped without a word (the last one was stored).
+        (
+            "post",
+            "/clips",
+            {
+                "files": [
+                    ("skeleton", ("a.asf", b"s")),
+                    ("motion", ("a.amc", b"m")),
+                    ("motion", ("b.amc", b"n")),
+                ]
+            },
+            422,
+            "invalid_input",
+            ("field 'motion'", "not 2", "'a.amc'", "'b.amc'"),
+        ),
+        (
+            "post",
+            "/search",
+            {"files": [("skeleton", ("a.asf", b"s")), ("skeleton", ("b.asf", b"t"))]},
+            422,
+            "invalid_input",
+            ("field 'skeleton'", "not 2"),
+        ),
+        # Malformed JSON is 400, naming where it breaks (it was 422 "10: JSON decode error").
+        (
+            "post",
+            "/clips/labels",
+            {"content": b'{"ids": [1,', "headers": {"content-type": "application/json"}},
+            400,
+            "bad_request",
+            ("body: not valid JSON at character 11",),
+        ),
+        (
+            "patch",
+            "/clips/1",
+            {"content": b"{'name': 'x'}", "headers": {"content-type": "application/json"}},
+            400,
+            "bad_request",
+            ("body: not valid JSON",),
+        ),
     ],
 )
 def test_error_shape(
