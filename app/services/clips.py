@@ -219,11 +219,25 @@ def _tidy_after_delete(
         log.warning("%s deleted, but its stored previews could not be removed (%s)", what, exc)
 
 
+def stored_bytes(library: Library, clip: clip_db.ClipRecord, sha256: str) -> bytes:
+    """One stored file of ``clip``; :class:`NotFound` when the clip was deleted since its
+    record was read (its files went with it: a download or an export racing a delete), not
+    the 503 of a data directory that cannot be read."""
+    try:
+        return library.blobs.read(sha256)
+    except StorageUnavailable:
+        with library.reads() as session:
+            gone = clip_db.get_clip(session, clip.id) is None
+        if gone:
+            raise NotFound(f"clip {clip.id} was deleted while it was being read") from None
+        raise
+
+
 def stored_upload(library: Library, clip: clip_db.ClipRecord) -> Upload:
     """A stored clip's files as the upload they came in (FBX/glTF: its own animation)."""
     if not clip.files:  # synthetic benchmark clips have vectors but no upload
         raise NotFound(f"clip {clip.id} has no stored file ({clip.format} clip)")
-    data = {f.role: (f.filename, library.blobs.read(f.sha256)) for f in clip.files}
+    data = {f.role: (f.filename, stored_bytes(library, clip, f.sha256)) for f in clip.files}
     return Upload.from_files(**data, animation=clip.animation)  # type: ignore[arg-type]
 
 
@@ -253,7 +267,7 @@ def _cut_part(
     library: Library, clip: clip_db.ClipRecord, record: clip_db.FileRecord, frames: tuple[int, int]
 ) -> tuple[str, bytes]:
     """A stored part cut to ``frames`` ``[first, stop)`` (the skeleton unchanged)."""
-    data = library.blobs.read(record.sha256)
+    data = stored_bytes(library, clip, record.sha256)
     if record.role == "skeleton":
         return record.filename, data
     cut = cut_bvh if record.role == "file" else cut_amc
@@ -308,10 +322,10 @@ def clip_download(
     if part is not None or clip.format == BVH or len(clip.files) == 1:
         record = roles[part] if part is not None else clip.files[0]
         return Download(
-            record.filename, "application/octet-stream", library.blobs.read(record.sha256)
+            record.filename, "application/octet-stream", stored_bytes(library, clip, record.sha256)
         )
     motion = roles.get("motion", clip.files[-1])
-    files = [(record.filename, library.blobs.read(record.sha256)) for record in clip.files]
+    files = [(record.filename, stored_bytes(library, clip, record.sha256)) for record in clip.files]
     return _zip(clip, files, motion.filename)
 
 
