@@ -92,6 +92,13 @@ class LimitExceeded(InvalidInput):
     code = "limit_exceeded"
 
 
+class MalformedRequest(MocapError):
+    """A request body that is not what its ``Content-Type`` says: a multipart body cut before
+    its closing boundary, a part header over the size limit, a broken boundary."""
+
+    code = "bad_request"
+
+
 class PayloadTooLarge(MocapError):
     """An upload larger than the configured maximum size."""
 

@@ -26,6 +26,7 @@ from app.errors import (
     Forbidden,
     HostNotAllowed,
     InvalidInput,
+    MalformedRequest,
     MocapError,
     MomentsOff,
     NoAnimation,
@@ -51,6 +52,7 @@ STATUS_BY_ERROR: dict[type[MocapError], int] = {
     Unauthorized: 401,
     Forbidden: 403,
     HostNotAllowed: 400,
+    MalformedRequest: 400,
     TooManyRequests: 429,
     DescriptorUnavailable: 409,
     MomentsOff: 409,
@@ -205,7 +207,11 @@ def install_error_handlers(app: FastAPI) -> None:
 
 ERROR_EXAMPLES: dict[int, dict[str, tuple[str, str]]] = {
     400: {
-        "bad_request": ("Malformed request", "There was an error parsing the body"),
+        "bad_request": (
+            "Malformed request",
+            "multipart body: truncated: it ends after 8192 bytes, in part 1, without its "
+            "closing boundary ('--<boundary>--')",
+        ),
         "host_not_allowed": (
             "Request addressed to a name the server does not answer to",
             "this server does not answer to the name 'evil.example' (Host header); add it to "

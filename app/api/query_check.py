@@ -6,7 +6,8 @@ which reads as "no clip is named walk" or "the filter works". Every API route no
 
 Routers take :class:`CheckedQueryRoute` as their ``route_class``: the check runs in the
 route's handler, before its parameters are read — a parse of the query string's keys, and no
-dependency (the search hot path has none).
+dependency (the search hot path has none). A route taking a form has its multipart body read
+there too, strictly (:mod:`app.api.forms`).
 """
 
 from __future__ import annotations
@@ -15,10 +16,11 @@ from collections.abc import Callable, Coroutine
 from typing import Any
 from urllib.parse import parse_qsl
 
-from fastapi import Request, Response
+from fastapi import Request, Response, params
 from fastapi.dependencies.models import Dependant
 from fastapi.routing import APIRoute
 
+from app.api.forms import is_multipart, read_form
 from app.errors import InvalidInput
 
 
@@ -41,6 +43,11 @@ class CheckedQueryRoute(APIRoute):
         allowed = declared_query_parameters(self.dependant)
         where = f"{'/'.join(sorted(self.methods or ()))} {self.path}"
         takes = ", ".join(sorted(allowed)) or "none"
+        # A route taking a form reads its multipart body strictly (app/api/forms.py) before
+        # FastAPI does: FastAPI would answer any error raised in its parse a bare 400.
+        takes_form = self.body_field is not None and isinstance(
+            self.body_field.field_info, params.Form
+        )
 
         async def checked(request: Request) -> Response:
             query = request.scope.get("query_string", b"")
@@ -55,6 +62,8 @@ class CheckedQueryRoute(APIRoute):
                         f"{', '.join(unknown)}: unknown query parameter{plural} of {where} "
                         f"(it takes: {takes})"
                     )
+            if takes_form and is_multipart(request):
+                await read_form(request)
             return await handler(request)
 
         return checked
