@@ -7,10 +7,11 @@ routes never repeat that check; ``UploadDep`` reads and checks a multipart uploa
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterable
 from typing import Annotated, Literal
 
 from fastapi import Depends, File, Form, Query, Request, UploadFile
+from starlette.datastructures import FormData
 
 from app.api.limits import Slots
 from app.config import Settings
@@ -45,6 +46,38 @@ ClipDep = Annotated[ClipRecord, Depends(get_clip)]
 async def _read(part: UploadFile | None) -> tuple[str | None, bytes] | None:
     # The body size limit (BodySizeLimit) already bounds what can be read here.
     return None if part is None else (part.filename, await part.read())
+
+
+# Form fields of one value. FastAPI keeps the last part of a field declared as one value and
+# drops the others without a word; ``file`` and ``labels`` are lists and may repeat.
+SINGLE_VALUED_UPLOAD_FIELDS = ("skeleton", "motion", "name", "source", "licence", "animation")
+
+
+def _shown(part: object) -> str:
+    value = getattr(part, "filename", part)
+    if isinstance(value, str) and len(value) > 40:
+        value = value[:40] + "..."
+    return repr(value)
+
+
+def refuse_repeated(form: FormData, fields: Iterable[str]) -> None:
+    """422 naming the first of ``fields`` sent more than once in ``form``."""
+    for field in fields:
+        parts = form.getlist(field)
+        if len(parts) > 1:
+            what = "value" if isinstance(parts[0], str) else "file"
+            names = ", ".join(_shown(part) for part in parts[:5])
+            raise InvalidInput(f"field '{field}': send one {what}, not {len(parts)} ({names})")
+
+
+def single_valued(*fields: str) -> Callable[[Request], Awaitable[None]]:
+    """A dependency refusing a repeated form field among ``fields`` (see
+    :func:`refuse_repeated`), for routes that do not read their form with :func:`read_upload`."""
+
+    async def check_form(request: Request) -> None:
+        refuse_repeated(await request.form(), fields)
+
+    return check_form
 
 
 def describe_slots(request: Request) -> Slots:
@@ -111,11 +144,7 @@ async def read_upload(
             f"send the files as multipart/form-data (got {content_type or 'no content type'!r})"
         )
     form = await request.form()  # parsed already for the fields above: the same object
-    for field in ("skeleton", "motion"):
-        parts = form.getlist(field)
-        if len(parts) > 1:  # a single-file field keeps the last: the others were dropped
-            names = ", ".join(repr(getattr(part, "filename", part)) for part in parts[:5])
-            raise InvalidInput(f"field '{field}': send one file, not {len(parts)} ({names})")
+    refuse_repeated(form, SINGLE_VALUED_UPLOAD_FIELDS)
     async with describe_slots(request).hold():
         files = [(part.filename, await part.read()) for part in file or []]
         main, resources = split_files(files)

@@ -5,12 +5,12 @@ from __future__ import annotations
 from datetime import datetime
 from typing import TYPE_CHECKING, Annotated, Any
 
-from fastapi import APIRouter, File, Form, Query, Request, Response, UploadFile, status
+from fastapi import APIRouter, Depends, File, Form, Query, Request, Response, UploadFile, status
 from pydantic import BaseModel, Field
 
 from app.api.auth import WriteAccess
 from app.api.clips import check_page
-from app.api.deps import LibraryDep, SettingsDep
+from app.api.deps import LibraryDep, SettingsDep, single_valued
 from app.api.errors import error_responses
 from app.api.query_check import CheckedQueryRoute
 from app.errors import InvalidInput, UnsupportedMediaType
@@ -84,7 +84,7 @@ class RigPage(BaseModel):
     "",
     status_code=status.HTTP_201_CREATED,
     summary="Store a rig",
-    dependencies=[WriteAccess],
+    dependencies=[WriteAccess, Depends(single_valued("name"))],
     responses=error_responses(400, 401, 403, 404, 413, 415, 422, 503),
 )
 def create_rig(

@@ -1,5 +1,5 @@
 """A malformed multipart body is refused saying what is wrong with it, naming the field, and
-nothing is stored (app/api/forms.py)."""
+nothing is stored (app/api/forms.py, and the repeated-field check of app/api/deps.py)."""
 
 from __future__ import annotations
 
@@ -69,6 +69,30 @@ def test_utf8_text_and_file_names_are_kept_as_sent(fake_client: TestClient) -> N
     assert response.status_code == 201, response.text
     assert response.json()["name"] == "Ünïcode ✓"
     assert response.json()["filenames"] == ["pas de deux é.bvh"]
+
+
+@pytest.mark.parametrize("field", ["name", "source", "licence", "animation"])
+def test_a_repeated_single_valued_field_is_refused_naming_it(
+    fake_client: TestClient, settings: object, field: str
+) -> None:
+    files = [("file", ("a.bvh", BVH)), (field, (None, "first")), (field, (None, "second"))]
+    response = fake_client.post("/clips", files=files)
+    assert_error(response, 422, "invalid_input", f"field '{field}'", "not 2", "'first'")
+    assert_nothing_stored(fake_client, settings)
+
+
+def test_a_repeated_rig_name_is_refused(fake_client: TestClient, settings: object) -> None:
+    files = [("file", ("a.bvh", BVH)), ("name", (None, "one")), ("name", (None, "two"))]
+    response = fake_client.post("/rigs", files=files)
+    assert_error(response, 422, "invalid_input", "field 'name'", "not 2")
+    assert_nothing_stored(fake_client, settings)
+
+
+def test_repeated_labels_are_still_several_labels(fake_client: TestClient) -> None:
+    files = [("file", ("a.bvh", BVH)), ("labels", (None, "walk")), ("labels", (None, "happy"))]
+    response = fake_client.post("/clips", files=files)
+    assert response.status_code == 201, response.text
+    assert sorted(response.json()["labels"]) == ["happy", "walk"]
 
 
 @pytest.mark.parametrize("url", UPLOAD_ROUTES)
