@@ -357,7 +357,8 @@ def delete_clips(
     stored files. Without `confirm=true` nothing is deleted and the answer (422) says how many
     would be."""
     labels = label_filter(label)
-    selection = ClipFilter.of(ids=clip_ids, label=labels, licence=licence, q=q)
+    given_labels = None if label is None else labels  # an error names only what was sent
+    selection = ClipFilter.of(ids=clip_ids, label=given_labels, licence=licence, q=q)
     if not confirm:
         count = len(clip_service.clips_with_labels(library, selection))
         what = f" labelled {', '.join(labels)}" if labels else ""

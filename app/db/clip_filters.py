@@ -40,6 +40,9 @@ class ClipFilter:
     label: LabelFilter = None
     licence: LicenceFilter = field(default_factory=LicenceFilter)
     words: tuple[str, ...] = ()
+    # The criteria the caller sent (``label``, ``licence``, ``q``), even empty ones: what an
+    # error about an empty selection names.
+    given: tuple[str, ...] = field(default=(), compare=False)
 
     @classmethod
     def of(
@@ -55,11 +58,13 @@ class ClipFilter:
         for clip_id in ids or ():
             if not 0 < clip_id <= MAX_ID:
                 raise InvalidInput(f"ids: {clip_id} is no clip id (1 to {MAX_ID})")
+        sent = {"label": label, "licence": licence, "q": q}
         return cls(
             None if ids is None else tuple(int(i) for i in ids),
             label,
             licence_filter(licence),
             search_words(q),
+            tuple(name for name, value in sent.items() if value is not None),
         )
 
     def __bool__(self) -> bool:

@@ -149,6 +149,13 @@ def _deletion(selection: ClipFilter | label_db.LabelFilter, doing: str = "delete
     if not isinstance(selection, ClipFilter):
         selection = ClipFilter.of(label=selection)
     if not selection:
+        # Name what was sent (licence=! blamed 'label'); 'label' when nothing was.
+        sent = ", ".join(selection.given)
+        if sent:
+            raise InvalidInput(
+                f"{sent}: selects no clip (an empty value, blanks or a bare '!' are no filter); "
+                f"name the label(s), licence(s), words (q) or ids of the clips to {doing}"
+            )
         raise InvalidInput(f"label: name the label(s) (or id, licence, q) of the clips to {doing}")
     return selection
 

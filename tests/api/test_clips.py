@@ -16,6 +16,7 @@ from app.config import Settings
 from app.main import create_app
 from app.motion.descriptors import REGISTRY
 from tests.api.conftest import stored_blobs
+from tests.services.fakes import fake_motion
 
 BANDAI = "bandai_walk_normal_001_first40.bvh"
 CMU_BVH = "cmu_mb_02_01_first41.bvh"
@@ -235,3 +236,28 @@ def test_warnings_and_the_joint_mapping_are_shown(client: TestClient, fixtures_d
 
     unknown = client.get(f"/clips/{clean['id']}", params={"include": "mapping,bones"})
     assert unknown.status_code == 422 and "bones" in unknown.json()["detail"]
+
+
+@pytest.mark.parametrize(
+    ("query", "named"),
+    [
+        ("licence=!", "licence: "),
+        ("licence=%20,!%20", "licence: "),
+        ("q=%20%20", "q: "),
+        ("label=&licence=!", "label, licence: "),
+        ("label=,", "label: "),
+        ("", "label: "),
+    ],
+)
+def test_an_empty_selection_to_delete_names_the_parameters_given(
+    fake_client: TestClient, query: str, named: str
+) -> None:
+    stored = fake_client.post("/clips", files={"file": ("a.bvh", fake_motion([1, 0, 0]))})
+    assert stored.status_code == 201, stored.text
+    for confirm in ("", "&confirm=true"):
+        response = fake_client.delete(f"/clips?{query}{confirm}")
+        assert response.status_code == 422, response.text
+        assert response.json()["error"] == "invalid_input"
+        assert response.json()["detail"].startswith(named), response.json()
+        assert "clips to delete" in response.json()["detail"]
+    assert fake_client.get("/clips").json()["total"] == 1
