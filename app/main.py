@@ -23,6 +23,7 @@ from app.api.auth import API_KEY_HEADER, log_access_policy, read_dependencies
 from app.api.compression import add_compression
 from app.api.errors import error_responses, install_error_handlers
 from app.api.guard import AccessTable, RequestGuard, document_access, shared_access_table
+from app.api.head import HeadAsGet
 from app.api.limits import BodySizeLimit, DescribeGate, Slots
 from app.api.routers import add_router
 from app.config import Settings
@@ -163,6 +164,8 @@ def create_app(settings: Settings | None = None, *, describer: Describer | None 
             allow_headers=["Authorization", API_KEY_HEADER, "Content-Type"],
             expose_headers=["Location"],
         )
+    # Outermost: HEAD is answered as the GET it stands for, without the body (app/api/head.py).
+    app.add_middleware(HeadAsGet)
     # Reading routes need a key only with MOCAP_REQUIRE_KEY_FOR_READS; /health never does.
     reads = read_dependencies(settings)
     read_errors = error_responses(401, 403) if reads else {}
