@@ -6,12 +6,16 @@ without them: the hip is the joint set apart from the pelvis, the ankle the leg'
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from app.motion.model import Skeleton
 from app.motion.pipeline import describable_body
 from app.motion.skeleton_map import CANONICAL_JOINTS
 from tests.motion.canonical import check_canonical_body
+from tests.motion.rig_building import bone_axes, nameless
 from tests.motion.synthetic import walking
 
 # (joint, parent, rest offset in cm (Y up, facing +z), End Site?) for the ``L`` side and the
@@ -114,6 +118,58 @@ def test_a_leg_with_no_foot_ends_at_its_ankle() -> None:
         )
     }
     joints = _mapped(_NO_FOOT, truth)
+    for side, word in (("l", "Left"), ("r", "Right")):
+        assert joints[f"{side}_hip"] == f"{word}UpLeg"
+        assert joints[f"{side}_knee"] == f"{word}Leg"
+        assert joints[f"{side}_ankle"] == f"{word}Foot"
+
+
+# A leg with no foot under a joint both legs hang from (a Blender rig's ``Hip``), the rig's
+# rest pose no figure (bones along their parent's axis, as a converter writes them), so
+# the frames are read: the leg ends at the ankle itself, and nothing past it turns forward.
+# Nameless, as where no name on the chain says "ankle" (a heel bone beside the foot, at the
+# ankle's place, ending the chain instead).
+_NO_FOOT_SHARED_HIP = [
+    ("Hips", None, (0, 0, 0), False),
+    ("Hip", "Hips", (0, -3, 0), False),
+    ("{side}UpLeg", "Hip", (9, -7, 0), False),
+    ("{side}Leg", "{side}UpLeg", (0, -42, 0), False),
+    ("{side}Foot", "{side}Leg", (0, -40, 0), True),
+    *_NO_FOOT[5:],
+]
+
+
+def test_a_bent_knee_on_a_leg_with_no_foot_is_not_its_ankle() -> None:
+    """The left thigh upright and the shin swung back (a knee bent 49 degrees, the shin more
+    level than the thigh), the right thigh forward with the same bend: the left knee turns
+    as an ankle turns to the toes. Read so, the ankle was the knee, the knee the thigh's top
+    and the hip the joint both legs hang from ("the two legs share their hip"): every frame
+    refused, and the clip with them."""
+    skeleton, names = _rig(_NO_FOOT_SHARED_HIP)
+    truth = {
+        f"{side}_{part}": f"{word}{name}"
+        for side, word in (("l", "Left"), ("r", "Right"))
+        for part, name in (
+            ("hip", "UpLeg"),
+            ("knee", "Leg"),
+            ("shoulder", "Arm"),
+            ("elbow", "ForeArm"),
+        )
+    }
+    motion = walking(skeleton, truth, frames=4)
+    rotations = motion.local_rotations.copy()
+    for name, turn in (
+        ("LeftUpLeg", 0.0),
+        ("LeftLeg", 0.85),
+        ("RightUpLeg", -0.45),
+        ("RightLeg", 0.85),
+    ):
+        rotations[:, skeleton.index(name)] = Rotation.from_rotvec([turn, 0.0, 0.0]).as_matrix()
+    motion = nameless(bone_axes(dataclasses.replace(motion, local_rotations=rotations), 1))
+    body = describable_body(motion)
+    check_canonical_body(body, "rig")
+    assert body.mapping is not None
+    joints = {c: names[int(j)] for c, j in zip(CANONICAL_JOINTS, body.mapping.joints, strict=True)}
     for side, word in (("l", "Left"), ("r", "Right")):
         assert joints[f"{side}_hip"] == f"{word}UpLeg"
         assert joints[f"{side}_knee"] == f"{word}Leg"

@@ -44,7 +44,9 @@ facing, naming or extra joints (fingers, face, twist bones, props, IK targets, d
    joint lower down hangs from the collar, whatever the hips' gap; a hand shorter than a
    person's on an arm where nothing branches, a hand drawn in part, costs no more than no
    hand); the ankle likewise
-   when the foot does not turn forward; two legs never share their hip, and each limb makes
+   when the foot does not turn forward (and when the turn is a knee's: on a leg with no foot
+   bones a knee bent with the shin more level than an upright thigh turns as an ankle does,
+   and read so it leaves the two legs one hip); two legs never share their hip, and each limb makes
    most of the way from the trunk to its end (a creature's claws hanging at the end of its
    legs are no person's legs). A game rig whose feet are IK bones under the root (legs
    ending at the knees) is mapped, when nothing else maps, with each foot hung from the knee

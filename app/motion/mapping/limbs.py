@@ -29,6 +29,8 @@ _ALIKE = 0.15
 _FINGERS_BRANCH = "structure: where the fingers"
 # How a wrist found where a hand of one chain begins.
 _ONE_CHAIN = "structure: where a hand of one chain starts"
+# How an ankle found where the foot turns forward.
+_TURNS_FORWARD = "geometry: where the foot turns forward"
 
 
 class _LimbRules(_NamedRules, _FootRules):
@@ -355,6 +357,42 @@ class _LimbRules(_NamedRules, _FootRules):
             return options[1][1]
         return options[0][1]
 
+    def turned_leg(
+        self, chain: list[int], turned: int | None, ankles: list[tuple[int, str]]
+    ) -> _Limb:
+        """The leg along ``chain`` ending at the best of ``ankles`` (:meth:`best_ankle`),
+        unless they are where the foot turns forward and that reading puts the leg's hip at
+        or above where the two legs part, while reading the leg as a foot that never turns
+        (its last joints) gives it a hip of its own.
+
+        A leg with no foot bones (it ends at the ankle: an End Site there, or a tool's
+        invented tails dropped) has no turn towards the toes; a knee bent so that the shin
+        lies more level than an upright thigh (kneeling, a crouch with the shin swung back)
+        then turns as an ankle does. Read as the ankle, that knee puts the knee at the
+        thigh's top and the hip one joint above it, at the joint both legs hang from. Two
+        legs never share their hip: the turn was the knee's bend. (A turn whose reading
+        finds no knee at all keeps its reason: a creature's chains turn anywhere, and that
+        alone says nothing of a knee taken for an ankle.)"""
+        limb = self.best_ankle(chain, ankles)
+        if turned is None or ankles[0][1] != _TURNS_FORWARD or self.own_hip(limb):
+            return limb
+        try:
+            level: _Limb | None = self.best_ankle(chain, self.ankles(chain, None, []))
+        except _NotHumanoid:
+            level = None
+        if level is not None and self.own_hip(level):
+            level.how["ankle"] += (
+                f" (the turn at {self.tree.names[chain[turned]]!r} is a knee's bend: "
+                "no foot turns on this leg)"
+            )
+            return level
+        return limb
+
+    def own_hip(self, limb: _Limb) -> bool:
+        """Whether the leg ``limb``'s hip lies below where the two legs' chains part."""
+        fork = self.tree.lca(*self.body.feet)
+        return limb["hip"] != fork and self.tree.is_ancestor(fork, limb["hip"])
+
     def ankles(
         self, chain: list[int], turned: int | None, named_ankles: list[int]
     ) -> list[tuple[int, str]]:
@@ -372,7 +410,7 @@ class _LimbRules(_NamedRules, _FootRules):
             ankles = [
                 (
                     self.deepest_coincident(chain[turned], chain),
-                    "geometry: where the foot turns forward",
+                    _TURNS_FORWARD,
                 )
             ]
             # A foot that points down in the rest pose (a Blender A-pose, feet extended)
@@ -478,7 +516,7 @@ class _LimbRules(_NamedRules, _FootRules):
             else:
                 limb = None
         if limb is None:
-            limb = self.best_ankle(chain, by_name)
+            limb = self.turned_leg(chain, turned, by_name)
         ankle = limb["ankle"]
         ankle_i = chain.index(ankle)
         result, how = limb.joints, limb.how
