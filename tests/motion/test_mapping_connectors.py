@@ -106,17 +106,16 @@ def test_a_connector_at_the_trunks_point_is_not_the_limbs_top() -> None:
     assert joints["neck"] == "Spine3_Neck"
 
 
+# The joints ``walking`` turns in the rigs named as Mixamo names them.
+_MIXAMO_NAMED = {
+    f"{side}_{part}": f"{word}{name}"
+    for side, word in (("l", "Left"), ("r", "Right"))
+    for part, name in (("hip", "UpLeg"), ("knee", "Leg"), ("shoulder", "Arm"), ("elbow", "ForeArm"))
+}
+
+
 def test_a_leg_with_no_foot_ends_at_its_ankle() -> None:
-    truth = {
-        f"{side}_{part}": f"{word}{name}"
-        for side, word in (("l", "Left"), ("r", "Right"))
-        for part, name in (
-            ("hip", "UpLeg"),
-            ("knee", "Leg"),
-            ("shoulder", "Arm"),
-            ("elbow", "ForeArm"),
-        )
-    }
+    truth = _MIXAMO_NAMED
     joints = _mapped(_NO_FOOT, truth)
     for side, word in (("l", "Left"), ("r", "Right")):
         assert joints[f"{side}_hip"] == f"{word}UpLeg"
@@ -146,16 +145,7 @@ def test_a_bent_knee_on_a_leg_with_no_foot_is_not_its_ankle() -> None:
     and the hip the joint both legs hang from ("the two legs share their hip"): every frame
     refused, and the clip with them."""
     skeleton, names = _rig(_NO_FOOT_SHARED_HIP)
-    truth = {
-        f"{side}_{part}": f"{word}{name}"
-        for side, word in (("l", "Left"), ("r", "Right"))
-        for part, name in (
-            ("hip", "UpLeg"),
-            ("knee", "Leg"),
-            ("shoulder", "Arm"),
-            ("elbow", "ForeArm"),
-        )
-    }
+    truth = _MIXAMO_NAMED
     motion = walking(skeleton, truth, frames=4)
     rotations = motion.local_rotations.copy()
     for name, turn in (
