@@ -25,6 +25,7 @@ import json
 import re
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -73,6 +74,33 @@ def read(path: Path) -> Motion:
     return parse_scene(kind, data, None, ParseLimits()).motion
 
 
+# A person's thigh : shin and upper arm : forearm (Drillis & Contini, as the mapper's
+# app/motion/mapping/runs.py), and how far off a mapped limb may be: a factor of two, the
+# mapper's own "comparable parts" (a limb mapped a joint high or low is off by more: the
+# foot for the shin gives 2.2 x, a thigh from a connector at the pelvis 0.28 x).
+PART_RATIOS = {"leg": ("hip", "knee", "ankle", 1.0), "arm": ("shoulder", "elbow", "wrist", 1.27)}
+RATIO_FACTOR = 2.0
+
+
+def part_ratios(body: Any) -> list[str]:
+    """What is wrong with the mapped limbs' upper : lower part ratios (medians over the
+    frames), each side: "l leg 0.28 (a person's 1.00)" when off by more than
+    :data:`RATIO_FACTOR`. The canonical checks pass a leg mapped one joint high whose parts
+    are rigid; its proportions do not."""
+    from app.motion.skeleton_map import CANONICAL_INDEX
+
+    found = []
+    for what, (top, middle, end, person) in PART_RATIOS.items():
+        for side in "lr":
+            at = [body.positions[:, CANONICAL_INDEX[f"{side}_{j}"]] for j in (top, middle, end)]
+            upper = float(np.median(np.linalg.norm(at[1] - at[0], axis=-1)))
+            lower = float(np.median(np.linalg.norm(at[2] - at[1], axis=-1)))
+            ratio = upper / max(lower, 1e-12)
+            if not person / RATIO_FACTOR <= ratio <= person * RATIO_FACTOR:
+                found.append(f"{side} {what} {ratio:.2f} (a person's {person:.2f})")
+    return found
+
+
 def judge(path: Path, expected: str) -> dict[str, object]:
     """One file's outcome (``refused`` / ``accepted`` / ``crash``), why, and whether that
     is what ``expected`` asks (see the module docstring)."""
@@ -93,6 +121,7 @@ def judge(path: Path, expected: str) -> dict[str, object]:
         check_canonical_body(analysis.body, path.name, upright=None)
     except AssertionError as error:
         problems.append(f"canonical: {error}"[:200])
+    problems += part_ratios(analysis.body)
     joints = analysis.joint_mapping.get("joints", {})
     against = [
         f"{canonical}<-{place['joint']}"
