@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import re
 import sys
 from pathlib import Path
@@ -35,8 +36,10 @@ from app.errors import MocapError
 from app.importer.workers import MAX_RESOURCE_BYTES
 from app.motion.formats import read_asf_amc, read_bvh
 from app.motion.formats.gltf_pack import pack_gltf, refers_to_files
+from app.motion.mapping.runs import _ARM, _COMPARABLE, _LEG
 from app.motion.model import Motion, ParseLimits
 from app.motion.pipeline import analyse
+from app.motion.skeleton_map import CANONICAL_INDEX
 from app.services.parser_pool import parse_scene
 from app.services.upload_files import FolderFiles
 from tests.motion.canonical import check_canonical_body
@@ -74,30 +77,27 @@ def read(path: Path) -> Motion:
     return parse_scene(kind, data, None, ParseLimits()).motion
 
 
-# A person's thigh : shin and upper arm : forearm (Drillis & Contini, as the mapper's
-# app/motion/mapping/runs.py), and how far off a mapped limb may be: a factor of two, the
-# mapper's own "comparable parts" (a limb mapped a joint high or low is off by more: the
-# foot for the shin gives 2.2 x, a thigh from a connector at the pelvis 0.28 x).
-PART_RATIOS = {"leg": ("hip", "knee", "ankle", 1.0), "arm": ("shoulder", "elbow", "wrist", 1.27)}
-RATIO_FACTOR = 2.0
-
-
 def part_ratios(body: Any) -> list[str]:
     """What is wrong with the mapped limbs' upper : lower part ratios (medians over the
-    frames), each side: "l leg 0.28 (a person's 1.00)" when off by more than
-    :data:`RATIO_FACTOR`. The canonical checks pass a leg mapped one joint high whose parts
-    are rigid; its proportions do not."""
-    from app.motion.skeleton_map import CANONICAL_INDEX
-
+    frames), each side: "l leg 0.28 (a person's 1.00)" when further from a person's than the
+    mapper's own "comparable parts" allow (a factor of two, ``app/motion/mapping/runs.py``).
+    The canonical checks pass a leg mapped one joint high whose parts are rigid (the foot for
+    the shin gives 2.2 x, a thigh from a connector at the pelvis 0.28 x); its proportions do
+    not."""
     found = []
-    for what, (top, middle, end, person) in PART_RATIOS.items():
+    for kind in (_LEG, _ARM):
         for side in "lr":
-            at = [body.positions[:, CANONICAL_INDEX[f"{side}_{j}"]] for j in (top, middle, end)]
-            upper = float(np.median(np.linalg.norm(at[1] - at[0], axis=-1)))
-            lower = float(np.median(np.linalg.norm(at[2] - at[1], axis=-1)))
-            ratio = upper / max(lower, 1e-12)
-            if not person / RATIO_FACTOR <= ratio <= person * RATIO_FACTOR:
-                found.append(f"{side} {what} {ratio:.2f} (a person's {person:.2f})")
+            top, middle, end = (
+                body.positions[:, CANONICAL_INDEX[f"{side}_{part}"]] for part in kind.parts
+            )
+            upper = float(np.median(np.linalg.norm(middle - top, axis=-1)))
+            lower = float(np.median(np.linalg.norm(end - middle, axis=-1)))
+            off = math.log(max(upper, 1e-12) / max(lower, 1e-12) / kind.upper)
+            if abs(off) > _COMPARABLE:
+                found.append(
+                    f"{side} {kind.what} {upper / max(lower, 1e-12):.2f} "
+                    f"(a person's {kind.upper:.2f})"
+                )
     return found
 
 

@@ -389,7 +389,8 @@ class _LimbRules(_NamedRules, _FootRules):
         return limb
 
     def own_hip(self, limb: _Limb) -> bool:
-        """Whether the leg ``limb``'s hip lies below where the two legs' chains part."""
+        """Whether the leg ``limb``'s hip lies below where the two legs' chains part (two
+        legs never share their hip: :meth:`turned_leg`, and the mapper's check of both)."""
         fork = self.tree.lca(*self.body.feet)
         return limb["hip"] != fork and self.tree.is_ancestor(fork, limb["hip"])
 

@@ -64,8 +64,7 @@ class _Mapper(_ArmRules, _SideRules):
         ]
         # Each leg is its own chain from the hip down: a hip at or above the point where the
         # two leg chains part is one limb forking (fingers of one hand), not two legs.
-        fork = tree.lca(*body.feet)
-        if any(leg["hip"] == fork or not tree.is_ancestor(fork, leg["hip"]) for leg in legs):
+        if not all(self.own_hip(leg) for leg in legs):
             raise _NotHumanoid(
                 "the two legs share their hip: no two separate legs below the pelvis"
             )
