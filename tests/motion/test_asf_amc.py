@@ -145,6 +145,35 @@ def test_tiny_skeleton_joints_offsets_and_units() -> None:
     assert motion.local_translations is None
 
 
+def test_a_writer_s_unit_words_and_offsets_as_directions_read_as_the_format_means() -> None:
+    """A converter seen in the wild writes ``mass kg`` and ``length m`` under ``:units`` and
+    each bone's offset as its ``direction`` (with its norm as ``length``): the mass is read by
+    no one, the lengths are read as written (with a warning), and the direction is the unit
+    vector the format asks for. Before, the file was refused on ``mass kg``, and the bones
+    were their lengths squared."""
+    units = edit(edit(TINY_ASF, A_UNITS_LENGTH - 1, "  mass kg"), A_UNITS_LENGTH, "  length m")
+    offsets = edit(units, A_HIP_DIRECTION, "     direction 0 -2 0")  # the hip bone is 2 long
+    motion = read_asf_amc(offsets, TINY_AMC)
+    np.testing.assert_allclose(
+        motion.skeleton.offsets,
+        [[0, 0, 0], [0, 0, 0], [0, -2, 0], [0, -3, 0], [0, 0, 0], [0, 4, 0]],
+    )
+    assert any("length 'm' names a unit" in w for w in motion.notes["warnings"])
+    plain = read_asf_amc(TINY_ASF, TINY_AMC)  # a unit vector stays exactly as written
+    np.testing.assert_array_equal(plain.skeleton.offsets / 2, motion.skeleton.offsets)
+
+
+def test_zeros_for_a_bone_without_dof_are_read_as_nothing_to_turn() -> None:
+    """A writer gives every bone three values, also the bones the ASF gives no dof (its
+    ``*_dum`` joints): zeros turn nothing and are read; a value that is not zero still
+    refuses (``ASF_REJECTIONS``), as no dof could carry it."""
+    zeros = edit(TINY_AMC, M_KNEE_2, "knee 0 0\nspine 0 0 0.0")
+    motion = read_asf_amc(TINY_ASF, zeros)
+    np.testing.assert_array_equal(
+        motion.local_rotations, read_asf_amc(TINY_ASF, TINY_AMC).local_rotations
+    )
+
+
 def test_tiny_rotations_follow_the_cmu_convention() -> None:
     motion = read_asf_amc(TINY_ASF, TINY_AMC)
     np.testing.assert_allclose(motion.root_translation, [[2, 4, 6], [0, 0, 0]])

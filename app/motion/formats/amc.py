@@ -229,6 +229,11 @@ def _read_amc_lines(
             if name in no_dof_bones:
                 if len(tokens) == 1:
                     continue  # a bone without dof listed with no values: harmless
+                if all(
+                    parse_float(t, what=f"bone {name!r} value", line=number) == 0
+                    for t in tokens[1:]
+                ):
+                    continue  # zeros a writer gives every bone: nothing to turn
                 raise ParseError(
                     f"bone {name!r} has no dof in the ASF but the AMC gives it values",
                     line=number,

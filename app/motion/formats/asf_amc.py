@@ -85,6 +85,9 @@ _ANGLE_UNITS = {
 _AXIS_RE = re.compile(r"[XYZ]{3}", re.IGNORECASE)
 # Bone fields we read or knowingly ignore; anything else in a bone block is an error.
 _IGNORED_BONE_FIELDS = frozenset({"id", "limits", "bodymass", "cofmass"})
+# How far a bone's ``direction`` may be from unit length and still be read as written (the
+# CMU files' six decimals are within 1e-6).
+_UNIT_TOLERANCE = 1e-3
 
 
 @dataclass
@@ -113,6 +116,7 @@ class _Asf:
     root_orientation: tuple[float, float, float] = (0.0, 0.0, 0.0)
     bones: dict[str, _Bone] = field(default_factory=dict)  # name -> bone, file order
     name: str | None = None
+    warnings: list[str] = field(default_factory=list)
 
 
 def parse_asf_amc(
@@ -169,8 +173,8 @@ def parse_asf_amc(
         for source, said in (("ASF", asf_commas), ("AMC", amc_commas))
         if said
     ]
-    if commas or warnings:
-        motion.notes["warnings"] = [*commas, *warnings]
+    if commas or warnings or asf.warnings:
+        motion.notes["warnings"] = [*commas, *asf.warnings, *warnings]
     return motion
 
 
@@ -320,11 +324,25 @@ def _parse_asf(lines: list[str], limits: ParseLimits) -> _Asf:
     return asf
 
 
+def _is_word(token: str) -> bool:
+    """Whether ``token`` is a word (a unit's name), not a number gone wrong."""
+    return token.isalpha()
+
+
 def _read_unit(asf: _Asf, tokens: list[str], number: int) -> None:
     key = tokens[0].lower()
     if len(tokens) != 2:
         raise ParseError(f":units {tokens[0]} needs one value", line=number)
-    if key in ("mass", "length"):
+    if key == "mass" and _is_word(tokens[1]):
+        pass  # the mass is read by no one (a writer names its unit, "kg")
+    elif key == "length" and _is_word(tokens[1]):
+        # A writer that names the unit ("m") instead of giving the multiplier: the lengths
+        # are read as written (a person's proportions do not depend on them).
+        asf.warnings.append(
+            f"ASF line {number}: :units length {show(tokens[1])} names a unit where the "
+            "format has a number (the length multiplier): lengths read as written"
+        )
+    elif key in ("mass", "length"):
         value = parse_float(tokens[1], what=f":units {key}", line=number)
         if value <= 0:
             raise ParseError(f":units {key} must be greater than 0", line=number)
@@ -376,7 +394,13 @@ def _read_bone_field(asf: _Asf, bone: _Bone, tokens: list[str], number: int) -> 
             raise ParseError("bone name must be one word", line=number)
         bone.name = tokens[1]
     elif key == "direction":
-        bone.direction = _vector(tokens[1:], what="bone direction", line=number)
+        direction = np.array(_vector(tokens[1:], what="bone direction", line=number))
+        norm = float(np.linalg.norm(direction))
+        # The format's direction is a unit vector; a writer that puts the bone's offset
+        # there (and its norm under ``length``) means the same direction.
+        if norm > 0 and abs(norm - 1.0) > _UNIT_TOLERANCE:
+            direction = direction / norm
+        bone.direction = (float(direction[0]), float(direction[1]), float(direction[2]))
     elif key == "length":
         (length,) = _floats(tokens[1:], 1, what="bone length", line=number)
         if length < 0:
