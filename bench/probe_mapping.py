@@ -40,12 +40,14 @@ from app.discovery import discover  # noqa: E402
 from app.errors import MocapError  # noqa: E402
 from app.motion.formats import read_asf_amc, read_bvh  # noqa: E402
 from app.motion.kinematics import forward_kinematics  # noqa: E402
+from app.motion.mapping.canonical import SkeletonMap  # noqa: E402
+from app.motion.mapping.skeleton import _CANDIDATES, _known  # noqa: E402
 from app.motion.model import Motion, ParseLimits  # noqa: E402
 from app.motion.pipeline import describable_body  # noqa: E402
 from app.motion.skeleton_map import CANONICAL_INDEX  # noqa: E402
 from app.services.parser_pool import parse_scene  # noqa: E402
 from bench.common import machine, shared_data  # noqa: E402
-from tests.motion.synthetic import grown  # noqa: E402
+from tests.motion.synthetic import grown, with_cloth_chains  # noqa: E402
 from tests.motion.test_mapping_probes import (  # noqa: E402
     _arrays,
     frame_as_rest,
@@ -317,6 +319,23 @@ def root_above(motion: Motion, expected: Expected) -> tuple[Motion, Expected]:
     return kept(motion, list(range(len(parents))), arrays), expected
 
 
+def secondary_chains(motion: Motion, expected: Expected) -> tuple[Motion, Expected]:
+    """Hair and cloth chains (:func:`tests.motion.synthetic.with_cloth_chains`) hanging in
+    the rig's rest pose where it shows the figure (a character's bind pose), else in the
+    first frame (a rest pose of bones in axes of their own would hold the cloth in axes of
+    its own too)."""
+    in_rest = isinstance(_known(motion.skeleton, _CANDIDATES).rest_result, SkeletonMap)
+    mapping = describable_body(motion).mapping
+    assert mapping is not None
+    chest, pelvis, left, right = (
+        _index(motion, expected[c]) for c in ("chest", "pelvis", "l_hip", "r_hip")
+    )
+    # Hair hangs from the skull (the head joint), not from the top of the head.
+    skull = mapping.head_joint
+    dressed = with_cloth_chains(motion, skull, chest, pelvis, (left, right), in_rest=in_rest)
+    return dressed, expected
+
+
 # Steps that rewrite how the rig is written, not its joints.
 WRITING = (nameless, first_rest, odd_axes)
 GAME = [clavicles_out, spine_of_two, toes_cut, fingers_cut]
@@ -349,6 +368,13 @@ PROBES: dict[str, list[Step]] = {
     "twist leaves + nameless": [twist_leaves, nameless],
     "legs on a branch + nameless": [legs_on_a_branch, nameless],
     "root above + nameless": [root_above, nameless],
+    "hair and skirt chains": [secondary_chains],
+    "hair and skirt chains + nameless": [secondary_chains, nameless],
+    "hair and skirt chains + nameless + axes of their own": [
+        secondary_chains,
+        odd_axes,
+        nameless,
+    ],
     "twist leaves + legs on a branch + root above + nameless + axes of their own": [
         twist_leaves,
         legs_on_a_branch,

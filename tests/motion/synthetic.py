@@ -197,3 +197,68 @@ def hung_from_root(motion: Motion, names: Sequence[str]) -> Motion:
         local_rotations=local,
         local_translations=per_frame,
     )
+
+
+def with_cloth_chains(
+    motion: Motion,
+    head: int,
+    chest: int,
+    pelvis: int,
+    hips: tuple[int, int],
+    *,
+    in_rest: bool = True,
+    seed: int = 11,
+) -> Motion:
+    """``motion`` with cloth and hair bones as character rigs carry them (VRoid's
+    ``J_Sec_*``, a game character's skirt and ponytail), never moving: twelve hair chains of
+    three or four bones from ``head``, hanging down the back and the sides to lengths of
+    their own (down to the waist), eight skirt chains round ``pelvis`` hanging to mid-thigh,
+    and two short chains forward from ``chest``. Long chains that hang as limbs do, unlike
+    small leaves. ``hips``: the left and the right hip joint (they say the sides); the
+    cloth hangs in the rest pose (``in_rest``: a character's bind pose) or else in the first
+    frame (for a rig whose rest pose is no figure)."""
+    if in_rest:
+        pose = rest_pose(motion.skeleton)  # (J, 3)
+        world = np.broadcast_to(np.eye(3), (len(pose), 3, 3))
+    else:
+        turns, at = forward_kinematics(motion.slice_frames(0, 1))
+        pose, world = at[0], turns[0]  # (J, 3), (J, 3, 3)
+    # The body's size: the joints from the pelvis down the tree (a root joint left at the
+    # origin while the hips walk away is no part of it).
+    parents = motion.skeleton.parents
+    body = [pelvis]
+    for joint in range(motion.skeleton.joint_count):
+        if parents[joint] in body:
+            body.append(joint)
+    height = float(np.ptp(pose[body], axis=0).max())
+    up = pose[head] - pose[pelvis]
+    up /= np.linalg.norm(up)
+    across = pose[hips[0]] - pose[hips[1]]
+    across -= up * (across @ up)
+    across /= np.linalg.norm(across)
+    front = np.cross(across, up)
+    rng = np.random.default_rng(seed)
+    hung: list[int] = []
+    offsets: list[np.ndarray] = []
+
+    def chain(top: int, steps: list[np.ndarray]) -> None:
+        parent = top
+        for step in steps:
+            hung.append(parent)
+            offsets.append(world[top].T @ step)  # in the parent's frame: no bone turns
+            parent = motion.skeleton.joint_count + len(hung) - 1
+
+    for k in range(12):  # hair: out of the skull, then down the back and the sides
+        angle = np.pi * (0.1 + 0.8 * k / 11)
+        out = np.cos(angle) * across - np.sin(angle) * front
+        bones = int(rng.integers(3, 5))
+        down = (0.15 * out - up) / np.linalg.norm(0.15 * out - up)
+        length = height * rng.uniform(0.05, 0.32)
+        chain(head, [0.06 * height * (0.6 * out + 0.4 * up)] + [length / bones * down] * bones)
+    for k in range(8):  # a skirt's pleats
+        out = np.cos(2 * np.pi * k / 8) * across + np.sin(2 * np.pi * k / 8) * front
+        drop = height * rng.uniform(0.17, 0.22) / 3
+        chain(pelvis, [0.09 * height * out] + [drop * (0.3 * out - up)] * 3)
+    for side in (1, -1):
+        chain(chest, [0.05 * height * (front + 0.3 * side * across)] * 2)
+    return grown(motion, hung, offsets)

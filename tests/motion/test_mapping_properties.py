@@ -29,7 +29,7 @@ from tests.motion.skeleton_trees import (
     skeleton_from_points,
     synthetic_humanoid,
 )
-from tests.motion.synthetic import grown, walking
+from tests.motion.synthetic import grown, walking, with_cloth_chains
 
 FIXTURES = (CMU_BVH_FIXTURE, BANDAI_FIXTURE)
 
@@ -173,6 +173,35 @@ def test_a_rig_with_150_extra_small_leaf_bones_maps_like_the_plain_rig(load):
     motion = load()
     plain, busy = analyse(motion), analyse(_with_small_bones(motion, 150))
     np.testing.assert_array_equal(busy.body.mapping.joints, plain.body.mapping.joints)
+    assert busy.warnings == plain.warnings
+    _same(plain, busy)
+
+
+@pytest.mark.parametrize("load", [lambda: _motion(CMU_BVH_FIXTURE), _cmu_asf], ids=["bvh", "asf"])
+def test_hair_and_cloth_chains_as_long_as_limbs_change_no_joint(load):
+    """A character rig's hair strands hang from the head as far as the waist (VRoid's, a
+    ponytail), its skirt from the pelvis: chains as long as an arm, which the five farthest
+    ends of the tree then include. A strand taken for the head's end leaves the head's top
+    where the skull is (before, the strand's end was below the chest, that choice failed,
+    and a hair chain was taken for an arm, an arm for the head). On rigs whose rest pose is
+    a T-pose, where the cloth is placed."""
+    motion = load()
+    plain = analyse(motion)
+    mapping = plain.body.mapping
+    assert mapping is not None
+    joint = {
+        c: int(mapping.joints[CANONICAL_INDEX[c]]) for c in ("chest", "pelvis", "l_hip", "r_hip")
+    }
+    dressed = with_cloth_chains(
+        motion,
+        mapping.head_joint,
+        joint["chest"],
+        joint["pelvis"],
+        (joint["l_hip"], joint["r_hip"]),
+    )
+    busy = analyse(dressed)
+    assert busy.body.mapping is not None
+    np.testing.assert_array_equal(busy.body.mapping.joints, mapping.joints)
     assert busy.warnings == plain.warnings
     _same(plain, busy)
 

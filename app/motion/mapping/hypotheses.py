@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from app.motion.mapping.canonical import SkeletonMap
-from app.motion.mapping.tree import COINCIDENT, _extremity_candidates, _Tree
+from app.motion.mapping.tree import _BUNDLE, COINCIDENT, _extremity_candidates, _Tree
 from app.motion.mapping.vectors import _length, _unit
 
 # The shorter limb of a pair is at least this fraction of the longer one's bone path.
@@ -250,7 +250,7 @@ def _hypotheses(
     reason, best_partial = known.reason, known.progress
     # The choices share heads, chests, pelvises and feet: what the pose says of each is read
     # once for all of them.
-    facts = _PoseFacts(pose, extent)
+    facts = _PoseFacts(pose, extent, known.tree)
     four_legged: list[tuple[_Choice, str]] = []
     for choice in known.choices:
         body, why, progress = _check_pose(
@@ -277,7 +277,7 @@ def _four_legged_choices(
 ) -> list[tuple[_Choice, str]]:
     """The choices ``pose`` shows as a four-legged animal (the spine level, the limbs
     hanging down), each with that reason."""
-    facts = _PoseFacts(pose, extent)
+    facts = _PoseFacts(pose, extent, known.tree)
     found = []
     for choice in known.choices:
         _, why, progress = _check_pose(known.tree, pose, extent, *choice, facts=facts)
@@ -329,11 +329,12 @@ class _PoseFacts:
     :func:`_check_pose` does for a single choice (so the same bits), and kept for the next
     choice with the same parts."""
 
-    def __init__(self, pose: np.ndarray, extent: float) -> None:
+    def __init__(self, pose: np.ndarray, extent: float, tree: _Tree) -> None:
         self.pose = pose
         self.extent = extent
-        # (head, chest, pelvis) -> (up, it has a length, head above the chest, head above
-        # the pelvis).
+        self.tree = tree
+        # (head, chest, pelvis) -> (up, it has a length, the head's top above the chest,
+        # above the pelvis).
         self._trunks: dict[tuple[int, int, int], tuple[np.ndarray, bool, float, float]] = {}
         self._drops: dict[tuple[int, int, int, int], float] = {}  # (trunk, foot) -> drop
         self._legs: dict[tuple[int, int], np.ndarray] = {}  # (pelvis, foot) -> unit leg
@@ -341,18 +342,21 @@ class _PoseFacts:
 
     def trunk(self, head: int, chest: int, pelvis: int) -> tuple[np.ndarray, bool, float, float]:
         """The trunk's ``(3,)`` up (:func:`trunk_up`), whether it has a length, and how far
-        the head is above the chest and above the pelvis along it."""
+        the head's top is above the chest and above the pelvis along it.
+
+        The head's top is :func:`head_top`."""
         key = (head, chest, pelvis)
         found = self._trunks.get(key)
         if found is None:
             pose = self.pose
             up = trunk_up(pose, self.extent, head, chest, pelvis)
             up.setflags(write=False)  # shared by the bodies of every choice with this trunk
+            top = head_top(self.tree, pose, head, chest, up)
             found = self._trunks[key] = (
                 up,
                 _length(up) > 0,
-                float((pose[head] - pose[chest]) @ up),
-                float((pose[head] - pose[pelvis]) @ up),
+                float((pose[top] - pose[chest]) @ up),
+                float((pose[top] - pose[pelvis]) @ up),
             )
         return found
 
@@ -381,6 +385,16 @@ class _PoseFacts:
         if found is None:
             found = self._legs[key] = _unit(self.pose[foot] - self.pose[pelvis])
         return found
+
+
+def head_top(tree: _Tree, pose: np.ndarray, head: int, chest: int, up: np.ndarray) -> int:
+    """The top of the head: the ``head`` leaf, or a joint between it and ``chest`` that
+    more than a pair of branches hang from (:data:`_BUNDLE`: a skull with its strands of
+    hair, its eyes and jaw) where that joint is higher along ``up`` in ``pose``. A strand
+    taken for the head's leaf ends below the skull, which is still the top of the body; a
+    joint with one or two branches (a shoulder, its twist bone) is no skull."""
+    skulls = [j for j in tree.chain(chest, head)[1:-1] if len(tree.children[j]) >= _BUNDLE]
+    return max([head, *skulls], key=lambda j: float(pose[j] @ up))
 
 
 def trunk_up(pose: np.ndarray, extent: float, head: int, chest: int, pelvis: int) -> np.ndarray:
@@ -426,7 +440,7 @@ def _check_pose(
     about the height of the hips (:data:`_LIFTED_FOOT_DROP`); ``facts``: what ``pose`` says
     of the parts, kept across the choices of one pose."""
     if facts is None:
-        facts = _PoseFacts(pose, extent)
+        facts = _PoseFacts(pose, extent, tree)
     up, has_length, head_over_chest, head_height = facts.trunk(head, chest, pelvis)
     if not has_length:
         return None, "the spine has no length", 1

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.motion.mapping.hypotheses import _Body
-from app.motion.mapping.tree import COINCIDENT, _Tree
+from app.motion.mapping.tree import COINCIDENT, _farthest_descendant, _Tree
 from app.motion.mapping.vectors import _length, _unit_rows
 from app.motion.skeleton_names import SIDED_PARTS
 
@@ -159,9 +159,12 @@ class _MapperState:
         step = np.zeros(3)
         distance = 0.0
         while distance < _HEAD_END_MIN * self.extent:
-            reaches = sorted(
-                ((tree.lengths[c] + tree.reach[c], c) for c in tree.children[j]), reverse=True
-            )
+            children = tree.children[j]
+            if along is not None:
+                # A branch whose far end hangs below ``joint`` (hair from the skull, a hood's
+                # tail) does not reach towards the end: no rival of the head's top.
+                children = [c for c in children if not self._hangs(joint, c, along)]
+            reaches = sorted(((tree.lengths[c] + tree.reach[c], c) for c in children), reverse=True)
             if not reaches or reaches[0][0] == 0:
                 return None
             # Side nubs (twist bones, helpers) shorter than half the main branch do not make
@@ -174,3 +177,9 @@ class _MapperState:
         if along is not None and float(step @ along) < _EFFECTOR_COS * distance:
             return None
         return j
+
+    def _hangs(self, joint: int, child: int, along: np.ndarray) -> bool:
+        """Whether the branch from ``joint`` through ``child`` ends (its farthest joint along
+        the bones) behind ``joint`` along ``along``."""
+        tip = _farthest_descendant(self.tree, child)
+        return float((self.pose[tip] - self.pose[joint]) @ along) < 0
