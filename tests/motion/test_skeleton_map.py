@@ -760,3 +760,22 @@ def test_an_animal_with_two_tails_is_refused_as_four_legged():
     were taken for legs and the animal stored as a person)."""
     message = _refused(_with_tails(_quadruped(_cmu_bvh().skeleton)))
     assert "four-legged" in message
+
+
+def test_limbs_pointing_every_way_are_refused_for_what_failed_not_as_an_animal():
+    """A rest pose whose legs go up beside the spine while the arms reach out sideways is no
+    upright body, and no animal's stance either (its four limbs do not hang one way): the
+    refusal says the legs do not reach down, where it used to call it a four-legged animal
+    (a video tool's rest offsets, differences of detected landmarks, read so)."""
+    skeleton = _cmu_bvh().skeleton
+    legs = {
+        j
+        for side in ("Left", "Right")
+        for j in range(skeleton.joint_count)
+        if _under(skeleton, j, skeleton.index(f"{side}UpLeg"))
+    }
+    offsets = skeleton.offsets.copy()
+    offsets[sorted(legs), 1] *= -1  # the legs up, mirrored about the hips' height
+    message = _refused(Skeleton(skeleton.names, skeleton.parents, offsets, skeleton.end_site))
+    assert "four-legged" not in message
+    assert "the legs do not reach down from the pelvis away from the spine" in message

@@ -261,8 +261,16 @@ def _hypotheses(
         else:
             if _animal(pose, choice, progress):
                 four_legged.append((choice, why))
+            elif progress == _FOUR_LEGGED:
+                # Limbs that point every way are no animal's stance: say what failed.
+                why = (
+                    "the legs do not reach down from the pelvis away from the spine "
+                    f"({known.tree.limb_names((*choice[2], *choice[1]))}): no upright body"
+                )
             if progress > best_partial:
                 best_partial, reason = progress, why
+    if four_legged and best_partial == _FOUR_LEGGED:
+        reason = four_legged[0][1]  # an animal's stance, where one choice shows it
     if four_legged and valid:
         overruled = [_on_shorter_limbs(known.tree, b, four_legged) for b in valid]
         kept = [b for b, why in zip(valid, overruled, strict=True) if why is None]
