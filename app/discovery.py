@@ -34,7 +34,13 @@ BVH_SUFFIX = ".bvh"
 AMC_SUFFIX = ".amc"
 ASF_SUFFIX = ".asf"
 # Files that may hold several animations (each its own clip), found with ``scenes=True``.
-SCENE_SUFFIXES = {".fbx": "fbx", ".glb": "gltf", ".gltf": "gltf", ".vrma": "gltf"}
+SCENE_SUFFIXES = {
+    ".fbx": "fbx",
+    ".glb": "gltf",
+    ".gltf": "gltf",
+    ".vrma": "gltf",
+    ".vrm": "gltf",
+}
 
 
 @dataclass(frozen=True)
@@ -47,7 +53,7 @@ class ClipSource:
         ``"bvh"`` (one file), ``"asf/amc"`` (a skeleton plus a motion), ``"fbx"`` or
         ``"gltf"`` (one file of one or more animations).
     motion:
-        The ``.bvh``, ``.amc``, ``.fbx``, ``.glb``, ``.gltf`` or ``.vrma`` file.
+        The ``.bvh``, ``.amc``, ``.fbx``, ``.glb``, ``.gltf``, ``.vrma`` or ``.vrm`` file.
     skeleton:
         The ``.asf`` file for ``"asf/amc"``, else ``None``.
     name:
@@ -158,7 +164,7 @@ def _walk(root: Path, scenes: bool) -> tuple[list[ClipSource], list[DiscoveryFai
 
 def discover(paths: Sequence[Path], *, scenes: bool = False) -> DiscoveryResult:
     """Every clip under ``paths`` (folders, walked recursively, or ``.bvh``/``.amc`` files;
-    with ``scenes`` also ``.fbx``/``.glb``/``.gltf``/``.vrma`` files).
+    with ``scenes`` also ``.fbx``/``.glb``/``.gltf``/``.vrma``/``.vrm`` files).
 
     A path that does not exist or a file of another kind is reported as a failure.
     """

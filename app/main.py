@@ -34,7 +34,7 @@ from app.services.library import open_library
 DESCRIPTION = """
 Find similar motion-capture clips.
 
-Upload clips (one **BVH**, **FBX**, **glTF** (`.glb`/`.gltf`) or **VRM animation** (`.vrma`)
+Upload clips (one **BVH**, **FBX**, **glTF** (`.glb`/`.gltf`) or **VRM** (`.vrma`/`.vrm`)
 file, or an **ASF** skeleton with an **AMC** motion); each is described under every
 descriptor (see `GET /descriptors`) and stored. `GET /search` returns the *k* clips nearest
 to a stored clip, `POST /search` those nearest to an uploaded file; `GET` / `POST

@@ -49,11 +49,11 @@ router = APIRouter(prefix="/clips", tags=["clips"], route_class=CheckedQueryRout
     },
 )
 def create_clip(upload: UploadDep, library: LibraryDep, response: Response) -> ClipOut:
-    """Store a clip: one BVH, FBX, glTF (.glb/.gltf) or VRM animation (.vrma) file as `file`,
-    or an ASF skeleton as `skeleton` with an AMC motion as `motion`, with optional `name`,
-    `labels`, `source` and `licence`. FBX/glTF: the longest animation of the file that moves
-    a node, or the one named in `animation`. The clip is parsed and described under every
-    descriptor before anything is stored.
+    """Store a clip: one BVH, FBX, glTF (.glb/.gltf), VRM animation (.vrma) or VRM (.vrm)
+    file as `file`, or an ASF skeleton as `skeleton` with an AMC motion as `motion`, with
+    optional `name`, `labels`, `source` and `licence`. FBX/glTF: the longest animation of the
+    file that moves a node, or the one named in `animation`. The clip is parsed and described
+    under every descriptor before anything is stored.
 
     Uploading identical content again stores nothing new: the answer is 200 with the stored
     clip and `"duplicate": true`, after applying what the upload brings — its labels are

@@ -97,7 +97,8 @@ async def read_upload(
             description=(
                 "One motion file: BVH (`.bvh`), FBX (`.fbx`, binary or ASCII), glTF 2.0 "
                 "(`.glb`, or `.gltf`: repeat the field for the files it refers to, its `.bin` "
-                "and textures) or VRM animation (`.vrma`). Or send `skeleton` + `motion`."
+                "and textures), VRM animation (`.vrma`) or a VRM model (`.vrm`, a GLB). Or send "
+                "`skeleton` + `motion`."
             )
         ),
     ] = None,

@@ -151,8 +151,15 @@ def response_for(error: MocapError) -> JSONResponse:
     return error_json(status, error.code, error.detail, headers or None)
 
 
-async def _on_domain_error(_request: Request, exc: Exception) -> JSONResponse:
+async def _on_domain_error(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, MocapError)
+    if isinstance(exc, NoAnimation) and not request.url.path.startswith("/rigs"):
+        # A rig is no clip, but it is what POST /rigs takes: say where it is of use.
+        return error_json(
+            status_for(exc),
+            exc.code,
+            f"{exc.detail}; it can be a rig to retarget onto (POST /rigs)",
+        )
     return response_for(exc)
 
 
@@ -270,7 +277,7 @@ ERROR_EXAMPLES: dict[int, dict[str, tuple[str, str]]] = {
             "A rig with no animation",
             "file 'tpose.fbx': the file is a rig with no animation: a skeleton of 68 joints and "
             "only a zero-length animation ('Take 001', one instant), so there is no motion to "
-            "describe",
+            "describe; it can be a rig to retarget onto (POST /rigs)",
         ),
         "limit_exceeded": (
             "Over the frame or joint limit",

@@ -40,7 +40,9 @@ class ClipFields(BaseModel):
         description="Display name; by default the (motion) file name without extension."
     )
     filenames: list[str] = Field(
-        description="Original file names: one .bvh/.fbx/.glb/.gltf/.vrma, or the .asf and .amc."
+        description=(
+            "Original file names: one .bvh/.fbx/.glb/.gltf/.vrma/.vrm, or the .asf and .amc."
+        )
     )
     format: str = Field(description='"bvh", "asf/amc", "fbx" or "gltf".')
     content_hash: str = Field(

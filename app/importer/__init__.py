@@ -3,7 +3,7 @@
 Pipeline
     :func:`app.discovery.discover` finds the clips (``.bvh`` files, ``.amc`` files paired with
     an ``.asf`` of their folder — an ``.amc`` without one is a failure —, and ``.fbx``,
-    ``.glb``, ``.gltf``, ``.vrma`` files, whose every animation of at least
+    ``.glb``, ``.gltf``, ``.vrma``, ``.vrm`` files, whose every animation of at least
     :data:`MIN_ANIMATION_FRAMES` frames that moves a node becomes a clip named ``<file> ·
     <animation>``; a file with none such gives the one an upload reads). Worker processes (one
     per core by default) read, parse and describe the clips, a few per task, and send back

@@ -39,11 +39,19 @@ GLTF = "gltf"
 SCENE_FORMATS = (FBX, GLTF)  # files with several animations, read in parser workers
 
 # The format of a lone 'file' by its extension.
-FILE_FORMATS = {".bvh": BVH, ".fbx": FBX, ".glb": GLTF, ".gltf": GLTF, ".vrma": GLTF}
+# A VRM model (``.vrm``) is a GLB: read as one, it is a rig (most hold no animation).
+FILE_FORMATS = {
+    ".bvh": BVH,
+    ".fbx": FBX,
+    ".glb": GLTF,
+    ".gltf": GLTF,
+    ".vrma": GLTF,
+    ".vrm": GLTF,
+}
 # Upload field -> the file extensions it takes.
 EXTENSIONS = {"file": tuple(FILE_FORMATS), "skeleton": (".asf",), "motion": (".amc",)}
 ACCEPTED = (
-    "supported: .bvh, .fbx, .glb, .gltf or .vrma as 'file' (a .gltf with the files it refers "
+    "supported: .bvh, .fbx, .glb, .gltf, .vrma or .vrm as 'file' (a .gltf with the files it refers "
     "to as further 'file' fields), or .asf as 'skeleton' with .amc as 'motion'"
 )
 MAX_ANIMATION_NAME = 255
@@ -143,7 +151,7 @@ class Upload:
         if file is not None and (skeleton is not None or motion is not None):
             extra = "skeleton" if skeleton is not None else "motion"
             raise InvalidInput(
-                f"field '{extra}': send either 'file' (one .bvh, .fbx, .glb, .gltf or .vrma) "
+                f"field '{extra}': send either 'file' (one .bvh, .fbx, .glb, .gltf, .vrma or .vrm) "
                 "or 'skeleton' (.asf) with 'motion' (.amc), not both"
             )
         if file is not None:
@@ -158,7 +166,7 @@ class Upload:
             )
         else:
             raise InvalidInput(
-                "field 'file': no upload; send 'file' (one .bvh, .fbx, .glb, .gltf or .vrma) "
+                "field 'file': no upload; send 'file' (one .bvh, .fbx, .glb, .gltf, .vrma or .vrm) "
                 "or 'skeleton' (.asf) with 'motion' (.amc) as multipart/form-data"
             )
         parts = []

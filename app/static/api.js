@@ -233,7 +233,7 @@ export function clipForm(clip, labels = [], fields = {}) {
 
 /** Files that may hold several animations (FBX, glTF, VRM animation). */
 export function mayHoldAnimations(clip) {
-  return Boolean(clip.bvh) && /\.(fbx|glb|gltf|vrma)$/i.test(clip.bvh.name);
+  return Boolean(clip.bvh) && /\.(fbx|glb|gltf|vrma|vrm)$/i.test(clip.bvh.name);
 }
 
 /** The animations of a file (POST /inspect): [{name, frame_count, duration, selected}]. */

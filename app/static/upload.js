@@ -25,10 +25,10 @@ function extension(name) {
  * Returns [{name, bvh} | {name, asf, amc} | {name, error} | {name, note}].
  */
 // Files uploaded alone as the 'file' field (kept under the item's `bvh` key, which api.js sends).
-export const SINGLE_FILE_EXTENSIONS = ["bvh", "fbx", "glb", "gltf", "vrma"];
+export const SINGLE_FILE_EXTENSIONS = ["bvh", "fbx", "glb", "gltf", "vrma", "vrm"];
 // Files a .gltf may refer to (its buffers and textures): sent with every .gltf dropped with them.
 export const RESOURCE_EXTENSIONS = ["bin", "png", "jpg", "jpeg", "webp", "ktx2"];
-export const ACCEPT = ".bvh,.fbx,.glb,.gltf,.vrma,.asf,.amc,.bin,.png,.jpg,.jpeg,.webp,.ktx2";
+export const ACCEPT = ".bvh,.fbx,.glb,.gltf,.vrma,.vrm,.asf,.amc,.bin,.png,.jpg,.jpeg,.webp,.ktx2";
 
 export function groupFiles(files, remembered = rememberedSkeletons) {
   const items = [];
@@ -76,7 +76,7 @@ export function groupFiles(files, remembered = rememberedSkeletons) {
       items.push({
         name: file.name,
         error:
-          "not a motion file: drop .bvh, .fbx, .glb, .gltf or .vrma files, or .asf skeletons with their .amc motions",
+          "not a motion file: drop .bvh, .fbx, .glb, .gltf, .vrma or .vrm files, or .asf skeletons with their .amc motions",
       });
     }
   }

@@ -166,7 +166,7 @@ def test_an_fbx_of_optical_markers_only_is_refused_as_markers(live):
 def test_unsupported_extensions_are_listed(live):
     response = live.post("/clips", files={"file": ("walk.obj", b"x")})
     assert response.status_code == 415
-    for extension in (".bvh", ".fbx", ".glb", ".gltf", ".vrma", ".asf", ".amc"):
+    for extension in (".bvh", ".fbx", ".glb", ".gltf", ".vrma", ".vrm", ".asf", ".amc"):
         assert extension in response.json()["detail"]
 
 
@@ -250,3 +250,34 @@ def test_a_span_of_any_clip_as_bvh(live, files, params):
     )
     outside = live.get(f"/clips/{clip['id']}/file", params={**params, "start": 0, "end": 999})
     assert outside.status_code == 422 and "outside the clip" in outside.json()["detail"]
+
+
+def _without_animations(glb: bytes, extension: dict[str, object]) -> bytes:
+    """``glb`` with its animations left out and ``extension`` added to its JSON's
+    ``extensions`` (a VRM model's, which keeps the skeleton and no motion)."""
+    length = int.from_bytes(glb[12:16], "little")
+    document = json.loads(glb[20 : 20 + length])
+    document.pop("animations", None)
+    document.setdefault("extensions", {}).update(extension)
+    document.setdefault("extensionsUsed", []).extend(extension)
+    chunk = json.dumps(document).encode()
+    chunk += b" " * (-len(chunk) % 4)
+    rest = glb[20 + length :]
+    body = len(chunk).to_bytes(4, "little") + b"JSON" + chunk + rest
+    return b"glTF" + (2).to_bytes(4, "little") + (12 + len(body)).to_bytes(4, "little") + body
+
+
+def test_a_vrm_model_is_read_as_a_glb_a_rig_and_not_a_clip(live):
+    """A `.vrm` (VRoid's and VRM tools' character: a GLB with the VRM extension) sent as a
+    clip is read, and refused as what it is — a rig with no animation, which POST /rigs takes
+    — not as an unsupported file (415 before); sent to POST /rigs it is the rig."""
+    model = ("avatar.vrm", _without_animations(GLB[1], {"VRMC_vrm": {"specVersion": "1.0"}}))
+    response = live.post("/clips", files={"file": model})
+    assert response.status_code == 422, response.text
+    body = response.json()
+    assert body["error"] == "no_animation"
+    assert "'avatar.vrm'" in body["detail"] and "rig with no animation" in body["detail"]
+    assert body["detail"].endswith("it can be a rig to retarget onto (POST /rigs)")
+    rig = live.post("/rigs", files={"file": model})
+    assert rig.status_code == 201, rig.text
+    assert rig.json()["mapping"]["joints"]["l_knee"]["joint"] == "LeftLeg"
