@@ -357,7 +357,7 @@ class _PoseFacts:
         found = self._trunks.get(key)
         if found is None:
             pose = self.pose
-            up = trunk_up(pose, self.extent, head, chest, pelvis)
+            up = trunk_up(self.tree, pose, self.extent, head, chest, pelvis)
             up.setflags(write=False)  # shared by the bodies of every choice with this trunk
             top = head_top(self.tree, pose, head, chest, up)
             found = self._trunks[key] = (
@@ -405,10 +405,23 @@ def head_top(tree: _Tree, pose: np.ndarray, head: int, chest: int, up: np.ndarra
     return max([head, *skulls], key=lambda j: float(pose[j] @ up))
 
 
-def trunk_up(pose: np.ndarray, extent: float, head: int, chest: int, pelvis: int) -> np.ndarray:
+def trunk_up(
+    tree: _Tree, pose: np.ndarray, extent: float, head: int, chest: int, pelvis: int
+) -> np.ndarray:
     """``(3,)`` the unit direction pelvis -> chest in ``pose`` (pelvis -> head when the two
-    coincide); of zero length when the trunk has none."""
+    coincide); of zero length when the trunk has none.
+
+    Where the chest joint (the arms' branch point) sits where the legs leave the pelvis (at
+    the place of another branch of the pelvis), the trunk runs on to the neck's first joint:
+    a rig whose spine is one bone from the hips to the neck and whose arms' first bones are
+    as long (a sign-language tool's skeleton) branches its arms at the hips, and the pelvis
+    -> chest line there is the pelvis's own offset to the hips, which no pose turns."""
     spine = pose[chest] - pose[pelvis]
+    if head != chest and tree.parents[chest] == pelvis:
+        hips = [c for c in tree.children[pelvis] if c != chest]
+        at_hips = any(_length(pose[c] - pose[chest]) <= COINCIDENT * extent for c in hips)
+        if at_hips:
+            spine = pose[tree.chain(chest, head)[1]] - pose[pelvis]
     if _length(spine) < COINCIDENT * extent:
         spine = pose[head] - pose[pelvis]
     return _unit(spine)

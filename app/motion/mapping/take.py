@@ -158,7 +158,7 @@ def _check_bent(
     one knee is a pose of the take, which the take's frames show too; and an odd rest pose,
     bones in axes of their own, is no figure and must not pass for one)."""
     head, hands, feet, chest, pelvis, leg_lengths, arm_lengths, name_cost = choice
-    up = trunk_up(pose, extent, head, chest, pelvis)
+    up = trunk_up(tree, pose, extent, head, chest, pelvis)
     if not _length(up) > 0:
         return None
     if min(leg_lengths) < _MIN_LEG * extent or min(arm_lengths) < _MIN_ARM * extent:
