@@ -48,6 +48,7 @@ from app.motion.body_axes import (
 )
 from app.motion.gravity import clip_vertical
 from app.motion.hand import palm
+from app.motion.joint_copies import folded_copies
 from app.motion.kinematics import bone_lengths, forward_kinematics
 from app.motion.lead_in import count_lead_in_frames, implausible_frames, plausible_span
 from app.motion.model import Motion
@@ -153,6 +154,9 @@ def build_body(motion: Motion) -> Body:
     ParseError
         If the skeleton is degenerate (zero height, coincident hips) or no frame remains.
     """
+    # A joint's turn written on each of its children is the joint's (the positions are the
+    # same; the pelvis's frame is not).
+    motion = folded_copies(motion)
     mapping = map_skeleton(motion.skeleton, poses=_frame_poses(motion))
     warnings = [str(w) for w in motion.notes.get("warnings", ())]  # type: ignore[attr-defined]
     warnings.extend(mapping.warnings)

@@ -110,6 +110,7 @@ import numpy as np
 from app.motion.body import body_height, carried_frames, pelvis_basis, rest_axes_hold
 from app.motion.gravity import clip_vertical
 from app.motion.ground import snap_axis
+from app.motion.joint_copies import folded_copies
 from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion
 from app.motion.retarget_floor import place_pelvis
@@ -169,6 +170,7 @@ def retarget(
     if source_map.mirrored:
         source = reflect(source, axis=source_map.mirror_axis)
 
+    source = folded_copies(source)  # the pelvis's turn where the body reads it (as described)
     driven, limbs = driven_joints(source, source_map, target, target_map)
     # Only the source joints the retarget reads: driven, aimed at, canonical.
     s_needed = {int(j) for j in source_map.joints}
