@@ -779,3 +779,31 @@ def test_limbs_pointing_every_way_are_refused_for_what_failed_not_as_an_animal()
     message = _refused(Skeleton(skeleton.names, skeleton.parents, offsets, skeleton.end_site))
     assert "four-legged" not in message
     assert "the legs do not reach down from the pelvis away from the spine" in message
+
+
+LONE_HAND = """
+wrist 0 0 0
+  hand 0 2 0
+    index1 -1.5 9 0
+      index2 -1.6 12 0
+        index3 -1.7 14 0
+    middle1 0 9.5 0
+      middle2 0 12.5 0
+        middle3 0 15 0
+    ring1 1.5 9 0
+      ring2 1.6 12 0
+        ring3 1.7 14 0
+    pinky1 3 8 0
+      pinky2 3.3 10 0
+        pinky3 3.5 11.5 0
+    thumb1 -2.5 4 1
+      thumb2 -4 6 1.5
+        thumb3 -5 8 2
+"""
+
+
+def test_a_lone_hand_is_refused_as_limb_ends_that_leave_one_joint():
+    """A hand solve on its own (five fingers from the palm): refused naming what it is, not
+    "the legs hang from the arms' branch point" (the first choice the tree refused)."""
+    message = _refused(skeleton_from_points(LONE_HAND))
+    assert "every limb end leaves one joint (hand) by a branch of its own" in message

@@ -178,7 +178,20 @@ def _two_legs_below(tree: _Tree, chest: int, hands: tuple[int, int], lower: list
 
 
 def _first_misfit(tree: _Tree, candidates: list[int]) -> str | None:
-    """Why the first choice (in the plain enumeration) that the tree refuses is refused."""
+    """Why the first choice (in the plain enumeration) that the tree refuses is refused; or,
+    where every limb end leaves one joint by a branch of its own (a lone hand's fingers), that
+    (a body's ends part at two joints: the legs at the hips, the arms and head at the chest)."""
+    if len(candidates) >= 5:
+        fork = candidates[0]
+        for end in candidates[1:]:
+            fork = tree.lca(fork, end)
+        branches = {tree.chain(fork, end)[1] for end in candidates if end != fork}
+        if fork not in candidates and len(branches) == len(candidates):
+            return (
+                f"every limb end leaves one joint ({tree.names[fork]}) by a branch of its own "
+                "(as a hand's fingers do), where a body's legs part from its arms and head at "
+                "two joints"
+            )
     for five in itertools.combinations(candidates, 5):
         for head in five:
             rest = [c for c in five if c != head]
