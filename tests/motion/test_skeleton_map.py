@@ -807,3 +807,21 @@ def test_a_lone_hand_is_refused_as_limb_ends_that_leave_one_joint():
     "the legs hang from the arms' branch point" (the first choice the tree refused)."""
     message = _refused(skeleton_from_points(LONE_HAND))
     assert "every limb end leaves one joint (hand) by a branch of its own" in message
+
+
+def test_a_rig_of_a_few_leaves_on_its_root_is_refused_for_what_it_lacks():
+    """A test fixture's four joints (hips, and the head and two feet hanging from them by one
+    bone each): every joint but the root is a shallow leaf, so the pose's size was measured
+    over the root alone and the refusal said every joint sits at one point (they are 10
+    apart). The size is now the whole rig's, and the refusal names what is missing."""
+    rig = skeleton_from_points(
+        """
+        Hips 0 10 0
+          Head* 0 20 0
+          LeftFoot* 1 0 0
+          RightFoot* -1 0 0
+        """
+    )
+    message = _refused(rig)
+    assert "at one point" not in message
+    assert "found only" in message and "missing legs, arms or head" in message

@@ -109,8 +109,11 @@ class _Tree:
         shallow = set(self.leaves) - set(self.limb_leaves) | set(np.flatnonzero(self.void))
         if len(self.children[0]) == 1:
             shallow.add(0)
-        # (Every joint of a rig too small to have a body proper: a bone or two.)
-        body = [j for j in range(count) if j not in shallow] or list(range(count))
+        # (Every joint of a rig too small to have a body proper: a bone or two, or a root
+        # with only short leaves, whose one joint would make a pose of no size.)
+        body = [j for j in range(count) if j not in shallow]
+        if len(body) < 2:
+            body = list(range(count))
         self.body_joints = np.array(body, dtype=np.int64)
         self.reach = np.zeros(count)  # longest bone path from a joint down to a descendant
         for j in range(count - 1, 0, -1):
