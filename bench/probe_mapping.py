@@ -47,7 +47,7 @@ from app.motion.pipeline import describable_body  # noqa: E402
 from app.motion.skeleton_map import CANONICAL_INDEX  # noqa: E402
 from app.services.parser_pool import parse_scene  # noqa: E402
 from bench.common import machine, shared_data  # noqa: E402
-from tests.motion.synthetic import grown, with_cloth_chains  # noqa: E402
+from tests.motion.synthetic import below, grown, with_cloth_chains  # noqa: E402
 from tests.motion.test_mapping_probes import (  # noqa: E402
     _arrays,
     frame_as_rest,
@@ -70,14 +70,7 @@ def _index(motion: Motion, name: str) -> int:
 
 def _below(motion: Motion, joint: int) -> list[int]:
     """Every joint strictly below ``joint``."""
-    parents = motion.skeleton.parents
-    out: list[int] = []
-    frontier = [joint]
-    while frontier:
-        kids = [j for j, p in enumerate(parents) if p in frontier]
-        out += kids
-        frontier = kids
-    return out
+    return below(motion.skeleton, joint)
 
 
 def _path(motion: Motion, top: int, end: int) -> list[int]:

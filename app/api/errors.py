@@ -151,10 +151,11 @@ def response_for(error: MocapError) -> JSONResponse:
     return error_json(status, error.code, error.detail, headers or None)
 
 
-async def _on_domain_error(request: Request, exc: Exception) -> JSONResponse:
+async def _on_domain_error(_request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, MocapError)
-    if isinstance(exc, NoAnimation) and not request.url.path.startswith("/rigs"):
-        # A rig is no clip, but it is what POST /rigs takes: say where it is of use.
+    if isinstance(exc, NoAnimation):
+        # A rig is no clip, but it is what POST /rigs takes (there it is the rig, no error):
+        # say where it is of use.
         return error_json(
             status_for(exc),
             exc.code,

@@ -38,9 +38,13 @@ def folded_copies(motion: Motion) -> Motion:
     extent = float(np.abs(skeleton.offsets).max(initial=0.0))
     rotations = motion.local_rotations
     changed: np.ndarray | None = None
-    for joint in range(skeleton.joint_count):
+    # Parents come before their children: a fold above is done before the joints below it
+    # are asked. Only joints of two or more children can hold copies (a clip's hot path: one
+    # look at the tree, not one per joint).
+    counts = np.bincount(parents[parents >= 0], minlength=skeleton.joint_count)
+    for joint in np.flatnonzero(counts >= 2):
         children = np.flatnonzero(parents == joint)
-        if len(children) < 2 or not _at_the_joint(motion, children, extent):
+        if not _at_the_joint(motion, children, extent):
             continue
         source = rotations if changed is None else changed
         first = source[:, children[0]]  # (F, 3, 3)

@@ -199,6 +199,17 @@ def hung_from_root(motion: Motion, names: Sequence[str]) -> Motion:
     )
 
 
+def below(skeleton: Skeleton, joint: int) -> list[int]:
+    """Every joint strictly below ``joint`` (parents come before their children)."""
+    found: set[int] = {joint}
+    out = []
+    for j in range(joint + 1, skeleton.joint_count):
+        if skeleton.parents[j] in found:
+            found.add(j)
+            out.append(j)
+    return out
+
+
 def with_cloth_chains(
     motion: Motion,
     head: int,
@@ -225,11 +236,7 @@ def with_cloth_chains(
         pose, world = at[0], turns[0]  # (J, 3), (J, 3, 3)
     # The body's size: the joints from the pelvis down the tree (a root joint left at the
     # origin while the hips walk away is no part of it).
-    parents = motion.skeleton.parents
-    body = [pelvis]
-    for joint in range(motion.skeleton.joint_count):
-        if parents[joint] in body:
-            body.append(joint)
+    body = [pelvis, *below(motion.skeleton, pelvis)]
     height = float(np.ptp(pose[body], axis=0).max())
     up = pose[head] - pose[pelvis]
     up /= np.linalg.norm(up)

@@ -13,6 +13,7 @@ from app.motion.kinematics import forward_kinematics
 from app.motion.model import Motion, Skeleton
 from app.motion.pipeline import analyse
 from tests.motion.conftest import BANDAI_FIXTURE, CMU_BVH_FIXTURE, fixture_bytes
+from tests.motion.synthetic import below
 
 
 def turn_on_copies(motion: Motion) -> Motion:
@@ -23,11 +24,7 @@ def turn_on_copies(motion: Motion) -> Motion:
     parents = skeleton.parents
     order: list[int] = [0]  # old joint per new joint; -1 marks a copy
     for child in np.flatnonzero(parents == 0):
-        below = {int(child)}
-        for j in range(int(child) + 1, skeleton.joint_count):
-            if parents[j] in below:
-                below.add(j)
-        order += [-1, *sorted(below)]
+        order += [-1, int(child), *below(skeleton, int(child))]
     new_index = {old: new for new, old in enumerate(order) if old >= 0}
     new_parents, offsets, names, end_site = (
         [-1],
