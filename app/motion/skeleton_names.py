@@ -275,6 +275,11 @@ def _hint(all_words: list[str]) -> NameHint:
                 return NameHint(side, dict(parts))
         parts = _UNSIDED_INDEX.get(compact)
         if parts:
+            # The pelvis, neck and head are on the body's midline, one of each: a name that
+            # says a side (``left_hand_root``) qualifies a limb's part by the word, and names
+            # none of them.
+            if any(token in _SIDE_WORDS for token in tokens[:start]):
+                return NameHint(None, {})
             return NameHint(None, dict(parts))
     return NameHint(None, {})
 

@@ -4,6 +4,8 @@ MMD/VRM standard names), never by a list of files."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -184,3 +186,25 @@ def test_long_hostile_names_stay_fast() -> None:
     # One pass over the name; only the last words can name a part.
     assert name_hint("aB" * 20_000 + "_l_hand").parts == {"wrist": 1}
     assert name_hint("1" * 25_677 + "l").parts == {}
+
+
+@pytest.mark.parametrize("name", ["left_hand_root", "Hand_L_root", "RightFootRoot", "l_root"])
+def test_a_sided_name_names_no_midline_joint(name: str) -> None:
+    # The pelvis, neck and head are one each, on the midline: "root" or "hips" after a side
+    # word qualifies a limb's part and is not the pelvis.
+    assert "pelvis" not in name_hint(name).parts
+    assert "pelvis" in name_hint("root").parts
+
+
+def test_a_hand_root_below_the_wrist_keeps_the_rigs_names() -> None:
+    # A pose estimator's template hangs the fingers from a "left_hand_root"; read as the
+    # pelvis below both arms, it made the tree contradict two names and every name was
+    # dropped.
+    motion = read_bvh(fixture_bytes(CMU_BVH_FIXTURE))
+    names = [
+        {"LeftFingerBase": "left_hand_root", "RightFingerBase": "right_hand_root"}.get(n, n)
+        for n in motion.skeleton.names
+    ]
+    tree = _Tree(dataclasses.replace(motion.skeleton, names=tuple(names)))
+    assert tree.names_trusted
+    assert "wrist" in tree.hints[names.index("LeftHand")].parts
