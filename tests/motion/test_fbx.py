@@ -297,3 +297,27 @@ def test_a_key_at_no_time_is_refused_before_the_bake(shared_data) -> None:
     assert count == 1
     with pytest.raises(ParseError, match=r"animation curve \d+ of \d+ .* not a number"):
         read_fbx(damaged.encode())
+
+
+def test_a_second_skeleton_beside_the_read_one_is_said() -> None:
+    """Two unrelated trees of limb nodes (two characters, a prop's rig): the one with the
+    most bones is read, and a warning says the other was not, with its bones."""
+    frames = 10
+    turn = np.linspace(0.0, 40.0, frames)[:, None] * np.array([1.0, 0.0, 0.0])
+    body = [FbxNode("Hips", "LimbNode", rotation=turn)] + [
+        FbxNode(f"Bone{i}", "LimbNode", parent=i, rest=(0.0, 10.0, 0.0), rotation=turn)
+        for i in range(4)
+    ]
+    prop = [
+        FbxNode("PropRoot", "LimbNode", rest=(50.0, 0.0, 0.0), rotation=turn),
+        FbxNode("PropTip", "LimbNode", parent=5, rest=(0.0, 5.0, 0.0)),
+    ]
+    motion = read_fbx(ascii_fbx(body + prop))[0]
+    assert motion.skeleton.names == ("Hips", "Bone0", "Bone1", "Bone2", "Bone3")
+    said = [w for w in motion.notes.get("warnings", []) if "other skeleton" in w]
+    assert said == [
+        "the file holds 1 other skeleton (2 bones not joined to this one); the one with the "
+        "most bones was read"
+    ]
+    alone = read_fbx(ascii_fbx(body))[0]
+    assert not any("other skeleton" in w for w in alone.notes.get("warnings", []))

@@ -396,3 +396,21 @@ def test_a_channel_aimed_at_a_node_that_does_not_exist_is_a_malformed_file(bvh_m
         r"of nodes \(0-\d+\), found (999|'0')",
     ):
         read_gltf(pack_glb(document, binary))
+
+
+def test_a_second_skeleton_beside_the_read_one_is_said(bvh_motion):
+    """A second, smaller skin on nodes of its own (a prop's rig, another character): the
+    skeleton with the most bones is read as before, and a warning says the other was not."""
+    document, binary = gltf_parts(bvh_motion)
+    first = len(document["nodes"])
+    document["nodes"] += [{"name": "PropRoot", "children": [first + 1]}, {"name": "PropTip"}]
+    document["scenes"][0]["nodes"].append(first)
+    document["skins"].append({"joints": [first, first + 1]})
+    motion = read_gltf(pack_glb(document, binary))[0]
+    plain = read_gltf(pack_glb(*gltf_parts(bvh_motion)))[0]
+    assert motion.skeleton.names == plain.skeleton.names
+    np.testing.assert_array_equal(motion.local_rotations, plain.local_rotations)
+    assert "the file holds 1 other skeleton (2 bones not joined to this one)" in " ".join(
+        motion.notes["warnings"]
+    )
+    assert not any("other skeleton" in w for w in plain.notes.get("warnings", []))

@@ -40,6 +40,7 @@ from app.motion.formats.scene import (
     loose_points,
     markers_not_skeleton,
     motion_from_graph,
+    other_skeletons,
     skeleton_nodes,
     unique_names,
     with_plain_nodes_below,
@@ -298,6 +299,8 @@ def read_fbx(
         takes = [TakeTracks(*_baked(scene, p, kept_ids, times, loaded.fps, *rest)) for p in parts]
         take = takes[0] if len(takes) == 1 else join_takes(takes, _size(rest_t))
         translation, rotation, scale = take.translation, take.rotation, take.scale
+    others_left = other_skeletons(parents, is_bone, kept)
+    warnings = [*warnings, others_left] if others_left else warnings
     graph = NodeGraph(
         names=[node.name for node in kept_nodes],
         parents=kept_parents(parents, kept),

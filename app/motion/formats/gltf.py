@@ -43,6 +43,7 @@ from app.motion.formats.scene import (
     carriers,
     kept_parents,
     motion_from_graph,
+    other_skeletons,
     skeleton_nodes,
     unique_names,
     with_plain_nodes_below,
@@ -376,6 +377,8 @@ def read_gltf(
         if part in loaded.broken:
             raise ParseError(f"animation {loaded.animations[chosen].name!r}: {loaded.broken[part]}")
     warnings = choice_warnings(loaded.animations, chosen, animation)
+    others_left = other_skeletons(parents, is_bone, kept)
+    warnings += [others_left] if others_left else []
     warnings += [  # the file's other animations that could not be read: said, not fatal
         f"animation {loaded.animations[i].name!r} was not read: {problem}"
         for i, problem in loaded.broken.items()  # (a take joined over animations has none)

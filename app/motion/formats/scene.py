@@ -310,6 +310,33 @@ def skeleton_nodes(parents: np.ndarray, is_bone: np.ndarray, joinable: np.ndarra
     return np.array(sorted(needed), dtype=np.int64)
 
 
+def other_skeletons(parents: np.ndarray, is_bone: np.ndarray, kept: np.ndarray) -> str | None:
+    """A warning when bones of ``(N,)`` ``is_bone`` lie outside the skeleton's ``kept``
+    nodes (:func:`skeleton_nodes`): the file holds unrelated skeletons (two characters, a
+    prop's rig) and only the one with the most bones is read — said, so that a user who
+    wanted the other knows it was not."""
+    left = np.flatnonzero(is_bone)
+    left = left[~np.isin(left, kept)]
+    if not len(left):
+        return None
+
+    def top(bone: int) -> bool:  # no bone above it
+        node = int(parents[bone])
+        for _ in range(len(parents)):
+            if node < 0:
+                return True
+            if is_bone[node]:
+                return False
+            node = int(parents[node])
+        return True
+
+    tops = sum(1 for bone in left.tolist() if top(bone))
+    return (
+        f"the file holds {tops} other skeleton{'s' if tops > 1 else ''} ({len(left)} bones "
+        "not joined to this one); the one with the most bones was read"
+    )
+
+
 def kept_parents(parents: np.ndarray, keep: np.ndarray) -> np.ndarray:
     """``(K,)`` parents of the nodes ``keep`` (closed under ancestors), as indices into it."""
     remap = np.full(len(parents), -1, dtype=np.int64)
