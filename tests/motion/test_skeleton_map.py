@@ -3,6 +3,7 @@
 import contextlib
 import dataclasses
 import random
+import re
 from collections.abc import Callable, Iterator
 from itertools import product
 
@@ -825,3 +826,31 @@ def test_a_rig_of_a_few_leaves_on_its_root_is_refused_for_what_it_lacks():
     message = _refused(rig)
     assert "at one point" not in message
     assert "found only" in message and "missing legs, arms or head" in message
+
+
+def test_legs_that_do_not_reach_down_far_enough_are_named_with_their_reach() -> None:
+    """A figure whose legs point forward more than down (a cartoon's feet longer than its
+    legs, a rig posed sitting on nothing) is refused, and the refusal says which limbs were
+    tried as legs and how far down they reach: they are there, not "missing" alone."""
+    motion = read_bvh(fixture_bytes(CMU_BVH_FIXTURE)).slice_frames(0, 3)
+    names = list(motion.skeleton.names)
+    offsets = motion.skeleton.offsets.copy()
+    forward = np.array([0.0, -np.cos(np.radians(65.0)), np.sin(np.radians(65.0))])
+    for side in ("Left", "Right"):
+        for part in ("Leg", "Foot", "ToeBase", "ToeBase_end"):
+            j = names.index(side + part)
+            offsets[j] = forward * np.linalg.norm(offsets[j])
+    still = dataclasses.replace(
+        motion,
+        skeleton=dataclasses.replace(motion.skeleton, offsets=offsets),
+        local_rotations=np.broadcast_to(np.eye(3), motion.local_rotations.shape).copy(),
+        root_translation=np.repeat(motion.root_translation[:1], motion.frame_count, axis=0),
+    )
+    with pytest.raises(SkeletonMappingError) as refused:
+        build_body(still)
+    message = str(refused.value)
+    assert "missing legs (the limbs ending at LeftToeBase_end, RightToeBase_end reach down" in (
+        message
+    )
+    reach = [float(x) for x in re.findall(r"reach down (-?[0-9.]+) and (-?[0-9.]+)", message)[0]]
+    assert all(0.3 < r < 0.5 for r in reach) and "a leg at least 0.5" in message

@@ -494,7 +494,15 @@ def _check_pose(
     ]
     lower, higher = sorted(ratios)
     if higher < _LEG_DROP_RATIO or lower < (_LIFTED_FOOT_DROP if lifted else _LEG_DROP_RATIO):
-        return None, "no two legs reach down from the pelvis: missing legs", 2
+        # Which limbs were tried and how far they reach: a user whose figure has legs sees
+        # why they were not taken for a person's (a cartoon's short legs under long feet).
+        return (
+            None,
+            "no two legs reach down from the pelvis: missing legs (the limbs ending at "
+            f"{tree.limb_names(feet)} reach down {ratios[0]:.3f} and {ratios[1]:.3f} of "
+            f"their length; a leg at least {_LEG_DROP_RATIO:g})",
+            2,
+        )
     if head_over_chest <= 0:
         return None, "no head above the arms: missing head", 2
     if min(arm_lengths) < _MIN_ARM * extent:
