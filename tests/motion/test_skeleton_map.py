@@ -854,3 +854,34 @@ def test_legs_that_do_not_reach_down_far_enough_are_named_with_their_reach() -> 
     )
     reach = [float(x) for x in re.findall(r"reach down (-?[0-9.]+) and (-?[0-9.]+)", message)[0]]
     assert all(0.3 < r < 0.5 for r in reach) and "a leg at least 0.5" in message
+
+
+def test_a_limb_ending_above_the_pelvis_is_not_named_as_a_leg_that_falls_short() -> None:
+    """Where the limbs tried as legs include one that ends above the pelvis (a hand, the
+    head: a skeleton whose legs a writer left out), the legs are missing, and the refusal
+    does not call that limb a leg that reaches too little."""
+    from app.motion.mapping.hypotheses import _check_pose
+    from app.motion.mapping.tree import _Tree
+
+    skeleton = read_bvh(fixture_bytes(CMU_BVH_FIXTURE)).skeleton
+    tree, pose = _Tree(skeleton), rest_pose(skeleton)
+    at = {name: skeleton.names.index(name) for name in skeleton.names}
+    pelvis, chest = at["Hips"], at["Spine1"]
+    hands = (at["LeftHandIndex1_end"], at["RightHandIndex1_end"])
+    extent = float(np.linalg.norm(np.ptp(pose, axis=0)))
+
+    def why(feet: tuple[int, int]) -> str:
+        legs = [float(tree.path[f] - tree.path[pelvis]) for f in feet]
+        arms = [float(tree.path[h] - tree.path[chest]) for h in hands]
+        body, reason, _ = _check_pose(
+            tree, pose, extent, at["Head_end"], hands, feet, chest, pelvis, legs, arms, ()
+        )
+        assert body is None
+        return reason
+
+    # A leg straight down, and a hand's end beside the hips a little above the pelvis.
+    pose[at["LeftToeBase_end"]] = pose[pelvis] + np.array([0.08, -0.45, 0.0]) * extent
+    pose[at["LThumb_end"]] = pose[pelvis] + np.array([0.1, 0.005, 0.0]) * extent
+    assert why((at["LeftToeBase_end"], at["LThumb_end"])) == (
+        "no two legs reach down from the pelvis: missing legs"
+    )

@@ -494,8 +494,11 @@ def _check_pose(
     ]
     lower, higher = sorted(ratios)
     if higher < _LEG_DROP_RATIO or lower < (_LIFTED_FOOT_DROP if lifted else _LEG_DROP_RATIO):
-        # Which limbs were tried and how far they reach: a user whose figure has legs sees
-        # why they were not taken for a person's (a cartoon's short legs under long feet).
+        if lower <= 0:  # a limb ending above the pelvis is no leg at all
+            return None, "no two legs reach down from the pelvis: missing legs", 2
+        # Two limbs below the pelvis that fall short: which, and how far they reach, so that
+        # a user whose figure has legs sees why they were not taken for a person's (a
+        # cartoon's short legs under long feet).
         return (
             None,
             "no two legs reach down from the pelvis: missing legs (the limbs ending at "
