@@ -38,7 +38,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from app.errors import ParseError
+from app.errors import ParseError, SkeletonMappingError
 from app.motion.body_axes import (
     frames_basis,
     frames_from_positions,
@@ -46,6 +46,7 @@ from app.motion.body_axes import (
     pelvis_turns_with_hips,
     pose_basis,
 )
+from app.motion.formats.scene import OTHER_SKELETONS
 from app.motion.gravity import clip_vertical
 from app.motion.hand import palm
 from app.motion.joint_copies import folded_copies
@@ -157,7 +158,15 @@ def build_body(motion: Motion) -> Body:
     # A joint's turn written on each of its children is the joint's (the positions are the
     # same; the pelvis's frame is not).
     motion = folded_copies(motion)
-    mapping = map_skeleton(motion.skeleton, poses=_frame_poses(motion))
+    try:
+        mapping = map_skeleton(motion.skeleton, poses=_frame_poses(motion))
+    except SkeletonMappingError as refused:
+        left_out = motion.notes.get(OTHER_SKELETONS)
+        if not left_out:
+            raise
+        # A writer that split the rig (assimp's FBX of a BVH: the legs a tree of their own)
+        # leaves the body's missing part in the skeleton not read: say so.
+        raise SkeletonMappingError(f"{refused.detail}; {left_out}") from None
     warnings = [str(w) for w in motion.notes.get("warnings", ())]  # type: ignore[attr-defined]
     warnings.extend(mapping.warnings)
     if mapping.mirrored:

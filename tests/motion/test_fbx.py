@@ -11,7 +11,7 @@ import re
 import numpy as np
 import pytest
 
-from app.errors import LimitExceeded, NoAnimation, ParseError
+from app.errors import LimitExceeded, NoAnimation, ParseError, SkeletonMappingError
 from app.motion.body import build_body
 from app.motion.formats.fbx import list_fbx_animations, read_fbx
 from app.motion.kinematics import forward_kinematics
@@ -321,3 +321,11 @@ def test_a_second_skeleton_beside_the_read_one_is_said() -> None:
     ]
     alone = read_fbx(ascii_fbx(body))[0]
     assert not any("other skeleton" in w for w in alone.notes.get("warnings", []))
+    # The skeleton read is no person; the refusal says what was left out, where the part
+    # the body lacks may be (a writer that split a rig writes the legs as a tree apart).
+    with pytest.raises(SkeletonMappingError) as refused:
+        build_body(motion)
+    assert refused.value.detail.endswith(said[0])
+    with pytest.raises(SkeletonMappingError) as plain:
+        build_body(alone)
+    assert "other skeleton" not in plain.value.detail

@@ -35,6 +35,7 @@ import numpy as np
 from app.errors import LimitExceeded, ParseError
 from app.motion.formats.scene import (
     MIN_MARKERS,
+    OTHER_SKELETONS,
     NodeGraph,
     kept_parents,
     loose_points,
@@ -321,6 +322,8 @@ def read_fbx(
         limits=limits,
         notes=scene_notes(info, warnings),
     )
+    if others_left:
+        motion.notes[OTHER_SKELETONS] = others_left
     return motion, loaded.animations, info.name
 
 

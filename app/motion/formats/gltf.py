@@ -39,6 +39,7 @@ from app.motion.formats.gltf_data import accessor_values, buffers_of, load_docum
 from app.motion.formats.gltf_schema import check_node_transform, shown
 from app.motion.formats.scene import (
     MIN_MARKERS,
+    OTHER_SKELETONS,
     NodeGraph,
     carriers,
     kept_parents,
@@ -448,6 +449,8 @@ def read_gltf(
         limits=limits,
         notes=scene_notes(info, [*warnings, *_pointer_warning(others)]),
     )
+    if others_left:
+        motion.notes[OTHER_SKELETONS] = others_left
     return motion, loaded.animations, info.name
 
 

@@ -310,6 +310,12 @@ def skeleton_nodes(parents: np.ndarray, is_bone: np.ndarray, joinable: np.ndarra
     return np.array(sorted(needed), dtype=np.int64)
 
 
+# ``Motion.notes`` key of :func:`other_skeletons`' sentence (also one of the warnings): a
+# refusal of the skeleton read says it too (app/motion/body.py), since the part the body
+# lacks may be the one left out.
+OTHER_SKELETONS = "other_skeletons"
+
+
 def other_skeletons(parents: np.ndarray, is_bone: np.ndarray, kept: np.ndarray) -> str | None:
     """A warning when bones of ``(N,)`` ``is_bone`` lie outside the skeleton's ``kept``
     nodes (:func:`skeleton_nodes`): the file holds unrelated skeletons (two characters, a
