@@ -885,3 +885,27 @@ def test_a_limb_ending_above_the_pelvis_is_not_named_as_a_leg_that_falls_short()
     assert why((at["LeftToeBase_end"], at["LThumb_end"])) == (
         "no two legs reach down from the pelvis: missing legs"
     )
+
+
+def test_keypoints_hung_side_by_side_from_the_root_are_refused_as_keypoints() -> None:
+    """A pose estimator's "positional" BVH: 16 keypoints each a child of the root with a
+    zero OFFSET and an End Site, moved by position channels alone. No limb is a chain, so
+    nothing can be mapped; the refusal says why in those words, not that every joint sits
+    at one point (the frames spread them out)."""
+    keypoints = ["RHip", "RKnee", "RFoot", "LHip", "LKnee", "LFoot", "Spine", "Thorax"]
+    keypoints += ["Neck", "Head", "LShoulder", "LElbow", "LWrist", "RShoulder", "RElbow"]
+    keypoints += ["RWrist"]
+    names, parents, end_site = ["Hip"], [-1], [False]
+    for name in keypoints:
+        names += [name, f"{name}_end"]
+        parents += [0, len(parents)]
+        end_site += [False, True]
+    offsets = np.zeros((len(names), 3))
+    offsets[np.array(end_site)] = [0.0, 0.1, 0.0]
+    star = Skeleton(tuple(names), np.array(parents), offsets, np.array(end_site))
+    with pytest.raises(SkeletonMappingError) as refused:
+        map_skeleton(star)
+    assert str(refused.value).startswith(
+        "the 16 joints all hang from the root 'Hip' directly, with no bone between any two"
+    )
+    assert "keypoints, not a skeleton" in str(refused.value)

@@ -225,6 +225,31 @@ def _skeleton_key(skeleton: Skeleton) -> bytes:
     return digest.digest()
 
 
+# Fewer joints under the root than this are no body written as points (a prop's pivot and
+# its parts): the body's five limb ends alone are five points.
+_FREE_POINTS = 5
+
+
+def _free_points(skeleton: Skeleton) -> str:
+    """Why ``skeleton`` is keypoints rather than a skeleton, or ``""``: every joint (End
+    Sites aside) hangs from the root directly, with no bone between two of them, as
+    "positional" BVH from pose estimators writes keypoints (each moved by position channels
+    alone). A body's limbs are chains; points hung side by side have none to follow."""
+    parents, kept = skeleton.parents, np.flatnonzero(~skeleton.end_site)
+    roots = kept[parents[kept] < 0]
+    if len(roots) != 1:
+        return ""
+    root = int(roots[0])
+    below = [int(j) for j in kept if parents[j] >= 0]
+    if len(below) < _FREE_POINTS or any(parents[j] != root for j in below):
+        return ""
+    return (
+        f"the {len(below)} joints all hang from the root {skeleton.names[root]!r} directly, "
+        "with no bone between any two of them: keypoints, not a skeleton (no limbs to "
+        "follow). Write them as a chained skeleton (root, spine, limbs) and upload that"
+    )
+
+
 def _known(skeleton: Skeleton, candidates: int) -> _Known:
     """The structural facts and the rest-pose result of ``skeleton`` with up to
     ``candidates`` limb ends (memoised: every clip of one rig shares them, so importing many
@@ -252,6 +277,9 @@ def _known(skeleton: Skeleton, candidates: int) -> _Known:
             "every bone's translation is 0): the skeleton has no shape to map "
             f"({skeleton.joint_count} joints collapse to one point)"
         )
+    star = _free_points(skeleton)
+    if star:
+        raise SkeletonMappingError(star)
     known = _structure(tree, candidates)
     known.rest = rest
     try:
