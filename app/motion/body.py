@@ -58,6 +58,7 @@ from app.motion.skeleton_map import (
     CANONICAL_JOINTS,
     SkeletonMap,
     map_skeleton,
+    rest_pose,
 )
 from app.motion.transforms import reflect
 
@@ -382,11 +383,24 @@ def pelvis_basis(motion: Motion, canonical: np.ndarray, *, rest_is_a_figure: boo
             and float(rest[:, 1] @ axes[:, 1]) >= _REST_SHOWN
             for axes in shown
         )
-        if agreeing >= _REST_SHARE * len(shown):
+        if agreeing >= _REST_SHARE * len(shown) and _rest_trunk_across(motion, canonical, rest):
             return rest
         return frames_basis(positions, pelvis, canonical)
     except ParseError:  # some frame shows no body: the rest pose's axes, as before
         return rest
+
+
+def _rest_trunk_across(motion: Motion, canonical: np.ndarray, rest: np.ndarray) -> bool:
+    """Whether the rest pose's trunk (pelvis -> neck) stands across its hips: at least half
+    of it square to the ``rest`` basis's lateral. A figure's trunk does; a rest pose whose
+    every bone lies along one axis (joint-orient writers: each OFFSET along its bone's own
+    x) puts the trunk along the hips, and the up read from what is left of it (a spine
+    bone's small sideways part) is no up at all: then the frames tell it."""
+    at = rest_pose(motion.skeleton)
+    trunk = at[canonical[CANONICAL_INDEX["neck"]]] - at[canonical[CANONICAL_INDEX["pelvis"]]]
+    length = float(np.linalg.norm(trunk))
+    across = trunk - float(trunk @ rest[:, 0]) * rest[:, 0]
+    return length == 0.0 or float(np.linalg.norm(across)) >= 0.5 * length
 
 
 def rest_axes_hold(motion: Motion, canonical: np.ndarray, *, rest_is_a_figure: bool) -> bool:

@@ -136,19 +136,22 @@ def bones_scaled(motion: Motion, joints: Sequence[int], scale: float) -> Motion:
     return dataclasses.replace(motion, skeleton=skeleton, local_translations=translations)
 
 
-def joint_oriented(motion: Motion) -> Motion:
+def joint_oriented(motion: Motion, keep: frozenset[int] = frozenset()) -> Motion:
     """``motion`` as a rig with joint orientation writes it (Maya's "orient joints", many
     pose-estimation exporters): every joint's frame turned so its first child lies along its
     x axis, the offsets given in those frames and the rotations turned to match. Forward
     kinematics gives the same positions; the rest pose of the offsets is no standing figure
-    (each child along its parent's x)."""
+    (each child along its parent's x). The joints ``keep`` keep the world's axes (a writer
+    that orients every joint but the root)."""
     skeleton = motion.skeleton
     count = skeleton.joint_count
     rest = rest_pose(skeleton)
     turn = np.broadcast_to(np.eye(3), (count, 3, 3)).copy()  # joint frame in the rest pose
     for j in range(count):
         children = [c for c in range(count) if skeleton.parents[c] == j]
-        bone = rest[children[0]] - rest[j] if children else np.zeros(3)
+        bone = rest[children[0]] - rest[j] if children and j not in keep else np.zeros(3)
+        if j in keep:
+            continue  # the world's axes
         if np.linalg.norm(bone) > 0:
             x = bone / np.linalg.norm(bone)
             helper = np.array([0.0, 0.0, 1.0]) if abs(x[2]) < 0.9 else np.array([1.0, 0.0, 0.0])

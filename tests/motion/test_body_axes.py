@@ -28,7 +28,8 @@ from tests.motion.conftest import (
     CMU_BVH_FIXTURE,
     fixture_bytes,
 )
-from tests.motion.synthetic import walker_motion
+from tests.motion.skeleton_trees import Humanoid, synthetic_humanoid
+from tests.motion.synthetic import joint_oriented, walker_motion, walking
 from tests.motion.test_mapping_probes import frame_as_rest, own_axes
 from tests.motion.test_retarget import mapped, rig_of
 
@@ -148,3 +149,22 @@ def test_the_pelvis_carries_a_straight_rest_trunk_and_not_one_in_random_axes() -
         copy = random_axes(bandai, seed)
         rest = rest_pelvis_basis(copy, canonical)
         assert not pelvis_carries(copy.skeleton, canonical, rest, within=_REST_SHOWN), seed
+
+
+def test_a_rest_trunk_along_the_hips_shows_no_up_and_the_frames_tell_it() -> None:
+    """A writer that orients every joint but the root (each offset along its joint's x)
+    leaves a rest pose whose trunk lies along the hips' line, with only the first spine
+    bone's own lean across it (round 12's dance tool: a walk read pitched 20 degrees). That
+    remainder is no up: the body's axes are read from the frames, as the plain rig's are."""
+    skeleton, truth = synthetic_humanoid(Humanoid())
+    offsets = skeleton.offsets.copy()
+    spine = skeleton.index("Spine")
+    back = np.array([0.0, 0.0, -0.5 * float(np.linalg.norm(offsets[spine]))])
+    offsets[spine] += back  # the first spine bone leans back; the next one takes it back
+    offsets[skeleton.index("Spine1")] -= back
+    plain = walking(dataclasses.replace(skeleton, offsets=offsets), truth)
+    oriented = joint_oriented(plain, keep=frozenset({skeleton.index("Hips")}))
+    want, got = build_body(plain), build_body(oriented)
+    assert got.mapping is not None and got.mapping.pose != "rest pose"
+    ups = np.einsum("fi,fi->f", want.pelvis_frames[:, :, 1], got.pelvis_frames[:, :, 1])
+    assert np.degrees(np.arccos(np.clip(ups, -1.0, 1.0))).max() < 5.0
