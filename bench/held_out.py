@@ -32,7 +32,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from app.errors import MocapError
+from app.errors import InvalidInput, MocapError
 from app.importer.workers import MAX_RESOURCE_BYTES
 from app.motion.formats import read_asf_amc, read_bvh
 from app.motion.formats.gltf_pack import pack_gltf, refers_to_files
@@ -42,7 +42,7 @@ from app.motion.pipeline import analyse
 from app.motion.skeleton_map import CANONICAL_INDEX
 from app.services.parser_pool import parse_scene
 from app.services.upload_files import FolderFiles
-from tests.motion.canonical import check_canonical_body
+from tests.motion.canonical import LIMBS, check_canonical_body
 
 FORMATS = (".bvh", ".asf", ".fbx", ".glb", ".gltf", ".vrma")
 _LEFT = re.compile(r"(^|[^a-z])(l|left)([^a-z]|$)", re.IGNORECASE)
@@ -67,7 +67,9 @@ def read(path: Path) -> Motion:
     if suffix == ".bvh":
         return read_bvh(path.read_bytes())
     if suffix == ".asf":
-        amc = next(path.parent.glob(path.stem + "*.amc"))
+        amc = next(path.parent.glob(path.stem + "*.amc"), None)
+        if amc is None:  # what the upload route answers (app/services/uploads.py), a 422
+            raise InvalidInput("field 'motion': the .asf skeleton must come with an .amc 'motion'")
         return read_asf_amc(path.read_bytes(), amc.read_bytes())
     data = path.read_bytes()
     if suffix == ".gltf" and refers_to_files(data):
@@ -101,12 +103,40 @@ def part_ratios(body: Any) -> list[str]:
     return found
 
 
+def own_stretch(motion: Motion, body: Any) -> dict[tuple[str, str, str], np.ndarray] | None:
+    """Per limb (side, upper, lower), ``(F,)`` the length of the file's own bones from the
+    upper joint down to the lower along the chain, frame by frame, where the file writes a
+    translation for every joint (a Kinect solver's, whose bones stretch): the limb's length
+    follows it when the joints are right; a wrong joint, two bones apart, adds the bend
+    between them. None where the offsets are fixed."""
+    if motion.local_translations is None or body.mapping is None:
+        return None
+    parents = motion.skeleton.parents
+    frames = len(body.positions)
+    lead = body.lead_in_frames
+    out = {}
+    for side in "lr":
+        for upper, lower in LIMBS:
+            top = int(body.mapping.joints[CANONICAL_INDEX[f"{side}_{upper}"]])
+            joint = int(body.mapping.joints[CANONICAL_INDEX[f"{side}_{lower}"]])
+            chain = []
+            while joint != top and joint >= 0:
+                chain.append(joint)
+                joint = int(parents[joint])
+            if joint != top:
+                return None  # not one chain: nothing to compare
+            bones = np.linalg.norm(motion.local_translations[lead : lead + frames, chain], axis=2)
+            out[(side, upper, lower)] = bones.sum(axis=1)
+    return out
+
+
 def judge(path: Path, expected: str) -> dict[str, object]:
     """One file's outcome (``refused`` / ``accepted`` / ``crash``), why, and whether that
     is what ``expected`` asks (see the module docstring)."""
     row: dict[str, object] = {"expected": expected}
     try:
-        analysis = analyse(read(path))
+        motion = read(path)
+        analysis = analyse(motion)
     except MocapError as error:
         row.update(outcome="refused", why=str(error)[:300], ok=expected != "human")
         return row
@@ -118,7 +148,9 @@ def judge(path: Path, expected: str) -> dict[str, object]:
     if not all(np.isfinite(v).all() for v in analysis.descriptors.values()):
         problems.append("a descriptor is not finite")
     try:
-        check_canonical_body(analysis.body, path.name, upright=None)
+        check_canonical_body(
+            analysis.body, path.name, upright=None, stretch=own_stretch(motion, analysis.body)
+        )
     except AssertionError as error:
         problems.append(f"canonical: {error}"[:200])
     problems += part_ratios(analysis.body)

@@ -30,7 +30,13 @@ def lateral_axis(body: Body) -> np.ndarray:
     raise AssertionError("the left and right legs coincide")
 
 
-def check_canonical_body(body: Body, what: str, *, upright: bool | None = None) -> None:
+def check_canonical_body(
+    body: Body,
+    what: str,
+    *,
+    upright: bool | None = None,
+    stretch: dict[tuple[str, str, str], np.ndarray] | None = None,
+) -> None:
     """Upright, constant limb lengths, left on the left, human proportions; an AssertionError
     naming the first check that fails.
 
@@ -41,6 +47,9 @@ def check_canonical_body(body: Body, what: str, *, upright: bool | None = None) 
     Limb lengths are constant where the file keeps them so: a few frames of a file whose
     position channels change a bone's length (a 3ds Max Biped export does in 2 of 120
     frames) are the data, not the mapping; a wrong joint changes the length in most frames.
+    ``stretch``: (side, upper, lower) -> ``(F,)`` the limb's length as the file's own bones
+    give it along the mapped joints' chain (a Kinect solver's bones stretch every frame); the
+    limb's length then follows that, not a constant.
     """
     up, height = body.world_up, body.height
     head, pelvis = _joint(body, "head") @ up, _joint(body, "pelvis") @ up
@@ -58,6 +67,9 @@ def check_canonical_body(body: Body, what: str, *, upright: bool | None = None) 
             )
             middle = float(np.median(length))
             assert middle > 0.05 * height, (what, side, a, b, "limb too short")
+            own = None if stretch is None else stretch.get((side, a, b))
+            if own is not None:  # the file's own stretch: the mapped limb follows it
+                length = length / (own / float(np.median(own)))
             off = np.abs(length - middle) / middle
             assert np.median(off) <= 1e-3 and np.mean(off < 0.01) >= 0.95, (
                 what, side, a, b, "length varies", float(off.max()),
