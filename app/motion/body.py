@@ -391,16 +391,14 @@ def pelvis_basis(motion: Motion, canonical: np.ndarray, *, rest_is_a_figure: boo
 
 
 def _rest_trunk_across(motion: Motion, canonical: np.ndarray, rest: np.ndarray) -> bool:
-    """Whether the rest pose's trunk (pelvis -> neck) stands across its hips: at least half
-    of it square to the ``rest`` basis's lateral. A figure's trunk does; a rest pose whose
-    every bone lies along one axis (joint-orient writers: each OFFSET along its bone's own
-    x) puts the trunk along the hips, and the up read from what is left of it (a spine
-    bone's small sideways part) is no up at all: then the frames tell it."""
+    """Whether the rest pose's trunk (pelvis -> neck) stands across its hips: not within the
+    vote's 30 degrees (:data:`_REST_SHOWN`) of the ``rest`` basis's lateral. A figure's trunk
+    does; a rest pose whose every bone lies along one axis (joint-orient writers: each OFFSET
+    along its bone's own x) puts the trunk along the hips, and the up read from what is left
+    of it (a spine bone's small sideways part) is no up at all: then the frames tell it."""
     at = rest_pose(motion.skeleton)
     trunk = at[canonical[CANONICAL_INDEX["neck"]]] - at[canonical[CANONICAL_INDEX["pelvis"]]]
-    length = float(np.linalg.norm(trunk))
-    across = trunk - float(trunk @ rest[:, 0]) * rest[:, 0]
-    return length == 0.0 or float(np.linalg.norm(across)) >= 0.5 * length
+    return abs(float(trunk @ rest[:, 0])) <= _REST_SHOWN * float(np.linalg.norm(trunk))
 
 
 def rest_axes_hold(motion: Motion, canonical: np.ndarray, *, rest_is_a_figure: bool) -> bool:

@@ -149,9 +149,9 @@ def joint_oriented(motion: Motion, keep: frozenset[int] = frozenset()) -> Motion
     turn = np.broadcast_to(np.eye(3), (count, 3, 3)).copy()  # joint frame in the rest pose
     for j in range(count):
         children = [c for c in range(count) if skeleton.parents[c] == j]
-        bone = rest[children[0]] - rest[j] if children and j not in keep else np.zeros(3)
         if j in keep:
             continue  # the world's axes
+        bone = rest[children[0]] - rest[j] if children else np.zeros(3)
         if np.linalg.norm(bone) > 0:
             x = bone / np.linalg.norm(bone)
             helper = np.array([0.0, 0.0, 1.0]) if abs(x[2]) < 0.9 else np.array([1.0, 0.0, 0.0])

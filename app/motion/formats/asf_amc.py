@@ -324,18 +324,14 @@ def _parse_asf(lines: list[str], limits: ParseLimits) -> _Asf:
     return asf
 
 
-def _is_word(token: str) -> bool:
-    """Whether ``token`` is a word (a unit's name), not a number gone wrong."""
-    return token.isalpha()
-
-
 def _read_unit(asf: _Asf, tokens: list[str], number: int) -> None:
     key = tokens[0].lower()
     if len(tokens) != 2:
         raise ParseError(f":units {tokens[0]} needs one value", line=number)
-    if key == "mass" and _is_word(tokens[1]):
-        pass  # the mass is read by no one (a writer names its unit, "kg")
-    elif key == "length" and _is_word(tokens[1]):
+    # A unit's name ("kg", "m") where the format has a number (the multiplier).
+    if key == "mass" and tokens[1].isalpha():
+        pass  # the mass is read by no one
+    elif key == "length" and tokens[1].isalpha():
         # A writer that names the unit ("m") instead of giving the multiplier: the lengths
         # are read as written (a person's proportions do not depend on them).
         asf.warnings.append(
