@@ -104,9 +104,17 @@ class _ArmRules(_LimbRules):
         return None
 
     def with_hand_tip(self, limb: _Limb) -> _Limb:
-        """``limb`` (an arm) with its hand tip: the farthest point beyond the wrist."""
+        """``limb`` (an arm) with its hand tip: the farthest point beyond the wrist no
+        farther along the bones than the arm above it (shoulder to wrist). A hand (0.108 of
+        the height) is a third of that arm (0.332), a cartoon's big hand up to about 0.7 of
+        it: a branch reaching farther is something held (a prop joint, as Xsens MVN writes
+        one at the wrist), not the hand."""
         result, how = dict(limb.joints), dict(limb.how)
-        result["hand_tip"] = _farthest_descendant(self.tree, limb["wrist"], skip=_is_thumb)
+        path = self.tree.path
+        arm = float(path[limb["wrist"]] - path[limb["shoulder"]])
+        result["hand_tip"] = _farthest_descendant(
+            self.tree, limb["wrist"], skip=_is_thumb, within=arm if arm > 0 else math.inf
+        )
         how["hand_tip"] = "derived: farthest point beyond the wrist"
         return _Limb(result, how)
 

@@ -3,6 +3,7 @@ and the leaves far apart along the bones that may be the limb ends."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -459,14 +460,22 @@ def _is_thumb(name: str) -> bool:
     return "thumb" in normalise_name(name)
 
 
-def _farthest_descendant(tree: _Tree, start: int, skip: Callable[[str], bool] | None = None) -> int:
-    """Descendant of ``start`` (inclusive) with the longest bone path from it."""
+def _farthest_descendant(
+    tree: _Tree,
+    start: int,
+    skip: Callable[[str], bool] | None = None,
+    within: float = math.inf,
+) -> int:
+    """Descendant of ``start`` (inclusive) with the longest bone path from it, among those
+    no farther along the bones than ``within``."""
     if not tree.names_trusted:
         skip = None  # a thumb's name, among names that lie, says nothing either
     best, best_distance = start, 0.0
     stack = [(start, 0.0)]
     while stack:
         joint, distance = stack.pop()
+        if distance > within:
+            continue  # nor anything beyond it
         if distance > best_distance:
             best, best_distance = joint, distance
         for child in tree.children[joint]:
