@@ -297,6 +297,37 @@ def legs_on_a_branch(motion: Motion, expected: Expected) -> tuple[Motion, Expect
     return kept(motion, list(range(branch + 1)), arrays), expected
 
 
+def shoulders_on_a_branch(motion: Motion, expected: Expected) -> tuple[Motion, Expected] | None:
+    """The arms hang from a joint of their own halfway from the chest to the shoulders, a
+    sibling of the neck (a few BVH writers' ``Chest2``), never moving; that joint is where
+    the arms branch, the chest."""
+    parents, offsets, rotations, translations, names, end_site = _arrays(motion)
+    chest = _index(motion, expected["chest"])
+    tops = []
+    for side in "lr":
+        path = _path(motion, chest, _index(motion, expected[f"{side}_shoulder"]))
+        if not path:
+            return None
+        tops.append(path[0])
+    head = _path(motion, chest, _index(motion, expected["head"]))
+    if not head or head[0] in tops:
+        return None
+    branch, frames = len(parents), motion.frame_count
+    shift = 0.25 * (offsets[tops[0]] + offsets[tops[1]])
+    parents.append(chest)
+    offsets = np.concatenate([offsets, shift[None]])
+    rotations = np.concatenate([rotations, np.broadcast_to(np.eye(3), (frames, 1, 3, 3))], 1)
+    translations = np.concatenate([translations, np.broadcast_to(shift, (frames, 1, 3))], 1)
+    names.append("shoulders_branch")
+    end_site.append(False)
+    for top in tops:
+        parents[top] = branch
+        offsets[top] = offsets[top] - shift
+        translations[:, top] = translations[:, top] - shift
+    arrays = (parents, offsets, rotations, translations, names, end_site)
+    return kept(motion, list(range(branch + 1)), arrays), {**expected, "chest": "shoulders_branch"}
+
+
 def root_above(motion: Motion, expected: Expected) -> tuple[Motion, Expected]:
     """A still ``root`` joint at the origin above the rig's own root (Unreal's ``root``)."""
     parents, offsets, rotations, translations, names, end_site = _arrays(motion)
@@ -361,6 +392,13 @@ PROBES: dict[str, list[Step]] = {
     "twist leaves + nameless": [twist_leaves, nameless],
     "legs on a branch + nameless": [legs_on_a_branch, nameless],
     "root above + nameless": [root_above, nameless],
+    "shoulders on a branch": [shoulders_on_a_branch],
+    "shoulders on a branch + nameless": [shoulders_on_a_branch, nameless],
+    "shoulders on a branch + nameless + axes of their own": [
+        shoulders_on_a_branch,
+        odd_axes,
+        nameless,
+    ],
     "hair and skirt chains": [secondary_chains],
     "hair and skirt chains + nameless": [secondary_chains, nameless],
     "hair and skirt chains + nameless + axes of their own": [

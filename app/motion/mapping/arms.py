@@ -22,7 +22,8 @@ class _ArmRules(_LimbRules):
 
     def map_arm(self, hand: int) -> _Limb:
         tree = self.tree
-        chain = tree.chain(self.body.chest, hand)
+        # From where the two arms part: the chest, or the shoulders' own bone beside it.
+        chain = tree.chain(tree.lca(*self.body.hands), hand)
         named_wrist = self.named(chain[1:], "wrist")
         # Names along the arm that make no person's arm (shifted one joint down it) name no
         # wrist either: the hand's structure finds it, the names standing only where it

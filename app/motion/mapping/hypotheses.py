@@ -116,6 +116,21 @@ def _structure(tree: _Tree, count: int) -> _Known:
             and tree.is_ancestor(chest, h)
             and all(tree.lca(h, hand) == chest for hand in hands)
         ]
+        if not heads:
+            # The shoulders on a bone of their own beside the neck: the head leaves the
+            # spine at the joint that carries that bone, which is then the chest.
+            top = _girdle_top(tree, chest, hands, candidates)
+            if top is not None:
+                heads = [
+                    h
+                    for h in others
+                    if not tree.is_ancestor(chest, h)
+                    and tree.is_ancestor(top, h)
+                    and h != top
+                    and all(tree.lca(h, hand) == top for hand in hands)
+                ]
+                if heads:
+                    chest = top
         lower = [c for c in others if not tree.is_ancestor(chest, c)]
         if not heads:
             if headless is None and _two_legs_below(tree, chest, hands, lower):
@@ -156,6 +171,28 @@ def _structure(tree: _Tree, count: int) -> _Known:
 
 
 _NOT_ALIKE = "no two limbs of a pair alike: missing legs or arms"
+
+
+def _girdle_top(
+    tree: _Tree, branch: int, hands: tuple[int, int], candidates: list[int]
+) -> int | None:
+    """The spine joint carrying the shoulders' own bone, where the two arms ``hands`` part
+    at ``branch`` and nothing else leaves it (a few rigs hang their collars from a joint
+    beside the neck's): the first joint above ``branch`` where the tree branches, if the
+    bones from it to ``branch`` are shorter than either arm below ``branch`` and the limb
+    ends (``candidates``) below it lie on two branches only, the shoulders' and the
+    neck's; else None (the chain above two fingers of one hand is the arm itself, longer
+    than they are; a hand's joint carries several fingers)."""
+    top = int(tree.parents[branch])
+    while top >= 0 and len(tree.children[top]) < 2:
+        top = int(tree.parents[top])
+    if top < 0:
+        return None
+    arms = min(tree.path[h] - tree.path[branch] for h in hands)
+    if tree.path[branch] - tree.path[top] >= arms:
+        return None
+    below = {tree.chain(top, c)[1] for c in candidates if c != top and tree.is_ancestor(top, c)}
+    return top if len(below) == 2 else None
 
 
 def _two_legs_below(tree: _Tree, chest: int, hands: tuple[int, int], lower: list[int]) -> bool:
@@ -507,6 +544,11 @@ def _check_pose(
             2,
         )
     if head_over_chest <= 0:
+        return None, "no head above the arms: missing head", 2
+    shoulders = tree.lca(*hands)
+    if shoulders != chest and float((pose[head] - pose[shoulders]) @ up) <= 0:
+        # The shoulders on a bone of their own (:func:`_girdle_top`): the head still rises
+        # above them, whichever spine joint its neck leaves (a tail from the back does not).
         return None, "no head above the arms: missing head", 2
     if min(arm_lengths) < _MIN_ARM * extent:
         return None, "no two arms branch off the spine: missing arms", 2

@@ -58,6 +58,11 @@ class _Mapper(_ArmRules, _SideRules):
         self.derived.append("chest")
         self.map_head()
         self.map_spine()
+        shoulders = tree.lca(*body.hands)
+        if shoulders != body.chest:
+            # The arms part on a bone of their own beside the neck: that is where a
+            # person's chest carries them (the spine joint below stands for the spine).
+            self.put("chest", shoulders, "structure: where the arms branch, beside the neck")
         legs = [
             self.map_leg(f) if f != body.lifted else self.lifted_leg(body.feet, f)
             for f in body.feet

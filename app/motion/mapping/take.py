@@ -172,7 +172,8 @@ def _check_bent(
     )
     if lower[0] > _LOWER_LEG_OPPOSITE_SPINE or not lower[1] < (0 if rest else _KNEELING_SHIN_RISE):
         return None
-    if float((pose[head] - pose[chest]) @ up) <= 0:
+    # The head above where the arms part (the chest, or the shoulders' own bone beside it).
+    if float((pose[head] - pose[tree.lca(*hands)]) @ up) <= 0:
         return None
     cost = pair_cost(leg_lengths, arm_lengths, name_cost)
     cost -= 0.5 * (sum(leg_lengths) + sum(arm_lengths)) / extent
