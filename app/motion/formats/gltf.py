@@ -208,7 +208,8 @@ def _animated_nodes(document: Any, parents: np.ndarray) -> np.ndarray:
             f"the animation moves {parts} parts ({', '.join(shown)}"
             f"{' ...' if parts > 5 else ''}) each on its own, and the file has no skeleton: "
             "no skin, and no animated nodes that hang from one another (rigid parts or props "
-            "keyed one by one, not a body)"
+            "keyed one by one: no bones between them, so no knees or elbows to map; a blocky "
+            "figure is read once its parts hang from a skeleton)"
         )
     return with_plain_nodes_below(animated, plain, parents)
 
