@@ -118,16 +118,12 @@ def _structure(tree: _Tree, count: int) -> _Known:
         ]
         if not heads:
             # The shoulders on a bone of their own beside the neck: the head leaves the
-            # spine at the joint that carries that bone, which is then the chest.
+            # spine at the joint that carries that bone (the bone's other branch), which is
+            # then the chest.
             top = _girdle_top(tree, chest, hands, candidates)
             if top is not None:
                 heads = [
-                    h
-                    for h in others
-                    if not tree.is_ancestor(chest, h)
-                    and tree.is_ancestor(top, h)
-                    and h != top
-                    and all(tree.lca(h, hand) == top for hand in hands)
+                    h for h in others if tree.is_ancestor(top, h) and not tree.is_ancestor(chest, h)
                 ]
                 if heads:
                     chest = top
