@@ -18,6 +18,7 @@ from app.motion.model import Motion
 from tests.motion.canonical import check_canonical_body
 from tests.motion.skeleton_trees import Humanoid, synthetic_humanoid
 from tests.motion.synthetic import grown, walking
+from tests.motion.test_mapping_probes import _arrays, kept
 
 # Heels (metres, Y up, the figure facing +z, 1.7 tall): where each hangs from, its bone,
 # and the leaf bone beyond it (None: the heel ends there).
@@ -130,3 +131,59 @@ def test_of_two_end_sites_on_the_ankle_the_one_pointing_with_the_knee_is_the_toe
         assert got[f"{side}_toe"] == toe_end, side
     assert not body.mapping.mirrored
     check_canonical_body(body, "two end sites", upright=True)
+
+
+def test_a_pivot_just_behind_the_ankle_is_not_the_toe() -> None:
+    """DAZ Genesis hangs its toes from a metatarsal joint 0.02 of the shin behind and below
+    the ankle. As the first joint past the ankle it was taken for the toe joint: on the
+    DAZ rig of held-out round 15 the foot pointed back and the figure was stored as a
+    mirrored capture; here (two toes branching at it) the code before let the ankle stand
+    for the toe. A joint that near is still at the ankle; the toes are the next."""
+    skeleton, truth = synthetic_humanoid(Humanoid(names="unity", toes=True))
+    motion = walking(skeleton, truth)
+    parents, offsets, rotations, translations, names, end_site = _arrays(motion)
+    frames = motion.frame_count
+    pivot = np.array([0.0, -0.006, -0.006])  # 0.02 of a 0.42-m shin, behind and below
+    for side in "lr":
+        ankle = names.index(truth[f"{side}_ankle"])
+        toe = next(j for j, parent in enumerate(parents) if parent == ankle)
+        parents.append(ankle)
+        offsets = np.concatenate([offsets, pivot[None]])
+        rotations = np.concatenate([rotations, np.broadcast_to(np.eye(3), (frames, 1, 3, 3))], 1)
+        translations = np.concatenate([translations, np.broadcast_to(pivot, (frames, 1, 3))], 1)
+        names.append(f"{side}_metatarsals")
+        end_site.append(False)
+        parents[toe] = len(parents) - 1
+        offsets[toe] -= pivot
+        translations[:, toe] -= pivot
+    arrays = (parents, offsets, rotations, translations, names, end_site)
+    pivoted = kept(motion, list(range(len(parents))), arrays)
+    # A second toe beside the first from the metatarsal joint (DAZ's big toe and small
+    # toes): the chain beyond that joint branches, so no single toe tip continues it.
+    toes = [
+        next(j for j, p in enumerate(pivoted.skeleton.parents) if p == metatarsals)
+        for metatarsals in (pivoted.skeleton.index(f"{side}_metatarsals") for side in "lr")
+    ]
+    count = pivoted.skeleton.joint_count
+    beside = [
+        pivoted.skeleton.offsets[toe] + (0.03 if toe == toes[0] else -0.03, 0.0, 0.0)
+        for toe in toes
+    ]
+    ends = [pivoted.skeleton.offsets[toe + 1] for toe in toes]  # each toe's own End Site
+    pivoted = grown(
+        pivoted,
+        [
+            int(pivoted.skeleton.parents[toes[0]]),
+            count,
+            int(pivoted.skeleton.parents[toes[1]]),
+            count + 2,
+        ],
+        [beside[0], ends[0], beside[1], ends[1]],
+    )
+    got, body = _mapped(pivoted)
+    for side in "lr":
+        # A toe ahead of the foot: neither the metatarsal joint nor the ankle standing in.
+        assert got[f"{side}_toe"] not in (f"{side}_metatarsals", truth[f"{side}_ankle"]), side
+        assert got[f"{side}_ankle"] == truth[f"{side}_ankle"], side  # by its name
+    assert not body.mapping.mirrored
+    check_canonical_body(body, "pivot", upright=True)

@@ -29,6 +29,10 @@ _ALIKE = 0.15
 _FINGERS_BRANCH = "structure: where the fingers"
 # How a wrist found where a hand of one chain begins.
 _ONE_CHAIN = "structure: where a hand of one chain starts"
+# A joint nearer the ankle than this share of the shin is still at the ankle (a metatarsal
+# pivot, as DAZ Genesis writes one just behind and below it), no toe: a heel sticks out
+# behind the ankle by 0.15 of the shin, the ball of the foot lies 0.4 and more ahead of it.
+_AT_ANKLE = 0.1
 # How an ankle found where the foot turns forward.
 _TURNS_FORWARD = "geometry: where the foot turns forward"
 
@@ -523,8 +527,15 @@ class _LimbRules(_NamedRules, _FootRules):
         result, how = limb.joints, limb.how
 
         below = chain[ankle_i + 1 :]
+        near = _AT_ANKLE * _length(pose[ankle] - pose[result["knee"]])
         toe_joint = next(
-            (j for j in below if not tree.skeleton.end_site[j] and not self.same_place(j, ankle)),
+            (
+                j
+                for j in below
+                if not tree.skeleton.end_site[j]
+                and not self.same_place(j, ankle)
+                and _length(pose[j] - pose[ankle]) > near
+            ),
             None,
         )
         forward = pose[foot] - pose[ankle]
