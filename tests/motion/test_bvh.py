@@ -1218,3 +1218,17 @@ def test_numpy_s_reader_is_given_ascii_text_only(monkeypatch: pytest.MonkeyPatch
         motion.local_rotations, read_bvh(fixture_bytes(CMU_BVH_FIXTURE)).local_rotations
     )
     assert given_text and all(text.isascii() for text in given_text)
+
+
+def test_a_stray_mark_on_a_channels_name_is_read_past_with_a_warning() -> None:
+    """A dance capture shared widely writes ``Zrotation#`` on one joint: the name is still
+    that channel's (the code before refused the file); a misspelt name still is not."""
+    marked = read_bvh(edit(TINY, L_CHEST_CHANNELS, "CHANNELS 3 Zrotation Xrotation Yrotation#"))
+    plain = read_bvh(TINY)
+    np.testing.assert_array_equal(marked.local_rotations, plain.local_rotations)
+    assert marked.notes["warnings"] == [
+        f"line {L_CHEST_CHANNELS}: channel 'Yrotation#' read as 'Yrotation'"
+    ]
+    for wrong in ("Yrotaton#", "#", "Y#rotation"):
+        with pytest.raises(ParseError, match="unknown channel"):
+            read_bvh(edit(TINY, L_CHEST_CHANNELS, f"CHANNELS 3 Zrotation Xrotation {wrong}"))

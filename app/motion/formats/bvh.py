@@ -35,8 +35,9 @@ from __future__ import annotations
 
 import itertools
 import re
+import string
 import threading
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -85,6 +86,9 @@ _CHANNELS: dict[str, tuple[str, int]] = {
     "zrotation": ("rotation", 2),
 }
 _AXIS_LETTERS = "XYZ"
+# Marks that may stick to the end of a channel's name in a written file ("Zrotation#" in a
+# widely shared dance capture): the name is still that channel's, read with a warning.
+_STRAY_MARKS = string.punctuation
 
 
 def matrices_from_euler(
@@ -168,6 +172,8 @@ class _Joint:
     offset: tuple[float, float, float] | None = None
     # (kind, axis) per channel, in file order
     channels: list[tuple[str, int]] | None = None
+    # What was read past on the joint's lines (a stray mark on a channel's name).
+    notes: list[str] = field(default_factory=list)
 
 
 class _Lines:
@@ -248,11 +254,12 @@ def parse_bvh(
     values, warnings = read_frames(
         text, lines.pos, lines.line + 1, frame_count, frames_line, channel_count, limits, raw
     )
+    marks = [note for joint in joints for note in joint.notes]
     joints, values, several = _largest_skeleton(joints, values)
     motion = _build_motion(joints, values, frame_time, limits)
     comma = DECIMAL_COMMA_WARNING
     built = motion.notes.get("warnings")  # _build_motion's own (end bones left out)
-    warnings = [*([comma] if commas else []), *([several] if several else []), *warnings]
+    warnings = [*([comma] if commas else []), *([several] if several else []), *marks, *warnings]
     warnings += built if isinstance(built, list) else []
     if warnings:
         motion.notes["warnings"] = warnings
@@ -582,6 +589,11 @@ def _set_channels(joint: _Joint, arguments: list[str], number: int) -> None:
     channels: list[tuple[str, int]] = []
     for channel_name in listed:
         channel = _CHANNELS.get(channel_name.lower())
+        bare = channel_name.rstrip(_STRAY_MARKS)
+        if channel is None and bare and bare != channel_name:
+            channel = _CHANNELS.get(bare.lower())
+            if channel is not None:
+                joint.notes.append(f"line {number}: channel {show(channel_name)} read as {bare!r}")
         if channel is None:
             raise ParseError(
                 f"unknown channel {show(channel_name)} for joint {joint.name!r} "
