@@ -273,35 +273,44 @@ def twist_leaves(motion: Motion, expected: Expected) -> tuple[Motion, Expected] 
     return (grown(motion, parents, offsets), expected) if parents else None
 
 
-def legs_on_a_branch(motion: Motion, expected: Expected) -> tuple[Motion, Expected] | None:
-    """The thighs hang from a joint of their own between the hips, a sibling of the spine
-    (DAZ Genesis's ``pelvis`` under ``hip``), never moving."""
+def _hung_from_a_joint(
+    motion: Motion, parent: int, tops: list[int], shift: np.ndarray, name: str
+) -> Motion:
+    """``motion`` with a still joint ``name`` added under ``parent`` at ``shift`` and the
+    joints ``tops`` (children of ``parent``) hung from it instead, where they were."""
     parents, offsets, rotations, translations, names, end_site = _arrays(motion)
-    pelvis = _index(motion, expected["pelvis"])
-    hips = [_index(motion, expected[f"{side}_hip"]) for side in "lr"]
-    if any(parents[hip] != pelvis for hip in hips):
-        return None
     branch, frames = len(parents), motion.frame_count
-    shift = 0.5 * (offsets[hips[0]] + offsets[hips[1]])
-    parents.append(pelvis)
+    parents.append(parent)
     offsets = np.concatenate([offsets, shift[None]])
     rotations = np.concatenate([rotations, np.broadcast_to(np.eye(3), (frames, 1, 3, 3))], 1)
     translations = np.concatenate([translations, np.broadcast_to(shift, (frames, 1, 3))], 1)
-    names.append("legs_branch")
+    names.append(name)
     end_site.append(False)
-    for hip in hips:
-        parents[hip] = branch
-        offsets[hip] = offsets[hip] - shift
-        translations[:, hip] = translations[:, hip] - shift
+    for top in tops:
+        parents[top] = branch
+        offsets[top] = offsets[top] - shift
+        translations[:, top] = translations[:, top] - shift
     arrays = (parents, offsets, rotations, translations, names, end_site)
-    return kept(motion, list(range(branch + 1)), arrays), expected
+    return kept(motion, list(range(branch + 1)), arrays)
+
+
+def legs_on_a_branch(motion: Motion, expected: Expected) -> tuple[Motion, Expected] | None:
+    """The thighs hang from a joint of their own between the hips, a sibling of the spine
+    (DAZ Genesis's ``pelvis`` under ``hip``), never moving."""
+    pelvis = _index(motion, expected["pelvis"])
+    hips = [_index(motion, expected[f"{side}_hip"]) for side in "lr"]
+    parents = motion.skeleton.parents
+    if any(parents[hip] != pelvis for hip in hips):
+        return None
+    offsets = motion.skeleton.offsets
+    shift = 0.5 * (offsets[hips[0]] + offsets[hips[1]])
+    return _hung_from_a_joint(motion, pelvis, hips, shift, "legs_branch"), expected
 
 
 def shoulders_on_a_branch(motion: Motion, expected: Expected) -> tuple[Motion, Expected] | None:
     """The arms hang from a joint of their own halfway from the chest to the shoulders, a
     sibling of the neck (a few BVH writers' ``Chest2``), never moving; that joint is where
     the arms branch, the chest."""
-    parents, offsets, rotations, translations, names, end_site = _arrays(motion)
     chest = _index(motion, expected["chest"])
     tops = []
     for side in "lr":
@@ -312,20 +321,10 @@ def shoulders_on_a_branch(motion: Motion, expected: Expected) -> tuple[Motion, E
     head = _path(motion, chest, _index(motion, expected["head"]))
     if not head or head[0] in tops:
         return None
-    branch, frames = len(parents), motion.frame_count
+    offsets = motion.skeleton.offsets
     shift = 0.25 * (offsets[tops[0]] + offsets[tops[1]])
-    parents.append(chest)
-    offsets = np.concatenate([offsets, shift[None]])
-    rotations = np.concatenate([rotations, np.broadcast_to(np.eye(3), (frames, 1, 3, 3))], 1)
-    translations = np.concatenate([translations, np.broadcast_to(shift, (frames, 1, 3))], 1)
-    names.append("shoulders_branch")
-    end_site.append(False)
-    for top in tops:
-        parents[top] = branch
-        offsets[top] = offsets[top] - shift
-        translations[:, top] = translations[:, top] - shift
-    arrays = (parents, offsets, rotations, translations, names, end_site)
-    return kept(motion, list(range(branch + 1)), arrays), {**expected, "chest": "shoulders_branch"}
+    hung = _hung_from_a_joint(motion, chest, tops, shift, "shoulders_branch")
+    return hung, {**expected, "chest": "shoulders_branch"}
 
 
 def root_above(motion: Motion, expected: Expected) -> tuple[Motion, Expected]:
