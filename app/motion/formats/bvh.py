@@ -589,8 +589,8 @@ def _set_channels(joint: _Joint, arguments: list[str], number: int) -> None:
     channels: list[tuple[str, int]] = []
     for channel_name in listed:
         channel = _CHANNELS.get(channel_name.lower())
-        bare = channel_name.rstrip(_STRAY_MARKS)
-        if channel is None and bare and bare != channel_name:
+        if channel is None:
+            bare = channel_name.rstrip(_STRAY_MARKS)
             channel = _CHANNELS.get(bare.lower())
             if channel is not None:
                 joint.notes.append(f"line {number}: channel {show(channel_name)} read as {bare!r}")

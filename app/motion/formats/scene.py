@@ -325,18 +325,7 @@ def other_skeletons(parents: np.ndarray, is_bone: np.ndarray, kept: np.ndarray) 
     left = left[~np.isin(left, kept)]
     if not len(left):
         return None
-
-    def top(bone: int) -> bool:  # no bone above it
-        node = int(parents[bone])
-        for _ in range(len(parents)):
-            if node < 0:
-                return True
-            if is_bone[node]:
-                return False
-            node = int(parents[node])
-        return True
-
-    tops = sum(1 for bone in left.tolist() if top(bone))
+    tops = int(np.count_nonzero(carriers(parents, is_bone)[left] < 0))  # no bone above them
     return (
         f"the file holds {tops} other skeleton{'s' if tops > 1 else ''} ({len(left)} bones "
         "not joined to this one); the one with the most bones was read"
